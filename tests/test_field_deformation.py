@@ -1,0 +1,176 @@
+"""DeformationMLP and DeformationField: shapes, identity at init, head switches, fg/bg isolation."""
+
+import pytest
+import torch
+from torch import nn
+
+from relaygs.errors import InputError
+from relaygs.field import DeformationField, DeformationMLP, Deltas, HeadSwitches
+
+BOX = [[-2.0, -1.0, 0.0], [2.0, 1.0, 3.0]]
+WIDTHS = {"dxyz": 3, "dscale": 3, "drot": 4, "dopacity": 1}
+
+
+def small_field(isolate_fg_bg: bool, **kwargs) -> DeformationField:
+    return DeformationField(
+        BOX, 5, isolate_fg_bg=isolate_fg_bg, spatial_resolution=8, channels=4, width=16, **kwargs
+    )
+
+
+def randomise_heads(module: nn.Module) -> None:
+    """Give the zero-initialised last layers random weights so every path carries gradient."""
+    generator = torch.Generator().manual_seed(1)
+    with torch.no_grad():
+        for name, parameter in module.named_parameters():
+            if "heads" in name:
+                parameter.copy_(torch.randn(parameter.shape, generator=generator) * 0.3)
+
+
+def points(count: int = 40) -> tuple[torch.Tensor, torch.Tensor]:
+    generator = torch.Generator().manual_seed(0)
+    xyz = torch.rand(count, 3, generator=generator) * torch.tensor([4.0, 2.0, 3.0])
+    xyz = xyz + torch.tensor([-2.0, -1.0, 0.0])
+    group = torch.arange(count) % 3 == 0  # a third foreground
+    return xyz, group.long()
+
+
+@pytest.mark.parametrize("isolate", [False, True])
+def test_shapes_and_identity_at_init(isolate: bool) -> None:
+    field = small_field(isolate)
+    xyz, group = points()
+    deltas = field(xyz, 0.3, group)
+    assert isinstance(deltas, Deltas)
+    for name, width in WIDTHS.items():
+        value = getattr(deltas, name)
+        assert value.shape == (40, width)
+        assert value.dtype == torch.float32
+        assert torch.equal(value, torch.zeros_like(value))
+
+
+def test_mlp_default_is_single_trunk_layer_and_four_heads() -> None:
+    mlp = DeformationMLP(32)
+    linears = [m for m in mlp.trunk if isinstance(m, nn.Linear)]
+    assert [(m.in_features, m.out_features) for m in linears] == [(32, 128)]
+    assert set(mlp.heads) == set(WIDTHS)
+    deeper = DeformationMLP(32, width=64, depth=2)
+    assert sum(isinstance(m, nn.Linear) for m in deeper.trunk) == 3
+    for name, head in deeper.heads.items():
+        assert head[-1].out_features == WIDTHS[name]
+        assert torch.equal(head[-1].weight, torch.zeros_like(head[-1].weight))
+
+
+def test_switched_off_heads_return_zeros() -> None:
+    mlp = DeformationMLP(8, width=16, heads=HeadSwitches(dscale=False, dopacity=False))
+    assert set(mlp.heads) == {"dxyz", "drot"}
+    randomise_heads(mlp)
+    deltas = mlp(torch.rand(10, 8))
+    assert torch.equal(deltas.dscale, torch.zeros(10, 3))
+    assert torch.equal(deltas.dopacity, torch.zeros(10, 1))
+    assert deltas.dxyz.abs().sum().item() > 0.0
+    assert deltas.drot.abs().sum().item() > 0.0
+
+
+def test_gradients_reach_grid_and_mlp() -> None:
+    field = small_field(isolate_fg_bg=True)
+    xyz, group = points()
+    # At init only the zero last layers get gradient: the deform starts from identity.
+    sum(d.sum() for d in field(xyz, 0.6, group)).backward()
+    for mlp in field.mlp_sets.values():
+        assert mlp.heads["dxyz"][-1].weight.grad.abs().sum().item() > 0.0
+    field.zero_grad()
+    randomise_heads(field)
+    sum(d.square().sum() for d in field(xyz, torch.rand(40), group)).backward()
+    for name, parameter in field.named_parameters():
+        assert parameter.grad is not None, name
+        assert parameter.grad.abs().sum().item() > 0.0, name
+
+
+def test_single_set_when_not_isolated() -> None:
+    field = small_field(isolate_fg_bg=False)
+    assert list(field.mlp_sets) == ["all"]
+    randomise_heads(field)
+    xyz, group = points()
+    with torch.no_grad():
+        expected = field.mlp_sets["all"](field.hexplane(xyz, 0.2))
+        for got, want in zip(field(xyz, 0.2), expected, strict=True):
+            torch.testing.assert_close(got, want)
+        for got, want in zip(field(xyz, 0.2, group), expected, strict=True):
+            torch.testing.assert_close(got, want)
+
+
+def test_isolated_sets_route_by_group() -> None:
+    field = small_field(isolate_fg_bg=True)
+    assert sorted(field.mlp_sets) == ["background", "foreground"]
+    randomise_heads(field)
+    xyz, group = points()
+    fg = group == 1
+    with torch.no_grad():
+        deltas = field(xyz, 0.8, group)
+        want_fg = field.mlp_sets["foreground"](field.hexplane(xyz[fg], 0.8))
+        want_bg = field.mlp_sets["background"](field.hexplane(xyz[~fg], 0.8))
+    for got, fg_want, bg_want in zip(deltas, want_fg, want_bg, strict=True):
+        torch.testing.assert_close(got[fg], fg_want)
+        torch.testing.assert_close(got[~fg], bg_want)
+
+
+def test_background_does_not_depend_on_foreground_mlp() -> None:
+    field = small_field(isolate_fg_bg=True)
+    randomise_heads(field)
+    xyz, group = points()
+    deltas = field(xyz, 0.5, group)
+    background_output = sum(d[group == 0].square().sum() for d in deltas)
+    fg_params = list(field.mlp_sets["foreground"].parameters())
+    bg_params = list(field.mlp_sets["background"].parameters())
+    grads = torch.autograd.grad(
+        background_output, fg_params + bg_params, allow_unused=True, materialize_grads=True
+    )
+    assert all(torch.equal(g, torch.zeros_like(g)) for g in grads[: len(fg_params)])
+    assert sum(g.abs().sum().item() for g in grads[len(fg_params) :]) > 0.0
+
+
+def test_parameter_groups_partition_parameters() -> None:
+    for isolate in (False, True):
+        field = small_field(isolate)
+        groups = field.parameter_groups()
+        assert set(groups) == {"grid", "mlp"}
+        grid_ids = {id(p) for p in groups["grid"]}
+        mlp_ids = {id(p) for p in groups["mlp"]}
+        assert not grid_ids & mlp_ids
+        assert grid_ids | mlp_ids == {id(p) for p in field.parameters()}
+        assert grid_ids == {id(p) for p in field.hexplane.parameters()}
+
+
+def test_regularisers_come_from_the_grid() -> None:
+    field = small_field(isolate_fg_bg=False)
+    assert field.regularisers().keys() == field.hexplane.regularisers().keys()
+    assert field.regularisers()["plane_smoothness"].item() > 0.0
+
+
+def test_group_errors() -> None:
+    field = small_field(isolate_fg_bg=True)
+    xyz, group = points(6)
+    with pytest.raises(InputError, match="group: required"):
+        field(xyz, 0.1)
+    with pytest.raises(InputError, match=r"values 0 \(background\) or 1"):
+        field(xyz, 0.1, group + 1)
+    with pytest.raises(InputError, match="integer or bool tensor of shape"):
+        field(xyz, 0.1, group.float())
+    field(xyz, 0.1, group.bool())
+
+
+def test_empty_input() -> None:
+    field = small_field(isolate_fg_bg=True)
+    deltas = field(torch.zeros(0, 3), 0.5, torch.zeros(0, dtype=torch.long))
+    assert deltas.drot.shape == (0, 4)
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
+def test_cuda_matches_cpu() -> None:
+    field = small_field(isolate_fg_bg=True)
+    randomise_heads(field)
+    xyz, group = points()
+    with torch.no_grad():
+        expected = field(xyz, 0.4, group)
+        got = field.cuda()(xyz.cuda(), 0.4, group.cuda())
+    for g, e in zip(got, expected, strict=True):
+        torch.testing.assert_close(g.cpu(), e, rtol=1e-4, atol=1e-5)
