@@ -1,0 +1,159 @@
+"""`rasterization`: the one functional entry of the splatting core (gsplat-style API)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+
+from relaygs.errors import InputError
+from relaygs.splat.composite import CompositeGaussians
+from relaygs.splat.projection import ALPHA_MIN, covariance_3d, project_gaussians
+from relaygs.splat.sh import eval_sh, num_sh_bases
+from relaygs.splat.tiles import DEFAULT_TILE_SIZE, bin_gaussians
+
+RENDER_MODES = ("RGB", "D", "RGB+D")
+
+
+def _check(cond: bool, message: str) -> None:
+    if not cond:
+        raise InputError(message)
+
+
+def validate_inputs(
+    means: torch.Tensor,
+    quats: torch.Tensor,
+    scales: torch.Tensor,
+    opacities: torch.Tensor,
+    colors: torch.Tensor,
+    viewmats: torch.Tensor,
+    Ks: torch.Tensor,
+    width: int,
+    height: int,
+    sh_degree: int | None,
+    backgrounds: torch.Tensor | None,
+    render_mode: str,
+) -> None:
+    """Raise InputError with a one-line message for any shape or value that does not fit."""
+    n = means.shape[0] if means.dim() == 2 else -1
+    _check(means.dim() == 2 and means.shape[1] == 3, f"means must be [N,3], got {list(means.shape)}")
+    _check(quats.shape == (n, 4), f"quats must be [{n},4], got {list(quats.shape)}")
+    _check(scales.shape == (n, 3), f"scales must be [{n},3], got {list(scales.shape)}")
+    _check(opacities.shape == (n,), f"opacities must be [{n}], got {list(opacities.shape)}")
+    _check(
+        viewmats.dim() == 3 and viewmats.shape[1:] == (4, 4),
+        f"viewmats must be [C,4,4], got {list(viewmats.shape)}",
+    )
+    c = viewmats.shape[0]
+    _check(Ks.shape == (c, 3, 3), f"Ks must be [{c},3,3], got {list(Ks.shape)}")
+    _check(width > 0 and height > 0, f"width and height must be positive, got {width}x{height}")
+    _check(render_mode in RENDER_MODES, f"render_mode must be one of {RENDER_MODES}, got {render_mode!r}")
+    if sh_degree is None:
+        _check(
+            colors.dim() in (2, 3) and colors.shape[-2] == n and (colors.dim() == 2 or colors.shape[0] == c),
+            f"colors must be [N,D] or [C,N,D] with N={n}, C={c}, got {list(colors.shape)}",
+        )
+    else:
+        _check(0 <= sh_degree <= 3, f"sh_degree must be 0..3, got {sh_degree}")
+        k = num_sh_bases(sh_degree)
+        _check(
+            colors.dim() == 3 and colors.shape[0] == n and colors.shape[1] >= k and colors.shape[2] == 3,
+            f"SH colors must be [{n},K>={k},3] for sh_degree {sh_degree}, got {list(colors.shape)}",
+        )
+    if backgrounds is not None:
+        d = 3 if sh_degree is not None else colors.shape[-1]
+        _check(backgrounds.shape == (c, d), f"backgrounds must be [{c},{d}], got {list(backgrounds.shape)}")
+
+
+def camera_colors(
+    means: torch.Tensor, colors: torch.Tensor, viewmats: torch.Tensor, sh_degree: int | None
+) -> torch.Tensor:
+    """Per-camera colour features [C,N,D]: SH evaluated along each camera's view directions."""
+    c = viewmats.shape[0]
+    if sh_degree is None:
+        return colors.expand(c, *colors.shape[-2:]) if colors.dim() == 2 else colors
+    rot, trans = viewmats[:, :3, :3], viewmats[:, :3, 3]
+    centres = -torch.einsum("cji,cj->ci", rot, trans)  # camera centres in world space
+    dirs = means[None] - centres[:, None]
+    norm = torch.linalg.vector_norm(dirs, dim=-1, keepdim=True)
+    dirs = dirs / torch.where(norm > 0, norm, torch.ones_like(norm))
+    return eval_sh(sh_degree, colors[None].expand(c, *colors.shape), dirs)
+
+
+def rasterization(
+    means: torch.Tensor,
+    quats: torch.Tensor,
+    scales: torch.Tensor,
+    opacities: torch.Tensor,
+    colors: torch.Tensor,
+    viewmats: torch.Tensor,
+    Ks: torch.Tensor,
+    width: int,
+    height: int,
+    *,
+    sh_degree: int | None = None,
+    backgrounds: torch.Tensor | None = None,
+    near_plane: float = 0.01,
+    far_plane: float = 1e10,
+    eps2d: float = 0.3,
+    render_mode: str = "RGB",
+    tile_size: int = DEFAULT_TILE_SIZE,
+) -> tuple[torch.Tensor, torch.Tensor, dict[str, Any]]:
+    """Render N Gaussians into C cameras; returns colors [C,H,W,D], alphas [C,H,W,1], meta.
+
+    means [N,3]; quats [N,4] wxyz of any norm; scales [N,3] activated; opacities [N] in
+    [0,1]; colors [N,D] / [C,N,D] features, or SH [N,K,3] with `sh_degree`; viewmats
+    [C,4,4] world→camera (OpenCV axes); Ks [C,3,3]. Mode "D" renders expected depth,
+    "RGB+D" appends it as the last channel. `meta["means2d"]` [C,N,2] holds the
+    screen-space gradient after backward (densification reads it); `meta["radii"]` is
+    [C,N,2] int32 (0 = culled), `meta["depths"]` [C,N].
+    """
+    validate_inputs(
+        means, quats, scales, opacities, colors, viewmats, Ks, width, height,
+        sh_degree, backgrounds, render_mode,
+    )
+    covars = covariance_3d(quats, scales)
+    proj = project_gaussians(
+        means, covars, opacities, viewmats, Ks, width, height, near_plane, far_plane, eps2d
+    )
+    means2d = proj.means2d
+    if means2d.requires_grad:
+        means2d.retain_grad()
+    num_cams = viewmats.shape[0]
+
+    features = []
+    if render_mode != "D":
+        features.append(camera_colors(means, colors, viewmats, sh_degree))
+    if render_mode != "RGB":
+        features.append(proj.depths[..., None])
+    feats = torch.cat(features, dim=-1) if len(features) > 1 else features[0]
+    bg = backgrounds
+    if bg is not None and render_mode != "RGB":
+        depth_bg = bg.new_zeros(num_cams, 1)
+        bg = depth_bg if render_mode == "D" else torch.cat([bg, depth_bg], dim=-1)
+
+    bins = bin_gaussians(proj.bounds, proj.depths.detach(), proj.visible, width, height, tile_size)
+    opac = torch.where(proj.visible, opacities[None], torch.zeros_like(proj.depths))
+    render, alphas = CompositeGaussians.apply(
+        means2d, proj.conics, opac, feats, bg, proj.bounds, bins, width, height
+    )
+    if render_mode != "RGB":
+        # Expected depth: accumulated depth / alpha, 0 where nothing was hit (any hit has
+        # alpha >= 1/255, so the division is well conditioned).
+        hit = alphas > ALPHA_MIN * 0.5
+        depth = torch.where(hit, render[..., -1:] / torch.where(hit, alphas, 1.0), 0.0)
+        render = depth if render_mode == "D" else torch.cat([render[..., :-1], depth], dim=-1)
+
+    meta = {
+        "means2d": means2d,
+        "radii": proj.radii,
+        "depths": proj.depths,
+        "conics": proj.conics,
+        "visible": proj.visible,
+        "width": width,
+        "height": height,
+        "n_cameras": num_cams,
+        "tile_size": tile_size,
+        "num_pairs": int(bins.pair_gaussian.numel()),
+    }
+    return render, alphas, meta

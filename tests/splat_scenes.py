@@ -1,0 +1,78 @@
+"""Scene builders shared by the splatting tests."""
+
+from __future__ import annotations
+
+import torch
+
+
+def camera_rig(
+    num_cameras: int, width: int, height: int, focal: float | None = None, dtype=torch.float32
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Cameras near the origin looking down +z, slightly offset from each other."""
+    focal = float(width) if focal is None else focal
+    viewmats = torch.eye(4, dtype=dtype).repeat(num_cameras, 1, 1)
+    viewmats[:, 0, 3] = torch.linspace(-0.3, 0.3, num_cameras, dtype=dtype)
+    viewmats[:, 1, 3] = torch.linspace(0.1, -0.1, num_cameras, dtype=dtype)
+    if num_cameras > 1:  # a small rotation about y for the later cameras
+        angle = torch.linspace(0.0, 0.2, num_cameras, dtype=dtype)
+        viewmats[:, 0, 0] = torch.cos(angle)
+        viewmats[:, 0, 2] = torch.sin(angle)
+        viewmats[:, 2, 0] = -torch.sin(angle)
+        viewmats[:, 2, 2] = torch.cos(angle)
+    K = torch.tensor([[focal, 0, width / 2], [0, focal, height / 2], [0, 0, 1]], dtype=dtype)
+    return viewmats, K.repeat(num_cameras, 1, 1)
+
+
+def random_scene(
+    n: int,
+    *,
+    seed: int = 0,
+    num_cameras: int = 1,
+    width: int = 40,
+    height: int = 32,
+    channels: int = 3,
+    dtype=torch.float32,
+    scale_range: tuple[float, float] = (0.02, 0.12),
+) -> dict:
+    """Random Gaussians in front of the rig; returns rasterization keyword arguments."""
+    gen = torch.Generator().manual_seed(seed)
+    means = torch.empty(n, 3, dtype=dtype)
+    means[:, :2] = (torch.rand(n, 2, generator=gen, dtype=dtype) * 2 - 1) * 0.8
+    means[:, 2] = torch.rand(n, generator=gen, dtype=dtype) * 2 + 2
+    lo, hi = scale_range
+    viewmats, Ks = camera_rig(num_cameras, width, height, dtype=dtype)
+    return {
+        "means": means,
+        "quats": torch.randn(n, 4, generator=gen, dtype=dtype),
+        "scales": torch.rand(n, 3, generator=gen, dtype=dtype) * (hi - lo) + lo,
+        "opacities": torch.rand(n, generator=gen, dtype=dtype) * 0.9 + 0.05,
+        "colors": torch.rand(n, channels, generator=gen, dtype=dtype),
+        "viewmats": viewmats,
+        "Ks": Ks,
+        "width": width,
+        "height": height,
+    }
+
+
+LEARNABLE = ("means", "quats", "scales", "opacities", "colors")
+
+
+def with_grad(scene: dict, extra: tuple[str, ...] = ()) -> dict:
+    """Copy of a scene whose learnable tensors (and `extra` keys) require grad."""
+    out = dict(scene)
+    for key in (*LEARNABLE, *extra):
+        if key in out and out[key] is not None:
+            out[key] = out[key].detach().clone().requires_grad_(True)
+    return out
+
+
+def render_and_grads(render_fn, scene: dict, seed: int = 0, **kwargs):
+    """Render, backprop a fixed random projection of both outputs; return outputs and grads."""
+    keys = [k for k in (*LEARNABLE, "backgrounds") if torch.is_tensor(scene.get(k))]
+    colors, alphas, meta = render_fn(**scene, **kwargs)
+    gen = torch.Generator().manual_seed(seed)
+    w_c = torch.randn(colors.shape, generator=gen, dtype=colors.dtype)
+    w_a = torch.randn(alphas.shape, generator=gen, dtype=alphas.dtype)
+    loss = (colors * w_c).sum() + (alphas * w_a).sum()
+    grads = torch.autograd.grad(loss, [scene[k] for k in keys], allow_unused=True)
+    return colors, alphas, meta, dict(zip(keys, grads, strict=True))
