@@ -1,0 +1,109 @@
+"""`python -m relaygs.artifacts [--root DIR] ls | show KEY | verify | gc`: inspect, check and
+clean the artifact store. Exit 0 on success, 1 on a problem (one line on stderr), 2 on usage."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Sequence
+from dataclasses import asdict
+
+from safetensors import safe_open
+
+from relaygs.errors import RelayGSError
+from relaygs.pipeline.artifact import TENSORS_FILE
+from relaygs.pipeline.store import ArtifactStore
+
+DEFAULT_ROOT = "outputs/artifacts"
+KEY_COLUMN_WIDTH = 16
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Parse the command line, run one command, and return the process exit status."""
+    args = _parser().parse_args(argv)
+    store = ArtifactStore(args.root)
+    try:
+        if not store.root.is_dir():
+            raise RelayGSError(f"no artifact store at {store.root} (pass --root DIR)")
+        return args.command_fn(store, args)
+    except RelayGSError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 1
+
+
+def _parser() -> argparse.ArgumentParser:
+    """The argument parser with one sub-command per store operation."""
+    parser = argparse.ArgumentParser(prog="python -m relaygs.artifacts", description=__doc__)
+    parser.add_argument("--root", default=DEFAULT_ROOT, help=f"store root (default {DEFAULT_ROOT})")
+    commands = parser.add_subparsers(dest="command", required=True)
+    commands.add_parser("ls", help="list finished artifacts").set_defaults(command_fn=_ls)
+    show = commands.add_parser("show", help="print one artifact's manifest and tensors")
+    show.add_argument("key", help="full key or a unique prefix (at least 4 hex digits)")
+    show.set_defaults(command_fn=_show)
+    verify = commands.add_parser("verify", help="check every artifact's hashes (exit 1 if bad)")
+    verify.set_defaults(command_fn=_verify)
+    gc = commands.add_parser("gc", help="remove leftovers of killed builds and stale locks")
+    gc.add_argument(
+        "--keep",
+        nargs="+",
+        metavar="KEY",
+        help="also remove every artifact that is neither one of these nor in their lineage",
+    )
+    gc.add_argument("--dry-run", action="store_true", help="only print what would be removed")
+    gc.set_defaults(command_fn=_gc)
+    return parser
+
+
+def _ls(store: ArtifactStore, args: argparse.Namespace) -> int:
+    """One line per finished artifact: stage, key, size, build seconds, created, upstream."""
+    items = store.list()
+    print(f"{'STAGE':<12} {'KEY':<{KEY_COLUMN_WIDTH}} {'MB':>9} {'WALL_S':>9}  CREATED  UPSTREAM")
+    for item in items:
+        manifest = item.manifest
+        upstream = ",".join(f"{e.stage}:{e.key[:8]}" for e in manifest.lineage) or "-"
+        print(
+            f"{item.stage:<12} {item.key[:KEY_COLUMN_WIDTH]:<{KEY_COLUMN_WIDTH}} "
+            f"{manifest.size_bytes / 1e6:>9.3f} {manifest.wall_seconds:>9.2f}  "
+            f"{manifest.created}  {upstream}"
+        )
+    print(f"{len(items)} artifact(s) in {store.root}")
+    return 0
+
+
+def _show(store: ArtifactStore, args: argparse.Namespace) -> int:
+    """The artifact's folder, manifest (JSON) and tensor names, dtypes and shapes."""
+    item = store.find(args.key)
+    print(f"path: {item.path}")
+    print(json.dumps(asdict(item.manifest), indent=2, sort_keys=True))
+    with safe_open(str(item.path / TENSORS_FILE), framework="pt") as tensors:
+        for name in sorted(tensors.keys()):
+            view = tensors.get_slice(name)
+            print(f"tensor {name}: {view.get_dtype()} {list(view.get_shape())}")
+    return 0
+
+
+def _verify(store: ArtifactStore, args: argparse.Namespace) -> int:
+    """Check all artifacts; print each bad one and exit 1 when there is any."""
+    problems = store.verify()
+    for problem in problems:
+        print(f"CORRUPT {problem.path}: {problem.message}")
+    total = len(store.list())
+    print(f"{total} readable artifact(s), {len(problems)} problem(s) in {store.root}")
+    return 1 if problems else 0
+
+
+def _gc(store: ArtifactStore, args: argparse.Namespace) -> int:
+    """Remove garbage (see ArtifactStore.gc) and print what went."""
+    report = store.gc(keep=args.keep, dry_run=args.dry_run)
+    verb = "would remove" if args.dry_run else "removed"
+    for path in report.removed:
+        print(f"{verb} {path}")
+    for path in report.busy:
+        print(f"in use, kept {path}")
+    print(f"{verb} {len(report.removed)} path(s), {len(report.busy)} in use")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

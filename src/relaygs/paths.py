@@ -1,0 +1,36 @@
+"""Locate the config tree and pipeline files for editable and regular installs alike.
+
+Rule (DESIGN.md "Config"): use the repository's absolute folder when it is present and
+holds what is expected, else the copy packaged inside `relaygs/_data/`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+from relaygs.errors import InputError
+
+PACKAGE_DIR = Path(__file__).resolve().parent
+REPO_ROOT = PACKAGE_DIR.parents[1]
+PACKAGED_DATA_DIR = PACKAGE_DIR / "_data"
+
+
+def config_dir() -> Path:
+    """Absolute path of the Hydra config tree (the folder holding `config.yaml`)."""
+    return _locate("conf", lambda folder: (folder / "config.yaml").is_file())
+
+
+def pipelines_dir() -> Path:
+    """Absolute path of the folder holding the stage-DAG topologies (`<name>.yaml`)."""
+    return _locate("pipelines", lambda folder: any(folder.glob("*.yaml")))
+
+
+def _locate(name: str, is_usable: Callable[[Path], bool]) -> Path:
+    """Return the repo's `<name>/` when usable, else the packaged copy, else fail in one line."""
+    candidates = (REPO_ROOT / name, PACKAGED_DATA_DIR / name)
+    for folder in candidates:
+        if folder.is_dir() and is_usable(folder):
+            return folder
+    looked = ", ".join(str(folder) for folder in candidates)
+    raise InputError(f"no usable {name}/ folder found (looked in {looked})")

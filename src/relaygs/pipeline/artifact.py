@@ -1,0 +1,99 @@
+"""The unit a stage produces: named tensors plus JSON metadata, and its on-disk form."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch
+from safetensors.torch import load_file, save_file
+
+from relaygs.errors import InputError
+
+TENSORS_FILE = "tensors.safetensors"
+META_FILE = "meta.json"
+
+
+@dataclass
+class Artifact:
+    """What a stage returns: tensors (saved via safetensors) and JSON-serialisable metadata.
+
+    `meta["metrics"]`, when present, is copied into the store's manifest.
+    """
+
+    stage: str
+    tensors: dict[str, torch.Tensor] = field(default_factory=dict)
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def nbytes(self) -> int:
+        """Total size of the tensors' data in bytes."""
+        return sum(t.numel() * t.element_size() for t in self.tensors.values())
+
+    def to_cpu_contiguous(self) -> Artifact:
+        """This artifact with detached contiguous CPU tensors that each own their whole
+        storage (what safetensors needs); tensors already in that form are not copied."""
+        seen_storages: set[int] = set()
+        tensors = {
+            name: _cpu_owned(name, tensor, seen_storages) for name, tensor in self.tensors.items()
+        }
+        return Artifact(stage=self.stage, tensors=tensors, meta=json.loads(_meta_json(self)))
+
+
+def write_artifact_files(folder: Path, artifact: Artifact) -> list[str]:
+    """Write `tensors.safetensors` and `meta.json` into `folder`; return the file names."""
+    cpu = artifact.to_cpu_contiguous()
+    save_file(cpu.tensors, str(folder / TENSORS_FILE))
+    (folder / META_FILE).write_text(_meta_json(artifact), encoding="utf-8")
+    return [TENSORS_FILE, META_FILE]
+
+
+def read_artifact_files(folder: Path, stage: str) -> Artifact:
+    """Read an artifact written by `write_artifact_files` (no integrity check here)."""
+    tensors = load_file(str(folder / TENSORS_FILE))
+    meta = json.loads((folder / META_FILE).read_text(encoding="utf-8"))
+    return Artifact(stage=stage, tensors=tensors, meta=meta)
+
+
+def _cpu_owned(name: str, tensor: Any, seen_storages: set[int]) -> torch.Tensor:
+    """`tensor` detached on the CPU, cloned unless it is contiguous and alone in its storage."""
+    if not isinstance(tensor, torch.Tensor):
+        raise InputError(f"artifact tensor {name!r} is a {type(tensor).__name__}, not a tensor")
+    cpu = tensor.detach().to("cpu")
+    storage = cpu.untyped_storage()
+    owns_storage = (
+        cpu.is_contiguous()
+        and cpu.storage_offset() == 0
+        and storage.nbytes() == cpu.numel() * cpu.element_size()
+        and storage.data_ptr() not in seen_storages
+    )
+    if not owns_storage:
+        cpu = cpu.clone(memory_format=torch.contiguous_format)
+    seen_storages.add(cpu.untyped_storage().data_ptr())
+    return cpu
+
+
+def _meta_json(artifact: Artifact) -> str:
+    """Serialise meta after checking it round-trips exactly through JSON."""
+    check_json_exact(artifact.meta, f"{artifact.stage} artifact meta")
+    return json.dumps(artifact.meta, sort_keys=True, indent=1)
+
+
+def check_json_exact(value: Any, where: str) -> None:
+    """Raise InputError unless `value` survives a JSON round trip unchanged (no tuples, no
+    non-string keys, no numpy/torch objects); `where` names the value in the message."""
+    if isinstance(value, dict):
+        for key, item in value.items():
+            if not isinstance(key, str):
+                raise InputError(f"{where}: key {key!r} is not a string")
+            check_json_exact(item, f"{where}.{key}")
+    elif isinstance(value, list):
+        for index, item in enumerate(value):
+            check_json_exact(item, f"{where}[{index}]")
+    elif value is not None and not isinstance(value, str | int | float | bool):
+        raise InputError(
+            f"{where} is a {type(value).__name__}; expected a JSON value "
+            "(dict with str keys, list, str, int, float, bool or None)"
+        )

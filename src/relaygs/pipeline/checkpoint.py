@@ -1,0 +1,165 @@
+"""In-stage checkpoints, so a stage killed mid-way resumes where it was instead of at step 0.
+
+Each checkpoint is a sealed folder `<root>/<stage>/<key>.ckpt/step-<n>/` holding
+`tensors.safetensors` (model tensors and every tensor inside optimizer / RNG states) and
+`state.json` (the rest of that state, the step, the extras). It is written in a temp
+folder and renamed in, so a kill never leaves half a checkpoint. The store deletes the
+whole `.ckpt` folder once the artifact is complete.
+"""
+
+from __future__ import annotations
+
+import json
+import warnings
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch
+from safetensors.torch import load_file, save_file
+
+from relaygs.errors import InputError
+from relaygs.pipeline.fsio import publish_dir, remove_tree
+from relaygs.pipeline.integrity import CorruptArtifactError, check_seal, is_sealed, seal
+from relaygs.pipeline.layout import TEMP_PREFIX, checkpoint_dir, make_temp_dir
+from relaygs.pipeline.rngstate import capture_rng_state, restore_rng_state
+from relaygs.pipeline.statecodec import decode_tree, encode_tree
+
+STEP_PREFIX = "step-"
+TENSORS_FILE = "tensors.safetensors"
+STATE_FILE = "state.json"
+
+
+@dataclass
+class TrainingState:
+    """A resumable training state: `step` is the number of completed steps."""
+
+    step: int
+    tensors: dict[str, torch.Tensor]
+    optimizers: dict[str, dict[str, Any]]
+    rng: dict[str, Any]
+    extras: dict[str, Any] = field(default_factory=dict)
+
+    def restore_rng(self) -> None:
+        """Put the saved python/numpy/torch(/CUDA) RNG states back in place."""
+        restore_rng_state(self.rng)
+
+
+class StageCheckpointer:
+    """Saves and loads the in-stage checkpoints of one artifact build."""
+
+    def __init__(
+        self, store_root: Path | str, stage: str, key: str, every_n_steps: int, keep_last: int = 1
+    ) -> None:
+        if isinstance(every_n_steps, bool) or not isinstance(every_n_steps, int):
+            raise InputError(f"checkpoint every_n_steps must be an int, got {every_n_steps!r}")
+        if every_n_steps < 1 or keep_last < 1:
+            raise InputError(
+                f"checkpoint every_n_steps and keep_last must be >= 1, "
+                f"got {every_n_steps} and {keep_last}"
+            )
+        self.folder = checkpoint_dir(Path(store_root).expanduser().resolve(), stage, key)
+        self.every_n_steps = every_n_steps
+        self.keep_last = keep_last
+
+    def due(self, step: int) -> bool:
+        """True when a checkpoint should be written after `step` completed steps."""
+        return step > 0 and step % self.every_n_steps == 0
+
+    def maybe_save(
+        self,
+        step: int,
+        tensors: Mapping[str, torch.Tensor],
+        optimizers: Mapping[str, torch.optim.Optimizer] | None = None,
+        extras: Mapping[str, Any] | None = None,
+    ) -> bool:
+        """`save` when `due(step)`; returns whether a checkpoint was written."""
+        if not self.due(step):
+            return False
+        self.save(step, tensors, optimizers, extras)
+        return True
+
+    def save(
+        self,
+        step: int,
+        tensors: Mapping[str, torch.Tensor],
+        optimizers: Mapping[str, torch.optim.Optimizer] | None = None,
+        extras: Mapping[str, Any] | None = None,
+    ) -> Path:
+        """Write a checkpoint of the state after `step` completed steps (RNG captured now)."""
+        stored: dict[str, torch.Tensor] = {}
+        skeleton = {
+            "step": step,
+            "tensors": encode_tree(dict(tensors), stored, "model.", "tensors"),
+            "optimizers": encode_tree(
+                {name: opt.state_dict() for name, opt in (optimizers or {}).items()},
+                stored,
+                "optim.",
+                "optimizers",
+            ),
+            "rng": encode_tree(capture_rng_state(), stored, "rng.", "rng"),
+            "extras": encode_tree(dict(extras or {}), stored, "extra.", "extras"),
+        }
+        self._remove_stale_temps()
+        temp = make_temp_dir(self.folder, f"{STEP_PREFIX}{step}")
+        try:
+            save_file(stored, str(temp / TENSORS_FILE))
+            (temp / STATE_FILE).write_text(json.dumps(skeleton, allow_nan=True), encoding="utf-8")
+            seal(temp)
+            final = self.folder / f"{STEP_PREFIX}{step:012d}"
+            publish_dir(temp, final)
+        finally:
+            remove_tree(temp)
+        for old in self._step_dirs()[self.keep_last :]:
+            remove_tree(old)
+        return final
+
+    def load(self) -> TrainingState | None:
+        """The newest intact checkpoint, or None when there is none (a damaged one is
+        skipped with a warning, falling back to an older one or to a fresh start)."""
+        for folder in self._step_dirs():
+            try:
+                check_seal(folder)
+                return _read_state(folder)
+            except CorruptArtifactError as error:
+                warnings.warn(f"ignoring damaged checkpoint: {error}", stacklevel=2)
+        return None
+
+    def clear(self) -> None:
+        """Delete every checkpoint of this build (called once the artifact is stored)."""
+        remove_tree(self.folder)
+
+    def _step_dirs(self) -> list[Path]:
+        """Sealed step folders, newest first."""
+        if not self.folder.is_dir():
+            return []
+        folders = [
+            path
+            for path in self.folder.iterdir()
+            if path.name.startswith(STEP_PREFIX) and path.is_dir() and is_sealed(path)
+        ]
+        return sorted(folders, key=lambda path: int(path.name[len(STEP_PREFIX) :]), reverse=True)
+
+    def _remove_stale_temps(self) -> None:
+        """Drop temp folders a killed writer left (only the lock holder writes here)."""
+        if self.folder.is_dir():
+            for path in self.folder.iterdir():
+                if path.name.startswith(TEMP_PREFIX):
+                    remove_tree(path)
+
+
+def _read_state(folder: Path) -> TrainingState:
+    """Decode one checkpoint folder whose seal has been checked."""
+    try:
+        stored = load_file(str(folder / TENSORS_FILE))
+        skeleton = json.loads((folder / STATE_FILE).read_text(encoding="utf-8"))
+        return TrainingState(
+            step=int(skeleton["step"]),
+            tensors=decode_tree(skeleton["tensors"], stored),
+            optimizers=decode_tree(skeleton["optimizers"], stored),
+            rng=decode_tree(skeleton["rng"], stored),
+            extras=decode_tree(skeleton["extras"], stored),
+        )
+    except (OSError, ValueError, KeyError, TypeError) as error:
+        raise CorruptArtifactError(f"{folder}: unreadable checkpoint ({error})") from error

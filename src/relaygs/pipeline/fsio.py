@@ -1,0 +1,62 @@
+"""Durable, atomic folder publication: fsync a finished temp folder, then rename it in."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import uuid
+from pathlib import Path
+
+from relaygs.pipeline.layout import TRASH_PREFIX
+
+PUBLISHED_DIR_MODE = 0o755
+PUBLISHED_FILE_MODE = 0o644
+
+
+def fsync_path(path: Path) -> None:
+    """Flush a file's or folder's data and metadata to disk."""
+    descriptor = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(descriptor)
+    finally:
+        os.close(descriptor)
+
+
+def fsync_tree(folder: Path) -> None:
+    """Flush every file directly in `folder`, then the folder itself."""
+    for path in folder.iterdir():
+        if path.is_file():
+            fsync_path(path)
+    fsync_path(folder)
+
+
+def make_readable(folder: Path) -> None:
+    """Give a private temp folder (mkdtemp makes 0700) and its files ordinary permissions,
+    so a store shared between users or jobs can be read by all of them."""
+    folder.chmod(PUBLISHED_DIR_MODE)
+    for path in folder.iterdir():
+        if path.is_file():
+            path.chmod(PUBLISHED_FILE_MODE)
+
+
+def publish_dir(temp: Path, final: Path) -> None:
+    """Atomically make `temp` appear as `final`, readable like any other output; an existing
+    `final` is moved aside first (a rename cannot overwrite a non-empty folder), then deleted."""
+    make_readable(temp)
+    fsync_tree(temp)
+    if final.exists():
+        trash = final.parent / f"{TRASH_PREFIX}{final.name}-{uuid.uuid4().hex[:8]}"
+        os.replace(final, trash)
+        os.replace(temp, final)
+        shutil.rmtree(trash, ignore_errors=True)
+    else:
+        os.replace(temp, final)
+    fsync_path(final.parent)
+
+
+def remove_tree(path: Path) -> None:
+    """Delete a file or folder if it exists (missing paths are fine)."""
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path, ignore_errors=True)
+    else:
+        path.unlink(missing_ok=True)

@@ -1,0 +1,132 @@
+"""Garbage collection of an artifact store: what killed builds and finished runs leave behind.
+
+A folder is only removed while its key's file lock can be taken without waiting, so a
+build in progress in another process is never disturbed.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Collection, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from filelock import FileLock, Timeout
+
+from relaygs.pipeline.fsio import remove_tree
+from relaygs.pipeline.integrity import CorruptArtifactError, is_sealed
+from relaygs.pipeline.layout import (
+    CHECKPOINT_SUFFIX,
+    LOCKS_DIR,
+    is_key,
+    key_dirs,
+    key_of_temp_name,
+    lock_path,
+    stage_dirs,
+)
+from relaygs.pipeline.manifest import read_manifest
+
+
+@dataclass
+class GcReport:
+    """Paths removed (or that would be, in a dry run) and paths skipped as in use."""
+
+    removed: list[Path] = field(default_factory=list)
+    busy: list[Path] = field(default_factory=list)
+
+
+def collect_garbage(root: Path, keep: Collection[str] | None, dry_run: bool) -> GcReport:
+    """Remove temp/trash folders, incomplete artifacts, checkpoints of finished (or, with
+    `keep`, unkept) artifacts, unkept artifacts when `keep` is given, and free lock files."""
+    report = GcReport()
+    kept = _with_ancestors(root, keep) if keep is not None else None
+    for stage_dir in stage_dirs(root):
+        for path in sorted(stage_dir.iterdir()):
+            key = _owning_key(path)
+            if key is not None and _is_garbage(path, key, kept):
+                _remove_if_free(root, stage_dir.name, key, path, dry_run, report)
+    _remove_free_locks(root, dry_run, report)
+    return report
+
+
+def _owning_key(path: Path) -> str | None:
+    """The key a store entry belongs to, or None for entries gc does not manage."""
+    if is_key(path.name):
+        return path.name
+    if path.name.endswith(CHECKPOINT_SUFFIX) and is_key(path.name[: -len(CHECKPOINT_SUFFIX)]):
+        return path.name[: -len(CHECKPOINT_SUFFIX)]
+    return key_of_temp_name(path.name)
+
+
+def _is_garbage(path: Path, key: str, kept: set[str] | None) -> bool:
+    """Whether an entry owned by `key` should go (see `collect_garbage`)."""
+    unkept = kept is not None and key not in kept
+    if is_key(path.name):
+        return unkept or not is_sealed(path)
+    if path.name.endswith(CHECKPOINT_SUFFIX):
+        return unkept or is_sealed(path.parent / key)
+    return True
+
+
+def _with_ancestors(root: Path, keep: Collection[str]) -> set[str]:
+    """The kept keys plus every key in their lineage, transitively."""
+    parents: dict[str, list[str]] = {}
+    for folder in key_dirs(root):
+        if is_sealed(folder):
+            try:
+                parents[folder.name] = [entry.key for entry in read_manifest(folder).lineage]
+            except CorruptArtifactError:
+                parents[folder.name] = []
+    kept: set[str] = set()
+    pending = list(keep)
+    while pending:
+        key = pending.pop()
+        if key not in kept:
+            kept.add(key)
+            pending.extend(parents.get(key, []))
+    return kept
+
+
+@contextmanager
+def _lock_if_free(lock_file: Path) -> Iterator[bool]:
+    """Hold `lock_file` for the block if nobody else does; yields whether it is held."""
+    lock = FileLock(str(lock_file))
+    try:
+        lock.acquire(timeout=0)
+    except Timeout:
+        yield False
+        return
+    try:
+        yield True
+    finally:
+        lock.release()
+
+
+def _remove_if_free(
+    root: Path, stage: str, key: str, path: Path, dry_run: bool, report: GcReport
+) -> None:
+    """Remove `path` while holding its key's lock, or note it as busy."""
+    lock_file = lock_path(root, stage, key)
+    lock_file.parent.mkdir(parents=True, exist_ok=True)
+    with _lock_if_free(lock_file) as free:
+        if not free:
+            report.busy.append(path)
+            return
+        report.removed.append(path)
+        if not dry_run:
+            remove_tree(path)
+
+
+def _remove_free_locks(root: Path, dry_run: bool, report: GcReport) -> None:
+    """Delete lock files nobody holds (unlinked while held, so no waiter is fooled)."""
+    locks = root / LOCKS_DIR
+    if not locks.is_dir():
+        return
+    for lock_file in sorted(locks.glob("*.lock")):
+        with _lock_if_free(lock_file) as free:
+            if not free:
+                report.busy.append(lock_file)
+                continue
+            report.removed.append(lock_file)
+            if not dry_run:
+                lock_file.unlink(missing_ok=True)

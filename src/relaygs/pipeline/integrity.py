@@ -1,0 +1,66 @@
+"""Seal a finished folder with the sha256 of every file, and check the seal on load.
+
+The completion marker is written last and lists each file's hash, so a folder without
+it is unfinished and any changed, missing or extra byte in a listed file is detected.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+
+from relaygs.errors import RelayGSError
+
+MARKER_FILE = "COMPLETE"
+_CHUNK = 1 << 20
+
+
+class CorruptArtifactError(RelayGSError):
+    """A stored artifact or checkpoint whose bytes no longer match its recorded hashes."""
+
+
+def file_sha256(path: Path) -> str:
+    """Hex sha256 of a file's bytes, read in chunks."""
+    digest = hashlib.sha256()
+    with path.open("rb") as handle:
+        while chunk := handle.read(_CHUNK):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+def seal(folder: Path) -> dict[str, str]:
+    """Write the completion marker listing the sha256 of every file now in `folder`."""
+    hashes = {
+        path.name: file_sha256(path)
+        for path in sorted(folder.iterdir())
+        if path.is_file() and path.name != MARKER_FILE
+    }
+    marker = folder / MARKER_FILE
+    marker.write_text(json.dumps({"sha256": hashes}, sort_keys=True, indent=1), encoding="utf-8")
+    return hashes
+
+
+def is_sealed(folder: Path) -> bool:
+    """True when the folder carries a completion marker (its build finished)."""
+    return (folder / MARKER_FILE).is_file()
+
+
+def check_seal(folder: Path) -> None:
+    """Raise CorruptArtifactError naming the folder and file unless every hash matches."""
+    marker = folder / MARKER_FILE
+    try:
+        hashes = json.loads(marker.read_text(encoding="utf-8"))["sha256"]
+    except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError) as error:
+        raise CorruptArtifactError(f"{marker}: unreadable completion marker ({error})") from error
+    if not isinstance(hashes, dict):
+        raise CorruptArtifactError(f"{marker}: completion marker holds no file hashes")
+    for name, expected in sorted(hashes.items()):
+        path = folder / name
+        if not path.is_file():
+            raise CorruptArtifactError(f"{path}: file listed in {MARKER_FILE} is missing")
+        actual = file_sha256(path)
+        if actual != expected:
+            raise CorruptArtifactError(
+                f"{path}: sha256 mismatch (recorded {expected[:12]}…, found {actual[:12]}…)"
+            )

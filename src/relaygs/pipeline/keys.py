@@ -1,0 +1,111 @@
+"""Content-addressed artifact keys: sha256 of a canonical JSON of everything that shapes a result.
+
+What never enters a key (see `key_config`): any mapping entry whose name is in
+`NON_KEY_NAMES` (e.g. `hydra`, `paths`, `tags`, `logging`) or ends with one of
+`NON_KEY_SUFFIXES` (`_dir`, `_path`, `_file`, `_root`), together with everything under it,
+at any depth. These say where things go or how a run is watched, not what it computes.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+from relaygs.errors import InputError
+
+NON_KEY_NAMES = frozenset(
+    {
+        "hydra",
+        "paths",
+        "path",
+        "dir",
+        "root",
+        "tags",
+        "logging",
+        "progress",
+        "checkpoint_every",
+    }
+)
+NON_KEY_SUFFIXES = ("_dir", "_path", "_file", "_root")
+
+
+def is_non_key_name(name: str) -> bool:
+    """True when a config entry of this name never enters an artifact key."""
+    return name in NON_KEY_NAMES or name.endswith(NON_KEY_SUFFIXES)
+
+
+def key_config(cfg: Mapping[str, Any]) -> dict[str, Any]:
+    """A plain-dict copy of `cfg` without the entries that never enter a key (module docstring)."""
+    return _strip(cfg, "config")
+
+
+def canonical_json(value: Any, where: str = "value") -> str:
+    """Canonical JSON: sorted keys, no whitespace, tuples as lists, floats by shortest repr
+    (non-finite floats as NaN/Infinity), so equal configs always give equal text. `where`
+    names the value in the one-line InputError raised for types without a stable form."""
+    return json.dumps(
+        _normalise(value, where),
+        sort_keys=True,
+        separators=(",", ":"),
+        ensure_ascii=True,
+        allow_nan=True,
+    )
+
+
+def artifact_key(
+    stage_type: str,
+    schema_version: int,
+    stage_cfg: Mapping[str, Any],
+    scene_fingerprint: str,
+    upstream_keys: Sequence[str],
+) -> str:
+    """The artifact's key: sha256 hex of the canonical JSON of its inputs.
+
+    `stage_cfg` is passed through `key_config` first; `upstream_keys` keep their order.
+    """
+    payload = {
+        "stage": stage_type,
+        "schema_version": schema_version,
+        "config": _normalise(key_config(stage_cfg), f"{stage_type} config"),
+        "scene": scene_fingerprint,
+        "upstream": list(upstream_keys),
+    }
+    return hashlib.sha256(canonical_json(payload).encode("ascii")).hexdigest()
+
+
+def _strip(value: Any, where: str) -> Any:
+    """Recursively drop non-key entries from mappings; sequences are walked too."""
+    if isinstance(value, Mapping):
+        return {
+            key: _strip(item, f"{where}.{key}")
+            for key, item in value.items()
+            if not (isinstance(key, str) and is_non_key_name(key))
+        }
+    if isinstance(value, Sequence) and not isinstance(value, str | bytes):
+        return [_strip(item, f"{where}[{index}]") for index, item in enumerate(value)]
+    return value
+
+
+def _normalise(value: Any, where: str) -> Any:
+    """Convert to JSON-native types, failing in one line on anything without a stable form."""
+    if isinstance(value, Mapping):
+        out = {}
+        for key, item in value.items():
+            if not isinstance(key, str):
+                raise InputError(f"{where}: key {key!r} must be a string to enter an artifact key")
+            out[key] = _normalise(item, f"{where}.{key}")
+        return out
+    if isinstance(value, Sequence) and not isinstance(value, str | bytes):
+        return [_normalise(item, f"{where}[{index}]") for index, item in enumerate(value)]
+    if value is None or isinstance(value, str | bool):
+        return value
+    if isinstance(value, int):
+        return int(value)
+    if isinstance(value, float):
+        return float(value) + 0.0  # adding 0.0 folds -0.0 into 0.0
+    raise InputError(
+        f"{where} is a {type(value).__name__}; artifact keys accept only "
+        "mappings, sequences, str, int, float, bool and None"
+    )

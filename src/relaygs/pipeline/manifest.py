@@ -1,0 +1,81 @@
+"""manifest.json: the human-readable record of how an artifact was made and what it holds."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import relaygs
+from relaygs.pipeline.integrity import CorruptArtifactError, file_sha256
+
+MANIFEST_FILE = "manifest.json"
+MANIFEST_FORMAT = 1
+
+
+@dataclass(frozen=True)
+class LineageEntry:
+    """One direct upstream artifact: the pipeline node it came from, its stage and key."""
+
+    node: str
+    stage: str
+    key: str
+
+
+@dataclass(frozen=True)
+class Manifest:
+    """Everything recorded about one stored artifact (see docs/artifacts.md)."""
+
+    key: str
+    stage: str
+    config: dict[str, Any]
+    lineage: list[LineageEntry]
+    metrics: dict[str, Any]
+    wall_seconds: float
+    created: str
+    package_version: str
+    files: dict[str, dict[str, Any]]
+    provenance: dict[str, Any] = field(default_factory=dict)
+    format: int = MANIFEST_FORMAT
+
+    @property
+    def size_bytes(self) -> int:
+        """Bytes of the artifact's data files (tensors and meta)."""
+        return sum(int(entry["bytes"]) for entry in self.files.values())
+
+
+def describe_files(folder: Path, names: list[str]) -> dict[str, dict[str, Any]]:
+    """Per-file sha256 and size for the manifest."""
+    return {
+        name: {"sha256": file_sha256(folder / name), "bytes": (folder / name).stat().st_size}
+        for name in names
+    }
+
+
+def utc_now_iso() -> str:
+    """Current UTC time as an ISO-8601 string with an explicit offset."""
+    return datetime.now(timezone.utc).isoformat(timespec="seconds")
+
+
+def package_version() -> str:
+    """The relaygs version recorded in manifests."""
+    return relaygs.__version__
+
+
+def write_manifest(folder: Path, manifest: Manifest) -> None:
+    """Write `manifest.json` into `folder`."""
+    text = json.dumps(asdict(manifest), sort_keys=True, indent=1)
+    (folder / MANIFEST_FILE).write_text(text, encoding="utf-8")
+
+
+def read_manifest(folder: Path) -> Manifest:
+    """Parse `manifest.json` of an artifact folder; CorruptArtifactError if it is unreadable."""
+    path = folder / MANIFEST_FILE
+    try:
+        raw = json.loads(path.read_text(encoding="utf-8"))
+        lineage = [LineageEntry(**entry) for entry in raw.pop("lineage")]
+        return Manifest(lineage=lineage, **raw)
+    except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError) as error:
+        raise CorruptArtifactError(f"{path}: unreadable manifest ({error})") from error

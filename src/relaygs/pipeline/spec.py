@@ -1,0 +1,189 @@
+"""Pipeline topologies (`pipelines/<name>.yaml`): nodes, their stage types and upstreams.
+
+File format::
+
+    description: one line saying what the pipeline is      # optional
+    nodes:                                                  # in any order
+      decouple: {stage: decouple}
+      relay:    {stage: relay, upstream: [decouple]}
+
+The evaluation step is not a node: the runner applies it to `Pipeline.output_node`,
+the single node nothing else depends on.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Collection
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from relaygs.errors import InputError
+from relaygs.paths import pipelines_dir
+
+NODE_FIELDS = frozenset({"stage", "upstream"})
+PIPELINE_FIELDS = frozenset({"description", "nodes"})
+_NAME_RE = re.compile(r"[A-Za-z][A-Za-z0-9_]*")
+
+
+@dataclass(frozen=True)
+class Node:
+    """One step of a pipeline: a name, the stage type it runs, and the nodes it reads."""
+
+    name: str
+    stage: str
+    upstream: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class Pipeline:
+    """A validated stage DAG loaded from one YAML file."""
+
+    name: str
+    path: Path
+    description: str
+    nodes: dict[str, Node]
+
+    def topological_order(self) -> list[Node]:
+        """Nodes with every upstream before its consumers; ties keep file order."""
+        return _topological_order(self)
+
+    @property
+    def output_node(self) -> Node:
+        """The single node no other node depends on (what evaluation reads)."""
+        consumed = {name for node in self.nodes.values() for name in node.upstream}
+        return next(node for node in self.nodes.values() if node.name not in consumed)
+
+    @property
+    def stage_types(self) -> set[str]:
+        """Every stage type the pipeline runs."""
+        return {node.stage for node in self.nodes.values()}
+
+
+def available_pipelines() -> list[str]:
+    """Names of the pipelines shipped in `pipelines/`."""
+    return sorted(path.stem for path in pipelines_dir().glob("*.yaml"))
+
+
+def load_pipeline(
+    name_or_path: str | Path, known_stages: Collection[str] | None = None
+) -> Pipeline:
+    """Load and validate a pipeline by name (`pipelines/<name>.yaml`) or by file path.
+
+    With `known_stages`, stage types outside it are rejected. Errors are one-line InputErrors.
+    """
+    path = _resolve(name_or_path)
+    try:
+        raw = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as error:
+        reason = str(error).splitlines()[0] if str(error) else type(error).__name__
+        raise InputError(f"{path}: cannot read pipeline ({reason})") from error
+    pipeline = _parse(path, raw)
+    _check_graph(pipeline, known_stages)
+    return pipeline
+
+
+def _resolve(name_or_path: str | Path) -> Path:
+    """A path is used as given; a bare name must be one of the shipped pipelines."""
+    text = str(name_or_path)
+    if "/" in text or text.endswith((".yaml", ".yml")):
+        path = Path(text).expanduser().resolve()
+        if not path.is_file():
+            raise InputError(f"pipeline file {path} does not exist")
+        return path
+    path = pipelines_dir() / f"{text}.yaml"
+    if not path.is_file():
+        available = ", ".join(available_pipelines())
+        raise InputError(f"unknown pipeline {text!r} (available: {available})")
+    return path
+
+
+def _parse(path: Path, raw: Any) -> Pipeline:
+    """Check the file's shape and build the Pipeline (graph checks come after)."""
+    if not isinstance(raw, dict):
+        raise InputError(f"{path}: expected a mapping with 'nodes', got {type(raw).__name__}")
+    unknown = sorted(set(raw) - PIPELINE_FIELDS)
+    if unknown:
+        raise InputError(f"{path}: unknown field(s) {unknown}; expected {sorted(PIPELINE_FIELDS)}")
+    nodes_raw = raw.get("nodes")
+    if not isinstance(nodes_raw, dict) or not nodes_raw:
+        raise InputError(f"{path}: 'nodes' must be a non-empty mapping of node name to node")
+    description = raw.get("description", "")
+    if not isinstance(description, str):
+        raise InputError(f"{path}: 'description' must be a string")
+    nodes = {str(name): _parse_node(path, name, spec) for name, spec in nodes_raw.items()}
+    return Pipeline(name=path.stem, path=path, description=description, nodes=nodes)
+
+
+def _parse_node(path: Path, name: Any, spec: Any) -> Node:
+    """One node entry: `{stage: TYPE, upstream: [NODE, ...]}`."""
+    where = f"{path}: node {name!r}"
+    if not isinstance(name, str) or not _NAME_RE.fullmatch(name):
+        raise InputError(f"{where}: node names must match {_NAME_RE.pattern}")
+    if not isinstance(spec, dict):
+        raise InputError(f"{where}: expected a mapping with 'stage' and 'upstream'")
+    unknown = sorted(set(spec) - NODE_FIELDS)
+    if unknown:
+        raise InputError(f"{where}: unknown field(s) {unknown}; expected {sorted(NODE_FIELDS)}")
+    stage = spec.get("stage")
+    if not isinstance(stage, str) or not _NAME_RE.fullmatch(stage):
+        raise InputError(f"{where}: 'stage' must be a stage type name, got {stage!r}")
+    upstream = spec.get("upstream", [])
+    if not isinstance(upstream, list) or not all(isinstance(item, str) for item in upstream):
+        raise InputError(f"{where}: 'upstream' must be a list of node names, got {upstream!r}")
+    if len(set(upstream)) != len(upstream):
+        raise InputError(f"{where}: 'upstream' lists a node twice: {upstream}")
+    return Node(name=name, stage=stage, upstream=tuple(upstream))
+
+
+def _check_graph(pipeline: Pipeline, known_stages: Collection[str] | None) -> None:
+    """Unknown upstreams, unknown stage types, cycles, and more than one output node."""
+    for node in pipeline.nodes.values():
+        for parent in node.upstream:
+            if parent not in pipeline.nodes:
+                raise InputError(
+                    f"{pipeline.path}: node {node.name!r} has unknown upstream {parent!r} "
+                    f"(nodes: {', '.join(pipeline.nodes)})"
+                )
+        if known_stages is not None and node.stage not in known_stages:
+            raise InputError(
+                f"{pipeline.path}: node {node.name!r} has unknown stage type {node.stage!r} "
+                f"(known: {', '.join(sorted(known_stages))})"
+            )
+    _topological_order(pipeline)
+    consumed = {name for node in pipeline.nodes.values() for name in node.upstream}
+    outputs = [name for name in pipeline.nodes if name not in consumed]
+    if len(outputs) != 1:
+        raise InputError(
+            f"{pipeline.path}: a pipeline must end in exactly one output node, found {outputs}"
+        )
+
+
+def _topological_order(pipeline: Pipeline) -> list[Node]:
+    """Kahn's algorithm in file order; a cycle raises an InputError that names it."""
+    remaining = dict(pipeline.nodes)
+    done: set[str] = set()
+    order: list[Node] = []
+    while remaining:
+        ready = [node for node in remaining.values() if set(node.upstream) <= done]
+        if not ready:
+            raise InputError(f"{pipeline.path}: cycle {_find_cycle(remaining)}")
+        for node in ready:
+            order.append(node)
+            done.add(node.name)
+            del remaining[node.name]
+    return order
+
+
+def _find_cycle(nodes: dict[str, Node]) -> str:
+    """'a -> b -> a' for one cycle among nodes that all wait on each other."""
+    path = [next(iter(nodes))]
+    while True:
+        parent = next(name for name in nodes[path[-1]].upstream if name in nodes)
+        if parent in path:
+            cycle = [*path[path.index(parent) :], parent]
+            return " -> ".join(reversed(cycle))
+        path.append(parent)

@@ -1,0 +1,288 @@
+"""The content-addressed artifact store: build each artifact once, load it verified.
+
+See docs/artifacts.md for the layout and guarantees. Writes go to a temp folder beside
+the final one and are renamed in; a file lock per key makes concurrent processes that
+need the same missing artifact build it once; every load checks the recorded hashes.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable, Collection, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+from filelock import FileLock
+
+from relaygs.errors import InputError, RelayGSError
+from relaygs.pipeline.artifact import Artifact, read_artifact_files, write_artifact_files
+from relaygs.pipeline.context import BuildContext, building
+from relaygs.pipeline.fsio import publish_dir, remove_tree
+from relaygs.pipeline.gc import GcReport, collect_garbage
+from relaygs.pipeline.integrity import CorruptArtifactError, check_seal, is_sealed, seal
+from relaygs.pipeline.keys import canonical_json
+from relaygs.pipeline.layout import (
+    TEMP_PREFIX,
+    artifact_dir,
+    checkpoint_dir,
+    key_dirs,
+    lock_path,
+    make_temp_dir,
+)
+from relaygs.pipeline.manifest import (
+    LineageEntry,
+    Manifest,
+    describe_files,
+    package_version,
+    read_manifest,
+    utc_now_iso,
+    write_manifest,
+)
+
+OnCorrupt = Literal["rebuild", "error"]
+ON_CORRUPT_CHOICES = ("rebuild", "error")
+
+
+class MissingArtifactError(RelayGSError, LookupError):
+    """The requested artifact is not in the store (or is ambiguous by key prefix)."""
+
+
+@dataclass(frozen=True)
+class BuildInfo:
+    """How `get_or_build` satisfied a request: a cache hit or a fresh build.
+
+    `wall_seconds` is the build's duration, read from the manifest on a hit, so the full
+    cost of a lineage can be summed whether or not this run computed it.
+    """
+
+    stage: str
+    key: str
+    cache_hit: bool
+    wall_seconds: float
+    path: Path
+    replaced_corrupt: bool = False
+
+
+@dataclass(frozen=True)
+class StoredArtifact:
+    """A finished artifact found in the store, with its manifest."""
+
+    path: Path
+    manifest: Manifest
+
+    @property
+    def stage(self) -> str:
+        """Stage type that produced it."""
+        return self.manifest.stage
+
+    @property
+    def key(self) -> str:
+        """Its content-addressed key."""
+        return self.manifest.key
+
+
+@dataclass(frozen=True)
+class VerifyProblem:
+    """One artifact folder that failed verification, and why."""
+
+    path: Path
+    message: str
+
+
+class ArtifactStore:
+    """Artifacts under `<root>/<stage>/<key>/`; the root is made absolute at construction."""
+
+    def __init__(self, root: Path | str) -> None:
+        self.root = Path(root).expanduser().resolve()
+
+    def path(self, stage: str, key: str) -> Path:
+        """Folder where artifact `key` of `stage` lives (whether or not it exists yet)."""
+        return artifact_dir(self.root, stage, key)
+
+    def has(self, stage: str, key: str) -> bool:
+        """True when a finished (sealed) artifact exists; its bytes are not checked here."""
+        return is_sealed(self.path(stage, key))
+
+    def manifest(self, stage: str, key: str) -> Manifest:
+        """The manifest of a finished artifact (not hash-checked)."""
+        self._require(stage, key)
+        return read_manifest(self.path(stage, key))
+
+    def load(self, stage: str, key: str, verify: bool = True) -> Artifact:
+        """Load an artifact; with `verify`, every file's sha256 is checked first and a
+        mismatch raises CorruptArtifactError naming the folder and file."""
+        return self._load_with_manifest(stage, key, verify)[0]
+
+    def get_or_build(
+        self,
+        stage: str,
+        key: str,
+        build: Callable[[], Artifact],
+        *,
+        config: Mapping[str, Any],
+        lineage: Sequence[LineageEntry],
+        provenance: Mapping[str, Any] | None = None,
+        on_corrupt: OnCorrupt = "rebuild",
+    ) -> tuple[Artifact, BuildInfo]:
+        """Load artifact `key` of `stage`, building and storing it first if it is missing.
+
+        Concurrent callers for the same key build it once (the others wait, then load).
+        A corrupted artifact is rebuilt, or refused with CorruptArtifactError when
+        `on_corrupt="error"`. `build` runs with `current_build()` set, so it can checkpoint.
+        """
+        if on_corrupt not in ON_CORRUPT_CHOICES:
+            raise InputError(f"on_corrupt must be one of {ON_CORRUPT_CHOICES}, got {on_corrupt!r}")
+        manifest_fields = {
+            "config": json.loads(canonical_json(config, f"{stage} config")),
+            "lineage": list(lineage),
+            "provenance": json.loads(canonical_json(provenance or {}, f"{stage} provenance")),
+        }
+        hit = self._try_load(stage, key, on_corrupt)
+        if hit is not None:
+            return hit
+        lock_file = lock_path(self.root, stage, key)
+        lock_file.parent.mkdir(parents=True, exist_ok=True)
+        with FileLock(str(lock_file)):
+            hit = self._try_load(stage, key, on_corrupt)
+            if hit is not None:
+                return hit
+            replaced_corrupt = self.has(stage, key)
+            self._remove_own_temps(stage, key)
+            with building(BuildContext(self.root, stage, key)):
+                started = time.perf_counter()
+                artifact = build()
+                wall_seconds = time.perf_counter() - started
+            if artifact.stage != stage:
+                raise InputError(
+                    f"stage {stage!r} returned an artifact labelled {artifact.stage!r}"
+                )
+            stored = artifact.to_cpu_contiguous()
+            self._write(stage, key, stored, {**manifest_fields, "wall_seconds": wall_seconds})
+            remove_tree(checkpoint_dir(self.root, stage, key))
+        info = BuildInfo(stage, key, False, wall_seconds, self.path(stage, key), replaced_corrupt)
+        return stored, info
+
+    def list(self) -> list[StoredArtifact]:
+        """Every finished artifact, sorted by stage then creation time; temp, incomplete
+        and unreadable folders are skipped (`verify` reports the last two)."""
+        found = []
+        for folder in key_dirs(self.root):
+            if not is_sealed(folder):
+                continue
+            try:
+                found.append(StoredArtifact(folder, read_manifest(folder)))
+            except CorruptArtifactError:
+                continue
+        return sorted(found, key=lambda item: (item.stage, item.manifest.created, item.key))
+
+    def find(self, key_prefix: str) -> StoredArtifact:
+        """The one finished artifact whose key starts with `key_prefix` (any stage)."""
+        prefix = key_prefix.strip().lower()
+        if len(prefix) < 4:
+            raise InputError(f"key prefix {key_prefix!r} is too short (need at least 4 hex digits)")
+        matches = [item for item in self.list() if item.key.startswith(prefix)]
+        if len(matches) != 1:
+            what = "no artifact" if not matches else f"{len(matches)} artifacts"
+            raise MissingArtifactError(f"{what} with key starting {prefix!r} in {self.root}")
+        return matches[0]
+
+    def verify(self) -> list[VerifyProblem]:
+        """Check every artifact folder's hashes; return the bad ones (empty when all good)."""
+        problems = []
+        for folder in key_dirs(self.root):
+            if not is_sealed(folder):
+                problems.append(VerifyProblem(folder, "incomplete (no completion marker)"))
+                continue
+            try:
+                check_seal(folder)
+                read_manifest(folder)
+            except CorruptArtifactError as error:
+                problems.append(VerifyProblem(folder, str(error)))
+        return problems
+
+    def gc(self, keep: Collection[str] | None = None, dry_run: bool = False) -> GcReport:
+        """Remove leftovers of killed builds, stale locks and incomplete folders; with `keep`,
+        also every artifact that is neither kept nor an ancestor of a kept one."""
+        return collect_garbage(self.root, keep, dry_run)
+
+    def _try_load(
+        self, stage: str, key: str, on_corrupt: OnCorrupt
+    ) -> tuple[Artifact, BuildInfo] | None:
+        """A verified cache hit, or None when the artifact is missing or (rebuildably) corrupt."""
+        if not self.has(stage, key):
+            return None
+        try:
+            artifact, manifest = self._load_with_manifest(stage, key, verify=True)
+        except CorruptArtifactError as error:
+            if on_corrupt == "error":
+                raise CorruptArtifactError(
+                    f"{error} (on_corrupt=error: delete it or rerun with on_corrupt=rebuild)"
+                ) from error
+            return None
+        return artifact, BuildInfo(stage, key, True, manifest.wall_seconds, self.path(stage, key))
+
+    def _load_with_manifest(self, stage: str, key: str, verify: bool) -> tuple[Artifact, Manifest]:
+        """Load (optionally hash-checked) artifact files and manifest of a finished artifact."""
+        self._require(stage, key)
+        folder = self.path(stage, key)
+        if verify:
+            check_seal(folder)
+        manifest = read_manifest(folder)
+        if (manifest.stage, manifest.key) != (stage, key):
+            raise CorruptArtifactError(
+                f"{folder}: manifest names {manifest.stage}/{manifest.key}, not {stage}/{key}"
+            )
+        try:
+            return read_artifact_files(folder, stage), manifest
+        except (OSError, ValueError) as error:
+            raise CorruptArtifactError(f"{folder}: unreadable artifact files ({error})") from error
+
+    def _write(
+        self, stage: str, key: str, artifact: Artifact, manifest_fields: dict[str, Any]
+    ) -> None:
+        """Write the artifact into a temp folder, seal it, and rename it into place."""
+        metrics = artifact.meta.get("metrics", {})
+        if not isinstance(metrics, dict):
+            raise InputError(f"{stage} artifact meta['metrics'] must be a mapping, got {metrics!r}")
+        final = self.path(stage, key)
+        temp = make_temp_dir(final.parent, key)
+        try:
+            names = write_artifact_files(temp, artifact)
+            manifest = Manifest(
+                key=key,
+                stage=stage,
+                metrics=metrics,
+                created=utc_now_iso(),
+                package_version=package_version(),
+                files=describe_files(temp, names),
+                **manifest_fields,
+            )
+            write_manifest(temp, manifest)
+            seal(temp)
+            if not _is_intact(final):
+                publish_dir(temp, final)
+        finally:
+            remove_tree(temp)
+
+    def _remove_own_temps(self, stage: str, key: str) -> None:
+        """Delete temp folders a killed build of this key left (the caller holds its lock)."""
+        for leftover in (self.root / stage).glob(f"{TEMP_PREFIX}{key}-*"):
+            remove_tree(leftover)
+
+    def _require(self, stage: str, key: str) -> None:
+        """Raise MissingArtifactError unless a finished artifact exists."""
+        if not self.has(stage, key):
+            raise MissingArtifactError(f"no artifact {stage}/{key} in {self.root}")
+
+
+def _is_intact(folder: Path) -> bool:
+    """True when `folder` is a sealed artifact whose hashes all match."""
+    if not is_sealed(folder):
+        return False
+    try:
+        check_seal(folder)
+    except CorruptArtifactError:
+        return False
+    return True

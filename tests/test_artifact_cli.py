@@ -1,0 +1,103 @@
+"""`python -m relaygs.artifacts`: ls, show, verify and gc, their output and exit codes."""
+
+import subprocess
+import sys
+
+import pytest
+import torch
+
+from relaygs.artifacts import main
+from relaygs.pipeline.artifact import Artifact
+from relaygs.pipeline.keys import artifact_key
+from relaygs.pipeline.manifest import LineageEntry
+from relaygs.pipeline.store import ArtifactStore
+
+KEY_A = artifact_key("decouple", 1, {"steps": 1}, "scene", [])
+KEY_B = artifact_key("relay", 1, {"k": 2}, "scene", [KEY_A])
+
+
+@pytest.fixture
+def store(tmp_path):
+    store = ArtifactStore(tmp_path / "store")
+    store.get_or_build(
+        "decouple",
+        KEY_A,
+        lambda: Artifact("decouple", {"xyz": torch.zeros(5, 3)}, {}),
+        config={"steps": 1},
+        lineage=[],
+    )
+    store.get_or_build(
+        "relay",
+        KEY_B,
+        lambda: Artifact("relay", {"segment": torch.arange(5)}, {}),
+        config={"k": 2},
+        lineage=[LineageEntry("decouple", "decouple", KEY_A)],
+    )
+    return store
+
+
+def _cli(capsys, store_root, *args):
+    code = main(["--root", str(store_root), *args])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_ls_lists_finished_artifacts_only(store, capsys):
+    (store.root / "relay" / f".tmp-{KEY_B}-x").mkdir()
+    code, out, _ = _cli(capsys, store.root, "ls")
+    assert code == 0
+    assert KEY_A[:16] in out and KEY_B[:16] in out and ".tmp" not in out
+    assert f"decouple:{KEY_A[:8]}" in out
+    assert "2 artifact(s)" in out
+
+
+def test_show_prints_manifest_and_tensors_by_key_prefix(store, capsys):
+    code, out, _ = _cli(capsys, store.root, "show", KEY_B[:10])
+    assert code == 0
+    assert f'"key": "{KEY_B}"' in out and "tensor segment: I64 [5]" in out
+    code, _, err = _cli(capsys, store.root, "show", "ffff0000")
+    assert code == 1 and err.startswith("error: no artifact with key starting 'ffff0000'")
+    assert err.count("\n") == 1
+
+
+def test_verify_exits_1_on_a_corrupt_artifact(store, capsys):
+    assert _cli(capsys, store.root, "verify")[0] == 0
+    victim = store.path("decouple", KEY_A) / "tensors.safetensors"
+    data = bytearray(victim.read_bytes())
+    data[-1] ^= 0xFF
+    victim.write_bytes(bytes(data))
+    code, out, _ = _cli(capsys, store.root, "verify")
+    assert code == 1 and "CORRUPT" in out and "tensors.safetensors" in out and KEY_B not in out
+
+
+def test_gc_removes_leftovers_and_unkept_artifacts(store, capsys):
+    leftover = store.root / "relay" / f".tmp-{KEY_B}-x"
+    leftover.mkdir()
+    code, out, _ = _cli(capsys, store.root, "gc", "--dry-run")
+    assert code == 0 and "would remove" in out and leftover.exists()
+    code, out, _ = _cli(capsys, store.root, "gc", "--keep", KEY_A)
+    assert code == 0 and not leftover.exists()
+    assert store.has("decouple", KEY_A) and not store.has("relay", KEY_B)
+
+
+def test_missing_store_is_one_line_error(tmp_path, capsys):
+    code, out, err = _cli(capsys, tmp_path / "nowhere", "ls")
+    assert code == 1 and out == "" and err.startswith("error: no artifact store at")
+    assert err.count("\n") == 1
+
+
+def test_module_entry_point_runs_as_a_process(store):
+    done = subprocess.run(
+        [sys.executable, "-m", "relaygs.artifacts", "--root", str(store.root), "verify"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode == 0, done.stderr
+    assert "2 readable artifact(s), 0 problem(s)" in done.stdout
+
+
+def test_usage_errors_exit_2(capsys):
+    with pytest.raises(SystemExit) as caught:
+        main(["frobnicate"])
+    assert caught.value.code == 2 and "invalid choice" in capsys.readouterr().err

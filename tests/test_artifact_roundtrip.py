@@ -1,0 +1,73 @@
+"""Artifacts survive the store bit for bit, and meta that JSON would alter is refused."""
+
+import pytest
+import torch
+
+from relaygs.errors import InputError
+from relaygs.pipeline.artifact import Artifact, read_artifact_files, write_artifact_files
+
+
+def _roundtrip(tmp_path, artifact):
+    write_artifact_files(tmp_path, artifact)
+    return read_artifact_files(tmp_path, artifact.stage)
+
+
+def test_tensors_roundtrip_bitwise_with_dtypes_and_odd_layouts(tmp_path):
+    base = torch.randn(4, 6, generator=torch.Generator().manual_seed(1))
+    tensors = {
+        "float": base,
+        "transposed": base.t(),  # non-contiguous
+        "view_of_float": base[1:3],  # shares storage with "float"
+        "half": base.to(torch.float16),
+        "bf16": base.to(torch.bfloat16),
+        "bool": base > 0,
+        "int64": torch.arange(-5, 5),
+        "uint8": torch.arange(0, 250, 7, dtype=torch.uint8),
+        "int32": torch.tensor([2**31 - 1, -(2**31)], dtype=torch.int32),
+        "scalar": torch.tensor(3.5),
+        "empty": torch.zeros(0, 3),
+        "empty_too": torch.zeros(0, dtype=torch.int64),
+        "specials": torch.tensor([float("nan"), float("inf"), -0.0, 1e-45]),
+    }
+    loaded = _roundtrip(tmp_path, Artifact("decouple", tensors, {"n": 3}))
+    assert set(loaded.tensors) == set(tensors)
+    for name, original in tensors.items():
+        got = loaded.tensors[name]
+        assert got.dtype == original.dtype, name
+        assert got.shape == original.shape, name
+        assert got.is_contiguous(), name
+        assert torch.equal(
+            got.view(-1).view(torch.uint8), original.contiguous().view(-1).view(torch.uint8)
+        ), name
+
+
+def test_meta_roundtrips_equal_and_empty_tensors_are_allowed(tmp_path):
+    meta = {
+        "metrics": {"psnr": 31.234567890123456, "loss": 1e-300, "neg_zero": -0.0},
+        "counts": [1, 2, 3],
+        "nested": {"flag": True, "none": None, "text": "ünï"},
+        "big": 2**62,
+    }
+    loaded = _roundtrip(tmp_path, Artifact("relay", {}, meta))
+    assert loaded.tensors == {}
+    assert loaded.meta == meta
+    assert str(loaded.meta["metrics"]["neg_zero"]) == "-0.0"
+
+
+@pytest.mark.parametrize(
+    ("meta", "fragment"),
+    [
+        ({"size": (3, 4)}, "size is a tuple"),
+        ({"table": {1: "a"}}, "key 1 is not a string"),
+        ({"t": torch.ones(1)}, "t is a Tensor"),
+        ({"s": {1, 2}}, "s is a set"),
+    ],
+)
+def test_meta_that_json_would_change_is_refused(tmp_path, meta, fragment):
+    with pytest.raises(InputError, match=fragment):
+        write_artifact_files(tmp_path, Artifact("deform", {}, meta))
+
+
+def test_non_tensor_values_in_tensors_are_refused(tmp_path):
+    with pytest.raises(InputError, match="'x' is a list"):
+        write_artifact_files(tmp_path, Artifact("deform", {"x": [1, 2]}, {}))

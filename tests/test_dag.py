@@ -1,0 +1,240 @@
+"""Pipeline files: shipped topologies, validation errors, and running a DAG of fake stages."""
+
+import itertools
+from dataclasses import dataclass
+
+import pytest
+import torch
+
+from relaygs import paths
+from relaygs.errors import InputError
+from relaygs.pipeline.artifact import Artifact
+from relaygs.pipeline.dag import PipelineRun, run_pipeline
+from relaygs.pipeline.spec import available_pipelines, load_pipeline
+from relaygs.pipeline.store import ArtifactStore
+
+SHIPPED = {
+    "relaygs": ["decouple", "relay", "deform"],
+    "4dgs": ["warmup", "deform"],
+    "no_stage2": ["decouple", "replicate", "deform"],
+    "no_copies": ["decouple", "deform"],
+}
+KNOWN_STAGES = {"decouple", "relay", "deform", "warmup", "replicate"}
+
+
+@pytest.mark.parametrize(("name", "chain"), SHIPPED.items())
+def test_shipped_pipelines_are_the_documented_chains(name, chain):
+    pipeline = load_pipeline(name, known_stages=KNOWN_STAGES)
+    order = pipeline.topological_order()
+    assert [node.stage for node in order] == chain
+    for parent, child in itertools.pairwise(order):
+        assert child.upstream == (parent.name,)
+    assert pipeline.output_node.stage == "deform"
+    assert pipeline.path.is_absolute()
+
+
+def test_available_pipelines_lists_the_shipped_ones():
+    assert set(SHIPPED) <= set(available_pipelines())
+
+
+def _write(tmp_path, text, name="p.yaml"):
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def test_topological_order_puts_upstreams_first_whatever_the_file_order(tmp_path):
+    path = _write(
+        tmp_path,
+        "nodes:\n"
+        "  c: {stage: deform, upstream: [b, a]}\n"
+        "  b: {stage: relay, upstream: [a]}\n"
+        "  a: {stage: decouple}\n",
+    )
+    assert [node.name for node in load_pipeline(path).topological_order()] == ["a", "b", "c"]
+
+
+@pytest.mark.parametrize(
+    ("text", "fragment"),
+    [
+        ("nodes:\n  a: {stage: decouple, upstream: [zz]}\n", "unknown upstream 'zz'"),
+        (
+            "nodes:\n  a: {stage: decouple, upstream: [b]}\n  b: {stage: relay, upstream: [a]}\n"
+            "  c: {stage: deform, upstream: [b]}\n",
+            "cycle (a -> b -> a|b -> a -> b)",
+        ),
+        ("nodes:\n  a: {stage: decouple, upstream: [a]}\n", "cycle a -> a"),
+        ("nodes:\n  a: {stage: teleport}\n", "unknown stage type 'teleport'"),
+        ("nodes:\n  a: {stage: decouple, inputs: []}\n", r"unknown field\(s\) \['inputs'\]"),
+        ("nodes:\n  a: {upstream: []}\n", "'stage' must be a stage type name"),
+        ("nodes:\n  a: {stage: relay, upstream: b}\n", "'upstream' must be a list"),
+        ("nodes: {}\n", "'nodes' must be a non-empty mapping"),
+        ("- a\n- b\n", "expected a mapping with 'nodes'"),
+        ("nodes: [unclosed\n", "cannot read pipeline"),
+        ("nodes:\n  a: {stage: decouple}\n  b: {stage: relay}\n", "exactly one output node"),
+    ],
+)
+def test_invalid_pipelines_fail_in_one_line_naming_the_file(tmp_path, text, fragment):
+    path = _write(tmp_path, text)
+    with pytest.raises(InputError, match=fragment) as caught:
+        load_pipeline(path, known_stages=KNOWN_STAGES)
+    assert str(path) in str(caught.value) and "\n" not in str(caught.value)
+
+
+def test_unknown_pipeline_name_lists_the_available_ones():
+    with pytest.raises(InputError, match=r"unknown pipeline 'nope' \(available: .*relaygs"):
+        load_pipeline("nope")
+    with pytest.raises(InputError, match="does not exist"):
+        load_pipeline("/no/such/pipeline.yaml")
+
+
+@dataclass
+class FakeScene:
+    fingerprint: str
+
+
+class FakeStages:
+    """Stage functions that return arange tensors shifted by their inputs and count calls."""
+
+    def __init__(self):
+        self.calls = {}
+
+    def fn(self, stage):
+        def run(scene, upstream, cfg):
+            self.calls[stage] = self.calls.get(stage, 0) + 1
+            base = sum(float(a.tensors["x"].sum()) for a in upstream.values())
+            x = torch.arange(4.0) * cfg["scale"] + base
+            meta = {"upstream": sorted(upstream), "scene": scene.fingerprint}
+            return Artifact(stage, {"x": x}, meta)
+
+        return run
+
+    def table(self):
+        return {stage: self.fn(stage) for stage in KNOWN_STAGES}
+
+
+def _run(store, stages, cfgs, pipeline="relaygs", scene="scene-a"):
+    return run_pipeline(
+        load_pipeline(pipeline),
+        stages.table(),
+        FakeScene(scene),
+        lambda node: cfgs[node.stage],
+        store,
+    )
+
+
+BASE = {"decouple": {"scale": 1.0}, "relay": {"scale": 2.0, "k": 4}, "deform": {"scale": 3.0}}
+
+
+def test_run_builds_each_stage_once_then_hits_the_cache(tmp_path):
+    store, stages = ArtifactStore(tmp_path), FakeStages()
+    first = _run(store, stages, BASE)
+    second = _run(store, stages, BASE)
+    assert stages.calls == {"decouple": 1, "relay": 1, "deform": 1}
+    assert [r.cache_hit for r in first.reports] == [False, False, False]
+    assert [r.cache_hit for r in second.reports] == [True, True, True]
+    assert [r.key for r in first.reports] == [r.key for r in second.reports]
+    assert torch.equal(first.output.tensors["x"], second.output.tensors["x"])
+    assert second.output.meta == {"upstream": ["relay"], "scene": "scene-a"}
+    assert second.train_seconds_computed == 0.0
+    assert second.train_seconds_total == pytest.approx(first.train_seconds_total)
+
+
+def test_lineage_is_recorded_and_seconds_add_up(tmp_path):
+    store = ArtifactStore(tmp_path)
+    run: PipelineRun = _run(store, FakeStages(), BASE)
+    decouple, relay, deform = run.reports
+    manifest = store.manifest("deform", deform.key)
+    assert [(e.node, e.stage, e.key) for e in manifest.lineage] == [("relay", "relay", relay.key)]
+    assert manifest.provenance["node"] == "deform"
+    assert deform.lineage_seconds == pytest.approx(
+        decouple.wall_seconds + relay.wall_seconds + deform.wall_seconds
+    )
+    assert run.train_seconds_total == pytest.approx(deform.lineage_seconds)
+
+
+def test_changing_a_downstream_config_rebuilds_only_downstream(tmp_path):
+    store, stages = ArtifactStore(tmp_path), FakeStages()
+    first = _run(store, stages, BASE)
+    changed = _run(store, stages, {**BASE, "relay": {"scale": 2.0, "k": 8}})
+    assert stages.calls == {"decouple": 1, "relay": 2, "deform": 2}
+    assert [r.cache_hit for r in changed.reports] == [True, False, False]
+    assert changed.reports[2].key != first.reports[2].key  # new upstream key, same own config
+
+
+def test_paths_and_logging_do_not_rebuild_but_the_stage_still_sees_them(tmp_path):
+    store, stages = ArtifactStore(tmp_path), FakeStages()
+    _run(store, stages, BASE)
+    seen = []
+    table = stages.table()
+
+    def recording_decouple(scene, upstream, cfg):
+        seen.append(cfg)
+        return stages.fn("decouple")(scene, upstream, cfg)
+
+    table["decouple"] = recording_decouple
+    noisy = {**BASE, "decouple": {"scale": 1.0, "paths": {"out": "/x"}, "logging": {"every": 1}}}
+    run = run_pipeline(
+        load_pipeline("relaygs"), table, FakeScene("scene-a"), lambda node: noisy[node.stage], store
+    )
+    assert all(r.cache_hit for r in run.reports) and seen == []
+    other_scene = run_pipeline(
+        load_pipeline("relaygs"), table, FakeScene("scene-b"), lambda node: noisy[node.stage], store
+    )
+    assert not any(r.cache_hit for r in other_scene.reports)
+    assert seen == [noisy["decouple"]]
+
+
+def test_pipelines_share_upstream_artifacts(tmp_path):
+    store, stages = ArtifactStore(tmp_path), FakeStages()
+    relaygs = _run(store, stages, BASE)
+    no_copies = _run(store, stages, BASE, pipeline="no_copies")
+    assert no_copies.reports[0].cache_hit and no_copies.reports[0].key == relaygs.reports[0].key
+    assert not no_copies.reports[1].cache_hit
+    assert no_copies.output.meta["upstream"] == ["decouple"]
+
+
+def test_missing_stage_functions_fail_before_any_work(tmp_path):
+    store, stages = ArtifactStore(tmp_path), FakeStages()
+    table = stages.table()
+    del table["deform"]
+    with pytest.raises(InputError, match=r"no stage function for type\(s\) \['deform'\]"):
+        run_pipeline(
+            load_pipeline("relaygs"), table, FakeScene("s"), lambda n: BASE[n.stage], store
+        )
+    assert stages.calls == {} and store.list() == []
+
+
+def test_schema_version_bump_rebuilds(tmp_path):
+    store, stages = ArtifactStore(tmp_path), FakeStages()
+    _run(store, stages, BASE)
+    reports = []
+    run_pipeline(
+        load_pipeline("relaygs"),
+        stages.table(),
+        FakeScene("scene-a"),
+        lambda node: BASE[node.stage],
+        store,
+        schema_versions={"relay": 2},
+        on_node_done=reports.append,
+    )
+    assert [r.cache_hit for r in reports] == [True, False, False]
+
+
+def test_config_and_pipeline_folders_prefer_the_repo_then_the_packaged_copy(tmp_path, monkeypatch):
+    repo, packaged = tmp_path / "repo", tmp_path / "packaged"
+    monkeypatch.setattr(paths, "REPO_ROOT", repo)
+    monkeypatch.setattr(paths, "PACKAGED_DATA_DIR", packaged)
+    with pytest.raises(InputError, match="no usable pipelines/ folder"):
+        paths.pipelines_dir()
+    (packaged / "pipelines").mkdir(parents=True)
+    (packaged / "pipelines" / "relaygs.yaml").write_text("nodes: {}\n")
+    (repo / "pipelines").mkdir(parents=True)
+    assert paths.pipelines_dir() == packaged / "pipelines"  # the repo folder holds no YAML
+    (repo / "pipelines" / "relaygs.yaml").write_text("nodes: {}\n")
+    assert paths.pipelines_dir() == repo / "pipelines"
+    (repo / "conf").mkdir()
+    with pytest.raises(InputError, match="no usable conf/ folder"):
+        paths.config_dir()  # a conf/ without config.yaml does not count
+    (repo / "conf" / "config.yaml").write_text("seed: 0\n")
+    assert paths.config_dir() == repo / "conf"

@@ -1,0 +1,216 @@
+"""ArtifactStore in one process: layout, manifest, cache hits, corruption, missing keys, gc."""
+
+import json
+
+import pytest
+import torch
+from filelock import FileLock
+
+import relaygs
+from relaygs.errors import InputError
+from relaygs.pipeline.artifact import Artifact
+from relaygs.pipeline.context import current_build
+from relaygs.pipeline.integrity import MARKER_FILE, CorruptArtifactError
+from relaygs.pipeline.keys import artifact_key
+from relaygs.pipeline.manifest import LineageEntry
+from relaygs.pipeline.store import ArtifactStore, MissingArtifactError
+
+KEY = artifact_key("decouple", 1, {"steps": 3}, "scene", [])
+CHILD_KEY = artifact_key("relay", 1, {"k": 4}, "scene", [KEY])
+
+
+class CountingStage:
+    """A fake stage: arange tensors plus a counter of how often it really ran."""
+
+    def __init__(self, stage="decouple", offset=0):
+        self.stage, self.offset, self.calls = stage, offset, 0
+
+    def __call__(self):
+        self.calls += 1
+        tensors = {"xyz": torch.arange(12.0).reshape(4, 3) + self.offset, "mask": torch.ones(4) > 0}
+        return Artifact(self.stage, tensors, {"metrics": {"loss": 0.5}, "calls": self.calls})
+
+
+def _build(store, fake, key=KEY, **kwargs):
+    kwargs.setdefault("config", {"steps": 3})
+    kwargs.setdefault("lineage", [])
+    return store.get_or_build(fake.stage, key, fake, **kwargs)
+
+
+def test_root_is_absolute_and_layout_manifest_and_marker_are_written(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    store = ArtifactStore("store")
+    assert store.root.is_absolute() and store.root == (tmp_path / "store").resolve()
+    _build(store, CountingStage(), provenance={"node": "decouple"})
+    folder = store.root / "decouple" / KEY
+    assert sorted(p.name for p in folder.iterdir()) == sorted(
+        [MARKER_FILE, "manifest.json", "meta.json", "tensors.safetensors"]
+    )
+    manifest = json.loads((folder / "manifest.json").read_text())
+    assert manifest["key"] == KEY and manifest["stage"] == "decouple"
+    assert manifest["config"] == {"steps": 3} and manifest["lineage"] == []
+    assert manifest["metrics"] == {"loss": 0.5} and manifest["wall_seconds"] >= 0
+    assert manifest["package_version"] == relaygs.__version__
+    assert manifest["created"].endswith("+00:00")
+    assert manifest["provenance"] == {"node": "decouple"}
+    assert set(manifest["files"]) == {"meta.json", "tensors.safetensors"}
+    assert store.manifest("decouple", KEY).size_bytes == sum(
+        (folder / name).stat().st_size for name in manifest["files"]
+    )
+    assert not list((store.root / "decouple").glob(".tmp-*"))
+
+
+def test_cache_hit_does_not_rebuild_and_reports_recorded_seconds(tmp_path):
+    store, fake = ArtifactStore(tmp_path), CountingStage()
+    built, first = _build(store, fake)
+    loaded, second = _build(store, fake)
+    assert fake.calls == 1
+    assert not first.cache_hit and second.cache_hit
+    assert second.wall_seconds == first.wall_seconds
+    assert torch.equal(loaded.tensors["xyz"], built.tensors["xyz"])
+    assert loaded.meta == built.meta
+
+
+def test_lineage_is_recorded(tmp_path):
+    store = ArtifactStore(tmp_path)
+    _build(store, CountingStage())
+    lineage = [LineageEntry("decouple", "decouple", KEY)]
+    _build(store, CountingStage("relay"), key=CHILD_KEY, config={"k": 4}, lineage=lineage)
+    assert store.manifest("relay", CHILD_KEY).lineage == lineage
+
+
+def _flip_byte(path):
+    data = bytearray(path.read_bytes())
+    data[len(data) // 2] ^= 0x01
+    path.write_bytes(bytes(data))
+
+
+@pytest.mark.parametrize("victim", ["tensors.safetensors", "meta.json", "manifest.json"])
+def test_a_changed_byte_is_detected_and_rebuilt(tmp_path, victim):
+    store, fake = ArtifactStore(tmp_path), CountingStage()
+    _build(store, fake)
+    _flip_byte(store.path("decouple", KEY) / victim)
+    with pytest.raises(CorruptArtifactError, match=victim):
+        store.load("decouple", KEY)
+    artifact, info = _build(store, fake)
+    assert fake.calls == 2 and not info.cache_hit and info.replaced_corrupt
+    assert store.load("decouple", KEY).meta["calls"] == 2
+    assert artifact.meta["calls"] == 2
+
+
+def test_a_changed_byte_is_refused_under_on_corrupt_error(tmp_path):
+    store, fake = ArtifactStore(tmp_path), CountingStage()
+    _build(store, fake)
+    _flip_byte(store.path("decouple", KEY) / "tensors.safetensors")
+    with pytest.raises(CorruptArtifactError, match=r"tensors\.safetensors.*on_corrupt=error"):
+        _build(store, fake, on_corrupt="error")
+    assert fake.calls == 1
+
+
+def test_a_damaged_marker_is_detected(tmp_path):
+    store = ArtifactStore(tmp_path)
+    _build(store, CountingStage())
+    (store.path("decouple", KEY) / MARKER_FILE).write_text("{not json")
+    with pytest.raises(CorruptArtifactError, match=MARKER_FILE):
+        store.load("decouple", KEY)
+    assert [p.path.name for p in store.verify()] == [KEY]
+
+
+def test_missing_and_malformed_requests_fail_clearly(tmp_path):
+    store = ArtifactStore(tmp_path)
+    with pytest.raises(MissingArtifactError, match=f"no artifact decouple/{KEY}"):
+        store.load("decouple", KEY)
+    with pytest.raises(InputError, match="64 lowercase hex"):
+        store.has("decouple", "../etc")
+    with pytest.raises(InputError, match="stage name"):
+        store.has("../x", KEY)
+    with pytest.raises(InputError, match="on_corrupt"):
+        _build(store, CountingStage(), on_corrupt="ignore")
+    fake = CountingStage()
+    with pytest.raises(InputError, match=r"^decouple config\.seeds is a set"):
+        _build(store, fake, config={"seeds": {1, 2}})
+    assert fake.calls == 0
+    with pytest.raises(InputError, match="labelled 'relay'"):
+        store.get_or_build("decouple", KEY, CountingStage("relay"), config={}, lineage=[])
+    assert not store.has("decouple", KEY)
+
+
+def test_build_sees_its_context_and_checkpoints_are_removed_on_completion(tmp_path):
+    store = ArtifactStore(tmp_path)
+    seen = []
+
+    def build():
+        context = current_build()
+        seen.append((context.stage, context.key, context.store_root))
+        context.checkpointer(1).save(1, {"x": torch.ones(2)})
+        assert (store.root / "decouple" / f"{KEY}.ckpt").is_dir()
+        return Artifact("decouple", {}, {})
+
+    store.get_or_build("decouple", KEY, build, config={}, lineage=[])
+    assert seen == [("decouple", KEY, store.root)]
+    assert current_build() is None
+    assert not (store.root / "decouple" / f"{KEY}.ckpt").exists()
+
+
+def test_a_failing_build_leaves_nothing(tmp_path):
+    store = ArtifactStore(tmp_path)
+
+    def build():
+        raise RuntimeError("boom")
+
+    with pytest.raises(RuntimeError, match="boom"):
+        store.get_or_build("decouple", KEY, build, config={}, lineage=[])
+    assert not store.has("decouple", KEY) and store.list() == []
+
+
+def test_leftover_temp_dirs_are_ignored_by_list_and_removed_by_gc(tmp_path):
+    store = ArtifactStore(tmp_path)
+    _build(store, CountingStage())
+    stage_dir = store.root / "decouple"
+    leftover = stage_dir / f".tmp-{CHILD_KEY}-abc123"
+    leftover.mkdir()
+    (leftover / "tensors.safetensors").write_bytes(b"half")
+    incomplete = stage_dir / CHILD_KEY
+    incomplete.mkdir()
+    stale_ckpt = stage_dir / f"{KEY}.ckpt"
+    stale_ckpt.mkdir()
+    assert [item.key for item in store.list()] == [KEY]
+    assert not store.has("decouple", CHILD_KEY)
+    dry = store.gc(dry_run=True)
+    assert leftover.exists() and set(dry.removed) >= {leftover, incomplete, stale_ckpt}
+    report = store.gc()
+    assert not leftover.exists() and not incomplete.exists() and not stale_ckpt.exists()
+    assert not list((store.root / ".locks").iterdir())
+    assert store.has("decouple", KEY) and set(report.removed) >= {leftover, incomplete}
+
+
+def test_gc_skips_entries_whose_lock_is_held(tmp_path):
+    store = ArtifactStore(tmp_path)
+    leftover = store.root / "decouple" / f".tmp-{KEY}-busy"
+    leftover.mkdir(parents=True)
+    lock_file = store.root / ".locks" / f"decouple.{KEY}.lock"
+    lock_file.parent.mkdir()
+    with FileLock(str(lock_file)):
+        report = store.gc()
+    assert leftover.exists() and leftover in report.busy and lock_file in report.busy
+
+
+def test_gc_with_keep_set_keeps_lineage_and_removes_the_rest(tmp_path):
+    store = ArtifactStore(tmp_path)
+    _build(store, CountingStage())
+    lineage = [LineageEntry("decouple", "decouple", KEY)]
+    _build(store, CountingStage("relay"), key=CHILD_KEY, config={"k": 4}, lineage=lineage)
+    other = artifact_key("decouple", 1, {"steps": 4}, "scene", [])
+    _build(store, CountingStage(offset=1), key=other)
+    store.gc(keep={CHILD_KEY})
+    assert store.has("relay", CHILD_KEY) and store.has("decouple", KEY)
+    assert not store.has("decouple", other)
+
+
+def test_the_next_build_of_a_key_clears_its_killed_builds_temp_dirs(tmp_path):
+    store = ArtifactStore(tmp_path)
+    leftover = store.root / "decouple" / f".tmp-{KEY}-killed"
+    leftover.mkdir(parents=True)
+    (leftover / "meta.json").write_text("{")
+    _build(store, CountingStage())
+    assert not leftover.exists() and store.verify() == []
