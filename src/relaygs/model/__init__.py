@@ -1,0 +1,51 @@
+"""Gaussian model: parameter set and activations, optimiser groups, density control, guard."""
+
+from relaygs.model.density import (
+    BACKGROUND_DENSIFY,
+    FOREGROUND_DENSIFY,
+    DensifyReport,
+    DensifySettings,
+    DensityController,
+)
+from relaygs.model.gaussians import (
+    CORE_PARAMS,
+    MAX_LOG_SCALE,
+    SH_C0,
+    GaussianSet,
+    inverse_sigmoid,
+    normalize_quats,
+    quats_to_rotmats,
+    sh_degree_for_step,
+)
+from relaygs.model.guard import check_finite
+from relaygs.model.knn import mean_sq_knn_distance
+from relaygs.model.optim import (
+    ADAM_EPS,
+    GaussianOptimizer,
+    LRSchedule,
+    SetLearningRates,
+    log_linear,
+)
+
+__all__ = [
+    "ADAM_EPS",
+    "BACKGROUND_DENSIFY",
+    "CORE_PARAMS",
+    "FOREGROUND_DENSIFY",
+    "MAX_LOG_SCALE",
+    "SH_C0",
+    "DensifyReport",
+    "DensifySettings",
+    "DensityController",
+    "GaussianOptimizer",
+    "GaussianSet",
+    "LRSchedule",
+    "SetLearningRates",
+    "check_finite",
+    "inverse_sigmoid",
+    "log_linear",
+    "mean_sq_knn_distance",
+    "normalize_quats",
+    "quats_to_rotmats",
+    "sh_degree_for_step",
+]

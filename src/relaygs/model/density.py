@@ -1,0 +1,237 @@
+"""3DGS adaptive density control for one Gaussian set: clone, split, prune, opacity reset.
+
+Screen-space gradients: the renderer's `means2d` are in pixels, while 3DGS thresholds
+(2e-4) refer to gradients with respect to NDC coordinates. Since pixel = ((ndc + 1)·W − 1)/2,
+dL/dndc = dL/dpixel · W/2 (x) and · H/2 (y); we scale by these, as gsplat does. When the loss
+averages over C cameras each camera's gradient is 1/C of a single-view loss's, so (again as
+gsplat) we also multiply by C unless told the loss is a sum.
+
+Schedule (3DGS): while `step < densify_until`, every `densify_every` steps once
+`step > densify_from` densify then prune; every `opacity_reset_every` steps reset opacities.
+Call `step()` after the optimiser step so that step's gradients are not discarded.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from relaygs.errors import InputError
+from relaygs.model.gaussians import GaussianSet, inverse_sigmoid, quats_to_rotmats
+from relaygs.model.optim import GaussianOptimizer
+
+
+@dataclass(frozen=True)
+class DensifySettings:
+    """Density-control settings of one Gaussian set (defaults: 3DGS / background values).
+
+    percent_dense × scene extent is the clone/split size threshold (the paper's foreground uses
+    0.1× the background's, i.e. 0.001). max_screen_radius (pixels) is off by default: in the
+    reference 3DGS code its check never fires (max_radii2D is zeroed just before), so None
+    reproduces 3DGS's actual behaviour; a number enables the intended screen-size pruning.
+    """
+
+    grad_threshold: float = 2e-4
+    percent_dense: float = 0.01
+    densify_from: int = 500
+    densify_until: int = 15_000
+    densify_every: int = 100
+    opacity_reset_every: int = 3000
+    reset_opacity: float = 0.01
+    prune_opacity: float = 0.005
+    split_count: int = 2
+    split_scale_divisor: float = 1.6  # 0.8 × split_count in 3DGS
+    max_world_size: float = 0.1  # × scene extent; pruned after the first opacity reset
+    max_screen_radius: float | None = None
+    max_gaussians: int | None = None
+
+
+BACKGROUND_DENSIFY = DensifySettings()
+FOREGROUND_DENSIFY = DensifySettings(grad_threshold=1e-4, percent_dense=0.001)
+
+
+@dataclass(frozen=True)
+class DensifyReport:
+    """What one density-control call did."""
+
+    cloned: int = 0
+    split: int = 0
+    pruned: int = 0
+    opacity_reset: bool = False
+    total: int = 0
+
+
+class DensityController:
+    """Accumulates screen-space gradient statistics and edits one set (and its Adam state)."""
+
+    def __init__(
+        self,
+        gaussians: GaussianSet,
+        settings: DensifySettings,
+        scene_extent: float,
+        optimizer: GaussianOptimizer | None = None,
+        generator: torch.Generator | None = None,
+    ) -> None:
+        """Control `gaussians`; if `optimizer` manages it, its Adam rows are kept aligned."""
+        if scene_extent <= 0.0:
+            raise InputError(f"DensityController: scene_extent must be > 0, got {scene_extent}")
+        self.gaussians = gaussians
+        self.settings = settings
+        self.scene_extent = scene_extent
+        self.optimizer = optimizer
+        self.generator = generator
+        self._reset_stats()
+
+    def accumulate(
+        self,
+        means2d_grad: Tensor,
+        radii: Tensor,
+        width: int,
+        height: int,
+        loss_is_mean_over_cameras: bool = True,
+    ) -> None:
+        """Add one step's statistics: means2d_grad [C,N,2] (pixels), radii [C,N,2] or [C,N]."""
+        n = len(self.gaussians)
+        if means2d_grad.ndim != 3 or means2d_grad.shape[1:] != (n, 2):
+            raise InputError(
+                f"accumulate: means2d grad must be [C,{n},2], got {tuple(means2d_grad.shape)}"
+            )
+        if radii.shape[:2] != means2d_grad.shape[:2]:
+            raise InputError(f"accumulate: radii {tuple(radii.shape)} do not match the grad")
+        per_axis = radii if radii.ndim == 3 else radii[..., None]
+        visible = (per_axis > 0).all(dim=-1)
+        n_cameras = means2d_grad.shape[0] if loss_is_mean_over_cameras else 1
+        to_ndc = means2d_grad.new_tensor([width / 2.0, height / 2.0]) * n_cameras
+        grad_norm = (means2d_grad.detach() * to_ndc).norm(dim=-1)
+        self._grad_sum += torch.where(visible, grad_norm, 0.0).sum(dim=0)
+        self._views += visible.sum(dim=0)
+        max_radius = torch.where(visible, per_axis.max(dim=-1).values, 0).amax(dim=0)
+        self._max_radii = torch.maximum(self._max_radii, max_radius.to(torch.float32))
+
+    def mean_grads(self) -> Tensor:
+        """Mean NDC-space gradient norm [N] over the views where each Gaussian was visible."""
+        return self._grad_sum / self._views.clamp_min(1).to(self._grad_sum.dtype)
+
+    def step(self, step: int) -> DensifyReport | None:
+        """Run whatever the schedule asks for at `step`; None when nothing was due."""
+        s = self.settings
+        if step >= s.densify_until or step <= 0:
+            return None
+        densify_due = step > s.densify_from and step % s.densify_every == 0
+        reset_due = s.opacity_reset_every > 0 and step % s.opacity_reset_every == 0
+        if not (densify_due or reset_due):
+            return None
+        cloned = split = pruned = 0
+        if densify_due:
+            cloned, split = self.densify()
+            pruned = self.prune(size_limits=step > s.opacity_reset_every)
+            self._reset_stats()
+        if reset_due:
+            self.reset_opacity()
+        return DensifyReport(cloned, split, pruned, reset_due, len(self.gaussians))
+
+    def densify(self) -> tuple[int, int]:
+        """Clone small and split large high-gradient Gaussians; returns (cloned, split)."""
+        s = self.settings
+        g = self.gaussians
+        grads = self.mean_grads()
+        max_scale = g.scales.detach().amax(dim=1)
+        size_limit = s.percent_dense * self.scene_extent
+        candidates = grads >= s.grad_threshold
+        clone_mask = candidates & (max_scale <= size_limit)
+        split_mask = candidates & (max_scale > size_limit)
+        clone_mask, split_mask = self._apply_cap(grads, clone_mask, split_mask)
+        n_clone, n_split = int(clone_mask.sum()), int(split_mask.sum())
+        if n_clone + n_split == 0:
+            return 0, 0
+        keep_idx = (~split_mask).nonzero().squeeze(1)
+        clone_idx = clone_mask.nonzero().squeeze(1)
+        parent_idx = split_mask.nonzero().squeeze(1).repeat(s.split_count)
+        source = torch.cat([keep_idx, clone_idx, parent_idx])
+        fresh = torch.zeros(source.shape[0], dtype=torch.bool, device=source.device)
+        fresh[keep_idx.shape[0] + clone_idx.shape[0] :] = True
+        child_means, child_log_scales = self._split_children(parent_idx)
+        inherited = source[: keep_idx.shape[0] + clone_idx.shape[0]]
+        params = g.params
+        overrides = {
+            "means": torch.cat([params["means"].detach()[inherited], child_means]),
+            "log_scales": torch.cat([params["log_scales"].detach()[inherited], child_log_scales]),
+        }
+        self._reindex(source, fresh, overrides)
+        return n_clone, n_split
+
+    def prune(self, size_limits: bool = True) -> int:
+        """Remove low-opacity (and, with size_limits, too-large) Gaussians; returns the count."""
+        s = self.settings
+        g = self.gaussians
+        remove = g.opacities.detach() < s.prune_opacity
+        if size_limits:
+            remove |= g.scales.detach().amax(dim=1) > s.max_world_size * self.scene_extent
+            if s.max_screen_radius is not None:
+                remove |= self._max_radii > s.max_screen_radius
+        n_removed = int(remove.sum())
+        if n_removed:
+            keep = (~remove).nonzero().squeeze(1)
+            self._reindex(keep, None, None)
+        return n_removed
+
+    def reset_opacity(self) -> None:
+        """Opacity ← min(opacity, reset value) through the logit; zero its Adam moments."""
+        param = self.gaussians.params["opacity_logits"]
+        ceiling = inverse_sigmoid(torch.tensor(self.settings.reset_opacity))
+        with torch.no_grad():
+            param.copy_(torch.minimum(param, ceiling.to(param)))
+        if self.optimizer is not None:
+            self.optimizer.reset_state(param)
+
+    def _split_children(self, parent_idx: Tensor) -> tuple[Tensor, Tensor]:
+        g = self.gaussians
+        with torch.no_grad():
+            stds = g.scales[parent_idx]
+            noise = torch.randn(stds.shape, generator=self.generator, device=stds.device)
+            rotations = quats_to_rotmats(g.quats[parent_idx])
+            offsets = (rotations @ (noise * stds)[..., None]).squeeze(-1)
+            means = g.means.detach()[parent_idx] + offsets
+            shrink = math.log(self.settings.split_scale_divisor)
+            log_scales = g.params["log_scales"].detach()[parent_idx] - shrink
+        return means, log_scales
+
+    def _apply_cap(
+        self, grads: Tensor, clone_mask: Tensor, split_mask: Tensor
+    ) -> tuple[Tensor, Tensor]:
+        """Keep only the highest-gradient candidates whose growth fits under max_gaussians."""
+        cap = self.settings.max_gaussians
+        if cap is None:
+            return clone_mask, split_mask
+        growth = clone_mask.long() + split_mask.long() * (self.settings.split_count - 1)
+        budget = cap - len(self.gaussians)
+        if int(growth.sum()) <= budget:
+            return clone_mask, split_mask
+        candidates = (clone_mask | split_mask).nonzero().squeeze(1)
+        order = candidates[grads[candidates].argsort(descending=True, stable=True)]
+        fits = growth[order].cumsum(0) <= budget
+        chosen = torch.zeros_like(clone_mask)
+        chosen[order[fits]] = True
+        return clone_mask & chosen, split_mask & chosen
+
+    def _reindex(self, source: Tensor, fresh: Tensor | None, overrides: dict | None) -> None:
+        """Remap rows of the set, its Adam state and the statistics (fresh rows start at 0)."""
+        if self.optimizer is not None:
+            self.optimizer.reindex_rows(self.gaussians, source, fresh, overrides)
+        else:
+            self.gaussians.reindex_rows_(source, overrides)
+        for name in ("_grad_sum", "_views", "_max_radii"):
+            rows = getattr(self, name)[source]
+            if fresh is not None:
+                rows[fresh] = 0
+            setattr(self, name, rows)
+
+    def _reset_stats(self) -> None:
+        n = len(self.gaussians)
+        device = self.gaussians.means.device
+        self._grad_sum = torch.zeros(n, device=device)
+        self._views = torch.zeros(n, dtype=torch.int64, device=device)
+        self._max_radii = torch.zeros(n, device=device)

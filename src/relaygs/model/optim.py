@@ -1,0 +1,239 @@
+"""One Adam over named per-parameter groups of one or more Gaussian sets, with lr schedules.
+
+Foreground/background position learning rates: Adam is invariant to gradient scale, so
+scaling gradients per row cannot give rows different step sizes. Instead foreground and
+background are two separate `GaussianSet`s (concatenated only at render time), each with its
+own `SetLearningRates`; group names are "<set>.<param>" (e.g. "fg.means", "bg.log_scales").
+Densification then works per set on whole tensors, exactly as in 3DGS.
+
+Position learning rates are multiplied by `spatial_lr_scale` (the scene extent), as 3DGS and
+4D-GS do for means, for every set; all other rates are used as given.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields
+
+import torch
+from torch import Tensor, nn
+
+from relaygs.errors import InputError
+from relaygs.model.gaussians import GaussianSet, as_row_index
+
+ADAM_EPS = 1e-15
+
+
+def log_linear(
+    lr_init: float,
+    lr_final: float,
+    step: int,
+    max_steps: int,
+    delay_steps: int = 0,
+    delay_mult: float = 1.0,
+) -> float:
+    """3DGS `get_expon_lr_func`: log-linear from lr_init to lr_final over max_steps.
+
+    An optional delay scales the rate by delay_mult rising to 1 (sine ease) over delay_steps.
+    max_steps ≤ 0 means the schedule is already complete (lr_final).
+    """
+    if lr_init == 0.0 and lr_final == 0.0:
+        return 0.0
+    if lr_init <= 0.0 or lr_final <= 0.0:
+        raise InputError(
+            f"log_linear: lr_init and lr_final must both be > 0 (or both 0), "
+            f"got {lr_init} and {lr_final}"
+        )
+    if step < 0:
+        return 0.0
+    if delay_steps > 0:
+        ramp = min(max(step / delay_steps, 0.0), 1.0)
+        delay_rate = delay_mult + (1.0 - delay_mult) * math.sin(0.5 * math.pi * ramp)
+    else:
+        delay_rate = 1.0
+    t = min(max(step / max_steps, 0.0), 1.0) if max_steps > 0 else 1.0
+    return delay_rate * math.exp(math.log(lr_init) * (1.0 - t) + math.log(lr_final) * t)
+
+
+@dataclass(frozen=True)
+class LRSchedule:
+    """A learning rate: constant `init`, or log-linear init → final over max_steps."""
+
+    init: float
+    final: float | None = None
+    max_steps: int = 0
+    delay_steps: int = 0
+    delay_mult: float = 1.0
+
+    def at(self, step: int) -> float:
+        """Learning rate at `step`."""
+        if self.final is None:
+            return self.init
+        return log_linear(
+            self.init, self.final, step, self.max_steps, self.delay_steps, self.delay_mult
+        )
+
+    @classmethod
+    def from_config(cls, value: float | Mapping[str, float], where: str) -> LRSchedule:
+        """Build from a number (constant) or a mapping of this class's fields."""
+        if isinstance(value, int | float):
+            return cls(float(value))
+        allowed = {f.name for f in fields(cls)}
+        unknown = sorted(set(value) - allowed)
+        if unknown or "init" not in value:
+            raise InputError(
+                f"{where}: learning rate needs 'init' and only {sorted(allowed)}, got {dict(value)}"
+            )
+        return cls(**dict(value))
+
+
+@dataclass(frozen=True)
+class SetLearningRates:
+    """Learning-rate schedules for the parameters of one Gaussian set (3DGS defaults)."""
+
+    means: LRSchedule = LRSchedule(1.6e-4, 1.6e-6, 30_000, 0, 0.01)
+    log_scales: LRSchedule = LRSchedule(5e-3)
+    quats: LRSchedule = LRSchedule(1e-3)
+    opacity_logits: LRSchedule = LRSchedule(0.05)
+    sh_dc: LRSchedule = LRSchedule(2.5e-3)
+    sh_rest: LRSchedule = LRSchedule(2.5e-3 / 20)
+    extras: Mapping[str, LRSchedule] = field(default_factory=dict)
+
+    def for_param(self, name: str) -> LRSchedule:
+        """The schedule for parameter `name` (core or a registered extra)."""
+        if name in self.extras:
+            return self.extras[name]
+        if name != "extras" and name in {f.name for f in fields(self)}:
+            return getattr(self, name)
+        raise InputError(f"learning rates: no schedule for parameter {name!r}")
+
+    @classmethod
+    def from_config(cls, config: Mapping[str, object], where: str = "lr") -> SetLearningRates:
+        """Build from a mapping: core names and `extras` → number or schedule mapping."""
+        core_names = {f.name for f in fields(cls)} - {"extras"}
+        unknown = sorted(set(config) - core_names - {"extras"})
+        if unknown:
+            raise InputError(f"{where}: unknown learning-rate keys {unknown}")
+        core = {
+            name: LRSchedule.from_config(value, f"{where}.{name}")
+            for name, value in config.items()
+            if name != "extras"
+        }
+        extras_config = config.get("extras") or {}
+        extras = {
+            name: LRSchedule.from_config(value, f"{where}.extras.{name}")
+            for name, value in dict(extras_config).items()
+        }
+        return cls(**core, extras=extras)
+
+
+class GaussianOptimizer:
+    """Adam (eps 1e-15) with one param group per (set, parameter), named "<set>.<param>"."""
+
+    def __init__(
+        self,
+        sets: Mapping[str, GaussianSet],
+        learning_rates: Mapping[str, SetLearningRates],
+        spatial_lr_scale: float = 1.0,
+        betas: tuple[float, float] = (0.9, 0.999),
+    ) -> None:
+        """Build groups for every parameter of every set; extras must have a schedule."""
+        missing = sorted(set(sets) - set(learning_rates))
+        if missing:
+            raise InputError(f"optimizer: no learning rates for Gaussian set(s) {missing}")
+        self.sets = dict(sets)
+        self.spatial_lr_scale = spatial_lr_scale
+        self._schedules: dict[str, LRSchedule] = {}
+        groups = []
+        for set_name, gaussians in self.sets.items():
+            for param_name, param in gaussians.params.items():
+                group_name = f"{set_name}.{param_name}"
+                schedule = learning_rates[set_name].for_param(param_name)
+                self._schedules[group_name] = schedule
+                groups.append({"params": [param], "name": group_name, "lr": schedule.at(0)})
+        self.adam = torch.optim.Adam(groups, lr=0.0, betas=betas, eps=ADAM_EPS)
+        self.update_learning_rates(0)
+
+    def update_learning_rates(self, step: int) -> dict[str, float]:
+        """Set every group's lr for `step`; returns {group name: lr}."""
+        rates = {}
+        for group in self.adam.param_groups:
+            lr = self._schedules[group["name"]].at(step)
+            if group["name"].endswith(".means"):
+                lr *= self.spatial_lr_scale
+            group["lr"] = lr
+            rates[group["name"]] = lr
+        return rates
+
+    def learning_rate(self, group_name: str) -> float:
+        """Current lr of the named group."""
+        return self._group(group_name)["lr"]
+
+    def zero_grad(self) -> None:
+        """Drop all gradients (set to None)."""
+        self.adam.zero_grad(set_to_none=True)
+
+    def step(self) -> None:
+        """One Adam step over all groups."""
+        self.adam.step()
+
+    def reindex_rows(
+        self,
+        gaussians: GaussianSet,
+        source: Tensor,
+        fresh_state: Tensor | None = None,
+        overrides: Mapping[str, Tensor] | None = None,
+    ) -> None:
+        """Row remap of a managed set: row i takes old row source[i] (values and Adam state).
+
+        Rows where `fresh_state` is True get zero Adam moments; `overrides` replace values.
+        """
+        old_params = gaussians.params
+        index = as_row_index(source, len(gaussians))
+        gaussians.reindex_rows_(index, overrides)
+        for name, old in old_params.items():
+            self._swap_param(old, gaussians.params[name], index, fresh_state)
+
+    def reset_state(self, param: nn.Parameter, rows: Tensor | None = None) -> None:
+        """Zero the Adam moments of `param` (all rows, or the selected rows)."""
+        state = self.adam.state.get(param, {})
+        for key, value in state.items():
+            if key == "step" or not torch.is_tensor(value):
+                continue
+            if rows is None:
+                value.zero_()
+            else:
+                value[rows] = 0.0
+
+    def state_of(self, param: nn.Parameter) -> dict[str, Tensor]:
+        """The Adam state tensors of `param` (empty before its first step)."""
+        return dict(self.adam.state.get(param, {}))
+
+    def _group(self, group_name: str) -> dict:
+        for group in self.adam.param_groups:
+            if group["name"] == group_name:
+                return group
+        raise InputError(f"optimizer: no param group {group_name!r}")
+
+    def _swap_param(
+        self, old: nn.Parameter, new: nn.Parameter, index: Tensor, fresh: Tensor | None
+    ) -> None:
+        for group in self.adam.param_groups:
+            for slot, param in enumerate(group["params"]):
+                if param is old:
+                    group["params"][slot] = new
+                    break
+        state = self.adam.state.pop(old, None)
+        if not state:
+            return
+        new_state = {}
+        for key, value in state.items():
+            if key == "step" or not torch.is_tensor(value) or value.shape != old.shape:
+                new_state[key] = value
+                continue
+            rows = value[index]
+            if fresh is not None:
+                rows[fresh] = 0.0
+            new_state[key] = rows
+        self.adam.state[new] = new_state

@@ -1,0 +1,26 @@
+"""check_finite: passes finite tensors, names the first non-finite tensor or gradient."""
+
+import pytest
+import torch
+
+from relaygs.errors import DivergenceError
+from relaygs.model import check_finite
+
+
+def test_finite_tensors_pass() -> None:
+    check_finite("decouple", 3, {"a": torch.ones(3), "b": torch.zeros(2, 2)})
+    check_finite("decouple", 3, {})
+
+
+def test_names_stage_step_and_first_bad_tensor() -> None:
+    tensors = {"loss": torch.tensor(1.0), "means": torch.tensor([0.0, float("nan")])}
+    tensors["scales"] = torch.tensor([float("inf")])
+    with pytest.raises(DivergenceError, match=r"'relay'.*step 17.*'means'"):
+        check_finite("relay", 17, tensors)
+
+
+def test_names_non_finite_gradient() -> None:
+    param = torch.nn.Parameter(torch.ones(3))
+    (param * torch.tensor([1.0, float("inf"), 1.0])).sum().backward()
+    with pytest.raises(DivergenceError, match=r"'opacity\.grad'"):
+        check_finite("deform", 5, {"opacity": param})
