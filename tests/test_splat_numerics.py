@@ -1,0 +1,258 @@
+"""Hard cases of the splatting core: finite outputs and gradients, exact zero gradient when culled."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from splat_scenes import LEARNABLE, camera_rig, render_and_grads, with_grad
+
+from relaygs.errors import InputError
+from relaygs.splat import rasterization
+from relaygs.splat.reference import rasterization_reference
+
+W, H = 24, 20
+
+
+def _base_scene(hard: dict, dtype=torch.float32) -> dict:
+    """Two ordinary Gaussians plus one hard Gaussian (row 2) described by `hard`."""
+    viewmats, Ks = camera_rig(1, W, H, dtype=dtype)
+    viewmats = torch.eye(4, dtype=dtype)[None]
+    scene = {
+        "means": torch.tensor([[0.0, 0.0, 3.0], [0.2, -0.1, 2.5], [0.1, 0.1, 3.0]], dtype=dtype),
+        "quats": torch.tensor([[1.0, 0, 0, 0], [0.9, 0.1, 0.2, 0.3], [1.0, 0, 0, 0]], dtype=dtype),
+        "scales": torch.full((3, 3), 0.15, dtype=dtype),
+        "opacities": torch.tensor([0.7, 0.5, 0.6], dtype=dtype),
+        "colors": torch.tensor([[1.0, 0, 0], [0, 1.0, 0], [0, 0, 1.0]], dtype=dtype),
+        "viewmats": viewmats,
+        "Ks": Ks,
+        "width": W,
+        "height": H,
+    }
+    for key, value in hard.items():
+        scene[key] = scene[key].clone()
+        scene[key][2] = torch.as_tensor(value, dtype=dtype)
+    return scene
+
+
+def _assert_all_finite(colors, alphas, grads):
+    assert torch.isfinite(colors).all() and torch.isfinite(alphas).all()
+    for key, grad in grads.items():
+        assert grad is not None and torch.isfinite(grad).all(), f"non-finite gradient of {key}"
+
+
+CULLED = {
+    "at camera centre (z = 0)": {"means": [0.0, 0.0, 0.0]},
+    "behind the camera": {"means": [0.1, 0.1, -2.0]},
+    "just in front of the near plane's far side": {"means": [0.0, 0.0, 0.00999]},
+    "far outside the frustum": {"means": [1e6, 0.0, 3.0]},
+    "far outside, huge": {"means": [1e30, -1e30, 1e30]},
+    "opacity exactly 0": {"opacities": 0.0},
+    "log-scale 18": {"scales": [math.exp(18)] * 3},
+    "log-scale 24": {"scales": [math.exp(24)] * 3},
+    "log-scale 30": {"scales": [math.exp(30)] * 3},
+}
+
+
+@pytest.mark.parametrize("hard", CULLED.values(), ids=CULLED.keys())
+def test_culled_gaussian_is_finite_and_gets_exactly_zero_gradient(hard):
+    scene = with_grad(_base_scene(hard))
+    colors, alphas, meta, grads = render_and_grads(rasterization, scene)
+    _assert_all_finite(colors, alphas, grads)
+    assert meta["radii"][0, 2].tolist() == [0, 0]
+    for key in LEARNABLE:
+        assert torch.all(grads[key][2] == 0), f"culled Gaussian got a gradient on {key}"
+        assert grads[key][:2].abs().sum() > 0, f"visible Gaussians lost their {key} gradient"
+
+
+KEPT = {
+    "exactly on the near plane": {"means": [0.0, 0.0, 0.01]},
+    "zero quaternion": {"quats": [0.0, 0.0, 0.0, 0.0], "scales": [0.3, 0.1, 0.05]},
+    "tiny quaternion": {"quats": [1e-30, 2e-30, 0.0, -1e-30], "scales": [0.3, 0.1, 0.05]},
+    "huge quaternion": {"quats": [1e30, 2e30, 0.0, -1e30], "scales": [0.3, 0.1, 0.05]},
+    "zero scale": {"scales": [0.0, 0.0, 0.0]},
+    "scale 1e-8": {"scales": [1e-8, 1e-8, 1e-8]},
+    "opacity exactly 1": {"opacities": 1.0},
+    "screen-filling splat": {"scales": [50.0, 50.0, 50.0]},
+    "flat disc": {"scales": [0.3, 0.3, 0.0]},
+}
+
+
+@pytest.mark.parametrize("hard", KEPT.values(), ids=KEPT.keys())
+def test_hard_but_visible_gaussian_is_finite_and_matches_reference(hard):
+    scene = with_grad(_base_scene(hard, dtype=torch.float64))
+    colors, alphas, meta, grads = render_and_grads(rasterization, scene)
+    ref_colors, ref_alphas, _, ref_grads = render_and_grads(rasterization_reference, scene)
+    _assert_all_finite(colors, alphas, grads)
+    assert meta["radii"][0, 2].min() > 0
+    torch.testing.assert_close(colors, ref_colors, rtol=0, atol=1e-9)
+    torch.testing.assert_close(alphas, ref_alphas, rtol=0, atol=1e-9)
+    for key in LEARNABLE:
+        scale = max(1.0, ref_grads[key].abs().max().item())
+        torch.testing.assert_close(grads[key], ref_grads[key], rtol=1e-6, atol=1e-9 * scale)
+
+
+@pytest.mark.parametrize("quat", [[1e-30, 2e-30, 0.0, -1e-30], [1e30, 2e30, 0.0, -1e30]])
+def test_quaternion_norm_does_not_change_the_image(quat):
+    q = torch.tensor(quat, dtype=torch.float64)
+    odd = _base_scene({"quats": quat, "scales": [0.3, 0.1, 0.05]}, dtype=torch.float64)
+    unit = _base_scene({"quats": (q / q.abs().max() / torch.linalg.norm(q / q.abs().max())).tolist(),
+                        "scales": [0.3, 0.1, 0.05]}, dtype=torch.float64)
+    torch.testing.assert_close(rasterization(**odd)[0], rasterization(**unit)[0], rtol=0, atol=1e-12)
+
+
+def test_zero_quaternion_renders_as_identity_with_zero_gradient():
+    zero = with_grad(_base_scene({"quats": [0.0] * 4, "scales": [0.3, 0.1, 0.05]}))
+    ident = _base_scene({"quats": [1.0, 0, 0, 0], "scales": [0.3, 0.1, 0.05]})
+    colors, _, _, grads = render_and_grads(rasterization, zero)
+    torch.testing.assert_close(colors, rasterization(**ident)[0], rtol=0, atol=1e-6)
+    assert torch.all(grads["quats"][2] == 0)
+
+
+def test_thousands_of_stacked_opaque_gaussians():
+    n = 2000
+    viewmats = torch.eye(4)[None]
+    _, Ks = camera_rig(1, W, H)
+    gen = torch.Generator().manual_seed(0)
+    scene = with_grad({
+        "means": torch.tensor([0.0, 0.0, 3.0]) + torch.randn(n, 3, generator=gen) * 1e-3,
+        "quats": torch.randn(n, 4, generator=gen),
+        "scales": torch.full((n, 3), 0.02),
+        "opacities": torch.full((n,), 0.999),
+        "colors": torch.rand(n, 3, generator=gen),
+        "viewmats": viewmats, "Ks": Ks, "width": W, "height": H,
+    })
+    colors, alphas, meta, grads = render_and_grads(rasterization, scene)
+    _assert_all_finite(colors, alphas, grads)
+    centre = alphas[0, H // 2, W // 2, 0]
+    assert centre > 1 - 2e-4, "the stack saturates the centre pixel (early stop at T < 1e-4)"
+    ref_colors, ref_alphas, _, ref_grads = render_and_grads(rasterization_reference, scene)
+    torch.testing.assert_close(colors, ref_colors, rtol=0, atol=1e-5)
+    torch.testing.assert_close(alphas, ref_alphas, rtol=0, atol=1e-5)
+    # Past the early stop the Gaussians behind get exactly no gradient.
+    assert (grads["colors"].abs().sum(-1) == 0).sum() > n // 2
+
+
+def test_large_motion_across_the_frustum_stays_finite():
+    """A Gaussian swept from far left, through the view, to behind the camera."""
+    for x in torch.linspace(-1e4, 1e4, 9).tolist() + [0.0]:
+        for z in (-5.0, 0.0, 0.005, 0.5, 3.0, 1e6):
+            scene = with_grad(_base_scene({"means": [x, 0.3 * x, z], "scales": [2.0, 0.01, 0.5]}))
+            colors, alphas, _, grads = render_and_grads(rasterization, scene)
+            _assert_all_finite(colors, alphas, grads)
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    n=st.integers(1, 12),
+    seed=st.integers(0, 2**31 - 1),
+    log_scale=st.floats(-20.0, 32.0),
+    spread=st.floats(1e-3, 1e6),
+    depth=st.floats(-1e3, 1e6),
+    quat_mag=st.floats(-30.0, 30.0),
+    focal=st.floats(1e-2, 1e5),
+    opacity=st.floats(0.0, 1.0),
+)
+def test_no_nan_for_wide_random_inputs(n, seed, log_scale, spread, depth, quat_mag, focal, opacity):
+    gen = torch.Generator().manual_seed(seed)
+    _, Ks = camera_rig(2, 16, 12, focal=focal)
+    scene = with_grad({
+        "means": torch.randn(n, 3, generator=gen) * spread + torch.tensor([0.0, 0.0, depth]),
+        "quats": torch.randn(n, 4, generator=gen) * 10.0**quat_mag,
+        "scales": torch.exp(torch.randn(n, 3, generator=gen) + log_scale),
+        "opacities": torch.rand(n, generator=gen) * opacity,
+        "colors": torch.rand(n, 3, generator=gen),
+        "viewmats": camera_rig(2, 16, 12)[0], "Ks": Ks, "width": 16, "height": 12,
+        "backgrounds": torch.rand(2, 3, generator=gen),
+    }, extra=("backgrounds",))
+    colors, alphas, _, grads = render_and_grads(rasterization, scene)
+    _assert_all_finite(colors, alphas, grads)
+    assert alphas.min() >= 0 and alphas.max() <= 1
+
+
+def test_bitwise_deterministic_on_cpu():
+    from splat_scenes import random_scene
+
+    scene = with_grad(random_scene(400, seed=3, num_cameras=2, width=48, height=40))
+    first = render_and_grads(rasterization, scene)
+    second = render_and_grads(rasterization, scene)
+    assert torch.equal(first[0], second[0]) and torch.equal(first[1], second[1])
+    for key in LEARNABLE:
+        assert torch.equal(first[3][key], second[3][key]), key
+
+
+def test_gradcheck_float64_tiny_scene():
+    dt = torch.float64
+    gen = torch.Generator().manual_seed(0)
+    means = torch.tensor([[0.0, 0, 3], [0.2, 0.1, 2.5], [-0.3, 0.2, 3.5], [0.1, -0.3, 2.8]], dtype=dt)
+    inputs = (
+        means,
+        torch.randn(4, 4, generator=gen, dtype=dt),
+        torch.rand(4, 3, generator=gen, dtype=dt) * 0.2 + 0.1,
+        torch.rand(4, generator=gen, dtype=dt) * 0.5 + 0.3,
+        torch.rand(4, 3, generator=gen, dtype=dt),
+        torch.rand(2, 3, generator=gen, dtype=dt),
+    )
+    viewmats, _ = camera_rig(2, 8, 8, dtype=dt)
+    Ks = torch.tensor([[8.0, 0, 4], [0, 8.0, 4], [0, 0, 1]], dtype=dt).repeat(2, 1, 1)
+
+    def render(m, q, s, o, c, bg):
+        return rasterization(m, q, s, o, c, viewmats, Ks, 8, 8, backgrounds=bg)[:2]
+
+    args = tuple(t.clone().requires_grad_(True) for t in inputs)
+    assert torch.autograd.gradcheck(render, args, eps=1e-6, atol=1e-6, rtol=1e-4)
+
+
+def test_gradcheck_float64_sh_and_depth():
+    dt = torch.float64
+    gen = torch.Generator().manual_seed(1)
+    inputs = (
+        torch.tensor([[0.0, 0, 3], [0.2, 0.1, 2.5], [-0.2, 0.1, 2.9]], dtype=dt),
+        torch.randn(3, 4, generator=gen, dtype=dt),
+        torch.rand(3, 3, generator=gen, dtype=dt) * 0.2 + 0.1,
+        torch.rand(3, generator=gen, dtype=dt) * 0.5 + 0.3,
+        torch.randn(3, 16, 3, generator=gen, dtype=dt) * 0.3,
+    )
+    Ks = torch.tensor([[[8.0, 0, 4], [0, 8.0, 4], [0, 0, 1]]], dtype=dt)
+
+    def render(m, q, s, o, sh):
+        out = rasterization(m, q, s, o, sh, torch.eye(4, dtype=dt)[None], Ks, 8, 8,
+                            sh_degree=3, render_mode="RGB+D")
+        return out[:2]
+
+    args = tuple(t.clone().requires_grad_(True) for t in inputs)
+    assert torch.autograd.gradcheck(render, args, eps=1e-6, atol=1e-6, rtol=1e-4)
+
+
+def test_means2d_carries_the_screen_space_gradient():
+    from splat_scenes import random_scene
+
+    scene = with_grad(random_scene(50, seed=2))
+    colors, _, meta = rasterization(**scene)
+    colors.sum().backward()
+    grad = meta["means2d"].grad
+    assert grad is not None and grad.shape == (1, 50, 2)
+    visible = meta["radii"][0].amax(-1) > 0
+    assert grad[0][visible].abs().sum() > 0 and torch.all(grad[0][~visible] == 0)
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"means": torch.zeros(3, 2)}, "means must be [N,3]"),
+        ({"quats": torch.zeros(2, 4)}, "quats must be [3,4]"),
+        ({"opacities": torch.zeros(3, 1)}, "opacities must be [3]"),
+        ({"Ks": torch.zeros(2, 3, 3)}, "Ks must be [1,3,3]"),
+        ({"width": 0}, "width and height must be positive"),
+        ({"render_mode": "RGBD"}, "render_mode must be one of"),
+        ({"sh_degree": 4, "colors": torch.zeros(3, 25, 3)}, "sh_degree must be 0..3"),
+        ({"backgrounds": torch.zeros(1, 4)}, "backgrounds must be [1,3]"),
+    ],
+)
+def test_bad_inputs_raise_one_line_errors(change, message):
+    scene = {**_base_scene({}), **change}
+    with pytest.raises(InputError, match=message.replace("[", r"\[")):
+        rasterization(**scene)
