@@ -1,11 +1,12 @@
 """Front-to-back alpha compositing of binned 2D Gaussians with a hand-written backward.
 
-Each tile group is a dense block [G, P, L] (tiles, pixels per tile, depth-ordered list).
-Transmittance comes from a cumulative sum of log(1 − α) along L, so inclusion and
-early stop (3DGS: a Gaussian is skipped once T·(1 − α) < 1e-4) need no sequential loop.
-The backward recomputes each block instead of keeping per-pair tensors, and gets the
-suffix sums Σ_{j>i} c_j α_j T_j from one more cumulative sum, as the 3DGS backward does
-when it walks from back to front.
+Each tile group is a dense block [G, S, S, L] (tiles, pixel rows, pixel columns,
+depth-ordered list). Transmittance comes from a cumulative sum of log(1 − α) along L,
+so the 3DGS skip (α < 1/255) and early stop (T·(1 − α) < 1e-4) need no sequential loop.
+The forward keeps two floats per pixel–Gaussian pair (exp(−power) and the masked
+transmittance) when they fit a memory budget, else the backward recomputes them.
+The backward gets Σ_{j>i} c_j α_j T_j from one more cumulative sum, the vectorised
+form of the 3DGS backward's back-to-front walk.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ import math
 from dataclasses import dataclass
 
 import torch
+import torch.nn.functional as F
 
 from relaygs.splat.projection import ALPHA_MIN
 from relaygs.splat.tiles import TileBins
@@ -21,81 +23,95 @@ from relaygs.splat.tiles import TileBins
 ALPHA_MAX = 0.99
 T_MIN = 1e-4
 LOG_T_MIN = math.log(T_MIN)
-# Power assigned to pixels outside a Gaussian's box.
+# Power given to pixels outside a Gaussian's box.
 OUTSIDE_POWER = 1e30
-# Powers are clamped here before exp: o·exp(−40) < 1/255 for any o <= 1.
+# Powers are clamped here before exp: o·exp(−40) < 1/255 for any o <= 1, and exp stays
+# out of the (slow) denormal range.
 MAX_POWER = 40.0
+# Per-pair state kept for the backward when the whole render needs at most this many bytes.
+SAVE_BUDGET_BYTES = 1 << 30
+# Columns of the packed per-Gaussian table gathered once per tile row.
+_MX, _MY, _A, _B, _C, _O, _X0, _X1, _Y0, _Y1 = range(10)
 
 
 @dataclass
-class _Block:
-    """Recomputed per-pair quantities of one tile group."""
+class _Rows:
+    """The depth-ordered Gaussian rows of one tile group, padded to its longest list."""
 
-    gid: torch.Tensor  # [G,L] flat Gaussian index
-    row_valid: torch.Tensor  # [G,L]
+    tiles: torch.Tensor  # [G]
+    gid: torch.Tensor  # [G,L] flat Gaussian index c*N + n
+    valid: torch.Tensor  # [G,L]
+    table: torch.Tensor  # [G,L,10] packed per-Gaussian values
     dx: torch.Tensor  # [G,1,S,L] pixel centre x − mean x
-    dy: torch.Tensor  # [G,S,1,L]
+    dy: torch.Tensor  # [G,S,1,L] pixel centre y − mean y
+    cols: torch.Tensor  # [G,S,1] pixel column indices of each tile (exact, table dtype)
+    lines: torch.Tensor  # [G,S,1] pixel row indices
+
+
+@dataclass
+class _Pairs:
+    """Per pixel–Gaussian quantities of one group (everything the backward needs)."""
+
     gauss: torch.Tensor  # [G,S,S,L] exp(−power)
-    alpha_raw: torch.Tensor  # [G,S,S,L] o·exp(−power)
-    alpha: torch.Tensor  # [G,S,S,L] clamped, 0 where skipped
-    log_trans: torch.Tensor  # [G,S,S,L] log(1 − α)
-    cum: torch.Tensor  # [G,S,S,L] inclusive Σ log(1 − α)
-    included: torch.Tensor  # [G,S,S,L] bool: composited (not skipped, before early stop)
+    trans: torch.Tensor  # [G,S,S,L] T before the pair where composited, else 0
 
 
-def _block(
-    bins: TileBins,
-    tiles: torch.Tensor,
-    means2d: torch.Tensor,
-    conics: torch.Tensor,
-    opacities: torch.Tensor,
-    bounds: torch.Tensor,
-) -> _Block:
-    """Evaluate every Gaussian of the group's tiles at every pixel of those tiles."""
+def _rows(bins: TileBins, tiles: torch.Tensor, table: torch.Tensor) -> _Rows:
+    """Gather the group's Gaussians and their offsets to the tile's pixel centres."""
     s = bins.tile_size
     counts = bins.tile_count[tiles]
-    length = int(counts.max())
-    steps = torch.arange(length, device=tiles.device)
-    row_valid = steps[None] < counts[:, None]
+    steps = torch.arange(int(counts.max()), device=tiles.device)
+    valid = steps[None] < counts[:, None]
     rows = (bins.tile_start[tiles][:, None] + steps[None]).clamp(max=bins.pair_gaussian.numel() - 1)
     gid = bins.pair_gaussian[rows]
-
+    packed = table[gid]
     ox, oy = bins.tile_origin(tiles)
     pix = torch.arange(s, device=tiles.device)
-    pix_x = (ox[:, None] + pix[None])[:, :, None]  # [G,S,1] integer pixel columns
-    pix_y = (oy[:, None] + pix[None])[:, :, None]
-    px = pix_x.to(means2d.dtype) + 0.5  # pixel centres
-    py = pix_y.to(means2d.dtype) + 0.5
-    m = means2d[gid]  # [G,L,2]
-    dx = (px - m[:, None, :, 0]).unsqueeze(1)  # [G,1,S,L]
-    dy = (py - m[:, None, :, 1]).unsqueeze(2)  # [G,S,1,L]
-    con = conics[gid]
-    a, b, c = (con[:, None, None, :, k] for k in range(3))
+    cols = (ox[:, None] + pix[None]).to(table.dtype)[:, :, None]  # [G,S,1]
+    lines = (oy[:, None] + pix[None]).to(table.dtype)[:, :, None]
+    dx = (cols + 0.5 - packed[:, None, :, _MX]).unsqueeze(1)
+    dy = (lines + 0.5 - packed[:, None, :, _MY]).unsqueeze(2)
+    return _Rows(tiles, gid, valid, packed, dx, dy, cols, lines)
 
-    box = bounds[gid]  # [G,L,4]
-    in_x = (pix_x >= box[:, None, :, 0]) & (pix_x <= box[:, None, :, 1])  # [G,S,L]
-    in_y = (pix_y >= box[:, None, :, 2]) & (pix_y <= box[:, None, :, 3])
-    ex = torch.where(in_x.unsqueeze(1), 0.5 * a * dx * dx, OUTSIDE_POWER)
-    ey = torch.where(in_y.unsqueeze(2), 0.5 * c * dy * dy, OUTSIDE_POWER)
-    power = torch.addcmul(ex + ey, b * dx, dy)
-    # 3DGS skips power < 0 (rounding); a clamped power of MAX_POWER gives alpha < 1/255, so
-    # both cases drop out through the alpha test, and exp never enters the slow denormal path.
-    power.clamp_(max=MAX_POWER).masked_fill_(power < 0, MAX_POWER)
 
-    opac = torch.where(row_valid, opacities[gid], 0.0)[:, None, None, :]
+def _below(value: float, dtype: torch.dtype) -> float:
+    """The largest number of `dtype` below `value` (so `x > below` means `x >= value`)."""
+    v = torch.tensor(value, dtype=dtype)
+    return torch.nextafter(v, torch.zeros_like(v) - 1).item()
+
+
+def _pairs(rows: _Rows) -> _Pairs:
+    """Evaluate every Gaussian of the group at every pixel of its tiles, front to back.
+
+    Masks are built from threshold/ceil arithmetic instead of boolean tensors: on CPU
+    comparisons and `where` cost several times a multiply per element.
+    """
+    t = rows.table
+    dtype = t.dtype
+    in_x = (rows.cols >= t[:, None, :, _X0]) & (rows.cols <= t[:, None, :, _X1])  # [G,S,L]
+    in_y = (rows.lines >= t[:, None, :, _Y0]) & (rows.lines <= t[:, None, :, _Y1])
+    ex = torch.where(in_x[:, None], 0.5 * t[:, None, None, :, _A] * rows.dx * rows.dx, OUTSIDE_POWER)
+    ey = torch.where(in_y[:, :, None], 0.5 * t[:, None, None, :, _C] * rows.dy * rows.dy, OUTSIDE_POWER)
+    power = torch.addcmul(ex + ey, t[:, None, None, :, _B] * rows.dx, rows.dy)
+    # 3DGS skips power < 0 (rounding): such pairs get MAX_POWER, whose alpha is < 1/255.
+    power = F.threshold(power, _below(0.0, dtype), MAX_POWER).clamp_(max=MAX_POWER)
     gauss = power.neg_().exp_()
-    alpha_raw = gauss * opac
-    keep = alpha_raw >= ALPHA_MIN
-    alpha = alpha_raw.clamp(max=ALPHA_MAX).mul_(keep)
-    log_trans = torch.log1p(-alpha)
-    cum = torch.cumsum(log_trans, dim=-1)
-    included = (cum >= LOG_T_MIN).logical_and_(keep)
-    return _Block(gid, row_valid, dx, dy, gauss, alpha_raw, alpha, log_trans, cum, included)
+
+    opacity = (t[..., _O] * rows.valid)[:, None, None, :]
+    alpha = F.threshold(gauss * opacity, _below(ALPHA_MIN, dtype), 0.0).clamp_(max=ALPHA_MAX)
+    one_minus = 1.0 - alpha
+    trans_after = torch.cumprod(one_minus, dim=-1)
+    # Composited: kept (alpha > 0) and T after the pair still >= T_MIN (3DGS early stop).
+    before_stop = F.threshold(trans_after, _below(T_MIN, dtype), 0.0).ceil_()
+    trans = trans_after.div_(one_minus).mul_(before_stop).mul_(alpha.ceil_())
+    return _Pairs(gauss, trans)
 
 
-def _transmittance(blk: _Block) -> torch.Tensor:
-    """T_i before each pair; clamped far below T_MIN where it no longer matters."""
-    return (blk.cum - blk.log_trans).clamp_(min=-MAX_POWER).exp_()
+def _alpha(rows: _Rows, pairs: _Pairs) -> tuple[torch.Tensor, torch.Tensor]:
+    """Unclamped and clamped alpha [G,S,S,L] from the kept exp(−power)."""
+    opacity = (rows.table[..., _O] * rows.valid)[:, None, None, :]
+    alpha_raw = pairs.gauss * opacity
+    return alpha_raw, alpha_raw.clamp(max=ALPHA_MAX)
 
 
 def _to_tiles(image: torch.Tensor, bins: TileBins) -> torch.Tensor:
@@ -119,33 +135,56 @@ def _from_tiles(tiles: torch.Tensor, bins: TileBins, height: int, width: int) ->
     return image[:, :height, :width]
 
 
+def _pack(means2d, conics, opacities, bounds) -> torch.Tensor:
+    """[C·N, 10] table of everything a pair needs (box bounds are exact small integers)."""
+    c, n = opacities.shape
+    return torch.cat(
+        [
+            means2d.reshape(c * n, 2),
+            conics.reshape(c * n, 3),
+            opacities.reshape(c * n, 1),
+            bounds.reshape(c * n, 4).to(means2d.dtype),
+        ],
+        dim=1,
+    )
+
+
+def _candidates(bins: TileBins) -> int:
+    """Padded pixel–Gaussian candidates over all groups."""
+    return sum(int(bins.tile_count[g[0]]) * g.numel() for g in bins.groups) * bins.tile_size**2
+
+
 class CompositeGaussians(torch.autograd.Function):
     """colors [C,H,W,D] and alphas [C,H,W,1] from binned screen-space Gaussians."""
 
     @staticmethod
     def forward(ctx, means2d, conics, opacities, colors, backgrounds, bounds, bins, width, height):
         c, n, d = colors.shape
-        flat_means = means2d.reshape(c * n, 2)
-        flat_conics = conics.reshape(c * n, 3)
-        flat_opac = opacities.reshape(c * n)
-        flat_colors = colors.reshape(c * n, d)
-        flat_bounds = bounds.reshape(c * n, 4)
+        table = _pack(means2d.detach(), conics.detach(), opacities.detach(), bounds)
+        flat_colors = colors.detach().reshape(c * n, d)
         p = bins.tile_size**2
+        keep_pairs = any(ctx.needs_input_grad) and (
+            _candidates(bins) * 2 * table.element_size() <= SAVE_BUDGET_BYTES
+        )
+        saved = []
         color_tiles = colors.new_zeros(bins.num_tiles, p, d)
         coverage = colors.new_zeros(bins.num_tiles, p)
         for tiles in bins.groups:
-            blk = _block(bins, tiles, flat_means, flat_conics, flat_opac, flat_bounds)
-            g = tiles.numel()
-            weight = _transmittance(blk).mul_(blk.alpha).mul_(blk.included)
-            color_tiles[tiles] = torch.bmm(weight.reshape(g, p, -1), flat_colors[blk.gid])
+            rows = _rows(bins, tiles, table)
+            pairs = _pairs(rows)
+            _, alpha = _alpha(rows, pairs)
+            weight = (alpha * pairs.trans).reshape(tiles.numel(), p, -1)
+            color_tiles[tiles] = torch.bmm(weight, flat_colors[rows.gid])
             # Σ α_i T_i telescopes to 1 − T_N over the composited pairs.
-            coverage[tiles] = weight.sum(-1).reshape(g, p)
+            coverage[tiles] = weight.sum(-1)
+            if keep_pairs:
+                saved.append(pairs)
         t_final = _from_tiles((1.0 - coverage)[..., None], bins, height, width)
         out = _from_tiles(color_tiles, bins, height, width)
         if backgrounds is not None:
             out = out + t_final * backgrounds[:, None, None, :]
         ctx.bins = bins
-        ctx.size = (width, height)
+        ctx.saved_pairs = saved
         ctx.save_for_backward(means2d, conics, opacities, colors, backgrounds, bounds, t_final)
         return out, 1.0 - t_final
 
@@ -156,13 +195,11 @@ class CompositeGaussians(torch.autograd.Function):
         bins: TileBins = ctx.bins
         c, n, d = colors.shape
         p = bins.tile_size**2
-        flat_means = means2d.reshape(c * n, 2)
-        flat_conics = conics.reshape(c * n, 3)
-        flat_opac = opacities.reshape(c * n)
+        s = bins.tile_size
+        table = _pack(means2d, conics, opacities, bounds)
         flat_colors = colors.reshape(c * n, d)
-        flat_bounds = bounds.reshape(c * n, 4)
 
-        # Per pixel: K = T_N·(g·bg) − g_alpha·T_N collects what every α_i changes via T_N.
+        # Per pixel: K = T_N·(g·bg) − g_alpha·T_N, what every α_i changes through T_N.
         pixel_k = -grad_alphas * t_final
         grad_bg = None
         if backgrounds is not None:
@@ -171,53 +208,50 @@ class CompositeGaussians(torch.autograd.Function):
         g_tiles = _to_tiles(grad_colors, bins)
         k_tiles = _to_tiles(pixel_k, bins)[..., 0]
 
-        grad_means = torch.zeros_like(flat_means)
-        grad_conics = torch.zeros_like(flat_conics)
-        grad_opac = torch.zeros_like(flat_opac)
+        # Per-Gaussian gradient table: mean x/y, conic A/B/C, opacity.
+        grad_table = table.new_zeros(c * n, 6)
         grad_cols = torch.zeros_like(flat_colors)
-        s = bins.tile_size
-        for tiles in bins.groups:
-            blk = _block(bins, tiles, flat_means, flat_conics, flat_opac, flat_bounds)
+        for index, tiles in enumerate(bins.groups):
             g = tiles.numel()
-            trans = _transmittance(blk)
-            weight = (blk.alpha * trans).mul_(blk.included)
+            rows = _rows(bins, tiles, table)
+            pairs = ctx.saved_pairs[index] if ctx.saved_pairs else _pairs(rows)
+            alpha_raw, alpha = _alpha(rows, pairs)
+            weight = alpha * pairs.trans
             grad_pix = g_tiles[tiles]  # [G,P,D]
-            cols = flat_colors[blk.gid]  # [G,L,D]
-            # v_i = g·c_i; suffix_i = Σ_{j>i} v_j w_j within the pixel's list.
-            v = torch.bmm(grad_pix, cols.transpose(1, 2)).reshape_as(weight)
+            # v_i = g·c_i; suffix_i = Σ_{j>i} v_j w_j along the pixel's list.
+            v = torch.bmm(grad_pix, flat_colors[rows.gid].transpose(1, 2)).reshape_as(weight)
             vw_cum = torch.cumsum(v * weight, dim=-1)
             suffix = vw_cum[..., -1:] - vw_cum
-            k_pix = k_tiles[tiles].reshape(g, s, s, 1)
-            d_alpha = v * trans - (suffix + k_pix) / (1.0 - blk.alpha)
-            live = blk.included & (blk.alpha_raw < ALPHA_MAX)
-            d_alpha = torch.where(live, d_alpha, 0.0)
-            d_opac = (d_alpha * blk.gauss).sum(dim=(1, 2))
-            d_power = -d_alpha * blk.alpha_raw  # [G,S,S,L]
-            gx = d_power.sum(dim=1, keepdim=True)  # [G,1,S,L] summed over pixel rows
-            gy = d_power.sum(dim=2, keepdim=True)  # [G,S,1,L] summed over pixel columns
-            gxy = (d_power * blk.dy).sum(dim=1, keepdim=True)
-            s_xx = (gx * blk.dx * blk.dx).sum(dim=(1, 2))
-            s_yy = (gy * blk.dy * blk.dy).sum(dim=(1, 2))
-            s_xy = (gxy * blk.dx).sum(dim=(1, 2))
-            s_x = (gx * blk.dx).sum(dim=(1, 2))
-            s_y = (gy * blk.dy).sum(dim=(1, 2))
-            con = flat_conics[blk.gid]
-            a, b, cc = con[..., 0], con[..., 1], con[..., 2]
-            # power = ½A dx² + B dx dy + ½C dy² with dx = px − mx.
-            d_mean = torch.stack([-(a * s_x + b * s_y), -(b * s_x + cc * s_y)], dim=-1)
-            d_conic = torch.stack([0.5 * s_xx, s_xy, 0.5 * s_yy], dim=-1)
+            suffix += k_tiles[tiles].reshape(g, s, s, 1)
+            d_alpha = v.mul_(pairs.trans).sub_(suffix.div_(1.0 - alpha))
+            # Only composited pairs (trans > 0) below the 0.99 clamp pass a gradient to α_raw.
+            unclamped = F.threshold(ALPHA_MAX - alpha_raw, 0.0, 0.0).ceil_()
+            d_alpha.mul_(pairs.trans.ceil()).mul_(unclamped)
+            d_opacity = (d_alpha * pairs.gauss).sum(dim=(1, 2))
+            # power = ½A dx² + B dx dy + ½C dy² with dx = px − mx; d_power = −dL/dα · o·G.
+            d_power = d_alpha.mul_(alpha_raw).neg_()
+            gx = d_power.sum(dim=1, keepdim=True)  # [G,1,S,L]
+            gy = d_power.sum(dim=2, keepdim=True)  # [G,S,1,L]
+            gxy = (d_power * rows.dy).sum(dim=1, keepdim=True)
+            s_xx = (gx * rows.dx * rows.dx).sum(dim=(1, 2))
+            s_yy = (gy * rows.dy * rows.dy).sum(dim=(1, 2))
+            s_xy = (gxy * rows.dx).sum(dim=(1, 2))
+            s_x = (gx * rows.dx).sum(dim=(1, 2))
+            s_y = (gy * rows.dy).sum(dim=(1, 2))
+            a, b, cc = rows.table[..., _A], rows.table[..., _B], rows.table[..., _C]
+            grads = torch.stack(
+                [-(a * s_x + b * s_y), -(b * s_x + cc * s_y), 0.5 * s_xx, s_xy, 0.5 * s_yy, d_opacity],
+                dim=-1,
+            )
             d_cols = torch.bmm(weight.reshape(g, p, -1).transpose(1, 2), grad_pix)
-
-            rows = blk.row_valid
-            idx = blk.gid[rows]
-            grad_means.index_add_(0, idx, d_mean[rows])
-            grad_conics.index_add_(0, idx, d_conic[rows])
-            grad_opac.index_add_(0, idx, d_opac[rows])
-            grad_cols.index_add_(0, idx, d_cols[rows])
+            # Padding rows have zero gradients, so they can be added at their clamped index.
+            grad_table.index_add_(0, rows.gid.reshape(-1), grads.reshape(-1, 6))
+            grad_cols.index_add_(0, rows.gid.reshape(-1), d_cols.reshape(-1, d))
+        ctx.saved_pairs = None
         return (
-            grad_means.reshape_as(means2d),
-            grad_conics.reshape_as(conics),
-            grad_opac.reshape_as(opacities),
+            grad_table[:, 0:2].reshape_as(means2d),
+            grad_table[:, 2:5].reshape_as(conics),
+            grad_table[:, 5].reshape_as(opacities),
             grad_cols.reshape_as(colors),
             grad_bg,
             None,
