@@ -1,0 +1,53 @@
+"""Pinhole camera model shared by every loader, the generator and the renderer."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+
+@dataclass(frozen=True, eq=False)
+class Camera:
+    """A calibrated pinhole camera: intrinsics K, world→camera pose (OpenCV axes) and image size.
+
+    Pixel j covers [j, j + 1) in image coordinates, so its centre is at j + 0.5 (the
+    convention of COLMAP and the 3DGS rasteriser).
+    """
+
+    camera_id: int
+    K: torch.Tensor
+    w2c: torch.Tensor
+    width: int
+    height: int
+
+    def scaled(self, factor: float) -> Camera:
+        """The same camera seen at 1/`factor` resolution (factor 2 gives half-size images).
+
+        Sizes round to the nearest pixel (at least 1) and K scales by the exact per-axis ratio,
+        so projected pixel-edge coordinates stay consistent with the resized image.
+        """
+        if not factor > 0:
+            raise ValueError(f"camera scale factor must be > 0, got {factor}")
+        width = max(1, round(self.width / factor))
+        height = max(1, round(self.height / factor))
+        if width == self.width and height == self.height:
+            return self
+        scale = torch.tensor(
+            [[width / self.width], [height / self.height], [1.0]], dtype=torch.float32
+        )
+        return Camera(self.camera_id, self.K * scale, self.w2c.clone(), width, height)
+
+    @property
+    def center(self) -> torch.Tensor:
+        """Camera centre in world coordinates [3]."""
+        rotation = self.w2c[:3, :3]
+        return -(rotation.T @ self.w2c[:3, 3])
+
+    @property
+    def c2w(self) -> torch.Tensor:
+        """Camera→world transform [4,4] (the rigid inverse of w2c)."""
+        c2w = torch.eye(4, dtype=self.w2c.dtype)
+        c2w[:3, :3] = self.w2c[:3, :3].T
+        c2w[:3, 3] = self.center
+        return c2w

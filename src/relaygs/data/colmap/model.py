@@ -1,0 +1,97 @@
+"""COLMAP sparse-model records (cameras, images, points) and quaternion conversions."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+CAMERA_MODELS: dict[str, tuple[int, int]] = {
+    "SIMPLE_PINHOLE": (0, 3),
+    "PINHOLE": (1, 4),
+    "SIMPLE_RADIAL": (2, 4),
+    "RADIAL": (3, 5),
+    "OPENCV": (4, 8),
+    "OPENCV_FISHEYE": (5, 8),
+    "FULL_OPENCV": (6, 12),
+    "FOV": (7, 5),
+    "SIMPLE_RADIAL_FISHEYE": (8, 4),
+    "RADIAL_FISHEYE": (9, 5),
+    "THIN_PRISM_FISHEYE": (10, 12),
+}
+"""COLMAP camera model name → (model id, number of parameters)."""
+MODEL_NAMES: dict[int, str] = {model_id: name for name, (model_id, _) in CAMERA_MODELS.items()}
+
+
+@dataclass(frozen=True)
+class ColmapCamera:
+    """An intrinsics record: model name, image size and the model's parameter list."""
+
+    camera_id: int
+    model: str
+    width: int
+    height: int
+    params: tuple[float, ...]
+
+
+@dataclass(frozen=True)
+class ColmapImage:
+    """A registered image: world→camera rotation (quaternion w, x, y, z) and translation."""
+
+    image_id: int
+    qvec: tuple[float, float, float, float]
+    tvec: tuple[float, float, float]
+    camera_id: int
+    name: str
+
+    def w2c(self) -> np.ndarray:
+        """World→camera transform [4,4] float64."""
+        matrix = np.eye(4)
+        matrix[:3, :3] = qvec_to_rotation(np.asarray(self.qvec, dtype=np.float64))
+        matrix[:3, 3] = self.tvec
+        return matrix
+
+
+@dataclass(frozen=True)
+class ColmapModel:
+    """A sparse model: cameras and images by id, points as xyz [N,3] float64, rgb [N,3] uint8."""
+
+    cameras: dict[int, ColmapCamera]
+    images: dict[int, ColmapImage]
+    xyz: np.ndarray
+    rgb: np.ndarray
+
+
+def qvec_to_rotation(qvec: np.ndarray) -> np.ndarray:
+    """Rotation matrix of a quaternion (w, x, y, z); the quaternion is normalised first."""
+    w, x, y, z = qvec / np.linalg.norm(qvec)
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def rotation_to_qvec(rotation: np.ndarray) -> np.ndarray:
+    """Unit quaternion (w, x, y, z), w ≥ 0, of a rotation matrix (the largest-diagonal method)."""
+    r = rotation
+    trace = np.trace(r)
+    candidates = np.array([trace, r[0, 0], r[1, 1], r[2, 2]])
+    pick = int(np.argmax(candidates))
+    if pick == 0:
+        s = 2.0 * np.sqrt(1.0 + trace)
+        q = [s / 4, (r[2, 1] - r[1, 2]) / s, (r[0, 2] - r[2, 0]) / s, (r[1, 0] - r[0, 1]) / s]
+    elif pick == 1:
+        s = 2.0 * np.sqrt(1.0 + r[0, 0] - r[1, 1] - r[2, 2])
+        q = [(r[2, 1] - r[1, 2]) / s, s / 4, (r[0, 1] + r[1, 0]) / s, (r[0, 2] + r[2, 0]) / s]
+    elif pick == 2:
+        s = 2.0 * np.sqrt(1.0 + r[1, 1] - r[0, 0] - r[2, 2])
+        q = [(r[0, 2] - r[2, 0]) / s, (r[0, 1] + r[1, 0]) / s, s / 4, (r[1, 2] + r[2, 1]) / s]
+    else:
+        s = 2.0 * np.sqrt(1.0 + r[2, 2] - r[0, 0] - r[1, 1])
+        q = [(r[1, 0] - r[0, 1]) / s, (r[0, 2] + r[2, 0]) / s, (r[1, 2] + r[2, 1]) / s, s / 4]
+    quaternion = np.asarray(q)
+    quaternion /= np.linalg.norm(quaternion)
+    return quaternion if quaternion[0] >= 0 else -quaternion

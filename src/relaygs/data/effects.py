@@ -1,0 +1,51 @@
+"""Names of the scene effects a scene can declare; training switches modules on from these.
+
+A synthetic scene simulates exactly the effects it declares and nothing else; a real capture
+declares what its `scene.json` (or the `effects` loader option) says.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+from relaygs.errors import InputError
+
+LARGE_MOTION = "large_motion"
+"""Actors travel many times their own size during the sequence."""
+NONRIGID = "nonrigid"
+"""Articulated actors swing their limbs (the body deforms, not only moves rigidly)."""
+FAST_OBJECTS = "fast_objects"
+"""Small objects (balls) move fast, several times their size per frame."""
+COLOR_INCONSISTENCY = "color_inconsistency"
+"""Each camera applies its own per-channel affine response (gain, offset) to the image."""
+DYNAMIC_PANELS = "dynamic_panels"
+"""Background panels (a scoreboard) change their content over time."""
+BACKGROUND_JITTER = "background_jitter"
+"""Background objects (spectators) move slightly over time."""
+SENSOR_NOISE = "sensor_noise"
+"""Independent per-pixel Gaussian noise in every image."""
+
+ALL_EFFECTS: frozenset[str] = frozenset(
+    {
+        LARGE_MOTION,
+        NONRIGID,
+        FAST_OBJECTS,
+        COLOR_INCONSISTENCY,
+        DYNAMIC_PANELS,
+        BACKGROUND_JITTER,
+        SENSOR_NOISE,
+    }
+)
+
+
+def parse_effects(names: Iterable[str], *, source: str) -> frozenset[str]:
+    """Validate effect names; `source` names where they came from for the error message."""
+    if isinstance(names, str):
+        names = [names]
+    parsed = []
+    for name in names:
+        if not isinstance(name, str) or name not in ALL_EFFECTS:
+            known = ", ".join(sorted(ALL_EFFECTS))
+            raise InputError(f"{source}: unknown effect {name!r}; expected one of: {known}")
+        parsed.append(name)
+    return frozenset(parsed)

@@ -1,0 +1,87 @@
+"""Write a loaded scene in the multi-view layout (camXX/ frames + COLMAP model), e.g. to run a
+synthetic scene through the COLMAP loader or to hand it to tools that expect that layout."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+from relaygs.data.camera import Camera
+from relaygs.data.colmap import (
+    ColmapCamera,
+    ColmapImage,
+    ColmapModel,
+    rotation_to_qvec,
+    write_model,
+)
+from relaygs.data.metafiles import SCENE_JSON
+from relaygs.data.multiview import MASK_FOLDER
+from relaygs.data.scene import Scene
+from relaygs.errors import InputError
+
+
+def export_multiview(scene: Scene, out_dir: str | Path, *, binary: bool = True) -> Path:
+    """Copy `scene`'s full-resolution frames to out_dir/camXX/frame_XXXXX.* and write its rig
+    and points as a COLMAP model in out_dir/sparse/0 (binary or text). Needs a fixed rig."""
+    out = Path(out_dir)
+    views = sorted(
+        scene.full_train_views + scene.full_test_views,
+        key=lambda view: (view.camera.camera_id, view.frame),
+    )
+    cameras = _fixed_rig(scene, views)
+    images = {}
+    colmap_cameras = {}
+    for index, camera in enumerate(cameras):
+        folder = f"cam{index:02d}"
+        colmap_cameras[index + 1] = ColmapCamera(
+            index + 1,
+            "PINHOLE",
+            camera.width,
+            camera.height,
+            tuple(float(v) for v in camera.K[[0, 1, 0, 1], [0, 1, 2, 2]].tolist()),
+        )
+        w2c = camera.w2c.double().numpy()
+        suffix = next(view.image_path.suffix for view in views if view.camera is camera)
+        images[index + 1] = ColmapImage(
+            index + 1,
+            tuple(rotation_to_qvec(w2c[:3, :3]).tolist()),
+            tuple(w2c[:3, 3].tolist()),
+            index + 1,
+            f"{folder}{suffix}",
+        )
+    folder_of = {camera.camera_id: f"cam{index:02d}" for index, camera in enumerate(cameras)}
+    for view in views:
+        folder = folder_of[view.camera.camera_id]
+        name = f"frame_{view.frame:05d}"
+        _copy(view.image_path, out / folder / f"{name}{view.image_path.suffix}")
+        if view.mask_path is not None:
+            _copy(view.mask_path, out / MASK_FOLDER / folder / f"{name}.png")
+    rgb = np.round(scene.points.rgb.double().numpy() * 255.0).astype(np.uint8)
+    model = ColmapModel(colmap_cameras, images, scene.points.xyz.double().numpy(), rgb)
+    write_model(out / "sparse" / "0", model, binary=binary)
+    if (scene.root / SCENE_JSON).exists():
+        shutil.copyfile(scene.root / SCENE_JSON, out / SCENE_JSON)
+    return out
+
+
+def _fixed_rig(scene: Scene, views: list) -> list[Camera]:
+    """One camera per id, ordered by id; a camera whose pose or intrinsics vary is an error."""
+    cameras: dict[int, Camera] = {}
+    for view in views:
+        known = cameras.setdefault(view.camera.camera_id, view.camera)
+        same = known is view.camera or (
+            bool((known.K == view.camera.K).all()) and bool((known.w2c == view.camera.w2c).all())
+        )
+        if not same:
+            raise InputError(
+                f"{scene.root}: camera {view.camera.camera_id} changes over time; the multi-view "
+                "layout needs a fixed rig"
+            )
+    return [cameras[camera_id] for camera_id in sorted(cameras)]
+
+
+def _copy(source: Path, target: Path) -> None:
+    target.parent.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(source, target)

@@ -1,0 +1,54 @@
+"""`load_scene`: detect a scene folder's layout and load it with validated options."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from pathlib import Path
+
+from relaygs.data.multiview import camera_folders, load_multiview
+from relaygs.data.options import DEFAULT_CACHE_MB, DEFAULT_MAX_POINTS, make_options
+from relaygs.data.panoptic import TRAIN_META, load_panoptic
+from relaygs.data.scene import Scene
+from relaygs.errors import InputError
+
+
+def detect_format(root: Path) -> str:
+    """'panoptic' when train_meta.json exists, 'multiview' when camXX/ folders exist."""
+    if (root / TRAIN_META).is_file():
+        return "panoptic"
+    if camera_folders(root):
+        return "multiview"
+    raise InputError(
+        f"{root}: unknown scene layout; expected {TRAIN_META} (PanopticSports layout) or "
+        "camXX/ frame folders with a COLMAP model (multi-view layout)"
+    )
+
+
+def load_scene(
+    path: str | Path,
+    *,
+    downscale: int = 1,
+    max_points: int = DEFAULT_MAX_POINTS,
+    cache_mb: float = DEFAULT_CACHE_MB,
+    test_cameras: Iterable[int] | None = None,
+    effects: Iterable[str] | None = None,
+) -> Scene:
+    """Load the scene folder at `path` in whichever supported layout it uses.
+
+    downscale: integer factor for half/quarter resolution; max_points: voxel-downsampling budget
+    of the initial cloud; cache_mb: in-memory image cache budget; test_cameras: held-out camera
+    ids (default: test_meta.json, or 0/10/20/30 for multi-view); effects: override scene.json.
+    """
+    root = Path(path).expanduser().absolute()
+    if not root.is_dir():
+        raise InputError(f"scene folder does not exist: {root}")
+    options = make_options(
+        downscale=downscale,
+        max_points=max_points,
+        cache_mb=cache_mb,
+        test_cameras=test_cameras,
+        effects=effects,
+    )
+    if detect_format(root) == "panoptic":
+        return load_panoptic(root, options)
+    return load_multiview(root, options)

@@ -1,0 +1,40 @@
+"""Reading the JSON files of a scene folder with one-line errors, and its declared effects."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+from relaygs.data.effects import parse_effects
+from relaygs.errors import InputError
+
+SCENE_JSON = "scene.json"
+
+
+def read_json(path: Path) -> Any:
+    """Parse a JSON file; a missing or malformed file is an InputError naming it."""
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise InputError(f"missing file: {path}") from None
+    except (OSError, UnicodeDecodeError) as error:
+        raise InputError(f"cannot read {path}: {error}") from None
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as error:
+        raise InputError(
+            f"{path}: malformed JSON at line {error.lineno} column {error.colno}: {error.msg}"
+        ) from None
+
+
+def declared_effects(root: Path) -> frozenset[str]:
+    """Effects a scene folder declares in scene.json (none when the file is absent)."""
+    path = root / SCENE_JSON
+    if not path.exists():
+        return frozenset()
+    declaration = read_json(path)
+    effects = declaration.get("effects", []) if isinstance(declaration, dict) else None
+    if not isinstance(effects, list):
+        raise InputError(f"{path}: field 'effects' must be a list of effect names")
+    return parse_effects(effects, source=f"{path} field 'effects'")

@@ -1,0 +1,211 @@
+"""Loader for multi-view video with COLMAP poses: camXX/frame_XXXXX.(jpg|png) + a sparse model."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from relaygs.data.camera import Camera
+from relaygs.data.colmap import ColmapCamera, ColmapModel, is_model_folder, read_model
+from relaygs.data.fingerprint import digest, file_record
+from relaygs.data.metafiles import SCENE_JSON, declared_effects
+from relaygs.data.options import LoaderOptions
+from relaygs.data.points import point_cloud_from_arrays
+from relaygs.data.scene import Scene, View, assemble_scene, frame_time, split_views
+from relaygs.errors import InputError
+
+CAMERA_FOLDER = re.compile(r"^cam(\d+)$")
+FRAME_FILE = re.compile(r"^frame_(\d+)\.(jpg|jpeg|png)$", re.IGNORECASE)
+MODEL_FOLDERS = ("sparse/0", "sparse", "sparse_", "colmap/sparse/0")
+DEFAULT_TEST_CAMERAS = (0, 10, 20, 30)
+MASK_FOLDER = "seg"
+
+# COLMAP model → parameter indices of fx, fy, cx, cy; later parameters are distortion terms.
+_PINHOLE_PARAMS: dict[str, tuple[int, int, int, int]] = {
+    "SIMPLE_PINHOLE": (0, 0, 1, 2),
+    "PINHOLE": (0, 1, 2, 3),
+    "SIMPLE_RADIAL": (0, 0, 1, 2),
+    "RADIAL": (0, 0, 1, 2),
+    "OPENCV": (0, 1, 2, 3),
+    "FULL_OPENCV": (0, 1, 2, 3),
+}
+
+
+def camera_folders(root: Path) -> list[Path]:
+    """The camXX folders of `root`, ordered by their number (camera id = position in this list)."""
+    folders = [p for p in root.iterdir() if p.is_dir() and CAMERA_FOLDER.match(p.name)]
+    return sorted(
+        folders, key=lambda folder: (int(CAMERA_FOLDER.match(folder.name)[1]), folder.name)
+    )
+
+
+def load_multiview(root: Path, options: LoaderOptions) -> Scene:
+    """Load camXX/ frame folders posed by the COLMAP model of their first frame."""
+    folders = camera_folders(root)
+    frames = _frame_files(folders)
+    model_folder = _find_model(root)
+    model = read_model(model_folder)
+    files = {
+        path.relative_to(root).as_posix(): file_record(path).sha256
+        for path in sorted(model_folder.iterdir())
+        if path.is_file() and path.stem in ("cameras", "images", "points3D")
+    }
+    if (root / SCENE_JSON).exists():
+        files[SCENE_JSON] = file_record(root / SCENE_JSON).sha256
+    cameras = _cameras(folders, model, model_folder)
+    views = _views(root, folders, frames, cameras, files)
+    train_views, test_views = _split(views, len(folders), options.test_cameras, root)
+    points = point_cloud_from_arrays(
+        model.xyz,
+        model.rgb.astype(np.float64) / 255.0,
+        np.zeros(len(model.xyz), dtype=bool),
+        source=f"{model_folder}/points3D",
+        max_points=options.max_points,
+    )
+    effects = declared_effects(root) if options.effects is None else options.effects
+    content = digest({"format": "multiview", "options": options.content_options(), "files": files})
+    return assemble_scene(
+        root=root,
+        format="multiview",
+        train_views=train_views,
+        test_views=test_views,
+        num_frames=len(frames[0]),
+        points=points,
+        effects=effects,
+        downscale=options.downscale,
+        content_digest=content,
+        cache_mb=options.cache_mb,
+    )
+
+
+def _frame_files(folders: list[Path]) -> list[list[Path]]:
+    """Per camera folder, its frame files in frame order; every camera must hold the same frames."""
+    per_camera = []
+    for folder in folders:
+        numbered = sorted(
+            (int(match[1]), path)
+            for path in folder.iterdir()
+            if (match := FRAME_FILE.match(path.name))
+        )
+        if not numbered:
+            raise InputError(f"{folder}: no frame_XXXXX.(jpg|png) images")
+        per_camera.append(numbered)
+    reference = [number for number, _ in per_camera[0]]
+    for folder, numbered in zip(folders, per_camera, strict=True):
+        numbers = [number for number, _ in numbered]
+        if numbers != reference:
+            raise InputError(
+                f"{folder}: holds {len(numbers)} frames ({numbers[0]}..{numbers[-1]}) but "
+                f"{folders[0].name} holds {len(reference)} ({reference[0]}..{reference[-1]}); "
+                "every camera needs the same frame numbers"
+            )
+    return [[path for _, path in numbered] for numbered in per_camera]
+
+
+def _find_model(root: Path) -> Path:
+    for candidate in MODEL_FOLDERS:
+        if is_model_folder(root / candidate):
+            return root / candidate
+    raise InputError(
+        f"{root}: no COLMAP model found; expected cameras, images, points3D (.bin or .txt) in "
+        + " or ".join(MODEL_FOLDERS)
+    )
+
+
+def _cameras(folders: list[Path], model: ColmapModel, model_folder: Path) -> list[Camera]:
+    by_folder = {}
+    for image in model.images.values():
+        match = re.search(r"cam\d+", image.name)
+        if match is None:
+            continue
+        if match[0] in by_folder:
+            raise InputError(
+                f"{model_folder}: images {by_folder[match[0]].name!r} and {image.name!r} both "
+                f"map to camera folder {match[0]}"
+            )
+        by_folder[match[0]] = image
+    cameras = []
+    for camera_id, folder in enumerate(folders):
+        image = by_folder.get(folder.name)
+        if image is None:
+            raise InputError(
+                f"{model_folder}: no registered image named after camera folder {folder.name} "
+                f"(expected e.g. '{folder.name}.jpg')"
+            )
+        if image.camera_id not in model.cameras:
+            raise InputError(
+                f"{model_folder}: image {image.name!r} uses unknown camera {image.camera_id}"
+            )
+        intrinsics = model.cameras[image.camera_id]
+        K = _intrinsics(intrinsics, model_folder)
+        w2c = torch.from_numpy(image.w2c().astype(np.float32))
+        cameras.append(Camera(camera_id, K, w2c, intrinsics.width, intrinsics.height))
+    return cameras
+
+
+def _intrinsics(camera: ColmapCamera, model_folder: Path) -> torch.Tensor:
+    indices = _PINHOLE_PARAMS.get(camera.model)
+    if indices is None:
+        raise InputError(
+            f"{model_folder}: camera {camera.camera_id} uses model {camera.model}; "
+            f"supported: {', '.join(_PINHOLE_PARAMS)} (undistort fisheye images first)"
+        )
+    distortion = camera.params[max(indices) + 1 :]
+    if any(abs(value) > 1e-9 for value in distortion):
+        raise InputError(
+            f"{model_folder}: camera {camera.camera_id} ({camera.model}) has non-zero distortion "
+            f"{list(distortion)}; undistort the images first (colmap image_undistorter)"
+        )
+    fx, fy, cx, cy = (camera.params[index] for index in indices)
+    return torch.tensor([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]], dtype=torch.float32)
+
+
+def _views(
+    root: Path,
+    folders: list[Path],
+    frames: list[list[Path]],
+    cameras: list[Camera],
+    files: dict[str, str],
+) -> list[View]:
+    num_frames = len(frames[0])
+    has_masks = (root / MASK_FOLDER).is_dir()
+    views = []
+    for folder, paths, camera in zip(folders, frames, cameras, strict=True):
+        for frame, image_path in enumerate(paths):
+            _check_size(image_path, camera, files, root, "image")
+            mask_path = None
+            if has_masks:
+                mask_path = root / MASK_FOLDER / folder.name / f"{image_path.stem}.png"
+                _check_size(mask_path, camera, files, root, "mask")
+            views.append(View(camera, frame, frame_time(frame, num_frames), image_path, mask_path))
+    return views
+
+
+def _check_size(path: Path, camera: Camera, files: dict[str, str], root: Path, what: str) -> None:
+    record = file_record(path, image=True, what=f"{what} file")
+    if record.image_size != (camera.width, camera.height):
+        width, height = record.image_size
+        raise InputError(
+            f"{path}: {what} is {width}x{height}, expected {camera.width}x{camera.height} "
+            "(the COLMAP camera's width/height)"
+        )
+    files[path.relative_to(root).as_posix()] = record.sha256
+
+
+def _split(
+    views: list[View], num_cameras: int, test_cameras: tuple[int, ...] | None, root: Path
+) -> tuple[list[View], list[View]]:
+    if test_cameras is None:
+        test_ids = {camera_id for camera_id in DEFAULT_TEST_CAMERAS if camera_id < num_cameras}
+    else:
+        missing = [camera_id for camera_id in test_cameras if camera_id >= num_cameras]
+        if missing:
+            raise InputError(
+                f"loader option test_cameras: cameras {missing} are not in {root} "
+                f"(camera ids 0..{num_cameras - 1}, one per camXX folder)"
+            )
+        test_ids = set(test_cameras)
+    return split_views(views, test_ids, root)

@@ -1,0 +1,67 @@
+"""Loader options shared by every format, validated once, with the part that enters fingerprints."""
+
+from __future__ import annotations
+
+import numbers
+from collections.abc import Iterable
+from dataclasses import dataclass
+from typing import Any
+
+from relaygs.data.effects import parse_effects
+from relaygs.errors import InputError
+
+DEFAULT_MAX_POINTS = 100_000
+DEFAULT_CACHE_MB = 512.0
+
+
+@dataclass(frozen=True)
+class LoaderOptions:
+    """Options of `load_scene`; `effects=None` takes the scene's own declaration (scene.json)."""
+
+    downscale: int = 1
+    max_points: int = DEFAULT_MAX_POINTS
+    cache_mb: float = DEFAULT_CACHE_MB
+    test_cameras: tuple[int, ...] | None = None
+    effects: frozenset[str] | None = None
+
+    def content_options(self) -> dict[str, Any]:
+        """The options that change what a scene holds (everything but the cache budget)."""
+        return {
+            "max_points": self.max_points,
+            "test_cameras": None if self.test_cameras is None else list(self.test_cameras),
+            "effects": None if self.effects is None else sorted(self.effects),
+        }
+
+
+def make_options(
+    *,
+    downscale: int = 1,
+    max_points: int = DEFAULT_MAX_POINTS,
+    cache_mb: float = DEFAULT_CACHE_MB,
+    test_cameras: Iterable[int] | None = None,
+    effects: Iterable[str] | None = None,
+) -> LoaderOptions:
+    """Validate raw option values into LoaderOptions, naming the bad option on error."""
+    downscale = require_int("downscale", downscale, minimum=1)
+    max_points = require_int("max_points", max_points, minimum=1)
+    if isinstance(cache_mb, bool) or not isinstance(cache_mb, int | float) or not cache_mb > 0:
+        raise InputError(f"loader option cache_mb must be a number > 0, got {cache_mb!r}")
+    cameras = None
+    if test_cameras is not None:
+        if isinstance(test_cameras, str | bytes):
+            raise InputError(
+                f"loader option test_cameras must be a list of ids, got {test_cameras!r}"
+            )
+        ids = {
+            require_int("test_cameras entry", camera_id, minimum=0) for camera_id in test_cameras
+        }
+        cameras = tuple(sorted(ids))
+    declared = None if effects is None else parse_effects(effects, source="loader option effects")
+    return LoaderOptions(downscale, max_points, float(cache_mb), cameras, declared)
+
+
+def require_int(name: str, value: object, *, minimum: int) -> int:
+    """`value` as an int if it is an integer >= minimum, else an InputError naming the option."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < minimum:
+        raise InputError(f"loader option {name} must be an integer >= {minimum}, got {value!r}")
+    return int(value)

@@ -1,0 +1,269 @@
+"""Loader for the PanopticSports layout (train/test meta JSON, ims/, seg/, init_pt_cld.npz)."""
+
+from __future__ import annotations
+
+import os
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from relaygs.data.camera import Camera
+from relaygs.data.fingerprint import digest, file_record
+from relaygs.data.metafiles import SCENE_JSON, declared_effects, read_json
+from relaygs.data.options import LoaderOptions
+from relaygs.data.points import PointCloud, point_cloud_from_arrays
+from relaygs.data.scene import Scene, View, assemble_scene, frame_time, split_views
+from relaygs.errors import InputError
+
+TRAIN_META = "train_meta.json"
+TEST_META = "test_meta.json"
+POINTS_FILE = "init_pt_cld.npz"
+_POSE_TOLERANCE = 1e-3
+
+
+@dataclass(frozen=True)
+class PanopticMeta:
+    """One meta file: image size and, per frame t and column c, K, w2c, file name, camera id."""
+
+    path: Path
+    width: int
+    height: int
+    K: np.ndarray
+    w2c: np.ndarray
+    fn: list[list[str]]
+    cam_id: np.ndarray
+
+    @property
+    def num_frames(self) -> int:
+        """T, the number of frames."""
+        return len(self.fn)
+
+
+def load_panoptic(root: Path, options: LoaderOptions) -> Scene:
+    """Load a PanopticSports-layout scene folder; test cameras from test_meta.json by default."""
+    train = read_meta(root / TRAIN_META)
+    test = read_meta(root / TEST_META)
+    _check_compatible(train, test)
+    files: dict[str, str] = {}
+    cameras: dict[tuple, Camera] = {}
+    entries = _views(root, train, files, cameras) + _views(root, test, files, cameras)
+    train_views, test_views = _split(entries, train, test, options.test_cameras)
+    points = _read_points(root / POINTS_FILE, options.max_points)
+    files[POINTS_FILE] = file_record(root / POINTS_FILE).sha256
+    for name in (TRAIN_META, TEST_META, SCENE_JSON):
+        if (root / name).exists():
+            files[name] = file_record(root / name).sha256
+    effects = declared_effects(root) if options.effects is None else options.effects
+    content = digest({"format": "panoptic", "options": options.content_options(), "files": files})
+    return assemble_scene(
+        root=root,
+        format="panoptic",
+        train_views=train_views,
+        test_views=test_views,
+        num_frames=train.num_frames,
+        points=points,
+        effects=effects,
+        downscale=options.downscale,
+        content_digest=content,
+        cache_mb=options.cache_mb,
+    )
+
+
+def read_meta(path: Path) -> PanopticMeta:
+    """Parse and check a train/test meta file: every per-view field is [T][C] with equal T, C."""
+    meta = read_json(path)
+    if not isinstance(meta, dict):
+        raise InputError(f"{path}: expected a JSON object with fields w, h, k, w2c, fn, cam_id")
+    width = _positive_int(meta, "w", path)
+    height = _positive_int(meta, "h", path)
+    fn = _file_names(meta, path)
+    shape = (len(fn), len(fn[0]))
+    K = _array_field(meta, "k", path, shape, (3, 3), np.float64)
+    w2c = _array_field(meta, "w2c", path, shape, (4, 4), np.float64)
+    cam_id = _array_field(meta, "cam_id", path, shape, (), np.int64)
+    _check_intrinsics(K, path)
+    _check_poses(w2c, path)
+    return PanopticMeta(path, width, height, K, w2c, fn, cam_id)
+
+
+def _positive_int(meta: dict, name: str, path: Path) -> int:
+    value = meta.get(name)
+    if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
+        raise InputError(f"{path}: field '{name}' must be a positive integer, got {value!r}")
+    return value
+
+
+def _file_names(meta: dict, path: Path) -> list[list[str]]:
+    fn = meta.get("fn")
+    ok = isinstance(fn, list) and fn and all(isinstance(row, list) and row for row in fn)
+    if not ok or any(not isinstance(name, str) for row in fn for name in row):
+        raise InputError(f"{path}: field 'fn' must be a non-empty [T][C] list of file names")
+    widths = {len(row) for row in fn}
+    if len(widths) != 1:
+        raise InputError(f"{path}: field 'fn' rows have different camera counts {sorted(widths)}")
+    return fn
+
+
+def _array_field(
+    meta: dict,
+    name: str,
+    path: Path,
+    shape: tuple[int, int],
+    trailing: tuple[int, ...],
+    dtype: type,
+) -> np.ndarray:
+    expected = "[T][C]" + "".join(f"[{size}]" for size in trailing)
+    if name not in meta:
+        raise InputError(f"{path}: missing field '{name}' (expected {expected})")
+    try:
+        array = np.asarray(meta[name], dtype=np.float64)
+    except (ValueError, TypeError):
+        raise InputError(f"{path}: field '{name}' must be a {expected} array of numbers") from None
+    if array.shape[2:] != trailing or array.ndim != 2 + len(trailing):
+        raise InputError(
+            f"{path}: field '{name}' has shape {list(array.shape)}, expected {expected}"
+        )
+    if array.shape[:2] != shape:
+        raise InputError(
+            f"{path}: field '{name}' has T={array.shape[0]}, C={array.shape[1]} but 'fn' has "
+            f"T={shape[0]}, C={shape[1]}"
+        )
+    if not np.isfinite(array).all():
+        raise InputError(f"{path}: field '{name}' holds non-finite values")
+    if dtype is np.int64:
+        if (array != np.round(array)).any() or (array < 0).any():
+            raise InputError(f"{path}: field '{name}' must hold non-negative integers")
+        return array.astype(np.int64)
+    return array
+
+
+def _check_intrinsics(K: np.ndarray, path: Path) -> None:
+    bottom_ok = np.allclose(K[..., 2, :], [0.0, 0.0, 1.0])
+    if not bottom_ok or (K[..., 0, 0] <= 0).any() or (K[..., 1, 1] <= 0).any():
+        raise InputError(
+            f"{path}: field 'k' must hold intrinsics [[fx,0,cx],[0,fy,cy],[0,0,1]] with fx, fy > 0"
+        )
+
+
+def _check_poses(w2c: np.ndarray, path: Path) -> None:
+    rotation = w2c[..., :3, :3]
+    gram = rotation @ np.swapaxes(rotation, -1, -2)
+    orthonormal = np.abs(gram - np.eye(3)).max() < _POSE_TOLERANCE
+    proper = (np.linalg.det(rotation) > 0).all()
+    bottom_ok = np.allclose(w2c[..., 3, :], [0.0, 0.0, 0.0, 1.0])
+    if not (orthonormal and proper and bottom_ok):
+        raise InputError(
+            f"{path}: field 'w2c' must hold rigid world→camera transforms "
+            "(rotation with det +1, last row 0 0 0 1)"
+        )
+
+
+def _check_compatible(train: PanopticMeta, test: PanopticMeta) -> None:
+    if (train.width, train.height) != (test.width, test.height):
+        raise InputError(
+            f"{test.path}: w/h {test.width}x{test.height} differ from {train.path} "
+            f"({train.width}x{train.height})"
+        )
+    if train.num_frames != test.num_frames:
+        raise InputError(
+            f"{test.path}: T={test.num_frames} frames but {train.path} has T={train.num_frames}"
+        )
+    shared = set(train.cam_id.ravel().tolist()) & set(test.cam_id.ravel().tolist())
+    if shared:
+        raise InputError(
+            f"{test.path}: camera ids {sorted(shared)} also appear in {train.path}; "
+            "train and test cameras must differ"
+        )
+
+
+def scene_file(root: Path, folder: str, name: str, source: Path) -> Path:
+    """root/folder/name, refusing absolute names and names that climb out of the scene root."""
+    normal = os.path.normpath(os.path.join(folder, name))
+    if Path(name).is_absolute() or normal == ".." or normal.startswith(".." + os.sep):
+        raise InputError(f"{source}: file name {name!r} escapes the scene folder {root}")
+    return root / normal
+
+
+def _views(
+    root: Path, meta: PanopticMeta, files: dict[str, str], cameras: dict[tuple, Camera]
+) -> list[View]:
+    has_masks = (root / "seg").is_dir()
+    views = []
+    for t, row in enumerate(meta.fn):
+        for c, name in enumerate(row):
+            image_path = scene_file(root, "ims", name, meta.path)
+            _check_image(image_path, meta, files, root, "image")
+            mask_path = None
+            if has_masks:
+                mask_path = scene_file(root, "seg", str(Path(name).with_suffix(".png")), meta.path)
+                _check_image(mask_path, meta, files, root, "mask")
+            camera = _camera(meta, t, c, cameras)
+            views.append(View(camera, t, frame_time(t, meta.num_frames), image_path, mask_path))
+    return views
+
+
+def _check_image(
+    path: Path, meta: PanopticMeta, files: dict[str, str], root: Path, what: str
+) -> None:
+    record = file_record(path, image=True, what=f"{what} file")
+    if record.image_size != (meta.width, meta.height):
+        width, height = record.image_size
+        raise InputError(
+            f"{path}: {what} is {width}x{height}, expected {meta.width}x{meta.height} "
+            f"(w/h in {meta.path.name})"
+        )
+    files[path.relative_to(root).as_posix()] = record.sha256
+
+
+def _camera(meta: PanopticMeta, t: int, c: int, cameras: dict[tuple, Camera]) -> Camera:
+    camera_id = int(meta.cam_id[t, c])
+    K = meta.K[t, c].astype(np.float32)
+    w2c = meta.w2c[t, c].astype(np.float32)
+    key = (camera_id, K.tobytes(), w2c.tobytes())
+    if key not in cameras:
+        cameras[key] = Camera(
+            camera_id, torch.from_numpy(K), torch.from_numpy(w2c), meta.width, meta.height
+        )
+    return cameras[key]
+
+
+def _split(
+    views: list[View],
+    train: PanopticMeta,
+    test: PanopticMeta,
+    test_cameras: tuple[int, ...] | None,
+) -> tuple[list[View], list[View]]:
+    if test_cameras is None:
+        test_ids = set(test.cam_id.ravel().tolist())
+    else:
+        known = set(train.cam_id.ravel().tolist()) | set(test.cam_id.ravel().tolist())
+        missing = sorted(set(test_cameras) - known)
+        if missing:
+            raise InputError(
+                f"loader option test_cameras: cameras {missing} are not in the scene "
+                f"(camera ids: {sorted(known)})"
+            )
+        test_ids = set(test_cameras)
+    return split_views(views, test_ids, train.path)
+
+
+def _read_points(path: Path, max_points: int) -> PointCloud:
+    try:
+        with np.load(path, allow_pickle=False) as archive:
+            if "data" not in archive.files:
+                raise InputError(f"{path}: missing array 'data' (expected [N,7] xyz, rgb, seg)")
+            data = archive["data"]
+    except FileNotFoundError:
+        raise InputError(f"missing file: {path}") from None
+    except (OSError, ValueError, zipfile.BadZipFile) as error:
+        raise InputError(f"{path}: not a readable .npz point cloud ({error})") from None
+    if data.ndim != 2 or data.shape[1] != 7 or not np.issubdtype(data.dtype, np.number):
+        raise InputError(
+            f"{path}: array 'data' has shape {list(data.shape)}, expected [N,7] xyz, rgb, seg"
+        )
+    return point_cloud_from_arrays(
+        data[:, :3], data[:, 3:6], data[:, 6] > 0.5, source=str(path), max_points=max_points
+    )

@@ -1,0 +1,178 @@
+"""The scene model every stage consumes: views (camera + frame + files), points and effects."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from relaygs.data.cache import TensorCache
+from relaygs.data.camera import Camera
+from relaygs.data.fingerprint import digest
+from relaygs.data.imageio import read_mask, read_rgb
+from relaygs.data.options import require_int
+from relaygs.data.points import PointCloud
+from relaygs.errors import InputError
+
+
+@dataclass(frozen=True)
+class View:
+    """One image of the capture: a camera at a frame (time = frame / (T − 1), 0 when T = 1)."""
+
+    camera: Camera
+    frame: int
+    time: float
+    image_path: Path
+    mask_path: Path | None = None
+
+
+def frame_time(frame: int, num_frames: int) -> float:
+    """Normalised time of a frame: frame / (T − 1) in [0, 1], 0 for a single-frame scene."""
+    return frame / (num_frames - 1) if num_frames > 1 else 0.0
+
+
+@dataclass(frozen=True, eq=False)
+class Scene:
+    """A loaded multi-view video scene; images and masks load lazily through a bounded cache.
+
+    `fingerprint` hashes every input file's content and every option that changes what the
+    scene holds (downscale, max_points, test cameras, effects), so artifacts keyed on it are
+    rebuilt when the data changes. The cache budget does not enter it.
+    """
+
+    name: str
+    root: Path
+    format: str
+    train_views: list[View]
+    test_views: list[View]
+    num_frames: int
+    points: PointCloud
+    effects: frozenset[str]
+    extent: float
+    downscale: int
+    content_digest: str
+    cache: TensorCache = field(repr=False)
+    full_train_views: list[View] = field(repr=False)
+    full_test_views: list[View] = field(repr=False)
+
+    @property
+    def fingerprint(self) -> str:
+        """sha256 hex of the input content and every content-relevant loader option."""
+        return digest({"content": self.content_digest, "downscale": self.downscale})
+
+    def image(self, view: View) -> torch.Tensor:
+        """The view's image as float32 [H,W,3] in [0,1] at the camera's size (shared: read-only)."""
+        camera = view.camera
+        key = ("rgb", view.image_path, camera.width, camera.height)
+        return self.cache.get(
+            key,
+            lambda: torch.from_numpy(read_rgb(view.image_path, camera.width, camera.height)),
+        )
+
+    def mask(self, view: View) -> torch.Tensor | None:
+        """The view's foreground mask as bool [H,W] (True = foreground), or None without masks."""
+        if view.mask_path is None:
+            return None
+        camera = view.camera
+        mask_path = view.mask_path
+        key = ("mask", mask_path, camera.width, camera.height)
+        return self.cache.get(
+            key, lambda: torch.from_numpy(read_mask(mask_path, camera.width, camera.height))
+        )
+
+    def views_at(self, frame: int, split: str = "train") -> list[View]:
+        """All views of one frame in `split` ("train", "test" or "all"), ordered by camera id."""
+        views = {"train": self.train_views, "test": self.test_views}.get(split)
+        if views is None:
+            views = self.train_views + self.test_views if split == "all" else None
+        if views is None:
+            raise ValueError(f"split must be 'train', 'test' or 'all', got {split!r}")
+        selected = [view for view in views if view.frame == frame]
+        return sorted(selected, key=lambda view: view.camera.camera_id)
+
+    @property
+    def train_cameras(self) -> list[Camera]:
+        """The training cameras at frame 0, ordered by camera id."""
+        return [view.camera for view in self.views_at(0, "train")]
+
+    @property
+    def test_cameras(self) -> list[Camera]:
+        """The held-out test cameras at frame 0, ordered by camera id."""
+        return [view.camera for view in self.views_at(0, "test")]
+
+    def rescaled(self, downscale: int) -> Scene:
+        """The same scene at another downscale factor, sharing this scene's image cache."""
+        downscale = require_int("downscale", downscale, minimum=1)
+        return replace(
+            self,
+            train_views=scale_views(self.full_train_views, downscale),
+            test_views=scale_views(self.full_test_views, downscale),
+            downscale=downscale,
+        )
+
+
+def scale_views(views: list[View], downscale: int) -> list[View]:
+    """Views with cameras downscaled by `downscale`; views sharing a camera keep sharing one."""
+    scaled: dict[int, Camera] = {}
+    result = []
+    for view in views:
+        key = id(view.camera)
+        if key not in scaled:
+            scaled[key] = view.camera.scaled(downscale)
+        result.append(replace(view, camera=scaled[key]))
+    return result
+
+
+def split_views(
+    views: list[View], test_ids: set[int], source: Path
+) -> tuple[list[View], list[View]]:
+    """Split views into (train, test) by camera id, each ordered by (frame, camera id); a scene
+    needs at least one train camera."""
+    views = sorted(views, key=lambda view: (view.frame, view.camera.camera_id))
+    train_views = [view for view in views if view.camera.camera_id not in test_ids]
+    test_views = [view for view in views if view.camera.camera_id in test_ids]
+    if not train_views:
+        raise InputError(f"{source}: no training cameras left after holding out {sorted(test_ids)}")
+    return train_views, test_views
+
+
+def camera_extent(cameras: list[Camera]) -> float:
+    """Radius of the camera centres around their mean, ×1.1 (the 3DGS scene-extent rule)."""
+    centers = np.stack([camera.center.double().numpy() for camera in cameras])
+    radius = float(np.linalg.norm(centers - centers.mean(axis=0), axis=1).max())
+    return max(radius, 1e-6) * 1.1
+
+
+def assemble_scene(
+    *,
+    root: Path,
+    format: str,
+    train_views: list[View],
+    test_views: list[View],
+    num_frames: int,
+    points: PointCloud,
+    effects: frozenset[str],
+    downscale: int,
+    content_digest: str,
+    cache_mb: float,
+) -> Scene:
+    """Build a Scene from full-resolution views: extent from the train cameras, views scaled."""
+    train_cameras = {id(view.camera): view.camera for view in train_views}
+    return Scene(
+        name=root.name,
+        root=root,
+        format=format,
+        train_views=scale_views(train_views, downscale),
+        test_views=scale_views(test_views, downscale),
+        num_frames=num_frames,
+        points=points,
+        effects=effects,
+        extent=camera_extent(list(train_cameras.values())),
+        downscale=downscale,
+        content_digest=content_digest,
+        cache=TensorCache(cache_mb),
+        full_train_views=train_views,
+        full_test_views=test_views,
+    )

@@ -1,0 +1,232 @@
+"""`generate`: render a preset into a PanopticSports-layout folder plus scene.json."""
+
+from __future__ import annotations
+
+import json
+import numbers
+import os
+import shutil
+from collections.abc import Iterable
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from relaygs.data.effects import COLOR_INCONSISTENCY, SENSOR_NOISE, parse_effects
+from relaygs.data.metafiles import SCENE_JSON
+from relaygs.data.synthetic.presets import DURATION_S, PRESETS, Preset
+from relaygs.data.synthetic.render import (
+    Buffers,
+    CameraRays,
+    Layer,
+    camera_rays,
+)
+from relaygs.data.synthetic.sensor import (
+    NOISE_SIGMA,
+    camera_responses,
+    noise_generator,
+    sensor_image,
+)
+from relaygs.data.synthetic.world import World
+from relaygs.errors import InputError
+
+GENERATOR = "relaygs.synth"
+GENERATOR_VERSION = "1"
+SUPERSAMPLE = 2
+POINTS_PER_PIXEL = 0.1
+"""Initial-cloud samples per pixel of each training camera's frame 0 ..."""
+MAX_POINTS = 100_000
+"""... capped at this many points in total (the loaders' default budget)."""
+_PNG_FAST = [cv2.IMWRITE_PNG_COMPRESSION, 1]
+
+
+def generate(
+    preset: str,
+    out_dir: str | Path,
+    *,
+    frames: int = 64,
+    width: int = 160,
+    height: int = 90,
+    seed: int = 0,
+    effects: Iterable[str] | None = None,
+) -> Path:
+    """Write preset `preset` to `out_dir` (Panoptic layout + scene.json); returns the folder.
+
+    `effects=None` uses the preset's default effects; otherwise exactly the given ones are
+    simulated. An existing folder is replaced only if it holds a previously generated scene.
+    """
+    recipe = PRESETS.get(preset)
+    if recipe is None:
+        raise InputError(f"unknown preset {preset!r}; expected one of: {', '.join(PRESETS)}")
+    for name, value in (("frames", frames), ("width", width), ("height", height)):
+        _require_count(name, value, minimum=1)
+    _require_count("seed", seed, minimum=0)
+    declared = _declared_effects(recipe, effects)
+    times = np.linspace(0.0, DURATION_S, frames) if frames > 1 else np.zeros(1)
+    world = World(
+        cameras=recipe.rig(width, height),
+        test_cameras=recipe.test_cameras,
+        primitives=recipe.build(times, declared, seed),
+        times_s=times,
+        width=width,
+        height=height,
+    )
+    out = Path(out_dir).expanduser().absolute()
+    staging = _staging_folder(out)
+    try:
+        _write_scene(world, staging, declared, seed)
+        _write_json(staging / SCENE_JSON, _declaration(recipe, world, declared, seed))
+        if out.exists():
+            shutil.rmtree(out)
+        os.replace(staging, out)
+    finally:
+        if staging.exists():
+            shutil.rmtree(staging)
+    return out
+
+
+def _require_count(name: str, value: object, *, minimum: int) -> None:
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < minimum:
+        raise InputError(f"{name} must be an integer >= {minimum}, got {value!r}")
+
+
+def _declared_effects(recipe: Preset, effects: Iterable[str] | None) -> frozenset[str]:
+    if effects is None:
+        return recipe.default_effects
+    declared = parse_effects(effects, source="effects")
+    unsupported = sorted(declared - recipe.supported_effects)
+    if unsupported:
+        raise InputError(
+            f"preset {recipe.name!r} cannot simulate {', '.join(unsupported)}; it supports: "
+            f"{', '.join(sorted(recipe.supported_effects))}"
+        )
+    return declared
+
+
+def _staging_folder(out: Path) -> Path:
+    if out.exists():
+        if not out.is_dir():
+            raise InputError(f"output path exists and is not a folder: {out}")
+        if any(out.iterdir()) and not _is_generated(out):
+            raise InputError(f"refusing to overwrite {out}: not empty and not a generated scene")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    staging = out.parent / f".{out.name}.partial-{os.getpid()}"
+    if staging.exists():
+        shutil.rmtree(staging)
+    staging.mkdir()
+    return staging
+
+
+def _is_generated(folder: Path) -> bool:
+    try:
+        declaration = json.loads((folder / SCENE_JSON).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    return isinstance(declaration, dict) and declaration.get("generator") == GENERATOR
+
+
+def _write_json(path: Path, payload: object) -> None:
+    path.write_text(json.dumps(payload, indent=1) + "\n", encoding="utf-8")
+
+
+def _declaration(recipe: Preset, world: World, effects: frozenset[str], seed: int) -> dict:
+    gains, offsets = camera_responses(len(world.cameras), seed, COLOR_INCONSISTENCY in effects)
+    return {
+        "generator": GENERATOR,
+        "generator_version": GENERATOR_VERSION,
+        "preset": recipe.name,
+        "description": recipe.description,
+        "frames": len(world.times_s),
+        "width": world.width,
+        "height": world.height,
+        "seed": seed,
+        "effects": sorted(effects),
+        "num_cameras": len(world.cameras),
+        "test_cameras": list(world.test_cameras),
+        "duration_s": DURATION_S,
+        "supersample": SUPERSAMPLE,
+        "noise_sigma": NOISE_SIGMA if SENSOR_NOISE in effects else 0.0,
+        "camera_response": {"gains": gains.tolist(), "offsets": offsets.tolist()},
+    }
+
+
+def _write_scene(world: World, folder: Path, effects: frozenset[str], seed: int) -> None:
+    """Render every camera and frame into ims/ and seg/, then the meta files and point cloud."""
+    num_frames = len(world.times_s)
+    static = Layer([primitive for primitive in world.primitives if not primitive.animated])
+    dynamic = Layer([primitive for primitive in world.primitives if primitive.animated])
+    static_pose = static.pose(0)
+    dynamic_poses = [dynamic.pose(frame) for frame in range(num_frames)]
+    animated = bool(dynamic.primitives)
+    gains, offsets = camera_responses(len(world.cameras), seed, COLOR_INCONSISTENCY in effects)
+    noisy = SENSOR_NOISE in effects
+    train_ids = [c for c in range(len(world.cameras)) if c not in world.test_cameras]
+    points_rng = np.random.default_rng([seed, 31])
+    per_camera = max(
+        1, min(round(POINTS_PER_PIXEL * world.width * world.height), MAX_POINTS // len(train_ids))
+    )
+    points = []
+    for camera_id, camera in enumerate(world.cameras):
+        rays = camera_rays(camera, world.width, world.height, SUPERSAMPLE)
+        base = Buffers.empty(rays.shape)
+        static.render(static_pose, 0.0, rays, base)
+        (folder / "ims" / str(camera_id)).mkdir(parents=True)
+        (folder / "seg" / str(camera_id)).mkdir(parents=True)
+        encoded: tuple[bytes, bytes] | None = None
+        for frame in range(num_frames):
+            if encoded is None or animated or noisy:
+                buffers = base.copy() if animated else base
+                dynamic.render(dynamic_poses[frame], world.times_s[frame], rays, buffers)
+                if frame == 0 and camera_id in train_ids:
+                    points.append(_surface_points(buffers, rays, per_camera, points_rng))
+                noise = noise_generator(seed, camera_id, frame) if noisy else None
+                encoded = _encode_view(buffers, gains[camera_id], offsets[camera_id], noise)
+            name = f"{camera_id}/{frame:06d}.png"
+            (folder / "ims" / name).write_bytes(encoded[0])
+            (folder / "seg" / name).write_bytes(encoded[1])
+    test_ids = list(world.test_cameras)
+    _write_json(folder / "train_meta.json", _meta(world, train_ids))
+    _write_json(folder / "test_meta.json", _meta(world, test_ids))
+    np.savez(folder / "init_pt_cld.npz", data=np.concatenate(points).astype(np.float32))
+
+
+def _encode_view(
+    buffers: Buffers, gain: np.ndarray, offset: np.ndarray, noise: np.random.Generator | None
+) -> tuple[bytes, bytes]:
+    """PNG bytes of (image, mask) after downsampling, the camera response and noise."""
+    radiance, coverage = buffers.downsampled(SUPERSAMPLE)
+    image = sensor_image(radiance, gain, offset, noise)
+    mask = (coverage >= 0.5).astype(np.uint8)
+    ok_image, image_png = cv2.imencode(".png", cv2.cvtColor(image, cv2.COLOR_RGB2BGR), _PNG_FAST)
+    ok_mask, mask_png = cv2.imencode(".png", mask, _PNG_FAST)
+    if not (ok_image and ok_mask):
+        raise RuntimeError("PNG encoding failed")
+    return image_png.tobytes(), mask_png.tobytes()
+
+
+def _surface_points(
+    buffers: Buffers, rays: CameraRays, budget: int, rng: np.random.Generator
+) -> np.ndarray:
+    """Up to `budget` visible surface samples [n,7] (xyz, radiance rgb, fg) from one camera."""
+    hits = np.flatnonzero(np.isfinite(buffers.depth).ravel())
+    chosen = np.sort(rng.choice(hits, size=min(budget, len(hits)), replace=False))
+    depth = buffers.depth.ravel()[chosen]
+    xyz = rays.origin + depth[:, None] * rays.dirs.reshape(-1, 3)[chosen]
+    rgb = buffers.color.reshape(-1, 3)[chosen]
+    foreground = buffers.foreground.ravel()[chosen].astype(np.float64)
+    return np.concatenate([xyz, rgb, foreground[:, None]], axis=1)
+
+
+def _meta(world: World, camera_ids: list[int]) -> dict:
+    """A Panoptic meta dict for `camera_ids`: w, h and per-frame k, w2c, fn, cam_id."""
+    ks = [world.cameras[c].K.tolist() for c in camera_ids]
+    w2cs = [world.cameras[c].w2c.tolist() for c in camera_ids]
+    frames = range(len(world.times_s))
+    return {
+        "w": world.width,
+        "h": world.height,
+        "k": [ks for _ in frames],
+        "w2c": [w2cs for _ in frames],
+        "fn": [[f"{c}/{t:06d}.png" for c in camera_ids] for t in frames],
+        "cam_id": [list(camera_ids) for _ in frames],
+    }

@@ -1,0 +1,207 @@
+"""The synthetic presets (juggle, court, static): which effects each supports and its world."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from relaygs.data.effects import (
+    BACKGROUND_JITTER,
+    COLOR_INCONSISTENCY,
+    DYNAMIC_PANELS,
+    FAST_OBJECTS,
+    LARGE_MOTION,
+    NONRIGID,
+    SENSOR_NOISE,
+)
+from relaygs.data.synthetic.actors import (
+    BodyMotion,
+    Outfit,
+    gait_angles,
+    hand_position,
+    juggled_balls,
+    juggling_arms,
+    passed_ball,
+    person,
+    spectator,
+)
+from relaygs.data.synthetic.rig import dome_rig, ring_rig
+from relaygs.data.synthetic.studio import arena, dome_studio
+from relaygs.data.synthetic.textures import Scoreboard
+from relaygs.data.synthetic.world import Primitive, RigCamera, static_pose
+
+DURATION_S = 5.0
+"""Every sequence spans 5 s whatever its frame count (150 frames = 30 fps, as Panoptic)."""
+JUGGLE_PERIOD_S = 0.8
+PASS_S = 0.625
+
+WorldBuilder = Callable[[np.ndarray, frozenset[str], int], list[Primitive]]
+
+
+@dataclass(frozen=True)
+class Preset:
+    """A named scene recipe: rig, default and supported effects, and a primitive builder."""
+
+    name: str
+    description: str
+    rig: Callable[[int, int], list[RigCamera]]
+    test_cameras: tuple[int, ...]
+    default_effects: frozenset[str]
+    supported_effects: frozenset[str]
+    build: WorldBuilder
+
+
+def _outfit(rng: np.random.Generator, shirt, stripe) -> Outfit:
+    skin = tuple(float(v) for v in np.array([0.85, 0.64, 0.5]) * rng.uniform(0.6, 1.05))
+    hair = tuple(float(v) for v in rng.uniform(0.05, 0.35, size=3))
+    trousers = tuple(float(v) for v in rng.uniform(0.1, 0.45, size=3))
+    return Outfit(shirt, stripe, trousers, skin, hair)
+
+
+def _gait_phase(root: np.ndarray, times: np.ndarray, stride: float, effects, cadence: float):
+    """Gait phase from distance walked; stepping in place when the root does not travel."""
+    if NONRIGID not in effects:
+        return np.zeros_like(times)
+    if LARGE_MOTION not in effects:
+        return 2 * np.pi * cadence * times
+    steps = np.linalg.norm(np.diff(root, axis=0), axis=1)
+    return 2 * np.pi * np.concatenate([[0.0], np.cumsum(steps)]) / stride
+
+
+def _headings(root: np.ndarray, initial: float) -> np.ndarray:
+    """Heading along the direction of travel, holding the last one while (nearly) still."""
+    headings = np.full(len(root), initial)
+    velocity = np.gradient(root, axis=0) if len(root) > 1 else np.zeros_like(root)
+    current = initial
+    for index, (vx, vy) in enumerate(velocity):
+        if np.hypot(vx, vy) > 1e-6:
+            current = float(np.arctan2(vy, vx))
+        headings[index] = current
+    return headings
+
+
+def build_juggle(times: np.ndarray, effects: frozenset[str], seed: int) -> list[Primitive]:
+    """Two people juggling three balls each while walking round the stage on opposite sides."""
+    rng = np.random.default_rng([seed, 11])
+    primitives = dome_studio(seed)
+    shirts = (((0.8, 0.15, 0.15), (0.95, 0.95, 0.9)), ((0.15, 0.6, 0.25), (0.95, 0.85, 0.2)))
+    ball_colors = (
+        [(0.95, 0.9, 0.1), (0.1, 0.8, 0.95), (0.95, 0.2, 0.6)],
+        [(1.0, 0.5, 0.0), (0.6, 0.2, 0.95), (0.2, 0.95, 0.3)],
+    )
+    for index in range(2):
+        start = index * np.pi + rng.uniform(-0.3, 0.3)
+        if LARGE_MOTION in effects:
+            angle = start + 2 * np.pi * times / DURATION_S
+            heading = angle + np.pi / 2
+        else:
+            angle = np.full_like(times, start)
+            heading = angle + np.pi
+        root = 1.4 * np.stack([np.cos(angle), np.sin(angle)], axis=1)
+        phase = _gait_phase(root, times, stride=1.3, effects=effects, cadence=0.9)
+        legs, _ = gait_angles(phase, stride=0.4, arm_swing=0.0, elbow=0.0)
+        pose_times = times if NONRIGID in effects else np.zeros_like(times)
+        arms = juggling_arms(pose_times + 0.3 * index, JUGGLE_PERIOD_S)
+        motion = BodyMotion(root, heading, legs, arms)
+        primitives += person(motion, _outfit(rng, *shirts[index]))
+        if FAST_OBJECTS in effects:
+            primitives += juggled_balls(
+                motion, times + 0.3 * index, JUGGLE_PERIOD_S, ball_colors[index]
+            )
+    return primitives
+
+
+def _player_path(index: int, times: np.ndarray, effects: frozenset[str], rng) -> np.ndarray:
+    direction = 1.0 if index % 2 == 0 else -1.0
+    lane = (-3.6, 3.6, -2.2, 2.2, -0.8, 0.8)[index]
+    waypoints = [-6.0 * direction, 6.0 * direction]
+    if index >= 4:
+        waypoints = [-6.0 * direction, 5.0 * direction, -1.0 * direction]
+    progress = times / DURATION_S * (len(waypoints) - 1)
+    segment = np.minimum(np.floor(progress).astype(np.int64), len(waypoints) - 2)
+    eased = 0.5 - 0.5 * np.cos(np.pi * np.clip(progress - segment, 0.0, 1.0))
+    points = np.asarray(waypoints)
+    x = points[segment] + (points[segment + 1] - points[segment]) * eased
+    weave = 0.4 * np.sin(2 * np.pi * times / 2.2 + rng.uniform(0, 2 * np.pi))
+    root = np.stack([x, lane + weave], axis=1)
+    if LARGE_MOTION not in effects:
+        root = np.broadcast_to(root[0], root.shape).copy()
+    return root
+
+
+def build_court(times: np.ndarray, effects: frozenset[str], seed: int) -> list[Primitive]:
+    """Six players running the length of the court, a passed ball, panels and spectators."""
+    rng = np.random.default_rng([seed, 12])
+    primitives = arena(seed)
+    teams = (((0.85, 0.12, 0.12), (0.95, 0.95, 0.95)), ((0.1, 0.25, 0.8), (0.95, 0.85, 0.2)))
+    hands = []
+    for index in range(6):
+        root = _player_path(index, times, effects, rng)
+        heading = _headings(root, 0.0 if index % 2 == 0 else np.pi)
+        phase = _gait_phase(root, times, stride=2.0, effects=effects, cadence=1.4)
+        legs, arms = gait_angles(phase, stride=0.6, arm_swing=0.7, elbow=1.3)
+        motion = BodyMotion(root, heading, legs, arms)
+        primitives += person(motion, _outfit(rng, *teams[index % 2]))
+        hands.append(hand_position(motion))
+    if FAST_OBJECTS in effects:
+        order = [0, 3, 1, 4, 2, 5]
+        primitives.append(passed_ball([hands[i] for i in order], times, PASS_S, apex=1.0))
+    for sign in (1.0, -1.0):
+        board = Scoreboard(1.6, 0.8, seed=seed + int(sign > 0), animated=DYNAMIC_PANELS in effects)
+        primitives.append(
+            Primitive("box", (0.06, 1.6, 0.8), *static_pose((sign * 12.9, 0, 3.8)), board)
+        )
+    for side in (1.0, -1.0):
+        for x in np.linspace(-9.0, 9.0, 7):
+            jitter = None
+            if BACKGROUND_JITTER in effects:
+                frequency = rng.uniform(0.4, 1.2, size=3)
+                phase0 = rng.uniform(0, 2 * np.pi, size=3)
+                amplitude = np.array([0.08, 0.06, 0.03])
+                jitter = amplitude * np.sin(2 * np.pi * frequency * times[:, None] + phase0)
+            shirt = tuple(float(v) for v in rng.uniform(0.1, 0.9, size=3))
+            outfit = _outfit(rng, shirt, tuple(0.6 * c for c in shirt))
+            primitives += spectator((float(x), side * 9.3), -side * np.pi / 2, outfit, jitter)
+    return primitives
+
+
+def build_static(times: np.ndarray, effects: frozenset[str], seed: int) -> list[Primitive]:
+    """The juggling studio with nobody in it: nothing moves (a control scene)."""
+    return dome_studio(seed)
+
+
+_CAMERA_EFFECTS = frozenset({COLOR_INCONSISTENCY, SENSOR_NOISE})
+
+PRESETS: dict[str, Preset] = {
+    "juggle": Preset(
+        "juggle",
+        "Panoptic-like dome (31 cameras); two people juggling while walking round the stage",
+        dome_rig,
+        (0, 10, 15, 30),
+        frozenset({LARGE_MOTION, NONRIGID, FAST_OBJECTS, COLOR_INCONSISTENCY}),
+        frozenset({LARGE_MOTION, NONRIGID, FAST_OBJECTS}) | _CAMERA_EFFECTS,
+        build_juggle,
+    ),
+    "court": Preset(
+        "court",
+        "Basketball-court ring (34 cameras); six players, a passed ball, panels, spectators",
+        ring_rig,
+        (0, 10, 20, 30),
+        frozenset({LARGE_MOTION, NONRIGID, FAST_OBJECTS, DYNAMIC_PANELS, BACKGROUND_JITTER}),
+        frozenset({LARGE_MOTION, NONRIGID, FAST_OBJECTS, DYNAMIC_PANELS, BACKGROUND_JITTER})
+        | _CAMERA_EFFECTS,
+        build_court,
+    ),
+    "static": Preset(
+        "static",
+        "The juggling studio and dome with nothing moving (a control scene)",
+        dome_rig,
+        (0, 10, 15, 30),
+        frozenset(),
+        _CAMERA_EFFECTS,
+        build_static,
+    ),
+}
+"""Preset name → recipe."""

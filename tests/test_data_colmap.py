@@ -1,0 +1,160 @@
+"""Multi-view layout with COLMAP poses: binary and text models agree with the Panoptic loader."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from relaygs.data import Scene, load_scene
+from relaygs.data.colmap import (
+    ColmapCamera,
+    ColmapImage,
+    ColmapModel,
+    qvec_to_rotation,
+    read_model,
+    rotation_to_qvec,
+    write_model,
+)
+from relaygs.data.export import export_multiview
+from relaygs.errors import InputError
+
+JUGGLE_TEST_CAMERAS = [0, 10, 15, 30]
+
+
+@pytest.fixture(scope="module")
+def panoptic(tiny_synth_scene: Path) -> Scene:
+    return load_scene(tiny_synth_scene)
+
+
+@pytest.fixture(scope="module", params=["binary", "text"])
+def multiview_root(request, panoptic: Scene, tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("multiview") / request.param
+    return export_multiview(panoptic, out, binary=request.param == "binary")
+
+
+def test_layout_files(multiview_root: Path):
+    assert (multiview_root / "cam00" / "frame_00000.png").is_file()
+    assert (multiview_root / "cam30" / "frame_00005.png").is_file()
+    assert (multiview_root / "seg" / "cam07" / "frame_00002.png").is_file()
+    extension = ".bin" if multiview_root.name == "binary" else ".txt"
+    assert (multiview_root / "sparse" / "0" / f"images{extension}").is_file()
+
+
+def test_both_loaders_agree_on_cameras_images_and_points(panoptic: Scene, multiview_root: Path):
+    multiview = load_scene(multiview_root, test_cameras=JUGGLE_TEST_CAMERAS)
+    assert multiview.format == "multiview" and multiview.num_frames == panoptic.num_frames
+    for split in ("train_views", "test_views"):
+        expected, actual = getattr(panoptic, split), getattr(multiview, split)
+        assert len(expected) == len(actual)
+        for ours, theirs in zip(expected, actual, strict=True):
+            assert (ours.frame, ours.camera.camera_id) == (theirs.frame, theirs.camera.camera_id)
+            assert ours.time == theirs.time
+            assert torch.allclose(ours.camera.K, theirs.camera.K, atol=1e-5)
+            assert torch.allclose(ours.camera.w2c, theirs.camera.w2c, atol=1e-5)
+    for index in (0, 17, 100):
+        ours, theirs = panoptic.train_views[index], multiview.train_views[index]
+        assert torch.equal(panoptic.image(ours), multiview.image(theirs))
+        assert torch.equal(panoptic.mask(ours), multiview.mask(theirs))
+    assert torch.allclose(panoptic.points.xyz, multiview.points.xyz, atol=1e-5)
+    assert (panoptic.points.rgb - multiview.points.rgb).abs().max() <= 0.5 / 255 + 1e-6
+    assert multiview.extent == pytest.approx(panoptic.extent, rel=1e-5)
+    assert multiview.effects == panoptic.effects
+
+
+def test_default_test_cameras_are_0_10_20_30(multiview_root: Path):
+    scene = load_scene(multiview_root)
+    assert [camera.camera_id for camera in scene.test_cameras] == [0, 10, 20, 30]
+
+
+def test_binary_and_text_models_round_trip(tmp_path: Path):
+    rng = np.random.default_rng(1)
+    model = ColmapModel(
+        cameras={
+            1: ColmapCamera(1, "PINHOLE", 64, 48, (50.0, 51.0, 32.0, 24.5)),
+            2: ColmapCamera(2, "SIMPLE_RADIAL", 64, 48, (40.0, 31.0, 23.0, 0.0)),
+        },
+        images={
+            3: ColmapImage(3, (0.5, 0.5, -0.5, 0.5), (0.1, -2.0, 3.5), 1, "cam00.png"),
+            8: ColmapImage(8, (1.0, 0.0, 0.0, 0.0), (0.0, 0.0, 1.0), 2, "dir/cam01 frame.png"),
+        },
+        xyz=rng.normal(size=(20, 3)),
+        rgb=rng.integers(0, 256, size=(20, 3)).astype(np.uint8),
+    )
+    for binary in (True, False):
+        folder = tmp_path / str(binary)
+        write_model(folder, model, binary=binary)
+        loaded = read_model(folder)
+        assert loaded.cameras == model.cameras
+        assert loaded.images == model.images
+        assert np.array_equal(loaded.xyz, model.xyz) and np.array_equal(loaded.rgb, model.rgb)
+
+
+def test_quaternion_round_trip():
+    rng = np.random.default_rng(2)
+    for _ in range(50):
+        quaternion = rng.normal(size=4)
+        quaternion /= np.linalg.norm(quaternion)
+        rotation = qvec_to_rotation(quaternion)
+        assert np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-12)
+        recovered = rotation_to_qvec(rotation)
+        assert np.allclose(recovered, quaternion * np.sign(quaternion[0]), atol=1e-10)
+
+
+@pytest.fixture
+def multiview_copy(multiview_root: Path, tmp_path: Path) -> Path:
+    return Path(shutil.copytree(multiview_root, tmp_path / "copy"))
+
+
+def _expect(root: Path, *fragments: str) -> None:
+    with pytest.raises(InputError) as caught:
+        load_scene(root)
+    for fragment in fragments:
+        assert fragment in str(caught.value), str(caught.value)
+
+
+def test_distorted_cameras_are_refused(multiview_copy: Path):
+    folder = multiview_copy / "sparse" / "0"
+    model = read_model(folder)
+    camera = model.cameras[1]
+    fx, fy, cx, cy = camera.params
+    model.cameras[1] = ColmapCamera(
+        1, "OPENCV", camera.width, camera.height, (fx, fy, cx, cy, 0.1, 0, 0, 0)
+    )
+    for path in folder.iterdir():
+        path.unlink()
+    write_model(folder, model, binary=multiview_copy.name == "binary")
+    _expect(multiview_copy, "camera 1 (OPENCV)", "non-zero distortion")
+
+
+def test_cameras_with_different_frame_counts_are_refused(multiview_copy: Path):
+    (multiview_copy / "cam04" / "frame_00005.png").unlink()
+    _expect(multiview_copy, "cam04", "holds 5 frames", "cam00 holds 6")
+
+
+def test_missing_colmap_model_is_refused(multiview_copy: Path):
+    shutil.rmtree(multiview_copy / "sparse")
+    _expect(multiview_copy, "no COLMAP model found", "sparse/0")
+
+
+def test_camera_folder_without_a_registered_image_is_refused(multiview_copy: Path):
+    shutil.copytree(multiview_copy / "cam30", multiview_copy / "cam31")
+    shutil.copytree(multiview_copy / "seg" / "cam30", multiview_copy / "seg" / "cam31")
+    _expect(multiview_copy, "camera folder cam31")
+
+
+def test_truncated_binary_model_is_refused(panoptic: Scene, tmp_path: Path):
+    root = export_multiview(panoptic, tmp_path / "binary", binary=True)
+    path = root / "sparse" / "0" / "images.bin"
+    path.write_bytes(path.read_bytes()[:-20])
+    _expect(root, "images.bin", "truncated")
+
+
+def test_malformed_text_model_line_is_refused(panoptic: Scene, tmp_path: Path):
+    root = export_multiview(panoptic, tmp_path / "text", binary=False)
+    path = root / "sparse" / "0" / "cameras.txt"
+    path.write_text(path.read_text().replace("PINHOLE", "PINHOLE 32", 1))
+    _expect(root, "cameras.txt line 2", "4 PINHOLE params")

@@ -1,0 +1,161 @@
+"""Loading the PanopticSports layout: views, cameras, lazy images, downscale, fingerprint."""
+
+from __future__ import annotations
+
+import json
+import pickle
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from relaygs.data import Camera, Scene, detect_format, load_scene
+from relaygs.data.effects import COLOR_INCONSISTENCY, SENSOR_NOISE
+
+
+@pytest.fixture(scope="module")
+def scene(tiny_synth_scene: Path) -> Scene:
+    return load_scene(tiny_synth_scene)
+
+
+def test_views_frames_and_times(scene: Scene):
+    assert scene.format == "panoptic" and scene.name == "juggle"
+    assert scene.num_frames == 6
+    assert len(scene.train_views) == 27 * 6 and len(scene.test_views) == 4 * 6
+    assert [camera.camera_id for camera in scene.test_cameras] == [0, 10, 15, 30]
+    assert len(scene.train_cameras) == 27
+    for view in scene.train_views + scene.test_views:
+        assert view.time == pytest.approx(view.frame / 5)
+        assert view.image_path.is_file() and view.mask_path.is_file()
+    frame_views = scene.views_at(3, "all")
+    assert len(frame_views) == 31 and {view.frame for view in frame_views} == {3}
+    assert scene.views_at(0, "train")[0].camera is scene.views_at(5, "train")[0].camera
+
+
+def test_cameras_match_the_meta_file(scene: Scene, tiny_synth_scene: Path):
+    meta = json.loads((tiny_synth_scene / "test_meta.json").read_text())
+    camera = scene.views_at(2, "test")[1]
+    assert camera.camera.camera_id == meta["cam_id"][2][1]
+    assert torch.allclose(camera.camera.K, torch.tensor(meta["k"][2][1], dtype=torch.float32))
+    assert torch.allclose(camera.camera.w2c, torch.tensor(meta["w2c"][2][1], dtype=torch.float32))
+    assert camera.camera.K.dtype == torch.float32 and camera.camera.w2c.shape == (4, 4)
+
+
+def test_extent_follows_the_3dgs_rule(scene: Scene):
+    centers = torch.stack([camera.center for camera in scene.train_cameras]).double()
+    radius = (centers - centers.mean(0)).norm(dim=1).max().item()
+    assert scene.extent == pytest.approx(1.1 * radius, rel=1e-6)
+
+
+def test_images_and_masks_load_as_float_and_bool(scene: Scene):
+    view = scene.train_views[40]
+    image = scene.image(view)
+    assert image.shape == (18, 32, 3) and image.dtype == torch.float32
+    assert image.min().item() >= 0.0 and image.max().item() <= 1.0
+    raw = cv2.imread(str(view.image_path))[..., ::-1]
+    assert torch.equal(image, torch.from_numpy(raw.astype(np.float32) / 255.0))
+    mask = scene.mask(view)
+    assert mask.shape == (18, 32) and mask.dtype == torch.bool
+    assert scene.image(view) is image
+
+
+def test_points_and_effects_come_from_the_scene_files(scene: Scene, tiny_synth_scene: Path):
+    data = np.load(tiny_synth_scene / "init_pt_cld.npz")["data"]
+    assert len(scene.points) == len(data)
+    assert torch.allclose(scene.points.xyz, torch.from_numpy(data[:, :3]))
+    assert torch.equal(scene.points.is_fg, torch.from_numpy(data[:, 6] > 0.5))
+    assert scene.effects == frozenset(
+        json.loads((tiny_synth_scene / "scene.json").read_text())["effects"]
+    )
+    overridden = load_scene(tiny_synth_scene, effects=[SENSOR_NOISE])
+    assert overridden.effects == {SENSOR_NOISE}
+    assert COLOR_INCONSISTENCY in scene.effects
+
+
+def test_downscale_halves_cameras_and_area_resizes_images(scene: Scene, tiny_synth_scene: Path):
+    half = load_scene(tiny_synth_scene, downscale=2)
+    full_view, half_view = scene.train_views[7], half.train_views[7]
+    assert (half_view.camera.width, half_view.camera.height) == (16, 9)
+    assert torch.allclose(half_view.camera.K[:2], full_view.camera.K[:2] / 2)
+    assert torch.equal(half_view.camera.w2c, full_view.camera.w2c)
+    expected = cv2.resize(scene.image(full_view).numpy(), (16, 9), interpolation=cv2.INTER_AREA)
+    assert torch.allclose(half.image(half_view), torch.from_numpy(expected))
+    assert half.mask(half_view).shape == (9, 16)
+    rescaled = scene.rescaled(2)
+    assert torch.equal(rescaled.train_views[7].camera.K, half_view.camera.K)
+    assert rescaled.fingerprint == half.fingerprint != scene.fingerprint
+
+
+def test_camera_scaling_keeps_pixel_edges_consistent():
+    K = torch.tensor([[20.0, 0, 16.0], [0, 20.0, 9.0], [0, 0, 1]])
+    base = Camera(3, K, torch.eye(4), 32, 18)
+    point = torch.tensor([0.3, -0.2, 2.0])
+    for factor in (2, 4, 3):
+        scaled = base.scaled(factor)
+        uv_full = (base.K @ point)[:2] / point[2]
+        uv_scaled = (scaled.K @ point)[:2] / point[2]
+        ratio = torch.tensor([scaled.width / 32, scaled.height / 18])
+        assert torch.allclose(uv_scaled, uv_full * ratio, atol=1e-5)
+    assert base.scaled(1) is base
+
+
+def test_cache_stays_within_its_budget(tiny_synth_scene: Path):
+    one_image_mb = 18 * 32 * 3 * 4 / 2**20
+    small = load_scene(tiny_synth_scene, cache_mb=2.5 * one_image_mb)
+    for view in small.train_views[:10]:
+        small.image(view)
+    assert len(small.cache) == 2
+    assert small.cache.used_bytes <= small.cache.budget_bytes
+    clone = pickle.loads(pickle.dumps(small))
+    assert len(clone.cache) == 0 and clone.cache.budget_bytes == small.cache.budget_bytes
+    assert torch.equal(clone.image(clone.train_views[3]), small.image(small.train_views[3]))
+
+
+def test_fingerprint_is_stable_and_tracks_content_and_options(tiny_synth_copy: Path):
+    base = load_scene(tiny_synth_copy).fingerprint
+    assert load_scene(tiny_synth_copy, cache_mb=64).fingerprint == base
+    variants = {
+        load_scene(tiny_synth_copy, downscale=2).fingerprint,
+        load_scene(tiny_synth_copy, max_points=500).fingerprint,
+        load_scene(tiny_synth_copy, test_cameras=[1, 2]).fingerprint,
+        load_scene(tiny_synth_copy, effects=[]).fingerprint,
+    }
+    assert base not in variants and len(variants) == 4
+    image_path = tiny_synth_copy / "ims" / "3" / "000002.png"
+    image = cv2.imread(str(image_path))
+    image[5, 7] = 255 - image[5, 7]
+    cv2.imwrite(str(image_path), image)
+    assert load_scene(tiny_synth_copy).fingerprint != base
+
+
+def test_fingerprint_sees_same_size_edits_of_meta_files(tiny_synth_copy: Path):
+    base = load_scene(tiny_synth_copy).fingerprint
+    meta_path = tiny_synth_copy / "train_meta.json"
+    text = meta_path.read_text()
+    edited = text.replace('"w": 32', '"w":32 ', 1)
+    assert len(edited) == len(text) and edited != text
+    meta_path.write_text(edited)
+    assert load_scene(tiny_synth_copy).fingerprint != base
+
+
+def test_test_cameras_option_regroups_views(tiny_synth_scene: Path):
+    scene = load_scene(tiny_synth_scene, test_cameras=[1, 10, 2])
+    assert [camera.camera_id for camera in scene.test_cameras] == [1, 2, 10]
+    assert len(scene.train_cameras) == 28
+
+
+def test_point_budget_voxel_downsamples_keeping_fg_apart(tiny_synth_scene: Path):
+    scene = load_scene(tiny_synth_scene, max_points=400)
+    assert 200 <= len(scene.points) <= 400
+    assert scene.points.is_fg.any() and (~scene.points.is_fg).any()
+    again = load_scene(tiny_synth_scene, max_points=400)
+    assert torch.equal(scene.points.xyz, again.points.xyz)
+    assert scene.points.rgb.min() >= 0 and scene.points.rgb.max() <= 1
+
+
+def test_detects_the_layout(tiny_synth_scene: Path, tmp_path: Path):
+    assert detect_format(tiny_synth_scene) == "panoptic"
+    (tmp_path / "cam00").mkdir()
+    assert detect_format(tmp_path) == "multiview"

@@ -1,0 +1,149 @@
+"""PSNR, foreground PSNR and SSIM against values derived by hand or by a direct formula."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from relaygs.metrics import SSIM_C1, SSIM_C2, fg_psnr, psnr, ssim
+
+
+def _gaussian_taps() -> np.ndarray:
+    offsets = np.arange(11) - 5.0
+    taps = np.exp(-(offsets**2) / (2 * 1.5**2))
+    return taps / taps.sum()
+
+
+def _direct_ssim(x: np.ndarray, y: np.ndarray) -> float:
+    """SSIM by explicit weighted sums over each pixel's zero-padded 11×11 neighbourhood."""
+    weights = np.outer(_gaussian_taps(), _gaussian_taps())
+    height, width, channels = x.shape
+    px = np.pad(x, ((5, 5), (5, 5), (0, 0)))
+    py = np.pad(y, ((5, 5), (5, 5), (0, 0)))
+    values = []
+    for i in range(height):
+        for j in range(width):
+            for c in range(channels):
+                wx = px[i : i + 11, j : j + 11, c]
+                wy = py[i : i + 11, j : j + 11, c]
+                mx, my = (weights * wx).sum(), (weights * wy).sum()
+                vx = (weights * wx * wx).sum() - mx * mx
+                vy = (weights * wy * wy).sum() - my * my
+                cxy = (weights * wx * wy).sum() - mx * my
+                values.append(
+                    (2 * mx * my + SSIM_C1)
+                    * (2 * cxy + SSIM_C2)
+                    / ((mx * mx + my * my + SSIM_C1) * (vx + vy + SSIM_C2))
+                )
+    return float(np.mean(values))
+
+
+def test_psnr_of_a_known_error_is_exact():
+    gt = torch.rand(8, 9, 3) * 0.6 + 0.2
+    assert psnr(gt + 0.1, gt).item() == pytest.approx(20.0, abs=1e-4)
+    assert psnr(gt - 0.01, gt).item() == pytest.approx(40.0, abs=1e-3)
+
+
+def test_psnr_of_identical_images_is_capped_at_100_db():
+    image = torch.rand(4, 5, 3)
+    value = psnr(image, image)
+    assert math.isfinite(value.item())
+    assert value.item() == pytest.approx(100.0)
+
+
+def test_psnr_averages_per_image_not_per_pixel():
+    gt = torch.full((2, 4, 4, 3), 0.5)
+    pred = gt.clone()
+    pred[0] += 0.1
+    pred[1] += 0.01
+    assert psnr(pred, gt).item() == pytest.approx((20.0 + 40.0) / 2, abs=1e-3)
+
+
+def test_masked_psnr_counts_only_masked_pixels():
+    gt = torch.full((6, 6, 3), 0.5)
+    pred = gt.clone()
+    pred[:3] += 0.1
+    pred[3:] += 0.3
+    mask = torch.zeros(6, 6, dtype=torch.bool)
+    mask[:3] = True
+    assert fg_psnr(pred, gt, mask).item() == pytest.approx(20.0, abs=1e-4)
+    assert psnr(pred, gt, ~mask).item() == pytest.approx(-10 * math.log10(0.09), abs=1e-4)
+
+
+def test_empty_masks_are_left_out_and_all_empty_gives_nan():
+    gt = torch.full((2, 4, 4, 3), 0.5)
+    pred = gt + 0.1
+    pred[1] += 0.2
+    mask = torch.zeros(2, 4, 4, dtype=torch.bool)
+    mask[0] = True
+    assert fg_psnr(pred, gt, mask).item() == pytest.approx(20.0, abs=1e-4)
+    assert math.isnan(fg_psnr(pred, gt, torch.zeros_like(mask)).item())
+
+
+def test_ssim_of_identical_images_is_one():
+    image = torch.rand(12, 14, 3)
+    assert ssim(image, image).item() == pytest.approx(1.0, abs=1e-6)
+
+
+def test_ssim_of_constant_images_matches_the_hand_formula():
+    a, b, height, width = 0.3, 0.7, 14, 17
+    pred = torch.full((height, width, 3), a, dtype=torch.float64)
+    gt = torch.full((height, width, 3), b, dtype=torch.float64)
+    taps = _gaussian_taps()
+    mass_rows = np.array(
+        [taps[max(0, 5 - i) : 11 - max(0, i + 6 - height)].sum() for i in range(height)]
+    )
+    mass_cols = np.array(
+        [taps[max(0, 5 - j) : 11 - max(0, j + 6 - width)].sum() for j in range(width)]
+    )
+    w = np.outer(mass_rows, mass_cols)
+    # Zero padding: mean = value·w, variance = value²·w(1 − w), covariance = a·b·w(1 − w).
+    expected = (
+        (2 * a * b * w * w + SSIM_C1)
+        * (2 * a * b * w * (1 - w) + SSIM_C2)
+        / (((a * a + b * b) * w * w + SSIM_C1) * ((a * a + b * b) * w * (1 - w) + SSIM_C2))
+    ).mean()
+    interior = (2 * a * b + SSIM_C1) / (a * a + b * b + SSIM_C1)
+    assert ssim(pred, gt).item() == pytest.approx(expected, abs=1e-7)
+    assert ssim(pred, gt).item() != pytest.approx(interior, abs=1e-3)
+
+
+def test_ssim_matches_a_direct_window_computation():
+    generator = torch.Generator().manual_seed(3)
+    x = torch.rand(9, 13, 2, generator=generator, dtype=torch.float64)
+    y = (x + 0.2 * torch.rand(9, 13, 2, generator=generator, dtype=torch.float64)).clamp(0, 1)
+    assert ssim(x, y).item() == pytest.approx(_direct_ssim(x.numpy(), y.numpy()), abs=1e-6)
+
+
+def test_ssim_batched_equals_mean_of_single_images():
+    images = torch.rand(3, 10, 12, 3)
+    targets = torch.rand(3, 10, 12, 3)
+    single = torch.stack([ssim(images[i], targets[i]) for i in range(3)]).mean()
+    assert ssim(images, targets).item() == pytest.approx(single.item(), abs=1e-6)
+
+
+def test_dssim_loss_is_differentiable_and_descends():
+    target = torch.rand(16, 16, 3)
+    pred = torch.rand(16, 16, 3, requires_grad=True)
+    loss = 1 - ssim(pred, target)
+    loss.backward()
+    assert pred.grad is not None and torch.isfinite(pred.grad).all()
+    with torch.no_grad():
+        stepped = pred - 0.5 * pred.grad / pred.grad.abs().max()
+    assert (1 - ssim(stepped, target)).item() < loss.item()
+
+
+def test_ssim_gradient_is_finite_on_constant_images():
+    pred = torch.full((12, 12, 3), 0.5, requires_grad=True)
+    (1 - ssim(pred, torch.full((12, 12, 3), 0.5))).backward()
+    assert torch.isfinite(pred.grad).all()
+
+
+def test_mismatched_shapes_are_rejected():
+    with pytest.raises(ValueError, match="differs"):
+        psnr(torch.rand(4, 4, 3), torch.rand(4, 5, 3))
+    with pytest.raises(ValueError, match="mask shape"):
+        fg_psnr(torch.rand(4, 4, 3), torch.rand(4, 4, 3), torch.ones(3, 3, dtype=torch.bool))

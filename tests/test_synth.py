@@ -1,0 +1,274 @@
+"""Synthetic scenes: layout, determinism, and that each effect is present only when declared."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from relaygs.data import load_scene
+from relaygs.data.effects import (
+    BACKGROUND_JITTER,
+    COLOR_INCONSISTENCY,
+    DYNAMIC_PANELS,
+    FAST_OBJECTS,
+    LARGE_MOTION,
+    NONRIGID,
+    SENSOR_NOISE,
+)
+from relaygs.data.synthetic import GENERATOR_VERSION, PRESETS, generate
+from relaygs.data.synthetic.actors import HEAD_RADIUS
+from relaygs.data.synthetic.render import Buffers, Layer, camera_rays
+from relaygs.data.synthetic.rig import look_at
+from relaygs.data.synthetic.sensor import NOISE_SIGMA
+from relaygs.data.synthetic.world import RigCamera
+from relaygs.errors import InputError
+
+TINY_SYNTH_SIZE = {"frames": 6, "width": 32, "height": 18}
+
+
+def _images(root: Path, folder: str, camera: int) -> list[np.ndarray]:
+    paths = sorted((root / folder / str(camera)).glob("*.png"))
+    return [cv2.imread(str(path), cv2.IMREAD_UNCHANGED) for path in paths]
+
+
+def _tree_digest(root: Path) -> str:
+    digest = hashlib.sha256()
+    for path in sorted(root.rglob("*")):
+        if path.is_file():
+            digest.update(path.relative_to(root).as_posix().encode())
+            digest.update(path.read_bytes())
+    return digest.hexdigest()
+
+
+def _times(frames: int = 64) -> np.ndarray:
+    return np.linspace(0.0, 5.0, frames)
+
+
+def _foreground(preset: str, effects: set[str], frames: int = 64) -> list:
+    primitives = PRESETS[preset].build(_times(frames), frozenset(effects), 0)
+    return [p for p in primitives if p.foreground]
+
+
+def _torsos(primitives: list) -> list:
+    return [p for p in primitives if p.kind == "capsule" and p.dims == (0.19, 0.16)]
+
+
+def test_layout_and_declaration(tiny_synth_scene: Path):
+    declaration = json.loads((tiny_synth_scene / "scene.json").read_text())
+    assert declaration["generator_version"] == GENERATOR_VERSION
+    assert declaration["preset"] == "juggle"
+    assert (declaration["frames"], declaration["width"], declaration["height"]) == (6, 32, 18)
+    assert set(declaration["effects"]) == PRESETS["juggle"].default_effects
+    assert declaration["test_cameras"] == [0, 10, 15, 30]
+    test_meta = json.loads((tiny_synth_scene / "test_meta.json").read_text())
+    train_meta = json.loads((tiny_synth_scene / "train_meta.json").read_text())
+    assert test_meta["cam_id"][0] == [0, 10, 15, 30]
+    assert len(train_meta["cam_id"][0]) == 27 and len(train_meta["fn"]) == 6
+    image = cv2.imread(str(tiny_synth_scene / "ims" / train_meta["fn"][3][2]))
+    assert image.shape == (18, 32, 3)
+    mask = cv2.imread(str(tiny_synth_scene / "seg" / train_meta["fn"][3][2]), cv2.IMREAD_UNCHANGED)
+    assert set(np.unique(mask)) <= {0, 1}
+
+
+def test_generation_is_deterministic_for_a_seed(tmp_path: Path):
+    small = {"frames": 3, "width": 24, "height": 14}
+    first = generate("court", tmp_path / "a", seed=5, **small)
+    second = generate("court", tmp_path / "b", seed=5, **small)
+    third = generate("court", tmp_path / "c", seed=6, **small)
+    assert _tree_digest(first) == _tree_digest(second)
+    assert _tree_digest(first) != _tree_digest(third)
+
+
+def test_static_frames_are_identical_and_have_no_foreground(tmp_path: Path):
+    root = generate("static", tmp_path / "static", **TINY_SYNTH_SIZE)
+    for camera in (0, 13, 30):
+        frames = _images(root, "ims", camera)
+        assert len(frames) == 6
+        assert all(np.array_equal(frames[0], frame) for frame in frames[1:])
+        assert not any(mask.any() for mask in _images(root, "seg", camera))
+
+
+def test_court_without_effects_is_still_and_each_background_effect_adds_motion(tmp_path: Path):
+    size = {"frames": 4, "width": 32, "height": 18}
+    still = generate("court", tmp_path / "still", effects=[], **size)
+    for effect in (DYNAMIC_PANELS, BACKGROUND_JITTER):
+        moving = generate("court", tmp_path / effect, effects=[effect], **size)
+        changed = 0
+        for camera in range(0, 34, 3):
+            still_frames = _images(still, "ims", camera)
+            assert all(np.array_equal(still_frames[0], frame) for frame in still_frames[1:])
+            frames = _images(moving, "ims", camera)
+            changed += sum(not np.array_equal(frames[0], frame) for frame in frames[1:])
+            masks = _images(moving, "seg", camera)
+            assert all(np.array_equal(masks[0], mask) for mask in masks[1:])
+        assert changed > 0, effect
+
+
+def test_surface_radiance_is_the_same_from_every_camera():
+    primitives = PRESETS["static"].build(np.zeros(1), frozenset(), 0)
+    layer = Layer(primitives)
+    point = np.array([0.37, -0.52, 0.0])
+    colors = []
+    for camera in PRESETS["static"].rig(32, 18):
+        eye = -camera.w2c[:3, :3].T @ camera.w2c[:3, 3]
+        single = RigCamera(
+            np.array([[10.0, 0, 0.5], [0, 10.0, 0.5], [0, 0, 1]]), look_at(eye, point)
+        )
+        rays = camera_rays(single, 1, 1, 1)
+        buffers = Buffers.empty((1, 1))
+        layer.render(layer.pose(0), 0.0, rays, buffers)
+        assert buffers.depth[0, 0] == pytest.approx(np.linalg.norm(point - eye), rel=1e-9)
+        colors.append(buffers.color[0, 0])
+    colors = np.array(colors)
+    assert np.ptp(colors, axis=0).max() < 1e-6
+    assert colors[0].max() > 0.05
+
+
+def _affine_fit(source: np.ndarray, target: np.ndarray) -> tuple[float, float, float]:
+    keep = (target > 3) & (target < 252) & (source > 3) & (source < 252)
+    x, y = source[keep].astype(np.float64), target[keep].astype(np.float64)
+    gain, offset = np.polyfit(x, y, 1)
+    return gain, offset, float(np.abs(gain * x + offset - y).max())
+
+
+def test_colour_inconsistency_is_a_per_camera_channel_affine(tmp_path: Path):
+    plain = generate("static", tmp_path / "plain", **TINY_SYNTH_SIZE)
+    tinted = generate(
+        "static", tmp_path / "tinted", effects=[COLOR_INCONSISTENCY], **TINY_SYNTH_SIZE
+    )
+    response = json.loads((tinted / "scene.json").read_text())["camera_response"]
+    identity = json.loads((plain / "scene.json").read_text())["camera_response"]
+    assert np.allclose(identity["gains"], 1.0) and np.allclose(identity["offsets"], 0.0)
+    fitted_gains = []
+    for camera in (0, 7, 20):
+        source = _images(plain, "ims", camera)[0][..., ::-1]
+        target = _images(tinted, "ims", camera)[0][..., ::-1]
+        for channel in range(3):
+            gain, offset, residual = _affine_fit(source[..., channel], target[..., channel])
+            assert residual <= 2.0
+            assert gain == pytest.approx(response["gains"][camera][channel], abs=0.03)
+            assert offset / 255 == pytest.approx(response["offsets"][camera][channel], abs=0.01)
+            fitted_gains.append(gain)
+    assert np.ptp(fitted_gains) > 0.05
+
+
+def test_sensor_noise_only_when_declared(tmp_path: Path):
+    noisy = generate("static", tmp_path / "noisy", effects=[SENSOR_NOISE], **TINY_SYNTH_SIZE)
+    frames = [frame.astype(np.float64) for frame in _images(noisy, "ims", 4)]
+    difference = (frames[1] - frames[0]) / 255.0
+    assert difference.std() == pytest.approx(np.sqrt(2) * NOISE_SIGMA, rel=0.3)
+
+
+def test_large_motion_moves_players_across_the_court_only_when_declared():
+    def travel(effects: set[str]) -> list[float]:
+        return [float(np.ptp(t.positions[:, 0])) for t in _torsos(_foreground("court", effects))]
+
+    moving = travel({LARGE_MOTION})
+    assert len(moving) >= 4
+    assert min(moving) > 9.0  # most of the 15 m court, > 25× a 0.34 m wide body
+    assert max(travel({NONRIGID})) < 1e-9
+
+
+def test_jugglers_walk_many_body_widths_only_with_large_motion():
+    def path_length(effects: set[str]) -> list[float]:
+        torsos = _torsos(_foreground("juggle", effects))
+        return [float(np.linalg.norm(np.diff(t.positions, axis=0), axis=1).sum()) for t in torsos]
+
+    assert min(path_length({LARGE_MOTION})) > 10 * 0.34
+    assert max(path_length({NONRIGID})) < 1e-9
+
+
+def _limb_offsets(primitives: list) -> np.ndarray:
+    torso = _torsos(primitives)[0]
+    limbs = [p for p in primitives if p.kind == "capsule" and p is not torso][:8]
+    offsets = [
+        np.einsum("fji,fj->fi", torso.rotations, limb.positions - torso.positions) for limb in limbs
+    ]
+    return np.stack(offsets)
+
+
+def test_limbs_swing_only_when_nonrigid_is_declared():
+    rigid = _limb_offsets(_foreground("court", {LARGE_MOTION}))
+    assert np.ptp(rigid, axis=1).max() < 1e-9
+    swinging = _limb_offsets(_foreground("court", {LARGE_MOTION, NONRIGID}))
+    assert np.ptp(swinging, axis=1).max() > 0.2
+
+
+def test_fast_objects_exist_only_when_declared_and_move_fast():
+    for preset in ("juggle", "court"):
+        without = _foreground(preset, {LARGE_MOTION, NONRIGID})
+        with_balls = _foreground(preset, {LARGE_MOTION, NONRIGID, FAST_OBJECTS})
+        balls = [p for p in with_balls if p.kind == "sphere" and p.dims != (HEAD_RADIUS,)]
+        assert not [p for p in without if p.kind == "sphere" and p.dims != (HEAD_RADIUS,)]
+        assert balls
+        for ball in balls:
+            per_frame = np.linalg.norm(np.diff(ball.positions, axis=0), axis=1)
+            assert np.median(per_frame) > 2 * ball.dims[0], preset
+
+
+def test_foreground_points_land_in_foreground_masks(tiny_synth_scene: Path):
+    scene = load_scene(tiny_synth_scene)
+    fg_points = scene.points.xyz[scene.points.is_fg].double().numpy()
+    assert 20 < len(fg_points) < len(scene.points) // 2
+    for view in scene.views_at(0)[::5]:
+        mask = scene.mask(view).numpy()
+        mask = cv2.dilate(mask.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+        cam = (
+            fg_points @ view.camera.w2c[:3, :3].double().numpy().T
+            + view.camera.w2c[:3, 3].double().numpy()
+        )
+        uv = cam @ view.camera.K.double().numpy().T
+        u, v = uv[:, 0] / uv[:, 2], uv[:, 1] / uv[:, 2]
+        inside = (cam[:, 2] > 0) & (u >= 0) & (u < 32) & (v >= 0) & (v < 18)
+        hits = mask[v[inside].astype(int), u[inside].astype(int)]
+        assert hits.mean() > 0.9
+
+
+def test_people_fill_a_sensible_part_of_the_juggle_images(tiny_synth_scene: Path):
+    masks = [mask for camera in range(31) for mask in _images(tiny_synth_scene, "seg", camera)]
+    coverage = np.mean([mask.mean() for mask in masks])
+    assert 0.01 < coverage < 0.3
+    heights = []
+    for mask in masks:
+        rows = np.flatnonzero(mask.any(axis=1))
+        heights.append((rows.max() - rows.min() + 1) / mask.shape[0] if len(rows) else 0.0)
+    assert 0.25 < np.median(heights) < 0.9
+
+
+def test_other_sizes_work(tmp_path: Path):
+    root = generate("court", tmp_path / "wide", frames=2, width=40, height=30)
+    meta = json.loads((root / "train_meta.json").read_text())
+    assert (meta["w"], meta["h"]) == (40, 30)
+    assert cv2.imread(str(root / "ims" / meta["fn"][1][0])).shape == (30, 40, 3)
+    assert len(meta["cam_id"][0]) + 4 == 34
+
+
+@pytest.mark.parametrize(
+    ("preset", "kwargs", "message"),
+    [
+        ("nope", {}, "unknown preset 'nope'"),
+        ("juggle", {"effects": ["wobble"]}, "unknown effect 'wobble'"),
+        ("static", {"effects": [LARGE_MOTION]}, "cannot simulate large_motion"),
+        ("juggle", {"frames": 0}, "frames must be an integer >= 1"),
+        ("juggle", {"width": -4}, "width must be an integer >= 1"),
+        ("juggle", {"height": 0}, "height must be an integer >= 1"),
+        ("juggle", {"seed": -1}, "seed must be an integer >= 0"),
+    ],
+)
+def test_bad_generator_input_is_rejected(tmp_path: Path, preset: str, kwargs: dict, message: str):
+    with pytest.raises(InputError, match=message):
+        generate(preset, tmp_path / "out", **kwargs)
+    assert not (tmp_path / "out").exists()
+
+
+def test_refuses_to_overwrite_a_folder_that_is_not_a_generated_scene(tmp_path: Path):
+    (tmp_path / "notes").mkdir()
+    (tmp_path / "notes" / "keep.txt").write_text("mine")
+    with pytest.raises(InputError, match="refusing to overwrite"):
+        generate("static", tmp_path / "notes", frames=1, width=8, height=6)
+    assert (tmp_path / "notes" / "keep.txt").read_text() == "mine"

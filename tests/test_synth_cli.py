@@ -1,0 +1,69 @@
+"""The `python -m relaygs.synth` command: writes a scene; bad input is one stderr line, exit 2."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from relaygs.synth import main, parse_effect_list
+
+
+def test_cli_writes_a_scene_with_the_requested_effects(tmp_path: Path, capsys):
+    out = tmp_path / "court"
+    args = ["court", str(out), "--frames", "2", "--width", "16", "--height", "9", "--seed", "3"]
+    assert main([*args, "--effects", "large_motion,nonrigid", "sensor_noise"]) == 0
+    declaration = json.loads((out / "scene.json").read_text())
+    assert declaration["effects"] == ["large_motion", "nonrigid", "sensor_noise"]
+    assert (declaration["frames"], declaration["width"], declaration["seed"]) == (2, 16, 3)
+    assert "wrote" in capsys.readouterr().out
+
+
+def test_effect_list_parsing():
+    assert parse_effect_list(None) is None
+    assert parse_effect_list(["none"]) == []
+    assert parse_effect_list([]) == []
+    assert parse_effect_list(["a,b", "c"]) == ["a", "b", "c"]
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["nope"], "unknown preset 'nope'"),
+        (["juggle", "--frames", "0"], "frames must be an integer >= 1"),
+        (["juggle", "--width", "-3"], "width must be an integer >= 1"),
+        (["juggle", "--effects", "wobble"], "unknown effect 'wobble'"),
+        (["static", "--effects", "fast_objects"], "cannot simulate fast_objects"),
+    ],
+)
+def test_cli_bad_input_is_a_single_line_and_exit_2(tmp_path: Path, capsys, args, message):
+    assert main([args[0], str(tmp_path / "out"), *args[1:]]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and message in lines[0]
+    assert not (tmp_path / "out").exists()
+
+
+def test_cli_process_exits_nonzero_without_traceback(tmp_path: Path):
+    command = [
+        sys.executable,
+        "-m",
+        "relaygs.synth",
+        "juggle",
+        str(tmp_path / "o"),
+        "--height",
+        "0",
+    ]
+    result = subprocess.run(command, capture_output=True, text=True, timeout=120)
+    assert result.returncode == 2
+    assert result.stderr.strip() == "error: height must be an integer >= 1, got 0"
+
+
+def test_cli_usage_errors_are_one_line(capsys):
+    with pytest.raises(SystemExit) as stop:
+        main(["juggle", "out", "--frames", "many"])
+    assert stop.value.code == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and "--frames" in lines[0]
