@@ -39,11 +39,19 @@ def test_garden_crop_matches_reference(garden):
     crop = {**garden, "viewmats": garden["viewmats"][:1], "Ks": Ks, "width": size, "height": size}
     with torch.no_grad():
         proj = project_gaussians(
-            crop["means"], covariance_3d(crop["quats"], crop["scales"]), crop["opacities"],
-            crop["viewmats"], Ks, size, size,
+            crop["means"],
+            covariance_3d(crop["quats"], crop["scales"]),
+            crop["opacities"],
+            crop["viewmats"],
+            Ks,
+            size,
+            size,
         )
         seen = proj.visible[0]
-        subset = {**crop, **{k: crop[k][seen] for k in ("means", "quats", "scales", "opacities", "colors")}}
+        subset = {
+            **crop,
+            **{k: crop[k][seen] for k in ("means", "quats", "scales", "opacities", "colors")},
+        }
         colors, alphas, _ = rasterization(**crop)
         ref_colors, ref_alphas, _ = rasterization_reference(**subset)
     assert seen.sum() > 1000, "the crop holds real depth complexity"

@@ -6,10 +6,10 @@ import math
 
 import pytest
 import torch
-from splat_scenes import render_and_grads, random_scene, with_grad
 
 from relaygs.splat import rasterization
 from relaygs.splat.reference import rasterization_reference
+from splat_scenes import random_scene, render_and_grads, with_grad
 
 CASES = [
     # (seed, n, cameras, width, height, channels, background)
@@ -112,10 +112,15 @@ def test_single_gaussian_matches_closed_form():
     """An isotropic Gaussian straight ahead: pixel values follow o·exp(−d²/2σ²) with the blur."""
     f, z, s, o = 20.0, 2.0, 0.05, 0.8
     scene = {
-        "means": torch.tensor([[0.0, 0.0, z]]), "quats": torch.tensor([[1.0, 0, 0, 0]]),
-        "scales": torch.full((1, 3), s), "opacities": torch.tensor([o]),
-        "colors": torch.ones(1, 1), "viewmats": torch.eye(4)[None],
-        "Ks": torch.tensor([[[f, 0, 8.0], [0, f, 8.0], [0, 0, 1]]]), "width": 16, "height": 16,
+        "means": torch.tensor([[0.0, 0.0, z]]),
+        "quats": torch.tensor([[1.0, 0, 0, 0]]),
+        "scales": torch.full((1, 3), s),
+        "opacities": torch.tensor([o]),
+        "colors": torch.ones(1, 1),
+        "viewmats": torch.eye(4)[None],
+        "Ks": torch.tensor([[[f, 0, 8.0], [0, f, 8.0], [0, 0, 1]]]),
+        "width": 16,
+        "height": 16,
     }
     colors, _, meta = rasterization(**scene)
     var = float((f * s / z) ** 2 + 0.3)

@@ -31,16 +31,24 @@ def random_case(n: int, seed: int = 0, size: int = 256) -> dict:
     colors = torch.rand(n, 3, generator=gen)
     K = torch.tensor([[float(size), 0, size / 2], [0, float(size), size / 2], [0, 0, 1]])
     return {
-        "means": means, "quats": quats, "scales": scales, "opacities": opacities,
-        "colors": colors, "viewmats": torch.eye(4)[None], "Ks": K[None],
-        "width": size, "height": size,
+        "means": means,
+        "quats": quats,
+        "scales": scales,
+        "opacities": opacities,
+        "colors": colors,
+        "viewmats": torch.eye(4)[None],
+        "Ks": K[None],
+        "width": size,
+        "height": size,
     }
 
 
 def garden_case(path: Path = GARDEN_PATH, seed: int = 0) -> dict:
     """The shared garden protocol: real means/colours in [-2,2]^3, random shapes, 3 cameras."""
     if not path.is_file():
-        raise RelayGSError(f"{path}: garden asset not found (expected ../shared/data beside the repo)")
+        raise RelayGSError(
+            f"{path}: garden asset not found (expected ../shared/data beside the repo)"
+        )
     data = np.load(path)
     means = torch.from_numpy(data["means3d"]).float()
     colors = torch.from_numpy(data["colors"]).float() / 255.0
@@ -49,13 +57,15 @@ def garden_case(path: Path = GARDEN_PATH, seed: int = 0) -> dict:
     n = means.shape[0]
     gen = torch.Generator().manual_seed(seed)
     return {
-        "means": means, "colors": colors,
+        "means": means,
+        "colors": colors,
         "scales": torch.rand(n, 3, generator=gen) * (0.02 - 1e-4) + 1e-4,
         "quats": torch.nn.functional.normalize(torch.randn(n, 4, generator=gen), dim=-1),
         "opacities": torch.rand(n, generator=gen),
         "viewmats": torch.from_numpy(data["viewmats"]).float(),
         "Ks": torch.from_numpy(data["Ks"]).float(),
-        "width": int(data["width"]), "height": int(data["height"]),
+        "width": int(data["width"]),
+        "height": int(data["height"]),
     }
 
 
@@ -129,8 +139,10 @@ def bench_splat(repeats: int, device: torch.device, cases: list[str]) -> list[di
 
 
 def _print_table(rows: list[dict]) -> None:
-    header = f"{'case':<16}{'N':>9}{'cams':>6}{'size':>10}{'fwd ms':>10}{'fwd+bwd ms':>12}{'peak MB':>10}"
-    print(header)
+    print(
+        f"{'case':<16}{'N':>9}{'cams':>6}{'size':>10}"
+        f"{'fwd ms':>10}{'fwd+bwd ms':>12}{'peak MB':>10}"
+    )
     for r in rows:
         size = f"{r['width']}x{r['height']}"
         print(
@@ -148,7 +160,8 @@ def main(argv: list[str] | None = None) -> int:
     splat.add_argument("--repeats", type=int, default=5, help="timed runs per case (median)")
     splat.add_argument("--device", default="cpu", help="cpu or cuda")
     splat.add_argument(
-        "--cases", default="random-2k-256,random-10k-256,random-50k-256,garden",
+        "--cases",
+        default="random-2k-256,random-10k-256,random-50k-256,garden",
         help="comma-separated case names",
     )
     args = parser.parse_args(argv)

@@ -90,8 +90,12 @@ def _pairs(rows: _Rows) -> _Pairs:
     dtype = t.dtype
     in_x = (rows.cols >= t[:, None, :, _X0]) & (rows.cols <= t[:, None, :, _X1])  # [G,S,L]
     in_y = (rows.lines >= t[:, None, :, _Y0]) & (rows.lines <= t[:, None, :, _Y1])
-    ex = torch.where(in_x[:, None], 0.5 * t[:, None, None, :, _A] * rows.dx * rows.dx, OUTSIDE_POWER)
-    ey = torch.where(in_y[:, :, None], 0.5 * t[:, None, None, :, _C] * rows.dy * rows.dy, OUTSIDE_POWER)
+    ex = torch.where(
+        in_x[:, None], 0.5 * t[:, None, None, :, _A] * rows.dx * rows.dx, OUTSIDE_POWER
+    )
+    ey = torch.where(
+        in_y[:, :, None], 0.5 * t[:, None, None, :, _C] * rows.dy * rows.dy, OUTSIDE_POWER
+    )
     power = torch.addcmul(ex + ey, t[:, None, None, :, _B] * rows.dx, rows.dy)
     # 3DGS skips power < 0 (rounding): such pairs get MAX_POWER, whose alpha is < 1/255.
     power = F.threshold(power, _below(0.0, dtype), MAX_POWER).clamp_(max=MAX_POWER)
@@ -203,7 +207,9 @@ class CompositeGaussians(torch.autograd.Function):
         pixel_k = -grad_alphas * t_final
         grad_bg = None
         if backgrounds is not None:
-            pixel_k = pixel_k + t_final * (grad_colors * backgrounds[:, None, None, :]).sum(-1, True)
+            pixel_k = pixel_k + t_final * (grad_colors * backgrounds[:, None, None, :]).sum(
+                -1, True
+            )
             grad_bg = (grad_colors * t_final).sum(dim=(1, 2))
         g_tiles = _to_tiles(grad_colors, bins)
         k_tiles = _to_tiles(pixel_k, bins)[..., 0]
@@ -240,7 +246,14 @@ class CompositeGaussians(torch.autograd.Function):
             s_y = (gy * rows.dy).sum(dim=(1, 2))
             a, b, cc = rows.table[..., _A], rows.table[..., _B], rows.table[..., _C]
             grads = torch.stack(
-                [-(a * s_x + b * s_y), -(b * s_x + cc * s_y), 0.5 * s_xx, s_xy, 0.5 * s_yy, d_opacity],
+                [
+                    -(a * s_x + b * s_y),
+                    -(b * s_x + cc * s_y),
+                    0.5 * s_xx,
+                    s_xy,
+                    0.5 * s_yy,
+                    d_opacity,
+                ],
                 dim=-1,
             )
             d_cols = torch.bmm(weight.reshape(g, p, -1).transpose(1, 2), grad_pix)

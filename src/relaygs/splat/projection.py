@@ -27,7 +27,9 @@ class Projection:
     """Per-camera screen-space Gaussians; tensors are [C, N, ...]."""
 
     means2d: torch.Tensor  # [C,N,2] pixel coordinates (pixel j covers [j, j+1))
-    conics: torch.Tensor  # [C,N,3] inverse 2D covariance (A, B, C): power = ½A dx² + B dx dy + ½C dy²
+    conics: (
+        torch.Tensor
+    )  # [C,N,3] inverse 2D covariance (A, B, C): power = ½A dx² + B dx dy + ½C dy²
     depths: torch.Tensor  # [C,N] camera-space z
     radii: torch.Tensor  # [C,N,2] int32 per-axis pixel radius, 0 where culled
     visible: torch.Tensor  # [C,N] bool
@@ -51,9 +53,15 @@ def quat_to_rotmat(quats: torch.Tensor) -> torch.Tensor:
     w, x, y, z = unit.unbind(-1)
     return torch.stack(
         [
-            1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+            1 - 2 * (y * y + z * z),
+            2 * (x * y - w * z),
+            2 * (x * z + w * y),
+            2 * (x * y + w * z),
+            1 - 2 * (x * x + z * z),
+            2 * (y * z - w * x),
+            2 * (x * z - w * y),
+            2 * (y * z + w * x),
+            1 - 2 * (x * x + y * y),
         ],
         dim=-1,
     ).reshape(*quats.shape[:-1], 3, 3)
@@ -150,4 +158,3 @@ def project_gaussians(
     conics = torch.where(vis, conics, torch.zeros_like(conics))
     depths = torch.where(visible, z, zero)
     return Projection(means2d, conics, depths, radii, visible, bounds)
-

@@ -36,7 +36,9 @@ def validate_inputs(
 ) -> None:
     """Raise InputError with a one-line message for any shape or value that does not fit."""
     n = means.shape[0] if means.dim() == 2 else -1
-    _check(means.dim() == 2 and means.shape[1] == 3, f"means must be [N,3], got {list(means.shape)}")
+    _check(
+        means.dim() == 2 and means.shape[1] == 3, f"means must be [N,3], got {list(means.shape)}"
+    )
     _check(quats.shape == (n, 4), f"quats must be [{n},4], got {list(quats.shape)}")
     _check(scales.shape == (n, 3), f"scales must be [{n},3], got {list(scales.shape)}")
     _check(opacities.shape == (n,), f"opacities must be [{n}], got {list(opacities.shape)}")
@@ -47,22 +49,33 @@ def validate_inputs(
     c = viewmats.shape[0]
     _check(Ks.shape == (c, 3, 3), f"Ks must be [{c},3,3], got {list(Ks.shape)}")
     _check(width > 0 and height > 0, f"width and height must be positive, got {width}x{height}")
-    _check(render_mode in RENDER_MODES, f"render_mode must be one of {RENDER_MODES}, got {render_mode!r}")
+    _check(
+        render_mode in RENDER_MODES,
+        f"render_mode must be one of {RENDER_MODES}, got {render_mode!r}",
+    )
     if sh_degree is None:
         _check(
-            colors.dim() in (2, 3) and colors.shape[-2] == n and (colors.dim() == 2 or colors.shape[0] == c),
+            colors.dim() in (2, 3)
+            and colors.shape[-2] == n
+            and (colors.dim() == 2 or colors.shape[0] == c),
             f"colors must be [N,D] or [C,N,D] with N={n}, C={c}, got {list(colors.shape)}",
         )
     else:
         _check(0 <= sh_degree <= 3, f"sh_degree must be 0..3, got {sh_degree}")
         k = num_sh_bases(sh_degree)
         _check(
-            colors.dim() == 3 and colors.shape[0] == n and colors.shape[1] >= k and colors.shape[2] == 3,
+            colors.dim() == 3
+            and colors.shape[0] == n
+            and colors.shape[1] >= k
+            and colors.shape[2] == 3,
             f"SH colors must be [{n},K>={k},3] for sh_degree {sh_degree}, got {list(colors.shape)}",
         )
     if backgrounds is not None:
         d = 3 if sh_degree is not None else colors.shape[-1]
-        _check(backgrounds.shape == (c, d), f"backgrounds must be [{c},{d}], got {list(backgrounds.shape)}")
+        _check(
+            backgrounds.shape == (c, d),
+            f"backgrounds must be [{c},{d}], got {list(backgrounds.shape)}",
+        )
 
 
 def camera_colors(
@@ -109,8 +122,18 @@ def rasterization(
     [C,N,2] int32 (0 = culled), `meta["depths"]` [C,N].
     """
     validate_inputs(
-        means, quats, scales, opacities, colors, viewmats, Ks, width, height,
-        sh_degree, backgrounds, render_mode,
+        means,
+        quats,
+        scales,
+        opacities,
+        colors,
+        viewmats,
+        Ks,
+        width,
+        height,
+        sh_degree,
+        backgrounds,
+        render_mode,
     )
     covars = covariance_3d(quats, scales)
     proj = project_gaussians(

@@ -63,10 +63,14 @@ def _render_pixels(
     xs, ys = pixels[:, 0], pixels[:, 1]
     dx = (xs.to(means2d.dtype) + 0.5)[None] - means2d[:, 0:1]  # [n, P]
     dy = (ys.to(means2d.dtype) + 0.5)[None] - means2d[:, 1:2]
-    power = 0.5 * conics[:, 0:1] * dx * dx + conics[:, 1:2] * dx * dy + 0.5 * conics[:, 2:3] * dy * dy
+    power = (
+        0.5 * conics[:, 0:1] * dx * dx + conics[:, 1:2] * dx * dy + 0.5 * conics[:, 2:3] * dy * dy
+    )
     inside = (
-        (xs[None] >= bounds[:, 0:1]) & (xs[None] <= bounds[:, 1:2])
-        & (ys[None] >= bounds[:, 2:3]) & (ys[None] <= bounds[:, 3:4])
+        (xs[None] >= bounds[:, 0:1])
+        & (xs[None] <= bounds[:, 1:2])
+        & (ys[None] >= bounds[:, 2:3])
+        & (ys[None] <= bounds[:, 3:4])
     )
     power = torch.where(inside, power, torch.zeros_like(power))
     alpha = torch.clamp(opacities[:, None] * torch.exp(-power), max=ALPHA_MAX)
@@ -101,12 +105,30 @@ def rasterization_reference(
 ) -> tuple[torch.Tensor, torch.Tensor, dict[str, Any]]:
     """Same contract as `relaygs.splat.rasterization`, computed densely."""
     validate_inputs(
-        means, quats, scales, opacities, colors, viewmats, Ks, width, height,
-        sh_degree, backgrounds, render_mode,
+        means,
+        quats,
+        scales,
+        opacities,
+        colors,
+        viewmats,
+        Ks,
+        width,
+        height,
+        sh_degree,
+        backgrounds,
+        render_mode,
     )
     proj = project_gaussians(
-        means, covariance_3d(quats, scales), opacities, viewmats, Ks, width, height,
-        near_plane, far_plane, eps2d,
+        means,
+        covariance_3d(quats, scales),
+        opacities,
+        viewmats,
+        Ks,
+        width,
+        height,
+        near_plane,
+        far_plane,
+        eps2d,
     )
     feats = []
     if render_mode != "D":
@@ -122,8 +144,16 @@ def rasterization_reference(
             if render_mode != "RGB":
                 bg = torch.cat([bg, bg.new_zeros(1)]) if render_mode == "RGB+D" else bg.new_zeros(1)
         img, alpha = _render_camera(
-            proj.means2d[cam], proj.conics[cam], opacities, feats[cam], proj.bounds[cam],
-            proj.depths[cam], proj.visible[cam], bg, width, height,
+            proj.means2d[cam],
+            proj.conics[cam],
+            opacities,
+            feats[cam],
+            proj.bounds[cam],
+            proj.depths[cam],
+            proj.visible[cam],
+            bg,
+            width,
+            height,
         )
         if render_mode != "RGB":
             hit = alpha > ALPHA_MIN * 0.5

@@ -72,7 +72,9 @@ def bin_gaussians(
     ntx = tx1 - tx0 + 1
     counts = ntx * (ty1 - ty0 + 1)
     total = int(counts.sum())
-    owner = torch.repeat_interleave(torch.arange(flat.numel(), device=device), counts, output_size=total)
+    owner = torch.repeat_interleave(
+        torch.arange(flat.numel(), device=device), counts, output_size=total
+    )
     first = torch.cumsum(counts, 0) - counts
     local = torch.arange(total, device=device) - first[owner]
     tx = tx0[owner] + local % ntx[owner]
