@@ -81,9 +81,9 @@ def read_meta(path: Path) -> PanopticMeta:
     height = _positive_int(meta, "h", path)
     fn = _file_names(meta, path)
     shape = (len(fn), len(fn[0]))
-    K = _array_field(meta, "k", path, shape, (3, 3), np.float64)
-    w2c = _array_field(meta, "w2c", path, shape, (4, 4), np.float64)
-    cam_id = _array_field(meta, "cam_id", path, shape, (), np.int64)
+    K = _array_field(meta, "k", path, shape, (3, 3))
+    w2c = _array_field(meta, "w2c", path, shape, (4, 4))
+    cam_id = _array_field(meta, "cam_id", path, shape, (), integer=True)
     _check_intrinsics(K, path)
     _check_poses(w2c, path)
     return PanopticMeta(path, width, height, K, w2c, fn, cam_id)
@@ -113,7 +113,8 @@ def _array_field(
     path: Path,
     shape: tuple[int, int],
     trailing: tuple[int, ...],
-    dtype: type,
+    *,
+    integer: bool = False,
 ) -> np.ndarray:
     expected = "[T][C]" + "".join(f"[{size}]" for size in trailing)
     if name not in meta:
@@ -133,7 +134,7 @@ def _array_field(
         )
     if not np.isfinite(array).all():
         raise InputError(f"{path}: field '{name}' holds non-finite values")
-    if dtype is np.int64:
+    if integer:
         if (array != np.round(array)).any() or (array < 0).any():
             raise InputError(f"{path}: field '{name}' must hold non-negative integers")
         return array.astype(np.int64)

@@ -84,11 +84,10 @@ class Scene:
 
     def views_at(self, frame: int, split: str = "train") -> list[View]:
         """All views of one frame in `split` ("train", "test" or "all"), ordered by camera id."""
-        views = {"train": self.train_views, "test": self.test_views}.get(split)
-        if views is None:
-            views = self.train_views + self.test_views if split == "all" else None
-        if views is None:
+        if split not in ("train", "test", "all"):
             raise ValueError(f"split must be 'train', 'test' or 'all', got {split!r}")
+        views = [] if split == "test" else self.train_views
+        views = views + ([] if split == "train" else self.test_views)
         selected = [view for view in views if view.frame == frame]
         return sorted(selected, key=lambda view: view.camera.camera_id)
 

@@ -10,10 +10,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from relaygs.data.synthetic.textures import HairCap, Solid, Stripes
+from relaygs.data.synthetic.textures import HairCap, Material, Solid, Stripes
 from relaygs.data.synthetic.world import Primitive
 
 Color = tuple[float, float, float]
+Limb = tuple[np.ndarray, np.ndarray]
+"""(upper, lower) sagittal angles [F] of one arm or leg."""
+LimbPair = tuple[Limb, Limb]
+"""The (left, right) limbs of a kind."""
 
 HIP_HEIGHT = 0.93
 HEAD_RADIUS = 0.11
@@ -45,8 +49,8 @@ class BodyMotion:
 
     root: np.ndarray
     heading: np.ndarray
-    legs: tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
-    arms: tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
+    legs: LimbPair
+    arms: LimbPair
 
 
 def body_rotations(heading: np.ndarray) -> np.ndarray:
@@ -70,25 +74,27 @@ def body_to_world(motion: BodyMotion, local: np.ndarray) -> np.ndarray:
     return rotated
 
 
-def gait_angles(phase: np.ndarray, stride: float, arm_swing: float, elbow: float):
+def gait_angles(
+    phase: np.ndarray, stride: float, arm_swing: float, elbow: float
+) -> tuple[LimbPair, LimbPair]:
     """(legs, arms) sagittal angles of a walking/running gait at gait `phase` [F]."""
 
-    def leg(offset: float) -> tuple[np.ndarray, np.ndarray]:
+    def leg(offset: float) -> Limb:
         thigh = stride * np.sin(phase + offset)
         flex = 0.15 + 0.6 * stride * (0.5 + 0.5 * np.sin(phase + offset - 0.5))
         return thigh, thigh - flex
 
-    def arm(offset: float) -> tuple[np.ndarray, np.ndarray]:
+    def arm(offset: float) -> Limb:
         upper = arm_swing * np.sin(phase + offset + np.pi)
         return upper, upper + elbow
 
     return (leg(0.0), leg(np.pi)), (arm(0.0), arm(np.pi))
 
 
-def juggling_arms(time_s: np.ndarray, period_s: float):
+def juggling_arms(time_s: np.ndarray, period_s: float) -> LimbPair:
     """Arms held forward with hands circling in the juggling rhythm (left, right)."""
 
-    def arm(side_phase: float) -> tuple[np.ndarray, np.ndarray]:
+    def arm(side_phase: float) -> Limb:
         angle = 2 * np.pi * time_s / period_s + side_phase
         return 0.25 + 0.12 * np.sin(angle), 1.45 + 0.25 * np.sin(angle + 0.5)
 
@@ -106,7 +112,7 @@ def _bone(
     length: float,
     radius: float,
     lateral: np.ndarray,
-    material,
+    material: Material,
 ) -> tuple[Primitive, np.ndarray]:
     """A capsule from `start` [F,3] along unit `direction` [F,3]; returns it and its end."""
     end = start + length * direction
@@ -175,15 +181,13 @@ def juggled_balls(
             flying, HAND_HEIGHT + 3.6 * u * (1 - u), HAND_HEIGHT - 0.1 * np.sin(np.pi * u)
         )
         local = np.stack([np.full_like(u, HAND_FORWARD + 0.05), lateral, height], axis=1)
-        rotated = np.einsum("fij,fj->fi", body_rotations(motion.heading), local)
-        rotated[:, :2] += motion.root
         spin = body_rotations(2 * np.pi * cycle)
         balls.append(
             Primitive(
                 "sphere",
                 (0.07,),
                 spin,
-                rotated,
+                body_to_world(motion, local),
                 Stripes(color, (1.0, 1.0, 1.0), 0.07, axis=0),
                 foreground=True,
             )

@@ -18,6 +18,7 @@ from relaygs.data.effects import (
 )
 from relaygs.data.synthetic.actors import (
     BodyMotion,
+    Color,
     Outfit,
     gait_angles,
     hand_position,
@@ -53,14 +54,16 @@ class Preset:
     build: WorldBuilder
 
 
-def _outfit(rng: np.random.Generator, shirt, stripe) -> Outfit:
+def _outfit(rng: np.random.Generator, shirt: Color, stripe: Color) -> Outfit:
     skin = tuple(float(v) for v in np.array([0.85, 0.64, 0.5]) * rng.uniform(0.6, 1.05))
     hair = tuple(float(v) for v in rng.uniform(0.05, 0.35, size=3))
     trousers = tuple(float(v) for v in rng.uniform(0.1, 0.45, size=3))
     return Outfit(shirt, stripe, trousers, skin, hair)
 
 
-def _gait_phase(root: np.ndarray, times: np.ndarray, stride: float, effects, cadence: float):
+def _gait_phase(
+    root: np.ndarray, times: np.ndarray, stride: float, effects: frozenset[str], cadence: float
+) -> np.ndarray:
     """Gait phase from distance walked; stepping in place when the root does not travel."""
     if NONRIGID not in effects:
         return np.zeros_like(times)
@@ -113,7 +116,9 @@ def build_juggle(times: np.ndarray, effects: frozenset[str], seed: int) -> list[
     return primitives
 
 
-def _player_path(index: int, times: np.ndarray, effects: frozenset[str], rng) -> np.ndarray:
+def _player_path(
+    index: int, times: np.ndarray, effects: frozenset[str], rng: np.random.Generator
+) -> np.ndarray:
     direction = 1.0 if index % 2 == 0 else -1.0
     lane = (-3.6, 3.6, -2.2, 2.2, -0.8, 0.8)[index]
     waypoints = [-6.0 * direction, 6.0 * direction]

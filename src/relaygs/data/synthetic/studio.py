@@ -34,7 +34,9 @@ def room(
     return primitives
 
 
-def crate(center: tuple[float, float], half: tuple[float, float, float], yaw: float, seed: int):
+def crate(
+    center: tuple[float, float], half: tuple[float, float, float], yaw: float, seed: int
+) -> Primitive:
     """A textured box standing on the floor, rotated by `yaw` about z."""
     cos, sin = np.cos(yaw), np.sin(yaw)
     rotation = np.array([[cos, -sin, 0.0], [sin, cos, 0.0], [0.0, 0.0, 1.0]])

@@ -24,7 +24,9 @@ class Material(Protocol):
 
     animated: bool
 
-    def albedo(self, local: np.ndarray, time_s: float) -> np.ndarray: ...
+    def albedo(self, local: np.ndarray, time_s: float) -> np.ndarray:
+        """Colours [N,3] in [0,1] of the points `local` [N,3] at time `time_s` seconds."""
+        ...
 
 
 def shade(albedo: np.ndarray, normals: np.ndarray) -> np.ndarray:
@@ -78,7 +80,9 @@ def _mix(color_a: np.ndarray, color_b: np.ndarray, select: np.ndarray) -> np.nda
     return np.where(select[:, None], np.asarray(color_b), np.asarray(color_a))
 
 
-def _grain(colors: np.ndarray, local: np.ndarray, seed: int, amount: float, scale: float):
+def _grain(
+    colors: np.ndarray, local: np.ndarray, seed: int, amount: float, scale: float
+) -> np.ndarray:
     if amount == 0.0:
         return colors
     variation = 1.0 + amount * (2.0 * value_noise(local * scale, seed) - 1.0)

@@ -67,7 +67,9 @@ class World:
     height: int
 
 
-def static_pose(position: tuple[float, float, float], rotation: np.ndarray | None = None):
+def static_pose(
+    position: tuple[float, float, float], rotation: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """(rotations [1,3,3], positions [1,3]) for a primitive that never moves."""
     rotation = np.eye(3) if rotation is None else np.asarray(rotation, dtype=np.float64)
     return rotation[None], np.asarray(position, dtype=np.float64)[None]
