@@ -22,7 +22,7 @@ if [ ! -x "$VENV/bin/python" ]; then
 fi
 if ! "$VENV/bin/python" -c "import torch" >/dev/null 2>&1; then
   echo "setup: no torch found; installing the CPU build ($TORCH_SPEC)"
-  "$VENV/bin/python" -m pip install -q "$TORCH_SPEC"
+  "$VENV/bin/python" -m pip install -qq "$TORCH_SPEC"
 fi
-"$VENV/bin/python" -m pip install -q -e ".[dev]"
+"$VENV/bin/python" -m pip install -qq -e ".[dev]"
 touch "$stamp"

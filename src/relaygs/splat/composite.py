@@ -56,6 +56,11 @@ class _Pairs:
     trans: torch.Tensor  # [G,S,S,L] T before the pair where composited, else 0
 
 
+def _gather_rows(table: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
+    """table[index] for a 2D index, through index_select (much cheaper than advanced indexing)."""
+    return table.index_select(0, index.reshape(-1)).view(*index.shape, *table.shape[1:])
+
+
 def _rows(bins: TileBins, tiles: torch.Tensor, table: torch.Tensor) -> _Rows:
     """Gather the group's Gaussians and their offsets to the tile's pixel centres."""
     s = bins.tile_size
@@ -63,8 +68,8 @@ def _rows(bins: TileBins, tiles: torch.Tensor, table: torch.Tensor) -> _Rows:
     steps = torch.arange(int(counts.max()), device=tiles.device)
     valid = steps[None] < counts[:, None]
     rows = (bins.tile_start[tiles][:, None] + steps[None]).clamp(max=bins.pair_gaussian.numel() - 1)
-    gid = bins.pair_gaussian[rows]
-    packed = table[gid]
+    gid = bins.pair_gaussian.index_select(0, rows.reshape(-1)).view_as(rows)
+    packed = _gather_rows(table, gid)
     ox, oy = bins.tile_origin(tiles)
     pix = torch.arange(s, device=tiles.device)
     cols = (ox[:, None] + pix[None]).to(table.dtype)[:, :, None]  # [G,S,1]
@@ -178,7 +183,7 @@ class CompositeGaussians(torch.autograd.Function):
             pairs = _pairs(rows)
             _, alpha = _alpha(rows, pairs)
             weight = (alpha * pairs.trans).reshape(tiles.numel(), p, -1)
-            color_tiles[tiles] = torch.bmm(weight, flat_colors[rows.gid])
+            color_tiles[tiles] = torch.bmm(weight, _gather_rows(flat_colors, rows.gid))
             # Σ α_i T_i telescopes to 1 − T_N over the composited pairs.
             coverage[tiles] = weight.sum(-1)
             if keep_pairs:
@@ -223,12 +228,14 @@ class CompositeGaussians(torch.autograd.Function):
             pairs = ctx.saved_pairs[index] if ctx.saved_pairs else _pairs(rows)
             alpha_raw, alpha = _alpha(rows, pairs)
             weight = alpha * pairs.trans
-            grad_pix = g_tiles[tiles]  # [G,P,D]
+            grad_pix = g_tiles.index_select(0, tiles)  # [G,P,D]
             # v_i = g·c_i; suffix_i = Σ_{j>i} v_j w_j along the pixel's list.
-            v = torch.bmm(grad_pix, flat_colors[rows.gid].transpose(1, 2)).reshape_as(weight)
+            v = torch.bmm(grad_pix, _gather_rows(flat_colors, rows.gid).transpose(1, 2)).reshape_as(
+                weight
+            )
             vw_cum = torch.cumsum(v * weight, dim=-1)
             suffix = vw_cum[..., -1:] - vw_cum
-            suffix += k_tiles[tiles].reshape(g, s, s, 1)
+            suffix += k_tiles.index_select(0, tiles).reshape(g, s, s, 1)
             d_alpha = v.mul_(pairs.trans).sub_(suffix.div_(1.0 - alpha))
             # Only composited pairs (trans > 0) below the 0.99 clamp pass a gradient to α_raw.
             unclamped = F.threshold(ALPHA_MAX - alpha_raw, 0.0, 0.0).ceil_()

@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import torch
 
 from relaygs.errors import InputError
 from relaygs.splat.composite import CompositeGaussians
-from relaygs.splat.projection import ALPHA_MIN, covariance_3d, project_gaussians
+from relaygs.splat.projection import ALPHA_MIN, Projection, covariance_3d, project_gaussians
 from relaygs.splat.sh import eval_sh, num_sh_bases
 from relaygs.splat.tiles import DEFAULT_TILE_SIZE, bin_gaussians
 
@@ -93,6 +94,66 @@ def camera_colors(
     return eval_sh(sh_degree, colors[None].expand(c, *colors.shape), dirs)
 
 
+@dataclass
+class Prepared:
+    """Projected Gaussians and per-camera features, shared by the fast and reference paths."""
+
+    proj: Projection
+    features: torch.Tensor  # [C,N,D'] colours, plus a depth channel in depth modes
+    backgrounds: torch.Tensor | None  # [C,D'] with 0 for the depth channel
+
+
+def prepare(
+    means: torch.Tensor,
+    quats: torch.Tensor,
+    scales: torch.Tensor,
+    opacities: torch.Tensor,
+    colors: torch.Tensor,
+    viewmats: torch.Tensor,
+    Ks: torch.Tensor,
+    width: int,
+    height: int,
+    *,
+    sh_degree: int | None,
+    backgrounds: torch.Tensor | None,
+    near_plane: float,
+    far_plane: float,
+    eps2d: float,
+    render_mode: str,
+) -> Prepared:
+    """Validate, project, and build the features every render mode composites."""
+    validate_inputs(
+        means, quats, scales, opacities, colors, viewmats, Ks, width, height,
+        sh_degree, backgrounds, render_mode,
+    )  # fmt: skip
+    covars = covariance_3d(quats, scales)
+    proj = project_gaussians(
+        means, covars, opacities, viewmats, Ks, width, height, near_plane, far_plane, eps2d
+    )
+    features = []
+    if render_mode != "D":
+        features.append(camera_colors(means, colors, viewmats, sh_degree))
+    if render_mode != "RGB":
+        features.append(proj.depths[..., None])
+    bg = backgrounds
+    if bg is not None and render_mode != "RGB":
+        depth_bg = bg.new_zeros(viewmats.shape[0], 1)
+        bg = depth_bg if render_mode == "D" else torch.cat([bg, depth_bg], dim=-1)
+    return Prepared(proj, torch.cat(features, dim=-1), bg)
+
+
+def finish_depth(render: torch.Tensor, alphas: torch.Tensor, render_mode: str) -> torch.Tensor:
+    """Turn the accumulated-depth channel into expected depth (0 where nothing was hit).
+
+    Any hit has alpha >= 1/255, so the division is well conditioned.
+    """
+    if render_mode == "RGB":
+        return render
+    hit = alphas > ALPHA_MIN * 0.5
+    depth = torch.where(hit, render[..., -1:] / torch.where(hit, alphas, 1.0), 0.0)
+    return depth if render_mode == "D" else torch.cat([render[..., :-1], depth], dim=-1)
+
+
 def rasterization(
     means: torch.Tensor,
     quats: torch.Tensor,
@@ -121,52 +182,22 @@ def rasterization(
     screen-space gradient after backward (densification reads it); `meta["radii"]` is
     [C,N,2] int32 (0 = culled), `meta["depths"]` [C,N].
     """
-    validate_inputs(
-        means,
-        quats,
-        scales,
-        opacities,
-        colors,
-        viewmats,
-        Ks,
-        width,
-        height,
-        sh_degree,
-        backgrounds,
-        render_mode,
-    )
-    covars = covariance_3d(quats, scales)
-    proj = project_gaussians(
-        means, covars, opacities, viewmats, Ks, width, height, near_plane, far_plane, eps2d
-    )
+    prep = prepare(
+        means, quats, scales, opacities, colors, viewmats, Ks, width, height,
+        sh_degree=sh_degree, backgrounds=backgrounds, near_plane=near_plane,
+        far_plane=far_plane, eps2d=eps2d, render_mode=render_mode,
+    )  # fmt: skip
+    proj = prep.proj
     means2d = proj.means2d
     if means2d.requires_grad:
         means2d.retain_grad()
-    num_cams = viewmats.shape[0]
-
-    features = []
-    if render_mode != "D":
-        features.append(camera_colors(means, colors, viewmats, sh_degree))
-    if render_mode != "RGB":
-        features.append(proj.depths[..., None])
-    feats = torch.cat(features, dim=-1) if len(features) > 1 else features[0]
-    bg = backgrounds
-    if bg is not None and render_mode != "RGB":
-        depth_bg = bg.new_zeros(num_cams, 1)
-        bg = depth_bg if render_mode == "D" else torch.cat([bg, depth_bg], dim=-1)
-
     bins = bin_gaussians(proj.bounds, proj.depths.detach(), proj.visible, width, height, tile_size)
     opac = torch.where(proj.visible, opacities[None], torch.zeros_like(proj.depths))
     render, alphas = CompositeGaussians.apply(
-        means2d, proj.conics, opac, feats, bg, proj.bounds, bins, width, height
-    )
-    if render_mode != "RGB":
-        # Expected depth: accumulated depth / alpha, 0 where nothing was hit (any hit has
-        # alpha >= 1/255, so the division is well conditioned).
-        hit = alphas > ALPHA_MIN * 0.5
-        depth = torch.where(hit, render[..., -1:] / torch.where(hit, alphas, 1.0), 0.0)
-        render = depth if render_mode == "D" else torch.cat([render[..., :-1], depth], dim=-1)
-
+        means2d, proj.conics, opac, prep.features, prep.backgrounds, proj.bounds, bins,
+        width, height,
+    )  # fmt: skip
+    render = finish_depth(render, alphas, render_mode)
     meta = {
         "means2d": means2d,
         "radii": proj.radii,
@@ -175,7 +206,7 @@ def rasterization(
         "visible": proj.visible,
         "width": width,
         "height": height,
-        "n_cameras": num_cams,
+        "n_cameras": viewmats.shape[0],
         "tile_size": tile_size,
         "num_pairs": int(bins.pair_gaussian.numel()),
     }

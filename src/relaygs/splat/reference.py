@@ -12,8 +12,8 @@ from typing import Any
 import torch
 
 from relaygs.splat.composite import ALPHA_MAX, T_MIN
-from relaygs.splat.projection import ALPHA_MIN, covariance_3d, project_gaussians
-from relaygs.splat.rasterize import camera_colors, validate_inputs
+from relaygs.splat.projection import ALPHA_MIN
+from relaygs.splat.rasterize import finish_depth, prepare
 
 PIXEL_CHUNK = 1024
 
@@ -104,62 +104,21 @@ def rasterization_reference(
     render_mode: str = "RGB",
 ) -> tuple[torch.Tensor, torch.Tensor, dict[str, Any]]:
     """Same contract as `relaygs.splat.rasterization`, computed densely."""
-    validate_inputs(
-        means,
-        quats,
-        scales,
-        opacities,
-        colors,
-        viewmats,
-        Ks,
-        width,
-        height,
-        sh_degree,
-        backgrounds,
-        render_mode,
-    )
-    proj = project_gaussians(
-        means,
-        covariance_3d(quats, scales),
-        opacities,
-        viewmats,
-        Ks,
-        width,
-        height,
-        near_plane,
-        far_plane,
-        eps2d,
-    )
-    feats = []
-    if render_mode != "D":
-        feats.append(camera_colors(means, colors, viewmats, sh_degree))
-    if render_mode != "RGB":
-        feats.append(proj.depths[..., None])
-    feats = torch.cat(feats, dim=-1)
+    prep = prepare(
+        means, quats, scales, opacities, colors, viewmats, Ks, width, height,
+        sh_degree=sh_degree, backgrounds=backgrounds, near_plane=near_plane,
+        far_plane=far_plane, eps2d=eps2d, render_mode=render_mode,
+    )  # fmt: skip
+    proj = prep.proj
     images, alphas = [], []
     for cam in range(viewmats.shape[0]):
-        bg = None
-        if backgrounds is not None:
-            bg = backgrounds[cam]
-            if render_mode != "RGB":
-                bg = torch.cat([bg, bg.new_zeros(1)]) if render_mode == "RGB+D" else bg.new_zeros(1)
         img, alpha = _render_camera(
-            proj.means2d[cam],
-            proj.conics[cam],
-            opacities,
-            feats[cam],
-            proj.bounds[cam],
-            proj.depths[cam],
-            proj.visible[cam],
-            bg,
-            width,
-            height,
-        )
-        if render_mode != "RGB":
-            hit = alpha > ALPHA_MIN * 0.5
-            depth = torch.where(hit, img[..., -1:] / torch.where(hit, alpha, 1.0), 0.0)
-            img = depth if render_mode == "D" else torch.cat([img[..., :-1], depth], dim=-1)
+            proj.means2d[cam], proj.conics[cam], opacities, prep.features[cam], proj.bounds[cam],
+            proj.depths[cam], proj.visible[cam],
+            None if prep.backgrounds is None else prep.backgrounds[cam], width, height,
+        )  # fmt: skip
         images.append(img)
         alphas.append(alpha)
+    colors_out, alphas_out = torch.stack(images), torch.stack(alphas)
     meta = {"means2d": proj.means2d, "radii": proj.radii, "depths": proj.depths}
-    return torch.stack(images), torch.stack(alphas), meta
+    return finish_depth(colors_out, alphas_out, render_mode), alphas_out, meta
