@@ -22,3 +22,10 @@ def tiny_synth_scene(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def tiny_synth_copy(tiny_synth_scene: Path, tmp_path: Path) -> Path:
     """A private copy of `tiny_synth_scene` that a test may damage."""
     return Path(shutil.copytree(tiny_synth_scene, tmp_path / "scene"))
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Register the suite's markers (`sweep`: the end-to-end experiment runs, minutes long)."""
+    config.addinivalue_line(
+        "markers", "sweep: end-to-end experiment sweeps at budget=smoke (deselect: -m 'not sweep')"
+    )

@@ -6,6 +6,10 @@ File format::
     nodes:                                                  # in any order
       decouple: {stage: decouple}
       relay:    {stage: relay, upstream: [decouple]}
+      deform:   {stage: deform, upstream: [relay], overrides: {gamma: false}}
+
+`overrides` (optional) are merged over the node's stage config section by the app, so a
+pipeline can pin settings that define it (e.g. the 4D-GS baseline's deform has no γ).
 
 The evaluation step is not a node: the runner applies it to `Pipeline.output_node`,
 the single node nothing else depends on.
@@ -15,7 +19,7 @@ from __future__ import annotations
 
 import re
 from collections.abc import Collection
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -24,18 +28,20 @@ import yaml
 from relaygs.errors import InputError
 from relaygs.paths import pipelines_dir
 
-NODE_FIELDS = frozenset({"stage", "upstream"})
+NODE_FIELDS = frozenset({"stage", "upstream", "overrides"})
 PIPELINE_FIELDS = frozenset({"description", "nodes"})
 _NAME_RE = re.compile(r"[A-Za-z][A-Za-z0-9_]*")
 
 
 @dataclass(frozen=True)
 class Node:
-    """One step of a pipeline: a name, the stage type it runs, and the nodes it reads."""
+    """One step of a pipeline: a name, the stage type it runs, the nodes it reads, and the
+    settings it pins over its stage's config section (`overrides`, nested; treat as read-only)."""
 
     name: str
     stage: str
     upstream: tuple[str, ...]
+    overrides: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -119,7 +125,7 @@ def _parse(path: Path, raw: Any) -> Pipeline:
 
 
 def _parse_node(path: Path, name: Any, spec: Any) -> Node:
-    """One node entry: `{stage: TYPE, upstream: [NODE, ...]}`."""
+    """One node entry: `{stage: TYPE, upstream: [NODE, ...], overrides: {KEY: VALUE, ...}}`."""
     where = f"{path}: node {name!r}"
     if not isinstance(name, str) or not _NAME_RE.fullmatch(name):
         raise InputError(f"{where}: node names must match {_NAME_RE.pattern}")
@@ -136,7 +142,12 @@ def _parse_node(path: Path, name: Any, spec: Any) -> Node:
         raise InputError(f"{where}: 'upstream' must be a list of node names, got {upstream!r}")
     if len(set(upstream)) != len(upstream):
         raise InputError(f"{where}: 'upstream' lists a node twice: {upstream}")
-    return Node(name=name, stage=stage, upstream=tuple(upstream))
+    overrides = spec.get("overrides", {})
+    if not isinstance(overrides, dict) or not all(isinstance(key, str) for key in overrides):
+        raise InputError(
+            f"{where}: 'overrides' must be a mapping of setting names, got {overrides!r}"
+        )
+    return Node(name=name, stage=stage, upstream=tuple(upstream), overrides=overrides)
 
 
 def _check_graph(pipeline: Pipeline, known_stages: Collection[str] | None) -> None:

@@ -1,0 +1,66 @@
+"""The accuracy-against-cost plot of a sweep: PSNR over training time, every job labelled,
+the Pareto front (no other job is both faster and more accurate) marked."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from pathlib import Path
+
+from matplotlib.figure import Figure
+
+LOG_SCALE_RATIO = 20.0
+"""Use a log time axis when the slowest job takes more than this many times the fastest."""
+
+
+def pareto_front(times: Sequence[float], scores: Sequence[float]) -> list[int]:
+    """Indices of the points no other point beats (time ≤ and score ≥, one strictly),
+    ordered by time."""
+    order = sorted(range(len(times)), key=lambda i: (times[i], -scores[i]))
+    front: list[int] = []
+    best = -math.inf
+    for index in order:
+        if scores[index] > best:
+            front.append(index)
+            best = scores[index]
+    return front
+
+
+def plot_pareto(
+    times: Sequence[float], scores: Sequence[float], labels: Sequence[str], path: Path, title: str
+) -> Path:
+    """Write the labelled scatter with its Pareto front as a step line to `path` (PNG)."""
+    figure = Figure(figsize=(7.0, 4.5), layout="constrained")
+    axes = figure.add_subplot()
+    axes.scatter(times, scores, color="tab:blue", zorder=2, label="job")
+    front = pareto_front(times, scores)
+    if front:
+        axes.step(
+            [times[i] for i in front],
+            [scores[i] for i in front],
+            where="post",
+            color="tab:red",
+            zorder=1,
+            label="Pareto front",
+        )
+        axes.scatter(
+            [times[i] for i in front],
+            [scores[i] for i in front],
+            facecolors="none",
+            edgecolors="tab:red",
+            s=140,
+            zorder=3,
+        )
+    for x, y, label in zip(times, scores, labels, strict=True):
+        axes.annotate(label, (x, y), textcoords="offset points", xytext=(5, 5), fontsize=8)
+    positive = [t for t in times if t > 0]
+    if positive and max(positive) > LOG_SCALE_RATIO * min(positive):
+        axes.set_xscale("log")
+    axes.set_xlabel("training time (s, whole lineage)")
+    axes.set_ylabel("PSNR (dB)")
+    axes.set_title(title)
+    axes.grid(True, alpha=0.3)
+    axes.legend(loc="lower right")
+    path = Path(path)
+    figure.savefig(path, dpi=120)
+    return path

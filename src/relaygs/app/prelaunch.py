@@ -1,0 +1,178 @@
+"""Check a `python -m relaygs.run` command line before Hydra starts any job.
+
+Hydra reports unknown config names and composition problems in several lines, and a sweep
+would only find a bad value when its job comes up. Here every config-group choice is checked
+against the files in conf/, and every job the command would launch (the command-line sweeps
+times the basic sweeper's `hydra.sweeper.params`) is composed and validated, so bad input
+is one line before any work starts.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import yaml
+from hydra import compose, initialize_config_dir
+from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
+from hydra.core.override_parser.overrides_parser import OverridesParser
+from hydra.core.override_parser.types import Override
+from hydra.errors import HydraException
+from hydra.types import RunMode
+from omegaconf import DictConfig
+from omegaconf.errors import OmegaConfBaseException
+
+from relaygs.errors import InputError
+
+MULTIRUN_FLAGS = frozenset({"-m", "--multirun"})
+BASIC_SWEEPER = "hydra._internal.core_plugins.basic_sweeper.BasicSweeper"
+HYDRA_LAUNCHERS = frozenset({"basic"})
+"""Launchers Hydra itself ships (no config file in conf/hydra/launcher/)."""
+GROUP_HINTS = {"scene": "; or set scene.path=DIR for a capture"}
+CONFIG_NAME = "config"
+
+JobValidator = Callable[[DictConfig], None]
+"""Raises InputError when a composed job config is bad."""
+
+
+def check_command_line(argv: Sequence[str], conf_dir: Path, validate: JobValidator) -> None:
+    """Raise a one-line InputError if the command line names an unknown config, does not
+    compose, or would launch a job whose config `validate` rejects.
+
+    Command lines with Hydra flags other than --multirun (--help, --cfg, -cn ...) are left
+    to Hydra.
+    """
+    flags = [arg for arg in argv if arg.startswith("-")]
+    if any(flag not in MULTIRUN_FLAGS for flag in flags):
+        return
+    args = [arg for arg in argv if not arg.startswith("-")]
+    overrides = _parse(args)
+    check_group_choices(overrides, conf_dir)
+    with initialize_config_dir(config_dir=str(conf_dir), version_base="1.3", job_name="run"):
+        for job in planned_jobs(args, overrides, multirun=bool(flags)):
+            try:
+                validate(_compose(job))
+            except InputError as error:
+                where = f"job {' '.join(job)}: " if job != args else ""
+                raise InputError(f"{where}{error}") from error
+
+
+def check_group_choices(overrides: Sequence[Override], conf_dir: Path) -> None:
+    """Every `group=name` override must name a file in `conf/<group>/` (or a launcher Hydra
+    ships); groups not in the main defaults list need `+`; launcher plugins must be installed."""
+    primary = primary_groups(conf_dir)
+    for override in overrides:
+        group = override.key_or_group
+        if override.is_delete() or not (conf_dir / group).is_dir():
+            continue
+        for choice in _choices(override):
+            if group == "hydra/launcher":
+                _check_launcher(conf_dir, choice)
+                continue
+            available = available_choices(conf_dir, group)
+            if choice not in available:
+                raise InputError(
+                    f"unknown {group} {choice!r} (available: {', '.join(available)})"
+                    f"{GROUP_HINTS.get(group, '')}"
+                )
+        if group not in primary and not override.is_add():
+            raise InputError(
+                f"{group} is not chosen by default: write +{group}={override.value()} "
+                f"(with a leading +)"
+            )
+
+
+def planned_jobs(args: list[str], overrides: Sequence[Override], multirun: bool) -> list[list[str]]:
+    """The override lists of the jobs this command line would run (one in run mode)."""
+    plain = [o.input_line for o in overrides if not o.is_sweep_override()]
+    sweeps = [o.input_line for o in overrides if o.is_sweep_override()]
+    hydra_cfg = _compose(plain, with_hydra=True).hydra
+    multirun = multirun or hydra_cfg.mode == RunMode.MULTIRUN
+    if not multirun:
+        if sweeps:
+            raise InputError(
+                f"{sweeps[0]} lists several values: add --multirun (-m) to sweep over them, "
+                "or write a list as key=[a,b]"
+            )
+        return [args]
+    if hydra_cfg.sweeper.get("_target_") != BASIC_SWEEPER:
+        return [plain]
+    params = [f"{key}={value}" for key, value in (hydra_cfg.sweeper.get("params") or {}).items()]
+    try:
+        batches = BasicSweeper.split_arguments(_parse([*params, *args]), None)
+    except HydraException as error:
+        raise InputError(_one_line(error)) from error
+    return batches[0]
+
+
+def primary_groups(conf_dir: Path) -> set[str]:
+    """Groups the main config's defaults list chooses (the others need `+group=`)."""
+    main = yaml.safe_load((conf_dir / f"{CONFIG_NAME}.yaml").read_text(encoding="utf-8"))
+    groups = set()
+    for entry in main.get("defaults", []):
+        if isinstance(entry, dict):
+            groups.update(key.removeprefix("override ").strip() for key in entry)
+    return groups
+
+
+def available_choices(conf_dir: Path, group: str) -> list[str]:
+    """The config names of a group folder (files starting with `_` are not choices)."""
+    return sorted(
+        path.stem for path in (conf_dir / group).glob("*.yaml") if not path.stem.startswith("_")
+    )
+
+
+def _check_launcher(conf_dir: Path, choice: str) -> None:
+    """A launcher must be Hydra's own or have a config here whose plugin is installed."""
+    if choice in HYDRA_LAUNCHERS:
+        return
+    available = sorted(HYDRA_LAUNCHERS | set(available_choices(conf_dir, "hydra/launcher")))
+    path = conf_dir / "hydra" / "launcher" / f"{choice}.yaml"
+    if not path.is_file():
+        raise InputError(f"unknown hydra/launcher {choice!r} (available: {', '.join(available)})")
+    target = str((yaml.safe_load(path.read_text(encoding="utf-8")) or {}).get("_target_", ""))
+    plugin = target.split(".")[:2]
+    if len(plugin) == 2 and not is_installed(".".join(plugin)):
+        package = plugin[1].replace("_", "-")
+        raise InputError(
+            f"hydra/launcher={choice} needs the {package} plugin: pip install {package}"
+        )
+
+
+def is_installed(module: str) -> bool:
+    """True when `module` (dotted) can be imported; a missing parent package counts as not."""
+    try:
+        return importlib.util.find_spec(module) is not None
+    except ModuleNotFoundError:
+        return False
+
+
+def _choices(override: Override) -> list[str]:
+    """The option names an override selects (each value of a sweep)."""
+    if override.is_sweep_override():
+        return list(override.sweep_string_iterator()) if override.is_discrete_sweep() else []
+    return [str(override.value())]
+
+
+def _parse(args: Sequence[str]) -> list[Override]:
+    """Parse override strings; a syntax error becomes one line."""
+    try:
+        return OverridesParser.create().parse_overrides(list(args))
+    except HydraException as error:
+        raise InputError(f"cannot parse overrides: {_one_line(error)}") from error
+
+
+def _compose(overrides: Sequence[str], with_hydra: bool = False) -> DictConfig:
+    """Compose the main config with `overrides`; composition errors become one line."""
+    try:
+        return compose(CONFIG_NAME, overrides=list(overrides), return_hydra_config=with_hydra)
+    except (HydraException, OmegaConfBaseException) as error:
+        raise InputError(_one_line(error)) from error
+
+
+def _one_line(error: Any) -> str:
+    """An exception's message folded into one line (Hydra's span several)."""
+    lines = [line.strip() for line in str(error).splitlines() if line.strip()]
+    return " ".join(line for line in lines if not line.startswith("See https://"))

@@ -1,0 +1,138 @@
+"""The job's `result.json`: one flat object per run (metrics, costs, identity, and every
+parameter the command line or sweep set, by dotted key) that the sweep tables are built from."""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from relaygs.app.plan import RunPlan
+from relaygs.pipeline import PipelineRun
+
+RESULT_FILE = "result.json"
+METRIC_FIELDS = ("psnr", "ssim", "fg_psnr", "render_fps", "num_gaussians")
+ALWAYS_RECORDED = (
+    "relay.k",
+    "relay.pseudo_views",
+    "deform.gamma",
+    "deform.isolate_fg_bg",
+    "budget.name",
+    "budget.multiplier",
+)
+"""Parameters every result carries (the ablation axes), whether or not a job set them."""
+
+Scalar = bool | int | float | str | None
+
+
+def build_result(
+    cfg: Mapping[str, Any],
+    plan: RunPlan,
+    run: PipelineRun,
+    metrics: Mapping[str, Any],
+    storage_mb: float,
+    overrides: Sequence[str],
+    job: int | None,
+) -> dict[str, Scalar]:
+    """The flat result of one run; `overrides` are the job's command-line/sweep overrides."""
+    result: dict[str, Scalar] = {
+        "experiment": cfg.get("experiment_name"),
+        "variant": str(cfg.get("variant")),
+        "reference_variant": (cfg.get("report") or {}).get("reference"),
+        "job": job,
+        "pipeline": plan.pipeline.name,
+        "scene": plan.scene.name,
+        "seed": plan.seed,
+    }
+    result.update({name: _scalar(metrics.get(name)) for name in METRIC_FIELDS})
+    result.update(
+        {
+            "train_s_total": run.train_seconds_total,
+            "train_s_computed": run.train_seconds_computed,
+            "storage_mb": storage_mb,
+            "cache_hits": sum(report.cache_hit for report in run.reports),
+            "stages": len(run.reports),
+            "output_key": run.reports[-1].key,
+        }
+    )
+    extra = {name: _scalar(value) for name, value in metrics.items() if name not in result}
+    result.update({name: value for name, value in extra.items() if value is not None})
+    for key in [*ALWAYS_RECORDED, *override_keys(overrides)]:
+        result.setdefault(key, effective_value(cfg, plan, key))
+    return result
+
+
+def override_keys(overrides: Sequence[str]) -> list[str]:
+    """Dotted keys (or group names) set by overrides like `relay.k=8` or `+component=full`;
+    Hydra's own `hydra.*` settings are left out."""
+    keys = []
+    for override in overrides:
+        key = override.split("=", 1)[0].lstrip("+~")
+        if key and not key.startswith("hydra") and key not in keys:
+            keys.append(key)
+    return keys
+
+
+def effective_value(cfg: Mapping[str, Any], plan: RunPlan, key: str) -> Scalar:
+    """What `key` was for this run: a stage setting as the pipeline ran it (after the node's
+    overrides; None when no node runs that stage), a group by its `name`, else the config value."""
+    head, _, rest = key.partition(".")
+    if head in plan.stage_types:
+        sections = [config[head] for config in plan.node_configs.values() if head in config]
+        return _scalar(_lookup(sections[0], rest)) if sections else None
+    value = _lookup(cfg, key)
+    if isinstance(value, Mapping):
+        return _scalar(value.get("name"))
+    return _scalar(value)
+
+
+def write_result(run_dir: Path, result: Mapping[str, Scalar]) -> Path:
+    """Write `result.json` into the run dir and return its path."""
+    path = Path(run_dir) / RESULT_FILE
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(dict(result), indent=2, allow_nan=False) + "\n", encoding="utf-8")
+    return path
+
+
+def format_summary(result: Mapping[str, Scalar]) -> str:
+    """A short human-readable table of one run's results."""
+    rows = [
+        ("PSNR", _fmt(result.get("psnr"), ".2f", " dB")),
+        ("SSIM", _fmt(result.get("ssim"), ".4f")),
+        ("fg-PSNR", _fmt(result.get("fg_psnr"), ".2f", " dB")),
+        ("train time", _fmt(result.get("train_s_total"), ".1f", " s")),
+        ("  computed now", _fmt(result.get("train_s_computed"), ".1f", " s")),
+        ("storage", _fmt(result.get("storage_mb"), ".2f", " MB")),
+        ("render FPS", _fmt(result.get("render_fps"), ".1f")),
+        ("Gaussians", _fmt(result.get("num_gaussians"), ",.0f")),
+        ("cached stages", f"{result.get('cache_hits')} of {result.get('stages')}"),
+    ]
+    title = f"{result.get('pipeline')} on {result.get('scene')} (seed {result.get('seed')})"
+    width = max(len(label) for label, _ in rows)
+    return "\n".join([title, *(f"  {label:<{width}}  {value}" for label, value in rows)])
+
+
+def _lookup(config: Mapping[str, Any], dotted: str) -> Any:
+    """The value at a dotted path, or None when any part is missing."""
+    value: Any = config
+    for part in dotted.split(".") if dotted else []:
+        if not isinstance(value, Mapping) or part not in value:
+            return None
+        value = value[part]
+    return value
+
+
+def _scalar(value: Any) -> Scalar:
+    """A JSON scalar: non-finite floats and non-scalars become None, tensors their item."""
+    if hasattr(value, "item") and callable(value.item):
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value if isinstance(value, bool | int | float | str) else None
+
+
+def _fmt(value: Scalar, spec: str, unit: str = "") -> str:
+    """`value` formatted with `spec` and a unit, or "n/a" when missing."""
+    return "n/a" if not isinstance(value, int | float) else f"{value:{spec}}{unit}"

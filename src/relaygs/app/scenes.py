@@ -1,0 +1,131 @@
+"""Turn the `scene` config section into a loaded Scene: validate it up front, generate a
+synthetic preset once into a cache folder (under a lock, so parallel jobs generate it once),
+or load a capture folder."""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from filelock import FileLock
+
+from relaygs.data import Scene, detect_format, load_scene
+from relaygs.data.effects import parse_effects
+from relaygs.data.options import make_options
+from relaygs.data.synthetic import GENERATOR_VERSION, PRESETS, generate
+from relaygs.errors import InputError
+from relaygs.pipeline.keys import canonical_json
+
+SCENE_FIELDS = frozenset(
+    {"name", "preset", "path", "frames", "width", "height", "seed", "effects", "loader"}
+)
+LOADER_OPTIONS = ("downscale", "max_points", "cache_mb", "test_cameras")
+GENERATED_MARKER = "scene.json"
+HASH_LENGTH = 12
+
+
+@dataclass(frozen=True)
+class SceneSpec:
+    """A validated scene request: a synthetic preset with its size, or a capture folder."""
+
+    name: str
+    preset: str | None
+    path: Path | None
+    frames: int
+    width: int
+    height: int
+    seed: int
+    effects: tuple[str, ...] | None
+    loader: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def is_synthetic(self) -> bool:
+        """True when the scene is generated from a preset rather than read from `path`."""
+        return self.path is None
+
+
+def scene_spec(section: Mapping[str, Any]) -> SceneSpec:
+    """Validate the `scene` section (paths already absolute) without doing any work.
+
+    A set `path` must be an existing folder in a known layout; otherwise `preset` must name a
+    synthetic preset. Every error is one InputError naming the `scene.*` field.
+    """
+    unknown = sorted(set(section) - SCENE_FIELDS)
+    if unknown:
+        raise InputError(f"scene: unknown field(s) {unknown}; expected {sorted(SCENE_FIELDS)}")
+    effects = section.get("effects")
+    if effects is not None:
+        effects = tuple(sorted(parse_effects(effects, source="scene.effects")))
+    loader = dict(section.get("loader") or {})
+    unknown = sorted(set(loader) - set(LOADER_OPTIONS))
+    if unknown:
+        raise InputError(
+            f"scene.loader: unknown option(s) {unknown}; expected {list(LOADER_OPTIONS)}"
+        )
+    make_options(**loader)
+    counts = {name: _count(section, name, minimum=1) for name in ("frames", "width", "height")}
+    seed = _count(section, "seed", minimum=0)
+    path = section.get("path")
+    if path is not None:
+        root = Path(str(path))
+        if not root.is_dir():
+            raise InputError(f"scene.path: folder does not exist: {root}")
+        detect_format(root)
+        name = str(section.get("name") or root.name)
+        return SceneSpec(name, None, root, **counts, seed=seed, effects=effects, loader=loader)
+    preset = section.get("preset")
+    if preset not in PRESETS:
+        raise InputError(
+            f"scene.preset: unknown synthetic preset {preset!r} (available: "
+            f"{', '.join(sorted(PRESETS))}); or set scene.path=DIR for a capture"
+        )
+    name = str(section.get("name") or preset)
+    return SceneSpec(name, preset, None, **counts, seed=seed, effects=effects, loader=loader)
+
+
+def synthetic_folder(spec: SceneSpec, scenes_dir: Path) -> Path:
+    """Cache folder of a synthetic scene: `<scenes_dir>/<preset>-<hash of its parameters>`."""
+    params = {
+        "preset": spec.preset,
+        "frames": spec.frames,
+        "width": spec.width,
+        "height": spec.height,
+        "seed": spec.seed,
+        "effects": None if spec.effects is None else list(spec.effects),
+        "generator_version": GENERATOR_VERSION,
+    }
+    digest = hashlib.sha256(canonical_json(params, "scene").encode()).hexdigest()
+    return scenes_dir / f"{spec.preset}-{digest[:HASH_LENGTH]}"
+
+
+def prepare_scene(spec: SceneSpec, scenes_dir: Path) -> Scene:
+    """Load the scene, generating a synthetic one first if its cache folder is missing."""
+    if not spec.is_synthetic:
+        return load_scene(spec.path, **spec.loader, effects=spec.effects)
+    folder = synthetic_folder(spec, scenes_dir)
+    lock = scenes_dir / ".locks" / f"{folder.name}.lock"
+    lock.parent.mkdir(parents=True, exist_ok=True)
+    with FileLock(str(lock)):
+        if not (folder / GENERATED_MARKER).is_file():
+            print(f"generating synthetic scene {spec.preset!r} into {folder}", flush=True)
+            generate(
+                spec.preset,
+                folder,
+                frames=spec.frames,
+                width=spec.width,
+                height=spec.height,
+                seed=spec.seed,
+                effects=spec.effects,
+            )
+    return load_scene(folder, **spec.loader)
+
+
+def _count(section: Mapping[str, Any], name: str, minimum: int) -> int:
+    """`section[name]` as an int >= minimum, else an InputError naming `scene.<name>`."""
+    value = section.get(name)
+    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+        raise InputError(f"scene.{name} must be an integer >= {minimum}, got {value!r}")
+    return value

@@ -1,0 +1,47 @@
+"""What the app needs from the stage implementations, gathered in one object so tests can run
+the whole app on fake stages and the real ones are imported only when a run starts."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import torch
+
+from relaygs.app.plan import StageValidator
+from relaygs.pipeline import Artifact
+from relaygs.pipeline.dag import StageFn
+
+LogSink = Callable[..., None]
+"""Receives `(stage, step, scalars, images=None)` from the stages' `emit`."""
+
+
+@dataclass(frozen=True)
+class StageSuite:
+    """Stage functions by type, their artifact schema versions, config validation, evaluation,
+    rendering and the log-sink hooks (see `relaygs.stages`)."""
+
+    stages: Mapping[str, StageFn]
+    schema_versions: Mapping[str, int]
+    validate: StageValidator
+    evaluate: Callable[[Any, Artifact, dict[str, Any]], Mapping[str, Any]]
+    render_model: Callable[[Artifact, Any, float], torch.Tensor]
+    add_sink: Callable[[LogSink], None]
+    remove_sink: Callable[[LogSink], None]
+
+
+def load_stage_suite() -> StageSuite:
+    """The real stages from `relaygs.stages`."""
+    from relaygs import stages
+    from relaygs.stages import log
+
+    return StageSuite(
+        stages=stages.STAGES,
+        schema_versions=stages.SCHEMA_VERSIONS,
+        validate=stages.validate_config,
+        evaluate=stages.evaluate,
+        render_model=stages.render_model,
+        add_sink=log.add_sink,
+        remove_sink=log.remove_sink,
+    )

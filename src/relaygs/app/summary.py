@@ -1,0 +1,130 @@
+"""Sweep tables: collect each job's `result.json` into rows, add Δ PSNR against the reference
+variant, and render the paper-style Markdown table."""
+
+from __future__ import annotations
+
+import json
+import math
+import numbers
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from relaygs.app.result import RESULT_FILE
+from relaygs.errors import InputError
+
+MISSING = "n/a"
+LEADING_COLUMNS = (
+    "job",
+    "variant",
+    "pipeline",
+    "scene",
+    "seed",
+    "psnr",
+    "delta_psnr",
+    "fg_psnr",
+    "ssim",
+    "train_s_total",
+    "train_s_computed",
+    "storage_mb",
+    "render_fps",
+    "num_gaussians",
+    "cache_hits",
+)
+MARKDOWN_COLUMNS = (
+    ("Variant", "variant", "{}"),
+    ("PSNR ↑", "psnr", "{:.2f}"),
+    ("Δ PSNR", "delta_psnr", "{:+.2f}"),
+    ("fg-PSNR ↑", "fg_psnr", "{:.2f}"),
+    ("SSIM ↑", "ssim", "{:.4f}"),
+    ("Train (s)", "train_s_total", "{:.1f}"),
+    ("Computed (s)", "train_s_computed", "{:.1f}"),
+    ("Storage (MB)", "storage_mb", "{:.2f}"),
+    ("FPS", "render_fps", "{:.1f}"),
+    ("Cache hits", "cache_hits", "{:.0f}"),
+)
+
+
+def collect_results(sweep_dir: Path) -> pd.DataFrame:
+    """One row per `result.json` below `sweep_dir`, ordered by job number then folder."""
+    paths = sorted(Path(sweep_dir).rglob(RESULT_FILE))
+    if not paths:
+        raise InputError(f"no {RESULT_FILE} found under {sweep_dir}")
+    rows = []
+    for path in paths:
+        try:
+            row = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, json.JSONDecodeError) as error:
+            raise InputError(f"{path}: unreadable result ({error})") from error
+        if not isinstance(row, dict):
+            raise InputError(f"{path}: expected a JSON object")
+        rows.append({**row, "run_dir": str(path.parent)})
+    table = pd.DataFrame(rows)
+    if "job" in table:
+        table = table.sort_values("job", kind="stable", na_position="last")
+    return table.reset_index(drop=True)
+
+
+def summary_table(results: pd.DataFrame) -> pd.DataFrame:
+    """Results with `delta_psnr` added and the paper's columns first.
+
+    Δ is PSNR minus the reference variant's PSNR on the same scene and seed (the mean over
+    every reference row where there is none; the reference is each row's
+    `reference_variant`, else job 0's variant).
+    """
+    table = results.copy()
+    table["delta_psnr"] = [_delta(table, index) for index in table.index]
+    for column in LEADING_COLUMNS:
+        if column not in table:
+            table[column] = None
+    leading = list(LEADING_COLUMNS)
+    return table[leading + [c for c in table.columns if c not in leading]]
+
+
+def markdown_table(table: pd.DataFrame, title: str) -> str:
+    """The summary as a Markdown table in the paper's form (missing values as MISSING)."""
+    header = "| " + " | ".join(label for label, _, _ in MARKDOWN_COLUMNS) + " |"
+    rule = "|" + "|".join(":---" if i == 0 else "---:" for i in range(len(MARKDOWN_COLUMNS))) + "|"
+    lines = [f"# {title}", "", header, rule]
+    for _, row in table.iterrows():
+        cells = [_cell(row.get(column), spec) for _, column, spec in MARKDOWN_COLUMNS]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def _delta(table: pd.DataFrame, index: Any) -> float | None:
+    """PSNR of row `index` minus its reference's PSNR (None when either is missing)."""
+    row = table.loc[index]
+    reference = row.get("reference_variant")
+    if not isinstance(reference, str) or not reference:
+        reference = table["variant"].iloc[0]
+    candidates = table[table["variant"] == reference]
+    same = candidates
+    for column in ("scene", "seed"):
+        if column in table:
+            same = same[same[column] == row.get(column)]
+    pool = same if len(same) else candidates
+    values = [v for v in pool["psnr"] if is_number(v)] if "psnr" in pool else []
+    if not values or not is_number(row.get("psnr")):
+        return None
+    return float(row["psnr"]) - sum(values) / len(values)
+
+
+def is_number(value: Any) -> bool:
+    """True for a finite real number, numpy scalars included (bools are not numbers here)."""
+    return (
+        isinstance(value, numbers.Real)
+        and not isinstance(value, bool | np.bool_)
+        and math.isfinite(value)
+    )
+
+
+def _cell(value: Any, spec: str) -> str:
+    """One Markdown cell: numbers formatted with `spec`, missing values as MISSING."""
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return MISSING
+    if spec == "{}":
+        return str(value).replace("|", "\\|")
+    return spec.format(value) if is_number(value) else str(value)

@@ -1,0 +1,128 @@
+"""One job of `python -m relaygs.run`: validate, prepare the scene, run the stage DAG through
+the artifact store, evaluate, log to TensorBoard and write `result.json`.
+
+Plain function of a config (no HydraConfig inside), so tests call it with composed configs
+and fake stages.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import torch
+from omegaconf import DictConfig
+
+from relaygs.app.config import resolve_config
+from relaygs.app.plan import RunPlan, plan_run
+from relaygs.app.result import (
+    METRIC_FIELDS,
+    Scalar,
+    build_result,
+    format_summary,
+    write_result,
+)
+from relaygs.app.scenes import prepare_scene
+from relaygs.app.suite import StageSuite, load_stage_suite
+from relaygs.app.tensorboard import TensorBoardLog, flatten_config
+from relaygs.pipeline import Artifact, ArtifactStore, NodeReport, PipelineRun, run_pipeline
+
+TENSORBOARD_DIR = "tb"
+HPARAM_EXCLUDED_SECTIONS = ("paths",)
+"""Config sections left out of TensorBoard HParams (where files go, not what was run)."""
+
+
+def run_task(
+    cfg: DictConfig | Mapping[str, Any],
+    *,
+    run_dir: Path,
+    original_cwd: Path,
+    overrides: Sequence[str] = (),
+    job: int | None = None,
+    suite: StageSuite | None = None,
+) -> dict[str, Scalar]:
+    """Run one job and return its result (also written to `<run_dir>/result.json`).
+
+    `overrides` are the job's command-line/sweep overrides (recorded in the result), `job`
+    its number in a sweep. Bad input raises InputError before any work starts.
+    """
+    config = resolve_config(cfg, original_cwd)
+    suite = suite or load_stage_suite()
+    plan = plan_run(config, suite.stages, suite.validate)
+    if plan.threads is not None:
+        torch.set_num_threads(plan.threads)
+    scene = prepare_scene(plan.scene, plan.scenes_dir)
+    store = ArtifactStore(plan.artifacts_root)
+    log = TensorBoardLog(Path(run_dir) / TENSORBOARD_DIR)
+    suite.add_sink(log)
+    try:
+        run = run_pipeline(
+            plan.pipeline,
+            suite.stages,
+            scene,
+            plan.config_for,
+            store,
+            schema_versions=suite.schema_versions,
+            on_corrupt=plan.on_corrupt,
+            on_node_done=_announce,
+        )
+        metrics = suite.evaluate(scene, run.output, plan.eval_config)
+        previews = config["tensorboard"]["preview_frames"]
+        _log_previews(log, suite, scene, run.output, previews)
+        output = run.reports[-1]
+        storage_mb = store.manifest(output.stage, output.key).size_bytes / 1e6
+        result = build_result(config, plan, run, metrics, storage_mb, overrides, job)
+        hparams = {k: v for k, v in config.items() if k not in HPARAM_EXCLUDED_SECTIONS}
+        logged = (*METRIC_FIELDS, "train_s_total", "train_s_computed", "storage_mb")
+        log.add_hparams(flatten_config(hparams), {name: result[name] for name in logged})
+    finally:
+        suite.remove_sink(log)
+        log.close()
+    result_path = write_result(run_dir, result)
+    print(format_summary(result))
+    print(_where(plan, run, result_path, log.log_dir))
+    return result
+
+
+def _announce(report: NodeReport) -> None:
+    """Say whether a node's artifact was reused from the store or built now."""
+    key = report.key[:12]
+    if report.cache_hit:
+        print(
+            f"[{report.node}] reused {report.stage} artifact {key} from the store "
+            f"(built earlier in {report.wall_seconds:.1f} s)",
+            flush=True,
+        )
+    else:
+        print(f"[{report.node}] built {report.stage} artifact {key} in {report.wall_seconds:.1f} s")
+
+
+def _log_previews(
+    log: TensorBoardLog, suite: StageSuite, scene: Any, model: Artifact, count: int
+) -> None:
+    """Render the first test camera at `count` frames spread over the sequence, each beside
+    its ground-truth image (TensorBoard tag `eval/render_vs_truth`, step = frame)."""
+    first_views = scene.views_at(0, "test")
+    if count <= 0 or not first_views:
+        return
+    camera_id = first_views[0].camera.camera_id
+    last = scene.num_frames - 1
+    frames = sorted({round(i * last / max(count - 1, 1)) for i in range(count)})
+    for frame in frames:
+        view = next(v for v in scene.views_at(frame, "test") if v.camera.camera_id == camera_id)
+        with torch.no_grad():
+            render = suite.render_model(model, view.camera, view.time)
+        log.add_comparison("eval/render_vs_truth", render, scene.image(view), frame)
+
+
+def _where(plan: RunPlan, run: PipelineRun, result_path: Path, log_dir: Path) -> str:
+    """Where this run's outputs are."""
+    lines = [
+        "outputs:",
+        f"  result       {result_path}",
+        f"  tensorboard  tensorboard --logdir {log_dir}",
+        f"  model        {run.reports[-1].path}",
+        f"  store        {plan.artifacts_root}  (python -m relaygs.artifacts --root ... ls)",
+    ]
+    return "\n".join(lines)

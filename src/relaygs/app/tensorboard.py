@@ -1,0 +1,89 @@
+"""TensorBoard logging for one job: a sink for the stages' scalars and images, render vs
+ground-truth previews, and the HParams entry that lets `tensorboard --logdir SWEEP` compare jobs.
+
+HParams rules (DESIGN.md): the config is flattened to dotted keys, None is written as "None",
+every job logs the same keys, and the hparams go into the job's own log dir.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch.utils.tensorboard import SummaryWriter
+from torch.utils.tensorboard.summary import hparams
+
+HParamValue = bool | int | float | str
+
+
+class TensorBoardLog:
+    """One SummaryWriter in the job's log dir; callable as a stage log sink."""
+
+    def __init__(self, log_dir: Path) -> None:
+        self.log_dir = Path(log_dir)
+        self.writer = SummaryWriter(log_dir=str(self.log_dir))
+
+    def __call__(
+        self,
+        stage: str,
+        step: int,
+        scalars: Mapping[str, float],
+        images: Mapping[str, torch.Tensor] | None = None,
+    ) -> None:
+        """Log a stage's scalars as `<stage>/<name>` and its [H,W,3] images in [0,1]."""
+        for name, value in scalars.items():
+            self.writer.add_scalar(f"{stage}/{name}", float(value), step)
+        for name, image in (images or {}).items():
+            self.add_image(f"{stage}/{name}", image, step)
+
+    def add_image(self, tag: str, image: torch.Tensor, step: int) -> None:
+        """Log one [H,W,3] float image (values clamped to [0,1])."""
+        pixels = image.detach().float().cpu().clamp(0.0, 1.0)
+        self.writer.add_image(tag, pixels, step, dataformats="HWC")
+
+    def add_comparison(
+        self, tag: str, render: torch.Tensor, truth: torch.Tensor, step: int
+    ) -> None:
+        """Log a render and its ground truth side by side (render left)."""
+        self.add_image(tag, torch.cat([render.detach().cpu(), truth.detach().cpu()], dim=1), step)
+
+    def add_hparams(
+        self, params: Mapping[str, HParamValue], metrics: Mapping[str, float | None]
+    ) -> None:
+        """Write the HParams entry into this job's own log dir, with each metric as a scalar
+        under its own tag (missing metrics are skipped)."""
+        finite = {f"result/{name}": float(v) for name, v in metrics.items() if v is not None}
+        experiment, session_start, session_end = hparams(dict(params), finite)
+        file_writer = self.writer._get_file_writer()
+        for summary in (experiment, session_start, session_end):
+            file_writer.add_summary(summary)
+        for tag, value in finite.items():
+            self.writer.add_scalar(tag, value, 0)
+
+    def close(self) -> None:
+        """Flush and close the event file."""
+        self.writer.close()
+
+
+def flatten_config(config: Mapping[str, Any], prefix: str = "") -> dict[str, HParamValue]:
+    """Nested config as {dotted key: value}; None → "None", lists → their JSON text."""
+    flat: dict[str, HParamValue] = {}
+    for key, value in config.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, Mapping):
+            flat.update(flatten_config(value, f"{name}."))
+        else:
+            flat[name] = hparam_value(value)
+    return flat
+
+
+def hparam_value(value: Any) -> HParamValue:
+    """A value TensorBoard's HParams accepts: None → "None", containers → JSON text."""
+    if value is None:
+        return "None"
+    if isinstance(value, bool | int | float | str):
+        return value
+    return json.dumps(value, sort_keys=True, default=str)

@@ -1,0 +1,87 @@
+"""`python -m relaygs.report SWEEP_DIR`: (re)write a sweep's `summary.csv`, `summary.md` and
+`pareto.png` from its jobs' `result.json` files (the multirun end callback calls the same)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from relaygs.app.pareto import plot_pareto
+from relaygs.app.summary import collect_results, is_number, markdown_table, summary_table
+from relaygs.errors import InputError, RelayGSError
+
+SUMMARY_CSV = "summary.csv"
+SUMMARY_MD = "summary.md"
+PARETO_PNG = "pareto.png"
+
+
+@dataclass(frozen=True)
+class ReportFiles:
+    """The files a report wrote (`pareto` is None when no job has both PSNR and a time)."""
+
+    csv: Path
+    markdown: Path
+    pareto: Path | None
+    jobs: int
+
+
+def write_reports(sweep_dir: Path) -> ReportFiles:
+    """Collect the sweep's results and write the table (CSV, Markdown) and the Pareto plot."""
+    sweep_dir = Path(sweep_dir)
+    if not sweep_dir.is_dir():
+        raise InputError(f"sweep folder does not exist: {sweep_dir}")
+    table = summary_table(collect_results(sweep_dir))
+    title = _title(table, sweep_dir)
+    csv_path = sweep_dir / SUMMARY_CSV
+    table.to_csv(csv_path, index=False)
+    markdown_path = sweep_dir / SUMMARY_MD
+    markdown_path.write_text(markdown_table(table, title), encoding="utf-8")
+    plottable = zip(table.psnr, table.train_s_total, strict=True)
+    plotted = table[[is_number(psnr) and is_number(time) for psnr, time in plottable]]
+    pareto = None
+    if len(plotted):
+        pareto = plot_pareto(
+            [float(t) for t in plotted.train_s_total],
+            [float(p) for p in plotted.psnr],
+            [str(v) for v in plotted.variant],
+            sweep_dir / PARETO_PNG,
+            title,
+        )
+    return ReportFiles(csv_path, markdown_path, pareto, len(table))
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Command-line entry: exit 0 on success, 1 with one line on stderr on bad input."""
+    parser = argparse.ArgumentParser(prog="python -m relaygs.report", description=__doc__)
+    parser.add_argument("sweep_dir", type=Path, help="a multirun folder holding job folders")
+    args = parser.parse_args(argv)
+    try:
+        files = write_reports(args.sweep_dir)
+    except RelayGSError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 1
+    print(describe(files))
+    return 0
+
+
+def describe(files: ReportFiles) -> str:
+    """Where a report's files are, one per line."""
+    lines = [f"summary of {files.jobs} job(s):", f"  {files.markdown}", f"  {files.csv}"]
+    if files.pareto is not None:
+        lines.append(f"  {files.pareto}")
+    return "\n".join(lines)
+
+
+def _title(table, sweep_dir: Path) -> str:
+    """'<experiment> on <scene>' when the jobs agree, else the folder name."""
+    experiments = {e for e in table.get("experiment", []) if isinstance(e, str)}
+    scenes = {s for s in table.get("scene", []) if isinstance(s, str)}
+    name = experiments.pop() if len(experiments) == 1 else sweep_dir.name
+    return f"{name} on {scenes.pop()}" if len(scenes) == 1 else name
+
+
+if __name__ == "__main__":
+    sys.exit(main())

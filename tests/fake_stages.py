@@ -1,0 +1,105 @@
+"""Fake stages for app tests: instant, deterministic, honouring the stage contract (a stage
+reads only `seed`, `train` and its own section; artifacts carry a score evaluation reads)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import torch
+from hydra import compose, initialize_config_dir
+from omegaconf import DictConfig
+
+from relaygs.app.suite import StageSuite
+from relaygs.errors import InputError
+from relaygs.paths import config_dir
+from relaygs.pipeline import Artifact
+
+STAGE_TYPES = ("decouple", "relay", "replicate", "warmup", "deform")
+TINY_SCENE = ["scene.frames=3", "scene.width=16", "scene.height=9"]
+
+
+class FakeStages:
+    """A StageSuite factory that records which stages ran and what the sinks received."""
+
+    def __init__(self) -> None:
+        self.calls: list[tuple[str, dict[str, Any]]] = []
+        self.sinks: list[Any] = []
+
+    def suite(self) -> StageSuite:
+        """The suite to pass to `run_task`."""
+        return StageSuite(
+            stages={stage: self._stage(stage) for stage in STAGE_TYPES},
+            schema_versions={stage: 1 for stage in STAGE_TYPES},
+            validate=validate_config,
+            evaluate=evaluate,
+            render_model=render_model,
+            add_sink=self.sinks.append,
+            remove_sink=self.sinks.remove,
+        )
+
+    def ran(self, stage: str) -> int:
+        """How many times `stage` was built."""
+        return sum(1 for name, _ in self.calls if name == stage)
+
+    def _stage(self, stage: str):
+        def build(scene: Any, upstream: dict[str, Artifact], cfg: dict[str, Any]) -> Artifact:
+            assert set(cfg) == {"seed", "train", stage}, cfg
+            self.calls.append((stage, cfg))
+            for sink in list(self.sinks):
+                sink(stage, 0, {"loss": 1.0}, {"render": torch.full((4, 5, 3), 0.5)})
+            section = cfg[stage]
+            score = sum(a.meta["score"] for a in upstream.values()) + _number(section)
+            score += 0.01 * cfg["seed"]
+            tensors = {"points": torch.full((10 + len(self.calls), 3), float(score))}
+            return Artifact(stage, tensors, {"score": score, "metrics": {"score": score}})
+
+        return build
+
+
+def validate_config(stage: str, cfg: Mapping[str, Any]) -> None:
+    """The contract's checks on a stage's config: step counts >= 0 and relay.k > 0."""
+    section = cfg[stage]
+    steps = section.get("steps")
+    if steps is not None and (not isinstance(steps, int) or steps < 0):
+        raise InputError(f"{stage}.steps: expected a step count >= 0, got {steps!r}")
+    if stage == "relay" and not (isinstance(section.get("k"), int) and section["k"] > 0):
+        raise InputError(f"relay.k: expected an int >= 1, got {section.get('k')!r}")
+
+
+def evaluate(scene: Any, artifact: Artifact, cfg: dict[str, Any]) -> dict[str, Any]:
+    """Metrics derived from the artifact's score (so variants differ)."""
+    score = float(artifact.meta["score"])
+    return {
+        "psnr": 20.0 + score % 7.0,
+        "ssim": 0.5,
+        "fg_psnr": None,
+        "render_fps": 100.0,
+        "num_gaussians": int(artifact.tensors["points"].shape[0]),
+        "eval_frames": len(range(0, scene.num_frames, cfg["eval"]["frame_stride"])),
+    }
+
+
+def render_model(artifact: Artifact, camera: Any, time: float) -> torch.Tensor:
+    """A grey image at the camera's size."""
+    return torch.full((camera.height, camera.width, 3), time)
+
+
+def compose_config(overrides: list[str], outputs: Path) -> DictConfig:
+    """The app config composed with `overrides`, writing everything under `outputs`."""
+    with initialize_config_dir(config_dir=str(config_dir()), version_base="1.3"):
+        return compose("config", overrides=[*overrides, f"paths.outputs={outputs}"])
+
+
+def _number(section: Mapping[str, Any]) -> float:
+    """A number summarising a section's numeric and boolean values."""
+    total = 0.0
+    for value in section.values():
+        if isinstance(value, bool):
+            total += 0.5 if value else 0.0
+        elif isinstance(value, int | float):
+            total += float(value) / 1000.0
+        elif isinstance(value, Mapping):
+            total += _number(value)
+    return total

@@ -1,0 +1,109 @@
+"""Sweep reports: summary.csv and summary.md rows with Δ vs the reference, Pareto plot, CLI."""
+
+import json
+
+import pandas as pd
+import pytest
+
+from relaygs import report
+from relaygs.app.pareto import pareto_front
+from relaygs.app.summary import summary_table
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def _job(sweep, number, variant, psnr, seconds, **extra):
+    folder = sweep / f"{number}_{variant}"
+    folder.mkdir(parents=True)
+    result = {
+        "experiment": "ablation_k",
+        "variant": variant,
+        "reference_variant": "k16",
+        "job": number,
+        "pipeline": "relaygs",
+        "scene": "juggle",
+        "seed": 0,
+        "psnr": psnr,
+        "ssim": 0.8,
+        "fg_psnr": None,
+        "train_s_total": seconds,
+        "train_s_computed": seconds / 2,
+        "storage_mb": 1.5,
+        "render_fps": 30.0,
+        "num_gaussians": 1000,
+        "cache_hits": 1,
+        "relay.k": int(variant[1:]),
+        **extra,
+    }
+    (folder / "result.json").write_text(json.dumps(result))
+
+
+@pytest.fixture
+def sweep(tmp_path):
+    for number, (variant, psnr, seconds) in enumerate(
+        [("k8", 25.0, 30.0), ("k16", 26.0, 20.0), ("k32", 24.5, 10.0), ("k64", 23.0, 12.0)]
+    ):
+        _job(tmp_path, number, variant, psnr, seconds)
+    return tmp_path
+
+
+def test_reports_have_one_row_per_job_with_delta_vs_reference(sweep):
+    files = report.write_reports(sweep)
+    table = pd.read_csv(files.csv)
+    assert list(table.variant) == ["k8", "k16", "k32", "k64"]
+    assert list(table.delta_psnr) == pytest.approx([-1.0, 0.0, -1.5, -3.0])
+    assert list(table.columns[:6]) == ["job", "variant", "pipeline", "scene", "seed", "psnr"]
+    assert "relay.k" in table.columns
+    markdown = files.markdown.read_text()
+    assert markdown.startswith("# ablation_k on juggle")
+    assert "| k32 | 24.50 | -1.50 | n/a | 0.8000 |" in markdown
+    assert markdown.count("\n| k") == 4
+    assert files.pareto.read_bytes().startswith(PNG_SIGNATURE)
+
+
+def test_delta_compares_against_the_reference_with_the_same_seed(tmp_path):
+    _job(tmp_path, 0, "k16", 26.0, 20.0, seed=0)
+    _job(tmp_path, 1, "k16", 28.0, 20.0, seed=1)
+    _job(tmp_path, 2, "k8", 27.0, 10.0, seed=1)
+    _job(tmp_path, 3, "k32", 27.0, 10.0, seed=2)  # no reference with seed 2: mean of all
+    table = summary_table(report.collect_results(tmp_path))
+    assert list(table.delta_psnr) == pytest.approx([0.0, 0.0, -1.0, 0.0])
+
+
+def test_without_a_reference_variant_job_zero_is_the_reference(tmp_path):
+    _job(tmp_path, 0, "k8", 25.0, 30.0, reference_variant=None)
+    _job(tmp_path, 1, "k16", 26.5, 30.0, reference_variant=None)
+    table = summary_table(report.collect_results(tmp_path))
+    assert list(table.delta_psnr) == pytest.approx([0.0, 1.5])
+
+
+@pytest.mark.parametrize(
+    ("times", "scores", "front"),
+    [
+        ([30, 20, 10, 12], [25, 26, 24.5, 23], [2, 1]),
+        ([1, 2, 3], [1, 2, 3], [0, 1, 2]),
+        ([1, 1, 2], [5, 6, 6], [1]),
+        ([5], [1], [0]),
+    ],
+)
+def test_pareto_front_keeps_only_undominated_jobs(times, scores, front):
+    assert pareto_front(times, scores) == front
+
+
+def test_cli_regenerates_and_fails_in_one_line_without_results(sweep, tmp_path, capsys):
+    (sweep / "summary.md").write_text("stale")
+    assert report.main([str(sweep)]) == 0
+    assert (sweep / "summary.md").read_text().startswith("# ablation_k")
+    assert str(sweep / "pareto.png") in capsys.readouterr().out
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert report.main([str(empty)]) == 1
+    assert report.main([str(tmp_path / "missing")]) == 1
+    errors = capsys.readouterr().err.strip().splitlines()
+    assert len(errors) == 2 and all(line.startswith("error: ") for line in errors)
+
+
+def test_a_damaged_result_is_named(sweep, capsys):
+    (sweep / "0_k8" / "result.json").write_text("{not json")
+    assert report.main([str(sweep)]) == 1
+    assert "0_k8/result.json" in capsys.readouterr().err

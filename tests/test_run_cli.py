@@ -1,0 +1,127 @@
+"""`python -m relaygs.run`: one-line errors before any work, and the Hydra wiring (run dirs,
+multirun, the sweep-summary callback) driven in-process on fake stages."""
+
+import functools
+import json
+import subprocess
+import sys
+
+import pandas as pd
+import pytest
+
+from fake_stages import TINY_SCENE, FakeStages
+from relaygs import run as run_module
+from relaygs.app.prelaunch import is_installed
+from relaygs.app.task import run_task
+
+
+@pytest.fixture
+def fakes(monkeypatch, tmp_path):
+    """Fake stages behind `relaygs.run`, launched from an empty temp folder."""
+    fakes = FakeStages()
+    monkeypatch.setattr(run_module, "load_stage_suite", fakes.suite)
+    monkeypatch.setattr(run_module, "run_task", functools.partial(run_task, suite=fakes.suite()))
+    monkeypatch.chdir(tmp_path)
+    return fakes
+
+
+def _main(args):
+    """Run the app in-process; returns (exit status, stderr lines are checked by callers)."""
+    try:
+        return run_module.main(args)
+    except SystemExit as stop:
+        return stop.code
+
+
+@pytest.mark.parametrize(
+    ("args", "fragment"),
+    [
+        (["+experiment=nope"], "unknown experiment 'nope' (available: ablation_components,"),
+        (["pipeline=nope"], "unknown pipeline 'nope' (available: 4dgs, no_copies,"),
+        (["scene=mars"], "unknown scene 'mars' (available: court, juggle, static); or set"),
+        (["experiment=smoke"], "write +experiment=smoke"),
+        (["relay.k=0"], "relay.k"),
+        (["relay.k=-3"], "relay.k"),
+        (["decouple.steps=-5"], "decouple.steps"),
+        (["scene.path=/no/such/capture"], "scene.path: folder does not exist: /no/such/capture"),
+        (["-m", "relay.k=16,0"], "job relay.k=0: relay.k"),
+        (["+experiment=ablation_k", "relay.k=0"], "relay.k"),
+        (["+experiment=budget", "budget.multiplier=0.5,-1"], "budget.multiplier"),
+        (["relay.k=8,16"], "add --multirun"),
+        (["relay.kk=3"], "relay.kk"),
+        (["hydra/launcher=nope"], "unknown hydra/launcher 'nope'"),
+        (["relay.k=[1,"], "cannot parse overrides"),
+    ],
+)
+def test_bad_input_is_one_line_before_any_work(fakes, tmp_path, capsys, args, fragment):
+    assert _main(args) == 1
+    captured = capsys.readouterr()
+    lines = captured.err.strip().splitlines()
+    assert len(lines) == 1, captured.err
+    assert lines[0].startswith("error: ") and fragment in lines[0]
+    assert fakes.calls == []
+    assert list(tmp_path.iterdir()) == []  # no run dir, no store, no scene
+
+
+@pytest.mark.skipif(
+    is_installed("hydra_plugins.hydra_joblib_launcher"),
+    reason="the joblib launcher plugin is installed",
+)
+def test_a_launcher_whose_plugin_is_missing_names_the_package(fakes, capsys):
+    assert _main(["hydra/launcher=joblib", "-m", "relay.k=8,16"]) == 1
+    assert "pip install hydra-joblib-launcher" in capsys.readouterr().err
+
+
+def test_a_single_run_writes_its_result_in_a_run_dir_under_outputs(fakes, tmp_path):
+    assert _main(["budget=smoke", *TINY_SCENE, "seed=3"]) == 0
+    (result_path,) = tmp_path.glob("outputs/runs/*/result.json")
+    result = json.loads(result_path.read_text())
+    assert result["seed"] == 3 and result["job"] is None
+    assert result["scene.frames"] == 3  # every override is recorded by its dotted key
+    assert (result_path.parent / "tb").is_dir()
+    assert (tmp_path / "outputs" / "artifacts" / "deform").is_dir()
+    assert len(list((tmp_path / "outputs" / "scenes").glob("juggle-*"))) == 1
+
+
+def test_ablation_k_sweep_shares_decouple_and_writes_the_summary(fakes, tmp_path):
+    assert _main(["+experiment=ablation_k", "budget=smoke", *TINY_SCENE]) == 0
+    (sweep,) = tmp_path.glob("outputs/sweeps/*")
+    table = pd.read_csv(sweep / "summary.csv")
+    assert list(table.variant) == ["k8", "k16", "k32", "k64", "k128"]
+    assert list(table["relay.k"]) == [8, 16, 32, 64, 128]
+    assert table.loc[table.variant == "k16", "delta_psnr"].item() == 0.0
+    assert fakes.ran("decouple") == 1 and fakes.ran("relay") == 5
+    assert list(table.cache_hits) == [0, 1, 1, 1, 1]
+    assert sorted(p.name for p in sweep.iterdir() if p.is_dir())[:2] == ["0_k8", "1_k16"]
+    assert (sweep / "summary.md").is_file() and (sweep / "pareto.png").is_file()
+
+
+def test_components_sweep_builds_each_distinct_upstream_once(fakes, tmp_path):
+    assert _main(["+experiment=ablation_components", "budget=smoke", *TINY_SCENE]) == 0
+    (sweep,) = tmp_path.glob("outputs/sweeps/*")
+    table = pd.read_csv(sweep / "summary.csv")
+    assert list(table.variant) == [
+        "full",
+        "no_copies",
+        "no_stage2",
+        "no_pseudo_views",
+        "no_isolation",
+        "no_gamma",
+    ]
+    assert list(table.pipeline) == ["relaygs", "no_copies", "no_stage2", *["relaygs"] * 3]
+    built = {stage: fakes.ran(stage) for stage in ("decouple", "relay", "replicate", "deform")}
+    assert built == {"decouple": 1, "relay": 2, "replicate": 1, "deform": 6}
+
+
+def test_the_command_line_fails_in_one_line_in_a_fresh_process(tmp_path):
+    done = subprocess.run(
+        [sys.executable, "-m", "relaygs.run", "pipeline=nope"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode == 1
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and "unknown pipeline 'nope'" in lines[0], done.stderr
+    assert list(tmp_path.iterdir()) == []

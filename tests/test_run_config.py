@@ -1,0 +1,160 @@
+"""The config tree: defaults, groups, experiments, budgets and launchers compose as documented."""
+
+import pytest
+from hydra import compose, initialize_config_dir
+from hydra.types import RunMode
+from omegaconf import OmegaConf
+
+from relaygs import paths
+from relaygs.stages import BUDGETS, CONFIGS, EvalSettings, TrainSettings
+from relaygs.stages.config import json_ready
+
+EXPERIMENTS = ("ablation_k", "ablation_components", "baseline", "budget", "smoke")
+SWEEPS = {
+    "ablation_k": {"relay.k": "8,16,32,64,128"},
+    "ablation_components": {
+        "+component": "full,no_copies,no_stage2,no_pseudo_views,no_isolation,no_gamma"
+    },
+    "baseline": {"pipeline": "relaygs,4dgs"},
+    "budget": {"pipeline": "relaygs,4dgs", "budget.multiplier": "0.25,0.5,1.0,2.0"},
+}
+
+
+@pytest.fixture(scope="module")
+def composer():
+    """compose(overrides, with_hydra=False) on the repository's conf/ (initialised once)."""
+    with initialize_config_dir(config_dir=str(paths.config_dir()), version_base="1.3"):
+        yield lambda overrides=(), with_hydra=False: compose(
+            "config", overrides=list(overrides), return_hydra_config=with_hydra
+        )
+
+
+def test_config_dir_is_the_repository_conf_in_an_editable_install():
+    assert paths.config_dir() == paths.REPO_ROOT / "conf"
+    assert (paths.config_dir() / "config.yaml").is_file()
+
+
+def test_defaults_are_the_main_job(composer):
+    cfg = composer()
+    assert cfg.pipeline.name == "relaygs"
+    assert (cfg.scene.preset, cfg.scene.width, cfg.scene.height, cfg.scene.frames) == (
+        "juggle",
+        160,
+        90,
+        64,
+    )
+    assert cfg.budget.name == "small" and cfg.budget.multiplier == 1.0
+    assert cfg.relay.k == 16 and cfg.relay.pseudo_views is True
+    assert cfg.deform.gamma is True and cfg.deform.isolate_fg_bg is True
+    assert cfg.seed == 0 and cfg.artifacts.on_corrupt == "rebuild"
+    assert cfg.artifacts.root == "outputs/artifacts"
+
+
+def test_run_and_sweep_dirs_are_unique_to_the_microsecond_and_avoid_runtime_cwd(composer):
+    hydra_cfg = OmegaConf.to_container(composer(with_hydra=True).hydra, resolve=False)
+    for key in ("run", "sweep"):
+        assert "%f" in hydra_cfg[key]["dir"]
+        assert "runtime.cwd" not in str(hydra_cfg[key])
+    assert "SweepSummary" in hydra_cfg["callbacks"]["sweep_summary"]["_target_"]
+
+
+def test_paper_budget_has_the_papers_step_counts(composer):
+    cfg = composer(["budget=paper"])
+    assert (cfg.decouple.steps, cfg.relay.steps, cfg.deform.steps) == (3000, 14000, 20000)
+
+
+def test_budgets_order_by_cost(composer):
+    steps = {
+        name: [composer([f"budget={name}"])[stage].steps for stage in ("decouple", "deform")]
+        for name in ("smoke", "small", "paper")
+    }
+    assert all(
+        a < b < c for a, b, c in zip(steps["smoke"], steps["small"], steps["paper"], strict=True)
+    )
+
+
+@pytest.mark.parametrize("name", EXPERIMENTS)
+def test_every_experiment_composes_with_smoke_budget_and_another_scene(composer, name):
+    cfg = composer([f"+experiment={name}", "budget=smoke", "scene=court"], with_hydra=True)
+    assert cfg.budget.name == "smoke"
+    assert cfg.scene.preset == "court"
+    assert cfg.experiment_name == name
+    if name in SWEEPS:
+        assert cfg.hydra.mode == RunMode.MULTIRUN
+        assert dict(cfg.hydra.sweeper.params) == SWEEPS[name]
+    else:
+        assert cfg.hydra.mode != RunMode.MULTIRUN
+
+
+def test_smoke_experiment_is_a_tiny_scene_at_smoke_budget(composer):
+    cfg = composer(["+experiment=smoke"])
+    assert cfg.budget.name == "smoke"
+    assert cfg.scene.width * cfg.scene.height * cfg.scene.frames <= 48 * 27 * 8
+
+
+@pytest.mark.parametrize(
+    ("component", "changes"),
+    [
+        ("full", {}),
+        ("no_copies", {"pipeline.name": "no_copies"}),
+        ("no_stage2", {"pipeline.name": "no_stage2"}),
+        ("no_pseudo_views", {"relay.pseudo_views": False}),
+        ("no_isolation", {"deform.isolate_fg_bg": False}),
+        ("no_gamma", {"deform.gamma": False}),
+    ],
+)
+def test_components_change_exactly_their_setting(composer, component, changes):
+    cfg = composer(["+experiment=ablation_components", f"+component={component}"])
+    default = composer()
+    assert cfg.variant == component
+    keys = ("pipeline.name", "relay.pseudo_views", "deform.isolate_fg_bg", "deform.gamma")
+    changed = {
+        key: OmegaConf.select(cfg, key)
+        for key in keys
+        if OmegaConf.select(cfg, key) != OmegaConf.select(default, key)
+    }
+    assert changed == changes
+
+
+def test_variant_labels_follow_the_swept_values(composer):
+    assert composer(["+experiment=ablation_k", "relay.k=32"]).variant == "k32"
+    cfg = composer(["+experiment=budget", "pipeline=4dgs", "budget.multiplier=0.5"])
+    assert cfg.variant == "4dgs_x0.5"
+    assert composer(["+experiment=baseline", "pipeline=4dgs"]).variant == "4dgs"
+
+
+@pytest.mark.parametrize(
+    ("launcher", "target", "field"),
+    [
+        ("submitit_slurm", "hydra_submitit_launcher.submitit_launcher.SlurmLauncher", "partition"),
+        ("joblib", "hydra_joblib_launcher.joblib_launcher.JoblibLauncher", "n_jobs"),
+    ],
+)
+def test_launcher_configs_compose(composer, launcher, target, field):
+    cfg = composer([f"hydra/launcher={launcher}", "+experiment=ablation_k"], with_hydra=True)
+    assert cfg.hydra.launcher._target_.endswith(target)
+    assert field in cfg.hydra.launcher
+    assert cfg.hydra.sweeper.params["relay.k"] == "8,16,32,64,128"
+
+
+def test_replicate_uses_the_relay_segment_length(composer):
+    assert composer(["relay.k=8"]).replicate.k == 8
+
+
+def _defaults(settings_class):
+    return json_ready(settings_class())
+
+
+def test_stage_groups_hold_exactly_the_stage_defaults(composer):
+    cfg = OmegaConf.to_container(composer(["budget=paper"]), resolve=True)
+    for stage, settings_class in CONFIGS.items():
+        assert cfg[stage] == _defaults(settings_class), stage
+    assert cfg["train"] == _defaults(TrainSettings)
+    assert cfg["eval"] == _defaults(EvalSettings)
+
+
+@pytest.mark.parametrize("budget", ["paper", "small", "smoke"])
+def test_budget_files_set_the_stages_budgets(composer, budget):
+    cfg = OmegaConf.to_container(composer([f"budget={budget}"]), resolve=True)
+    for section, values in BUDGETS[budget].items():
+        assert {key: cfg[section][key] for key in values} == values, section

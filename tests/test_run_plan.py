@@ -1,0 +1,144 @@
+"""Run plans: per-node stage configs (overrides, budget scaling), artifact-key sharing, and
+pipeline files' per-node `overrides`."""
+
+import copy
+
+import pytest
+from omegaconf import OmegaConf
+
+from fake_stages import STAGE_TYPES, compose_config, validate_config
+from relaygs.app.plan import merge_overrides, plan_run, scale_steps
+from relaygs.errors import InputError
+from relaygs.pipeline import artifact_key, key_config, load_pipeline
+
+
+@pytest.fixture(scope="module")
+def config(tmp_path_factory):
+    cfg = compose_config([], tmp_path_factory.mktemp("outputs"))
+    return OmegaConf.to_container(cfg, resolve=True)
+
+
+def _plan(config, **changes):
+    config = copy.deepcopy(config)
+    for dotted, value in changes.items():
+        section, key = dotted.split("__")
+        config[section][key] = value
+    return plan_run(config, STAGE_TYPES, validate_config)
+
+
+def _keys(plan):
+    """Each node's artifact key, chained through its upstreams as the runner does."""
+    keys = {}
+    for node in plan.pipeline.topological_order():
+        cfg = key_config(plan.config_for(node))
+        upstream = [keys[name] for name in node.upstream]
+        keys[node.name] = artifact_key(node.stage, 1, cfg, "scene", upstream)
+    return keys
+
+
+def test_stage_configs_hold_only_seed_train_and_the_stage_section(config):
+    plan = _plan(config)
+    for node in plan.pipeline.nodes.values():
+        stage_cfg = plan.config_for(node)
+        assert set(stage_cfg) == {"seed", "train", node.stage}
+        assert stage_cfg[node.stage] == config[node.stage]
+
+
+def test_k_changes_relay_and_deform_keys_but_not_decouple(config):
+    k8, k32 = _keys(_plan(config, relay__k=8)), _keys(_plan(config, relay__k=32))
+    assert k8["decouple"] == k32["decouple"]
+    assert k8["relay"] != k32["relay"] and k8["deform"] != k32["deform"]
+
+
+def test_deform_only_settings_share_decouple_and_relay(config):
+    full, no_gamma = _keys(_plan(config)), _keys(_plan(config, deform__gamma=False))
+    assert (full["decouple"], full["relay"]) == (no_gamma["decouple"], no_gamma["relay"])
+    assert full["deform"] != no_gamma["deform"]
+
+
+def test_checkpoint_interval_does_not_change_any_key(config):
+    assert _keys(_plan(config)) == _keys(_plan(config, train__checkpoint_every=7))
+
+
+def test_pipeline_overrides_pin_the_4dgs_deform_settings(config):
+    plan = _plan(config, pipeline__name="4dgs", deform__gamma=True)
+    deform = plan.config_for(plan.pipeline.nodes["deform"])["deform"]
+    assert (deform["gamma"], deform["isolate_fg_bg"]) == (False, False)
+    assert config["deform"]["gamma"] is True  # the input is not modified
+
+
+def test_budget_multiplier_scales_steps_of_every_node(config):
+    plan = _plan(config, budget__multiplier=0.25)
+    for node in plan.pipeline.nodes.values():
+        steps = config[node.stage]["steps"]
+        assert plan.config_for(node)[node.stage]["steps"] == max(1, round(steps * 0.25))
+
+
+def test_scale_steps_scales_named_counts_at_any_depth_and_keeps_them_positive():
+    section = {"steps": 3, "densify": {"until": 100, "every": 0}, "k": 16, "flag": True}
+    assert scale_steps(section, 0.1, ["steps", "until", "every", "flag"]) == {
+        "steps": 1,
+        "densify": {"until": 10, "every": 0},
+        "k": 16,
+        "flag": True,
+    }
+    assert scale_steps({"steps": 0}, 2.0, ["steps"]) == {"steps": 0}
+    assert scale_steps({"steps": -4}, 2.0, ["steps"]) == {"steps": -4}
+
+
+def test_merge_overrides_is_deep_and_rejects_unknown_settings():
+    section = {"a": 1, "nested": {"x": 1, "y": 2}}
+    merged = merge_overrides(section, {"nested": {"y": 5}}, "p.yaml: node 'n' overrides")
+    assert merged == {"a": 1, "nested": {"x": 1, "y": 5}}
+    assert section["nested"]["y"] == 2
+    with pytest.raises(InputError, match=r"p.yaml: node 'n' overrides.nested: unknown setting 'z'"):
+        merge_overrides(section, {"nested": {"z": 0}}, "p.yaml: node 'n' overrides")
+
+
+@pytest.mark.parametrize(
+    ("changes", "fragment"),
+    [
+        ({"budget__multiplier": 0}, "budget.multiplier"),
+        ({"budget__multiplier": float("nan")}, "budget.multiplier"),
+        ({"relay__k": -2}, "relay.k"),
+        ({"deform__steps": -1}, "deform.steps"),
+        ({"warmup__steps": -1, "pipeline__name": "4dgs"}, "warmup.steps"),
+        ({"scene__preset": "mars"}, "scene.preset: unknown synthetic preset 'mars'"),
+        ({"scene__width": 0}, "scene.width"),
+        ({"scene__effects": ["wind"]}, "scene.effects: unknown effect 'wind'"),
+        ({"scene__loader": {"zoom": 2}}, r"scene.loader: unknown option\(s\) \['zoom'\]"),
+    ],
+)
+def test_bad_values_are_one_line_errors_naming_the_field(config, changes, fragment):
+    with pytest.raises(InputError, match=fragment) as caught:
+        _plan(config, **changes)
+    assert "\n" not in str(caught.value)
+
+
+def test_unused_stage_sections_are_not_validated(config):
+    plan = _plan(config, warmup__steps=-1)  # the relaygs pipeline has no warm-up
+    assert "warmup" not in {node.stage for node in plan.pipeline.nodes.values()}
+
+
+def test_pipeline_files_parse_per_node_overrides(tmp_path):
+    path = tmp_path / "p.yaml"
+    path.write_text(
+        "nodes:\n"
+        "  a: {stage: decouple}\n"
+        "  b: {stage: deform, upstream: [a], overrides: {gamma: false, lr: {init: 2}}}\n"
+    )
+    pipeline = load_pipeline(path)
+    assert pipeline.nodes["a"].overrides == {}
+    assert pipeline.nodes["b"].overrides == {"gamma": False, "lr": {"init": 2}}
+    assert load_pipeline("4dgs").nodes["deform"].overrides == {
+        "isolate_fg_bg": False,
+        "gamma": False,
+    }
+
+
+@pytest.mark.parametrize("value", ["[1, 2]", "7", "{1: x}"])
+def test_pipeline_overrides_must_be_a_mapping_of_names(tmp_path, value):
+    path = tmp_path / "p.yaml"
+    path.write_text(f"nodes:\n  a: {{stage: decouple, overrides: {value}}}\n")
+    with pytest.raises(InputError, match="'overrides' must be a mapping of setting names"):
+        load_pipeline(path)

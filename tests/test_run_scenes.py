@@ -1,0 +1,80 @@
+"""Scene resolution: synthetic scenes are generated once into a parameter-hashed cache folder
+(parallel jobs included); capture folders are checked before any work."""
+
+import threading
+import time
+
+import pytest
+
+from relaygs.app import scenes
+from relaygs.app.scenes import prepare_scene, scene_spec, synthetic_folder
+from relaygs.errors import InputError
+
+TINY = {
+    "name": "juggle",
+    "preset": "juggle",
+    "path": None,
+    "frames": 2,
+    "width": 16,
+    "height": 9,
+    "seed": 0,
+    "effects": None,
+    "loader": {},
+}
+
+
+def test_cache_folder_depends_on_every_generation_parameter(tmp_path):
+    base = synthetic_folder(scene_spec(TINY), tmp_path)
+    assert base.parent == tmp_path and base.name.startswith("juggle-")
+    assert synthetic_folder(scene_spec(dict(TINY)), tmp_path) == base
+    for change in ({"frames": 3}, {"width": 17}, {"seed": 1}, {"effects": ["sensor_noise"]}):
+        assert synthetic_folder(scene_spec({**TINY, **change}), tmp_path) != base
+    renamed = synthetic_folder(scene_spec({**TINY, "name": "label"}), tmp_path)
+    assert renamed == base  # the label is not a generation parameter
+
+
+def test_a_synthetic_scene_is_generated_once_and_then_loaded(tmp_path, monkeypatch):
+    calls = []
+    real_generate = scenes.generate
+
+    def counting_generate(*args, **kwargs):
+        calls.append(args)
+        time.sleep(0.2)  # give the other thread time to reach the lock
+        return real_generate(*args, **kwargs)
+
+    monkeypatch.setattr(scenes, "generate", counting_generate)
+    spec = scene_spec(TINY)
+    loaded = []
+    threads = [
+        threading.Thread(target=lambda: loaded.append(prepare_scene(spec, tmp_path)))
+        for _ in range(2)
+    ]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    assert len(calls) == 1
+    assert len(loaded) == 2 and loaded[0].fingerprint == loaded[1].fingerprint
+    assert loaded[0].num_frames == 2
+    prepare_scene(spec, tmp_path)
+    assert len(calls) == 1
+
+
+def test_a_capture_path_is_loaded_in_place(tiny_synth_scene):
+    spec = scene_spec({**TINY, "path": str(tiny_synth_scene), "name": None})
+    assert not spec.is_synthetic and spec.name == tiny_synth_scene.name
+    scene = prepare_scene(spec, tiny_synth_scene.parent / "unused")
+    assert scene.root == tiny_synth_scene
+    assert not (tiny_synth_scene.parent / "unused").exists()
+
+
+def test_capture_paths_must_exist_and_have_a_known_layout(tmp_path):
+    with pytest.raises(InputError, match=r"scene\.path: folder does not exist"):
+        scene_spec({**TINY, "path": str(tmp_path / "missing")})
+    with pytest.raises(InputError, match="unknown scene layout"):
+        scene_spec({**TINY, "path": str(tmp_path)})
+
+
+def test_unknown_scene_fields_are_rejected():
+    with pytest.raises(InputError, match=r"scene: unknown field\(s\) \['colour'\]"):
+        scene_spec({**TINY, "colour": "red"})

@@ -1,0 +1,158 @@
+"""The job function end to end on fake stages: result.json, shared artifacts, TensorBoard."""
+
+import copy
+import json
+
+import pytest
+from omegaconf import OmegaConf
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+from fake_stages import TINY_SCENE, FakeStages, compose_config
+from relaygs.app.result import RESULT_FILE
+from relaygs.app.task import run_task
+from relaygs.errors import InputError
+from relaygs.pipeline import CorruptArtifactError
+
+REQUIRED_FIELDS = {
+    "pipeline",
+    "scene",
+    "seed",
+    "psnr",
+    "ssim",
+    "fg_psnr",
+    "train_s_total",
+    "train_s_computed",
+    "storage_mb",
+    "render_fps",
+    "num_gaussians",
+    "cache_hits",
+}
+
+
+@pytest.fixture(scope="module")
+def base_config(tmp_path_factory):
+    """The default config with a tiny scene and every output under one temp folder."""
+    outputs = tmp_path_factory.mktemp("outputs")
+    cfg = compose_config([*TINY_SCENE, "budget=smoke"], outputs)
+    return OmegaConf.to_container(cfg, resolve=True)
+
+
+def _with(config, **dotted):
+    changed = copy.deepcopy(config)
+    for key, value in dotted.items():
+        *parents, leaf = key.split("__")
+        section = changed
+        for part in parents:
+            section = section[part]
+        section[leaf] = value
+    return changed
+
+
+def _run(config, run_dir, fakes, overrides=()):
+    """Run with a store beside the run dir (runs in one test share it, tests do not)."""
+    config = _with(config, artifacts__root=str(run_dir.parent / "artifacts"))
+    return run_task(
+        config,
+        run_dir=run_dir,
+        original_cwd=run_dir,
+        overrides=list(overrides),
+        suite=fakes.suite(),
+    )
+
+
+def test_a_run_writes_a_flat_result_with_every_required_field(base_config, tmp_path, capsys):
+    fakes = FakeStages()
+    result = _run(base_config, tmp_path / "run", fakes, overrides=["relay.k=8"])
+    written = json.loads((tmp_path / "run" / RESULT_FILE).read_text())
+    assert written == result
+    assert set(written) >= REQUIRED_FIELDS
+    assert all(not isinstance(value, dict | list) for value in written.values())
+    assert (written["pipeline"], written["scene"], written["seed"]) == ("relaygs", "juggle", 0)
+    assert written["relay.k"] == base_config["relay"]["k"]
+    assert written["storage_mb"] > 0
+    assert written["train_s_total"] >= written["train_s_computed"] > 0
+    assert written["eval_frames"] == 2  # smoke evaluates every 2nd of 3 frames
+    out = capsys.readouterr().out
+    assert "PSNR" in out and str(tmp_path / "run" / RESULT_FILE) in out
+
+
+def test_changing_k_reuses_decouple_and_rebuilds_relay_and_deform(base_config, tmp_path, capsys):
+    fakes = FakeStages()
+    first = _run(_with(base_config, relay__k=8), tmp_path / "a", fakes)
+    second = _run(_with(base_config, relay__k=32), tmp_path / "b", fakes)
+    again = _run(_with(base_config, relay__k=32), tmp_path / "c", fakes)
+    assert (fakes.ran("decouple"), fakes.ran("relay"), fakes.ran("deform")) == (1, 2, 2)
+    assert (first["cache_hits"], second["cache_hits"], again["cache_hits"]) == (0, 1, 3)
+    assert again["train_s_computed"] == 0
+    assert again["train_s_total"] == pytest.approx(second["train_s_total"])
+    assert first["psnr"] != second["psnr"]
+    assert "reused decouple artifact" in capsys.readouterr().out
+
+
+def test_stages_receive_only_seed_train_and_their_section_with_overrides(base_config, tmp_path):
+    fakes = FakeStages()
+    config = _with(base_config, pipeline__name="4dgs", deform__steps=7)
+    result = _run(config, tmp_path / "run", fakes, overrides=["pipeline=4dgs", "deform.steps=7"])
+    deform_cfg = dict(fakes.calls)["deform"]
+    assert deform_cfg["deform"]["gamma"] is False
+    assert deform_cfg["deform"]["isolate_fg_bg"] is False
+    assert deform_cfg["deform"]["steps"] == 7
+    assert deform_cfg["train"] == base_config["train"]
+    assert result["pipeline"] == "4dgs"
+    assert result["deform.gamma"] is False  # as the pipeline ran it, not the config default
+    assert result["relay.k"] is None  # 4dgs runs no relay stage
+
+
+def test_budget_multiplier_scales_the_steps_stages_receive(base_config, tmp_path):
+    fakes = FakeStages()
+    config = _with(base_config, budget__multiplier=2.0)
+    _run(config, tmp_path / "run", fakes)
+    steps = {stage: cfg[stage]["steps"] for stage, cfg in fakes.calls}
+    smoke = {stage: base_config[stage]["steps"] for stage in steps}
+    assert steps == {stage: 2 * value for stage, value in smoke.items()}
+
+
+def test_tensorboard_gets_stage_scalars_previews_and_hparams(base_config, tmp_path):
+    fakes = FakeStages()
+    _run(base_config, tmp_path / "run", fakes)
+    assert fakes.sinks == []  # the sink is removed after the run
+    events = EventAccumulator(str(tmp_path / "run" / "tb"), size_guidance={"images": 0})
+    events.Reload()
+    tags = events.Tags()
+    assert {"decouple/loss", "relay/loss", "deform/loss", "result/psnr"} <= set(tags["scalars"])
+    assert "eval/render_vs_truth" in tags["images"]
+    assert "deform/render" in tags["images"]
+    plugins = events.PluginTagToContent("hparams")
+    assert "_hparams_/experiment" in plugins and "_hparams_/session_start_info" in plugins
+
+
+def test_bad_values_fail_before_any_stage_runs(base_config, tmp_path):
+    fakes = FakeStages()
+    for config, fragment in [
+        (_with(base_config, relay__k=0), "relay.k"),
+        (_with(base_config, decouple__steps=-1), "decouple.steps"),
+        (_with(base_config, pipeline__name="nope"), "unknown pipeline 'nope'"),
+        (_with(base_config, scene__path=str(tmp_path / "missing")), "scene.path"),
+        (_with(base_config, seed=-3), "seed"),
+        (_with(base_config, artifacts__on_corrupt="ignore"), "artifacts.on_corrupt"),
+    ]:
+        with pytest.raises(InputError, match=fragment):
+            _run(config, tmp_path / "run", fakes)
+    assert fakes.calls == []
+    assert not (tmp_path / "run").exists()
+
+
+def test_a_corrupted_artifact_is_rebuilt_or_refused(base_config, tmp_path):
+    fakes = FakeStages()
+    _run(base_config, tmp_path / "a", fakes)
+    (tensors,) = (tmp_path / "artifacts" / "decouple").glob("*/tensors.safetensors")
+    data = bytearray(tensors.read_bytes())
+    data[-1] ^= 0xFF
+    tensors.write_bytes(bytes(data))
+    refusing = _with(base_config, artifacts__on_corrupt="error")
+    with pytest.raises(CorruptArtifactError, match="on_corrupt=error") as caught:
+        _run(refusing, tmp_path / "b", fakes)
+    assert "\n" not in str(caught.value)
+    assert fakes.ran("decouple") == 1
+    result = _run(base_config, tmp_path / "c", fakes)
+    assert fakes.ran("decouple") == 2 and result["cache_hits"] == 2

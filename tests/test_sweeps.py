@@ -1,0 +1,144 @@
+"""The five experiments at `budget=smoke` on a tiny scene, end to end with the real stages, as
+a user runs them (one process per command, one shared output folder). Marked `sweep`:
+deselect with `-m "not sweep"`."""
+
+import json
+import math
+import subprocess
+import sys
+import time
+
+import pandas as pd
+import pytest
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+from tensorboard.plugins.hparams import plugin_data_pb2
+
+from relaygs.app.prelaunch import is_installed
+
+pytestmark = pytest.mark.sweep
+
+TINY = ["budget=smoke", "scene.frames=8", "scene.width=48", "scene.height=27"]
+ORDER = ("smoke", "ablation_k", "ablation_components", "baseline", "budget")
+TIME_LIMIT_S = 300.0
+
+
+def _launch(outputs, *args):
+    command = [sys.executable, "-m", "relaygs.run", *args, *TINY, f"paths.outputs={outputs}"]
+    done = subprocess.run(command, capture_output=True, text=True, timeout=TIME_LIMIT_S)
+    assert done.returncode == 0, done.stderr[-3000:]
+    return done
+
+
+def _newest_sweep(outputs):
+    return max((outputs / "sweeps").iterdir(), key=lambda path: path.stat().st_mtime)
+
+
+def _artifact_counts(outputs):
+    root = outputs / "artifacts"
+    return {
+        stage.name: len([key for key in stage.iterdir() if (key / "COMPLETE").is_file()])
+        for stage in root.iterdir()
+        if stage.is_dir() and not stage.name.startswith(".")
+    }
+
+
+@pytest.fixture(scope="module")
+def experiments(tmp_path_factory):
+    """Run the five experiments in order; record each one's sweep folder and store counts."""
+    outputs = tmp_path_factory.mktemp("outputs")
+    runs = {}
+    started = time.perf_counter()
+    for name in ORDER:
+        _launch(outputs, f"+experiment={name}")
+        folder = _newest_sweep(outputs) if name != "smoke" else None
+        runs[name] = {"sweep": folder, "counts": _artifact_counts(outputs)}
+    runs["elapsed_s"] = time.perf_counter() - started
+    runs["outputs"] = outputs
+    return runs
+
+
+def _summary(experiments, name):
+    return pd.read_csv(experiments[name]["sweep"] / "summary.csv")
+
+
+def test_all_five_smoke_experiments_finish_within_five_minutes(experiments):
+    print(f"five smoke experiments: {experiments['elapsed_s']:.1f} s")
+    assert experiments["elapsed_s"] <= TIME_LIMIT_S
+
+
+def test_smoke_is_a_single_run_with_a_result(experiments):
+    (result_path,) = (experiments["outputs"] / "runs").glob("*/result.json")
+    result = json.loads(result_path.read_text())
+    assert result["variant"] == "smoke" and math.isfinite(result["psnr"])
+    assert result["num_gaussians"] > 0 and result["storage_mb"] > 0
+
+
+def test_ablation_k_builds_decouple_once_and_one_relay_per_k(experiments):
+    table = _summary(experiments, "ablation_k")
+    assert list(table.variant) == ["k8", "k16", "k32", "k64", "k128"]
+    assert table.psnr.notna().all()
+    counts = experiments["ablation_k"]["counts"]
+    assert (counts["decouple"], counts["relay"], counts["deform"]) == (1, 5, 5)
+    assert table.loc[table.variant == "k16", "cache_hits"].item() == 3  # the smoke run's
+
+
+def test_components_build_each_distinct_upstream_once(experiments):
+    table = _summary(experiments, "ablation_components")
+    assert list(table.variant) == [
+        "full",
+        "no_copies",
+        "no_stage2",
+        "no_pseudo_views",
+        "no_isolation",
+        "no_gamma",
+    ]
+    before = experiments["ablation_k"]["counts"]
+    after = experiments["ablation_components"]["counts"]
+    new = {stage: after.get(stage, 0) - before.get(stage, 0) for stage in after}
+    assert new == {"decouple": 0, "relay": 1, "replicate": 1, "deform": 5}
+    assert table.loc[table.variant == "full", "delta_psnr"].item() == 0.0
+
+
+def test_baseline_compares_relaygs_with_4dgs_on_the_same_scene_and_seed(experiments):
+    table = _summary(experiments, "baseline")
+    assert list(table.variant) == ["relaygs", "4dgs"]
+    assert table.scene.nunique() == 1 and table.seed.nunique() == 1
+    assert list(table.cache_hits) == [3, 0]
+    assert table["deform.gamma"].tolist() == [True, False]
+
+
+def test_budget_sweeps_both_pipelines_over_the_multipliers(experiments):
+    table = _summary(experiments, "budget")
+    assert len(table) == 8
+    assert sorted(set(table["budget.multiplier"])) == [0.25, 0.5, 1.0, 2.0]
+    assert set(table.pipeline) == {"relaygs", "4dgs"}
+    unscaled = table[table["budget.multiplier"] == 1.0]
+    assert (unscaled.train_s_computed == 0).all()  # built by the baseline sweep already
+    assert (experiments["budget"]["sweep"] / "pareto.png").is_file()
+
+
+def test_every_job_logs_the_same_hparam_keys(experiments):
+    key_sets = []
+    for tb in sorted(experiments["ablation_components"]["sweep"].glob("*/tb")):
+        events = EventAccumulator(str(tb))
+        events.Reload()
+        content = events.PluginTagToContent("hparams")["_hparams_/session_start_info"]
+        key_sets.append(_hparam_keys(content))
+        assert "result/psnr" in events.Tags()["scalars"]
+    assert len(key_sets) == 6 and all(keys == key_sets[0] for keys in key_sets)
+
+
+def _hparam_keys(content: bytes) -> set[str]:
+    data = plugin_data_pb2.HParamsPluginData.FromString(content)
+    return set(data.session_start_info.hparams)
+
+
+@pytest.mark.skipif(
+    not is_installed("hydra_plugins.hydra_joblib_launcher"),
+    reason="hydra-joblib-launcher is not installed",
+)
+def test_parallel_jobs_share_the_store_and_build_decouple_once(tmp_path):
+    _launch(tmp_path, "+experiment=ablation_k", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2")
+    counts = _artifact_counts(tmp_path)
+    assert (counts["decouple"], counts["relay"]) == (1, 5)
+    assert len(pd.read_csv(_newest_sweep(tmp_path) / "summary.csv")) == 5
