@@ -53,7 +53,7 @@ class _Pairs:
     """Per pixel–Gaussian quantities of one group (everything the backward needs)."""
 
     gauss: torch.Tensor  # [G,S,S,L] exp(−power)
-    trans: torch.Tensor  # [G,S,S,L] T before the pair where composited, else 0
+    trans: torch.Tensor  # [G,S,S,L] T before the pair, 0 after the early stop
 
 
 def _gather_rows(table: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
@@ -85,7 +85,7 @@ def _below(value: float, dtype: torch.dtype) -> float:
     return torch.nextafter(v, torch.zeros_like(v) - 1).item()
 
 
-def _pairs(rows: _Rows) -> _Pairs:
+def _pairs(rows: _Rows) -> tuple[_Pairs, torch.Tensor]:
     """Evaluate every Gaussian of the group at every pixel of its tiles, front to back.
 
     Masks are built from threshold/ceil arithmetic instead of boolean tensors: on CPU
@@ -106,21 +106,20 @@ def _pairs(rows: _Rows) -> _Pairs:
     power = F.threshold(power, _below(0.0, dtype), MAX_POWER).clamp_(max=MAX_POWER)
     gauss = power.neg_().exp_()
 
-    opacity = (t[..., _O] * rows.valid)[:, None, None, :]
-    alpha = F.threshold(gauss * opacity, _below(ALPHA_MIN, dtype), 0.0).clamp_(max=ALPHA_MAX)
+    _, alpha = _alpha(rows, gauss)
     one_minus = 1.0 - alpha
-    trans_after = torch.cumprod(one_minus, dim=-1)
-    # Composited: kept (alpha > 0) and T after the pair still >= T_MIN (3DGS early stop).
-    before_stop = F.threshold(trans_after, _below(T_MIN, dtype), 0.0).ceil_()
-    trans = trans_after.div_(one_minus).mul_(before_stop).mul_(alpha.ceil_())
-    return _Pairs(gauss, trans)
+    # T before pair i is T_after[i] / (1 − α_i); zeroing T_after[i] < T_MIN first applies the
+    # early stop. Skipped pairs (α = 0) keep a nonzero trans but carry no weight.
+    trans = F.threshold(torch.cumprod(one_minus, dim=-1), _below(T_MIN, dtype), 0.0)
+    return _Pairs(gauss, trans.div_(one_minus)), alpha
 
 
-def _alpha(rows: _Rows, pairs: _Pairs) -> tuple[torch.Tensor, torch.Tensor]:
-    """Unclamped and clamped alpha [G,S,S,L] from the kept exp(−power)."""
+def _alpha(rows: _Rows, gauss: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """o·exp(−power) and the composited alpha (0 below 1/255, clamped at 0.99) [G,S,S,L]."""
     opacity = (rows.table[..., _O] * rows.valid)[:, None, None, :]
-    alpha_raw = pairs.gauss * opacity
-    return alpha_raw, alpha_raw.clamp(max=ALPHA_MAX)
+    alpha_raw = gauss * opacity
+    alpha = F.threshold(alpha_raw, _below(ALPHA_MIN, alpha_raw.dtype), 0.0)
+    return alpha_raw, alpha.clamp_(max=ALPHA_MAX)
 
 
 def _to_tiles(image: torch.Tensor, bins: TileBins) -> torch.Tensor:
@@ -180,8 +179,7 @@ class CompositeGaussians(torch.autograd.Function):
         coverage = colors.new_zeros(bins.num_tiles, p)
         for tiles in bins.groups:
             rows = _rows(bins, tiles, table)
-            pairs = _pairs(rows)
-            _, alpha = _alpha(rows, pairs)
+            pairs, alpha = _pairs(rows)
             weight = (alpha * pairs.trans).reshape(tiles.numel(), p, -1)
             color_tiles[tiles] = torch.bmm(weight, _gather_rows(flat_colors, rows.gid))
             # Σ α_i T_i telescopes to 1 − T_N over the composited pairs.
@@ -225,8 +223,8 @@ class CompositeGaussians(torch.autograd.Function):
         for index, tiles in enumerate(bins.groups):
             g = tiles.numel()
             rows = _rows(bins, tiles, table)
-            pairs = ctx.saved_pairs[index] if ctx.saved_pairs else _pairs(rows)
-            alpha_raw, alpha = _alpha(rows, pairs)
+            pairs = ctx.saved_pairs[index] if ctx.saved_pairs else _pairs(rows)[0]
+            alpha_raw, alpha = _alpha(rows, pairs.gauss)
             weight = alpha * pairs.trans
             grad_pix = g_tiles.index_select(0, tiles)  # [G,P,D]
             # v_i = g·c_i; suffix_i = Σ_{j>i} v_j w_j along the pixel's list.
@@ -237,9 +235,9 @@ class CompositeGaussians(torch.autograd.Function):
             suffix = vw_cum[..., -1:] - vw_cum
             suffix += k_tiles.index_select(0, tiles).reshape(g, s, s, 1)
             d_alpha = v.mul_(pairs.trans).sub_(suffix.div_(1.0 - alpha))
-            # Only composited pairs (trans > 0) below the 0.99 clamp pass a gradient to α_raw.
+            # Only composited pairs (α > 0, trans > 0) below the 0.99 clamp pass a gradient.
             unclamped = F.threshold(ALPHA_MAX - alpha_raw, 0.0, 0.0).ceil_()
-            d_alpha.mul_(pairs.trans.ceil()).mul_(unclamped)
+            d_alpha.mul_(pairs.trans.ceil()).mul_(unclamped).mul_(alpha.ceil())
             d_opacity = (d_alpha * pairs.gauss).sum(dim=(1, 2))
             # power = ½A dx² + B dx dy + ½C dy² with dx = px − mx; d_power = −dL/dα · o·G.
             d_power = d_alpha.mul_(alpha_raw).neg_()
