@@ -62,13 +62,16 @@ def _run(config, run_dir, fakes, overrides=()):
 
 def test_a_run_writes_a_flat_result_with_every_required_field(base_config, tmp_path, capsys):
     fakes = FakeStages()
-    result = _run(base_config, tmp_path / "run", fakes, overrides=["relay.k=8"])
+    overrides = ["relay.k=8", "+component=full", "paths.outputs=/x", "hydra.verbose=true"]
+    result = _run(base_config, tmp_path / "run", fakes, overrides=overrides)
     written = json.loads((tmp_path / "run" / RESULT_FILE).read_text())
     assert written == result
     assert set(written) >= REQUIRED_FIELDS
     assert all(not isinstance(value, dict | list) for value in written.values())
     assert (written["pipeline"], written["scene"], written["seed"]) == ("relaygs", "juggle", 0)
     assert written["relay.k"] == base_config["relay"]["k"]
+    assert written["component"] == "full"
+    assert not any(key.startswith(("paths", "hydra")) for key in written)
     assert written["storage_mb"] > 0
     assert written["train_s_total"] >= written["train_s_computed"] > 0
     assert written["eval_frames"] == 2  # smoke evaluates every 2nd of 3 frames

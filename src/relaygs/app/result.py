@@ -24,6 +24,9 @@ ALWAYS_RECORDED = (
 )
 """Parameters every result carries (the ablation axes), whether or not a job set them."""
 
+NOT_RECORDED = ("hydra", "paths.", "artifacts.")
+"""Override key prefixes that say where outputs go or how Hydra runs, not what was run."""
+
 Scalar = bool | int | float | str | None
 
 
@@ -59,20 +62,24 @@ def build_result(
     )
     extra = {name: _scalar(value) for name, value in metrics.items() if name not in result}
     result.update({name: value for name, value in extra.items() if value is not None})
-    for key in [*ALWAYS_RECORDED, *override_keys(overrides)]:
+    for key in ALWAYS_RECORDED:
         result.setdefault(key, effective_value(cfg, plan, key))
+    for key, text in recorded_overrides(overrides).items():
+        in_config = key.split(".")[0] in cfg  # `+component=x` selects a group, not a key
+        result.setdefault(key, effective_value(cfg, plan, key) if in_config else text)
     return result
 
 
-def override_keys(overrides: Sequence[str]) -> list[str]:
-    """Dotted keys (or group names) set by overrides like `relay.k=8` or `+component=full`;
-    Hydra's own `hydra.*` settings are left out."""
-    keys = []
+def recorded_overrides(overrides: Sequence[str]) -> dict[str, str]:
+    """{dotted key or group: value text} of overrides like `relay.k=8` or `+component=full`;
+    where things go (`paths.*`, `artifacts.*`) and Hydra's own settings are left out."""
+    recorded = {}
     for override in overrides:
-        key = override.split("=", 1)[0].lstrip("+~")
-        if key and not key.startswith("hydra") and key not in keys:
-            keys.append(key)
-    return keys
+        key, _, text = override.partition("=")
+        key = key.lstrip("+~")
+        if key and not key.startswith(NOT_RECORDED):
+            recorded[key] = text
+    return recorded
 
 
 def effective_value(cfg: Mapping[str, Any], plan: RunPlan, key: str) -> Scalar:

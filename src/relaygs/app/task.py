@@ -29,7 +29,7 @@ from relaygs.app.tensorboard import TensorBoardLog, flatten_config
 from relaygs.pipeline import Artifact, ArtifactStore, NodeReport, PipelineRun, run_pipeline
 
 TENSORBOARD_DIR = "tb"
-HPARAM_EXCLUDED_SECTIONS = ("paths",)
+HPARAM_EXCLUDED_SECTIONS = ("paths", "artifacts")
 """Config sections left out of TensorBoard HParams (where files go, not what was run)."""
 
 
@@ -110,7 +110,11 @@ def _log_previews(
     last = scene.num_frames - 1
     frames = sorted({round(i * last / max(count - 1, 1)) for i in range(count)})
     for frame in frames:
-        view = next(v for v in scene.views_at(frame, "test") if v.camera.camera_id == camera_id)
+        view = next(
+            (v for v in scene.views_at(frame, "test") if v.camera.camera_id == camera_id), None
+        )
+        if view is None:
+            continue
         with torch.no_grad():
             render = suite.render_model(model, view.camera, view.time)
         log.add_comparison("eval/render_vs_truth", render, scene.image(view), frame)
