@@ -56,6 +56,27 @@ class _Pairs:
     trans: torch.Tensor  # [G,S,S,L] T before the pair, 0 after the early stop
 
 
+class _Scratch:
+    """Grow-only flat buffers reused by every tile group of one render.
+
+    Per-group temporaries are a few MB each; taking them from the system allocator on every
+    group costs page faults that dominate cheap elementwise ops on CPU.
+    """
+
+    def __init__(self, like: torch.Tensor) -> None:
+        self._like = like
+        self._buffers: dict[str, torch.Tensor] = {}
+
+    def take(self, name: str, shape: tuple[int, ...]) -> torch.Tensor:
+        """A contiguous [shape] view of buffer `name` (contents undefined)."""
+        size = math.prod(shape)
+        buffer = self._buffers.get(name)
+        if buffer is None or buffer.numel() < size:
+            buffer = self._like.new_empty(size)
+            self._buffers[name] = buffer
+        return buffer[:size].view(shape)
+
+
 def _gather_rows(table: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
     """table[index] for a 2D index, through index_select (much cheaper than advanced indexing)."""
     return table.index_select(0, index.reshape(-1)).view(*index.shape, *table.shape[1:])
@@ -85,14 +106,16 @@ def _below(value: float, dtype: torch.dtype) -> float:
     return torch.nextafter(v, torch.zeros_like(v) - 1).item()
 
 
-def _pairs(rows: _Rows) -> tuple[_Pairs, torch.Tensor]:
+def _pairs(rows: _Rows, scratch: _Scratch, keep: bool) -> tuple[_Pairs, torch.Tensor]:
     """Evaluate every Gaussian of the group at every pixel of its tiles, front to back.
 
+    Returns the pair state (fresh tensors when `keep`, else scratch views) and alpha (scratch).
     Masks are built from threshold/ceil arithmetic instead of boolean tensors: on CPU
     comparisons and `where` cost several times a multiply per element.
     """
     t = rows.table
     dtype = t.dtype
+    shape = (rows.dy.shape[0], rows.dy.shape[1], rows.dx.shape[2], rows.dx.shape[3])
     in_x = (rows.cols >= t[:, None, :, _X0]) & (rows.cols <= t[:, None, :, _X1])  # [G,S,L]
     in_y = (rows.lines >= t[:, None, :, _Y0]) & (rows.lines <= t[:, None, :, _Y1])
     ex = torch.where(
@@ -101,25 +124,82 @@ def _pairs(rows: _Rows) -> tuple[_Pairs, torch.Tensor]:
     ey = torch.where(
         in_y[:, :, None], 0.5 * t[:, None, None, :, _C] * rows.dy * rows.dy, OUTSIDE_POWER
     )
-    power = torch.addcmul(ex + ey, t[:, None, None, :, _B] * rows.dx, rows.dy)
+    power = torch.add(ex, ey, out=scratch.take("power", shape))
+    power.addcmul_(t[:, None, None, :, _B] * rows.dx, rows.dy)
     # 3DGS skips power < 0 (rounding): such pairs get MAX_POWER, whose alpha is < 1/255.
-    power = F.threshold(power, _below(0.0, dtype), MAX_POWER).clamp_(max=MAX_POWER)
-    gauss = power.neg_().exp_()
+    F.threshold_(power, _below(0.0, dtype), MAX_POWER).clamp_(max=MAX_POWER).neg_()
+    gauss = torch.exp(power, out=t.new_empty(shape) if keep else scratch.take("gauss", shape))
 
-    _, alpha = _alpha(rows, gauss)
-    one_minus = 1.0 - alpha
+    _, alpha = _alpha(rows, gauss, scratch)
+    one_minus = torch.neg(alpha, out=power).add_(1.0)
     # T before pair i is T_after[i] / (1 − α_i); zeroing T_after[i] < T_MIN first applies the
     # early stop. Skipped pairs (α = 0) keep a nonzero trans but carry no weight.
-    trans = F.threshold(torch.cumprod(one_minus, dim=-1), _below(T_MIN, dtype), 0.0)
-    return _Pairs(gauss, trans.div_(one_minus)), alpha
+    trans = torch.cumprod(
+        one_minus,
+        dim=-1,
+        out=t.new_empty(shape) if keep else scratch.take("trans", shape),
+    )
+    F.threshold_(trans, _below(T_MIN, dtype), 0.0).div_(one_minus)
+    return _Pairs(gauss, trans), alpha
 
 
-def _alpha(rows: _Rows, gauss: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """o·exp(−power) and the composited alpha (0 below 1/255, clamped at 0.99) [G,S,S,L]."""
+def _alpha(
+    rows: _Rows, gauss: torch.Tensor, scratch: _Scratch
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """o·exp(−power) and the composited alpha (0 below 1/255, clamped at 0.99), as scratch."""
     opacity = (rows.table[..., _O] * rows.valid)[:, None, None, :]
-    alpha_raw = gauss * opacity
-    alpha = F.threshold(alpha_raw, _below(ALPHA_MIN, alpha_raw.dtype), 0.0)
-    return alpha_raw, alpha.clamp_(max=ALPHA_MAX)
+    alpha_raw = torch.mul(gauss, opacity, out=scratch.take("alpha_raw", gauss.shape))
+    alpha = scratch.take("alpha", gauss.shape).copy_(alpha_raw)
+    F.threshold_(alpha, _below(ALPHA_MIN, alpha.dtype), 0.0).clamp_(max=ALPHA_MAX)
+    return alpha_raw, alpha
+
+
+def _group_gradients(
+    rows: _Rows,
+    pairs: _Pairs,
+    colors: torch.Tensor,
+    grad_pix: torch.Tensor,
+    k_pix: torch.Tensor,
+    scratch: _Scratch,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Per-row gradients [G,L,6] (mean x/y, conic A/B/C, opacity) and of colours [G,L,D].
+
+    colors [G,L,D] of the rows, grad_pix [G,P,D] and k_pix [G,S,S,1] of the group's pixels.
+    """
+    shape = pairs.gauss.shape
+    g, p = grad_pix.shape[:2]
+    alpha_raw, alpha = _alpha(rows, pairs.gauss, scratch)
+    weight = torch.mul(alpha, pairs.trans, out=scratch.take("weight", shape))
+    # v_i = g·c_i; suffix_i = Σ_{j>i} v_j w_j along the pixel's list.
+    v = torch.bmm(grad_pix, colors.transpose(1, 2), out=scratch.take("v", (g, p, shape[-1])))
+    v = v.view(shape)
+    prod = torch.mul(v, weight, out=scratch.take("prod", shape))
+    cum = torch.cumsum(prod, dim=-1, out=scratch.take("cum", shape))
+    suffix = torch.sub(cum[..., -1:], cum, out=prod).add_(k_pix)
+    denom = torch.neg(alpha, out=cum).add_(1.0)
+    d_alpha = v.mul_(pairs.trans).sub_(suffix.div_(denom))
+    # Only composited pairs (α > 0, trans > 0) below the 0.99 clamp pass a gradient.
+    mask = torch.neg(alpha_raw, out=denom).add_(ALPHA_MAX)
+    d_alpha.mul_(F.threshold_(mask, 0.0, 0.0).ceil_())
+    d_alpha.mul_(torch.ceil(pairs.trans, out=mask)).mul_(torch.ceil(alpha, out=mask))
+    d_opacity = torch.mul(d_alpha, pairs.gauss, out=prod).sum(dim=(1, 2))
+    # power = ½A dx² + B dx dy + ½C dy² with dx = px − mx; d_power = −dL/dα · o·G.
+    d_power = d_alpha.mul_(alpha_raw).neg_()
+    gx = d_power.sum(dim=1, keepdim=True)  # [G,1,S,L]
+    gy = d_power.sum(dim=2, keepdim=True)  # [G,S,1,L]
+    gxy = torch.mul(d_power, rows.dy, out=prod).sum(dim=1, keepdim=True)
+    s_xx = (gx * rows.dx * rows.dx).sum(dim=(1, 2))
+    s_yy = (gy * rows.dy * rows.dy).sum(dim=(1, 2))
+    s_xy = (gxy * rows.dx).sum(dim=(1, 2))
+    s_x = (gx * rows.dx).sum(dim=(1, 2))
+    s_y = (gy * rows.dy).sum(dim=(1, 2))
+    a, b, c = rows.table[..., _A], rows.table[..., _B], rows.table[..., _C]
+    grads = torch.stack(
+        [-(a * s_x + b * s_y), -(b * s_x + c * s_y), 0.5 * s_xx, s_xy, 0.5 * s_yy, d_opacity],
+        dim=-1,
+    )
+    d_cols = torch.bmm(weight.view(g, p, -1).transpose(1, 2), grad_pix)
+    return grads, d_cols
 
 
 def _to_tiles(image: torch.Tensor, bins: TileBins) -> torch.Tensor:
@@ -175,12 +255,13 @@ class CompositeGaussians(torch.autograd.Function):
             _candidates(bins) * 2 * table.element_size() <= SAVE_BUDGET_BYTES
         )
         saved = []
+        scratch = _Scratch(table)
         color_tiles = colors.new_zeros(bins.num_tiles, p, d)
         coverage = colors.new_zeros(bins.num_tiles, p)
         for tiles in bins.groups:
             rows = _rows(bins, tiles, table)
-            pairs, alpha = _pairs(rows)
-            weight = (alpha * pairs.trans).reshape(tiles.numel(), p, -1)
+            pairs, alpha = _pairs(rows, scratch, keep_pairs)
+            weight = alpha.mul_(pairs.trans).view(tiles.numel(), p, -1)
             color_tiles[tiles] = torch.bmm(weight, _gather_rows(flat_colors, rows.gid))
             # Σ α_i T_i telescopes to 1 − T_N over the composited pairs.
             coverage[tiles] = weight.sum(-1)
@@ -201,7 +282,6 @@ class CompositeGaussians(torch.autograd.Function):
         means2d, conics, opacities, colors, backgrounds, bounds, t_final = ctx.saved_tensors
         bins: TileBins = ctx.bins
         c, n, d = colors.shape
-        p = bins.tile_size**2
         s = bins.tile_size
         table = _pack(means2d, conics, opacities, bounds)
         flat_colors = colors.reshape(c * n, d)
@@ -220,48 +300,18 @@ class CompositeGaussians(torch.autograd.Function):
         # Per-Gaussian gradient table: mean x/y, conic A/B/C, opacity.
         grad_table = table.new_zeros(c * n, 6)
         grad_cols = torch.zeros_like(flat_colors)
+        scratch = _Scratch(table)
         for index, tiles in enumerate(bins.groups):
-            g = tiles.numel()
             rows = _rows(bins, tiles, table)
-            pairs = ctx.saved_pairs[index] if ctx.saved_pairs else _pairs(rows)[0]
-            alpha_raw, alpha = _alpha(rows, pairs.gauss)
-            weight = alpha * pairs.trans
-            grad_pix = g_tiles.index_select(0, tiles)  # [G,P,D]
-            # v_i = g·c_i; suffix_i = Σ_{j>i} v_j w_j along the pixel's list.
-            v = torch.bmm(grad_pix, _gather_rows(flat_colors, rows.gid).transpose(1, 2)).reshape_as(
-                weight
+            pairs = ctx.saved_pairs[index] if ctx.saved_pairs else _pairs(rows, scratch, False)[0]
+            grads, d_cols = _group_gradients(
+                rows,
+                pairs,
+                _gather_rows(flat_colors, rows.gid),
+                g_tiles.index_select(0, tiles),
+                k_tiles.index_select(0, tiles).view(tiles.numel(), s, s, 1),
+                scratch,
             )
-            vw_cum = torch.cumsum(v * weight, dim=-1)
-            suffix = vw_cum[..., -1:] - vw_cum
-            suffix += k_tiles.index_select(0, tiles).reshape(g, s, s, 1)
-            d_alpha = v.mul_(pairs.trans).sub_(suffix.div_(1.0 - alpha))
-            # Only composited pairs (α > 0, trans > 0) below the 0.99 clamp pass a gradient.
-            unclamped = F.threshold(ALPHA_MAX - alpha_raw, 0.0, 0.0).ceil_()
-            d_alpha.mul_(pairs.trans.ceil()).mul_(unclamped).mul_(alpha.ceil())
-            d_opacity = (d_alpha * pairs.gauss).sum(dim=(1, 2))
-            # power = ½A dx² + B dx dy + ½C dy² with dx = px − mx; d_power = −dL/dα · o·G.
-            d_power = d_alpha.mul_(alpha_raw).neg_()
-            gx = d_power.sum(dim=1, keepdim=True)  # [G,1,S,L]
-            gy = d_power.sum(dim=2, keepdim=True)  # [G,S,1,L]
-            gxy = (d_power * rows.dy).sum(dim=1, keepdim=True)
-            s_xx = (gx * rows.dx * rows.dx).sum(dim=(1, 2))
-            s_yy = (gy * rows.dy * rows.dy).sum(dim=(1, 2))
-            s_xy = (gxy * rows.dx).sum(dim=(1, 2))
-            s_x = (gx * rows.dx).sum(dim=(1, 2))
-            s_y = (gy * rows.dy).sum(dim=(1, 2))
-            a, b, cc = rows.table[..., _A], rows.table[..., _B], rows.table[..., _C]
-            grads = torch.stack(
-                [
-                    -(a * s_x + b * s_y),
-                    -(b * s_x + cc * s_y),
-                    0.5 * s_xx,
-                    s_xy,
-                    0.5 * s_yy,
-                    d_opacity,
-                ],
-                dim=-1,
-            )
-            d_cols = torch.bmm(weight.reshape(g, p, -1).transpose(1, 2), grad_pix)
             # Padding rows have zero gradients, so they can be added at their clamped index.
             grad_table.index_add_(0, rows.gid.reshape(-1), grads.reshape(-1, 6))
             grad_cols.index_add_(0, rows.gid.reshape(-1), d_cols.reshape(-1, d))
