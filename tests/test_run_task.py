@@ -74,6 +74,7 @@ def test_a_run_writes_a_flat_result_with_every_required_field(base_config, tmp_p
     assert not any(key.startswith(("paths", "hydra")) for key in written)
     assert written["storage_mb"] > 0
     assert written["train_s_total"] >= written["train_s_computed"] > 0
+    assert written["job_s"] > written["train_s_computed"]
     assert written["eval_frames"] == 2  # smoke evaluates every 2nd of 3 frames
     out = capsys.readouterr().out
     assert "PSNR" in out and str(tmp_path / "run" / RESULT_FILE) in out

@@ -7,6 +7,7 @@ and fake stages.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -42,11 +43,13 @@ def run_task(
     job: int | None = None,
     suite: StageSuite | None = None,
 ) -> dict[str, Scalar]:
-    """Run one job and return its result (also written to `<run_dir>/result.json`).
+    """Run one job and return its result (also written to `<run_dir>/result.json`; `job_s`
+    is the job's wall time up to the result: scene, stages and evaluation).
 
     `overrides` are the job's command-line/sweep overrides (recorded in the result), `job`
     its number in a sweep. Bad input raises InputError before any work starts.
     """
+    started = time.perf_counter()
     config = resolve_config(cfg, original_cwd)
     suite = suite or load_stage_suite()
     plan = plan_run(config, suite.stages, suite.validate)
@@ -73,6 +76,7 @@ def run_task(
         output = run.reports[-1]
         storage_mb = store.manifest(output.stage, output.key).size_bytes / 1e6
         result = build_result(config, plan, run, metrics, storage_mb, overrides, job)
+        result["job_s"] = time.perf_counter() - started
         hparams = {k: v for k, v in config.items() if k not in HPARAM_EXCLUDED_SECTIONS}
         logged = (*METRIC_FIELDS, "train_s_total", "train_s_computed", "storage_mb")
         log.add_hparams(flatten_config(hparams), {name: result[name] for name in logged})
