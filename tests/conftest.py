@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import copy
 import shutil
 from pathlib import Path
 
 import pytest
 
+from relaygs.data import Scene, load_scene
 from relaygs.data.synthetic import generate
+from relaygs.pipeline.artifact import Artifact
 
 TINY_SYNTH_SIZE = {"frames": 6, "width": 32, "height": 18}
 
@@ -29,3 +32,66 @@ def pytest_configure(config: pytest.Config) -> None:
     config.addinivalue_line(
         "markers", "sweep: end-to-end experiment sweeps at budget=smoke (deselect: -m 'not sweep')"
     )
+
+
+# --- Stage fixtures (prefix `stage_`): a 48×27, 8-frame juggle scene and the artifacts of a
+# short decouple → relay → deform run on it, built once per session.
+
+STAGE_SCENE_SIZE = {"frames": 8, "width": 48, "height": 27}
+STAGE_MAX_POINTS = 2000
+STAGE_K = 4  # 8 frames → S = 2 relay segments
+STAGE_DECOUPLE_STEPS = 200
+
+
+def stage_smoke_cfg(**sections: dict) -> dict:
+    """The `smoke` budget as a stage cfg (seed 0, no progress bar, k = STAGE_K), with
+    `sections` merged over it key by key."""
+    from relaygs.stages import BUDGETS
+
+    cfg = copy.deepcopy(BUDGETS["smoke"])
+    cfg["seed"] = 0
+    cfg["train"] = {**cfg.get("train", {}), "progress": False}
+    cfg["relay"] = {**cfg["relay"], "k": STAGE_K}
+    cfg["replicate"] = {"k": STAGE_K}
+    for name, values in sections.items():
+        cfg[name] = {**cfg.get(name, {}), **values}
+    return cfg
+
+
+@pytest.fixture(scope="session")
+def stage_scene_path(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The stage tests' scene folder (generated once, read only)."""
+    return generate("juggle", tmp_path_factory.mktemp("stages") / "juggle", **STAGE_SCENE_SIZE)
+
+
+@pytest.fixture(scope="session")
+def stage_scene(stage_scene_path: Path) -> Scene:
+    """The stage tests' scene, its point cloud voxel-thinned to about STAGE_MAX_POINTS."""
+    return load_scene(stage_scene_path, max_points=STAGE_MAX_POINTS)
+
+
+@pytest.fixture(scope="session")
+def stage_decoupled(stage_scene: Scene) -> Artifact:
+    """Decouple long enough to separate the movers, without density control (so each final
+    Gaussian is still its initial point, moved a little)."""
+    from relaygs.stages import STAGES
+
+    no_density = {"densify_until": 0, "opacity_reset_every": 0}
+    cfg = stage_smoke_cfg(decouple={"steps": STAGE_DECOUPLE_STEPS, "densify": no_density})
+    return STAGES["decouple"](stage_scene, {}, cfg)
+
+
+@pytest.fixture(scope="session")
+def stage_relayed(stage_scene: Scene, stage_decoupled: Artifact) -> Artifact:
+    """Relay at the smoke budget (S = 2 copies), background frozen."""
+    from relaygs.stages import STAGES
+
+    return STAGES["relay"](stage_scene, {"decouple": stage_decoupled}, stage_smoke_cfg())
+
+
+@pytest.fixture(scope="session")
+def stage_deformed(stage_scene: Scene, stage_relayed: Artifact) -> Artifact:
+    """Deform at the smoke budget on the relay output."""
+    from relaygs.stages import STAGES
+
+    return STAGES["deform"](stage_scene, {"relay": stage_relayed}, stage_smoke_cfg())

@@ -14,6 +14,7 @@ Call `step()` after the optimiser step so that step's gradients are not discarde
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import torch
@@ -186,6 +187,25 @@ class DensityController:
             param.copy_(torch.minimum(param, ceiling.to(param)))
         if self.optimizer is not None:
             self.optimizer.reset_state(param)
+
+    def state_dict(self) -> dict[str, Tensor]:
+        """The accumulated statistics (for in-stage checkpoints), copied."""
+        return {
+            "grad_sum": self._grad_sum.clone(),
+            "views": self._views.clone(),
+            "max_radii": self._max_radii.clone(),
+        }
+
+    def load_state_dict(self, state: Mapping[str, Tensor]) -> None:
+        """Restore statistics saved by `state_dict`; their rows must match the set's."""
+        n = len(self.gaussians)
+        for key in ("grad_sum", "views", "max_radii"):
+            if key not in state or state[key].shape != (n,):
+                raise InputError(f"DensityController state: {key!r} must be a tensor of [{n}]")
+        device = self.gaussians.means.device
+        self._grad_sum = state["grad_sum"].to(device, torch.float32).clone()
+        self._views = state["views"].to(device, torch.int64).clone()
+        self._max_radii = state["max_radii"].to(device, torch.float32).clone()
 
     def _split_children(self, parent_idx: Tensor) -> tuple[Tensor, Tensor]:
         g = self.gaussians

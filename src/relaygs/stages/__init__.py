@@ -1,0 +1,78 @@
+"""The method's stages as plain functions `(scene, upstream artifacts, cfg) -> Artifact`.
+
+`STAGES` maps each stage type to its function, `CONFIGS` to its settings dataclass (whose
+`from_config` validates a section), `SCHEMA_VERSIONS` to its artifact schema version.
+`evaluate` scores a final artifact on the test views; `render_model` renders any artifact.
+Live metrics go through `relaygs.stages.log` sinks.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from typing import Any
+
+from relaygs.data import Scene
+from relaygs.errors import InputError
+from relaygs.pipeline.artifact import Artifact
+from relaygs.stages import decouple as _decouple
+from relaygs.stages import deform as _deform
+from relaygs.stages import relay as _relay
+from relaygs.stages import replicate as _replicate
+from relaygs.stages import warmup as _warmup
+from relaygs.stages.budgets import BUDGETS
+from relaygs.stages.evaluate import EvalSettings, evaluate
+from relaygs.stages.model_render import ModelRenderer, render_model
+from relaygs.stages.scene_model import SceneModel
+from relaygs.stages.train_settings import TrainSettings
+
+StageFn = Callable[[Scene, dict[str, Artifact], dict], Artifact]
+
+STAGES: dict[str, StageFn] = {
+    "decouple": _decouple.decouple,
+    "relay": _relay.relay,
+    "deform": _deform.deform,
+    "warmup": _warmup.warmup,
+    "replicate": _replicate.replicate,
+}
+
+CONFIGS: dict[str, Any] = {
+    "decouple": _decouple.DecoupleConfig,
+    "relay": _relay.RelayConfig,
+    "deform": _deform.DeformConfig,
+    "warmup": _warmup.WarmupConfig,
+    "replicate": _replicate.ReplicateConfig,
+}
+
+SCHEMA_VERSIONS: dict[str, int] = {
+    "decouple": _decouple.SCHEMA_VERSION,
+    "relay": _relay.SCHEMA_VERSION,
+    "deform": _deform.SCHEMA_VERSION,
+    "warmup": _warmup.SCHEMA_VERSION,
+    "replicate": _replicate.SCHEMA_VERSION,
+}
+
+
+def validate_config(stage: str, cfg: Mapping[str, Any]) -> None:
+    """Raise InputError (one line naming the key) unless `cfg` is valid for stage type `stage`:
+    its own section, the shared `train` section and, when present, `eval`."""
+    if stage not in CONFIGS:
+        raise InputError(f"unknown stage type {stage!r}; expected one of {sorted(CONFIGS)}")
+    CONFIGS[stage].from_config(cfg.get(stage))
+    TrainSettings.from_config(cfg.get("train"))
+    EvalSettings.from_config(cfg.get("eval"))
+
+
+__all__ = [
+    "BUDGETS",
+    "CONFIGS",
+    "SCHEMA_VERSIONS",
+    "STAGES",
+    "EvalSettings",
+    "ModelRenderer",
+    "SceneModel",
+    "StageFn",
+    "TrainSettings",
+    "evaluate",
+    "render_model",
+    "validate_config",
+]

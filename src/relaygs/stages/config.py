@@ -1,0 +1,165 @@
+"""Stage settings: frozen dataclasses parsed from plain dicts; unknown keys and bad values fail.
+
+Each stage section (and the shared `train` section) is one dataclass whose defaults are the
+paper's settings; `parse_section` checks every key and type so a runner can validate a whole
+configuration before any work starts. Errors are one-line `InputError`s naming `section.key`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import types
+import typing
+from collections.abc import Mapping
+from typing import Any, TypeVar
+
+from relaygs.errors import InputError
+from relaygs.model import CORE_PARAMS, DensifySettings, LRSchedule, SetLearningRates
+
+T = TypeVar("T")
+
+
+def parse_section(cls: type[T], data: Mapping[str, Any] | None, section: str) -> T:
+    """Build dataclass `cls` from `data` (missing keys keep defaults); unknown keys are errors.
+
+    Nested mappings (fields typed `dict`) are merged key by key over the field's default.
+    """
+    data = {} if data is None else data
+    if not isinstance(data, Mapping):
+        raise InputError(f"{section}: expected a mapping, got {type(data).__name__}")
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - set(fields))
+    if unknown:
+        raise InputError(f"{section}: unknown key(s) {unknown}; expected some of {sorted(fields)}")
+    hints = typing.get_type_hints(cls)
+    values = {}
+    for name, value in data.items():
+        where = f"{section}.{name}"
+        coerced = coerce(value, hints[name], where)
+        if isinstance(coerced, dict) and fields[name].default_factory is not dataclasses.MISSING:
+            coerced = {**fields[name].default_factory(), **coerced}
+        values[name] = coerced
+    return cls(**values)
+
+
+def coerce(value: Any, hint: Any, where: str) -> Any:
+    """`value` checked against the type `hint` (bool, int, float, str, unions, tuples, dicts)."""
+    origin = typing.get_origin(hint)
+    if origin in (typing.Union, types.UnionType):
+        options = typing.get_args(hint)
+        if value is None and type(None) in options:
+            return None
+        for option in options:
+            if option is not type(None) and _matches(value, option):
+                return coerce(value, option, where)
+        raise _type_error(where, value, hint)
+    if origin is tuple:
+        if not isinstance(value, list | tuple):
+            raise _type_error(where, value, hint)
+        item_hint = typing.get_args(hint)[0]
+        return tuple(coerce(item, item_hint, f"{where}[{i}]") for i, item in enumerate(value))
+    if origin is dict or hint is dict:
+        if not isinstance(value, Mapping):
+            raise _type_error(where, value, hint)
+        return {str(key): item for key, item in value.items()}
+    if not _matches(value, hint):
+        raise _type_error(where, value, hint)
+    return float(value) if hint is float else value
+
+
+def _matches(value: Any, hint: Any) -> bool:
+    if hint is bool:
+        return isinstance(value, bool)
+    if hint is int:
+        return isinstance(value, int) and not isinstance(value, bool)
+    if hint is float:
+        return isinstance(value, int | float) and not isinstance(value, bool)
+    if hint is str:
+        return isinstance(value, str)
+    origin = typing.get_origin(hint) or hint
+    if origin is tuple:
+        return isinstance(value, list | tuple)
+    if origin is dict:
+        return isinstance(value, Mapping)
+    return False
+
+
+def _type_error(where: str, value: Any, hint: Any) -> InputError:
+    expected = getattr(hint, "__name__", None) or str(hint).replace("typing.", "")
+    return InputError(f"{where}: expected {expected}, got {value!r}")
+
+
+def require(condition: bool, where: str, value: Any, expected: str) -> None:
+    """Raise a one-line InputError `where: expected <expected>, got <value>` unless `condition`."""
+    if not condition:
+        raise InputError(f"{where}: expected {expected}, got {value!r}")
+
+
+def require_steps(where: str, value: int) -> None:
+    """A step count: an int >= 0."""
+    require(value >= 0, where, value, "a step count >= 0")
+
+
+def json_ready(value: Any) -> Any:
+    """`value` with tuples turned into lists and dataclasses into dicts (for JSON metadata)."""
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return {f.name: json_ready(getattr(value, f.name)) for f in dataclasses.fields(value)}
+    if isinstance(value, Mapping):
+        return {str(key): json_ready(item) for key, item in value.items()}
+    if isinstance(value, list | tuple):
+        return [json_ready(item) for item in value]
+    return value
+
+
+def learning_rates(config: Mapping[str, Any], steps: int, where: str) -> SetLearningRates:
+    """Per-parameter schedules from a config mapping; a decaying schedule without `max_steps`
+    decays over the stage's `steps`. Rates must be >= 0 (final > 0)."""
+    rates = SetLearningRates.from_config(config, where)
+    core = {
+        name: _resolved(rates.for_param(name), steps, f"{where}.{name}") for name in CORE_PARAMS
+    }
+    extras = {
+        name: _resolved(value, steps, f"{where}.extras.{name}")
+        for name, value in rates.extras.items()
+    }
+    return SetLearningRates(**core, extras=extras)
+
+
+def schedule(value: float | Mapping[str, Any], steps: int, where: str) -> LRSchedule:
+    """One learning rate (number or {init, final, ...}); decays over `steps` unless told."""
+    return _resolved(LRSchedule.from_config(value, where), steps, where)
+
+
+def _resolved(parsed: LRSchedule, steps: int, where: str) -> LRSchedule:
+    _check_schedule(parsed, where)
+    if parsed.final is not None and parsed.max_steps == 0:
+        return dataclasses.replace(parsed, max_steps=max(steps, 1))
+    return parsed
+
+
+def _check_schedule(schedule: LRSchedule, where: str) -> None:
+    require(schedule.init >= 0.0, where, schedule.init, "a learning rate >= 0")
+    if schedule.final is not None:
+        require(schedule.final > 0.0, f"{where}.final", schedule.final, "a final rate > 0")
+        require(schedule.init > 0.0, f"{where}.init", schedule.init, "an initial rate > 0")
+    require(schedule.max_steps >= 0, f"{where}.max_steps", schedule.max_steps, "an int >= 0")
+
+
+def densify_settings(
+    config: Mapping[str, Any], base: DensifySettings, where: str
+) -> DensifySettings:
+    """Density-control settings: `base` with the keys of `config` replaced, each checked."""
+    settings = parse_section(DensifySettings, {**dataclasses.asdict(base), **config}, where)
+    for name in ("grad_threshold", "percent_dense", "split_scale_divisor", "max_world_size"):
+        value = getattr(settings, name)
+        require(value > 0.0, f"{where}.{name}", value, "a number > 0")
+    for name in ("densify_from", "densify_until", "opacity_reset_every"):
+        require_steps(f"{where}.{name}", getattr(settings, name))
+    require(settings.densify_every >= 1, f"{where}.densify_every", settings.densify_every, ">= 1")
+    require(settings.split_count >= 2, f"{where}.split_count", settings.split_count, ">= 2")
+    for name in ("reset_opacity", "prune_opacity"):
+        value = getattr(settings, name)
+        require(0.0 <= value < 1.0, f"{where}.{name}", value, "an opacity in [0, 1)")
+    cap = settings.max_gaussians
+    require(cap is None or cap >= 1, f"{where}.max_gaussians", cap, "None or an int >= 1")
+    return settings

@@ -1,0 +1,207 @@
+"""Stage 1, decouple: a static model of every frame plus a learned mask that finds the movers.
+
+Each Gaussian has a mask logit m (init 2.0) and a straight-through mask
+M = sg(1[σ(m) > ε] − σ(m)) + σ(m): hard 0/1 forward, σ'(m) backward. Frame 0 is rendered
+with all Gaussians, every other frame with opacity × M, so Gaussians that only explain frame 0
+(the dynamic foreground there) are driven to M = 0 while the static background keeps M = 1.
+Output: background (M = 1) and foreground (M = 0) sets.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import torch
+from torch import Tensor
+
+from relaygs.data import Scene
+from relaygs.model import BACKGROUND_DENSIFY, DensifySettings, GaussianSet, SetLearningRates
+from relaygs.pipeline.artifact import Artifact
+from relaygs.stages.common import (
+    BACKGROUND_LR,
+    initial_gaussians,
+    no_upstream,
+    stage_meta,
+    training_scene,
+)
+from relaygs.stages.config import (
+    densify_settings,
+    learning_rates,
+    parse_section,
+    require,
+    require_steps,
+    schedule,
+)
+from relaygs.stages.loop import StepResult, run_training
+from relaygs.stages.loss import photometric_loss
+from relaygs.stages.render import part_of, splat
+from relaygs.stages.scene_model import SceneModel, core_only, foreground_with_segments
+from relaygs.stages.session import SetPlan, TrainingSession
+from relaygs.stages.train_settings import TrainSettings
+from relaygs.stages.views import TrainViews
+
+STAGE = "decouple"
+SCHEMA_VERSION = 1
+MASK = "mask_logit"
+SET = "all"
+
+
+@dataclass(frozen=True)
+class DecoupleConfig:
+    """Settings of the decouple stage (`cfg["decouple"]`); defaults follow the paper.
+
+    mask_threshold ε and mask_lr are not given by the paper: ε = 0.5 (the mask is off once the
+    Gaussian is more likely off than on) and lr 0.05 (Adam, as opacity logits) let a mover's
+    mask cross the threshold in ~40 consistent steps, well inside the short budgets, while the
+    straight-through gradient lets a wrongly masked background Gaussian come back.
+    frame0_views: views of each batch drawn at frame 0 (the rest uniformly over all frames and
+    train cameras): with 1 of 4, frame 0 is seen in ≥ 25 % of views, so the foreground there
+    is fitted as fast as the background and is not absorbed by it.
+    """
+
+    steps: int = 3000
+    mask_init: float = 2.0
+    mask_threshold: float = 0.5
+    mask_lr: float = 0.05
+    frame0_views: int = 1
+    init_points: int | None = None
+    init_opacity: float = 0.1
+    sh_degree: int = 3
+    sh_every: int = 1000
+    lr: dict[str, Any] = field(default_factory=lambda: dict(BACKGROUND_LR))
+    densify: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        """Check every value (errors name `decouple.<key>`)."""
+        require_steps("decouple.steps", self.steps)
+        threshold = self.mask_threshold
+        require(0.0 < threshold < 1.0, "decouple.mask_threshold", threshold, "a value in (0, 1)")
+        require(self.mask_lr >= 0.0, "decouple.mask_lr", self.mask_lr, "a learning rate >= 0")
+        require(self.frame0_views >= 0, "decouple.frame0_views", self.frame0_views, "an int >= 0")
+        check_static_settings(self, STAGE)
+        self.learning_rates()
+        self.densify_settings()
+
+    @classmethod
+    def from_config(cls, data: Mapping[str, Any] | None) -> DecoupleConfig:
+        """Parse `cfg["decouple"]`."""
+        return parse_section(cls, data, STAGE)
+
+    def learning_rates(self) -> SetLearningRates:
+        """Schedules for the Gaussians, the mask logit included."""
+        rates = learning_rates(self.lr, self.steps, f"{STAGE}.lr")
+        mask = schedule(self.mask_lr, self.steps, f"{STAGE}.mask_lr")
+        return replace(rates, extras={**rates.extras, MASK: mask})
+
+    def densify_settings(self) -> DensifySettings:
+        """Background density control (the foreground is not known yet)."""
+        return densify_settings(self.densify, BACKGROUND_DENSIFY, f"{STAGE}.densify")
+
+
+def check_static_settings(section: Any, stage: str) -> None:
+    """Checks shared by the stages that start from the point cloud (decouple, warmup)."""
+    points = section.init_points
+    require(points is None or points >= 1, f"{stage}.init_points", points, "None or an int >= 1")
+    opacity = section.init_opacity
+    require(0.0 < opacity < 1.0, f"{stage}.init_opacity", opacity, "an opacity in (0, 1)")
+    require(0 <= section.sh_degree <= 3, f"{stage}.sh_degree", section.sh_degree, "0..3")
+    require(section.sh_every >= 0, f"{stage}.sh_every", section.sh_every, "an int >= 0")
+
+
+def straight_through_mask(mask_logit: Tensor, threshold: float) -> Tensor:
+    """M = sg(1[σ(m) > ε] − σ(m)) + σ(m): hard 0/1 value, gradient of σ(m)."""
+    soft = torch.sigmoid(mask_logit)
+    hard = (soft > threshold).to(soft.dtype)
+    return (hard - soft).detach() + soft
+
+
+def decouple(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, Any]) -> Artifact:
+    """Train the static model with the mask; output background + foreground (`is_fg`)."""
+    no_upstream(upstream, STAGE)
+    section = DecoupleConfig.from_config(cfg.get(STAGE))
+    train = TrainSettings.from_config(cfg.get("train"))
+    seed = int(cfg.get("seed", 0))
+    device = torch.device(train.device)
+    training = training_scene(scene, train, early_stage=True)
+    gaussians = initial_gaussians(
+        scene, section.init_points, section.init_opacity, section.sh_degree, seed
+    )
+    gaussians.add_param(MASK, torch.full((len(gaussians),), section.mask_init))
+    gaussians = gaussians.to(device)
+    session = TrainingSession(
+        sets={SET: gaussians},
+        plans={
+            SET: SetPlan(section.learning_rates(), section.densify_settings(), section.sh_every)
+        },
+        extent=scene.extent,
+        seed=seed,
+        device=device,
+    )
+    views = TrainViews(training, device)
+
+    def step_fn(step: int) -> StepResult:
+        return _decouple_step(session, views, section, train)
+
+    def counts() -> tuple[int, int]:
+        is_fg = _foreground_flags(session.sets[SET], section.mask_threshold)
+        return int((~is_fg).sum()), int(is_fg.sum())
+
+    report = run_training(STAGE, session, section.steps, train, step_fn, counts)
+    final = session.sets[SET]
+    is_fg = _foreground_flags(final, section.mask_threshold)
+    foreground = core_only(final.subset(is_fg))
+    foreground = foreground_with_segments(
+        foreground, torch.zeros(len(foreground), dtype=torch.int32)
+    )
+    model = SceneModel(
+        stage=STAGE,
+        background=core_only(final.subset(~is_fg)),
+        foreground=foreground,
+        num_frames=scene.num_frames,
+        segment_length=scene.num_frames,
+    )
+    n_fg = int(is_fg.sum())
+    metrics = {
+        "num_gaussians": len(final),
+        "num_bg": len(final) - n_fg,
+        "num_fg": n_fg,
+        "fg_fraction": n_fg / max(len(final), 1),
+    }
+    meta = stage_meta(SCHEMA_VERSION, section, train, report, metrics, downscale=training.downscale)
+    return model.to("cpu").to_artifact(meta)
+
+
+def _foreground_flags(gaussians: GaussianSet, threshold: float) -> Tensor:
+    """is_fg = (M == 0), i.e. σ(m) ≤ ε."""
+    return torch.sigmoid(gaussians.params[MASK].detach()) <= threshold
+
+
+def _decouple_step(
+    session: TrainingSession, views: TrainViews, section: DecoupleConfig, train: TrainSettings
+) -> StepResult:
+    """Frame-0 views see every Gaussian; the other views see opacity × M."""
+    generator = session.generator
+    first = min(section.frame0_views, train.batch_views)
+    batch = views.random_views_at(0, first, generator) if first else []
+    batch += views.random_views(train.batch_views - first, generator)
+    at_zero = [view for view in batch if view.frame == 0]
+    later = [view for view in batch if view.frame != 0]
+    gaussians = session.sets[SET]
+    degree = gaussians.active_sh_degree
+    renders, preds, targets = [], [], []
+    for group, masked in ((at_zero, False), (later, True)):
+        if not group:
+            continue
+        part = part_of(SET, gaussians, degree)
+        if masked:
+            part.opacity_factor = straight_through_mask(
+                gaussians.params[MASK], section.mask_threshold
+            )
+        render = splat([part], [view.camera for view in group], degree)
+        renders.append(render)
+        preds += render.images
+        targets += [views.image(view) for view in group]
+    loss = photometric_loss(preds, targets, train.ssim_weight)
+    return StepResult(loss, renders, preds, targets)

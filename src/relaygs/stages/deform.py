@@ -1,0 +1,303 @@
+"""Stage 3, deform: a HexPlane + MLP motion field over the upstream Gaussians (4D-GS style).
+
+Each step draws `frames_per_step` frames and splits the batch's views among them; per frame
+the field is evaluated once for the background and the foreground copy of that frame's
+segment (s = frame // k: each frame belongs to exactly one copy), and the views of that frame
+are rendered together. Loss: L1 + λ·D-SSIM + weighted plane regularisers. A per-camera colour
+affine corrects each train render when the scene declares colour inconsistency.
+
+Accepted upstreams: relay / replicate (S copies), decouple (its foreground as a single copy
+for every frame: the no_copies ablation) and warmup (no foreground: the 4D-GS baseline).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import torch
+
+from relaygs.data import Scene, frame_time
+from relaygs.data.effects import COLOR_INCONSISTENCY
+from relaygs.errors import InputError
+from relaygs.field import ColorAffine
+from relaygs.model import (
+    BACKGROUND_DENSIFY,
+    CORE_PARAMS,
+    FOREGROUND_DENSIFY,
+    DensifySettings,
+    GaussianSet,
+    SetLearningRates,
+)
+from relaygs.pipeline.artifact import Artifact
+from relaygs.stages.common import GAUSSIAN_LR, single_upstream, stage_meta, upstream_model
+from relaygs.stages.config import (
+    densify_settings,
+    learning_rates,
+    parse_section,
+    require,
+    require_steps,
+    schedule,
+)
+from relaygs.stages.loop import StepResult, run_training
+from relaygs.stages.loss import photometric_loss
+from relaygs.stages.motion import deformed_parts
+from relaygs.stages.render import Render, splat
+from relaygs.stages.scene_model import GAMMA, SceneModel, build_field
+from relaygs.stages.session import ModuleGroup, SetPlan, TrainingSession
+from relaygs.stages.train_settings import TrainSettings
+from relaygs.stages.views import TrainViews
+
+STAGE = "deform"
+SCHEMA_VERSION = 1
+ACCEPTED_UPSTREAM = ("relay", "replicate", "decouple", "warmup")
+REGULARISERS = ("plane_smoothness", "time_smoothness", "time_l1")
+GRID_LR = {"init": 1.6e-3, "final": 1.6e-4}  # 4D-GS, × scene extent
+MLP_LR = {"init": 1.6e-4, "final": 1.6e-5}  # 4D-GS, × scene extent
+
+
+@dataclass(frozen=True)
+class DeformConfig:
+    """Settings of the deform stage (`cfg["deform"]`); defaults follow the paper and 4D-GS.
+
+    Field: 16 channels, spatial resolution 64, multires [1, 2], time resolution ceil(T/2)
+    (None), MLP width 128 and depth 0 (4D-GS multi-view). Learning rates are 4D-GS's (grid and
+    MLP × scene extent). Not given by either paper: γ lr 5e-3 (a log-scale factor, like the
+    scaling lr) and colour-affine lr 1e-3. color_affine "auto" turns the affine on exactly when
+    the scene declares colour inconsistency; true/false force it.
+    """
+
+    steps: int = 20000
+    isolate_fg_bg: bool = True
+    gamma: bool = True
+    frames_per_step: int = 1
+    color_affine: str | bool = "auto"
+    time_resolution: int | None = None
+    multires: tuple[int, ...] = (1, 2)
+    spatial_resolution: int = 64
+    channels: int = 16
+    width: int = 128
+    depth: int = 0
+    sh_every: int = 1000
+    lr_bg: dict[str, Any] = field(default_factory=lambda: dict(GAUSSIAN_LR))
+    lr_fg: dict[str, Any] = field(default_factory=lambda: dict(GAUSSIAN_LR))
+    lr_grid: float | dict[str, Any] = field(default_factory=lambda: dict(GRID_LR))
+    lr_mlp: float | dict[str, Any] = field(default_factory=lambda: dict(MLP_LR))
+    lr_gamma: float = 5e-3
+    lr_affine: float = 1e-3
+    plane_smoothness: float = 2e-4
+    time_smoothness: float = 1e-3
+    time_l1: float = 1e-4
+    densify_bg: dict[str, Any] = field(default_factory=dict)
+    densify_fg: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        """Check every value (errors name `deform.<key>`)."""
+        require_steps("deform.steps", self.steps)
+        require(self.frames_per_step >= 1, "deform.frames_per_step", self.frames_per_step, ">= 1")
+        require(
+            self.color_affine in ("auto", True, False),
+            "deform.color_affine",
+            self.color_affine,
+            "'auto', true or false",
+        )
+        resolution = self.time_resolution
+        require(resolution is None or resolution >= 1, "deform.time_resolution", resolution, ">= 1")
+        require(
+            len(self.multires) >= 1 and all(m >= 1 for m in self.multires),
+            "deform.multires",
+            list(self.multires),
+            "a non-empty list of ints >= 1",
+        )
+        for key in ("spatial_resolution", "channels", "width"):
+            require(getattr(self, key) >= 1, f"deform.{key}", getattr(self, key), "an int >= 1")
+        require(self.depth >= 0, "deform.depth", self.depth, "an int >= 0")
+        require(self.sh_every >= 0, "deform.sh_every", self.sh_every, "an int >= 0")
+        for key in (*REGULARISERS, "lr_gamma", "lr_affine"):
+            require(getattr(self, key) >= 0.0, f"deform.{key}", getattr(self, key), "a number >= 0")
+        self.plans()
+        self.module_schedules()
+
+    @classmethod
+    def from_config(cls, data: Mapping[str, Any] | None) -> DeformConfig:
+        """Parse `cfg["deform"]`."""
+        return parse_section(cls, data, STAGE)
+
+    def plans(self) -> dict[str, SetPlan]:
+        """Training plans of the background and foreground sets (fg lr includes γ)."""
+        fg_rates = self._rates("lr_fg")
+        if self.gamma:
+            gamma = schedule(self.lr_gamma, self.steps, f"{STAGE}.lr_gamma")
+            fg_rates = SetLearningRates(
+                **{name: fg_rates.for_param(name) for name in CORE_PARAMS},
+                extras={**fg_rates.extras, GAMMA: gamma},
+            )
+        return {
+            "bg": SetPlan(self._rates("lr_bg"), self._densify("densify_bg"), self.sh_every),
+            "fg": SetPlan(fg_rates, self._densify("densify_fg"), self.sh_every),
+        }
+
+    def module_schedules(self) -> dict[str, Any]:
+        """Schedules of the field's grid and MLPs and of the colour affine."""
+        return {
+            "grid": schedule(self.lr_grid, self.steps, f"{STAGE}.lr_grid"),
+            "mlp": schedule(self.lr_mlp, self.steps, f"{STAGE}.lr_mlp"),
+            "affine": schedule(self.lr_affine, self.steps, f"{STAGE}.lr_affine"),
+        }
+
+    def uses_affine(self, scene: Scene) -> bool:
+        """Whether the colour affine is on for `scene`."""
+        if self.color_affine == "auto":
+            return COLOR_INCONSISTENCY in scene.effects
+        return bool(self.color_affine)
+
+    def field_settings(self, scene: Scene) -> dict[str, Any]:
+        """DeformationField settings: the grid spans the scene's initial point cloud."""
+        xyz = scene.points.xyz
+        time_resolution = self.time_resolution or max(2, math.ceil(scene.num_frames / 2))
+        return {
+            "aabb": [xyz.amin(dim=0).tolist(), xyz.amax(dim=0).tolist()],
+            "time_resolution": time_resolution,
+            "isolate_fg_bg": self.isolate_fg_bg,
+            "multires": list(self.multires),
+            "spatial_resolution": self.spatial_resolution,
+            "channels": self.channels,
+            "width": self.width,
+            "depth": self.depth,
+        }
+
+    def _rates(self, key: str) -> SetLearningRates:
+        return learning_rates(getattr(self, key), self.steps, f"{STAGE}.{key}")
+
+    def _densify(self, key: str) -> DensifySettings:
+        base = FOREGROUND_DENSIFY if key == "densify_fg" else BACKGROUND_DENSIFY
+        return densify_settings(getattr(self, key), base, f"{STAGE}.{key}")
+
+
+def deform(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, Any]) -> Artifact:
+    """Train the motion field (and keep refining the Gaussians) over all frames."""
+    artifact = single_upstream(upstream, STAGE, ACCEPTED_UPSTREAM)
+    section = DeformConfig.from_config(cfg.get(STAGE))
+    train = TrainSettings.from_config(cfg.get("train"))
+    seed = int(cfg.get("seed", 0))
+    device = torch.device(train.device)
+    model = _starting_model(upstream_model(artifact, scene, STAGE), section, scene, seed)
+    model.to(device)
+    session = _session(model, section, scene, seed, device)
+    views = TrainViews(scene, device)
+    camera_index = {camera_id: row for row, camera_id in enumerate(model.affine_cameras)}
+
+    def step_fn(step: int) -> StepResult:
+        _sync(model, session)
+        generator = session.generator
+        frames = torch.randint(scene.num_frames, (section.frames_per_step,), generator=generator)
+        renders: list[Render] = []
+        preds, targets = [], []
+        for slot, frame in enumerate(frames.tolist()):
+            count = len(range(slot, train.batch_views, section.frames_per_step))
+            if count == 0:
+                continue
+            batch = views.random_views_at(frame, count, generator)
+            degree = max(model.background.active_sh_degree, model.foreground.active_sh_degree)
+            parts = deformed_parts(
+                model.background,
+                model.foreground,
+                model.foreground_rows(frame),
+                model.field,
+                frame_time(frame, scene.num_frames),
+                degree,
+            )
+            render = splat(parts, [view.camera for view in batch], degree)
+            renders.append(render)
+            for view, image in zip(batch, render.images, strict=True):
+                if model.affine is not None:
+                    image = model.affine(image, camera_index[view.camera.camera_id])
+                preds.append(image)
+                targets.append(views.image(view))
+        loss = photometric_loss(preds, targets, train.ssim_weight)
+        regularisers = model.field.regularisers()
+        for name in REGULARISERS:
+            loss = loss + getattr(section, name) * regularisers[name]
+        return StepResult(loss, renders, preds, targets)
+
+    def counts() -> tuple[int, int]:
+        return len(model.background), len(model.foreground)
+
+    report = run_training(STAGE, session, section.steps, train, step_fn, counts)
+    _sync(model, session)
+    model.to("cpu")
+    n_bg, n_fg = len(model.background), len(model.foreground)
+    metrics = {"num_gaussians": n_bg + n_fg, "num_bg": n_bg, "num_fg": n_fg}
+    extra = {"color_affine": model.affine is not None, "upstream_stage": artifact.stage}
+    return model.to_artifact(stage_meta(SCHEMA_VERSION, section, train, report, metrics, **extra))
+
+
+def _starting_model(
+    source: SceneModel, section: DeformConfig, scene: Scene, seed: int
+) -> SceneModel:
+    """The upstream model as a deform model: γ (init 0) is added to the foreground and the
+    field and colour affine are built. A decouple foreground (segment 0, k = T) becomes one
+    copy shown at every frame, as the deform model shows the copy of each frame's segment."""
+    foreground = source.foreground
+    if section.gamma:
+        foreground = _with_gamma(foreground)
+    settings = section.field_settings(scene)
+    model = SceneModel(
+        stage=STAGE,
+        background=source.background,
+        foreground=foreground,
+        num_frames=scene.num_frames,
+        segment_length=source.segment_length,
+        field=build_field(settings, seed),
+        field_settings=settings,
+    )
+    if section.uses_affine(scene):
+        model.affine_cameras = sorted({v.camera.camera_id for v in scene.train_views})
+        model.affine = ColorAffine(len(model.affine_cameras))
+    return model
+
+
+def _with_gamma(foreground: GaussianSet) -> GaussianSet:
+    if GAMMA in foreground.params:
+        raise InputError(f"stage {STAGE!r}: upstream foreground already has a 'gamma' parameter")
+    copy = foreground.clone()
+    copy.add_param(GAMMA, torch.zeros(len(foreground), 3, device=foreground.means.device))
+    return copy
+
+
+def _session(
+    model: SceneModel, section: DeformConfig, scene: Scene, seed: int, device: torch.device
+) -> TrainingSession:
+    """Gaussian sets (an empty foreground is left out) plus field and affine parameters."""
+    plans = section.plans()
+    sets = {"bg": model.background}
+    if len(model.foreground):
+        sets["fg"] = model.foreground
+    schedules = section.module_schedules()
+    field_groups = model.field.parameter_groups()
+    groups = [
+        ModuleGroup("grid", field_groups["grid"], schedules["grid"], scale_by_extent=True),
+        ModuleGroup("mlp", field_groups["mlp"], schedules["mlp"], scale_by_extent=True),
+    ]
+    modules = {"field": model.field}
+    if model.affine is not None:
+        groups.append(ModuleGroup("affine", list(model.affine.parameters()), schedules["affine"]))
+        modules["affine"] = model.affine
+    return TrainingSession(
+        sets=sets,
+        plans={name: plans[name] for name in sets},
+        extent=scene.extent,
+        seed=seed,
+        device=device,
+        modules=modules,
+        module_groups=groups,
+    )
+
+
+def _sync(model: SceneModel, session: TrainingSession) -> None:
+    """Point the model at the session's current sets (densification and resume replace them)."""
+    model.background = session.sets["bg"]
+    if "fg" in session.sets:
+        model.foreground = session.sets["fg"]

@@ -1,0 +1,85 @@
+"""Evaluation: render every test camera at every frame (or every `frame_stride`-th) and score.
+
+PSNR and SSIM are per image, averaged; fg-PSNR runs over ground-truth foreground pixels of
+the images that have a non-empty mask (None when the scene has no masks); render FPS counts
+rendering only (no metric time); storage is the artifact's tensor bytes in MiB.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import torch
+
+from relaygs.data import Scene
+from relaygs.metrics import fg_psnr, psnr, ssim
+from relaygs.pipeline.artifact import Artifact
+from relaygs.stages.config import parse_section, require
+from relaygs.stages.model_render import ModelRenderer
+from relaygs.stages.scene_model import SceneModel
+from relaygs.stages.train_settings import TrainSettings
+
+MIB = 1024 * 1024
+
+
+@dataclass(frozen=True)
+class EvalSettings:
+    """`cfg["eval"]`: evaluate frames 0, stride, 2·stride, …"""
+
+    frame_stride: int = 1
+
+    def __post_init__(self) -> None:
+        """The stride is a positive frame count."""
+        require(self.frame_stride >= 1, "eval.frame_stride", self.frame_stride, "an int >= 1")
+
+    @classmethod
+    def from_config(cls, data: Mapping[str, Any] | None) -> EvalSettings:
+        """Parse `cfg["eval"]` (missing keys keep defaults)."""
+        return parse_section(cls, data, "eval")
+
+
+def evaluate(scene: Scene, artifact: Artifact, cfg: Mapping[str, Any]) -> dict[str, Any]:
+    """Test metrics of the artifact's model on `scene` (keys in the module docstring, plus
+    Gaussian counts and the number of test images)."""
+    settings = EvalSettings.from_config(cfg.get("eval"))
+    device = torch.device(TrainSettings.from_config(cfg.get("train")).device)
+    model = SceneModel.from_artifact(artifact).to(device)
+    renderer = ModelRenderer(model)
+    psnrs, ssims, fg_psnrs = [], [], []
+    rendered, render_seconds = 0, 0.0
+    for frame in range(0, scene.num_frames, settings.frame_stride):
+        views = scene.views_at(frame, "test")
+        if not views:
+            continue
+        began = time.perf_counter()
+        images = renderer.render([view.camera for view in views], views[0].time)
+        render_seconds += time.perf_counter() - began
+        rendered += len(images)
+        for view, image in zip(views, images, strict=True):
+            pred = image.cpu()
+            target = scene.image(view)
+            psnrs.append(float(psnr(pred, target)))
+            ssims.append(float(ssim(pred, target)))
+            mask = scene.mask(view)
+            if mask is not None and bool(mask.any()):
+                fg_psnrs.append(float(fg_psnr(pred, target, mask)))
+    n_bg, n_fg = len(model.background), len(model.foreground)
+    return {
+        "psnr": _mean(psnrs),
+        "ssim": _mean(ssims),
+        "fg_psnr": _mean(fg_psnrs),
+        "render_fps": rendered / render_seconds if render_seconds > 0 else None,
+        "num_gaussians": n_bg + n_fg,
+        "num_bg": n_bg,
+        "num_fg": n_fg,
+        "storage_mb": artifact.nbytes / MIB,
+        "num_test_images": rendered,
+    }
+
+
+def _mean(values: list[float]) -> float | None:
+    """Mean, or None for no values (e.g. fg-PSNR without masks; JSON has no NaN)."""
+    return sum(values) / len(values) if values else None

@@ -1,0 +1,175 @@
+"""The training loop every stage shares: steps, divergence guard, density control, logging,
+progress bar, and in-stage checkpoints (resume where a killed build stopped)."""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from torch import Tensor
+from tqdm import tqdm
+
+from relaygs.pipeline.context import current_build
+from relaygs.stages import log
+from relaygs.stages.loss import batch_psnr
+from relaygs.stages.render import Render
+from relaygs.stages.session import TrainingSession
+from relaygs.stages.train_settings import TrainSettings
+
+LOSS_WINDOW = 50  # steps averaged for the reported initial and final training loss (at most
+# a quarter of the run, so the two windows never overlap)
+
+
+@dataclass
+class StepResult:
+    """One forward pass: the loss to minimise, the renders (for density statistics), and the
+    predicted and target images (for batch PSNR and image logging)."""
+
+    loss: Tensor
+    renders: list[Render]
+    preds: list[Tensor]
+    targets: list[Tensor]
+
+
+@dataclass
+class TrainReport:
+    """Summary of a finished training run (seconds include those before a resume)."""
+
+    steps: int
+    initial_loss: float
+    final_loss: float
+    train_seconds: float
+    run_seconds: float
+    resumed_from: int
+
+    def metrics(self) -> dict[str, float | int]:
+        """As JSON-ready artifact metrics."""
+        return {
+            "steps": self.steps,
+            "initial_loss": self.initial_loss,
+            "final_loss": self.final_loss,
+            "train_seconds": self.train_seconds,
+            "steps_per_second": (self.steps - self.resumed_from) / max(self.run_seconds, 1e-9),
+            "resumed_from": self.resumed_from,
+        }
+
+
+class LossTracker:
+    """Mean loss of the first and of the latest `window` steps."""
+
+    def __init__(self, window: int) -> None:
+        """Track windows of `window` steps."""
+        self.window = window
+        self.first: list[float] = []
+        self.recent: deque[float] = deque(maxlen=window)
+
+    def add(self, loss: float) -> None:
+        """Record one step's loss."""
+        if len(self.first) < self.window:
+            self.first.append(loss)
+        self.recent.append(loss)
+
+    def state(self) -> dict[str, list[float]]:
+        """JSON-ready state for checkpoints."""
+        return {"first": list(self.first), "recent": list(self.recent)}
+
+    def load_state(self, state: dict) -> None:
+        """Restore what `state` returned."""
+        self.first = list(state["first"])
+        self.recent.clear()
+        self.recent.extend(state["recent"])
+
+
+CountsFn = Callable[[], tuple[int, int]]
+
+
+def run_training(
+    stage: str,
+    session: TrainingSession,
+    steps: int,
+    train: TrainSettings,
+    step_fn: Callable[[int], StepResult],
+    counts: CountsFn,
+) -> TrainReport:
+    """Run steps 1..`steps` of `step_fn` on `session`, resuming from a checkpoint if present.
+
+    `counts()` gives the current (background, foreground) Gaussian counts for logging.
+    Raises DivergenceError (and saves nothing further) at the first non-finite value.
+    """
+    build = current_build()
+    checkpointer = build.checkpointer(train.checkpoint_every) if build is not None else None
+    tracker = LossTracker(max(1, min(LOSS_WINDOW, steps // 4)))
+    start, previous_seconds = 0, 0.0
+    state = checkpointer.load() if checkpointer is not None else None
+    if state is not None:
+        session.restore(state)
+        start = state.step
+        tracker.load_state(state.extras["losses"])
+        previous_seconds = float(state.extras["seconds"])
+    began = time.perf_counter()
+    with tqdm(
+        total=steps, initial=start, desc=stage, disable=not train.progress, leave=False
+    ) as bar:
+        for step in range(start + 1, steps + 1):
+            rates = session.prepare_step(step)
+            result = step_fn(step)
+            if result.loss.requires_grad:  # False only when nothing trainable was rendered
+                result.loss.backward()
+            session.check_finite(stage, step, result.loss)
+            session.apply_gradients(result.renders, step)
+            loss = float(result.loss.detach())
+            tracker.add(loss)
+            images = _images(result, train, step)
+            if step % train.log_every == 0 or step == steps or images is not None:
+                scalars = _scalars(loss, result, rates, counts)
+                log.emit(stage, step, scalars, images)
+                bar.set_postfix(loss=f"{loss:.4f}", psnr=f"{scalars['psnr']:.2f}")
+            if checkpointer is not None:
+                seconds = previous_seconds + time.perf_counter() - began
+                checkpointer.maybe_save(
+                    step,
+                    session.state_tensors(),
+                    session.optimizers(),
+                    {"losses": tracker.state(), "seconds": seconds},
+                )
+            bar.update(1)
+    session.check_finite(stage, steps)
+    run_seconds = time.perf_counter() - began
+    return TrainReport(
+        steps=steps,
+        initial_loss=_mean(tracker.first),
+        final_loss=_mean(list(tracker.recent)),
+        train_seconds=previous_seconds + run_seconds,
+        run_seconds=run_seconds,
+        resumed_from=start,
+    )
+
+
+def _scalars(
+    loss: float, result: StepResult, rates: dict[str, float], counts: CountsFn
+) -> dict[str, float]:
+    n_bg, n_fg = counts()
+    scalars = {
+        "loss": loss,
+        "psnr": batch_psnr(result.preds, result.targets),
+        "num_bg": float(n_bg),
+        "num_fg": float(n_fg),
+        "fg_fraction": n_fg / max(n_bg + n_fg, 1),
+    }
+    scalars.update({f"lr/{name}": lr for name, lr in rates.items()})
+    return scalars
+
+
+def _images(result: StepResult, train: TrainSettings, step: int) -> dict[str, Tensor] | None:
+    if train.image_every <= 0 or step % train.image_every != 0:
+        return None
+    return {
+        "render": result.preds[0].detach().clamp(0.0, 1.0).cpu(),
+        "target": result.targets[0].detach().cpu(),
+    }
+
+
+def _mean(values: list[float]) -> float:
+    return sum(values) / len(values) if values else float("nan")

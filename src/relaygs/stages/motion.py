@@ -1,0 +1,63 @@
+"""Apply the motion field at one time to the background and the visible foreground rows.
+
+One field call covers every rendered Gaussian (background group 0, foreground group 1). The
+deltas add to the pre-activation parameters; foreground (relay) positions move by
+(1 + e^γ)·Δμ when γ is on, every other position by Δμ.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from relaygs.field import BACKGROUND, FOREGROUND, DeformationField, relay_position
+from relaygs.model import GaussianSet
+from relaygs.stages.render import Part, part_of
+from relaygs.stages.scene_model import GAMMA
+
+
+def deformed_parts(
+    background: GaussianSet,
+    foreground: GaussianSet,
+    foreground_rows: Tensor,
+    field: DeformationField,
+    time: float,
+    sh_degree: int,
+    frozen_background: bool = False,
+) -> list[Part]:
+    """Background and foreground Parts at `time` in [0, 1]; γ is used when the foreground has
+    a `gamma` parameter."""
+    bg = part_of("bg", background, sh_degree, frozen=frozen_background)
+    fg = part_of("fg", foreground, sh_degree, rows=foreground_rows)
+    n_bg = bg.count
+    xyz = torch.cat([bg.means, fg.means])
+    group = torch.cat(
+        [
+            torch.full((n_bg,), BACKGROUND, dtype=torch.long, device=xyz.device),
+            torch.full((fg.count,), FOREGROUND, dtype=torch.long, device=xyz.device),
+        ]
+    )
+    deltas = field(xyz, time, group)
+    if GAMMA in foreground.params:
+        gamma = foreground.params[GAMMA].index_select(0, foreground_rows)
+        gammas = torch.cat([gamma.new_zeros(n_bg, 3), gamma])
+        means = relay_position(xyz, deltas.dxyz, gammas, group == FOREGROUND)
+    else:
+        means = xyz + deltas.dxyz
+    log_scales = torch.cat([bg.log_scales, fg.log_scales]) + deltas.dscale
+    quats = torch.cat([bg.quats, fg.quats]) + deltas.drot
+    opacity_logits = torch.cat([bg.opacity_logits, fg.opacity_logits]) + deltas.dopacity[:, 0]
+    parts = []
+    for part, rows in ((bg, slice(0, n_bg)), (fg, slice(n_bg, None))):
+        parts.append(
+            Part(
+                part.name,
+                part.rows,
+                means[rows],
+                log_scales[rows],
+                quats[rows],
+                opacity_logits[rows],
+                part.sh,
+            )
+        )
+    return parts

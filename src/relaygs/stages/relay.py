@@ -1,0 +1,201 @@
+"""Stage 2, relay: S = ceil(T/k) copies of the decoupled foreground, copy s fitted to segment s.
+
+Each step draws one segment s and `batch_views` train cameras; the background plus copy s is
+rendered and compared with the pseudo-views of those cameras (the mean of p frames spread over
+the segment) or, with `pseudo_views: false`, with one random frame of the segment. The
+background is frozen by default: the pseudo-views blur the movers, and a background trained on
+them would absorb that blur; it already fits every frame after decouple.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import torch
+
+from relaygs.data import Scene
+from relaygs.model import (
+    BACKGROUND_DENSIFY,
+    FOREGROUND_DENSIFY,
+    DensifySettings,
+    GaussianSet,
+    SetLearningRates,
+)
+from relaygs.pipeline.artifact import Artifact
+from relaygs.stages.common import (
+    BACKGROUND_LR,
+    FOREGROUND_LR,
+    single_upstream,
+    stage_meta,
+    training_scene,
+    upstream_model,
+)
+from relaygs.stages.config import (
+    densify_settings,
+    learning_rates,
+    parse_section,
+    require,
+    require_steps,
+)
+from relaygs.stages.loop import StepResult, TrainReport, run_training
+from relaygs.stages.loss import photometric_loss
+from relaygs.stages.render import part_of, splat
+from relaygs.stages.scene_model import SEGMENT, SceneModel, replicate_foreground
+from relaygs.stages.segments import SegmentTargets, num_segments, segment_frames
+from relaygs.stages.session import SetPlan, TrainingSession
+from relaygs.stages.train_settings import TrainSettings
+from relaygs.stages.views import TrainViews
+
+STAGE = "relay"
+SCHEMA_VERSION = 1
+ACCEPTED_UPSTREAM = ("decouple",)
+
+
+@dataclass(frozen=True)
+class RelayConfig:
+    """Settings of the relay stage (`cfg["relay"]`); defaults follow the paper.
+
+    Foreground copies use the paper's foreground settings (position lr 1e-3, densify gradient
+    threshold 1e-4, clone/split size threshold 0.1× the background's); `lr_bg` / `densify_bg`
+    only matter with `freeze_background: false`.
+    """
+
+    steps: int = 14000
+    k: int = 16
+    pseudo_views: bool = True
+    p: int = 3
+    freeze_background: bool = True
+    sh_every: int = 1000
+    lr_fg: dict[str, Any] = field(default_factory=lambda: dict(FOREGROUND_LR))
+    lr_bg: dict[str, Any] = field(default_factory=lambda: dict(BACKGROUND_LR))
+    densify_fg: dict[str, Any] = field(default_factory=dict)
+    densify_bg: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        """Check every value (errors name `relay.<key>`)."""
+        require_steps("relay.steps", self.steps)
+        require(self.k >= 1, "relay.k", self.k, "an int >= 1")
+        require(self.p >= 1, "relay.p", self.p, "an int >= 1")
+        require(self.sh_every >= 0, "relay.sh_every", self.sh_every, "an int >= 0")
+        self.plans()
+
+    @classmethod
+    def from_config(cls, data: Mapping[str, Any] | None) -> RelayConfig:
+        """Parse `cfg["relay"]`."""
+        return parse_section(cls, data, STAGE)
+
+    def plans(self) -> dict[str, SetPlan]:
+        """Training plan of the foreground copies and (when trained) the background."""
+        plans = {"fg": SetPlan(self._rates("lr_fg"), self._densify("densify_fg"), self.sh_every)}
+        if not self.freeze_background:
+            plans["bg"] = SetPlan(self._rates("lr_bg"), self._densify("densify_bg"), self.sh_every)
+        return plans
+
+    def _rates(self, key: str) -> SetLearningRates:
+        return learning_rates(getattr(self, key), self.steps, f"{STAGE}.{key}")
+
+    def _densify(self, key: str) -> DensifySettings:
+        base = FOREGROUND_DENSIFY if key == "densify_fg" else BACKGROUND_DENSIFY
+        return densify_settings(getattr(self, key), base, f"{STAGE}.{key}")
+
+
+def relay(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, Any]) -> Artifact:
+    """Replicate the decouple foreground into per-segment copies and fit each to its segment."""
+    artifact = single_upstream(upstream, STAGE, ACCEPTED_UPSTREAM)
+    section = RelayConfig.from_config(cfg.get(STAGE))
+    train = TrainSettings.from_config(cfg.get("train"))
+    seed = int(cfg.get("seed", 0))
+    device = torch.device(train.device)
+    source = upstream_model(artifact, scene, STAGE).to(device)
+    segments = num_segments(scene.num_frames, section.k)
+    copies = replicate_foreground(source.foreground, segments).to(device)
+    trainable = {"fg": copies} if len(copies) else {}
+    if not section.freeze_background:
+        trainable["bg"] = source.background
+    training = training_scene(scene, train, early_stage=True)
+    report = None
+    if trainable:  # nothing to train without foreground when the background is frozen
+        trainable, report = _train(training, source, trainable, section, train, seed)
+    model = SceneModel(
+        stage=STAGE,
+        background=trainable.get("bg", source.background),
+        foreground=trainable.get("fg", copies),
+        num_frames=scene.num_frames,
+        segment_length=section.k,
+    ).to("cpu")
+    meta = stage_meta(
+        SCHEMA_VERSION,
+        section,
+        train,
+        report,
+        _counts(model),
+        downscale=training.downscale,
+    )
+    return model.to_artifact(meta)
+
+
+def _train(
+    scene: Scene,
+    source: SceneModel,
+    sets: dict[str, GaussianSet],
+    section: RelayConfig,
+    train: TrainSettings,
+    seed: int,
+) -> tuple[dict[str, GaussianSet], TrainReport]:
+    """Fit copy s (and a trainable background) to segment s's targets; returns the sets."""
+    device = torch.device(train.device)
+    plans = section.plans()
+    session = TrainingSession(
+        sets=sets,
+        plans={name: plans[name] for name in sets},
+        extent=scene.extent,
+        seed=seed,
+        device=device,
+    )
+    views = TrainViews(scene, device)
+    targets = SegmentTargets(views, section.k, section.p, section.pseudo_views)
+    segments = num_segments(scene.num_frames, section.k)
+    empty = source.foreground.subset(torch.zeros(0, dtype=torch.int64))
+
+    def current() -> tuple[GaussianSet, GaussianSet]:
+        return session.sets.get("bg", source.background), session.sets.get("fg", empty)
+
+    def step_fn(step: int) -> StepResult:
+        generator = session.generator
+        segment = int(torch.randint(segments, (1,), generator=generator))
+        first = segment_frames(segment, section.k, scene.num_frames)[0]
+        batch = views.random_views_at(first, train.batch_views, generator)
+        background, foreground = current()
+        degree = max(background.active_sh_degree, foreground.active_sh_degree)
+        rows = (foreground.buffers[SEGMENT] == segment).nonzero().squeeze(1)
+        parts = [
+            part_of("bg", background, degree, frozen=section.freeze_background),
+            part_of("fg", foreground, degree, rows=rows),
+        ]
+        render = splat(parts, [view.camera for view in batch], degree)
+        goals = [targets.target(view.camera.camera_id, segment, generator) for view in batch]
+        loss = photometric_loss(render.images, goals, train.ssim_weight)
+        return StepResult(loss, [render], render.images, goals)
+
+    def counts() -> tuple[int, int]:
+        background, foreground = current()
+        return len(background), len(foreground)
+
+    report = run_training(STAGE, session, section.steps, train, step_fn, counts)
+    return session.sets, report
+
+
+def _counts(model: SceneModel) -> dict[str, Any]:
+    """Gaussian counts, with the number of copies per segment."""
+    per_segment = torch.bincount(
+        model.foreground.buffers[SEGMENT].long(), minlength=model.num_segments
+    )
+    n_bg, n_fg = len(model.background), len(model.foreground)
+    return {
+        "num_gaussians": n_bg + n_fg,
+        "num_bg": n_bg,
+        "num_fg": n_fg,
+        "fg_per_segment": per_segment.tolist(),
+    }

@@ -1,0 +1,144 @@
+"""Splat parts of Gaussian sets into cameras, and map screen-space gradients back to each set.
+
+A render concatenates `Part`s: rows of one set given as raw (pre-activation) parameters, so a
+stage can pass deformed values or a per-row opacity factor (decouple's mask). Cameras are
+rendered in groups of equal image size (the splatting core needs one size per call).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import torch
+from torch import Tensor
+
+from relaygs.data import Camera
+from relaygs.model import MAX_LOG_SCALE, GaussianSet, normalize_quats
+from relaygs.splat import rasterization
+
+
+@dataclass
+class Part:
+    """Rows of one Gaussian set, raw parameters [n, ·]; `rows` index the set (None = all)."""
+
+    name: str
+    rows: Tensor | None
+    means: Tensor
+    log_scales: Tensor
+    quats: Tensor
+    opacity_logits: Tensor
+    sh: Tensor
+    opacity_factor: Tensor | None = None
+
+    @property
+    def count(self) -> int:
+        """Number of Gaussians in the part."""
+        return self.means.shape[0]
+
+
+def part_of(
+    name: str,
+    gaussians: GaussianSet,
+    sh_degree: int,
+    rows: Tensor | None = None,
+    frozen: bool = False,
+) -> Part:
+    """The (selected rows of the) set as a Part; frozen parts are detached (no gradient)."""
+    params = gaussians.params
+    values = [
+        params["means"],
+        params["log_scales"],
+        params["quats"],
+        params["opacity_logits"],
+        gaussians.colors(sh_degree),
+    ]
+    if frozen:
+        values = [value.detach() for value in values]
+    if rows is not None:
+        values = [value.index_select(0, rows) for value in values]
+    return Part(name, rows, *values)
+
+
+@dataclass
+class Render:
+    """Rendered images (aligned with the cameras) and, per size group, the splat meta."""
+
+    images: list[Tensor]
+    groups: list[tuple[list[int], dict[str, Any]]]
+    parts: list[Part]
+
+
+def splat(parts: list[Part], cameras: list[Camera], sh_degree: int) -> Render:
+    """Render the concatenated parts into every camera on a black background (unclamped)."""
+    means = torch.cat([p.means for p in parts])
+    scales = torch.exp(torch.cat([p.log_scales for p in parts]).clamp(max=MAX_LOG_SCALE))
+    quats = normalize_quats(torch.cat([p.quats for p in parts]))
+    opacities = torch.sigmoid(torch.cat([p.opacity_logits for p in parts]))
+    if any(p.opacity_factor is not None for p in parts):
+        factors = [
+            torch.ones_like(p.opacity_logits) if p.opacity_factor is None else p.opacity_factor
+            for p in parts
+        ]
+        opacities = opacities * torch.cat(factors)
+    colors = torch.cat([p.sh for p in parts])
+    images: list[Tensor] = [means.new_empty(0)] * len(cameras)
+    groups = []
+    for indices in _size_groups(cameras):
+        group = [cameras[i] for i in indices]
+        device = means.device
+        viewmats = torch.stack([c.w2c for c in group]).to(device, torch.float32)
+        intrinsics = torch.stack([c.K for c in group]).to(device, torch.float32)
+        rendered, _, meta = rasterization(
+            means,
+            quats,
+            scales,
+            opacities,
+            colors,
+            viewmats,
+            intrinsics,
+            group[0].width,
+            group[0].height,
+            sh_degree=sh_degree,
+        )
+        for slot, index in enumerate(indices):
+            images[index] = rendered[slot]
+        groups.append((indices, meta))
+    return Render(images, groups, parts)
+
+
+def screen_statistics(render: Render, name: str, set_size: int) -> tuple[Tensor, Tensor] | None:
+    """(means2d grad [C, set_size, 2], radii [C, set_size, 2]) of set `name` over all cameras;
+    rows not rendered get zero radius (not visible). None when the set was not rendered."""
+    offset = 0
+    located = None
+    for part in render.parts:
+        if part.name == name:
+            located = (offset, part)
+        offset += part.count
+    if located is None:
+        return None
+    start, part = located
+    grads, radii = [], []
+    for _, meta in render.groups:
+        means2d = meta["means2d"]
+        grad = means2d.grad if means2d.grad is not None else torch.zeros_like(means2d)
+        piece_grad = grad[:, start : start + part.count]
+        piece_radii = meta["radii"][:, start : start + part.count]
+        if part.rows is None:
+            grads.append(piece_grad)
+            radii.append(piece_radii)
+            continue
+        full_grad = grad.new_zeros(grad.shape[0], set_size, 2)
+        full_radii = piece_radii.new_zeros(piece_radii.shape[0], set_size, 2)
+        grads.append(full_grad.index_copy(1, part.rows, piece_grad))
+        radii.append(full_radii.index_copy(1, part.rows, piece_radii))
+    return torch.cat(grads), torch.cat(radii)
+
+
+def _size_groups(cameras: list[Camera]) -> list[list[int]]:
+    """Camera indices grouped by image size, in first-seen order."""
+    groups: dict[tuple[int, int], list[int]] = {}
+    for index, camera in enumerate(cameras):
+        groups.setdefault((camera.width, camera.height), []).append(index)
+    return list(groups.values())

@@ -1,0 +1,54 @@
+"""The no_stage2 ablation: S = ceil(T/k) copies of the decoupled foreground, not trained."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from relaygs.data import Scene
+from relaygs.pipeline.artifact import Artifact
+from relaygs.stages.common import single_upstream, stage_meta, upstream_model
+from relaygs.stages.config import parse_section, require
+from relaygs.stages.scene_model import SceneModel, replicate_foreground
+from relaygs.stages.segments import num_segments
+from relaygs.stages.train_settings import TrainSettings
+
+STAGE = "replicate"
+SCHEMA_VERSION = 1
+ACCEPTED_UPSTREAM = ("decouple",)
+
+
+@dataclass(frozen=True)
+class ReplicateConfig:
+    """Settings of the replicate stage (`cfg["replicate"]`): the segment length k."""
+
+    k: int = 16
+
+    def __post_init__(self) -> None:
+        """k must be a positive frame count."""
+        require(self.k >= 1, "replicate.k", self.k, "an int >= 1")
+
+    @classmethod
+    def from_config(cls, data: Mapping[str, Any] | None) -> ReplicateConfig:
+        """Parse `cfg["replicate"]`."""
+        return parse_section(cls, data, STAGE)
+
+
+def replicate(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, Any]) -> Artifact:
+    """Copy the decouple foreground once per segment (copy s tagged s); background unchanged."""
+    artifact = single_upstream(upstream, STAGE, ACCEPTED_UPSTREAM)
+    section = ReplicateConfig.from_config(cfg.get(STAGE))
+    train = TrainSettings.from_config(cfg.get("train"))
+    source = upstream_model(artifact, scene, STAGE)
+    segments = num_segments(scene.num_frames, section.k)
+    model = SceneModel(
+        stage=STAGE,
+        background=source.background,
+        foreground=replicate_foreground(source.foreground, segments),
+        num_frames=scene.num_frames,
+        segment_length=section.k,
+    )
+    n_bg, n_fg = len(model.background), len(model.foreground)
+    metrics = {"num_gaussians": n_bg + n_fg, "num_bg": n_bg, "num_fg": n_fg, "train_seconds": 0.0}
+    return model.to_artifact(stage_meta(SCHEMA_VERSION, section, train, None, metrics))

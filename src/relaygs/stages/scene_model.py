@@ -1,0 +1,187 @@
+"""The model every stage hands on: background and foreground Gaussians, segments, motion field.
+
+Artifact layout (tensors): `bg.*` and `fg.*` are `GaussianSet.to_tensors` of the two sets; the
+foreground carries the buffer `segment` (int32, the relay copy each row belongs to) and, after
+deform with γ, the parameter `gamma`. `is_fg` [N] bool and `segment` [N] int32 (−1 for the
+background) describe the concatenation bg‖fg. A deformed model adds `field.<state_dict key>` and,
+with a colour affine, `affine.log_gain` / `affine.offset`. Metadata holds what is needed to
+rebuild it (frames, segment length k, field settings, affine camera ids).
+
+Which foreground rows are visible at frame f: a decouple model shows its foreground only at
+frame 0 (the decoupled movers); every other model shows the copy of segment f // k, so each
+frame belongs to exactly one segment.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import torch
+from torch import Tensor
+
+from relaygs.errors import InputError
+from relaygs.field import ColorAffine, DeformationField
+from relaygs.model import GaussianSet
+from relaygs.pipeline.artifact import Artifact
+
+SEGMENT = "segment"
+GAMMA = "gamma"
+FIELD_PREFIX = "field."
+AFFINE_PREFIX = "affine."
+DECOUPLE = "decouple"
+
+
+@dataclass
+class SceneModel:
+    """Background + foreground Gaussian sets, the segment length, and optional motion modules.
+
+    `field_settings` are the DeformationField keyword arguments plus `aabb` and
+    `time_resolution`; `affine_cameras` lists the train camera ids in ColorAffine row order.
+    """
+
+    stage: str
+    background: GaussianSet
+    foreground: GaussianSet
+    num_frames: int
+    segment_length: int
+    field: DeformationField | None = None
+    field_settings: dict[str, Any] | None = None
+    affine: ColorAffine | None = None
+    affine_cameras: list[int] = dataclasses.field(default_factory=list)
+
+    @property
+    def num_segments(self) -> int:
+        """S = ceil(T / k)."""
+        return math.ceil(self.num_frames / self.segment_length)
+
+    def segment_of(self, frame: int) -> int:
+        """The segment that frame `frame` belongs to (frame // k)."""
+        return min(frame, self.num_frames - 1) // self.segment_length
+
+    def foreground_rows(self, frame: int) -> Tensor:
+        """Indices of the foreground rows rendered at `frame`."""
+        segments = self.foreground.buffers[SEGMENT]
+        if self.stage == DECOUPLE:
+            if frame == 0:
+                return torch.arange(segments.shape[0], device=segments.device)
+            return torch.zeros(0, dtype=torch.int64, device=segments.device)
+        return (segments == self.segment_of(frame)).nonzero().squeeze(1)
+
+    def to_artifact(self, meta: Mapping[str, Any]) -> Artifact:
+        """This model as an Artifact; `meta` adds stage-specific metadata (config, metrics)."""
+        tensors = {**self.background.to_tensors("bg."), **self.foreground.to_tensors("fg.")}
+        n_bg, n_fg = len(self.background), len(self.foreground)
+        tensors["is_fg"] = torch.cat(
+            [torch.zeros(n_bg, dtype=torch.bool), torch.ones(n_fg, dtype=torch.bool)]
+        )
+        tensors[SEGMENT] = torch.cat(
+            [
+                torch.full((n_bg,), -1, dtype=torch.int32),
+                self.foreground.buffers[SEGMENT].to("cpu", torch.int32),
+            ]
+        )
+        if self.field is not None:
+            for key, value in self.field.state_dict().items():
+                tensors[FIELD_PREFIX + key] = value.detach().clone()
+        if self.affine is not None:
+            for key, value in self.affine.state_dict().items():
+                tensors[AFFINE_PREFIX + key] = value.detach().clone()
+        body = {
+            "num_frames": self.num_frames,
+            "k": self.segment_length,
+            "num_segments": self.num_segments,
+            "counts": {"bg": n_bg, "fg": n_fg, "total": n_bg + n_fg},
+            "field": self.field_settings,
+            "affine_cameras": list(self.affine_cameras),
+        }
+        tensors = {key: value.detach().to("cpu") for key, value in tensors.items()}
+        return Artifact(stage=self.stage, tensors=tensors, meta={**body, **meta})
+
+    @classmethod
+    def from_artifact(cls, artifact: Artifact) -> SceneModel:
+        """Rebuild the model a stage wrote (exact: the same tensors give the same renders)."""
+        meta, tensors = artifact.meta, artifact.tensors
+        for key in ("num_frames", "k"):
+            if not isinstance(meta.get(key), int):
+                raise InputError(f"{artifact.stage} artifact: meta {key!r} missing or not an int")
+        background = GaussianSet.from_tensors(_with_prefix(tensors, "bg."), "bg.")
+        foreground = GaussianSet.from_tensors(_with_prefix(tensors, "fg."), "fg.")
+        if SEGMENT not in foreground.buffers:
+            raise InputError(f"{artifact.stage} artifact: foreground has no 'segment' buffer")
+        model = cls(
+            stage=artifact.stage,
+            background=background,
+            foreground=foreground,
+            num_frames=meta["num_frames"],
+            segment_length=meta["k"],
+            field_settings=meta.get("field"),
+            affine_cameras=list(meta.get("affine_cameras") or []),
+        )
+        if model.field_settings is not None:
+            model.field = build_field(model.field_settings)
+            model.field.load_state_dict(_with_prefix(tensors, FIELD_PREFIX, strip=True))
+        if model.affine_cameras:
+            model.affine = ColorAffine(len(model.affine_cameras))
+            model.affine.load_state_dict(_with_prefix(tensors, AFFINE_PREFIX, strip=True))
+        return model
+
+    def to(self, device: torch.device | str) -> SceneModel:
+        """This model with every tensor and module on `device` (modules move in place)."""
+        self.background = self.background.to(device)
+        self.foreground = self.foreground.to(device)
+        if self.field is not None:
+            self.field.to(device)
+        if self.affine is not None:
+            self.affine.to(device)
+        return self
+
+
+def build_field(settings: Mapping[str, Any], seed: int = 0) -> DeformationField:
+    """A DeformationField from stored settings, its random plane init drawn from `seed`
+    without touching the global RNG."""
+    kwargs = {key: value for key, value in settings.items() if key != "aabb"}
+    kwargs["multires"] = tuple(kwargs["multires"])
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(seed)
+        return DeformationField(settings["aabb"], **kwargs)
+
+
+def foreground_with_segments(foreground: GaussianSet, segments: Tensor) -> GaussianSet:
+    """A copy of `foreground` whose `segment` buffer is `segments` (added if missing)."""
+    tensors = {
+        key: value for key, value in foreground.to_tensors().items() if key != f"buffer.{SEGMENT}"
+    }
+    tensors[f"buffer.{SEGMENT}"] = segments.to(torch.int32)
+    return GaussianSet.from_tensors(tensors)
+
+
+def replicate_foreground(foreground: GaussianSet, num_segments: int) -> GaussianSet:
+    """S copies of `foreground` stacked, copy s tagged with segment s (extras and buffers too)."""
+    tensors = foreground.to_tensors()
+    stacked = {
+        key: value.repeat(num_segments, *([1] * (value.ndim - 1))) if value.ndim else value
+        for key, value in tensors.items()
+    }
+    count = len(foreground)
+    stacked[f"buffer.{SEGMENT}"] = torch.arange(num_segments, dtype=torch.int32).repeat_interleave(
+        count
+    )
+    return GaussianSet.from_tensors(stacked)
+
+
+def core_only(gaussians: GaussianSet) -> GaussianSet:
+    """The set without extra parameters and buffers (e.g. dropping decouple's mask logits)."""
+    tensors = gaussians.to_tensors()
+    kept = {
+        key: value for key, value in tensors.items() if not key.startswith(("param.", "buffer."))
+    }
+    return GaussianSet.from_tensors(kept)
+
+
+def _with_prefix(tensors: Mapping[str, Tensor], prefix: str, strip: bool = False) -> dict:
+    start = len(prefix) if strip else 0
+    return {key[start:]: value for key, value in tensors.items() if key.startswith(prefix)}

@@ -1,0 +1,200 @@
+"""What a training stage optimises, as one object: Gaussian sets with their Adam and density
+control, optional modules (motion field, colour affine) with theirs, and the sampling RNG.
+
+It also captures and restores its whole state for in-stage checkpoints. Densification changes
+tensor shapes, so a restore rebuilds the sets from the saved tensors (current shapes) and only
+then builds the optimisers and loads their saved state.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import torch
+from torch import Tensor, nn
+
+from relaygs.model import (
+    ADAM_EPS,
+    DensifyReport,
+    DensifySettings,
+    DensityController,
+    GaussianOptimizer,
+    GaussianSet,
+    LRSchedule,
+    SetLearningRates,
+    check_finite,
+    sh_degree_for_step,
+)
+from relaygs.pipeline.checkpoint import TrainingState
+from relaygs.stages.render import Render, screen_statistics
+
+GENERATOR_KEY = "generator"
+DENSITY_GENERATOR_KEY = "density_generator"
+
+
+@dataclass(frozen=True)
+class SetPlan:
+    """How one Gaussian set trains: learning rates, density control (None = off), SH schedule."""
+
+    learning_rates: SetLearningRates
+    densify: DensifySettings | None
+    sh_every: int = 1000
+
+
+@dataclass(frozen=True)
+class ModuleGroup:
+    """One Adam group of module parameters with its schedule (× scene extent when asked)."""
+
+    name: str
+    params: list[nn.Parameter]
+    schedule: LRSchedule
+    scale_by_extent: bool = False
+
+
+@dataclass
+class TrainingSession:
+    """The trainable state of a stage; call `build()` (or `restore`) before training."""
+
+    sets: dict[str, GaussianSet]
+    plans: dict[str, SetPlan]
+    extent: float
+    seed: int
+    device: torch.device
+    modules: dict[str, nn.Module] = field(default_factory=dict)
+    module_groups: list[ModuleGroup] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        """Seed the generators (sampling on the CPU, split noise on the sets' device) and
+        remember each set's starting SH degree."""
+        self.generator = torch.Generator().manual_seed(self.seed)
+        self.density_generator = torch.Generator(self.device).manual_seed(self.seed + 1)
+        self._base_sh = {name: g.active_sh_degree for name, g in self.sets.items()}
+        self.build()
+
+    def build(self) -> None:
+        """(Re)build optimisers and density controllers over the current sets and modules."""
+        self.optimizer = GaussianOptimizer(
+            self.sets,
+            {name: self.plans[name].learning_rates for name in self.sets},
+            spatial_lr_scale=self.extent,
+        )
+        self.controllers = {
+            name: DensityController(
+                gaussians, plan.densify, self.extent, self.optimizer, self.density_generator
+            )
+            for name, gaussians in self.sets.items()
+            if (plan := self.plans[name]).densify is not None
+        }
+        self.module_optimizer = None
+        if self.module_groups:
+            groups = [
+                {"params": group.params, "name": group.name, "lr": group.schedule.at(0)}
+                for group in self.module_groups
+            ]
+            self.module_optimizer = torch.optim.Adam(groups, lr=0.0, eps=ADAM_EPS)
+
+    def prepare_step(self, step: int) -> dict[str, float]:
+        """Set learning rates and SH degrees for `step`; drop old gradients; returns the lrs."""
+        rates = self.optimizer.update_learning_rates(step)
+        if self.module_optimizer is not None:
+            for group, spec in zip(
+                self.module_optimizer.param_groups, self.module_groups, strict=True
+            ):
+                lr = spec.schedule.at(step) * (self.extent if spec.scale_by_extent else 1.0)
+                group["lr"] = lr
+                rates[spec.name] = lr
+            self.module_optimizer.zero_grad(set_to_none=True)
+        for name, gaussians in self.sets.items():
+            scheduled = sh_degree_for_step(step, gaussians.max_sh_degree, self.plans[name].sh_every)
+            gaussians.active_sh_degree = max(self._base_sh[name], scheduled)
+        self.optimizer.zero_grad()
+        return rates
+
+    def parameters(self) -> dict[str, Tensor]:
+        """Every trainable tensor by name (`<set>.<param>`, `<module>.<param>`)."""
+        named: dict[str, Tensor] = {}
+        for set_name, gaussians in self.sets.items():
+            for name, param in gaussians.params.items():
+                named[f"{set_name}.{name}"] = param
+        for module_name, module in self.modules.items():
+            for name, param in module.named_parameters():
+                named[f"{module_name}.{name}"] = param
+        return named
+
+    def check_finite(self, stage: str, step: int, loss: Tensor | None = None) -> None:
+        """DivergenceError naming stage, step and tensor if a loss/param/grad is not finite."""
+        tensors = {} if loss is None else {"loss": loss.detach()}
+        tensors.update(self.parameters())
+        check_finite(stage, step, tensors)
+
+    def apply_gradients(self, renders: list[Render], step: int) -> list[DensifyReport]:
+        """Optimiser steps, then density statistics from `renders` and density control."""
+        self.optimizer.step()
+        if self.module_optimizer is not None:
+            self.module_optimizer.step()
+        reports = []
+        for name, controller in self.controllers.items():
+            stats = [screen_statistics(r, name, len(self.sets[name])) for r in renders]
+            stats = [s for s in stats if s is not None]
+            if stats:
+                width, height = _render_size(renders)
+                grads = torch.cat([grad for grad, _ in stats])
+                radii = torch.cat([radius for _, radius in stats])
+                controller.accumulate(grads, radii, width, height)
+            report = controller.step(step)
+            if report is not None:
+                reports.append(report)
+        return reports
+
+    def state_tensors(self) -> dict[str, Tensor]:
+        """Everything needed to resume, as named tensors (sets, modules, density stats, RNG)."""
+        tensors: dict[str, Tensor] = {}
+        for name, gaussians in self.sets.items():
+            tensors.update(gaussians.to_tensors(f"set.{name}."))
+        for name, module in self.modules.items():
+            for key, value in module.state_dict().items():
+                tensors[f"module.{name}.{key}"] = value
+        for name, controller in self.controllers.items():
+            for key, value in controller.state_dict().items():
+                tensors[f"density.{name}.{key}"] = value
+        tensors[GENERATOR_KEY] = self.generator.get_state()
+        tensors[DENSITY_GENERATOR_KEY] = self.density_generator.get_state()
+        return tensors
+
+    def optimizers(self) -> dict[str, torch.optim.Optimizer]:
+        """The optimisers whose state a checkpoint saves, by name."""
+        optimizers: dict[str, torch.optim.Optimizer] = {"gaussians": self.optimizer.adam}
+        if self.module_optimizer is not None:
+            optimizers["modules"] = self.module_optimizer
+        return optimizers
+
+    def restore(self, state: TrainingState) -> None:
+        """Resume from a checkpoint written from `state_tensors` / `optimizers`."""
+        tensors = state.tensors
+        for name in self.sets:
+            prefix = f"set.{name}."
+            subset = {k: v for k, v in tensors.items() if k.startswith(prefix)}
+            self.sets[name] = GaussianSet.from_tensors(subset, prefix).to(self.device)
+        for name, module in self.modules.items():
+            prefix = f"module.{name}."
+            module.load_state_dict(
+                {k[len(prefix) :]: v for k, v in tensors.items() if k.startswith(prefix)}
+            )
+        self.build()
+        self.optimizer.adam.load_state_dict(state.optimizers["gaussians"])
+        if self.module_optimizer is not None:
+            self.module_optimizer.load_state_dict(state.optimizers["modules"])
+        for name, controller in self.controllers.items():
+            prefix = f"density.{name}."
+            controller.load_state_dict(
+                {k[len(prefix) :]: v for k, v in tensors.items() if k.startswith(prefix)}
+            )
+        self.generator.set_state(tensors[GENERATOR_KEY])
+        self.density_generator.set_state(tensors[DENSITY_GENERATOR_KEY])
+        state.restore_rng()
+
+
+def _render_size(renders: list[Render]) -> tuple[int, int]:
+    """Image width and height of the renders (the training scene has one camera size)."""
+    meta = renders[0].groups[0][1]
+    return int(meta["width"]), int(meta["height"])

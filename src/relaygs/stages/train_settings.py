@@ -1,0 +1,64 @@
+"""The `train` section shared by every training stage: batch, loss weight, resolution, logging."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import torch
+
+from relaygs.errors import InputError
+from relaygs.stages.config import parse_section, require
+
+
+@dataclass(frozen=True)
+class TrainSettings:
+    """Settings every stage reads from `cfg["train"]`.
+
+    downscale None is the paper's rule: the first two stages (decouple, relay) train at half
+    resolution when images are wider than `half_res_width` pixels (the
+    paper does so on Panoptic's 640×360); deform and the 4D-GS warm-up train at full resolution,
+    as 4D-GS does. An integer forces that factor on every stage. Periods are in steps.
+    """
+
+    batch_views: int = 4
+    ssim_weight: float = 0.2
+    downscale: int | None = None
+    half_res_width: int = 320
+    log_every: int = 100
+    image_every: int = 0
+    checkpoint_every: int = 500
+    progress: bool = True
+    device: str = "cpu"
+
+    def __post_init__(self) -> None:
+        """Reject values no run could use."""
+        require(self.batch_views >= 1, "train.batch_views", self.batch_views, "an int >= 1")
+        require(0.0 <= self.ssim_weight <= 1.0, "train.ssim_weight", self.ssim_weight, "[0, 1]")
+        require(
+            self.downscale is None or self.downscale >= 1,
+            "train.downscale",
+            self.downscale,
+            "None or an int >= 1",
+        )
+        require(self.half_res_width >= 1, "train.half_res_width", self.half_res_width, ">= 1")
+        require(self.log_every >= 1, "train.log_every", self.log_every, "an int >= 1")
+        require(self.image_every >= 0, "train.image_every", self.image_every, "an int >= 0")
+        require(self.checkpoint_every >= 1, "train.checkpoint_every", self.checkpoint_every, ">= 1")
+        try:
+            torch.device(self.device)
+        except RuntimeError:
+            message = f"train.device: expected a torch device, got {self.device!r}"
+            raise InputError(message) from None
+
+    @classmethod
+    def from_config(cls, data: Mapping[str, Any] | None) -> TrainSettings:
+        """Parse `cfg["train"]` (missing keys keep defaults)."""
+        return parse_section(cls, data, "train")
+
+    def downscale_for(self, image_width: int, early_stage: bool) -> int:
+        """Resolution factor a stage trains at, given the scene's full image width."""
+        if self.downscale is not None:
+            return self.downscale
+        return 2 if early_stage and image_width > self.half_res_width else 1

@@ -1,0 +1,119 @@
+"""The 4D-GS baseline's coarse stage: one static 3DGS fitted to every frame, no mask.
+
+Output: a model whose Gaussians are all background (`is_fg` all False, no foreground set).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import torch
+
+from relaygs.data import Scene
+from relaygs.model import BACKGROUND_DENSIFY, DensifySettings, SetLearningRates
+from relaygs.pipeline.artifact import Artifact
+from relaygs.stages.common import (
+    GAUSSIAN_LR,
+    initial_gaussians,
+    no_upstream,
+    stage_meta,
+    training_scene,
+)
+from relaygs.stages.config import densify_settings, learning_rates, parse_section, require_steps
+from relaygs.stages.decouple import check_static_settings
+from relaygs.stages.loop import StepResult, run_training
+from relaygs.stages.loss import photometric_loss
+from relaygs.stages.render import part_of, splat
+from relaygs.stages.scene_model import SceneModel, foreground_with_segments
+from relaygs.stages.session import SetPlan, TrainingSession
+from relaygs.stages.train_settings import TrainSettings
+from relaygs.stages.views import TrainViews
+
+STAGE = "warmup"
+SCHEMA_VERSION = 1
+SET = "bg"
+
+
+@dataclass(frozen=True)
+class WarmupConfig:
+    """Settings of the static warm-up (`cfg["warmup"]`): 4D-GS's coarse stage, 3000 steps,
+    3DGS learning rates and density control."""
+
+    steps: int = 3000
+    init_points: int | None = None
+    init_opacity: float = 0.1
+    sh_degree: int = 3
+    sh_every: int = 1000
+    lr: dict[str, Any] = field(default_factory=lambda: dict(GAUSSIAN_LR))
+    densify: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        """Check every value (errors name `warmup.<key>`)."""
+        require_steps("warmup.steps", self.steps)
+        check_static_settings(self, STAGE)
+        self.learning_rates()
+        self.densify_settings()
+
+    @classmethod
+    def from_config(cls, data: Mapping[str, Any] | None) -> WarmupConfig:
+        """Parse `cfg["warmup"]`."""
+        return parse_section(cls, data, STAGE)
+
+    def learning_rates(self) -> SetLearningRates:
+        """Per-parameter schedules."""
+        return learning_rates(self.lr, self.steps, f"{STAGE}.lr")
+
+    def densify_settings(self) -> DensifySettings:
+        """3DGS density control."""
+        return densify_settings(self.densify, BACKGROUND_DENSIFY, f"{STAGE}.densify")
+
+
+def warmup(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, Any]) -> Artifact:
+    """Fit one static Gaussian set to views drawn over all frames and train cameras."""
+    no_upstream(upstream, STAGE)
+    section = WarmupConfig.from_config(cfg.get(STAGE))
+    train = TrainSettings.from_config(cfg.get("train"))
+    seed = int(cfg.get("seed", 0))
+    device = torch.device(train.device)
+    training = training_scene(scene, train, early_stage=False)
+    gaussians = initial_gaussians(
+        scene, section.init_points, section.init_opacity, section.sh_degree, seed
+    ).to(device)
+    session = TrainingSession(
+        sets={SET: gaussians},
+        plans={
+            SET: SetPlan(section.learning_rates(), section.densify_settings(), section.sh_every)
+        },
+        extent=scene.extent,
+        seed=seed,
+        device=device,
+    )
+    views = TrainViews(training, device)
+
+    def step_fn(step: int) -> StepResult:
+        batch = views.random_views(train.batch_views, session.generator)
+        gaussians = session.sets[SET]
+        degree = gaussians.active_sh_degree
+        render = splat([part_of(SET, gaussians, degree)], [v.camera for v in batch], degree)
+        targets = [views.image(view) for view in batch]
+        loss = photometric_loss(render.images, targets, train.ssim_weight)
+        return StepResult(loss, [render], render.images, targets)
+
+    def counts() -> tuple[int, int]:
+        return len(session.sets[SET]), 0
+
+    report = run_training(STAGE, session, section.steps, train, step_fn, counts)
+    background = session.sets[SET].to("cpu")
+    empty = background.subset(torch.zeros(len(background), dtype=torch.bool))
+    model = SceneModel(
+        stage=STAGE,
+        background=background,
+        foreground=foreground_with_segments(empty, torch.zeros(0, dtype=torch.int32)),
+        num_frames=scene.num_frames,
+        segment_length=scene.num_frames,
+    )
+    metrics = {"num_gaussians": len(background), "num_bg": len(background), "num_fg": 0}
+    meta = stage_meta(SCHEMA_VERSION, section, train, report, metrics, downscale=training.downscale)
+    return model.to_artifact(meta)

@@ -1,0 +1,109 @@
+"""Stage settings: defaults parse, budgets validate, bad keys and values fail in one line."""
+
+from __future__ import annotations
+
+import pytest
+
+from relaygs.errors import InputError
+from relaygs.stages import BUDGETS, CONFIGS, SCHEMA_VERSIONS, STAGES, validate_config
+from relaygs.stages.decouple import DecoupleConfig
+from relaygs.stages.deform import DeformConfig
+from relaygs.stages.relay import RelayConfig
+from relaygs.stages.train_settings import TrainSettings
+
+
+def test_every_stage_has_function_config_and_schema() -> None:
+    expected = {"decouple", "relay", "deform", "warmup", "replicate"}
+    assert set(STAGES) == set(CONFIGS) == set(SCHEMA_VERSIONS) == expected
+    assert all(isinstance(version, int) and version >= 1 for version in SCHEMA_VERSIONS.values())
+
+
+def test_paper_defaults() -> None:
+    assert DecoupleConfig.from_config(None).steps == 3000
+    assert DecoupleConfig.from_config({}).mask_init == 2.0
+    relay = RelayConfig.from_config({})
+    assert (relay.steps, relay.k, relay.p, relay.pseudo_views) == (14000, 16, 3, True)
+    deform = DeformConfig.from_config({})
+    assert (deform.steps, deform.isolate_fg_bg, deform.gamma) == (20000, True, True)
+    assert (deform.plane_smoothness, deform.time_smoothness, deform.time_l1) == (2e-4, 1e-3, 1e-4)
+    assert CONFIGS["warmup"].from_config({}).steps == 3000
+    train = TrainSettings.from_config({})
+    assert (train.batch_views, train.ssim_weight) == (4, 0.2)
+
+
+@pytest.mark.parametrize("budget", sorted(BUDGETS))
+@pytest.mark.parametrize("stage", sorted(STAGES))
+def test_budgets_validate(budget: str, stage: str) -> None:
+    validate_config(stage, BUDGETS[budget])
+
+
+@pytest.mark.parametrize(
+    ("stage", "section", "needle"),
+    [
+        ("decouple", {"bogus": 1}, "bogus"),
+        ("decouple", {"steps": -1}, "decouple.steps"),
+        ("decouple", {"steps": "many"}, "decouple.steps"),
+        ("decouple", {"steps": True}, "decouple.steps"),
+        ("decouple", {"mask_threshold": 1.5}, "decouple.mask_threshold"),
+        ("decouple", {"lr": {"speed": 1.0}}, "decouple.lr"),
+        ("decouple", {"lr": {"means": -1.0}}, "decouple.lr.means"),
+        ("decouple", {"densify": {"densify_every": 0}}, "decouple.densify.densify_every"),
+        ("decouple", {"densify": {"often": 3}}, "often"),
+        ("relay", {"k": 0}, "relay.k"),
+        ("relay", {"p": 0}, "relay.p"),
+        ("relay", {"densify_fg": {"max_gaussians": 0}}, "relay.densify_fg.max_gaussians"),
+        ("deform", {"steps": -5}, "deform.steps"),
+        ("deform", {"color_affine": "maybe"}, "deform.color_affine"),
+        ("deform", {"multires": []}, "deform.multires"),
+        ("deform", {"lr_grid": {"init": 1.0, "final": 0.0}}, "deform.lr_grid.final"),
+        ("replicate", {"k": -2}, "replicate.k"),
+        ("warmup", {"init_opacity": 1.0}, "warmup.init_opacity"),
+    ],
+)
+def test_bad_section_values_name_the_key(stage: str, section: dict, needle: str) -> None:
+    with pytest.raises(InputError) as caught:
+        validate_config(stage, {stage: section})
+    message = str(caught.value)
+    assert needle in message
+    assert "\n" not in message
+
+
+@pytest.mark.parametrize(
+    ("cfg", "needle"),
+    [
+        ({"train": {"batch_views": 0}}, "train.batch_views"),
+        ({"train": {"ssim_weight": 2.0}}, "train.ssim_weight"),
+        ({"train": {"device": "warp-drive"}}, "train.device"),
+        ({"train": {"wandb": True}}, "wandb"),
+        ({"eval": {"frame_stride": 0}}, "eval.frame_stride"),
+    ],
+)
+def test_bad_shared_sections_name_the_key(cfg: dict, needle: str) -> None:
+    with pytest.raises(InputError, match=needle.replace(".", r"\.")):
+        validate_config("decouple", cfg)
+
+
+def test_unknown_stage_type() -> None:
+    with pytest.raises(InputError, match="unknown stage type 'stage4'"):
+        validate_config("stage4", {})
+
+
+def test_partial_mappings_merge_over_defaults() -> None:
+    section = DecoupleConfig.from_config({"lr": {"quats": 0.5}, "steps": 100})
+    rates = section.learning_rates()
+    assert rates.quats.init == 0.5
+    assert rates.means.init == 2e-4  # kept from the default mapping
+    # a decaying schedule without max_steps decays over the stage's own steps
+    assert rates.means.max_steps == 100
+    assert rates.extras["mask_logit"].init == section.mask_lr
+
+
+def test_foreground_settings_follow_the_paper() -> None:
+    plans = RelayConfig.from_config({}).plans()
+    assert set(plans) == {"fg"}  # background frozen by default
+    fg = plans["fg"]
+    assert fg.learning_rates.means.init == 1e-3
+    assert fg.densify.grad_threshold == 1e-4
+    background = DecoupleConfig.from_config({}).densify_settings()
+    assert fg.densify.percent_dense == pytest.approx(0.1 * background.percent_dense)
+    assert set(RelayConfig.from_config({"freeze_background": False}).plans()) == {"fg", "bg"}

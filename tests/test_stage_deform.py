@@ -1,0 +1,135 @@
+"""Deform: γ as (1 + e^γ) on relay Gaussians only, MLP sets, colour affine, loss, metrics."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from conftest import stage_smoke_cfg
+from relaygs.data import Scene, load_scene
+from relaygs.model import GaussianSet
+from relaygs.pipeline.artifact import Artifact
+from relaygs.stages import STAGES, SceneModel, evaluate
+from relaygs.stages.motion import deformed_parts
+from relaygs.stages.scene_model import build_field
+
+
+def _random_set(count: int, generator: torch.Generator) -> GaussianSet:
+    xyz = torch.rand(count, 3, generator=generator) * 2 - 1
+    return GaussianSet.from_points(xyz, torch.rand(count, 3, generator=generator))
+
+
+def _moving_field(isolate: bool):
+    settings = {
+        "aabb": [[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]],
+        "time_resolution": 4,
+        "isolate_fg_bg": isolate,
+        "multires": [1],
+        "spatial_resolution": 8,
+        "channels": 4,
+        "width": 8,
+        "depth": 0,
+    }
+    field = build_field(settings, seed=3)
+    generator = torch.Generator().manual_seed(5)
+    with torch.no_grad():  # non-zero position heads, so Δμ differs per Gaussian and set
+        for mlp in field.mlp_sets.values():
+            last = mlp.heads["dxyz"][-1]
+            last.weight.copy_(torch.randn(last.weight.shape, generator=generator) * 0.1)
+            last.bias.copy_(torch.randn(last.bias.shape, generator=generator) * 0.1)
+    return field
+
+
+@pytest.mark.parametrize("isolate", [True, False])
+def test_gamma_scales_relay_motion_only(isolate: bool) -> None:
+    generator = torch.Generator().manual_seed(0)
+    background, foreground = _random_set(7, generator), _random_set(5, generator)
+    gamma = torch.randn(5, 3, generator=generator)
+    foreground.add_param("gamma", gamma)
+    field = _moving_field(isolate)
+    rows = torch.tensor([0, 2, 3])
+    bg, fg = deformed_parts(background, foreground, rows, field, 0.4, sh_degree=0)
+    xyz = torch.cat([background.means, foreground.means[rows]]).detach()
+    group = torch.cat([torch.zeros(7), torch.ones(3)]).long()
+    dmu = field(xyz, 0.4, group).dxyz.detach()
+    assert dmu.abs().min() > 0
+    torch.testing.assert_close(bg.means.detach(), xyz[:7] + dmu[:7])
+    expected_fg = xyz[7:] + (1 + torch.exp(gamma[rows])) * dmu[7:]
+    torch.testing.assert_close(fg.means.detach(), expected_fg)
+
+
+def test_without_gamma_relay_moves_by_plain_delta() -> None:
+    generator = torch.Generator().manual_seed(1)
+    background, foreground = _random_set(4, generator), _random_set(4, generator)
+    field = _moving_field(isolate=True)
+    rows = torch.arange(4)
+    _, fg = deformed_parts(background, foreground, rows, field, 0.9, sh_degree=0)
+    xyz = torch.cat([background.means, foreground.means]).detach()
+    dmu = field(xyz, 0.9, torch.cat([torch.zeros(4), torch.ones(4)]).long()).dxyz.detach()
+    torch.testing.assert_close(fg.means.detach(), xyz[4:] + dmu[4:])
+
+
+def test_deform_output(stage_deformed: Artifact, stage_scene: Scene) -> None:
+    tensors = stage_deformed.tensors
+    for name, tensor in tensors.items():
+        if tensor.is_floating_point():
+            assert torch.isfinite(tensor).all(), name
+    assert "fg.param.gamma" in tensors
+    assert any(name.startswith("field.mlp_sets.foreground.") for name in tensors)
+    assert any(name.startswith("field.mlp_sets.background.") for name in tensors)
+    assert not any(name.startswith("field.mlp_sets.all.") for name in tensors)
+    # the juggle preset declares colour inconsistency: one affine row per train camera
+    assert "color_inconsistency" in stage_scene.effects
+    assert tensors["affine.log_gain"].shape == (len(stage_scene.train_cameras), 3)
+    assert stage_deformed.meta["field"]["time_resolution"] == math.ceil(stage_scene.num_frames / 2)
+
+
+def test_four_dgs_baseline_has_one_mlp_set_and_no_gamma(stage_scene: Scene) -> None:
+    cfg = stage_smoke_cfg(warmup={"steps": 4}, deform={"isolate_fg_bg": False, "gamma": False})
+    warm = STAGES["warmup"](stage_scene, {}, cfg)
+    deformed = STAGES["deform"](stage_scene, {"warmup": warm}, cfg)
+    model = SceneModel.from_artifact(deformed)
+    assert list(model.field.mlp_sets) == ["all"]
+    assert "gamma" not in model.foreground.params and len(model.foreground) == 0
+
+
+def test_colour_affine_only_when_the_scene_asks(
+    stage_scene_path, stage_decoupled: Artifact
+) -> None:
+    plain = load_scene(stage_scene_path, max_points=500, effects=[])
+    cfg = stage_smoke_cfg(deform={"steps": 2})
+    deformed = STAGES["deform"](plain, {"decouple": stage_decoupled}, cfg)
+    assert not any(name.startswith("affine.") for name in deformed.tensors)
+    assert deformed.meta["affine_cameras"] == []
+    forced = stage_smoke_cfg(deform={"steps": 2, "color_affine": True})
+    assert "affine.offset" in STAGES["deform"](plain, {"decouple": stage_decoupled}, forced).tensors
+
+
+def test_no_copies_shows_the_single_copy_at_every_frame(
+    stage_scene: Scene, stage_decoupled: Artifact
+) -> None:
+    cfg = stage_smoke_cfg(deform={"steps": 2})
+    model = SceneModel.from_artifact(STAGES["deform"](stage_scene, {"d": stage_decoupled}, cfg))
+    for frame in (0, 3, stage_scene.num_frames - 1):
+        assert model.foreground_rows(frame).numel() == len(model.foreground) > 0
+
+
+def test_training_loss_falls(stage_scene: Scene, stage_relayed: Artifact) -> None:
+    smoke = stage_smoke_cfg()["deform"]
+    no_reset = {  # an opacity reset would lift the loss right before the final window
+        key: {**smoke[key], "opacity_reset_every": 0} for key in ("densify_bg", "densify_fg")
+    }
+    cfg = stage_smoke_cfg(deform={"steps": 60, **no_reset})
+    metrics = STAGES["deform"](stage_scene, {"relay": stage_relayed}, cfg).meta["metrics"]
+    assert metrics["final_loss"] < metrics["initial_loss"]
+
+
+def test_test_metrics_are_finite(stage_deformed: Artifact, stage_scene: Scene) -> None:
+    metrics = evaluate(stage_scene, stage_deformed, stage_smoke_cfg(eval={"frame_stride": 3}))
+    for key in ("psnr", "ssim", "fg_psnr", "render_fps", "storage_mb"):
+        assert math.isfinite(metrics[key]) and metrics[key] > 0, key
+    assert metrics["num_gaussians"] == stage_deformed.meta["counts"]["total"]
+    frames = len(range(0, stage_scene.num_frames, 3))
+    assert metrics["num_test_images"] == frames * len(stage_scene.test_cameras)

@@ -1,0 +1,117 @@
+"""Relay and replicate: segments, pseudo-view targets, frozen background, copies per segment."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from conftest import STAGE_K, stage_smoke_cfg
+from relaygs.data import Scene
+from relaygs.errors import InputError
+from relaygs.pipeline.artifact import Artifact
+from relaygs.stages import STAGES, SceneModel
+from relaygs.stages.segments import SegmentTargets, pseudo_frames, segment_frames
+from relaygs.stages.views import TrainViews
+
+
+def test_segments_cover_every_frame_once() -> None:
+    frames = [f for s in range(math.ceil(70 / 16)) for f in segment_frames(s, 16, 70)]
+    assert frames == list(range(70))
+
+
+@pytest.mark.parametrize(
+    ("segment", "k", "num_frames", "p", "expected"),
+    [
+        (0, 16, 64, 3, [0, 8, 15]),  # first, middle, last
+        (3, 16, 64, 3, [48, 56, 63]),
+        (1, 4, 6, 3, [4, 5]),  # a short last segment gives fewer frames
+        (0, 1, 5, 3, [0]),
+        (2, 10, 30, 1, [24]),
+        (0, 9, 9, 5, [0, 2, 4, 6, 8]),
+    ],
+)
+def test_pseudo_frames_spread_over_the_segment(
+    segment: int, k: int, num_frames: int, p: int, expected: list[int]
+) -> None:
+    assert pseudo_frames(segment, k, num_frames, p) == expected
+
+
+def test_pseudo_view_targets_are_the_blends(stage_scene: Scene) -> None:
+    views = TrainViews(stage_scene, torch.device("cpu"))
+    camera = stage_scene.train_cameras[2].camera_id
+    generator = torch.Generator().manual_seed(0)
+    targets = SegmentTargets(views, k=STAGE_K, p=3, pseudo_views=True)
+    for segment in range(2):
+        first = segment * STAGE_K
+        frames = (first, first + 2, first + STAGE_K - 1)  # linspace(first, last, 3), rounded
+        images = [stage_scene.image(views.view(frame, camera)) for frame in frames]
+        expected = (images[0] + images[1] + images[2]) / 3
+        torch.testing.assert_close(targets.target(camera, segment, generator), expected)
+        assert not torch.equal(images[0], images[2])  # the blend really mixes moving content
+
+
+def test_single_frame_targets_without_pseudo_views(stage_scene: Scene) -> None:
+    views = TrainViews(stage_scene, torch.device("cpu"))
+    camera = stage_scene.train_cameras[0].camera_id
+    targets = SegmentTargets(views, k=STAGE_K, p=3, pseudo_views=False)
+    generator = torch.Generator().manual_seed(1)
+    segment_images = [stage_scene.image(views.view(f, camera)) for f in range(STAGE_K, 2 * STAGE_K)]
+    for _ in range(6):
+        target = targets.target(camera, 1, generator)
+        assert any(torch.equal(target, image) for image in segment_images)
+
+
+def test_relay_output(stage_relayed: Artifact, stage_decoupled: Artifact, stage_scene: Scene):
+    tensors, meta = stage_relayed.tensors, stage_relayed.meta
+    segments = math.ceil(stage_scene.num_frames / STAGE_K)
+    assert (meta["k"], meta["num_segments"]) == (STAGE_K, segments)
+    for name, tensor in tensors.items():
+        if name.startswith("bg."):  # frozen background: bit-identical to the upstream one
+            assert torch.equal(tensor, stage_decoupled.tensors[name]), name
+        if tensor.is_floating_point():
+            assert torch.isfinite(tensor).all(), name
+    segment = tensors["segment"]
+    assert int(segment.min()) >= -1 and int(segment.max()) <= segments - 1
+    assert torch.equal(segment == -1, ~tensors["is_fg"])
+    per_segment = torch.bincount(tensors["fg.buffer.segment"].long(), minlength=segments)
+    assert (per_segment > 0).all()
+    assert per_segment.tolist() == meta["metrics"]["fg_per_segment"]
+
+
+def test_relay_shows_each_frames_copy(stage_relayed: Artifact) -> None:
+    model = SceneModel.from_artifact(stage_relayed)
+    segments = model.foreground.buffers["segment"]
+    for frame in range(model.num_frames):
+        rows = model.foreground_rows(frame)
+        assert rows.numel() > 0
+        assert (segments[rows] == frame // STAGE_K).all()
+
+
+def test_trained_background_changes(stage_scene: Scene, stage_decoupled: Artifact) -> None:
+    cfg = stage_smoke_cfg(relay={"steps": 4, "freeze_background": False})
+    relayed = STAGES["relay"](stage_scene, {"decouple": stage_decoupled}, cfg)
+    assert not torch.equal(relayed.tensors["bg.means"], stage_decoupled.tensors["bg.means"])
+
+
+def test_replicate_copies_the_foreground_untrained(
+    stage_scene: Scene, stage_decoupled: Artifact
+) -> None:
+    replicated = STAGES["replicate"](stage_scene, {"decouple": stage_decoupled}, stage_smoke_cfg())
+    n_fg = stage_decoupled.meta["counts"]["fg"]
+    assert replicated.meta["counts"]["fg"] == 2 * n_fg
+    for copy in range(2):
+        rows = slice(copy * n_fg, (copy + 1) * n_fg)
+        assert torch.equal(
+            replicated.tensors["fg.means"][rows], stage_decoupled.tensors["fg.means"]
+        )
+        assert (replicated.tensors["fg.buffer.segment"][rows] == copy).all()
+    assert torch.equal(replicated.tensors["bg.sh_dc"], stage_decoupled.tensors["bg.sh_dc"])
+
+
+def test_relay_needs_a_decouple_upstream(stage_scene: Scene, stage_relayed: Artifact) -> None:
+    with pytest.raises(InputError, match="upstream must be one of"):
+        STAGES["relay"](stage_scene, {"x": stage_relayed}, stage_smoke_cfg())
+    with pytest.raises(InputError, match="exactly one upstream"):
+        STAGES["relay"](stage_scene, {}, stage_smoke_cfg())

@@ -1,0 +1,127 @@
+"""Training loop contracts: resume equals an uninterrupted run, divergence stops and writes
+nothing, live metrics reach the log sinks."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+import torch
+
+from conftest import stage_smoke_cfg
+from relaygs.data import Scene
+from relaygs.errors import DivergenceError
+from relaygs.pipeline.artifact import Artifact
+from relaygs.pipeline.context import BuildContext, building
+from relaygs.pipeline.store import ArtifactStore
+from relaygs.stages import STAGES, log
+from relaygs.stages import relay as relay_module
+from relaygs.stages.loss import photometric_loss
+
+KEY = "ab" * 32
+
+
+class KilledError(Exception):
+    """Stands in for the process being killed mid-stage."""
+
+
+def _kill_at(step_to_die: int):
+    def sink(stage: str, step: int, scalars, images=None) -> None:
+        if step == step_to_die:
+            raise KilledError(f"{stage} killed at {step}")
+
+    return sink
+
+
+def _run(stage: str, scene: Scene, upstream: dict, cfg: dict, root: Path, kill_at=None):
+    sink = _kill_at(kill_at) if kill_at is not None else None
+    if sink is not None:
+        log.add_sink(sink)
+    try:
+        with building(BuildContext(root, stage, KEY)):
+            return STAGES[stage](scene, upstream, cfg)
+    finally:
+        if sink is not None:
+            log.remove_sink(sink)
+
+
+@pytest.mark.parametrize("stage", ["decouple", "deform"])
+def test_resumed_run_ends_equal_to_uninterrupted(
+    stage: str, stage_scene: Scene, stage_relayed: Artifact, tmp_path: Path
+) -> None:
+    upstream = {"relay": stage_relayed} if stage == "deform" else {}
+    # checkpoints every 5 steps, densification every 4: the resume restores changed shapes
+    cfg = stage_smoke_cfg(train={"checkpoint_every": 5, "log_every": 1})
+    whole = _run(stage, stage_scene, upstream, cfg, tmp_path / "a")
+    with pytest.raises(KilledError):
+        _run(stage, stage_scene, upstream, cfg, tmp_path / "b", kill_at=13)
+    resumed = _run(stage, stage_scene, upstream, cfg, tmp_path / "b")
+    assert resumed.meta["metrics"]["resumed_from"] == 10
+    assert whole.meta["metrics"]["resumed_from"] == 0
+    assert sorted(resumed.tensors) == sorted(whole.tensors)
+    for key, tensor in whole.tensors.items():
+        torch.testing.assert_close(resumed.tensors[key], tensor, rtol=1e-5, atol=1e-6, msg=key)
+    for key in ("initial_loss", "final_loss"):
+        assert resumed.meta["metrics"][key] == pytest.approx(whole.meta["metrics"][key], rel=1e-5)
+
+
+def test_divergence_names_stage_step_tensor_and_stores_nothing(
+    stage_scene: Scene, tmp_path: Path
+) -> None:
+    store = ArtifactStore(tmp_path)
+    cfg = stage_smoke_cfg(decouple={"lr": {"sh_dc": 1e36}}, train={"checkpoint_every": 1})
+    with pytest.raises(DivergenceError) as caught:
+        store.get_or_build(
+            "decouple",
+            KEY,
+            lambda: STAGES["decouple"](stage_scene, {}, cfg),
+            config={},
+            lineage=[],
+        )
+    found = re.fullmatch(
+        r"stage 'decouple' diverged at step (\d+): tensor '([\w.]+)' has .*", str(caught.value)
+    )
+    assert found is not None, str(caught.value)
+    step = int(found.group(1))
+    assert store.list() == []
+    checkpoints = store.root / "decouple" / f"{KEY}.ckpt"
+    saved = [int(p.name.split("-")[1]) for p in checkpoints.glob("step-*")]
+    assert all(saved_step < step for saved_step in saved)
+
+
+def test_non_finite_loss_stops_the_stage(
+    stage_scene: Scene, stage_decoupled: Artifact, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    calls = []
+
+    def nan_at_sixth_step(preds, targets, ssim_weight):
+        calls.append(1)
+        loss = photometric_loss(preds, targets, ssim_weight)
+        return loss * float("nan") if len(calls) == 6 else loss
+
+    monkeypatch.setattr(relay_module, "photometric_loss", nan_at_sixth_step)
+    with pytest.raises(DivergenceError, match=r"'relay' diverged at step 6: tensor 'loss'"):
+        STAGES["relay"](stage_scene, {"decouple": stage_decoupled}, stage_smoke_cfg())
+
+
+def test_sinks_receive_live_metrics(stage_scene: Scene, stage_relayed: Artifact) -> None:
+    records = []
+
+    def sink(stage: str, step: int, scalars, images=None) -> None:
+        records.append((stage, step, dict(scalars), images))
+
+    cfg = stage_smoke_cfg(train={"log_every": 4, "image_every": 8}, deform={"steps": 8})
+    log.add_sink(sink)
+    try:
+        STAGES["deform"](stage_scene, {"relay": stage_relayed}, cfg)
+    finally:
+        log.remove_sink(sink)
+    assert [step for _, step, _, _ in records] == [4, 8]
+    stage, _, scalars, images = records[-1]
+    assert stage == "deform"
+    for key in ("loss", "psnr", "num_bg", "num_fg", "fg_fraction", "lr/fg.means", "lr/grid"):
+        assert key in scalars, key
+    assert 0.0 < scalars["fg_fraction"] < 1.0
+    assert records[0][3] is None
+    assert images["render"].shape == images["target"].shape == (27, 48, 3)
