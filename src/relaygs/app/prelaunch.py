@@ -28,8 +28,14 @@ from relaygs.errors import InputError
 
 MULTIRUN_FLAGS = frozenset({"-m", "--multirun"})
 BASIC_SWEEPER = "hydra._internal.core_plugins.basic_sweeper.BasicSweeper"
-HYDRA_LAUNCHERS = frozenset({"basic"})
-"""Launchers Hydra itself ships (no config file in conf/hydra/launcher/)."""
+LAUNCHER_PLUGINS = {
+    "joblib": ("hydra_plugins.hydra_joblib_launcher", "hydra-joblib-launcher"),
+    "submitit_local": ("hydra_plugins.hydra_submitit_launcher", "hydra-submitit-launcher"),
+    "submitit_slurm": ("hydra_plugins.hydra_submitit_launcher", "hydra-submitit-launcher"),
+    "slurm": ("hydra_plugins.hydra_submitit_launcher", "hydra-submitit-launcher"),
+}
+"""Launcher choices that need a plugin: (its module, its pip package). Others (Hydra's
+`basic`, any installed plugin) are checked by composing."""
 GROUP_HINTS = {"scene": "; or set scene.path=DIR for a capture"}
 CONFIG_NAME = "config"
 
@@ -60,17 +66,18 @@ def check_command_line(argv: Sequence[str], conf_dir: Path, validate: JobValidat
 
 
 def check_group_choices(overrides: Sequence[Override], conf_dir: Path) -> None:
-    """Every `group=name` override must name a file in `conf/<group>/` (or a launcher Hydra
-    ships); groups not in the main defaults list need `+`; launcher plugins must be installed."""
+    """Every `group=name` override of a group in conf/ must name one of its files; groups not
+    in the main defaults list need `+`; a launcher's plugin must be installed."""
     primary = primary_groups(conf_dir)
     for override in overrides:
         group = override.key_or_group
+        if group == "hydra/launcher" and not override.is_delete():
+            for choice in _choices(override):
+                _check_launcher_plugin(choice)
+            continue
         if override.is_delete() or not (conf_dir / group).is_dir():
             continue
         for choice in _choices(override):
-            if group == "hydra/launcher":
-                _check_launcher(conf_dir, choice)
-                continue
             available = available_choices(conf_dir, group)
             if choice not in available:
                 raise InputError(
@@ -124,18 +131,10 @@ def available_choices(conf_dir: Path, group: str) -> list[str]:
     )
 
 
-def _check_launcher(conf_dir: Path, choice: str) -> None:
-    """A launcher must be Hydra's own or have a config here whose plugin is installed."""
-    if choice in HYDRA_LAUNCHERS:
-        return
-    available = sorted(HYDRA_LAUNCHERS | set(available_choices(conf_dir, "hydra/launcher")))
-    path = conf_dir / "hydra" / "launcher" / f"{choice}.yaml"
-    if not path.is_file():
-        raise InputError(f"unknown hydra/launcher {choice!r} (available: {', '.join(available)})")
-    target = str((yaml.safe_load(path.read_text(encoding="utf-8")) or {}).get("_target_", ""))
-    plugin = target.split(".")[:2]
-    if len(plugin) == 2 and not is_installed(".".join(plugin)):
-        package = plugin[1].replace("_", "-")
+def _check_launcher_plugin(choice: str) -> None:
+    """A launcher that comes from a plugin needs that plugin installed."""
+    module, package = LAUNCHER_PLUGINS.get(choice, ("", ""))
+    if module and not is_installed(module):
         raise InputError(
             f"hydra/launcher={choice} needs the {package} plugin: pip install {package}"
         )
