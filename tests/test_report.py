@@ -107,3 +107,14 @@ def test_a_damaged_result_is_named(sweep, capsys):
     (sweep / "0_k8" / "result.json").write_text("{not json")
     assert report.main([str(sweep)]) == 1
     assert "0_k8/result.json" in capsys.readouterr().err
+
+
+def test_repeated_variant_labels_get_the_parameters_that_differ(tmp_path):
+    for number, (k, seed) in enumerate([(8, 0), (8, 1), (16, 0), (16, 1)]):
+        _job(tmp_path, number, "k8", 25.0 + number, 10.0, seed=seed, reference_variant=None)
+        result = tmp_path / f"{number}_k8" / "result.json"
+        result.write_text(result.read_text().replace('"relay.k": 8', f'"relay.k": {k}'))
+    files = report.write_reports(tmp_path)
+    lines = files.markdown.read_text().splitlines()
+    assert lines[2].startswith("| Variant | seed | relay.k | PSNR")
+    assert "| k8 | 1 | 16 | 28.00 |" in lines[-1]

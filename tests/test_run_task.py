@@ -10,6 +10,7 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 from fake_stages import TINY_SCENE, FakeStages, compose_config
 from relaygs.app.result import RESULT_FILE
 from relaygs.app.task import run_task
+from relaygs.app.tensorboard import flatten_config
 from relaygs.errors import InputError
 from relaygs.pipeline import CorruptArtifactError
 
@@ -160,3 +161,14 @@ def test_a_corrupted_artifact_is_rebuilt_or_refused(base_config, tmp_path):
     assert fakes.ran("decouple") == 1
     result = _run(base_config, tmp_path / "c", fakes)
     assert fakes.ran("decouple") == 2 and result["cache_hits"] == 2
+
+
+def test_hparams_flatten_to_dotted_keys_with_none_as_text():
+    config = {"a": {"b": None, "c": [1, 2], "d": {"e": 0.5}}, "f": True, "g": "x"}
+    assert flatten_config(config) == {
+        "a.b": "None",
+        "a.c": "[1, 2]",
+        "a.d.e": 0.5,
+        "f": True,
+        "g": "x",
+    }

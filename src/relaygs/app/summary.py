@@ -84,14 +84,30 @@ def summary_table(results: pd.DataFrame) -> pd.DataFrame:
 
 
 def markdown_table(table: pd.DataFrame, title: str) -> str:
-    """The summary as a Markdown table in the paper's form (missing values as MISSING)."""
-    header = "| " + " | ".join(label for label, _, _ in MARKDOWN_COLUMNS) + " |"
-    rule = "|" + "|".join(":---" if i == 0 else "---:" for i in range(len(MARKDOWN_COLUMNS))) + "|"
+    """The summary as a Markdown table in the paper's form (missing values as MISSING); when
+    variant labels repeat, the parameters that tell the rows apart follow the variant."""
+    extra = [(name, name, "{}") for name in distinguishing_parameters(table)]
+    columns = [MARKDOWN_COLUMNS[0], *extra, *MARKDOWN_COLUMNS[1:]]
+    header = "| " + " | ".join(label for label, _, _ in columns) + " |"
+    rule = "|" + "|".join(":---" if i <= len(extra) else "---:" for i in range(len(columns))) + "|"
     lines = [f"# {title}", "", header, rule]
     for _, row in table.iterrows():
-        cells = [_cell(row.get(column), spec) for _, column, spec in MARKDOWN_COLUMNS]
+        cells = [_cell(row.get(column), spec) for _, column, spec in columns]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
+
+
+def distinguishing_parameters(table: pd.DataFrame) -> list[str]:
+    """Parameters (scene, seed and dotted config keys) that vary across rows, when the
+    variant labels alone do not tell the rows apart; else none."""
+    if "variant" not in table or table["variant"].is_unique:
+        return []
+    candidates = ["scene", "seed", *(column for column in table.columns if "." in column)]
+    return [
+        column
+        for column in candidates
+        if column in table and table[column].astype(str).nunique() > 1
+    ]
 
 
 def _delta(table: pd.DataFrame, index: Any) -> float | None:
