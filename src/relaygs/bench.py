@@ -1,4 +1,4 @@
-"""`python -m relaygs.bench splat [--json PATH]`: performance benchmarks (not tests)."""
+"""`python -m relaygs.bench splat|train [--json PATH]`: performance benchmarks (not tests)."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from relaygs import bench_train
 from relaygs.errors import RelayGSError
 from relaygs.splat import rasterization
 
@@ -164,7 +165,11 @@ def main(argv: list[str] | None = None) -> int:
         default="random-2k-256,random-10k-256,random-50k-256,garden",
         help="comma-separated case names",
     )
+    train = sub.add_parser("train", help="time the training stages on the default scene")
+    bench_train.add_arguments(train)
     args = parser.parse_args(argv)
+    if args.what == "train":
+        return bench_train.run(args)
     try:
         device = torch.device(args.device)
         if device.type == "cpu":

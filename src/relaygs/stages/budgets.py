@@ -22,23 +22,28 @@ def _densify(start: int, every: int, until: int, reset: int, cap: int) -> dict[s
 
 
 _SMOKE_DENSIFY = _densify(start=4, every=4, until=16, reset=12, cap=3000)
-_SMALL_BG = _densify(start=100, every=50, until=450, reset=300, cap=20_000)
+_SMALL_STATIC = _densify(start=100, every=50, until=400, reset=250, cap=12_000)
 
 BUDGETS: dict[str, dict[str, dict[str, Any]]] = {
     "paper": {},
     "small": {
-        "decouple": {"steps": 600, "init_points": 12_000, "sh_every": 200, "densify": _SMALL_BG},
-        "warmup": {"steps": 600, "init_points": 12_000, "sh_every": 200, "densify": _SMALL_BG},
+        "decouple": {
+            "steps": 500,
+            "init_points": 10_000,
+            "sh_every": 150,
+            "densify": _SMALL_STATIC,
+        },
+        "warmup": {"steps": 500, "init_points": 10_000, "sh_every": 150, "densify": _SMALL_STATIC},
         "relay": {
-            "steps": 600,
-            "sh_every": 200,
-            "densify_fg": _densify(start=100, every=50, until=450, reset=0, cap=12_000),
+            "steps": 300,
+            "sh_every": 100,
+            "densify_fg": _densify(start=100, every=50, until=250, reset=0, cap=6000),
         },
         "deform": {
-            "steps": 1200,
-            "sh_every": 300,
-            "densify_bg": _densify(start=200, every=100, until=900, reset=0, cap=24_000),
-            "densify_fg": _densify(start=200, every=100, until=900, reset=0, cap=12_000),
+            "steps": 600,
+            "sh_every": 200,
+            "densify_bg": _densify(start=100, every=100, until=450, reset=0, cap=12_000),
+            "densify_fg": _densify(start=100, every=100, until=450, reset=0, cap=6000),
         },
     },
     "smoke": {

@@ -1,0 +1,216 @@
+"""`python -m relaygs.bench train`: training speed of every stage on the default synthetic scene.
+
+Three measurements, all at the `small` budget's settings on the 160×90, 64-frame `juggle` scene
+(generated into a cache folder on first use):
+- stages: steps/s of warmup, decouple, relay and deform over `--steps` steps each (the first
+  steps, so before the budget's densification has grown the model);
+- ratio: a deform step and a decouple step on the same N Gaussians (no densification), the
+  deform/decouple step-time ratio (target ≤ 1.5);
+- full (`--full`): the whole default pipeline decouple → relay → deform at `small`, plus
+  evaluation, timed end to end (target ≤ 15 minutes on 2 CPU cores).
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import json
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from relaygs.data import Scene, load_scene
+from relaygs.data.synthetic import generate
+from relaygs.errors import RelayGSError
+from relaygs.model import GaussianSet
+from relaygs.pipeline.artifact import Artifact
+from relaygs.stages import BUDGETS, STAGES, evaluate
+from relaygs.stages.decouple import DecoupleConfig
+from relaygs.stages.scene_model import SceneModel, foreground_with_segments
+
+DEFAULT_CACHE = Path("outputs") / "cache" / "bench"
+SCENE = {"preset": "juggle", "frames": 64, "width": 160, "height": 90, "seed": 0}
+NO_DENSITY = {"densify_until": 0, "opacity_reset_every": 0}
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The `train` subcommand's options."""
+    parser.add_argument("--steps", type=int, default=30, help="steps timed per stage")
+    parser.add_argument("--full", action="store_true", help="also time the whole small pipeline")
+    parser.add_argument("--cache", type=Path, default=DEFAULT_CACHE, help="scene cache folder")
+    parser.add_argument("--json", type=Path, help="also write the results as JSON here")
+    parser.add_argument(
+        "--threads", type=int, default=0, help="torch CPU threads (0: torch's default)"
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the measurements, print a table, optionally write JSON; returns the exit code."""
+    if args.threads > 0:
+        torch.set_num_threads(args.threads)
+    try:
+        report = measure(args)
+    except RelayGSError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    _print(report)
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(report, indent=2))
+    return 0
+
+
+def measure(args: argparse.Namespace) -> dict[str, Any]:
+    """The report: scene, per-stage speeds, step-cost ratio and (with --full) the pipeline."""
+    scene = bench_scene(args.cache)
+    report: dict[str, Any] = {
+        "scene": {**SCENE, "points": len(scene.points), "threads": torch.get_num_threads()},
+        "stages": stage_speeds(scene, max(1, args.steps)),
+        "ratio": step_cost_ratio(scene, max(1, args.steps)),
+    }
+    if args.full:
+        report["full"] = full_pipeline(scene)
+    return report
+
+
+def bench_scene(cache: Path) -> Scene:
+    """The default synthetic scene, generated into `cache` when missing."""
+    name = "{preset}-{width}x{height}-{frames}f-seed{seed}".format(**SCENE)
+    folder = cache.expanduser().absolute() / name
+    if not (folder / "scene.json").is_file():
+        spec = {k: v for k, v in SCENE.items() if k != "preset"}
+        generate(SCENE["preset"], folder, **spec)
+    return load_scene(folder)
+
+
+def small_cfg(**sections: dict[str, Any]) -> dict[str, Any]:
+    """The `small` budget as a stage cfg (no progress bar), `sections` merged over it."""
+    cfg: dict[str, Any] = copy.deepcopy(BUDGETS["small"])
+    cfg["seed"] = 0
+    cfg["train"] = {"progress": False, "log_every": 10_000, "checkpoint_every": 10_000}
+    for name, values in sections.items():
+        cfg[name] = {**cfg.get(name, {}), **values}
+    return cfg
+
+
+def stage_speeds(scene: Scene, steps: int) -> list[dict[str, Any]]:
+    """Steps/s of each training stage over its first `steps` steps at the small settings;
+    relay starts from `flagged_decouple` (a short decouple run finds no movers yet)."""
+    short = {name: {"steps": steps} for name in ("warmup", "decouple", "relay", "deform")}
+    cfg = small_cfg(**short)
+    artifacts: dict[str, Artifact] = {"flagged": flagged_decouple(scene)}
+    rows = []
+    for stage, upstream in (
+        ("warmup", None),
+        ("decouple", None),
+        ("relay", "flagged"),
+        ("deform", "relay"),
+    ):
+        inputs = {upstream: artifacts[upstream]} if upstream else {}
+        artifacts[stage] = STAGES[stage](scene, inputs, cfg)
+        metrics = artifacts[stage].meta["metrics"]
+        rows.append(
+            {
+                "stage": stage,
+                "steps": steps,
+                "steps_per_s": metrics["steps_per_second"],
+                "gaussians": metrics["num_gaussians"],
+            }
+        )
+    return rows
+
+
+def step_cost_ratio(scene: Scene, steps: int) -> dict[str, Any]:
+    """Deform vs decouple step time on the same Gaussians (the small budget's initial ones),
+    neither densifying; deform renders all of them at every frame (one foreground copy)."""
+    decouple_cfg = small_cfg(decouple={"steps": steps, "densify": NO_DENSITY})
+    decouple_s = _seconds_per_step(lambda: STAGES["decouple"](scene, {}, decouple_cfg))
+    start = flagged_decouple(scene)
+    deform_cfg = small_cfg(
+        deform={"steps": steps, "densify_bg": NO_DENSITY, "densify_fg": NO_DENSITY}
+    )
+    deform_s = _seconds_per_step(lambda: STAGES["deform"](scene, {"decouple": start}, deform_cfg))
+    return {
+        "gaussians": start.meta["counts"]["total"],
+        "decouple_ms": 1e3 * decouple_s,
+        "deform_ms": 1e3 * deform_s,
+        "deform_over_decouple": deform_s / decouple_s,
+    }
+
+
+def full_pipeline(scene: Scene) -> dict[str, Any]:
+    """Wall time of decouple → relay → deform → evaluation at the small budget."""
+    cfg = small_cfg()
+    seconds: dict[str, float] = {}
+    artifact: dict[str, Artifact] = {}
+    for stage, upstream in (("decouple", None), ("relay", "decouple"), ("deform", "relay")):
+        began = time.perf_counter()
+        inputs = {upstream: artifact[upstream]} if upstream else {}
+        artifact[stage] = STAGES[stage](scene, inputs, cfg)
+        seconds[stage] = time.perf_counter() - began
+        print(f"{stage}: {seconds[stage]:.0f} s", file=sys.stderr, flush=True)
+    began = time.perf_counter()
+    metrics = evaluate(scene, artifact["deform"], cfg)
+    seconds["eval"] = time.perf_counter() - began
+    return {
+        "seconds": seconds,
+        "total_minutes": sum(seconds.values()) / 60.0,
+        "counts": {name: a.meta["counts"] for name, a in artifact.items()},
+        "metrics": metrics,
+    }
+
+
+def flagged_decouple(scene: Scene) -> Artifact:
+    """A decouple artifact without training: the small budget's initial Gaussians, split by
+    the synthetic cloud's mover flag (a stand-in with a realistic foreground, bench only)."""
+    section = DecoupleConfig.from_config(small_cfg()["decouple"])
+    xyz, rgb, is_fg = scene.points.xyz, scene.points.rgb, scene.points.is_fg
+    if section.init_points is not None and len(xyz) > section.init_points:
+        keep = torch.randperm(len(xyz), generator=torch.Generator().manual_seed(0))
+        keep = keep[: section.init_points].sort().values
+        xyz, rgb, is_fg = xyz[keep], rgb[keep], is_fg[keep]
+    gaussians = GaussianSet.from_points(xyz, rgb, section.sh_degree, section.init_opacity)
+    foreground = gaussians.subset(is_fg)
+    model = SceneModel(
+        stage="decouple",
+        background=gaussians.subset(~is_fg),
+        foreground=foreground_with_segments(
+            foreground, torch.zeros(len(foreground), dtype=torch.int32)
+        ),
+        num_frames=scene.num_frames,
+        segment_length=scene.num_frames,
+    )
+    return model.to_artifact({})
+
+
+def _seconds_per_step(build: Callable[[], Artifact]) -> float:
+    """Seconds per training step of a stage run (from its own report)."""
+    metrics = build().meta["metrics"]
+    return 1.0 / metrics["steps_per_second"]
+
+
+def _print(report: dict[str, Any]) -> None:
+    scene = report["scene"]
+    print(
+        f"scene {scene['preset']} {scene['width']}x{scene['height']}, {scene['frames']} frames, "
+        f"{scene['points']} points, {scene['threads']} threads"
+    )
+    print(f"{'stage':<10}{'steps':>7}{'steps/s':>10}{'Gaussians':>11}")
+    for row in report["stages"]:
+        print(
+            f"{row['stage']:<10}{row['steps']:>7}{row['steps_per_s']:>10.2f}{row['gaussians']:>11}"
+        )
+    ratio = report["ratio"]
+    print(
+        f"step cost at {ratio['gaussians']} Gaussians: decouple {ratio['decouple_ms']:.0f} ms, "
+        f"deform {ratio['deform_ms']:.0f} ms, ratio {ratio['deform_over_decouple']:.2f}"
+    )
+    if "full" in report:
+        full = report["full"]
+        parts = ", ".join(f"{k} {v:.0f} s" for k, v in full["seconds"].items())
+        print(f"small pipeline: {full['total_minutes']:.1f} min ({parts})")
+        print(f"test metrics: {json.dumps(full['metrics'])}")
