@@ -107,3 +107,17 @@ def test_foreground_settings_follow_the_paper() -> None:
     background = DecoupleConfig.from_config({}).densify_settings()
     assert fg.densify.percent_dense == pytest.approx(0.1 * background.percent_dense)
     assert set(RelayConfig.from_config({"freeze_background": False}).plans()) == {"fg", "bg"}
+
+
+@pytest.mark.parametrize(
+    ("downscale", "width", "early", "expected"),
+    [
+        (None, 640, True, 2),  # Panoptic size: decouple and relay at half resolution
+        (None, 640, False, 1),  # deform (and the warm-up) at full resolution
+        (None, 160, True, 1),  # the default synthetic scene stays at full resolution
+        (3, 160, False, 3),  # an explicit factor applies to every stage
+    ],
+)
+def test_training_resolution_rule(downscale, width: int, early: bool, expected: int) -> None:
+    train = TrainSettings.from_config({"downscale": downscale})
+    assert train.downscale_for(width, early_stage=early) == expected

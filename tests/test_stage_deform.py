@@ -133,3 +133,10 @@ def test_test_metrics_are_finite(stage_deformed: Artifact, stage_scene: Scene) -
     assert metrics["num_gaussians"] == stage_deformed.meta["counts"]["total"]
     frames = len(range(0, stage_scene.num_frames, 3))
     assert metrics["num_test_images"] == frames * len(stage_scene.test_cameras)
+
+
+def test_several_frames_per_step(stage_scene: Scene, stage_relayed: Artifact) -> None:
+    cfg = stage_smoke_cfg(deform={"steps": 3, "frames_per_step": 3})
+    deformed = STAGES["deform"](stage_scene, {"relay": stage_relayed}, cfg)
+    assert deformed.meta["metrics"]["steps"] == 3
+    assert torch.isfinite(deformed.tensors["fg.means"]).all()

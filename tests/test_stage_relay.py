@@ -115,3 +115,10 @@ def test_relay_needs_a_decouple_upstream(stage_scene: Scene, stage_relayed: Arti
         STAGES["relay"](stage_scene, {"x": stage_relayed}, stage_smoke_cfg())
     with pytest.raises(InputError, match="exactly one upstream"):
         STAGES["relay"](stage_scene, {}, stage_smoke_cfg())
+
+
+def test_relay_without_pseudo_views_runs(stage_scene: Scene, stage_decoupled: Artifact) -> None:
+    cfg = stage_smoke_cfg(relay={"steps": 3, "pseudo_views": False})
+    relayed = STAGES["relay"](stage_scene, {"decouple": stage_decoupled}, cfg)
+    assert relayed.meta["config"]["section"]["pseudo_views"] is False
+    assert torch.isfinite(relayed.tensors["fg.means"]).all()

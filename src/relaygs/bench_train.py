@@ -14,7 +14,9 @@ from __future__ import annotations
 
 import argparse
 import copy
+import itertools
 import json
+import statistics
 import sys
 import time
 from collections.abc import Callable
@@ -28,7 +30,7 @@ from relaygs.data.synthetic import generate
 from relaygs.errors import RelayGSError
 from relaygs.model import GaussianSet
 from relaygs.pipeline.artifact import Artifact
-from relaygs.stages import BUDGETS, STAGES, evaluate
+from relaygs.stages import BUDGETS, STAGES, evaluate, log
 from relaygs.stages.decouple import DecoupleConfig
 from relaygs.stages.scene_model import SceneModel, foreground_with_segments
 
@@ -87,11 +89,11 @@ def bench_scene(cache: Path) -> Scene:
     return load_scene(folder)
 
 
-def small_cfg(**sections: dict[str, Any]) -> dict[str, Any]:
+def small_cfg(log_every: int = 10_000, **sections: dict[str, Any]) -> dict[str, Any]:
     """The `small` budget as a stage cfg (no progress bar), `sections` merged over it."""
     cfg: dict[str, Any] = copy.deepcopy(BUDGETS["small"])
     cfg["seed"] = 0
-    cfg["train"] = {"progress": False, "log_every": 10_000, "checkpoint_every": 10_000}
+    cfg["train"] = {"progress": False, "log_every": log_every, "checkpoint_every": 10_000}
     for name, values in sections.items():
         cfg[name] = {**cfg.get(name, {}), **values}
     return cfg
@@ -125,15 +127,15 @@ def stage_speeds(scene: Scene, steps: int) -> list[dict[str, Any]]:
 
 
 def step_cost_ratio(scene: Scene, steps: int) -> dict[str, Any]:
-    """Deform vs decouple step time on the same Gaussians (the small budget's initial ones),
-    neither densifying; deform renders all of them at every frame (one foreground copy)."""
-    decouple_cfg = small_cfg(decouple={"steps": steps, "densify": NO_DENSITY})
-    decouple_s = _seconds_per_step(lambda: STAGES["decouple"](scene, {}, decouple_cfg))
+    """Deform vs decouple median step time on the same Gaussians (the small budget's initial
+    ones), neither densifying; deform renders all of them at every frame (one fg copy)."""
+    decouple_cfg = small_cfg(log_every=1, decouple={"steps": steps, "densify": NO_DENSITY})
+    decouple_s = median_step_seconds(lambda: STAGES["decouple"](scene, {}, decouple_cfg))
     start = flagged_decouple(scene)
     deform_cfg = small_cfg(
-        deform={"steps": steps, "densify_bg": NO_DENSITY, "densify_fg": NO_DENSITY}
+        log_every=1, deform={"steps": steps, "densify_bg": NO_DENSITY, "densify_fg": NO_DENSITY}
     )
-    deform_s = _seconds_per_step(lambda: STAGES["deform"](scene, {"decouple": start}, deform_cfg))
+    deform_s = median_step_seconds(lambda: STAGES["deform"](scene, {"decouple": start}, deform_cfg))
     return {
         "gaussians": start.meta["counts"]["total"],
         "decouple_ms": 1e3 * decouple_s,
@@ -187,10 +189,20 @@ def flagged_decouple(scene: Scene) -> Artifact:
     return model.to_artifact({})
 
 
-def _seconds_per_step(build: Callable[[], Artifact]) -> float:
-    """Seconds per training step of a stage run (from its own report)."""
-    metrics = build().meta["metrics"]
-    return 1.0 / metrics["steps_per_second"]
+def median_step_seconds(build: Callable[[], Artifact]) -> float:
+    """Median seconds between consecutive steps of a stage run (robust to a slow first step
+    and to short stalls), timed from the log records it emits every step."""
+    stamps: list[float] = []
+
+    def sink(stage: str, step: int, scalars: Any, images: Any = None) -> None:
+        stamps.append(time.perf_counter())
+
+    log.add_sink(sink)
+    try:
+        build()
+    finally:
+        log.remove_sink(sink)
+    return statistics.median(b - a for a, b in itertools.pairwise(stamps))
 
 
 def _print(report: dict[str, Any]) -> None:

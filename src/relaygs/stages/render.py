@@ -44,7 +44,9 @@ def part_of(
     rows: Tensor | None = None,
     frozen: bool = False,
 ) -> Part:
-    """The (selected rows of the) set as a Part; frozen parts are detached (no gradient)."""
+    """The (selected rows of the) set as a Part; frozen parts are detached (no gradient), as
+    are empty sets (nothing to learn, and autograd warns about their zero-size gradients)."""
+    frozen = frozen or len(gaussians) == 0
     params = gaussians.params
     values = [
         params["means"],
