@@ -3,7 +3,7 @@ reads only `seed`, `train` and its own section; artifacts carry a score evaluati
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -15,23 +15,36 @@ from relaygs.app.suite import StageSuite
 from relaygs.errors import InputError
 from relaygs.paths import config_dir
 from relaygs.pipeline import Artifact
+from relaygs.pipeline.dag import CanonicalFn
 
 STAGE_TYPES = ("decouple", "relay", "replicate", "warmup", "deform")
 TINY_SCENE = ["scene.frames=3", "scene.width=16", "scene.height=9"]
 
 
 class FakeStages:
-    """A StageSuite factory that records which stages ran and what the sinks received."""
+    """A StageSuite factory that records which stages ran and what the sinks received.
 
-    def __init__(self) -> None:
+    `canonical` maps stage configs to their canonical form (default: unchanged; pass
+    `relaygs.stages.canonical_config` for the real one); a stage whose `(type, cfg)` makes
+    `fail_when` true raises a RuntimeError, as a diverging training would.
+    """
+
+    def __init__(
+        self,
+        canonical: CanonicalFn | None = None,
+        fail_when: Callable[[str, dict[str, Any]], bool] | None = None,
+    ) -> None:
         self.calls: list[tuple[str, dict[str, Any]]] = []
         self.sinks: list[Any] = []
+        self.canonical = canonical or keep_config
+        self.fail_when = fail_when
 
     def suite(self) -> StageSuite:
         """The suite to pass to `run_task`."""
         return StageSuite(
             stages={stage: self._stage(stage) for stage in STAGE_TYPES},
             schema_versions={stage: 1 for stage in STAGE_TYPES},
+            canonical=self.canonical,
             validate=validate_config,
             evaluate=evaluate,
             render_model=render_model,
@@ -47,6 +60,8 @@ class FakeStages:
         def build(scene: Any, upstream: dict[str, Artifact], cfg: dict[str, Any]) -> Artifact:
             assert set(cfg) == {"seed", "train", stage}, cfg
             self.calls.append((stage, cfg))
+            if self.fail_when is not None and self.fail_when(stage, cfg):
+                raise RuntimeError(f"{stage} diverged: loss is nan\nsecond line")
             for sink in list(self.sinks):
                 sink(stage, 0, {"loss": 1.0}, {"render": torch.full((4, 5, 3), 0.5)})
             section = cfg[stage]
@@ -56,6 +71,11 @@ class FakeStages:
             return Artifact(stage, tensors, {"score": score, "metrics": {"score": score}})
 
         return build
+
+
+def keep_config(stage: str, cfg: Mapping[str, Any], scene: Any) -> Mapping[str, Any]:
+    """Every config is its own canonical form."""
+    return cfg
 
 
 def validate_config(stage: str, cfg: Mapping[str, Any]) -> None:

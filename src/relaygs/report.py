@@ -10,7 +10,13 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from relaygs.app.pareto import plot_pareto
-from relaygs.app.summary import collect_results, is_number, markdown_table, summary_table
+from relaygs.app.summary import (
+    collect_results,
+    failed_jobs,
+    is_number,
+    markdown_table,
+    summary_table,
+)
 from relaygs.errors import InputError, RelayGSError
 
 SUMMARY_CSV = "summary.csv"
@@ -20,12 +26,14 @@ PARETO_PNG = "pareto.png"
 
 @dataclass(frozen=True)
 class ReportFiles:
-    """The files a report wrote (`pareto` is None when no job has both PSNR and a time)."""
+    """The files a report wrote (`pareto` is None when no job has both PSNR and a time) and
+    the failed jobs, one `job <n> (<variant>): <error>` line each."""
 
     csv: Path
     markdown: Path
     pareto: Path | None
     jobs: int
+    failed: tuple[str, ...]
 
 
 def write_reports(sweep_dir: Path) -> ReportFiles:
@@ -50,7 +58,7 @@ def write_reports(sweep_dir: Path) -> ReportFiles:
             sweep_dir / PARETO_PNG,
             title,
         )
-    return ReportFiles(csv_path, markdown_path, pareto, len(table))
+    return ReportFiles(csv_path, markdown_path, pareto, len(table), tuple(failed_jobs(table)))
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -68,10 +76,13 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def describe(files: ReportFiles) -> str:
-    """Where a report's files are, one per line."""
+    """Where a report's files are, one per line, then the failed jobs."""
     lines = [f"summary of {files.jobs} job(s):", f"  {files.markdown}", f"  {files.csv}"]
     if files.pareto is not None:
         lines.append(f"  {files.pareto}")
+    if files.failed:
+        lines.append(f"{len(files.failed)} of {files.jobs} job(s) failed:")
+        lines += [f"  {line}" for line in files.failed]
     return "\n".join(lines)
 
 

@@ -10,6 +10,7 @@ Hydra composes the config and calls `relaygs.app.task.run_task` for each job.
 from __future__ import annotations
 
 import sys
+import traceback
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -23,6 +24,7 @@ from omegaconf import DictConfig
 from relaygs.app.config import resolve_config
 from relaygs.app.plan import plan_run
 from relaygs.app.prelaunch import check_command_line
+from relaygs.app.result import RESULT_FILE, error_line
 from relaygs.app.suite import load_stage_suite
 from relaygs.app.task import run_task
 from relaygs.errors import RelayGSError
@@ -30,7 +32,8 @@ from relaygs.paths import config_dir
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Check the command line, then hand it to Hydra; bad input exits 1 with one line."""
+    """Check the command line, then hand it to Hydra; bad input exits 1 with one line, and so
+    does a sweep with a failed job once its summary is written (`SweepSummary`)."""
     args = list(sys.argv[1:] if argv is None else argv)
     try:
         conf = config_dir()
@@ -51,22 +54,34 @@ def main(argv: Sequence[str] | None = None) -> int:
     return 0
 
 
-def run_job(cfg: DictConfig) -> dict[str, Any]:
-    """Hydra's task function: one job with its run dir, launch dir and overrides; a RelayGS
-    error ends the process with one line on stderr."""
+def run_job(cfg: DictConfig) -> dict[str, Any] | None:
+    """Hydra's task function: one job with its run dir, launch dir and overrides.
+
+    A RelayGS error ends a single run with one line on stderr (exit 1). In a multirun, a job
+    whose failure is recorded in its `result.json` (see `run_task`) reports it and returns
+    None, so the other jobs still run; the sweep summary lists it and the command exits 1.
+    """
     hydra_cfg = HydraConfig.get()
     multirun = hydra_cfg.mode == RunMode.MULTIRUN
+    run_dir = Path(hydra_cfg.runtime.output_dir)
     try:
         return run_task(
             cfg,
-            run_dir=Path(hydra_cfg.runtime.output_dir),
+            run_dir=run_dir,
             original_cwd=Path(hydra_cfg.runtime.cwd),
             overrides=list(hydra_cfg.overrides.task),
             job=hydra_cfg.job.num if multirun else None,
         )
-    except RelayGSError as error:
-        print(f"error: {error}", file=sys.stderr)
-        raise SystemExit(1) from None
+    except Exception as error:
+        if multirun and (run_dir / RESULT_FILE).is_file():
+            if not isinstance(error, RelayGSError):
+                traceback.print_exc()
+            print(f"error: job {hydra_cfg.job.num} failed: {error_line(error)}", file=sys.stderr)
+            return None
+        if isinstance(error, RelayGSError):
+            print(f"error: {error}", file=sys.stderr)
+            raise SystemExit(1) from None
+        raise
 
 
 if __name__ == "__main__":

@@ -29,6 +29,10 @@ NOT_RECORDED = ("hydra", "paths.", "artifacts.")
 
 Scalar = bool | int | float | str | None
 
+STATUS_OK = "ok"
+STATUS_FAILED = "failed"
+"""Values of a result's `status`: the run finished, or it raised (its `error` says how)."""
+
 
 def build_result(
     cfg: Mapping[str, Any],
@@ -40,15 +44,8 @@ def build_result(
     job: int | None,
 ) -> dict[str, Scalar]:
     """The flat result of one run; `overrides` are the job's command-line/sweep overrides."""
-    result: dict[str, Scalar] = {
-        "experiment": cfg.get("experiment_name"),
-        "variant": str(cfg.get("variant")),
-        "reference_variant": (cfg.get("report") or {}).get("reference"),
-        "job": job,
-        "pipeline": plan.pipeline.name,
-        "scene": plan.scene.name,
-        "seed": plan.seed,
-    }
+    result = _identity(cfg, plan, job)
+    result["status"] = STATUS_OK
     result.update({name: _scalar(metrics.get(name)) for name in METRIC_FIELDS})
     result.update(
         {
@@ -62,12 +59,30 @@ def build_result(
     )
     extra = {name: _scalar(value) for name, value in metrics.items() if name not in result}
     result.update({name: value for name, value in extra.items() if value is not None})
-    for key in ALWAYS_RECORDED:
-        result.setdefault(key, effective_value(cfg, plan, key))
-    for key, text in recorded_overrides(overrides).items():
-        in_config = key.split(".")[0] in cfg  # `+component=x` selects a group, not a key
-        result.setdefault(key, effective_value(cfg, plan, key) if in_config else text)
+    _add_parameters(result, cfg, plan, overrides)
     return result
+
+
+def build_failed_result(
+    cfg: Mapping[str, Any],
+    plan: RunPlan,
+    error: BaseException,
+    overrides: Sequence[str],
+    job: int | None,
+) -> dict[str, Scalar]:
+    """The result of a run that raised `error`: its identity and parameters, status
+    `failed`, the error's one-line description and no metrics."""
+    result = _identity(cfg, plan, job)
+    result.update({"status": STATUS_FAILED, "error": error_line(error)})
+    result.update({name: None for name in METRIC_FIELDS})
+    _add_parameters(result, cfg, plan, overrides)
+    return result
+
+
+def error_line(error: BaseException) -> str:
+    """`<ExceptionType>: <first line of its message>`."""
+    message = str(error).strip().splitlines()
+    return f"{type(error).__name__}: {message[0]}" if message else type(error).__name__
 
 
 def recorded_overrides(overrides: Sequence[str]) -> dict[str, str]:
@@ -83,8 +98,10 @@ def recorded_overrides(overrides: Sequence[str]) -> dict[str, str]:
 
 
 def effective_value(cfg: Mapping[str, Any], plan: RunPlan, key: str) -> Scalar:
-    """What `key` was for this run: a stage setting as the pipeline ran it (after the node's
-    overrides; None when no node runs that stage), a group by its `name`, else the config value."""
+    """What `key` was for this run: a stage setting as the pipeline set it (after the node's
+    overrides and the budget, before the stage's canonical form, so a swept `relay.k` keeps the
+    swept value; None when no node runs that stage), a group by its `name`, else the config
+    value."""
     head, _, rest = key.partition(".")
     if head in plan.stage_types:
         sections = [config[head] for config in plan.node_configs.values() if head in config]
@@ -119,6 +136,30 @@ def format_summary(result: Mapping[str, Scalar]) -> str:
     title = f"{result.get('pipeline')} on {result.get('scene')} (seed {result.get('seed')})"
     width = max(len(label) for label, _ in rows)
     return "\n".join([title, *(f"  {label:<{width}}  {value}" for label, value in rows)])
+
+
+def _identity(cfg: Mapping[str, Any], plan: RunPlan, job: int | None) -> dict[str, Scalar]:
+    """The fields that say which run this is (experiment, variant, job, pipeline, scene, seed)."""
+    return {
+        "experiment": cfg.get("experiment_name"),
+        "variant": str(cfg.get("variant")),
+        "reference_variant": (cfg.get("report") or {}).get("reference"),
+        "job": job,
+        "pipeline": plan.pipeline.name,
+        "scene": plan.scene.name,
+        "seed": plan.seed,
+    }
+
+
+def _add_parameters(
+    result: dict[str, Scalar], cfg: Mapping[str, Any], plan: RunPlan, overrides: Sequence[str]
+) -> None:
+    """Add the ablation axes and every recorded override, by dotted key, to `result`."""
+    for key in ALWAYS_RECORDED:
+        result.setdefault(key, effective_value(cfg, plan, key))
+    for key, text in recorded_overrides(overrides).items():
+        in_config = key.split(".")[0] in cfg  # `+component=x` selects a group, not a key
+        result.setdefault(key, effective_value(cfg, plan, key) if in_config else text)
 
 
 def _lookup(config: Mapping[str, Any], dotted: str) -> Any:

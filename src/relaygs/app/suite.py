@@ -11,7 +11,7 @@ import torch
 
 from relaygs.app.plan import StageValidator
 from relaygs.pipeline import Artifact
-from relaygs.pipeline.dag import StageFn
+from relaygs.pipeline.dag import CanonicalFn, StageFn
 
 LogSink = Callable[..., None]
 """Receives `(stage, step, scalars, images=None)` from the stages' `emit`."""
@@ -19,11 +19,13 @@ LogSink = Callable[..., None]
 
 @dataclass(frozen=True)
 class StageSuite:
-    """Stage functions by type, their artifact schema versions, config validation, evaluation,
-    rendering and the log-sink hooks (see `relaygs.stages`)."""
+    """Stage functions by type, their artifact schema versions, the canonical form of their
+    configs, config validation, evaluation, rendering and the log-sink hooks (see
+    `relaygs.stages`)."""
 
     stages: Mapping[str, StageFn]
     schema_versions: Mapping[str, int]
+    canonical: CanonicalFn
     validate: StageValidator
     evaluate: Callable[[Any, Artifact, dict[str, Any]], Mapping[str, Any]]
     render_model: Callable[[Artifact, Any, float], torch.Tensor]
@@ -39,6 +41,7 @@ def load_stage_suite() -> StageSuite:
     return StageSuite(
         stages=stages.STAGES,
         schema_versions=stages.SCHEMA_VERSIONS,
+        canonical=stages.canonical_config,
         validate=stages.validate_config,
         evaluate=stages.evaluate,
         render_model=stages.render_model,

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from relaygs.app.result import RESULT_FILE
+from relaygs.app.result import RESULT_FILE, STATUS_FAILED, STATUS_OK
 from relaygs.errors import InputError
 
 MISSING = "n/a"
@@ -32,6 +32,8 @@ LEADING_COLUMNS = (
     "render_fps",
     "num_gaussians",
     "cache_hits",
+    "status",
+    "error",
 )
 MARKDOWN_COLUMNS = (
     ("Variant", "variant", "{}"),
@@ -48,7 +50,8 @@ MARKDOWN_COLUMNS = (
 
 
 def collect_results(sweep_dir: Path) -> pd.DataFrame:
-    """One row per `result.json` below `sweep_dir`, ordered by job number then folder."""
+    """One row per `result.json` below `sweep_dir`, ordered by job number then folder (a
+    result without a `status`, written before failures were recorded, counts as ok)."""
     paths = sorted(Path(sweep_dir).rglob(RESULT_FILE))
     if not paths:
         raise InputError(f"no {RESULT_FILE} found under {sweep_dir}")
@@ -60,7 +63,7 @@ def collect_results(sweep_dir: Path) -> pd.DataFrame:
             raise InputError(f"{path}: unreadable result ({error})") from error
         if not isinstance(row, dict):
             raise InputError(f"{path}: expected a JSON object")
-        rows.append({**row, "run_dir": str(path.parent)})
+        rows.append({"status": STATUS_OK, **row, "run_dir": str(path.parent)})
     table = pd.DataFrame(rows)
     if "job" in table:
         table = table.sort_values("job", kind="stable", na_position="last")
@@ -85,7 +88,8 @@ def summary_table(results: pd.DataFrame) -> pd.DataFrame:
 
 def markdown_table(table: pd.DataFrame, title: str) -> str:
     """The summary as a Markdown table in the paper's form (missing values as MISSING); when
-    variant labels repeat, the parameters that tell the rows apart follow the variant."""
+    variant labels repeat, the parameters that tell the rows apart follow the variant. Failed
+    jobs are marked in the table and listed with their errors below it."""
     extra = [(name, name, "{}") for name in distinguishing_parameters(table)]
     columns = [MARKDOWN_COLUMNS[0], *extra, *MARKDOWN_COLUMNS[1:]]
     header = "| " + " | ".join(label for label, _, _ in columns) + " |"
@@ -93,8 +97,25 @@ def markdown_table(table: pd.DataFrame, title: str) -> str:
     lines = [f"# {title}", "", header, rule]
     for _, row in table.iterrows():
         cells = [_cell(row.get(column), spec) for _, column, spec in columns]
+        if row.get("status") == STATUS_FAILED:
+            cells[0] += " (failed)"
         lines.append("| " + " | ".join(cells) + " |")
+    failed = failed_jobs(table)
+    if failed:
+        lines += ["", f"{len(failed)} of {len(table)} job(s) failed:", ""]
+        lines += [f"- {line}" for line in failed]
     return "\n".join(lines) + "\n"
+
+
+def failed_jobs(table: pd.DataFrame) -> list[str]:
+    """`job <n> (<variant>): <error>` for every row whose status is failed."""
+    if "status" not in table:
+        return []
+    failed = table[table["status"] == STATUS_FAILED]
+    return [
+        f"job {_cell(row.get('job'), '{:.0f}')} ({row.get('variant')}): {row.get('error')}"
+        for _, row in failed.iterrows()
+    ]
 
 
 def distinguishing_parameters(table: pd.DataFrame) -> list[str]:

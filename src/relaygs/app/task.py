@@ -20,6 +20,7 @@ from relaygs.app.plan import RunPlan, plan_run
 from relaygs.app.result import (
     METRIC_FIELDS,
     Scalar,
+    build_failed_result,
     build_result,
     format_summary,
     write_result,
@@ -47,12 +48,37 @@ def run_task(
     is the job's wall time up to the result: scene, stages and evaluation).
 
     `overrides` are the job's command-line/sweep overrides (recorded in the result), `job`
-    its number in a sweep. Bad input raises InputError before any work starts.
+    its number in a sweep. Bad input raises InputError before any work starts; an error after
+    that is re-raised once a `result.json` with status `failed` and the error is written.
     """
     started = time.perf_counter()
     config = resolve_config(cfg, original_cwd)
     suite = suite or load_stage_suite()
     plan = plan_run(config, suite.stages, suite.validate)
+    try:
+        result, run, log_dir = _execute(config, plan, suite, run_dir, overrides, job)
+    except Exception as error:
+        failed = build_failed_result(config, plan, error, overrides, job)
+        failed["job_s"] = time.perf_counter() - started
+        write_result(run_dir, failed)
+        raise
+    result["job_s"] = time.perf_counter() - started
+    result_path = write_result(run_dir, result)
+    print(format_summary(result))
+    print(_where(plan, run, result_path, log_dir))
+    return result
+
+
+def _execute(
+    config: dict[str, Any],
+    plan: RunPlan,
+    suite: StageSuite,
+    run_dir: Path,
+    overrides: Sequence[str],
+    job: int | None,
+) -> tuple[dict[str, Scalar], PipelineRun, Path]:
+    """Prepare the scene, run the stages, evaluate and log: the result (without `job_s`), the
+    pipeline run and the TensorBoard folder."""
     if plan.threads is not None:
         torch.set_num_threads(plan.threads)
     scene = prepare_scene(plan.scene, plan.scenes_dir)
@@ -69,6 +95,7 @@ def run_task(
             schema_versions=suite.schema_versions,
             on_corrupt=plan.on_corrupt,
             on_node_done=_announce,
+            canonical=suite.canonical,
         )
         metrics = suite.evaluate(scene, run.output, plan.eval_config)
         previews = config["tensorboard"]["preview_frames"]
@@ -76,17 +103,13 @@ def run_task(
         output = run.reports[-1]
         storage_mb = store.manifest(output.stage, output.key).size_bytes / 1e6
         result = build_result(config, plan, run, metrics, storage_mb, overrides, job)
-        result["job_s"] = time.perf_counter() - started
         hparams = {k: v for k, v in config.items() if k not in HPARAM_EXCLUDED_SECTIONS}
         logged = (*METRIC_FIELDS, "train_s_total", "train_s_computed", "storage_mb")
         log.add_hparams(flatten_config(hparams), {name: result[name] for name in logged})
     finally:
         suite.remove_sink(log)
         log.close()
-    result_path = write_result(run_dir, result)
-    print(format_summary(result))
-    print(_where(plan, run, result_path, log.log_dir))
-    return result
+    return result, run, log.log_dir
 
 
 def _announce(report: NodeReport) -> None:

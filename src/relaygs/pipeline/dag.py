@@ -21,6 +21,7 @@ from relaygs.pipeline.store import ArtifactStore, OnCorrupt
 
 __all__ = [
     "DEFAULT_SCHEMA_VERSION",
+    "CanonicalFn",
     "Node",
     "NodeReport",
     "Pipeline",
@@ -42,6 +43,11 @@ class Scene(Protocol):
 
 StageFn = Callable[[Any, dict[str, Artifact], dict[str, Any]], Artifact]
 """A stage: `(scene, upstream artifacts by node name, stage config) -> Artifact`."""
+
+CanonicalFn = Callable[[str, Mapping[str, Any], Any], Mapping[str, Any]]
+"""`(stage type, stage config, scene) -> canonical stage config`: maps configs that mean the
+same computation to one form, which is both keyed and run (so equivalent configs share one
+artifact, and its content matches its key)."""
 
 
 @dataclass(frozen=True)
@@ -95,13 +101,16 @@ def run_pipeline(
     schema_versions: Mapping[str, int] | None = None,
     on_corrupt: OnCorrupt = "rebuild",
     on_node_done: Callable[[NodeReport], None] | None = None,
+    canonical: CanonicalFn | None = None,
 ) -> PipelineRun:
     """Walk the nodes in topological order, loading each artifact from `store` or building it.
 
     A node's key comes from its stage type, schema version (`schema_versions`, default
     `DEFAULT_SCHEMA_VERSION`), config (`cfg_for(node)` with non-key entries stripped; the
     stage function gets it whole), the scene fingerprint and its upstream keys in listed
-    order. `on_node_done` sees each node's report as soon as it is done.
+    order. `canonical`, when given, first maps each node's config to its canonical form (what
+    is keyed and what the stage gets). `on_node_done` sees each node's report as soon as it
+    is done.
     """
     missing = sorted(pipeline.stage_types - set(stage_fns))
     if missing:
@@ -112,6 +121,8 @@ def run_pipeline(
     reports: dict[str, NodeReport] = {}
     for node in pipeline.topological_order():
         cfg = dict(cfg_for(node))
+        if canonical is not None:
+            cfg = dict(canonical(node.stage, cfg, scene))
         keyed_cfg = key_config(cfg)
         version = versions.get(node.stage, DEFAULT_SCHEMA_VERSION)
         upstream_keys = [reports[name].key for name in node.upstream]

@@ -1,7 +1,9 @@
 """The method's stages as plain functions `(scene, upstream artifacts, cfg) -> Artifact`.
 
 `STAGES` maps each stage type to its function, `CONFIGS` to its settings dataclass (whose
-`from_config` validates a section), `SCHEMA_VERSIONS` to its artifact schema version.
+`from_config` validates a section), `SCHEMA_VERSIONS` to its artifact schema version, and
+`CANONICAL` (where a stage has one) to the canonical form of its section, which
+`canonical_config` applies before a config is keyed and run.
 `evaluate` scores a final artifact on the test views; `render_model` renders any artifact.
 Live metrics go through `relaygs.stages.log` sinks.
 """
@@ -20,6 +22,7 @@ from relaygs.stages import relay as _relay
 from relaygs.stages import replicate as _replicate
 from relaygs.stages import warmup as _warmup
 from relaygs.stages.budgets import BUDGETS
+from relaygs.stages.canonical import SectionCanonical, one_segment_at_most
 from relaygs.stages.evaluate import EvalSettings, evaluate
 from relaygs.stages.model_render import ModelRenderer, render_model
 from relaygs.stages.scene_model import SceneModel
@@ -51,6 +54,20 @@ SCHEMA_VERSIONS: dict[str, int] = {
     "replicate": _replicate.SCHEMA_VERSION,
 }
 
+CANONICAL: dict[str, SectionCanonical] = {
+    "relay": one_segment_at_most,
+    "replicate": one_segment_at_most,
+}
+
+
+def canonical_config(stage: str, cfg: Mapping[str, Any], scene: Scene) -> dict[str, Any]:
+    """`cfg` with stage type `stage`'s section in its canonical form on `scene` (`CANONICAL`;
+    unchanged for a stage without one): what the stage's artifact key hashes and it runs with."""
+    canonical = dict(cfg)
+    if stage in CANONICAL and isinstance(cfg.get(stage), Mapping):
+        canonical[stage] = CANONICAL[stage](cfg[stage], scene)
+    return canonical
+
 
 def validate_config(stage: str, cfg: Mapping[str, Any]) -> None:
     """Raise InputError (one line naming the key) unless `cfg` is valid for stage type `stage`:
@@ -64,6 +81,7 @@ def validate_config(stage: str, cfg: Mapping[str, Any]) -> None:
 
 __all__ = [
     "BUDGETS",
+    "CANONICAL",
     "CONFIGS",
     "SCHEMA_VERSIONS",
     "STAGES",
@@ -72,6 +90,7 @@ __all__ = [
     "SceneModel",
     "StageFn",
     "TrainSettings",
+    "canonical_config",
     "evaluate",
     "render_model",
     "validate_config",

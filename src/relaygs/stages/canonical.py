@@ -1,0 +1,26 @@
+"""Canonical forms of stage sections: settings that mean the same computation on a scene are
+mapped to one form, which is both what enters the artifact key and what the stage runs with.
+
+Each function takes a stage's resolved section and the scene and returns a new section; it
+must not change what the stage computes, only pick one spelling of it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from typing import Any
+
+from relaygs.data import Scene
+
+SectionCanonical = Callable[[Mapping[str, Any], Scene], dict[str, Any]]
+"""`(stage section, scene) -> canonical section`."""
+
+
+def one_segment_at_most(section: Mapping[str, Any], scene: Scene) -> dict[str, Any]:
+    """Segment length `k` capped at the scene's frame count T: every k >= T is one segment of
+    all frames (S = ceil(T / k) = 1, segment 0 = frames [0, T)), spelled k = T."""
+    canonical = dict(section)
+    k = canonical.get("k")
+    if isinstance(k, int) and not isinstance(k, bool) and k > scene.num_frames:
+        canonical["k"] = scene.num_frames
+    return canonical

@@ -1,0 +1,100 @@
+"""Canonical stage configs: settings that mean the same run (relay k >= T frames: one segment)
+share one artifact key, the stage runs with the canonical form, and results keep the value
+the user set."""
+
+import copy
+import functools
+import json
+from types import SimpleNamespace
+
+import pandas as pd
+import pytest
+from omegaconf import OmegaConf
+
+from fake_stages import FakeStages, compose_config
+from relaygs import run as run_module
+from relaygs.app.task import run_task
+from relaygs.pipeline import ArtifactStore
+from relaygs.stages import canonical_config
+
+FRAMES = 64
+SCENE_64 = [f"scene.frames={FRAMES}", "scene.width=16", "scene.height=9"]
+
+
+def test_relay_and_replicate_k_at_or_above_the_frame_count_is_one_segment_of_t():
+    scene = SimpleNamespace(num_frames=FRAMES)
+    cfg = {"seed": 0, "train": {"steps": 5}, "relay": {"k": 128, "p": 3}}
+    canonical = canonical_config("relay", cfg, scene)
+    assert canonical == {"seed": 0, "train": {"steps": 5}, "relay": {"k": FRAMES, "p": 3}}
+    assert cfg["relay"]["k"] == 128  # the input is not changed
+    for k in (1, 32, FRAMES):
+        assert canonical_config("relay", {"relay": {"k": k}}, scene)["relay"]["k"] == k
+    assert canonical_config("replicate", {"replicate": {"k": 100}}, scene)["replicate"]["k"] == 64
+    deform = {"seed": 0, "deform": {"k": 128}}
+    assert canonical_config("deform", deform, scene) == deform  # no canonical form: unchanged
+
+
+@pytest.fixture(scope="module")
+def base_config(tmp_path_factory):
+    """The default config on a tiny 64-frame scene, every output under one temp folder."""
+    outputs = tmp_path_factory.mktemp("outputs")
+    cfg = compose_config([*SCENE_64, "budget=smoke"], outputs)
+    return OmegaConf.to_container(cfg, resolve=True)
+
+
+def _run_k(config, k, run_dir, fakes):
+    config = copy.deepcopy(config)
+    config["relay"]["k"] = k
+    config["artifacts"]["root"] = str(run_dir.parent / "artifacts")
+    return run_task(
+        config,
+        run_dir=run_dir,
+        original_cwd=run_dir,
+        overrides=[f"relay.k={k}"],
+        suite=fakes.suite(),
+    )
+
+
+def _relay_keys(tmp_path):
+    return sorted(path.name for path in (tmp_path / "artifacts" / "relay").iterdir())
+
+
+def test_k64_and_k128_on_64_frames_share_one_artifact_and_keep_the_swept_value(
+    base_config, tmp_path
+):
+    fakes = FakeStages(canonical=canonical_config)
+    at_t = _run_k(base_config, 64, tmp_path / "k64", fakes)
+    above_t = _run_k(base_config, 128, tmp_path / "k128", fakes)
+    assert above_t["output_key"] == at_t["output_key"]
+    assert (above_t["cache_hits"], above_t["train_s_computed"]) == (3, 0)
+    assert fakes.ran("relay") == 1 and fakes.ran("deform") == 1
+    assert [cfg["relay"]["k"] for stage, cfg in fakes.calls if stage == "relay"] == [64]
+    (key,) = _relay_keys(tmp_path)
+    assert ArtifactStore(tmp_path / "artifacts").manifest("relay", key).config["relay"]["k"] == 64
+    assert (at_t["relay.k"], above_t["relay.k"]) == (64, 128)
+    written = json.loads((tmp_path / "k128" / "result.json").read_text())
+    assert written["relay.k"] == 128
+
+
+def test_k32_and_k64_on_64_frames_are_different_artifacts(base_config, tmp_path):
+    fakes = FakeStages(canonical=canonical_config)
+    two_segments = _run_k(base_config, 32, tmp_path / "k32", fakes)
+    one_segment = _run_k(base_config, 64, tmp_path / "k64", fakes)
+    assert two_segments["output_key"] != one_segment["output_key"]
+    assert one_segment["cache_hits"] == 1  # decouple only
+    assert len(_relay_keys(tmp_path)) == 2
+
+
+def test_a_k_sweep_builds_one_relay_per_distinct_segmentation(monkeypatch, tmp_path):
+    fakes = FakeStages(canonical=canonical_config)
+    monkeypatch.setattr(run_module, "load_stage_suite", fakes.suite)
+    monkeypatch.setattr(run_module, "run_task", functools.partial(run_task, suite=fakes.suite()))
+    monkeypatch.chdir(tmp_path)
+    args = ["-m", "relay.k=32,64,128", "variant=k${relay.k}", "budget=smoke", *SCENE_64]
+    assert run_module.main(args) == 0
+    (sweep,) = tmp_path.glob("outputs/sweeps/*")
+    table = pd.read_csv(sweep / "summary.csv")
+    assert list(table["relay.k"]) == [32, 64, 128]
+    assert list(table.cache_hits) == [0, 1, 3]
+    assert table.output_key[1] == table.output_key[2] != table.output_key[0]
+    assert (fakes.ran("decouple"), fakes.ran("relay"), fakes.ran("deform")) == (1, 2, 2)

@@ -1,0 +1,69 @@
+"""A job that raises: its result.json records the failure, the rest of a sweep still runs, the
+summary lists the finished jobs and the failed one, and the command exits 1."""
+
+import functools
+import json
+
+import pandas as pd
+import pytest
+from omegaconf import OmegaConf
+
+from fake_stages import TINY_SCENE, FakeStages, compose_config
+from relaygs import report
+from relaygs import run as run_module
+from relaygs.app.task import run_task
+
+ERROR = "RuntimeError: relay diverged: loss is nan"
+
+
+def _relay_k_is(k):
+    return lambda stage, cfg: stage == "relay" and cfg["relay"]["k"] == k
+
+
+def test_a_failed_run_writes_a_failed_result_and_raises(tmp_path):
+    fakes = FakeStages(fail_when=_relay_k_is(16))
+    cfg = compose_config([*TINY_SCENE, "budget=smoke", "relay.k=16"], tmp_path / "outputs")
+    with pytest.raises(RuntimeError, match="relay diverged"):
+        run_task(
+            OmegaConf.to_container(cfg, resolve=True),
+            run_dir=tmp_path / "run",
+            original_cwd=tmp_path,
+            overrides=["relay.k=16"],
+            suite=fakes.suite(),
+        )
+    result = json.loads((tmp_path / "run" / "result.json").read_text())
+    assert (result["status"], result["error"]) == ("failed", ERROR)
+    assert (result["pipeline"], result["relay.k"], result["psnr"]) == ("relaygs", 16, None)
+    assert result["job_s"] > 0
+
+
+def test_a_failing_job_leaves_a_summary_of_the_sweep_and_exit_status_1(
+    monkeypatch, tmp_path, capsys
+):
+    fakes = FakeStages(fail_when=_relay_k_is(16))
+    monkeypatch.setattr(run_module, "load_stage_suite", fakes.suite)
+    monkeypatch.setattr(run_module, "run_task", functools.partial(run_task, suite=fakes.suite()))
+    monkeypatch.chdir(tmp_path)
+    args = ["-m", "relay.k=8,16,32", "variant=k${relay.k}", "budget=smoke", *TINY_SCENE]
+    try:
+        status = run_module.main(args)
+    except SystemExit as stop:
+        status = stop.code
+    assert status == 1
+    (sweep,) = tmp_path.glob("outputs/sweeps/*")
+    table = pd.read_csv(sweep / "summary.csv")
+    assert list(table.variant) == ["k8", "k16", "k32"]
+    assert list(table.status) == ["ok", "failed", "ok"]
+    assert table.psnr.notna().tolist() == [True, False, True]
+    assert table.error[1] == ERROR and table.error.isna()[[0, 2]].all()
+    assert fakes.ran("deform") == 2  # the job after the failed one still ran
+    markdown = (sweep / "summary.md").read_text()
+    assert "| k16 (failed) | n/a |" in markdown
+    assert f"1 of 3 job(s) failed:\n\n- job 1 (k16): {ERROR}\n" in markdown
+    assert (sweep / "pareto.png").is_file()
+    err = capsys.readouterr().err
+    assert f"error: job 1 failed: {ERROR}" in err
+    assert "Traceback" in err  # an unexpected error shows where it happened
+    assert err.strip().splitlines()[-1] == f"error: 1 of 3 job(s) failed: job 1 (k16): {ERROR}"
+    assert report.main([str(sweep)]) == 0  # rewriting the report lists the failure again
+    assert "job 1 (k16): " + ERROR in capsys.readouterr().out
