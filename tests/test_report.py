@@ -118,3 +118,25 @@ def test_repeated_variant_labels_get_the_parameters_that_differ(tmp_path):
     lines = files.markdown.read_text().splitlines()
     assert lines[2].startswith("| Variant | seed | relay.k | PSNR")
     assert "| k8 | 1 | 16 | 28.00 |" in lines[-1]
+
+
+def test_repeated_seeds_get_a_mean_and_std_table(tmp_path):
+    runs = [("k16", 0, 26.0), ("k8", 0, 25.0), ("k16", 1, 27.0), ("k8", 1, 25.5), ("k16", 2, 28.0)]
+    for number, (variant, seed, psnr) in enumerate(runs):
+        _job(tmp_path, number, variant, psnr, 10.0 * (seed + 1), seed=seed)
+    _job(tmp_path, 9, "k8", None, 5.0, seed=2, status="failed", error="DivergenceError: x")
+    files = report.write_reports(tmp_path)
+    mean = pd.read_csv(tmp_path / "summary_mean.csv")
+    assert list(mean.variant) == ["k16", "k8"]
+    assert list(mean.runs) == [3, 2]
+    assert list(mean.psnr_mean) == pytest.approx([27.0, 25.25])
+    assert list(mean.psnr_std) == pytest.approx([1.0, 0.5 / 2**0.5])
+    # Δ per seed against k16 of the same seed, then averaged: (-1.0 - 1.5) / 2
+    assert list(mean.delta_psnr_mean) == pytest.approx([0.0, -1.25])
+    text = files.mean.read_text()
+    assert "| juggle | k16 | 3 | 27.00 ± 1.00 | 0.00 ± 0.00 |" in text
+
+
+def test_no_mean_table_without_repeats(sweep):
+    assert report.write_reports(sweep).mean is None
+    assert not (sweep / "summary_mean.csv").exists()

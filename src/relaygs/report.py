@@ -9,6 +9,9 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+import pandas as pd
+
+from relaygs.app.aggregate import aggregate_markdown, aggregate_table
 from relaygs.app.pareto import plot_pareto
 from relaygs.app.summary import (
     collect_results,
@@ -22,6 +25,8 @@ from relaygs.errors import InputError, RelayGSError
 SUMMARY_CSV = "summary.csv"
 SUMMARY_MD = "summary.md"
 PARETO_PNG = "pareto.png"
+MEAN_CSV = "summary_mean.csv"
+MEAN_MD = "summary_mean.md"
 
 
 @dataclass(frozen=True)
@@ -34,6 +39,7 @@ class ReportFiles:
     pareto: Path | None
     jobs: int
     failed: tuple[str, ...]
+    mean: Path | None = None
 
 
 def write_reports(sweep_dir: Path) -> ReportFiles:
@@ -58,7 +64,23 @@ def write_reports(sweep_dir: Path) -> ReportFiles:
             sweep_dir / PARETO_PNG,
             title,
         )
-    return ReportFiles(csv_path, markdown_path, pareto, len(table), tuple(failed_jobs(table)))
+    mean = _write_mean(table, sweep_dir, title)
+    failed = tuple(failed_jobs(table))
+    return ReportFiles(csv_path, markdown_path, pareto, len(table), failed, mean)
+
+
+def _write_mean(table: pd.DataFrame, sweep_dir: Path, title: str) -> Path | None:
+    """`summary_mean.{csv,md}` (mean ± std per scene and variant) when a sweep repeats a
+    (scene, variant) pair, e.g. over seeds; else nothing."""
+    if not {"scene", "variant"} <= set(table.columns):
+        return None
+    if not table.duplicated(["scene", "variant"]).any():
+        return None
+    mean = aggregate_table(table)
+    mean.to_csv(sweep_dir / MEAN_CSV, index=False)
+    path = sweep_dir / MEAN_MD
+    path.write_text(aggregate_markdown(mean, f"{title}: mean ± std over seeds"), encoding="utf-8")
+    return path
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -80,6 +102,8 @@ def describe(files: ReportFiles) -> str:
     lines = [f"summary of {files.jobs} job(s):", f"  {files.markdown}", f"  {files.csv}"]
     if files.pareto is not None:
         lines.append(f"  {files.pareto}")
+    if files.mean is not None:
+        lines.append(f"  {files.mean}")
     if files.failed:
         lines.append(f"{len(files.failed)} of {files.jobs} job(s) failed:")
         lines += [f"  {line}" for line in files.failed]

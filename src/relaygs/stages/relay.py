@@ -24,6 +24,7 @@ from relaygs.model import (
     SetLearningRates,
 )
 from relaygs.pipeline.artifact import Artifact
+from relaygs.stages.carve import HullSettings
 from relaygs.stages.common import (
     BACKGROUND_LR,
     FOREGROUND_LR,
@@ -41,8 +42,9 @@ from relaygs.stages.config import (
 )
 from relaygs.stages.loop import StepResult, TrainReport, run_training
 from relaygs.stages.loss import photometric_loss
+from relaygs.stages.relay_seed import SEED_MODES, carved_copies
 from relaygs.stages.render import part_of, splat
-from relaygs.stages.scene_model import SEGMENT, SceneModel, replicate_foreground
+from relaygs.stages.scene_model import SEGMENT, SceneModel, core_only, replicate_foreground
 from relaygs.stages.segments import SegmentTargets, num_segments, segment_frames
 from relaygs.stages.session import SetPlan, TrainingSession
 from relaygs.stages.train_settings import TrainSettings
@@ -67,6 +69,12 @@ class RelayConfig:
     pseudo_views: bool = True
     p: int = 3
     freeze_background: bool = True
+    seed_copies: str = "replicate"
+    hull_residual: float = 0.15
+    hull_voxels: int = 48
+    hull_misses: float = 0.15
+    seed_points: int = 1500
+    seed_opacity: float = 0.1
     sh_every: int = 1000
     lr_fg: dict[str, Any] = field(default_factory=lambda: dict(FOREGROUND_LR))
     lr_bg: dict[str, Any] = field(default_factory=lambda: dict(BACKGROUND_LR))
@@ -79,6 +87,14 @@ class RelayConfig:
         require(self.k >= 1, "relay.k", self.k, "an int >= 1")
         require(self.p >= 1, "relay.p", self.p, "an int >= 1")
         require(self.sh_every >= 0, "relay.sh_every", self.sh_every, "an int >= 0")
+        mode = self.seed_copies
+        require(mode in SEED_MODES, "relay.seed_copies", mode, f"one of {list(SEED_MODES)}")
+        require(0.0 < self.hull_residual < 1.0, "relay.hull_residual", self.hull_residual, "(0, 1)")
+        require(self.hull_voxels >= 1, "relay.hull_voxels", self.hull_voxels, "an int >= 1")
+        require(0.0 <= self.hull_misses < 1.0, "relay.hull_misses", self.hull_misses, "[0, 1)")
+        require(self.seed_points >= 1, "relay.seed_points", self.seed_points, "an int >= 1")
+        opacity = self.seed_opacity
+        require(0.0 < opacity < 1.0, "relay.seed_opacity", opacity, "an opacity in (0, 1)")
         self.plans()
 
     @classmethod
@@ -92,6 +108,10 @@ class RelayConfig:
         if not self.freeze_background:
             plans["bg"] = SetPlan(self._rates("lr_bg"), self._densify("densify_bg"), self.sh_every)
         return plans
+
+    def hull(self) -> HullSettings:
+        """Visual-hull settings of `seed_copies: carve`."""
+        return HullSettings(self.hull_residual, self.hull_voxels, self.hull_misses)
 
     def _rates(self, key: str) -> SetLearningRates:
         return learning_rates(getattr(self, key), self.steps, f"{STAGE}.{key}")
@@ -110,11 +130,20 @@ def relay(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, Any]
     device = torch.device(train.device)
     source = upstream_model(artifact, scene, STAGE).to(device)
     segments = num_segments(scene.num_frames, section.k)
-    copies = replicate_foreground(source.foreground, segments).to(device)
+    training = training_scene(scene, train, early_stage=True)
+    if section.seed_copies == "carve":
+        copies = carved_copies(
+            TrainViews(training, device),
+            source.background,
+            core_only(source.foreground),
+            section,
+            seed,
+        ).to(device)
+    else:
+        copies = replicate_foreground(source.foreground, segments).to(device)
     trainable = {"fg": copies} if len(copies) else {}
     if not section.freeze_background:
         trainable["bg"] = source.background
-    training = training_scene(scene, train, early_stage=True)
     report = None
     if trainable:  # nothing to train without foreground when the background is frozen
         trainable, report = _train(training, source, trainable, section, train, seed)

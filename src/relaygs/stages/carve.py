@@ -1,0 +1,110 @@
+"""Where the movers are at a frame: a visual hull of what the frozen background cannot explain.
+
+After decouple the background explains every static pixel of every frame, so at any frame
+the residual |image − background render| marks the foreground in each train camera. A point
+is foreground when it projects into the residual of (nearly) every train camera that sees it.
+The relay stage seeds a segment's copy from the hull at its pseudo frames when the foreground
+has travelled out of reach of the frame-0 replica (gradients only move Gaussians that already
+overlap their target). Two passes: coarse voxels against dilated residuals, then their
+sub-voxels against the residuals themselves.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from relaygs.data import Camera
+from relaygs.errors import InputError
+
+SUBDIVISIONS = 4  # sub-voxels per axis of a kept coarse voxel
+MIN_CAMERAS = 3  # a point seen by fewer train cameras cannot be triangulated
+
+
+@dataclass(frozen=True)
+class HullSettings:
+    """Residual threshold (per channel, after a per-camera gain match), coarse voxels along the
+    longest axis of the bounds, and the fraction of cameras that may disagree."""
+
+    residual: float = 0.15
+    coarse_voxels: int = 48
+    misses: float = 0.15
+
+
+def residual_masks(renders: Tensor, images: Tensor, threshold: float) -> Tensor:
+    """[C,H,W] bool: pixels the background render misses by more than `threshold` in some channel.
+
+    A per-camera, per-channel gain is matched first (least squares over the whole image,
+    dominated by the background) so cameras with a colour response of their own do not light
+    up everywhere.
+    """
+    numerator = (renders * images).sum(dim=(1, 2))
+    denominator = (renders * renders).sum(dim=(1, 2))
+    safe = torch.where(denominator > 1e-8, denominator, torch.ones_like(denominator))
+    gains = torch.where(denominator > 1e-8, numerator / safe, torch.ones_like(numerator))
+    residual = (images - renders * gains[:, None, None, :]).abs().amax(dim=-1)
+    return residual > threshold
+
+
+def visual_hull(
+    masks: Tensor, images: Tensor, cameras: list[Camera], bounds: Tensor, settings: HullSettings
+) -> tuple[Tensor, Tensor, float]:
+    """Points [M,3] inside the hull of `masks` [C,H,W] within `bounds` [2,3], their colours
+    [M,3] (mean image colour over the cameras that agree) and the fine voxel size."""
+    if masks.shape[0] != len(cameras) or images.shape[:3] != masks.shape:
+        raise InputError(f"visual_hull: {len(cameras)} cameras, masks {tuple(masks.shape)}")
+    lower, upper = bounds[0], bounds[1]
+    size = float((upper - lower).max()) / settings.coarse_voxels
+    if not size > 0:
+        raise InputError(f"visual_hull: empty bounds {bounds.tolist()}")
+    counts = ((upper - lower) / size).ceil().clamp_min(1).long()
+    axes = [lower[i] + size * (torch.arange(int(counts[i])) + 0.5) for i in range(3)]
+    coarse = torch.stack(torch.meshgrid(*axes, indexing="ij"), dim=-1).reshape(-1, 3)
+    dilated = F.max_pool2d(masks[:, None].float(), 5, stride=1, padding=2)[:, 0] > 0
+    coarse = coarse[_consistent(coarse, dilated, cameras, settings.misses)[0]]
+    fine_size = size / SUBDIVISIONS
+    steps = (torch.arange(SUBDIVISIONS) + 0.5) * fine_size - size / 2
+    offsets = torch.stack(torch.meshgrid(steps, steps, steps, indexing="ij"), dim=-1)
+    fine = (coarse[:, None, :] + offsets.reshape(1, -1, 3)).reshape(-1, 3)
+    keep, colors = _consistent(fine, masks, cameras, settings.misses, images)
+    return fine[keep], colors[keep], fine_size
+
+
+def _consistent(
+    points: Tensor,
+    masks: Tensor,
+    cameras: list[Camera],
+    misses: float,
+    images: Tensor | None = None,
+) -> tuple[Tensor, Tensor]:
+    """Which points fall in the mask of all but a `misses` fraction of the cameras that see
+    them (at least MIN_CAMERAS), and the mean colour of `images` where they hit."""
+    n = points.shape[0]
+    seen = torch.zeros(n, dtype=torch.int64)
+    hits = torch.zeros(n, dtype=torch.int64)
+    color_sum = torch.zeros(n, 3)
+    homogeneous = torch.cat([points, torch.ones(n, 1)], dim=1)
+    for index, camera in enumerate(cameras):
+        cam = homogeneous @ camera.w2c.to(torch.float32).T
+        depth = cam[:, 2]
+        in_front = depth > 1e-3
+        safe_depth = torch.where(in_front, depth, torch.ones_like(depth))
+        pixels = (cam[:, :3] / safe_depth[:, None]) @ camera.K.to(torch.float32).T
+        column, row = pixels[:, 0].floor().long(), pixels[:, 1].floor().long()
+        inside = (
+            in_front & (column >= 0) & (column < camera.width) & (row >= 0) & (row < camera.height)
+        )
+        column = column.clamp(0, camera.width - 1)
+        row = row.clamp(0, camera.height - 1)
+        hit = inside & masks[index][row, column]
+        seen += inside.long()
+        hits += hit.long()
+        if images is not None:
+            color_sum += images[index][row, column] * hit[:, None].float()
+    allowed = (misses * seen.float()).floor().long()
+    keep = (seen >= MIN_CAMERAS) & (hits >= seen - allowed)
+    colors = color_sum / hits.clamp_min(1)[:, None].float()
+    return keep, colors

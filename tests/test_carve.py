@@ -1,0 +1,109 @@
+"""Visual hull of residual masks, and the relay stage's carved starting copies."""
+
+from __future__ import annotations
+
+import torch
+
+from conftest import stage_smoke_cfg
+from relaygs.data import Camera
+from relaygs.data.synthetic.rig import dome_rig
+from relaygs.stages import STAGES
+from relaygs.stages.carve import HullSettings, residual_masks, visual_hull
+from relaygs.stages.scene_model import SEGMENT, SceneModel
+
+WIDTH, HEIGHT = 80, 45
+
+
+def _cameras() -> list[Camera]:
+    return [
+        Camera(
+            index,
+            torch.tensor(rig.K, dtype=torch.float32),
+            torch.tensor(rig.w2c, dtype=torch.float32),
+            WIDTH,
+            HEIGHT,
+        )
+        for index, rig in enumerate(dome_rig(WIDTH, HEIGHT))
+    ]
+
+
+def _sphere_masks(cameras: list[Camera], center: torch.Tensor, radius: float) -> torch.Tensor:
+    """Exact silhouettes of a sphere: pixels whose ray passes within `radius` of `center`."""
+    rows, columns = torch.meshgrid(
+        torch.arange(HEIGHT) + 0.5, torch.arange(WIDTH) + 0.5, indexing="ij"
+    )
+    masks = []
+    for camera in cameras:
+        pixels = torch.stack([columns, rows, torch.ones_like(rows)], dim=-1)
+        rays = pixels @ torch.linalg.inv(camera.K).T @ camera.w2c[:3, :3]
+        rays = rays / rays.norm(dim=-1, keepdim=True)
+        to_center = center - camera.center
+        along = rays @ to_center
+        distance = (to_center.norm() ** 2 - along**2).clamp_min(0).sqrt()
+        masks.append((distance < radius) & (along > 0))
+    return torch.stack(masks)
+
+
+def test_hull_of_a_sphere_lies_on_the_sphere() -> None:
+    cameras = _cameras()
+    center, radius = torch.tensor([0.8, -0.4, 1.0]), 0.35
+    masks = _sphere_masks(cameras, center, radius)
+    images = torch.zeros(len(cameras), HEIGHT, WIDTH, 3)
+    images[masks] = torch.tensor([0.9, 0.2, 0.1])
+    bounds = torch.tensor([[-3.0, -3.0, 0.0], [3.0, 3.0, 2.5]])
+    points, colors, size = visual_hull(masks, images, cameras, bounds, HullSettings(misses=0.0))
+    assert len(points) > 50
+    distance = (points - center).norm(dim=1)
+    # a visual hull contains the object and hugs it within a pixel's footprint or so
+    assert float(distance.max()) < radius + 0.25
+    assert float((distance < radius).float().mean()) > 0.5
+    assert torch.allclose(colors, torch.tensor([0.9, 0.2, 0.1]).expand_as(colors))
+    assert 0 < size < 0.2
+
+
+def test_hull_is_empty_without_residual_and_tolerates_one_wrong_camera() -> None:
+    cameras = _cameras()
+    bounds = torch.tensor([[-3.0, -3.0, 0.0], [3.0, 3.0, 2.5]])
+    images = torch.zeros(len(cameras), HEIGHT, WIDTH, 3)
+    empty = torch.zeros(len(cameras), HEIGHT, WIDTH, dtype=torch.bool)
+    assert len(visual_hull(empty, images, cameras, bounds, HullSettings())[0]) == 0
+    masks = _sphere_masks(cameras, torch.tensor([0.0, 0.0, 1.0]), 0.3)
+    masks[0] = False  # one camera misses the object (e.g. an occluder)
+    strict = visual_hull(masks, images, cameras, bounds, HullSettings(misses=0.0))[0]
+    tolerant = visual_hull(masks, images, cameras, bounds, HullSettings(misses=0.15))[0]
+    assert len(tolerant) > max(len(strict), 20)
+
+
+def test_residual_masks_ignore_a_camera_gain_but_see_an_object() -> None:
+    render = torch.rand(2, 10, 12, 3) * 0.5 + 0.25
+    image = render * torch.tensor([1.15, 0.9, 1.0])  # colour response of the camera
+    image[1, 2:5, 3:6] = torch.tensor([0.0, 1.0, 0.0])
+    masks = residual_masks(render, image, 0.15)
+    assert not masks[0].any()
+    assert masks[1, 2:5, 3:6].all()
+    assert int(masks[1].sum()) == 9
+
+
+def test_carved_copies_one_per_segment_capped_and_replica_when_nothing_moves(
+    stage_scene, stage_decoupled
+):
+    upstream = {"decouple": stage_decoupled}
+    relay = {"steps": 1, "seed_copies": "carve", "seed_points": 40, "hull_residual": 0.1}
+    carved = SceneModel.from_artifact(
+        STAGES["relay"](stage_scene, upstream, stage_smoke_cfg(relay=relay))
+    )
+    segments = carved.foreground.buffers[SEGMENT]
+    per_segment = torch.bincount(segments.long(), minlength=carved.num_segments)
+    assert carved.num_segments == 2
+    assert all(0 < int(count) <= 40 for count in per_segment)
+    assert torch.isfinite(carved.foreground.means).all()
+    # nothing exceeds a residual of 0.99: every hull is empty and each copy is the replica
+    relay = {"steps": 1, "seed_copies": "carve", "hull_residual": 0.99}
+    fallback = SceneModel.from_artifact(
+        STAGES["relay"](stage_scene, upstream, stage_smoke_cfg(relay=relay))
+    )
+    replicated = SceneModel.from_artifact(
+        STAGES["relay"](stage_scene, upstream, stage_smoke_cfg(relay={"steps": 1}))
+    )
+    assert len(fallback.foreground) == len(replicated.foreground)
+    assert torch.equal(fallback.foreground.buffers[SEGMENT], replicated.foreground.buffers[SEGMENT])
