@@ -103,7 +103,9 @@ def test_carved_copies_one_per_segment_capped_and_replica_when_nothing_moves(
         STAGES["relay"](stage_scene, upstream, stage_smoke_cfg(relay=relay))
     )
     replicated = SceneModel.from_artifact(
-        STAGES["relay"](stage_scene, upstream, stage_smoke_cfg(relay={"steps": 1}))
+        STAGES["relay"](
+            stage_scene, upstream, stage_smoke_cfg(relay={"steps": 1, "seed_copies": "replicate"})
+        )
     )
     assert len(fallback.foreground) == len(replicated.foreground)
     assert torch.equal(fallback.foreground.buffers[SEGMENT], replicated.foreground.buffers[SEGMENT])

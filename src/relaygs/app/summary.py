@@ -100,11 +100,29 @@ def markdown_table(table: pd.DataFrame, title: str) -> str:
         if row.get("status") == STATUS_FAILED:
             cells[0] += " (failed)"
         lines.append("| " + " | ".join(cells) + " |")
+    sharing = sharing_line(table)
+    if sharing:
+        lines += ["", sharing]
     failed = failed_jobs(table)
     if failed:
         lines += ["", f"{len(failed)} of {len(table)} job(s) failed:", ""]
         lines += [f"- {line}" for line in failed]
     return "\n".join(lines) + "\n"
+
+
+def sharing_line(table: pd.DataFrame) -> str | None:
+    """What sharing artifacts saved: stage seconds this sweep computed against the sum of
+    every job's whole lineage (what running the jobs independently would have computed)."""
+    if not {"train_s_computed", "train_s_total"} <= set(table.columns):
+        return None
+    computed = sum(float(v) for v in table["train_s_computed"] if is_number(v))
+    lineage = sum(float(v) for v in table["train_s_total"] if is_number(v))
+    if lineage <= 0:
+        return None
+    return (
+        f"Stage time: {computed:.0f} s computed by this sweep, {lineage:.0f} s if every job "
+        f"built its own lineage (ratio {computed / lineage:.2f})."
+    )
 
 
 def failed_jobs(table: pd.DataFrame) -> list[str]:

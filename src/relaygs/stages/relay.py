@@ -69,7 +69,7 @@ class RelayConfig:
     pseudo_views: bool = True
     p: int = 3
     freeze_background: bool = True
-    seed_copies: str = "replicate"
+    seed_copies: str = "carve"
     hull_residual: float = 0.15
     hull_voxels: int = 48
     hull_misses: float = 0.15

@@ -4,6 +4,7 @@ pseudo frames (for movers that travel further in a segment than their own size).
 
 from __future__ import annotations
 
+import math
 from typing import TYPE_CHECKING
 
 import torch
@@ -38,6 +39,7 @@ def carved_copies(
     bounds = _bounds(scene.points.xyz)
     generator = torch.Generator().manual_seed(seed)
     copies = []
+    voxel = 1.0
     for segment in range(segments):
         points, colors = [], []
         for frame in pseudo_frames(segment, k, scene.num_frames, section.p):
@@ -50,7 +52,9 @@ def carved_copies(
             rendered = torch.stack(renders.images).cpu().clamp(0.0, 1.0)
             images = torch.stack([scene.image(view) for view in frame_views])
             masks = residual_masks(rendered, images, settings.residual)
-            frame_points, frame_colors, _ = visual_hull(masks, images, cameras, bounds, settings)
+            frame_points, frame_colors, voxel = visual_hull(
+                masks, images, cameras, bounds, settings
+            )
             points.append(frame_points)
             colors.append(frame_colors)
         xyz = torch.cat(points) if points else torch.zeros(0, 3)
@@ -64,6 +68,9 @@ def carved_copies(
         fresh = GaussianSet.from_points(
             xyz, rgb.clamp(0.0, 1.0), replica.max_sh_degree, section.seed_opacity
         )
+        # the hull is a regular grid: one voxel is each seed's size (a stray hull point far
+        # from the others would otherwise get a huge nearest-neighbour scale and haze the view)
+        fresh.params["log_scales"].fill_(math.log(voxel))
         copies.append(_tagged(fresh, segment))
     stacked = copies[0]
     for copy in copies[1:]:
