@@ -14,6 +14,7 @@ from relaygs.pipeline.artifact import Artifact
 from relaygs.stages.config import json_ready
 from relaygs.stages.loop import TrainReport
 from relaygs.stages.scene_model import SceneModel
+from relaygs.stages.session import SetPlan, TrainingSession
 from relaygs.stages.train_settings import TrainSettings
 
 # 3DGS / 4D-GS per-parameter learning rates (positions × scene extent).
@@ -87,6 +88,32 @@ def initial_gaussians(
         keep = torch.randperm(xyz.shape[0], generator=generator)[:init_points].sort().values
         xyz, rgb = xyz[keep], rgb[keep]
     return GaussianSet.from_points(xyz, rgb, max_sh_degree=sh_degree, init_opacity=init_opacity)
+
+
+def static_session(
+    name: str,
+    scene: Scene,
+    section: Any,
+    plan: SetPlan,
+    seed: int,
+    device: torch.device,
+    extras: Mapping[str, float] | None = None,
+) -> TrainingSession:
+    """The session of a stage that fits one Gaussian set from the scene's point cloud
+    (decouple, warmup): `section` gives init_points, init_opacity and sh_degree; `extras`
+    adds trainable per-Gaussian scalars at an initial value (decouple's mask logit)."""
+    gaussians = initial_gaussians(
+        scene, section.init_points, section.init_opacity, section.sh_degree, seed
+    )
+    for param, value in (extras or {}).items():
+        gaussians.add_param(param, torch.full((len(gaussians),), value))
+    return TrainingSession(
+        sets={name: gaussians.to(device)},
+        plans={name: plan},
+        extent=scene.extent,
+        seed=seed,
+        device=device,
+    )
 
 
 def stage_meta(

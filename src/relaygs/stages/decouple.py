@@ -21,9 +21,9 @@ from relaygs.model import BACKGROUND_DENSIFY, DensifySettings, GaussianSet, SetL
 from relaygs.pipeline.artifact import Artifact
 from relaygs.stages.common import (
     BACKGROUND_LR,
-    initial_gaussians,
     no_upstream,
     stage_meta,
+    static_session,
     training_scene,
 )
 from relaygs.stages.config import (
@@ -125,20 +125,8 @@ def decouple(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, A
     seed = int(cfg.get("seed", 0))
     device = torch.device(train.device)
     training = training_scene(scene, train, early_stage=True)
-    gaussians = initial_gaussians(
-        scene, section.init_points, section.init_opacity, section.sh_degree, seed
-    )
-    gaussians.add_param(MASK, torch.full((len(gaussians),), section.mask_init))
-    gaussians = gaussians.to(device)
-    session = TrainingSession(
-        sets={SET: gaussians},
-        plans={
-            SET: SetPlan(section.learning_rates(), section.densify_settings(), section.sh_every)
-        },
-        extent=scene.extent,
-        seed=seed,
-        device=device,
-    )
+    plan = SetPlan(section.learning_rates(), section.densify_settings(), section.sh_every)
+    session = static_session(SET, scene, section, plan, seed, device, {MASK: section.mask_init})
     views = TrainViews(training, device)
 
     def step_fn(step: int) -> StepResult:

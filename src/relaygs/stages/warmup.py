@@ -16,9 +16,9 @@ from relaygs.model import BACKGROUND_DENSIFY, DensifySettings, SetLearningRates
 from relaygs.pipeline.artifact import Artifact
 from relaygs.stages.common import (
     GAUSSIAN_LR,
-    initial_gaussians,
     no_upstream,
     stage_meta,
+    static_session,
     training_scene,
 )
 from relaygs.stages.config import densify_settings, learning_rates, parse_section, require_steps
@@ -27,7 +27,7 @@ from relaygs.stages.loop import StepResult, run_training
 from relaygs.stages.loss import photometric_loss
 from relaygs.stages.render import part_of, splat
 from relaygs.stages.scene_model import SceneModel, foreground_with_segments
-from relaygs.stages.session import SetPlan, TrainingSession
+from relaygs.stages.session import SetPlan
 from relaygs.stages.train_settings import TrainSettings
 from relaygs.stages.views import TrainViews
 
@@ -78,18 +78,8 @@ def warmup(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, Any
     seed = int(cfg.get("seed", 0))
     device = torch.device(train.device)
     training = training_scene(scene, train, early_stage=False)
-    gaussians = initial_gaussians(
-        scene, section.init_points, section.init_opacity, section.sh_degree, seed
-    ).to(device)
-    session = TrainingSession(
-        sets={SET: gaussians},
-        plans={
-            SET: SetPlan(section.learning_rates(), section.densify_settings(), section.sh_every)
-        },
-        extent=scene.extent,
-        seed=seed,
-        device=device,
-    )
+    plan = SetPlan(section.learning_rates(), section.densify_settings(), section.sh_every)
+    session = static_session(SET, scene, section, plan, seed, device)
     views = TrainViews(training, device)
 
     def step_fn(step: int) -> StepResult:
