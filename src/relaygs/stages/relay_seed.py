@@ -14,7 +14,7 @@ from relaygs.model import GaussianSet
 from relaygs.stages.carve import residual_masks, visual_hull
 from relaygs.stages.render import part_of, splat
 from relaygs.stages.scene_model import foreground_with_segments
-from relaygs.stages.segments import pseudo_frames
+from relaygs.stages.segments import num_segments, pseudo_frames
 from relaygs.stages.views import TrainViews
 
 if TYPE_CHECKING:
@@ -34,48 +34,50 @@ def carved_copies(
     """One copy per segment from the hull at its pseudo frames (at most `section.seed_points`
     Gaussians, randomly thinned); a segment whose hull is empty keeps the replica."""
     scene = views.scene
-    k, settings = section.k, section.hull()
-    segments = -(-scene.num_frames // k)
     bounds = _bounds(scene.points.xyz)
     generator = torch.Generator().manual_seed(seed)
     copies = []
-    voxel = 1.0
-    for segment in range(segments):
-        points, colors = [], []
-        for frame in pseudo_frames(segment, k, scene.num_frames, section.p):
-            frame_views = views.by_frame.get(frame, [])
-            if not frame_views:
-                continue
-            cameras = [view.camera for view in frame_views]
-            degree = background.active_sh_degree
-            renders = splat([part_of("bg", background, degree, frozen=True)], cameras, degree)
-            rendered = torch.stack(renders.images).cpu().clamp(0.0, 1.0)
-            images = torch.stack([scene.image(view) for view in frame_views])
-            masks = residual_masks(rendered, images, settings.residual)
-            frame_points, frame_colors, voxel = visual_hull(
-                masks, images, cameras, bounds, settings
-            )
-            points.append(frame_points)
-            colors.append(frame_colors)
-        xyz = torch.cat(points) if points else torch.zeros(0, 3)
+    for segment in range(num_segments(scene.num_frames, section.k)):
+        frames = pseudo_frames(segment, section.k, scene.num_frames, section.p)
+        hulls = [_hull_at(views, background, frame, bounds, section) for frame in frames]
+        hulls = [hull for hull in hulls if hull is not None]
+        xyz = torch.cat([points for points, _, _ in hulls]) if hulls else torch.zeros(0, 3)
         if len(xyz) == 0:
             copies.append(_tagged(replica, segment))
             continue
-        rgb = torch.cat(colors)
+        rgb = torch.cat([colors for _, colors, _ in hulls])
         if len(xyz) > section.seed_points:
             keep = torch.randperm(len(xyz), generator=generator)[: section.seed_points]
             xyz, rgb = xyz[keep], rgb[keep]
-        fresh = GaussianSet.from_points(
+        seeds = GaussianSet.from_points(
             xyz, rgb.clamp(0.0, 1.0), replica.max_sh_degree, section.seed_opacity
         )
         # the hull is a regular grid: one voxel is each seed's size (a stray hull point far
         # from the others would otherwise get a huge nearest-neighbour scale and haze the view)
-        fresh.params["log_scales"].fill_(math.log(voxel))
-        copies.append(_tagged(fresh, segment))
+        seeds.params["log_scales"].fill_(math.log(hulls[0][2]))
+        copies.append(_tagged(seeds, segment))
     stacked = copies[0]
     for copy in copies[1:]:
         stacked = stacked.concat(copy)
     return stacked
+
+
+def _hull_at(
+    views: TrainViews, background: GaussianSet, frame: int, bounds: Tensor, section: RelayConfig
+) -> tuple[Tensor, Tensor, float] | None:
+    """Hull points, colours and voxel size of what `background` misses at `frame` in every
+    train camera (None when the frame has no train view)."""
+    frame_views = views.by_frame.get(frame, [])
+    if not frame_views:
+        return None
+    cameras = [view.camera for view in frame_views]
+    degree = background.active_sh_degree
+    render = splat([part_of("bg", background, degree, frozen=True)], cameras, degree)
+    rendered = torch.stack(render.images).cpu().clamp(0.0, 1.0)
+    images = torch.stack([views.scene.image(view) for view in frame_views])
+    settings = section.hull()
+    masks = residual_masks(rendered, images, settings.residual)
+    return visual_hull(masks, images, cameras, bounds, settings)
 
 
 def _tagged(gaussians: GaussianSet, segment: int) -> GaussianSet:
