@@ -6,7 +6,7 @@ import pandas as pd
 import pytest
 
 from relaygs import report
-from relaygs.app.pareto import pareto_front
+from relaygs.app.pareto import pareto_front, point_labels
 from relaygs.app.summary import summary_table
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -150,3 +150,8 @@ def test_markdown_says_what_sharing_saved(sweep):
         "Stage time: 36 s computed by this sweep, 72 s if every job built its own lineage" in text
     )
     assert "(ratio 0.50)" in text
+
+
+def test_jobs_on_the_same_point_share_one_label():
+    labels = point_labels([1.0, 2.0, 2.0, 1.0], [5.0, 6.0, 6.0, 5.0], ["k64", "k128", "k8", "k64"])
+    assert labels == {(1.0, 5.0): "k64", (2.0, 6.0): "k128, k8"}

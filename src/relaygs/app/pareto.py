@@ -26,6 +26,19 @@ def pareto_front(times: Sequence[float], scores: Sequence[float]) -> list[int]:
     return front
 
 
+def point_labels(
+    times: Sequence[float], scores: Sequence[float], labels: Sequence[str]
+) -> dict[tuple[float, float], str]:
+    """One label per distinct point: jobs that landed on the same point (e.g. a cached
+    variant) share it as `a, b`, so their labels do not overprint."""
+    merged: dict[tuple[float, float], list[str]] = {}
+    for x, y, label in zip(times, scores, labels, strict=True):
+        names = merged.setdefault((x, y), [])
+        if label not in names:
+            names.append(label)
+    return {point: ", ".join(names) for point, names in merged.items()}
+
+
 def plot_pareto(
     times: Sequence[float], scores: Sequence[float], labels: Sequence[str], path: Path, title: str
 ) -> Path:
@@ -51,7 +64,7 @@ def plot_pareto(
             s=140,
             zorder=3,
         )
-    for x, y, label in zip(times, scores, labels, strict=True):
+    for (x, y), label in point_labels(times, scores, labels).items():
         axes.annotate(label, (x, y), textcoords="offset points", xytext=(5, 5), fontsize=8)
     positive = [t for t in times if t > 0]
     if positive and max(positive) > LOG_SCALE_RATIO * min(positive):
