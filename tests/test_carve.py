@@ -7,8 +7,17 @@ import torch
 from conftest import stage_smoke_cfg
 from relaygs.data import Camera
 from relaygs.data.synthetic.rig import dome_rig
+from relaygs.model import GaussianSet
 from relaygs.stages import STAGES
-from relaygs.stages.carve import HullSettings, residual_masks, visual_hull
+from relaygs.stages.carve import (
+    MAX_REFINED_VOXELS,
+    SUBDIVISIONS,
+    HullSettings,
+    residual_masks,
+    visual_hull,
+)
+from relaygs.stages.relay_seed import BackgroundRenders
+from relaygs.stages.render import part_of, splat
 from relaygs.stages.scene_model import SEGMENT, SceneModel
 
 WIDTH, HEIGHT = 80, 45
@@ -72,6 +81,33 @@ def test_hull_is_empty_without_residual_and_tolerates_one_wrong_camera() -> None
     strict = visual_hull(masks, images, cameras, bounds, HullSettings(misses=0.0))[0]
     tolerant = visual_hull(masks, images, cameras, bounds, HullSettings(misses=0.15))[0]
     assert len(tolerant) > max(len(strict), 20)
+
+
+def test_hull_of_an_all_residual_view_refines_a_bounded_random_subset() -> None:
+    cameras = _cameras()
+    bounds = torch.tensor([[-3.0, -3.0, 0.0], [3.0, 3.0, 2.5]])
+    images = torch.zeros(len(cameras), HEIGHT, WIDTH, 3)
+    everything = torch.ones(len(cameras), HEIGHT, WIDTH, dtype=torch.bool)
+    settings = HullSettings(coarse_voxels=64)
+    first = visual_hull(everything, images, cameras, bounds, settings, torch.Generator())[0]
+    again = visual_hull(everything, images, cameras, bounds, settings, torch.Generator())[0]
+    assert MAX_REFINED_VOXELS < len(first) <= MAX_REFINED_VOXELS * SUBDIVISIONS**3
+    assert torch.equal(first, again)
+
+
+def test_background_renders_each_camera_once_and_match_a_direct_render() -> None:
+    cameras = _cameras()[:3]
+    background = GaussianSet.from_points(
+        torch.rand(200, 3) * 2 - 1, torch.rand(200, 3), max_sh_degree=0, init_opacity=0.5
+    )
+    direct = splat([part_of("bg", background, 0, frozen=True)], cameras, 0)
+    renders = BackgroundRenders(background)
+    first = renders.images(cameras)
+    assert torch.equal(first, torch.stack(direct.images).clamp(0.0, 1.0))
+    background.params["sh_dc"].data.zero_()  # a cached camera is not rendered again
+    assert torch.equal(renders.images(cameras[::-1]), first.flip(0))
+    moved = Camera(0, cameras[0].K, cameras[1].w2c, WIDTH, HEIGHT)  # same id, new pose
+    assert not torch.equal(renders.images([moved])[0], first[0])
 
 
 def test_residual_masks_ignore_a_camera_gain_but_see_an_object() -> None:

@@ -21,6 +21,10 @@ from relaygs.data import Camera
 from relaygs.errors import InputError
 
 SUBDIVISIONS = 4  # sub-voxels per axis of a kept coarse voxel
+# Kept coarse voxels refined at most. A mover fills a few hundred; tens of thousands mean the
+# residual is no silhouette (an unconverged background), and refining all of them would cost
+# seconds per frame for seeds that are thinned to a few thousand anyway.
+MAX_REFINED_VOXELS = 4096
 MIN_CAMERAS = 3  # a point seen by fewer train cameras cannot be triangulated
 
 
@@ -50,10 +54,16 @@ def residual_masks(renders: Tensor, images: Tensor, threshold: float) -> Tensor:
 
 
 def visual_hull(
-    masks: Tensor, images: Tensor, cameras: list[Camera], bounds: Tensor, settings: HullSettings
+    masks: Tensor,
+    images: Tensor,
+    cameras: list[Camera],
+    bounds: Tensor,
+    settings: HullSettings,
+    generator: torch.Generator | None = None,
 ) -> tuple[Tensor, Tensor, float]:
     """Points [M,3] inside the hull of `masks` [C,H,W] within `bounds` [2,3], their colours
-    [M,3] (mean image colour over the cameras that agree) and the fine voxel size."""
+    [M,3] (mean image colour over the cameras that agree) and the fine voxel size. Beyond
+    MAX_REFINED_VOXELS kept coarse voxels, a random subset (drawn from `generator`) is refined."""
     if masks.shape[0] != len(cameras) or images.shape[:3] != masks.shape:
         raise InputError(f"visual_hull: {len(cameras)} cameras, masks {tuple(masks.shape)}")
     lower, upper = bounds[0], bounds[1]
@@ -65,6 +75,9 @@ def visual_hull(
     coarse = torch.stack(torch.meshgrid(*axes, indexing="ij"), dim=-1).reshape(-1, 3)
     dilated = F.max_pool2d(masks[:, None].float(), 5, stride=1, padding=2)[:, 0] > 0
     coarse = coarse[_consistent(coarse, dilated, cameras, settings.misses)[0]]
+    if len(coarse) > MAX_REFINED_VOXELS:
+        pick = torch.randperm(len(coarse), generator=generator)[:MAX_REFINED_VOXELS]
+        coarse = coarse[pick.sort().values]
     fine_size = size / SUBDIVISIONS
     steps = (torch.arange(SUBDIVISIONS) + 0.5) * fine_size - size / 2
     offsets = torch.stack(torch.meshgrid(steps, steps, steps, indexing="ij"), dim=-1)

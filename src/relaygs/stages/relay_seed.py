@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 import torch
 from torch import Tensor
 
+from relaygs.data import Camera
 from relaygs.model import GaussianSet
 from relaygs.stages.carve import residual_masks, visual_hull
 from relaygs.stages.render import part_of, splat
@@ -36,10 +37,11 @@ def carved_copies(
     scene = views.scene
     bounds = _bounds(scene.points.xyz)
     generator = torch.Generator().manual_seed(seed)
+    renders = BackgroundRenders(background)
     copies = []
     for segment in range(num_segments(scene.num_frames, section.k)):
         frames = pseudo_frames(segment, section.k, scene.num_frames, section.p)
-        hulls = [_hull_at(views, background, frame, bounds, section) for frame in frames]
+        hulls = [_hull_at(views, renders, frame, bounds, section, generator) for frame in frames]
         hulls = [hull for hull in hulls if hull is not None]
         xyz = torch.cat([points for points, _, _ in hulls]) if hulls else torch.zeros(0, 3)
         if len(xyz) == 0:
@@ -62,22 +64,57 @@ def carved_copies(
     return stacked
 
 
+class BackgroundRenders:
+    """Renders of a static background, one per camera: a fixed rig sees the same background at
+    every frame, so each camera is rendered once (again only if its calibration changes)."""
+
+    def __init__(self, background: GaussianSet) -> None:
+        """Renders of `background` at its active SH degree, made on first request."""
+        self.background = background
+        self._cache: dict[int, tuple[Camera, Tensor]] = {}
+
+    def images(self, cameras: list[Camera]) -> Tensor:
+        """[C,H,W,3] renders clamped to [0, 1], on the CPU, in the order of `cameras`."""
+        missing = [camera for camera in cameras if not self._cached(camera)]
+        if missing:
+            degree = self.background.active_sh_degree
+            part = part_of("bg", self.background, degree, frozen=True)
+            render = splat([part], missing, degree)
+            for camera, image in zip(missing, render.images, strict=True):
+                self._cache[camera.camera_id] = (camera, image.cpu().clamp(0.0, 1.0))
+        return torch.stack([self._cache[camera.camera_id][1] for camera in cameras])
+
+    def _cached(self, camera: Camera) -> bool:
+        entry = self._cache.get(camera.camera_id)
+        if entry is None:
+            return False
+        known = entry[0]
+        return (
+            known.width == camera.width
+            and known.height == camera.height
+            and torch.equal(known.K, camera.K)
+            and torch.equal(known.w2c, camera.w2c)
+        )
+
+
 def _hull_at(
-    views: TrainViews, background: GaussianSet, frame: int, bounds: Tensor, section: RelayConfig
+    views: TrainViews,
+    renders: BackgroundRenders,
+    frame: int,
+    bounds: Tensor,
+    section: RelayConfig,
+    generator: torch.Generator,
 ) -> tuple[Tensor, Tensor, float] | None:
-    """Hull points, colours and voxel size of what `background` misses at `frame` in every
+    """Hull points, colours and voxel size of what the background misses at `frame` in every
     train camera (None when the frame has no train view)."""
     frame_views = views.by_frame.get(frame, [])
     if not frame_views:
         return None
     cameras = [view.camera for view in frame_views]
-    degree = background.active_sh_degree
-    render = splat([part_of("bg", background, degree, frozen=True)], cameras, degree)
-    rendered = torch.stack(render.images).cpu().clamp(0.0, 1.0)
     images = torch.stack([views.scene.image(view) for view in frame_views])
     settings = section.hull()
-    masks = residual_masks(rendered, images, settings.residual)
-    return visual_hull(masks, images, cameras, bounds, settings)
+    masks = residual_masks(renders.images(cameras), images, settings.residual)
+    return visual_hull(masks, images, cameras, bounds, settings, generator)
 
 
 def _tagged(gaussians: GaussianSet, segment: int) -> GaussianSet:
