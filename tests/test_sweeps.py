@@ -5,7 +5,6 @@ deselect with `-m "not sweep"`."""
 import json
 import math
 import subprocess
-import sys
 import time
 
 import pandas as pd
@@ -14,17 +13,17 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 from tensorboard.plugins.hparams import plugin_data_pb2
 
 from relaygs.app.prelaunch import is_installed
+from relaygs.bench_sweeps import EXPERIMENTS, command
 
 pytestmark = pytest.mark.sweep
 
-TINY = ["budget=smoke", "scene.frames=8", "scene.width=48", "scene.height=27"]
-ORDER = ("smoke", "ablation_k", "ablation_components", "baseline", "budget")
 HANG_GUARD_S = 1800.0  # a command this slow is stuck, not slow (speed is not asserted here)
 
 
-def _launch(outputs, *args):
-    command = [sys.executable, "-m", "relaygs.run", *args, *TINY, f"paths.outputs={outputs}"]
-    done = subprocess.run(command, capture_output=True, text=True, timeout=HANG_GUARD_S)
+def _launch(outputs, name, *overrides):
+    done = subprocess.run(
+        command(name, outputs, *overrides), capture_output=True, text=True, timeout=HANG_GUARD_S
+    )
     assert done.returncode == 0, done.stderr[-3000:]
     return done
 
@@ -48,8 +47,8 @@ def experiments(tmp_path_factory):
     outputs = tmp_path_factory.mktemp("outputs")
     runs = {}
     started = time.perf_counter()
-    for name in ORDER:
-        _launch(outputs, f"+experiment={name}")
+    for name in EXPERIMENTS:
+        _launch(outputs, name)
         folder = _newest_sweep(outputs) if name != "smoke" else None
         runs[name] = {"sweep": folder, "counts": _artifact_counts(outputs)}
     runs["elapsed_s"] = time.perf_counter() - started
@@ -63,7 +62,7 @@ def _summary(experiments, name):
 
 def test_every_sweep_writes_its_summary(experiments):
     print(f"five smoke experiments: {experiments['elapsed_s']:.1f} s")
-    for name in ORDER[1:]:
+    for name in EXPERIMENTS[1:]:
         assert (experiments[name]["sweep"] / "summary.md").is_file(), name
 
 
@@ -142,7 +141,7 @@ def _hparam_keys(content: bytes) -> set[str]:
     reason="hydra-joblib-launcher is not installed",
 )
 def test_parallel_jobs_share_the_store_and_build_decouple_once(tmp_path):
-    _launch(tmp_path, "+experiment=ablation_k", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2")
+    _launch(tmp_path, "ablation_k", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2")
     counts = _artifact_counts(tmp_path)
     assert (counts["decouple"], counts["relay"]) == (1, 1)  # every k >= 8 frames: one segment
     assert len(pd.read_csv(_newest_sweep(tmp_path) / "summary.csv")) == 5

@@ -1,4 +1,4 @@
-"""`python -m relaygs.bench splat|train [--json PATH]`: performance benchmarks (not tests)."""
+"""`python -m relaygs.bench splat|train|sweeps [--json PATH]`: benchmarks, not tests."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from relaygs import bench_train
+from relaygs import bench_sweeps, bench_train
 from relaygs.errors import RelayGSError
 from relaygs.splat import rasterization
 
@@ -167,9 +167,13 @@ def main(argv: list[str] | None = None) -> int:
     )
     train = sub.add_parser("train", help="time the training stages on the default scene")
     bench_train.add_arguments(train)
+    sweeps = sub.add_parser("sweeps", help="time the five experiments at the smoke budget")
+    bench_sweeps.add_arguments(sweeps)
     args = parser.parse_args(argv)
     if args.what == "train":
         return bench_train.run(args)
+    if args.what == "sweeps":
+        return bench_sweeps.run(args)
     try:
         device = torch.device(args.device)
         if device.type == "cpu":

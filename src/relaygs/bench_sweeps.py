@@ -1,0 +1,78 @@
+"""`python -m relaygs.bench sweeps`: wall time of the five experiments at the smoke budget.
+
+Each experiment runs as a user runs it (`python -m relaygs.run +experiment=NAME`, one process
+per command) on a tiny scene, in order, sharing one output folder, so later sweeps reuse what
+earlier ones built. The target is ≤ 300 s for all five on the 2-core CPU machine; the test
+suite runs the same commands (tests/test_sweeps.py) but asserts behaviour, not time.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+TINY_SCENE = ("budget=smoke", "scene.frames=8", "scene.width=48", "scene.height=27")
+EXPERIMENTS = ("smoke", "ablation_k", "ablation_components", "baseline", "budget")
+TARGET_S = 300.0
+
+
+def command(name: str, outputs: Path, *overrides: str) -> list[str]:
+    """The command line of experiment `name` on the tiny scene, writing under `outputs`."""
+    return [
+        sys.executable,
+        "-m",
+        "relaygs.run",
+        f"+experiment={name}",
+        *TINY_SCENE,
+        *overrides,
+        f"paths.outputs={outputs}",
+    ]
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The `sweeps` subcommand's options."""
+    parser.add_argument("--outputs", type=Path, help="output folder (default: a temporary one)")
+    parser.add_argument("--json", type=Path, help="also write the results as JSON here")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Time the five experiments in order; print a table, optionally write JSON."""
+    if args.outputs is None:
+        with tempfile.TemporaryDirectory(prefix="relaygs-bench-sweeps-") as folder:
+            report = measure(Path(folder))
+    else:
+        report = measure(args.outputs.resolve())
+    if report is None:
+        return 1
+    _print(report)
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(report, indent=2))
+    return 0
+
+
+def measure(outputs: Path) -> dict[str, Any] | None:
+    """Seconds per experiment and in total (None, after printing why, when one fails)."""
+    seconds: dict[str, float] = {}
+    for name in EXPERIMENTS:
+        started = time.perf_counter()
+        done = subprocess.run(command(name, outputs), capture_output=True, text=True)
+        seconds[name] = time.perf_counter() - started
+        if done.returncode != 0:
+            last = (done.stderr.strip().splitlines() or ["(no output)"])[-1]
+            print(f"error: experiment {name!r} exited {done.returncode}: {last}", file=sys.stderr)
+            return None
+        print(f"{name:<22}{seconds[name]:>8.1f} s", flush=True)
+    total = sum(seconds.values())
+    return {"seconds": seconds, "total_s": total, "target_s": TARGET_S, "met": total <= TARGET_S}
+
+
+def _print(report: dict[str, Any]) -> None:
+    verdict = "met" if report["met"] else "MISSED"
+    print(f"{'total':<22}{report['total_s']:>8.1f} s  (target ≤ {TARGET_S:.0f} s: {verdict})")
