@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
 import sys
 import time
@@ -14,6 +13,7 @@ import numpy as np
 import torch
 
 from relaygs import bench_sweeps, bench_train
+from relaygs.bench_output import save_json
 from relaygs.errors import RelayGSError
 from relaygs.splat import rasterization
 
@@ -183,10 +183,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {err}", file=sys.stderr)
         return 2
     _print_table(rows)
-    if args.json:
-        report = {"device": str(device), "threads": torch.get_num_threads(), "cases": rows}
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(report, indent=2))
+    save_json(args.json, {"device": str(device), "threads": torch.get_num_threads(), "cases": rows})
     return 0
 
 

@@ -9,13 +9,14 @@ suite runs the same commands (tests/test_sweeps.py) but asserts behaviour, not t
 from __future__ import annotations
 
 import argparse
-import json
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 from typing import Any
+
+from relaygs.bench_output import save_json
 
 TINY_SCENE = ("budget=smoke", "scene.frames=8", "scene.width=48", "scene.height=27")
 EXPERIMENTS = ("smoke", "ablation_k", "ablation_components", "baseline", "budget")
@@ -51,9 +52,7 @@ def run(args: argparse.Namespace) -> int:
     if report is None:
         return 1
     _print(report)
-    if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(report, indent=2))
+    save_json(args.json, report)
     return 0
 
 

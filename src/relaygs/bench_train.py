@@ -25,6 +25,7 @@ from typing import Any
 
 import torch
 
+from relaygs.bench_output import save_json
 from relaygs.data import Scene, load_scene
 from relaygs.data.synthetic import generate
 from relaygs.errors import RelayGSError
@@ -60,9 +61,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"error: {error}", file=sys.stderr)
         return 2
     _print(report)
-    if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(report, indent=2))
+    save_json(args.json, report)
     return 0
 
 
