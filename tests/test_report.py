@@ -155,3 +155,38 @@ def test_markdown_says_what_sharing_saved(sweep):
 def test_jobs_on_the_same_point_share_one_label():
     labels = point_labels([1.0, 2.0, 2.0, 1.0], [5.0, 6.0, 6.0, 5.0], ["k64", "k128", "k8", "k64"])
     assert labels == {(1.0, 5.0): "k64", (2.0, 6.0): "k128, k8"}
+
+
+def test_a_budget_sweep_says_what_a_minute_buys_and_which_points_are_on_the_front(tmp_path):
+    runs = [
+        ("relaygs", 0.5, 23.0, 5),
+        ("relaygs", 1.0, 24.0, 10),
+        ("relaygs", 2.0, 24.5, 20),
+        ("4dgs", 0.5, 22.5, 6),
+        ("4dgs", 1.0, 23.0, 11),
+        ("4dgs", 1.0, 24.0, 13),  # a second seed: the point is the mean
+    ]
+    for number, (pipeline, multiplier, psnr, minutes) in enumerate(runs):
+        _job(
+            tmp_path,
+            number,
+            "k16",
+            psnr,
+            minutes * 60.0,
+            pipeline=pipeline,
+            **{"budget.multiplier": multiplier, "seed": number},
+        )
+    files = report.write_reports(tmp_path)
+    table = pd.read_csv(tmp_path / "summary_budget.csv")
+    assert list(table.pipeline) == ["relaygs"] * 3 + ["4dgs"] * 2
+    gains = table.db_per_minute.tolist()
+    assert pd.isna(gains[0]) and pd.isna(gains[3])
+    assert [gains[1], gains[2], gains[4]] == pytest.approx([0.2, 0.05, 1.0 / 6.0])
+    assert table.on_front.tolist() == [True, True, True, False, False]
+    assert table.runs.tolist() == [1, 1, 1, 1, 2]
+    assert "| juggle | relaygs | 1 | 1 | 10.0 | 24.00 | +0.200 | yes |" in files.budget.read_text()
+
+
+def test_no_budget_table_at_one_multiplier(sweep):
+    assert report.write_reports(sweep).budget is None
+    assert not (sweep / "summary_budget.md").exists()

@@ -12,6 +12,7 @@ from pathlib import Path
 import pandas as pd
 
 from relaygs.app.aggregate import aggregate_markdown, aggregate_table
+from relaygs.app.marginal import marginal_markdown, marginal_table, varies_budget
 from relaygs.app.pareto import plot_pareto
 from relaygs.app.summary import (
     collect_results,
@@ -27,12 +28,15 @@ SUMMARY_MD = "summary.md"
 PARETO_PNG = "pareto.png"
 MEAN_CSV = "summary_mean.csv"
 MEAN_MD = "summary_mean.md"
+BUDGET_CSV = "summary_budget.csv"
+BUDGET_MD = "summary_budget.md"
 
 
 @dataclass(frozen=True)
 class ReportFiles:
     """The files a report wrote (`pareto` is None when no job has both PSNR and a time) and
-    the failed jobs, one `job <n> (<variant>): <error>` line each."""
+    the failed jobs, one `job <n> (<variant>): <error>` line each; `mean` and `budget` are
+    written only for sweeps that repeat seeds or vary the step multiplier."""
 
     csv: Path
     markdown: Path
@@ -40,6 +44,7 @@ class ReportFiles:
     jobs: int
     failed: tuple[str, ...]
     mean: Path | None = None
+    budget: Path | None = None
 
 
 def write_reports(sweep_dir: Path) -> ReportFiles:
@@ -65,8 +70,9 @@ def write_reports(sweep_dir: Path) -> ReportFiles:
             title,
         )
     mean = _write_mean(table, sweep_dir, title)
+    budget = _write_budget(table, sweep_dir, title)
     failed = tuple(failed_jobs(table))
-    return ReportFiles(csv_path, markdown_path, pareto, len(table), failed, mean)
+    return ReportFiles(csv_path, markdown_path, pareto, len(table), failed, mean, budget)
 
 
 def _write_mean(table: pd.DataFrame, sweep_dir: Path, title: str) -> Path | None:
@@ -80,6 +86,20 @@ def _write_mean(table: pd.DataFrame, sweep_dir: Path, title: str) -> Path | None
     mean.to_csv(sweep_dir / MEAN_CSV, index=False)
     path = sweep_dir / MEAN_MD
     path.write_text(aggregate_markdown(mean, f"{title}: mean ± std over seeds"), encoding="utf-8")
+    return path
+
+
+def _write_budget(table: pd.DataFrame, sweep_dir: Path, title: str) -> Path | None:
+    """`summary_budget.{csv,md}` (PSNR and dB per extra minute at each step multiplier) when
+    the sweep varies `budget.multiplier`; else nothing."""
+    if not varies_budget(table):
+        return None
+    marginal = marginal_table(table)
+    if marginal.empty:
+        return None
+    marginal.to_csv(sweep_dir / BUDGET_CSV, index=False)
+    path = sweep_dir / BUDGET_MD
+    path.write_text(marginal_markdown(marginal, f"{title}: what a minute buys"), encoding="utf-8")
     return path
 
 
@@ -102,8 +122,9 @@ def describe(files: ReportFiles) -> str:
     lines = [f"summary of {files.jobs} job(s):", f"  {files.markdown}", f"  {files.csv}"]
     if files.pareto is not None:
         lines.append(f"  {files.pareto}")
-    if files.mean is not None:
-        lines.append(f"  {files.mean}")
+    for extra in (files.mean, files.budget):
+        if extra is not None:
+            lines.append(f"  {extra}")
     if files.failed:
         lines.append(f"{len(files.failed)} of {files.jobs} job(s) failed:")
         lines += [f"  {line}" for line in files.failed]
