@@ -69,7 +69,7 @@ def marginal_markdown(table: pd.DataFrame, title: str) -> str:
         "|:---|:---|---:|---:|---:|---:|---:|:---|",
     ]
     for _, row in table.iterrows():
-        gain = MISSING if row.db_per_minute is None else f"{row.db_per_minute:+.3f}"
+        gain = f"{row.db_per_minute:+.3f}" if is_number(row.db_per_minute) else MISSING
         cells = [
             str(row.scene),
             str(row.pipeline),
