@@ -101,3 +101,44 @@ def test_usage_errors_exit_2(capsys):
     with pytest.raises(SystemExit) as caught:
         main(["frobnicate"])
     assert caught.value.code == 2 and "invalid choice" in capsys.readouterr().err
+
+
+def test_eval_scores_a_stored_model_like_the_evaluator(stage_scene_path, stage_decoupled, tmp_path):
+    from relaygs.data import load_scene
+    from relaygs.stages import evaluate
+
+    store = ArtifactStore(tmp_path / "store")
+    key = artifact_key("decouple", 1, {"steps": 2}, "juggle", [])
+    store.get_or_build("decouple", key, lambda: stage_decoupled, config={}, lineage=[])
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "relaygs.artifacts",
+            "--root",
+            str(store.root),
+            "eval",
+            key[:8],
+            "--scene",
+            str(stage_scene_path),
+            "--frame-stride",
+            "3",
+        ],
+        capture_output=True,
+        text=True,
+    )
+    assert done.returncode == 0, done.stderr
+    expected = evaluate(
+        load_scene(stage_scene_path), stage_decoupled, {"eval": {"frame_stride": 3}}
+    )
+    assert f"psnr            {expected['psnr']:.4f}" in done.stdout
+    assert f"num_fg          {expected['num_fg']}" in done.stdout
+
+
+def test_eval_names_a_missing_scene_and_a_bad_stride(store, capsys, tmp_path):
+    code, _, err = _cli(capsys, store.root, "eval", KEY_A[:8], "--scene", str(tmp_path / "none"))
+    assert code == 1 and str(tmp_path / "none") in err
+    code, _, err = _cli(
+        capsys, store.root, "eval", KEY_A[:8], "--scene", ".", "--frame-stride", "0"
+    )
+    assert code == 1 and "--frame-stride must be >= 1, got 0" in err

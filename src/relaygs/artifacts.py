@@ -1,5 +1,6 @@
-"""`python -m relaygs.artifacts [--root DIR] ls | show KEY | verify | gc`: inspect, check and
-clean the artifact store. Exit 0 on success, 1 on a problem (one line on stderr), 2 on usage."""
+"""`python -m relaygs.artifacts [--root DIR] ls | show KEY | eval KEY --scene DIR | verify | gc`:
+inspect, score, check and clean the artifact store. Exit 0 on success, 1 on a problem (one line
+on stderr), 2 on usage."""
 
 from __future__ import annotations
 
@@ -8,12 +9,15 @@ import json
 import sys
 from collections.abc import Sequence
 from dataclasses import asdict
+from pathlib import Path
 
 from safetensors import safe_open
 
+from relaygs.data import load_scene
 from relaygs.errors import RelayGSError
 from relaygs.pipeline.artifact import TENSORS_FILE
 from relaygs.pipeline.store import ArtifactStore
+from relaygs.stages import evaluate
 
 DEFAULT_ROOT = "outputs/artifacts"
 KEY_COLUMN_WIDTH = 16
@@ -41,6 +45,16 @@ def _parser() -> argparse.ArgumentParser:
     show = commands.add_parser("show", help="print one artifact's manifest and tensors")
     show.add_argument("key", help="full key or a unique prefix (at least 4 hex digits)")
     show.set_defaults(command_fn=_show)
+    score = commands.add_parser(
+        "eval", help="score one artifact's model on a scene's test views (any stage's output)"
+    )
+    score.add_argument("key", help="full key or a unique prefix (at least 4 hex digits)")
+    score.add_argument(
+        "--scene", type=Path, required=True, help="the scene folder it was trained on"
+    )
+    score.add_argument("--frame-stride", type=int, default=1, help="score every N-th frame")
+    score.add_argument("--downscale", type=int, default=1, help="the run's image downscale factor")
+    score.set_defaults(command_fn=_eval)
     verify = commands.add_parser("verify", help="check every artifact's hashes (exit 1 if bad)")
     verify.set_defaults(command_fn=_verify)
     gc = commands.add_parser("gc", help="remove leftovers of killed builds and stale locks")
@@ -80,6 +94,24 @@ def _show(store: ArtifactStore, args: argparse.Namespace) -> int:
         for name in sorted(tensors.keys()):
             view = tensors.get_slice(name)
             print(f"tensor {name}: {view.get_dtype()} {list(view.get_shape())}")
+    return 0
+
+
+def _eval(store: ArtifactStore, args: argparse.Namespace) -> int:
+    """Render the artifact's model at the scene's test views and print the test metrics, e.g.
+    to see what each stage of a lineage contributes."""
+    if args.frame_stride < 1:
+        raise RelayGSError(f"--frame-stride must be >= 1, got {args.frame_stride}")
+    item = store.find(args.key)
+    artifact = store.load(item.stage, item.key)
+    scene = load_scene(args.scene, downscale=args.downscale)
+    metrics = evaluate(scene, artifact, {"eval": {"frame_stride": args.frame_stride}})
+    print(f"{item.stage} {item.key[:KEY_COLUMN_WIDTH]} on {args.scene}")
+    for name, value in metrics.items():
+        if isinstance(value, float):
+            print(f"  {name:<16}{value:.4f}")
+        elif isinstance(value, int) or value is None:
+            print(f"  {name:<16}{'n/a' if value is None else value}")
     return 0
 
 
