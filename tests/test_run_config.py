@@ -46,10 +46,17 @@ def test_defaults_are_the_main_job(composer):
         64,
     )
     assert cfg.budget.name == "small" and cfg.budget.multiplier == 1.0
-    assert cfg.relay.k == 16 and cfg.relay.pseudo_views is True
+    assert cfg.relay.k == cfg.replicate.k == 1 and cfg.relay.pseudo_views is True
     assert cfg.deform.gamma is True and cfg.deform.isolate_fg_bg is True
     assert cfg.seed == 0 and cfg.artifacts.on_corrupt == "rebuild"
     assert cfg.artifacts.root == "outputs/artifacts"
+
+
+@pytest.mark.parametrize(("budget", "k"), [("small", 1), ("paper", 16), ("smoke", 16)])
+def test_segment_length_follows_the_budget_unless_set(composer, budget, k):
+    """`small` relays one copy per frame (few deform steps); the others keep the paper's k = 16."""
+    assert composer([f"budget={budget}"]).relay.k == k
+    assert composer([f"budget={budget}", "relay.k=8"]).relay.k == 8
 
 
 def test_run_and_sweep_dirs_are_unique_to_the_microsecond_and_avoid_runtime_cwd(composer):

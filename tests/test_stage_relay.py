@@ -122,3 +122,28 @@ def test_relay_without_pseudo_views_runs(stage_scene: Scene, stage_decoupled: Ar
     relayed = STAGES["relay"](stage_scene, {"decouple": stage_decoupled}, cfg)
     assert relayed.meta["config"]["section"]["pseudo_views"] is False
     assert torch.isfinite(relayed.tensors["fg.means"]).all()
+
+
+def test_one_frame_segments_give_a_copy_per_frame(
+    stage_scene: Scene, stage_decoupled: Artifact
+) -> None:
+    """k = 1 (the `small` budget's setting): S = T copies, each frame shows its own, and the
+    pseudo-view of a one-frame segment is that frame's image, with or without blending."""
+    cfg = stage_smoke_cfg(relay={"steps": 3, "k": 1})
+    relayed = STAGES["relay"](stage_scene, {"decouple": stage_decoupled}, cfg)
+    frames = stage_scene.num_frames
+    assert (relayed.meta["k"], relayed.meta["num_segments"]) == (1, frames)
+    model = SceneModel.from_artifact(relayed)
+    for frame in range(frames):
+        rows = model.foreground_rows(frame)
+        assert rows.numel() > 0
+        assert (model.foreground.buffers["segment"][rows] == frame).all()
+    views = TrainViews(stage_scene, torch.device("cpu"))
+    camera = stage_scene.train_cameras[1].camera_id
+    generator = torch.Generator().manual_seed(0)
+    blended = SegmentTargets(views, k=1, p=3, pseudo_views=True)
+    single = SegmentTargets(views, k=1, p=3, pseudo_views=False)
+    for frame in (0, frames - 1):
+        image = stage_scene.image(views.view(frame, camera))
+        assert torch.equal(blended.target(camera, frame, generator), image)
+        assert torch.equal(single.target(camera, frame, generator), image)
