@@ -35,6 +35,7 @@ class FakeStages:
         fail_when: Callable[[str, dict[str, Any]], bool] | None = None,
     ) -> None:
         self.calls: list[tuple[str, dict[str, Any]]] = []
+        self.evaluations = 0
         self.sinks: list[Any] = []
         self.canonical = canonical or keep_config
         self.fail_when = fail_when
@@ -46,7 +47,7 @@ class FakeStages:
             schema_versions={stage: 1 for stage in STAGE_TYPES},
             canonical=self.canonical,
             validate=validate_config,
-            evaluate=evaluate,
+            evaluate=self._evaluate,
             render_model=render_model,
             add_sink=self.sinks.append,
             remove_sink=self.sinks.remove,
@@ -55,6 +56,10 @@ class FakeStages:
     def ran(self, stage: str) -> int:
         """How many times `stage` was built."""
         return sum(1 for name, _ in self.calls if name == stage)
+
+    def _evaluate(self, scene: Any, artifact: Artifact, cfg: dict[str, Any]) -> dict[str, Any]:
+        self.evaluations += 1
+        return evaluate(scene, artifact, cfg)
 
     def _stage(self, stage: str):
         def build(scene: Any, upstream: dict[str, Artifact], cfg: dict[str, Any]) -> Artifact:

@@ -150,6 +150,17 @@ def test_markdown_says_what_sharing_saved(sweep):
         "Stage time: 36 s computed by this sweep, 72 s if every job built its own lineage" in text
     )
     assert "(ratio 0.50)" in text
+    assert "With evaluation" not in text  # results from before evaluations were stored
+
+
+def test_sharing_counts_evaluations_read_back_from_the_store(tmp_path):
+    # k64 and k128 share one output, so k128 read k64's evaluation back; k32 evaluated its own
+    _job(tmp_path, 0, "k32", 24.0, 20.0, eval_s_total=12.0, eval_s_computed=12.0)
+    _job(tmp_path, 1, "k64", 23.0, 20.0, eval_s_total=12.0, eval_s_computed=12.0)
+    _job(tmp_path, 2, "k128", 23.0, 20.0, eval_s_total=12.0, eval_s_computed=0.0)
+    text = report.write_reports(tmp_path).markdown.read_text()
+    assert "(ratio 0.50)" in text  # stages: 30 s of 60 s
+    assert "With evaluation: 54 s against 96 s (ratio 0.56)." in text
 
 
 def test_jobs_on_the_same_point_share_one_label():

@@ -94,6 +94,20 @@ def test_changing_k_reuses_decouple_and_rebuilds_relay_and_deform(base_config, t
     assert "reused decouple artifact" in capsys.readouterr().out
 
 
+def test_an_evaluated_model_is_not_evaluated_again(base_config, tmp_path, capsys):
+    fakes = FakeStages()
+    first = _run(base_config, tmp_path / "a", fakes)
+    again = _run(base_config, tmp_path / "b", fakes)
+    assert fakes.evaluations == 1
+    assert again["psnr"] == first["psnr"] and again["eval_frames"] == first["eval_frames"]
+    assert again["eval_s_total"] == pytest.approx(first["eval_s_total"])
+    assert (first["eval_s_computed"], again["eval_s_computed"]) == (first["eval_s_total"], 0.0)
+    assert "[eval] reused evaluation" in capsys.readouterr().out
+    # another frame stride is another evaluation of the same model
+    _run(_with(base_config, eval__frame_stride=1), tmp_path / "c", fakes)
+    assert fakes.evaluations == 2 and fakes.ran("deform") == 1
+
+
 def test_stages_receive_only_seed_train_and_their_section_with_overrides(base_config, tmp_path):
     fakes = FakeStages()
     config = _with(base_config, pipeline__name="4dgs", deform__steps=7)

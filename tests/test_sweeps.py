@@ -83,6 +83,7 @@ def test_ablation_k_on_8_frames_is_one_segment_for_every_k_and_reuses_the_smoke_
     counts = experiments["ablation_k"]["counts"]
     assert (counts["decouple"], counts["relay"], counts["deform"]) == (1, 1, 1)
     assert (table.cache_hits == 3).all()  # the smoke run (k = 16 on 8 frames) built them
+    assert counts["eval"] == 1 and (table.eval_s_computed == 0).all()  # and evaluated it
 
 
 def test_components_build_each_distinct_upstream_once(experiments):
@@ -98,7 +99,7 @@ def test_components_build_each_distinct_upstream_once(experiments):
     before = experiments["ablation_k"]["counts"]
     after = experiments["ablation_components"]["counts"]
     new = {stage: after.get(stage, 0) - before.get(stage, 0) for stage in after}
-    assert new == {"decouple": 0, "relay": 1, "replicate": 1, "deform": 5}
+    assert new == {"decouple": 0, "relay": 1, "replicate": 1, "deform": 5, "eval": 5}
     assert table.loc[table.variant == "full", "delta_psnr"].item() == 0.0
 
 

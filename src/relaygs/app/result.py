@@ -9,6 +9,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from relaygs.app.evaluation import Evaluation
 from relaygs.app.plan import RunPlan
 from relaygs.pipeline import PipelineRun
 
@@ -38,12 +39,13 @@ def build_result(
     cfg: Mapping[str, Any],
     plan: RunPlan,
     run: PipelineRun,
-    metrics: Mapping[str, Any],
+    evaluation: Evaluation,
     storage_mb: float,
     overrides: Sequence[str],
     job: int | None,
 ) -> dict[str, Scalar]:
     """The flat result of one run; `overrides` are the job's command-line/sweep overrides."""
+    metrics = evaluation.metrics
     result = _identity(cfg, plan, job)
     result["status"] = STATUS_OK
     result.update({name: _scalar(metrics.get(name)) for name in METRIC_FIELDS})
@@ -51,6 +53,8 @@ def build_result(
         {
             "train_s_total": run.train_seconds_total,
             "train_s_computed": run.train_seconds_computed,
+            "eval_s_total": evaluation.wall_seconds,
+            "eval_s_computed": evaluation.seconds_computed,
             "storage_mb": storage_mb,
             "cache_hits": sum(report.cache_hit for report in run.reports),
             "stages": len(run.reports),

@@ -112,17 +112,31 @@ def markdown_table(table: pd.DataFrame, title: str) -> str:
 
 def sharing_line(table: pd.DataFrame) -> str | None:
     """What sharing artifacts saved: stage seconds this sweep computed against the sum of
-    every job's whole lineage (what running the jobs independently would have computed)."""
-    if not {"train_s_computed", "train_s_total"} <= set(table.columns):
+    every job's whole lineage (what running the jobs independently would have computed), and
+    the same with evaluation added (results written before evaluations were stored lack it)."""
+    computed = _seconds(table, ("train_s_computed",))
+    lineage = _seconds(table, ("train_s_total",))
+    if computed is None or lineage is None or lineage <= 0:
         return None
-    computed = sum(float(v) for v in table["train_s_computed"] if is_number(v))
-    lineage = sum(float(v) for v in table["train_s_total"] if is_number(v))
-    if lineage <= 0:
-        return None
-    return (
+    line = (
         f"Stage time: {computed:.0f} s computed by this sweep, {lineage:.0f} s if every job "
         f"built its own lineage (ratio {computed / lineage:.2f})."
     )
+    computed_all = _seconds(table, ("train_s_computed", "eval_s_computed"))
+    alone_all = _seconds(table, ("train_s_total", "eval_s_total"))
+    if computed_all is not None and alone_all is not None and alone_all > 0:
+        line += (
+            f" With evaluation: {computed_all:.0f} s against {alone_all:.0f} s "
+            f"(ratio {computed_all / alone_all:.2f})."
+        )
+    return line
+
+
+def _seconds(table: pd.DataFrame, columns: tuple[str, ...]) -> float | None:
+    """Sum of the numeric values in `columns` over all rows (None when a column is missing)."""
+    if not set(columns) <= set(table.columns):
+        return None
+    return sum(float(v) for column in columns for v in table[column] if is_number(v))
 
 
 def failed_jobs(table: pd.DataFrame) -> list[str]:

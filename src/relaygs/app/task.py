@@ -16,6 +16,7 @@ import torch
 from omegaconf import DictConfig
 
 from relaygs.app.config import resolve_config
+from relaygs.app.evaluation import Evaluation, evaluate_through_store
 from relaygs.app.plan import RunPlan, plan_run
 from relaygs.app.result import (
     METRIC_FIELDS,
@@ -97,12 +98,15 @@ def _execute(
             on_node_done=_announce,
             canonical=suite.canonical,
         )
-        metrics = suite.evaluate(scene, run.output, plan.eval_config)
+        evaluation = evaluate_through_store(
+            store, scene, run, plan.eval_config, suite.evaluate, plan.on_corrupt
+        )
+        _announce_evaluation(evaluation)
         previews = config["tensorboard"]["preview_frames"]
         _log_previews(log, suite, scene, run.output, previews)
         output = run.reports[-1]
         storage_mb = store.manifest(output.stage, output.key).size_bytes / 1e6
-        result = build_result(config, plan, run, metrics, storage_mb, overrides, job)
+        result = build_result(config, plan, run, evaluation, storage_mb, overrides, job)
         hparams = {k: v for k, v in config.items() if k not in HPARAM_EXCLUDED_SECTIONS}
         logged = (*METRIC_FIELDS, "train_s_total", "train_s_computed", "storage_mb")
         log.add_hparams(flatten_config(hparams), {name: result[name] for name in logged})
@@ -123,6 +127,16 @@ def _announce(report: NodeReport) -> None:
         )
     else:
         print(f"[{report.node}] built {report.stage} artifact {key} in {report.wall_seconds:.1f} s")
+
+
+def _announce_evaluation(evaluation: Evaluation) -> None:
+    """Say whether the test metrics were read back from the store or computed now."""
+    key = evaluation.key[:12]
+    seconds = evaluation.wall_seconds
+    if evaluation.cache_hit:
+        print(f"[eval] reused evaluation {key} from the store (made earlier in {seconds:.1f} s)")
+    else:
+        print(f"[eval] evaluated the test views in {seconds:.1f} s (stored as {key})")
 
 
 def _log_previews(

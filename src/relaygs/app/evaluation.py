@@ -1,0 +1,77 @@
+"""Evaluation through the artifact store: a model's test metrics are stored as an `eval` entry
+keyed by the model's key, the `eval` settings, the device and the scene, so a job whose model
+was already evaluated the same way (a re-run, or sweep jobs that share their output artifact)
+reads the metrics back instead of rendering every test view again.
+
+The entry holds no tensors; its manifest carries the metrics and the seconds the evaluation
+took. Render FPS is the one measured when the entry was made. Bump EVAL_SCHEMA_VERSION when
+evaluation changes what it reports, so stored metrics are not mistaken for new ones.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from relaygs.pipeline import Artifact, ArtifactStore, LineageEntry, PipelineRun
+from relaygs.pipeline.keys import artifact_key, key_config
+from relaygs.pipeline.store import OnCorrupt
+
+EVAL_STAGE = "eval"
+EVAL_SCHEMA_VERSION = 1
+
+EvaluateFn = Callable[[Any, Artifact, dict[str, Any]], Mapping[str, Any]]
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """Test metrics of a run's output, whether they were computed now (`cache_hit` False) and
+    the seconds the evaluation took when it ran."""
+
+    metrics: dict[str, Any]
+    key: str
+    cache_hit: bool
+    wall_seconds: float
+
+    @property
+    def seconds_computed(self) -> float:
+        """Seconds this job spent evaluating (0 when the metrics were read back)."""
+        return 0.0 if self.cache_hit else self.wall_seconds
+
+
+def evaluate_through_store(
+    store: ArtifactStore,
+    scene: Any,
+    run: PipelineRun,
+    eval_config: dict[str, Any],
+    evaluate: EvaluateFn,
+    on_corrupt: OnCorrupt = "rebuild",
+) -> Evaluation:
+    """The metrics of `run.output` on `scene`: read from the store, or computed by `evaluate`
+    and stored (once, even when parallel jobs ask at the same time)."""
+    output = run.reports[-1]
+    keyed = evaluation_config(eval_config)
+    fingerprint = str(scene.fingerprint)
+    key = artifact_key(EVAL_STAGE, EVAL_SCHEMA_VERSION, keyed, fingerprint, [output.key])
+
+    def build() -> Artifact:
+        metrics = dict(evaluate(scene, run.output, eval_config))
+        return Artifact(EVAL_STAGE, meta={"metrics": metrics})
+
+    artifact, info = store.get_or_build(
+        EVAL_STAGE,
+        key,
+        build,
+        config=keyed,
+        lineage=[LineageEntry(output.node, output.stage, output.key)],
+        provenance={"schema_version": EVAL_SCHEMA_VERSION, "scene": fingerprint},
+        on_corrupt=on_corrupt,
+    )
+    return Evaluation(dict(artifact.meta["metrics"]), key, info.cache_hit, info.wall_seconds)
+
+
+def evaluation_config(eval_config: Mapping[str, Any]) -> dict[str, Any]:
+    """What shapes an evaluation's result: the `eval` section and the device it renders on
+    (render FPS depends on it); training settings and the seed do not."""
+    return key_config({"eval": dict(eval_config["eval"]), "device": eval_config["train"]["device"]})
