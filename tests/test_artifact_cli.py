@@ -142,3 +142,18 @@ def test_eval_names_a_missing_scene_and_a_bad_stride(store, capsys, tmp_path):
         capsys, store.root, "eval", KEY_A[:8], "--scene", ".", "--frame-stride", "0"
     )
     assert code == 1 and "--frame-stride must be >= 1, got 0" in err
+
+
+def test_eval_of_a_stored_evaluation_says_it_is_no_model(store, capsys):
+    key = artifact_key("eval", 1, {"eval": {"frame_stride": 1}}, "scene", [KEY_B])
+    store.get_or_build(
+        "eval",
+        key,
+        lambda: Artifact("eval", meta={"metrics": {"psnr": 20.0}}),
+        config={},
+        lineage=[LineageEntry("relay", "relay", KEY_B)],
+    )
+    code, _, err = _cli(capsys, store.root, "eval", key[:8], "--scene", ".")
+    assert code == 1
+    message = f"{key[:16]} is a stored evaluation, not a model: `show {key[:8]}` prints its metrics"
+    assert err == f"error: {message}\n"

@@ -13,6 +13,7 @@ from pathlib import Path
 
 from safetensors import safe_open
 
+from relaygs.app.evaluation import EVAL_STAGE
 from relaygs.data import load_scene
 from relaygs.errors import RelayGSError
 from relaygs.pipeline.artifact import TENSORS_FILE
@@ -103,6 +104,11 @@ def _eval(store: ArtifactStore, args: argparse.Namespace) -> int:
     if args.frame_stride < 1:
         raise RelayGSError(f"--frame-stride must be >= 1, got {args.frame_stride}")
     item = store.find(args.key)
+    if item.stage == EVAL_STAGE:
+        raise RelayGSError(
+            f"{item.key[:KEY_COLUMN_WIDTH]} is a stored evaluation, not a model: "
+            f"`show {args.key}` prints its metrics"
+        )
     artifact = store.load(item.stage, item.key)
     scene = load_scene(args.scene, downscale=args.downscale)
     metrics = evaluate(scene, artifact, {"eval": {"frame_stride": args.frame_stride}})
