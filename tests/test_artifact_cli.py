@@ -144,15 +144,30 @@ def test_eval_names_a_missing_scene_and_a_bad_stride(store, capsys, tmp_path):
     assert code == 1 and "--frame-stride must be >= 1, got 0" in err
 
 
-def test_eval_of_a_stored_evaluation_says_it_is_no_model(store, capsys):
-    key = artifact_key("eval", 1, {"eval": {"frame_stride": 1}}, "scene", [KEY_B])
+def _stored_evaluation(store, model_key, model_stage):
+    key = artifact_key("eval", 1, {"eval": {"frame_stride": 1}}, "scene", [model_key])
     store.get_or_build(
         "eval",
         key,
         lambda: Artifact("eval", meta={"metrics": {"psnr": 20.0}}),
         config={},
-        lineage=[LineageEntry("relay", "relay", KEY_B)],
+        lineage=[LineageEntry(model_stage, model_stage, model_key)],
     )
+    return key
+
+
+def test_gc_keeps_the_evaluations_of_kept_models_only(store, capsys):
+    of_relay = _stored_evaluation(store, KEY_B, "relay")
+    of_decouple = _stored_evaluation(store, KEY_A, "decouple")
+    code, _, _ = _cli(capsys, store.root, "gc", "--keep", KEY_B)
+    assert code == 0 and store.has("eval", of_relay) and store.has("eval", of_decouple)
+    code, _, _ = _cli(capsys, store.root, "gc", "--keep", KEY_A)
+    assert code == 0 and not store.has("relay", KEY_B)
+    assert store.has("eval", of_decouple) and not store.has("eval", of_relay)
+
+
+def test_eval_of_a_stored_evaluation_says_it_is_no_model(store, capsys):
+    key = _stored_evaluation(store, KEY_B, "relay")
     code, _, err = _cli(capsys, store.root, "eval", key[:8], "--scene", ".")
     assert code == 1
     message = f"{key[:16]} is a stored evaluation, not a model: `show {key[:8]}` prints its metrics"

@@ -35,11 +35,19 @@ class GcReport:
     busy: list[Path] = field(default_factory=list)
 
 
-def collect_garbage(root: Path, keep: Collection[str] | None, dry_run: bool) -> GcReport:
+def collect_garbage(
+    root: Path,
+    keep: Collection[str] | None,
+    dry_run: bool,
+    annotations: Collection[str] = (),
+) -> GcReport:
     """Remove temp/trash folders, incomplete artifacts, checkpoints of finished (or, with
-    `keep`, unkept) artifacts, unkept artifacts when `keep` is given, and free lock files."""
+    `keep`, unkept) artifacts, unkept artifacts when `keep` is given, and free lock files.
+
+    Entries of an `annotations` stage (e.g. stored evaluations) are kept with what they
+    describe: when every one of their upstreams is kept."""
     report = GcReport()
-    kept = _with_ancestors(root, keep) if keep is not None else None
+    kept = _kept_keys(root, keep, annotations) if keep is not None else None
     for stage_dir in stage_dirs(root):
         for path in sorted(stage_dir.iterdir()):
             key = _owning_key(path)
@@ -68,15 +76,19 @@ def _is_garbage(path: Path, key: str, kept: set[str] | None) -> bool:
     return True
 
 
-def _with_ancestors(root: Path, keep: Collection[str]) -> set[str]:
-    """The kept keys plus every key in their lineage, transitively."""
+def _kept_keys(root: Path, keep: Collection[str], annotations: Collection[str]) -> set[str]:
+    """The kept keys, every key in their lineage (transitively), and the annotation entries
+    whose upstreams are all among those."""
     parents: dict[str, list[str]] = {}
+    annotation_keys = []
     for folder in key_dirs(root):
         if is_sealed(folder):
             try:
                 parents[folder.name] = [entry.key for entry in read_manifest(folder).lineage]
             except CorruptArtifactError:
                 parents[folder.name] = []
+            if folder.parent.name in annotations:
+                annotation_keys.append(folder.name)
     kept: set[str] = set()
     pending = list(keep)
     while pending:
@@ -84,7 +96,8 @@ def _with_ancestors(root: Path, keep: Collection[str]) -> set[str]:
         if key not in kept:
             kept.add(key)
             pending.extend(parents.get(key, []))
-    return kept
+    described = [key for key in annotation_keys if parents[key] and set(parents[key]) <= kept]
+    return kept | set(described)
 
 
 @contextmanager

@@ -202,10 +202,16 @@ class ArtifactStore:
                 problems.append(VerifyProblem(folder, str(error)))
         return problems
 
-    def gc(self, keep: Collection[str] | None = None, dry_run: bool = False) -> GcReport:
+    def gc(
+        self,
+        keep: Collection[str] | None = None,
+        dry_run: bool = False,
+        annotations: Collection[str] = (),
+    ) -> GcReport:
         """Remove leftovers of killed builds, stale locks and incomplete folders; with `keep`,
-        also every artifact that is neither kept nor an ancestor of a kept one."""
-        return collect_garbage(self.root, keep, dry_run)
+        also every artifact that is neither kept nor an ancestor of a kept one, except entries
+        of an `annotations` stage whose upstreams are all kept."""
+        return collect_garbage(self.root, keep, dry_run, annotations)
 
     def _try_load(
         self, stage: str, key: str, on_corrupt: OnCorrupt
