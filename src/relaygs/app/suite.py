@@ -9,6 +9,7 @@ from typing import Any
 
 import torch
 
+from relaygs.app.evaluation import EvaluateFn
 from relaygs.app.plan import StageValidator
 from relaygs.pipeline import Artifact
 from relaygs.pipeline.dag import CanonicalFn, StageFn
@@ -27,7 +28,7 @@ class StageSuite:
     schema_versions: Mapping[str, int]
     canonical: CanonicalFn
     validate: StageValidator
-    evaluate: Callable[[Any, Artifact, dict[str, Any]], Mapping[str, Any]]
+    evaluate: EvaluateFn
     render_model: Callable[[Artifact, Any, float], torch.Tensor]
     add_sink: Callable[[LogSink], None]
     remove_sink: Callable[[LogSink], None]
