@@ -4,10 +4,12 @@ import copy
 import json
 
 import pytest
+import torch
 from omegaconf import OmegaConf
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from fake_stages import TINY_SCENE, FakeStages, compose_config
+from relaygs.app.evaluation import evaluation_config
 from relaygs.app.result import RESULT_FILE
 from relaygs.app.task import run_task
 from relaygs.app.tensorboard import flatten_config
@@ -106,6 +108,28 @@ def test_an_evaluated_model_is_not_evaluated_again(base_config, tmp_path, capsys
     # another frame stride is another evaluation of the same model
     _run(_with(base_config, eval__frame_stride=1), tmp_path / "c", fakes)
     assert fakes.evaluations == 2 and fakes.ran("deform") == 1
+
+
+def test_another_cpu_thread_count_is_another_evaluation(base_config, tmp_path):
+    """Render FPS depends on the thread count, so a stored evaluation is reused only at the
+    thread count it was measured with; the trained artifacts are reused whatever it is."""
+    fakes = FakeStages()
+    threads = torch.get_num_threads()
+    try:
+        _run(_with(base_config, threads=1), tmp_path / "a", fakes)
+        _run(_with(base_config, threads=2), tmp_path / "b", fakes)
+        _run(_with(base_config, threads=2), tmp_path / "c", fakes)
+    finally:
+        torch.set_num_threads(threads)
+    assert fakes.evaluations == 2 and fakes.ran("deform") == 1
+
+
+def test_evaluation_key_names_the_thread_count_only_on_the_cpu():
+    settings = {"eval": {"frame_stride": 1}}
+    cpu = evaluation_config({**settings, "train": {"device": "cpu"}})
+    cuda = evaluation_config({**settings, "train": {"device": "cuda"}})
+    assert cpu["cpu_threads"] == torch.get_num_threads()
+    assert "cpu_threads" not in cuda and cuda["device"] == "cuda"
 
 
 def test_stages_receive_only_seed_train_and_their_section_with_overrides(base_config, tmp_path):

@@ -4,7 +4,8 @@ was already evaluated the same way (a re-run, or sweep jobs that share their out
 reads the metrics back instead of rendering every test view again.
 
 The entry holds no tensors; its manifest carries the metrics and the seconds the evaluation
-took. Render FPS is the one measured when the entry was made. Bump EVAL_SCHEMA_VERSION when
+took. Render FPS is the one measured when the entry was made, which is why the device and, on
+the CPU, torch's thread count enter the key. Bump EVAL_SCHEMA_VERSION when
 evaluation changes what it reports, so stored metrics are not mistaken for new ones.
 """
 
@@ -13,6 +14,8 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
+
+import torch
 
 from relaygs.pipeline import Artifact, ArtifactStore, LineageEntry, PipelineRun
 from relaygs.pipeline.keys import artifact_key, key_config
@@ -72,6 +75,11 @@ def evaluate_through_store(
 
 
 def evaluation_config(eval_config: Mapping[str, Any]) -> dict[str, Any]:
-    """What shapes an evaluation's result: the `eval` section and the device it renders on
-    (render FPS depends on it); training settings and the seed do not."""
-    return key_config({"eval": dict(eval_config["eval"]), "device": eval_config["train"]["device"]})
+    """What shapes an evaluation's result: the `eval` section, the device it renders on and, on
+    the CPU, torch's current thread count (render FPS depends on both); training settings and
+    the seed do not."""
+    device = str(eval_config["train"]["device"])
+    keyed: dict[str, Any] = {"eval": dict(eval_config["eval"]), "device": device}
+    if torch.device(device).type == "cpu":
+        keyed["cpu_threads"] = torch.get_num_threads()
+    return key_config(keyed)
