@@ -24,3 +24,15 @@ def test_names_non_finite_gradient() -> None:
     (param * torch.tensor([1.0, float("inf"), 1.0])).sum().backward()
     with pytest.raises(DivergenceError, match=r"'opacity\.grad'"):
         check_finite("deform", 5, {"opacity": param})
+
+
+def test_large_finite_values_whose_sum_overflows_pass() -> None:
+    huge = torch.full((4,), 3e38)
+    assert not torch.isfinite(huge.sum())
+    check_finite("deform", 2, {"means": huge, "big64": torch.tensor([1e300], dtype=torch.float64)})
+
+
+def test_nan_beside_huge_values_is_still_named() -> None:
+    tensors = {"means": torch.full((4,), 3e38), "scales": torch.tensor([1.0, float("nan")])}
+    with pytest.raises(DivergenceError, match="'scales' has 1 non-finite"):
+        check_finite("relay", 9, tensors)

@@ -24,6 +24,7 @@ from relaygs.model.optim import (
     GaussianOptimizer,
     LRSchedule,
     SetLearningRates,
+    adam,
     log_linear,
 )
 
@@ -41,6 +42,7 @@ __all__ = [
     "GaussianSet",
     "LRSchedule",
     "SetLearningRates",
+    "adam",
     "check_finite",
     "inverse_sigmoid",
     "log_linear",

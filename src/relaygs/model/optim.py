@@ -128,6 +128,12 @@ class SetLearningRates:
         return cls(**core, extras=extras)
 
 
+def adam(groups: list[dict], betas: tuple[float, float] = (0.9, 0.999)) -> torch.optim.Adam:
+    """Adam with eps 1e-15 over param groups, as one fused kernel per step (the per-tensor
+    loop costs several times more on the CPU; the update is the same)."""
+    return torch.optim.Adam(groups, lr=0.0, betas=betas, eps=ADAM_EPS, fused=True)
+
+
 class GaussianOptimizer:
     """Adam (eps 1e-15) with one param group per (set, parameter), named "<set>.<param>"."""
 
@@ -152,7 +158,7 @@ class GaussianOptimizer:
                 schedule = learning_rates[set_name].for_param(param_name)
                 self._schedules[group_name] = schedule
                 groups.append({"params": [param], "name": group_name, "lr": schedule.at(0)})
-        self.adam = torch.optim.Adam(groups, lr=0.0, betas=betas, eps=ADAM_EPS)
+        self.adam = adam(groups, betas)
         self.update_learning_rates(0)
 
     def update_learning_rates(self, step: int) -> dict[str, float]:

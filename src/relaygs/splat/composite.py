@@ -11,6 +11,7 @@ form of the 3DGS backward's back-to-front walk.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -100,6 +101,7 @@ def _rows(bins: TileBins, tiles: torch.Tensor, table: torch.Tensor) -> _Rows:
     return _Rows(tiles, gid, valid, packed, dx, dy, cols, lines)
 
 
+@functools.cache
 def _below(value: float, dtype: torch.dtype) -> float:
     """The largest number of `dtype` below `value` (so `x > below` means `x >= value`)."""
     v = torch.tensor(value, dtype=dtype)
@@ -242,11 +244,31 @@ def _candidates(bins: TileBins) -> int:
     return sum(int(bins.tile_count[g[0]]) * g.numel() for g in bins.groups) * bins.tile_size**2
 
 
+@dataclass
+class FixedLayer:
+    """Gaussians that stay unchanged between renders, with their own render into the cameras.
+
+    `mask` [N] bool marks them; `colors` [C,H,W,D] and `alphas` [C,H,W,1] are their render
+    alone (RGB, no background). A tile only they touch is copied from it instead of
+    composited and gets no backward pass; fixed Gaussians get zero gradients.
+    """
+
+    mask: torch.Tensor
+    colors: torch.Tensor
+    alphas: torch.Tensor
+
+
 class CompositeGaussians(torch.autograd.Function):
-    """colors [C,H,W,D] and alphas [C,H,W,1] from binned screen-space Gaussians."""
+    """colors [C,H,W,D] and alphas [C,H,W,1] from binned screen-space Gaussians.
+
+    Only the tiles of `bins.groups` are composited (and differentiated); with a FixedLayer
+    `fixed`, every other tile is copied from its render, else it is empty.
+    """
 
     @staticmethod
-    def forward(ctx, means2d, conics, opacities, colors, backgrounds, bounds, bins, width, height):
+    def forward(
+        ctx, means2d, conics, opacities, colors, backgrounds, bounds, bins, width, height, fixed
+    ):
         c, n, d = colors.shape
         table = _pack(means2d.detach(), conics.detach(), opacities.detach(), bounds)
         flat_colors = colors.detach().reshape(c * n, d)
@@ -256,8 +278,12 @@ class CompositeGaussians(torch.autograd.Function):
         )
         saved = []
         scratch = _Scratch(table)
-        color_tiles = colors.new_zeros(bins.num_tiles, p, d)
-        coverage = colors.new_zeros(bins.num_tiles, p)
+        if fixed is None:
+            color_tiles = colors.new_zeros(bins.num_tiles, p, d)
+            coverage = colors.new_zeros(bins.num_tiles, p)
+        else:
+            color_tiles = _to_tiles(fixed.colors.detach(), bins)
+            coverage = _to_tiles(fixed.alphas.detach(), bins)[..., 0]
         for tiles in bins.groups:
             rows = _rows(bins, tiles, table)
             pairs, alpha = _pairs(rows, scratch, keep_pairs)
@@ -272,6 +298,7 @@ class CompositeGaussians(torch.autograd.Function):
         if backgrounds is not None:
             out = out + t_final * backgrounds[:, None, None, :]
         ctx.bins = bins
+        ctx.fixed = None if fixed is None else fixed.mask
         ctx.saved_pairs = saved
         ctx.save_for_backward(means2d, conics, opacities, colors, backgrounds, bounds, t_final)
         return out, 1.0 - t_final
@@ -316,12 +343,16 @@ class CompositeGaussians(torch.autograd.Function):
             grad_table.index_add_(0, rows.gid.reshape(-1), grads.reshape(-1, 6))
             grad_cols.index_add_(0, rows.gid.reshape(-1), d_cols.reshape(-1, d))
         ctx.saved_pairs = None
+        if ctx.fixed is not None:
+            grad_table.view(c, n, 6).masked_fill_(ctx.fixed[None, :, None], 0.0)
+            grad_cols.view(c, n, d).masked_fill_(ctx.fixed[None, :, None], 0.0)
         return (
             grad_table[:, 0:2].reshape_as(means2d),
             grad_table[:, 2:5].reshape_as(conics),
             grad_table[:, 5].reshape_as(opacities),
             grad_cols.reshape_as(colors),
             grad_bg,
+            None,
             None,
             None,
             None,

@@ -2,16 +2,24 @@
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 from dataclasses import dataclass
 from typing import Any
 
 import torch
 
 from relaygs.errors import InputError
-from relaygs.splat.composite import CompositeGaussians
+from relaygs.splat.composite import CompositeGaussians, FixedLayer
 from relaygs.splat.projection import ALPHA_MIN, Projection, covariance_3d, project_gaussians
 from relaygs.splat.sh import eval_sh, num_sh_bases
-from relaygs.splat.tiles import DEFAULT_TILE_SIZE, bin_gaussians
+from relaygs.splat.tiles import (
+    DEFAULT_TILE_SIZE,
+    TileBins,
+    bin_gaussians,
+    only_tiles,
+    tiles_touched_by,
+)
 
 RENDER_MODES = ("RGB", "D", "RGB+D")
 
@@ -120,12 +128,57 @@ def prepare(
     far_plane: float,
     eps2d: float,
     render_mode: str,
+    fixed_rows: torch.Tensor | None = None,
 ) -> Prepared:
-    """Validate, project, and build the features every render mode composites."""
+    """Validate, project, and build the features every render mode composites.
+
+    Rows where `fixed_rows` [N] bool is true are prepared without autograd (they get no
+    gradient), so the backward of projection and SH covers only the other rows.
+    """
     validate_inputs(
         means, quats, scales, opacities, colors, viewmats, Ks, width, height,
         sh_degree, backgrounds, render_mode,
     )  # fmt: skip
+    shade = functools.partial(
+        _project_and_shade, viewmats=viewmats, Ks=Ks, width=width, height=height,
+        sh_degree=sh_degree, render_mode=render_mode, near_plane=near_plane,
+        far_plane=far_plane, eps2d=eps2d,
+    )  # fmt: skip
+    inputs = (means, quats, scales, opacities, colors)
+    if fixed_rows is None or bool(fixed_rows.all()) or not bool(fixed_rows.any()):
+        proj, features = shade(*inputs)
+    else:
+        color_dim = 1 if sh_degree is None and colors.dim() == 3 else 0
+        rows = (fixed_rows.nonzero().squeeze(1), (~fixed_rows).nonzero().squeeze(1))
+        with torch.no_grad():
+            still = shade(*_select_rows(inputs, rows[0], color_dim))
+        moving = shade(*_select_rows(inputs, rows[1], color_dim))
+        proj, features = _merge_rows(means.shape[0], rows, (still, moving))
+    bg = backgrounds
+    if bg is not None and render_mode != "RGB":
+        depth_bg = bg.new_zeros(viewmats.shape[0], 1)
+        bg = depth_bg if render_mode == "D" else torch.cat([bg, depth_bg], dim=-1)
+    return Prepared(proj, features, bg)
+
+
+def _project_and_shade(
+    means: torch.Tensor,
+    quats: torch.Tensor,
+    scales: torch.Tensor,
+    opacities: torch.Tensor,
+    colors: torch.Tensor,
+    *,
+    viewmats: torch.Tensor,
+    Ks: torch.Tensor,
+    width: int,
+    height: int,
+    sh_degree: int | None,
+    render_mode: str,
+    near_plane: float,
+    far_plane: float,
+    eps2d: float,
+) -> tuple[Projection, torch.Tensor]:
+    """The projection and the features [C,N,D'] of the mode (colours, then depth)."""
     covars = covariance_3d(quats, scales)
     proj = project_gaussians(
         means, covars, opacities, viewmats, Ks, width, height, near_plane, far_plane, eps2d
@@ -135,11 +188,60 @@ def prepare(
         features.append(camera_colors(means, colors, viewmats, sh_degree))
     if render_mode != "RGB":
         features.append(proj.depths[..., None])
-    bg = backgrounds
-    if bg is not None and render_mode != "RGB":
-        depth_bg = bg.new_zeros(viewmats.shape[0], 1)
-        bg = depth_bg if render_mode == "D" else torch.cat([bg, depth_bg], dim=-1)
-    return Prepared(proj, torch.cat(features, dim=-1), bg)
+    return proj, torch.cat(features, dim=-1)
+
+
+def _select_rows(
+    inputs: tuple[torch.Tensor, ...], rows: torch.Tensor, color_dim: int
+) -> list[torch.Tensor]:
+    """The per-Gaussian inputs (means, quats, scales, opacities, colors) at `rows`."""
+    *per_row, colors = inputs
+    return [t.index_select(0, rows) for t in per_row] + [colors.index_select(color_dim, rows)]
+
+
+def _merge_rows(
+    n: int,
+    rows: tuple[torch.Tensor, torch.Tensor],
+    pieces: tuple[tuple[Projection, torch.Tensor], tuple[Projection, torch.Tensor]],
+) -> tuple[Projection, torch.Tensor]:
+    """One projection and feature tensor over all N rows from two disjoint row sets."""
+
+    def merged(first: torch.Tensor, second: torch.Tensor) -> torch.Tensor:
+        out = second.new_zeros(second.shape[0], n, *second.shape[2:])
+        return out.index_copy(1, rows[0], first).index_copy(1, rows[1], second)
+
+    (proj_a, features_a), (proj_b, features_b) = pieces
+    values = {
+        f.name: merged(getattr(proj_a, f.name), getattr(proj_b, f.name))
+        for f in dataclasses.fields(Projection)
+    }
+    return Projection(**values), merged(features_a, features_b)
+
+
+def validate_fixed(
+    fixed: FixedLayer, n: int, c: int, width: int, height: int, channels: int, render_mode: str
+) -> None:
+    """Raise InputError unless `fixed` fits N Gaussians rendered as RGB into C cameras."""
+    _check(render_mode == "RGB", f"fixed layers need render_mode 'RGB', got {render_mode!r}")
+    _check(
+        fixed.mask.shape == (n,) and fixed.mask.dtype == torch.bool,
+        f"fixed.mask must be [{n}] bool, got {fixed.mask.dtype} {list(fixed.mask.shape)}",
+    )
+    _check(
+        fixed.colors.shape == (c, height, width, channels),
+        f"fixed.colors must be [{c},{height},{width},{channels}], got {list(fixed.colors.shape)}",
+    )
+    _check(
+        fixed.alphas.shape == (c, height, width, 1),
+        f"fixed.alphas must be [{c},{height},{width},1], got {list(fixed.alphas.shape)}",
+    )
+
+
+def _moving_tiles(bins: TileBins, fixed: FixedLayer | None) -> TileBins:
+    """Bins whose groups hold only the tiles some non-fixed Gaussian touches."""
+    if fixed is None:
+        return bins
+    return only_tiles(bins, tiles_touched_by(bins, ~fixed.mask))
 
 
 def finish_depth(render: torch.Tensor, alphas: torch.Tensor, render_mode: str) -> torch.Tensor:
@@ -172,6 +274,7 @@ def rasterization(
     eps2d: float = 0.3,
     render_mode: str = "RGB",
     tile_size: int = DEFAULT_TILE_SIZE,
+    fixed: FixedLayer | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor, dict[str, Any]]:
     """Render N Gaussians into C cameras; returns colors [C,H,W,D], alphas [C,H,W,1], meta.
 
@@ -180,12 +283,20 @@ def rasterization(
     [C,4,4] world→camera (OpenCV axes); Ks [C,3,3]. Mode "D" renders expected depth,
     "RGB+D" appends it as the last channel. `meta["means2d"]` [C,N,2] holds the
     screen-space gradient after backward (densification reads it); `meta["radii"]` is
-    [C,N,2] int32 (0 = culled), `meta["depths"]` [C,N].
+    [C,N,2] int32 (0 = culled), `meta["depths"]` [C,N]. `fixed` (RGB only) gives the render
+    of Gaussians that have not changed since it was made: the tiles only they touch are
+    copied from it, which skips their compositing and backward (see FixedLayer).
     """
+    if fixed is not None:
+        channels = 3 if sh_degree is not None else colors.shape[-1]
+        validate_fixed(
+            fixed, means.shape[0], viewmats.shape[0], width, height, channels, render_mode
+        )
     prep = prepare(
         means, quats, scales, opacities, colors, viewmats, Ks, width, height,
         sh_degree=sh_degree, backgrounds=backgrounds, near_plane=near_plane,
         far_plane=far_plane, eps2d=eps2d, render_mode=render_mode,
+        fixed_rows=None if fixed is None else fixed.mask,
     )  # fmt: skip
     proj = prep.proj
     means2d = proj.means2d
@@ -194,8 +305,8 @@ def rasterization(
     bins = bin_gaussians(proj.bounds, proj.depths.detach(), proj.visible, width, height, tile_size)
     opac = torch.where(proj.visible, opacities[None], torch.zeros_like(proj.depths))
     render, alphas = CompositeGaussians.apply(
-        means2d, proj.conics, opac, prep.features, prep.backgrounds, proj.bounds, bins,
-        width, height,
+        means2d, proj.conics, opac, prep.features, prep.backgrounds, proj.bounds,
+        _moving_tiles(bins, fixed), width, height, fixed,
     )  # fmt: skip
     render = finish_depth(render, alphas, render_mode)
     meta = {

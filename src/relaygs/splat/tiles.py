@@ -8,7 +8,7 @@ dense, padded [G, pixels, L] blocks of bounded size.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 
@@ -90,6 +90,25 @@ def bin_gaussians(
     return TileBins(
         tile_size, tiles_x, tiles_y, num_cameras, pair_gaussian, tile_start, tile_count, groups
     )
+
+
+def tiles_touched_by(bins: TileBins, rows: torch.Tensor) -> torch.Tensor:
+    """[num_tiles] bool: tiles whose list holds at least one Gaussian n with rows[n] true."""
+    n = rows.numel()
+    hits = rows[bins.pair_gaussian % n].to(torch.int64)
+    # Lists are contiguous: the hits of tile t are ends[t] − ends[t − 1] of a running sum.
+    ends = torch.cumsum(hits, 0)
+    before = torch.cat([ends.new_zeros(1), ends])
+    start = bins.tile_start
+    return before[start + bins.tile_count] > before[start]
+
+
+def only_tiles(
+    bins: TileBins, tiles: torch.Tensor, group_budget: int = DEFAULT_GROUP_BUDGET
+) -> TileBins:
+    """The bins with processing groups over the tiles where `tiles` [num_tiles] is true."""
+    counts = torch.where(tiles, bins.tile_count, torch.zeros_like(bins.tile_count))
+    return replace(bins, groups=_group_tiles(counts, bins.tile_size**2, group_budget))
 
 
 def _group_tiles(tile_count: torch.Tensor, pixels: int, budget: int) -> list[torch.Tensor]:

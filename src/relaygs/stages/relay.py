@@ -43,7 +43,7 @@ from relaygs.stages.config import (
 from relaygs.stages.loop import StepResult, TrainReport, run_training
 from relaygs.stages.loss import photometric_loss
 from relaygs.stages.relay_seed import SEED_MODES, carved_copies
-from relaygs.stages.render import part_of, splat
+from relaygs.stages.render import FrozenRenders, part_of, splat
 from relaygs.stages.scene_model import SEGMENT, SceneModel, core_only, replicate_foreground
 from relaygs.stages.segments import SegmentTargets, num_segments, segment_frames
 from relaygs.stages.session import SetPlan, TrainingSession
@@ -187,6 +187,8 @@ def _train(
     targets = SegmentTargets(views, section.k, section.p, section.pseudo_views)
     segments = num_segments(scene.num_frames, section.k)
     empty = source.foreground.subset(torch.zeros(0, dtype=torch.int64))
+    # A frozen background looks the same at every step: render it once per camera.
+    frozen = FrozenRenders() if section.freeze_background else None
 
     def current() -> tuple[GaussianSet, GaussianSet]:
         return session.sets.get("bg", source.background), session.sets.get("fg", empty)
@@ -203,7 +205,7 @@ def _train(
             part_of("bg", background, degree, frozen=section.freeze_background),
             part_of("fg", foreground, degree, rows=rows),
         ]
-        render = splat(parts, [view.camera for view in batch], degree)
+        render = splat(parts, [view.camera for view in batch], degree, frozen)
         goals = [targets.target(view.camera.camera_id, segment, generator) for view in batch]
         loss = photometric_loss(render.images, goals, train.ssim_weight)
         return StepResult(loss, [render], render.images, goals)

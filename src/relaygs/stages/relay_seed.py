@@ -13,7 +13,7 @@ from torch import Tensor
 from relaygs.data import Camera
 from relaygs.model import GaussianSet
 from relaygs.stages.carve import residual_masks, visual_hull
-from relaygs.stages.render import part_of, splat
+from relaygs.stages.render import FrozenRenders, part_of
 from relaygs.stages.scene_model import foreground_with_segments
 from relaygs.stages.segments import num_segments, pseudo_frames
 from relaygs.stages.views import TrainViews
@@ -65,36 +65,19 @@ def carved_copies(
 
 
 class BackgroundRenders:
-    """Renders of a static background, one per camera: a fixed rig sees the same background at
-    every frame, so each camera is rendered once (again only if its calibration changes)."""
+    """Renders of a static background, one per camera (cached: see FrozenRenders)."""
 
     def __init__(self, background: GaussianSet) -> None:
         """Renders of `background` at its active SH degree, made on first request."""
         self.background = background
-        self._cache: dict[int, tuple[Camera, Tensor]] = {}
+        self._renders = FrozenRenders()
 
     def images(self, cameras: list[Camera]) -> Tensor:
         """[C,H,W,3] renders clamped to [0, 1], on the CPU, in the order of `cameras`."""
-        missing = [camera for camera in cameras if not self._cached(camera)]
-        if missing:
-            degree = self.background.active_sh_degree
-            part = part_of("bg", self.background, degree, frozen=True)
-            render = splat([part], missing, degree)
-            for camera, image in zip(missing, render.images, strict=True):
-                self._cache[camera.camera_id] = (camera, image.cpu().clamp(0.0, 1.0))
-        return torch.stack([self._cache[camera.camera_id][1] for camera in cameras])
-
-    def _cached(self, camera: Camera) -> bool:
-        entry = self._cache.get(camera.camera_id)
-        if entry is None:
-            return False
-        known = entry[0]
-        return (
-            known.width == camera.width
-            and known.height == camera.height
-            and torch.equal(known.K, camera.K)
-            and torch.equal(known.w2c, camera.w2c)
-        )
+        degree = self.background.active_sh_degree
+        part = part_of("bg", self.background, degree, frozen=True)
+        colors, _ = self._renders.layer([part], cameras, degree)
+        return colors.cpu().clamp(0.0, 1.0)
 
 
 def _hull_at(

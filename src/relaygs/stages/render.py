@@ -15,7 +15,7 @@ from torch import Tensor
 
 from relaygs.data import Camera
 from relaygs.model import MAX_LOG_SCALE, GaussianSet, normalize_quats
-from relaygs.splat import rasterization
+from relaygs.splat import FixedLayer, rasterization
 
 
 @dataclass
@@ -30,6 +30,7 @@ class Part:
     opacity_logits: Tensor
     sh: Tensor
     opacity_factor: Tensor | None = None
+    frozen: bool = False
 
     @property
     def count(self) -> int:
@@ -59,20 +60,68 @@ def part_of(
         values = [value.detach() for value in values]
     if rows is not None:
         values = [value.index_select(0, rows) for value in values]
-    return Part(name, rows, *values)
+    return Part(name, rows, *values, frozen=frozen)
 
 
 @dataclass
 class Render:
-    """Rendered images (aligned with the cameras) and, per size group, the splat meta."""
+    """Rendered images and alphas (aligned with the cameras) and, per size group, the meta."""
 
     images: list[Tensor]
+    alphas: list[Tensor]
     groups: list[tuple[list[int], dict[str, Any]]]
     parts: list[Part]
 
 
-def splat(parts: list[Part], cameras: list[Camera], sh_degree: int) -> Render:
-    """Render the concatenated parts into every camera on a black background (unclamped)."""
+class FrozenRenders:
+    """Per camera, the render of the frozen parts alone (colours [H,W,3], alphas [H,W,1]).
+
+    Frozen parts do not change during a stage and a fixed rig sees them the same at every
+    step, so each camera is rendered once (again if its calibration or the SH degree changes).
+    With it, `splat` copies the tiles only frozen Gaussians touch (splat.FixedLayer).
+    """
+
+    def __init__(self) -> None:
+        """An empty cache; renders are made on first request."""
+        self._cache: dict[tuple[int, int], tuple[Camera, Tensor, Tensor]] = {}
+
+    def layer(
+        self, parts: list[Part], cameras: list[Camera], sh_degree: int
+    ) -> tuple[Tensor, Tensor]:
+        """Colours [C,H,W,3] and alphas [C,H,W,1] of the frozen `parts`, unclamped."""
+        missing = [camera for camera in cameras if not self._cached(camera, sh_degree)]
+        if missing:
+            with torch.no_grad():
+                render = splat([p for p in parts if p.frozen], missing, sh_degree)
+            for camera, image, alpha in zip(missing, render.images, render.alphas, strict=True):
+                self._cache[camera.camera_id, sh_degree] = (camera, image, alpha)
+        entries = [self._cache[camera.camera_id, sh_degree] for camera in cameras]
+        return torch.stack([e[1] for e in entries]), torch.stack([e[2] for e in entries])
+
+    def _cached(self, camera: Camera, sh_degree: int) -> bool:
+        entry = self._cache.get((camera.camera_id, sh_degree))
+        if entry is None:
+            return False
+        known = entry[0]
+        return (
+            known.width == camera.width
+            and known.height == camera.height
+            and torch.equal(known.K, camera.K)
+            and torch.equal(known.w2c, camera.w2c)
+        )
+
+
+def splat(
+    parts: list[Part],
+    cameras: list[Camera],
+    sh_degree: int,
+    frozen: FrozenRenders | None = None,
+) -> Render:
+    """Render the concatenated parts into every camera on a black background (unclamped).
+
+    With `frozen` and a mix of frozen and trainable parts, tiles that only frozen Gaussians
+    touch are taken from its renders (same image, far less work when little is trainable).
+    """
     means = torch.cat([p.means for p in parts])
     scales = torch.exp(torch.cat([p.log_scales for p in parts]).clamp(max=MAX_LOG_SCALE))
     quats = normalize_quats(torch.cat([p.quats for p in parts]))
@@ -84,14 +133,19 @@ def splat(parts: list[Part], cameras: list[Camera], sh_degree: int) -> Render:
         ]
         opacities = opacities * torch.cat(factors)
     colors = torch.cat([p.sh for p in parts])
+    mask = _frozen_mask(parts) if frozen is not None else None
     images: list[Tensor] = [means.new_empty(0)] * len(cameras)
+    alphas: list[Tensor] = [means.new_empty(0)] * len(cameras)
     groups = []
     for indices in _size_groups(cameras):
         group = [cameras[i] for i in indices]
         device = means.device
         viewmats = torch.stack([c.w2c for c in group]).to(device, torch.float32)
         intrinsics = torch.stack([c.K for c in group]).to(device, torch.float32)
-        rendered, _, meta = rasterization(
+        fixed = None
+        if frozen is not None and mask is not None:
+            fixed = FixedLayer(mask, *frozen.layer(parts, group, sh_degree))
+        rendered, rendered_alphas, meta = rasterization(
             means,
             quats,
             scales,
@@ -102,11 +156,23 @@ def splat(parts: list[Part], cameras: list[Camera], sh_degree: int) -> Render:
             group[0].width,
             group[0].height,
             sh_degree=sh_degree,
+            fixed=fixed,
         )
         for slot, index in enumerate(indices):
             images[index] = rendered[slot]
+            alphas[index] = rendered_alphas[slot]
         groups.append((indices, meta))
-    return Render(images, groups, parts)
+    return Render(images, alphas, groups, parts)
+
+
+def _frozen_mask(parts: list[Part]) -> Tensor | None:
+    """[N] bool of the frozen rows, or None unless some parts are frozen and some are not."""
+    if all(p.frozen for p in parts) or not any(p.frozen for p in parts):
+        return None
+    device = parts[0].means.device
+    return torch.cat(
+        [torch.full((p.count,), p.frozen, dtype=torch.bool, device=device) for p in parts]
+    )
 
 
 def screen_statistics(render: Render, name: str, set_size: int) -> tuple[Tensor, Tensor] | None:

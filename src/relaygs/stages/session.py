@@ -14,7 +14,6 @@ import torch
 from torch import Tensor, nn
 
 from relaygs.model import (
-    ADAM_EPS,
     DensifyReport,
     DensifySettings,
     DensityController,
@@ -22,6 +21,7 @@ from relaygs.model import (
     GaussianSet,
     LRSchedule,
     SetLearningRates,
+    adam,
     check_finite,
     sh_degree_for_step,
 )
@@ -91,7 +91,7 @@ class TrainingSession:
                 {"params": group.params, "name": group.name, "lr": group.schedule.at(0)}
                 for group in self.module_groups
             ]
-            self.module_optimizer = torch.optim.Adam(groups, lr=0.0, eps=ADAM_EPS)
+            self.module_optimizer = adam(groups)
 
     def prepare_step(self, step: int) -> dict[str, float]:
         """Set learning rates and SH degrees for `step`; drop old gradients; returns the lrs."""

@@ -1,0 +1,104 @@
+"""Stage renders with a frozen part: FrozenRenders gives the full render's image and gradients."""
+
+from __future__ import annotations
+
+import torch
+
+from relaygs.data import Camera
+from relaygs.data.synthetic.rig import dome_rig
+from relaygs.model import GaussianSet
+from relaygs.stages.render import FrozenRenders, part_of, screen_statistics, splat
+
+WIDTH, HEIGHT = 64, 36
+
+
+def _cameras() -> list[Camera]:
+    return [
+        Camera(
+            index,
+            torch.tensor(rig.K, dtype=torch.float32),
+            torch.tensor(rig.w2c, dtype=torch.float32),
+            WIDTH,
+            HEIGHT,
+        )
+        for index, rig in enumerate(dome_rig(WIDTH, HEIGHT))
+    ][:3]
+
+
+def _sets() -> tuple[GaussianSet, GaussianSet]:
+    """A background spread over the scene and a small foreground near its centre."""
+    gen = torch.Generator().manual_seed(3)
+    background = GaussianSet.from_points(
+        torch.rand(400, 3, generator=gen) * 2 - 1,
+        torch.rand(400, 3, generator=gen),
+        max_sh_degree=1,
+        init_opacity=0.4,
+    )
+    foreground = GaussianSet.from_points(
+        torch.rand(30, 3, generator=gen) * 0.2 - 0.1,
+        torch.rand(30, 3, generator=gen),
+        max_sh_degree=1,
+        init_opacity=0.6,
+    )
+    return background, foreground
+
+
+def _render_and_grads(frozen: FrozenRenders | None):
+    background, foreground = _sets()
+    parts = [part_of("bg", background, 1, frozen=True), part_of("fg", foreground, 1)]
+    render = splat(parts, _cameras(), 1, frozen)
+    weights = torch.linspace(-1.0, 1.0, WIDTH * 3).repeat(HEIGHT, 1).view(HEIGHT, WIDTH, 3)
+    sum(((image * weights).sum() for image in render.images), torch.zeros(())).backward()
+    grads = {name: param.grad for name, param in foreground.params.items()}
+    return render, grads, screen_statistics(render, "fg", len(foreground))
+
+
+def test_splat_with_frozen_renders_matches_a_full_splat():
+    full, full_grads, full_stats = _render_and_grads(None)
+    fast, fast_grads, fast_stats = _render_and_grads(FrozenRenders())
+    for got, expected in zip(fast.images + fast.alphas, full.images + full.alphas, strict=True):
+        torch.testing.assert_close(got, expected, rtol=0, atol=1e-5)
+    for name, expected in full_grads.items():
+        torch.testing.assert_close(fast_grads[name], expected, rtol=1e-3, atol=1e-6)
+    # (isotropic Gaussians get no rotation gradient)
+    assert all(full_grads[name].abs().max() > 0 for name in ("means", "log_scales", "sh_dc"))
+    torch.testing.assert_close(fast_stats[0], full_stats[0], rtol=1e-3, atol=1e-7)
+    assert torch.equal(fast_stats[1], full_stats[1])
+
+
+def test_frozen_parts_are_rendered_once_per_camera():
+    background, foreground = _sets()
+    cameras = _cameras()
+    frozen = FrozenRenders()
+
+    def render() -> torch.Tensor:
+        parts = [part_of("bg", background, 1, frozen=True), part_of("fg", foreground, 1)]
+        return torch.stack(splat(parts, cameras, 1, frozen).images).detach()
+
+    first = render()
+    background.params["sh_dc"].data.zero_()  # breaks the contract: the cache does not see it
+    again = render()
+    # Tiles without foreground still show the cached background; the others are composited.
+    kept = (again == first).all(dim=-1)
+    assert kept.float().mean() > 0.5
+    assert (~kept).any()
+    fresh = torch.stack(splat([part_of("bg", background, 1, frozen=True)], cameras, 1).images)
+    changed = (fresh.detach() != first).any(dim=-1)
+    assert (kept & changed).sum() > 500, "the cached background was rendered again"
+
+
+def test_all_frozen_or_all_trainable_parts_render_without_a_layer():
+    background, foreground = _sets()
+    cameras = _cameras()
+    for frozen_fg in (True, False):
+        parts = [
+            part_of("bg", background, 1, frozen=frozen_fg),
+            part_of("fg", foreground, 1, frozen=frozen_fg),
+        ]
+        plain = splat(parts, cameras, 1).images
+        cached = FrozenRenders()
+        assert all(
+            torch.equal(a, b)
+            for a, b in zip(splat(parts, cameras, 1, cached).images, plain, strict=True)
+        )
+        assert not cached._cache, "no frozen/trainable mix: nothing to cache"
