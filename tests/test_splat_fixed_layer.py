@@ -2,14 +2,18 @@
 
 from __future__ import annotations
 
+from dataclasses import fields, replace
+
 import pytest
 import torch
 
 from relaygs.errors import InputError
 from relaygs.splat import FixedLayer, rasterization
+from relaygs.splat.projection import Projection
 from splat_scenes import random_scene, render_and_grads, with_grad
 
 MOVING = 12  # the last rows move; the rest are fixed
+PROJECTION_FIELDS = tuple(f.name for f in fields(Projection))
 
 
 def _scene(dtype: torch.dtype = torch.float32) -> dict:
@@ -28,17 +32,23 @@ def _mask(scene: dict) -> torch.Tensor:
     return mask
 
 
-def _layer(scene: dict) -> FixedLayer:
-    """The fixed rows rendered alone: zero opacity hides the moving ones."""
+def _layer(scene: dict, with_projection: bool = False) -> FixedLayer:
+    """The fixed rows rendered alone (the moving ones hidden by zero opacity); optionally with
+    the fixed rows' projection and features from that render's meta."""
     mask = _mask(scene)
     alone = {**scene, "backgrounds": None, "opacities": scene["opacities"] * mask}
-    colors, alphas, _ = rasterization(**alone)
-    return FixedLayer(mask, colors, alphas)
+    colors, alphas, meta = rasterization(**alone)
+    if not with_projection:
+        return FixedLayer(mask, colors, alphas)
+    rows = {name: meta[name][:, mask] for name in (*PROJECTION_FIELDS, "features")}
+    projection = Projection(**{name: rows[name] for name in PROJECTION_FIELDS})
+    return FixedLayer(mask, colors, alphas, projection, rows["features"])
 
 
-def test_fixed_layer_matches_the_full_render():
+@pytest.mark.parametrize("with_projection", [False, True])
+def test_fixed_layer_matches_the_full_render(with_projection):
     scene = _scene(torch.float64)
-    layer = _layer(scene)
+    layer = _layer(scene, with_projection)
     full = render_and_grads(rasterization, with_grad(scene, ("backgrounds",)))
     fast = render_and_grads(rasterization, with_grad(scene, ("backgrounds",)), fixed=layer)
     torch.testing.assert_close(fast[0], full[0], rtol=0, atol=1e-10)
@@ -74,12 +84,19 @@ def test_tiles_only_fixed_gaussians_touch_are_copied_from_the_layer():
         (lambda layer: FixedLayer(layer.mask.float(), layer.colors, layer.alphas), "fixed.mask"),
         (lambda layer: FixedLayer(layer.mask, layer.colors[:1], layer.alphas), "fixed.colors"),
         (lambda layer: FixedLayer(layer.mask, layer.colors, layer.colors), "fixed.alphas"),
+        (lambda layer: replace(layer, features=layer.features[:, 1:]), "fixed.features"),
+        (
+            lambda layer: replace(
+                layer, projection=replace(layer.projection, bounds=layer.projection.bounds[:1])
+            ),
+            "fixed.projection.bounds",
+        ),
     ],
 )
 def test_bad_fixed_layers_raise_one_line_errors(change, message):
     scene = _scene()
     with pytest.raises(InputError, match=message) as error:
-        rasterization(**scene, fixed=change(_layer(scene)))
+        rasterization(**scene, fixed=change(_layer(scene, with_projection=True)))
     assert "\n" not in str(error.value)
 
 

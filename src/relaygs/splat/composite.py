@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 
-from relaygs.splat.projection import ALPHA_MIN
+from relaygs.splat.projection import ALPHA_MIN, Projection
 from relaygs.splat.tiles import TileBins
 
 ALPHA_MAX = 0.99
@@ -250,12 +250,16 @@ class FixedLayer:
 
     `mask` [N] bool marks them; `colors` [C,H,W,D] and `alphas` [C,H,W,1] are their render
     alone (RGB, no background). A tile only they touch is copied from it instead of
-    composited and gets no backward pass; fixed Gaussians get zero gradients.
+    composited and gets no backward pass; fixed Gaussians get zero gradients. `projection`
+    and `features` [C,F,D] (F = mask.sum(), in row order), when given, are the fixed rows'
+    projection and colours from that render (`meta`), so they are not computed again.
     """
 
     mask: torch.Tensor
     colors: torch.Tensor
     alphas: torch.Tensor
+    projection: Projection | None = None
+    features: torch.Tensor | None = None
 
 
 class CompositeGaussians(torch.autograd.Function):

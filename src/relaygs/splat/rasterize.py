@@ -129,11 +129,13 @@ def prepare(
     eps2d: float,
     render_mode: str,
     fixed_rows: torch.Tensor | None = None,
+    fixed_prepared: tuple[Projection, torch.Tensor] | None = None,
 ) -> Prepared:
     """Validate, project, and build the features every render mode composites.
 
     Rows where `fixed_rows` [N] bool is true are prepared without autograd (they get no
-    gradient), so the backward of projection and SH covers only the other rows.
+    gradient), so the backward of projection and SH covers only the other rows;
+    `fixed_prepared` gives their projection and features instead of computing them.
     """
     validate_inputs(
         means, quats, scales, opacities, colors, viewmats, Ks, width, height,
@@ -150,8 +152,10 @@ def prepare(
     else:
         color_dim = 1 if sh_degree is None and colors.dim() == 3 else 0
         rows = (fixed_rows.nonzero().squeeze(1), (~fixed_rows).nonzero().squeeze(1))
-        with torch.no_grad():
-            still = shade(*_select_rows(inputs, rows[0], color_dim))
+        still = fixed_prepared
+        if still is None:
+            with torch.no_grad():
+                still = shade(*_select_rows(inputs, rows[0], color_dim))
         moving = shade(*_select_rows(inputs, rows[1], color_dim))
         proj, features = _merge_rows(means.shape[0], rows, (still, moving))
     bg = backgrounds
@@ -235,6 +239,20 @@ def validate_fixed(
         fixed.alphas.shape == (c, height, width, 1),
         f"fixed.alphas must be [{c},{height},{width},1], got {list(fixed.alphas.shape)}",
     )
+    if fixed.projection is None or fixed.features is None:
+        return
+    f = int(fixed.mask.sum())
+    for name in [field.name for field in dataclasses.fields(Projection)]:
+        shape = list(getattr(fixed.projection, name).shape)
+        _check(shape[:2] == [c, f], f"fixed.projection.{name} must be [{c},{f},...], got {shape}")
+    shape = list(fixed.features.shape)
+    _check(shape == [c, f, channels], f"fixed.features must be [{c},{f},{channels}], got {shape}")
+
+
+def _fixed_prepared(fixed: FixedLayer | None) -> tuple[Projection, torch.Tensor] | None:
+    if fixed is None or fixed.projection is None or fixed.features is None:
+        return None
+    return fixed.projection, fixed.features
 
 
 def _moving_tiles(bins: TileBins, fixed: FixedLayer | None) -> TileBins:
@@ -283,7 +301,9 @@ def rasterization(
     [C,4,4] world→camera (OpenCV axes); Ks [C,3,3]. Mode "D" renders expected depth,
     "RGB+D" appends it as the last channel. `meta["means2d"]` [C,N,2] holds the
     screen-space gradient after backward (densification reads it); `meta["radii"]` is
-    [C,N,2] int32 (0 = culled), `meta["depths"]` [C,N]. `fixed` (RGB only) gives the render
+    [C,N,2] int32 (0 = culled), `meta["depths"]` [C,N]; with "conics", "visible" and
+    "bounds" they make the Projection, and `meta["features"]` [C,N,D'] are the composited
+    per-camera features. `fixed` (RGB only) gives the render
     of Gaussians that have not changed since it was made: the tiles only they touch are
     copied from it, which skips their compositing and backward (see FixedLayer).
     """
@@ -297,6 +317,7 @@ def rasterization(
         sh_degree=sh_degree, backgrounds=backgrounds, near_plane=near_plane,
         far_plane=far_plane, eps2d=eps2d, render_mode=render_mode,
         fixed_rows=None if fixed is None else fixed.mask,
+        fixed_prepared=_fixed_prepared(fixed),
     )  # fmt: skip
     proj = prep.proj
     means2d = proj.means2d
@@ -320,5 +341,7 @@ def rasterization(
         "n_cameras": viewmats.shape[0],
         "tile_size": tile_size,
         "num_pairs": int(bins.pair_gaussian.numel()),
+        "bounds": proj.bounds,
+        "features": prep.features,
     }
     return render, alphas, meta

@@ -76,8 +76,7 @@ class BackgroundRenders:
         """[C,H,W,3] renders clamped to [0, 1], on the CPU, in the order of `cameras`."""
         degree = self.background.active_sh_degree
         part = part_of("bg", self.background, degree, frozen=True)
-        colors, _ = self._renders.layer([part], cameras, degree)
-        return colors.cpu().clamp(0.0, 1.0)
+        return self._renders.layer([part], cameras, degree).colors.cpu().clamp(0.0, 1.0)
 
 
 def _hull_at(

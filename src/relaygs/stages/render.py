@@ -7,6 +7,7 @@ rendered in groups of equal image size (the splatting core needs one size per ca
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
@@ -16,6 +17,7 @@ from torch import Tensor
 from relaygs.data import Camera
 from relaygs.model import MAX_LOG_SCALE, GaussianSet, normalize_quats
 from relaygs.splat import FixedLayer, rasterization
+from relaygs.splat.projection import Projection
 
 
 @dataclass
@@ -63,6 +65,9 @@ def part_of(
     return Part(name, rows, *values, frozen=frozen)
 
 
+_PROJECTION_FIELDS = tuple(f.name for f in dataclasses.fields(Projection))
+
+
 @dataclass
 class Render:
     """Rendered images and alphas (aligned with the cameras) and, per size group, the meta."""
@@ -74,29 +79,42 @@ class Render:
 
 
 class FrozenRenders:
-    """Per camera, the render of the frozen parts alone (colours [H,W,3], alphas [H,W,1]).
+    """Per camera, the frozen parts rendered alone: image, alphas, projection and colours.
 
     Frozen parts do not change during a stage and a fixed rig sees them the same at every
     step, so each camera is rendered once (again if its calibration or the SH degree changes).
-    With it, `splat` copies the tiles only frozen Gaussians touch (splat.FixedLayer).
+    With it, `splat` copies the tiles only frozen Gaussians touch and reuses their projection
+    (splat.FixedLayer).
     """
 
     def __init__(self) -> None:
         """An empty cache; renders are made on first request."""
-        self._cache: dict[tuple[int, int], tuple[Camera, Tensor, Tensor]] = {}
+        self._cache: dict[tuple[int, int], tuple[Camera, dict[str, Tensor]]] = {}
 
-    def layer(
-        self, parts: list[Part], cameras: list[Camera], sh_degree: int
-    ) -> tuple[Tensor, Tensor]:
-        """Colours [C,H,W,3] and alphas [C,H,W,1] of the frozen `parts`, unclamped."""
+    def layer(self, parts: list[Part], cameras: list[Camera], sh_degree: int) -> FixedLayer:
+        """The frozen rows of `parts` as a FixedLayer over all their rows, for `cameras`."""
         missing = [camera for camera in cameras if not self._cached(camera, sh_degree)]
         if missing:
             with torch.no_grad():
                 render = splat([p for p in parts if p.frozen], missing, sh_degree)
-            for camera, image, alpha in zip(missing, render.images, render.alphas, strict=True):
-                self._cache[camera.camera_id, sh_degree] = (camera, image, alpha)
-        entries = [self._cache[camera.camera_id, sh_degree] for camera in cameras]
-        return torch.stack([e[1] for e in entries]), torch.stack([e[2] for e in entries])
+            for slot, camera in enumerate(missing):
+                indices, meta = next(g for g in render.groups if slot in g[0])
+                row = indices.index(slot)
+                entry = {name: meta[name][row] for name in (*_PROJECTION_FIELDS, "features")}
+                entry["colors"], entry["alphas"] = render.images[slot], render.alphas[slot]
+                self._cache[camera.camera_id, sh_degree] = (camera, entry)
+        entries = [self._cache[camera.camera_id, sh_degree][1] for camera in cameras]
+        stacked = {name: torch.stack([e[name] for e in entries]) for name in entries[0]}
+        projection = Projection(**{name: stacked[name] for name in _PROJECTION_FIELDS})
+        mask = torch.cat(
+            [
+                torch.full((p.count,), p.frozen, dtype=torch.bool, device=p.means.device)
+                for p in parts
+            ]
+        )
+        return FixedLayer(
+            mask, stacked["colors"], stacked["alphas"], projection, stacked["features"]
+        )
 
     def _cached(self, camera: Camera, sh_degree: int) -> bool:
         entry = self._cache.get((camera.camera_id, sh_degree))
@@ -133,7 +151,7 @@ def splat(
         ]
         opacities = opacities * torch.cat(factors)
     colors = torch.cat([p.sh for p in parts])
-    mask = _frozen_mask(parts) if frozen is not None else None
+    mixed = any(p.frozen for p in parts) and not all(p.frozen for p in parts)
     images: list[Tensor] = [means.new_empty(0)] * len(cameras)
     alphas: list[Tensor] = [means.new_empty(0)] * len(cameras)
     groups = []
@@ -142,9 +160,7 @@ def splat(
         device = means.device
         viewmats = torch.stack([c.w2c for c in group]).to(device, torch.float32)
         intrinsics = torch.stack([c.K for c in group]).to(device, torch.float32)
-        fixed = None
-        if frozen is not None and mask is not None:
-            fixed = FixedLayer(mask, *frozen.layer(parts, group, sh_degree))
+        fixed = frozen.layer(parts, group, sh_degree) if frozen is not None and mixed else None
         rendered, rendered_alphas, meta = rasterization(
             means,
             quats,
@@ -163,16 +179,6 @@ def splat(
             alphas[index] = rendered_alphas[slot]
         groups.append((indices, meta))
     return Render(images, alphas, groups, parts)
-
-
-def _frozen_mask(parts: list[Part]) -> Tensor | None:
-    """[N] bool of the frozen rows, or None unless some parts are frozen and some are not."""
-    if all(p.frozen for p in parts) or not any(p.frozen for p in parts):
-        return None
-    device = parts[0].means.device
-    return torch.cat(
-        [torch.full((p.count,), p.frozen, dtype=torch.bool, device=device) for p in parts]
-    )
 
 
 def screen_statistics(render: Render, name: str, set_size: int) -> tuple[Tensor, Tensor] | None:
