@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import torch
 
+from relaygs.data import Camera
+from relaygs.data.synthetic.rig import dome_rig
+
 
 def camera_rig(
     num_cameras: int, width: int, height: int, focal: float | None = None, dtype=torch.float32
@@ -76,3 +79,17 @@ def render_and_grads(render_fn, scene: dict, seed: int = 0, **kwargs):
     loss = (colors * w_c).sum() + (alphas * w_a).sum()
     grads = torch.autograd.grad(loss, [scene[k] for k in keys], allow_unused=True)
     return colors, alphas, meta, dict(zip(keys, grads, strict=True))
+
+
+def dome_cameras(width: int, height: int) -> list[Camera]:
+    """The synthetic scenes' dome rig as Cameras of the given image size."""
+    return [
+        Camera(
+            index,
+            torch.tensor(rig.K, dtype=torch.float32),
+            torch.tensor(rig.w2c, dtype=torch.float32),
+            width,
+            height,
+        )
+        for index, rig in enumerate(dome_rig(width, height))
+    ]

@@ -6,7 +6,6 @@ import torch
 
 from conftest import stage_smoke_cfg
 from relaygs.data import Camera
-from relaygs.data.synthetic.rig import dome_rig
 from relaygs.model import GaussianSet
 from relaygs.stages import STAGES
 from relaygs.stages.carve import (
@@ -19,21 +18,13 @@ from relaygs.stages.carve import (
 from relaygs.stages.relay_seed import BackgroundRenders
 from relaygs.stages.render import part_of, splat
 from relaygs.stages.scene_model import SEGMENT, SceneModel
+from splat_scenes import dome_cameras
 
 WIDTH, HEIGHT = 80, 45
 
 
 def _cameras() -> list[Camera]:
-    return [
-        Camera(
-            index,
-            torch.tensor(rig.K, dtype=torch.float32),
-            torch.tensor(rig.w2c, dtype=torch.float32),
-            WIDTH,
-            HEIGHT,
-        )
-        for index, rig in enumerate(dome_rig(WIDTH, HEIGHT))
-    ]
+    return dome_cameras(WIDTH, HEIGHT)
 
 
 def _sphere_masks(cameras: list[Camera], center: torch.Tensor, radius: float) -> torch.Tensor:

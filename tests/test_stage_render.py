@@ -5,24 +5,15 @@ from __future__ import annotations
 import torch
 
 from relaygs.data import Camera
-from relaygs.data.synthetic.rig import dome_rig
 from relaygs.model import GaussianSet
 from relaygs.stages.render import FrozenRenders, part_of, screen_statistics, splat
+from splat_scenes import dome_cameras
 
 WIDTH, HEIGHT = 64, 36
 
 
 def _cameras() -> list[Camera]:
-    return [
-        Camera(
-            index,
-            torch.tensor(rig.K, dtype=torch.float32),
-            torch.tensor(rig.w2c, dtype=torch.float32),
-            WIDTH,
-            HEIGHT,
-        )
-        for index, rig in enumerate(dome_rig(WIDTH, HEIGHT))
-    ][:3]
+    return dome_cameras(WIDTH, HEIGHT)[:3]
 
 
 def _sets() -> tuple[GaussianSet, GaussianSet]:
