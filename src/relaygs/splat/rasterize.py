@@ -128,14 +128,13 @@ def prepare(
     far_plane: float,
     eps2d: float,
     render_mode: str,
-    fixed_rows: torch.Tensor | None = None,
-    fixed_prepared: tuple[Projection, torch.Tensor] | None = None,
+    fixed: FixedLayer | None = None,
 ) -> Prepared:
     """Validate, project, and build the features every render mode composites.
 
-    Rows where `fixed_rows` [N] bool is true are prepared without autograd (they get no
-    gradient), so the backward of projection and SH covers only the other rows;
-    `fixed_prepared` gives their projection and features instead of computing them.
+    The rows a FixedLayer `fixed` marks are prepared without autograd (they get no
+    gradient), so the backward of projection and SH covers only the other rows; its
+    projection and features, when given, are used instead of computing them.
     """
     validate_inputs(
         means, quats, scales, opacities, colors, viewmats, Ks, width, height,
@@ -147,13 +146,14 @@ def prepare(
         far_plane=far_plane, eps2d=eps2d,
     )  # fmt: skip
     inputs = (means, quats, scales, opacities, colors)
-    if fixed_rows is None or bool(fixed_rows.all()) or not bool(fixed_rows.any()):
+    if fixed is None or bool(fixed.mask.all()) or not bool(fixed.mask.any()):
         proj, features = shade(*inputs)
     else:
         color_dim = 1 if sh_degree is None and colors.dim() == 3 else 0
-        rows = (fixed_rows.nonzero().squeeze(1), (~fixed_rows).nonzero().squeeze(1))
-        still = fixed_prepared
-        if still is None:
+        rows = (fixed.mask.nonzero().squeeze(1), (~fixed.mask).nonzero().squeeze(1))
+        if fixed.projection is not None and fixed.features is not None:
+            still = fixed.projection, fixed.features
+        else:
             with torch.no_grad():
                 still = shade(*_select_rows(inputs, rows[0], color_dim))
         moving = shade(*_select_rows(inputs, rows[1], color_dim))
@@ -249,12 +249,6 @@ def validate_fixed(
     _check(shape == [c, f, channels], f"fixed.features must be [{c},{f},{channels}], got {shape}")
 
 
-def _fixed_prepared(fixed: FixedLayer | None) -> tuple[Projection, torch.Tensor] | None:
-    if fixed is None or fixed.projection is None or fixed.features is None:
-        return None
-    return fixed.projection, fixed.features
-
-
 def _moving_tiles(bins: TileBins, fixed: FixedLayer | None) -> TileBins:
     """Bins whose groups hold only the tiles some non-fixed Gaussian touches."""
     if fixed is None:
@@ -316,8 +310,7 @@ def rasterization(
         means, quats, scales, opacities, colors, viewmats, Ks, width, height,
         sh_degree=sh_degree, backgrounds=backgrounds, near_plane=near_plane,
         far_plane=far_plane, eps2d=eps2d, render_mode=render_mode,
-        fixed_rows=None if fixed is None else fixed.mask,
-        fixed_prepared=_fixed_prepared(fixed),
+        fixed=fixed,
     )  # fmt: skip
     proj = prep.proj
     means2d = proj.means2d
