@@ -113,6 +113,27 @@ def test_isolated_sets_route_by_group() -> None:
         torch.testing.assert_close(got[~fg], bg_want)
 
 
+def test_grouped_layout_matches_interleaved_rows() -> None:
+    # Background rows first take the slicing path; the same rows interleaved take the gather
+    # path. Values and parameter gradients must agree.
+    field = small_field(isolate_fg_bg=True)
+    randomise_heads(field)
+    xyz, group = points()
+    weights = torch.rand(len(group), 11, generator=torch.Generator().manual_seed(1))
+    order = torch.argsort(group, stable=True)
+    outputs, grads = [], []
+    for rows in (torch.arange(len(group)), order):
+        field.zero_grad()
+        deltas = torch.cat(list(field(xyz[rows], 0.4, group[rows])), dim=1)
+        (deltas * weights[rows]).sum().backward()
+        outputs.append(deltas.detach())
+        grads.append([param.grad.clone() for param in field.parameters()])
+    torch.testing.assert_close(outputs[1], outputs[0][order])
+    for grouped, interleaved in zip(grads[1], grads[0], strict=True):
+        torch.testing.assert_close(grouped, interleaved)
+    assert sum(float(g.abs().sum()) for g in grads[0]) > 0.0
+
+
 def test_background_does_not_depend_on_foreground_mlp() -> None:
     field = small_field(isolate_fg_bg=True)
     randomise_heads(field)

@@ -68,10 +68,16 @@ class DeformationField(nn.Module):
         if not self.isolate_fg_bg:
             return self.mlp_sets[SHARED_SET](features)
         group = _validated_group(group, xyz.shape[0])
+        background, foreground = self.mlp_sets["background"], self.mlp_sets["foreground"]
+        if not bool((group[1:] < group[:-1]).any()):
+            # background rows first (as the stages lay them out): slices instead of gathers
+            split = int((group == BACKGROUND).sum())
+            halves = (background(features[:split]), foreground(features[split:]))
+            return Deltas(*(torch.cat(pair) for pair in zip(*halves, strict=True)))
         parts = []
-        for value, name in ((BACKGROUND, "background"), (FOREGROUND, "foreground")):
+        for value, mlp in ((BACKGROUND, background), (FOREGROUND, foreground)):
             rows = torch.nonzero(group == value).squeeze(1)
-            parts.append((rows, self.mlp_sets[name](features.index_select(0, rows))))
+            parts.append((rows, mlp(features.index_select(0, rows))))
         return _scatter_rows(xyz.shape[0], parts)
 
     def regularisers(self) -> dict[str, Tensor]:
