@@ -33,7 +33,7 @@ def _expect(root: Path, *fragments: str, **options) -> str:
 
 
 def test_missing_scene_folder(tmp_path: Path):
-    _expect(tmp_path / "absent", "scene folder does not exist", "absent")
+    _expect(tmp_path / "absent", "scene folder: ", "absent does not exist")
 
 
 def test_folder_of_unknown_layout(tmp_path: Path):

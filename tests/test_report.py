@@ -99,8 +99,11 @@ def test_cli_regenerates_and_fails_in_one_line_without_results(sweep, tmp_path, 
     empty.mkdir()
     assert report.main([str(empty)]) == 1
     assert report.main([str(tmp_path / "missing")]) == 1
+    assert report.main([str(sweep / "summary.md")]) == 1
     errors = capsys.readouterr().err.strip().splitlines()
-    assert len(errors) == 2 and all(line.startswith("error: ") for line in errors)
+    assert len(errors) == 3 and all(line.startswith("error: ") for line in errors)
+    assert errors[1].endswith("missing does not exist")
+    assert errors[2].endswith("summary.md is not a folder")
 
 
 def test_a_damaged_result_is_named(sweep, capsys):

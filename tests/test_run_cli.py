@@ -43,7 +43,7 @@ def _main(args):
         (["relay.k=0"], "relay.k"),
         (["relay.k=-3"], "relay.k"),
         (["decouple.steps=-5"], "decouple.steps"),
-        (["scene.path=/no/such/capture"], "scene.path: folder does not exist: /no/such/capture"),
+        (["scene.path=/no/such/capture"], "scene.path: /no/such/capture does not exist"),
         (["-m", "relay.k=16,0"], "job relay.k=0: relay.k"),
         (["+experiment=ablation_k", "relay.k=0"], "relay.k"),
         (["+experiment=budget", "budget.multiplier=0.5,-1"], "budget.multiplier"),

@@ -69,8 +69,11 @@ def test_a_capture_path_is_loaded_in_place(tiny_synth_scene):
 
 
 def test_capture_paths_must_exist_and_have_a_known_layout(tmp_path):
-    with pytest.raises(InputError, match=r"scene\.path: folder does not exist"):
+    with pytest.raises(InputError, match=r"scene\.path: .*missing does not exist"):
         scene_spec({**TINY, "path": str(tmp_path / "missing")})
+    (tmp_path / "frames.txt").write_text("not a scene")
+    with pytest.raises(InputError, match=r"scene\.path: .*frames\.txt is not a folder"):
+        scene_spec({**TINY, "path": str(tmp_path / "frames.txt")})
     with pytest.raises(InputError, match="unknown scene layout"):
         scene_spec({**TINY, "path": str(tmp_path)})
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import pytest
+import torch
 
 from relaygs.errors import InputError
 from relaygs.stages import BUDGETS, CONFIGS, SCHEMA_VERSIONS, STAGES, validate_config
@@ -74,6 +75,7 @@ def test_bad_section_values_name_the_key(stage: str, section: dict, needle: str)
         ({"train": {"batch_views": 0}}, "train.batch_views"),
         ({"train": {"ssim_weight": 2.0}}, "train.ssim_weight"),
         ({"train": {"device": "warp-drive"}}, "train.device"),
+        ({"train": {"device": "meta"}}, "train.device: expected 'cpu', 'cuda'"),
         ({"train": {"wandb": True}}, "wandb"),
         ({"eval": {"frame_stride": 0}}, "eval.frame_stride"),
     ],
@@ -81,6 +83,14 @@ def test_bad_section_values_name_the_key(stage: str, section: dict, needle: str)
 def test_bad_shared_sections_name_the_key(cfg: dict, needle: str) -> None:
     with pytest.raises(InputError, match=needle.replace(".", r"\.")):
         validate_config("decouple", cfg)
+
+
+def test_unusable_cuda_device_fails_before_any_work() -> None:
+    # No CUDA here: plain "cuda" is unusable; with GPUs, the index one past the last one.
+    device = f"cuda:{torch.cuda.device_count()}" if torch.cuda.is_available() else "cuda"
+    with pytest.raises(InputError, match=rf"train\.device: cannot use '{device}'") as caught:
+        validate_config("decouple", {"train": {"device": device}})
+    assert "\n" not in str(caught.value)
 
 
 def test_unknown_stage_type() -> None:

@@ -26,6 +26,15 @@ def pipelines_dir() -> Path:
     return _locate("pipelines", lambda folder: any(folder.glob("*.yaml")))
 
 
+def require_folder(path: Path, what: str) -> Path:
+    """`path` when it is a folder; else one line, "`what`: PATH does not exist" or "... is not
+    a folder"."""
+    if path.is_dir():
+        return path
+    problem = "is not a folder" if path.exists() else "does not exist"
+    raise InputError(f"{what}: {path} {problem}")
+
+
 def _locate(name: str, is_usable: Callable[[Path], bool]) -> Path:
     """Return the repo's `<name>/` when usable, else the packaged copy, else fail in one line."""
     candidates = (REPO_ROOT / name, PACKAGED_DATA_DIR / name)

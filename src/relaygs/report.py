@@ -21,7 +21,8 @@ from relaygs.app.summary import (
     markdown_table,
     summary_table,
 )
-from relaygs.errors import InputError, RelayGSError
+from relaygs.errors import RelayGSError
+from relaygs.paths import require_folder
 
 SUMMARY_CSV = "summary.csv"
 SUMMARY_MD = "summary.md"
@@ -49,9 +50,7 @@ class ReportFiles:
 
 def write_reports(sweep_dir: Path) -> ReportFiles:
     """Collect the sweep's results and write the table (CSV, Markdown) and the Pareto plot."""
-    sweep_dir = Path(sweep_dir)
-    if not sweep_dir.is_dir():
-        raise InputError(f"sweep folder does not exist: {sweep_dir}")
+    sweep_dir = require_folder(Path(sweep_dir), "sweep folder")
     table = summary_table(collect_results(sweep_dir))
     title = _title(table, sweep_dir)
     csv_path = sweep_dir / SUMMARY_CSV

@@ -17,6 +17,7 @@ from relaygs.data.effects import parse_effects
 from relaygs.data.options import make_options
 from relaygs.data.synthetic import GENERATOR_VERSION, PRESETS, generate
 from relaygs.errors import InputError
+from relaygs.paths import require_folder
 from relaygs.pipeline.keys import canonical_json
 
 SCENE_FIELDS = frozenset(
@@ -70,9 +71,7 @@ def scene_spec(section: Mapping[str, Any]) -> SceneSpec:
     seed = _count(section, "seed", minimum=0)
     path = section.get("path")
     if path is not None:
-        root = Path(str(path))
-        if not root.is_dir():
-            raise InputError(f"scene.path: folder does not exist: {root}")
+        root = require_folder(Path(str(path)), "scene.path")
         detect_format(root)
         name = str(section.get("name") or root.name)
         return SceneSpec(name, None, root, **counts, seed=seed, effects=effects, loader=loader)

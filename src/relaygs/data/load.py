@@ -10,6 +10,7 @@ from relaygs.data.options import DEFAULT_CACHE_MB, DEFAULT_MAX_POINTS, make_opti
 from relaygs.data.panoptic import TRAIN_META, load_panoptic
 from relaygs.data.scene import Scene
 from relaygs.errors import InputError
+from relaygs.paths import require_folder
 
 
 def detect_format(root: Path) -> str:
@@ -39,9 +40,7 @@ def load_scene(
     of the initial cloud; cache_mb: in-memory image cache budget; test_cameras: held-out camera
     ids (default: test_meta.json, or 0/10/20/30 for multi-view); effects: override scene.json.
     """
-    root = Path(path).expanduser().absolute()
-    if not root.is_dir():
-        raise InputError(f"scene folder does not exist: {root}")
+    root = require_folder(Path(path).expanduser().absolute(), "scene folder")
     options = make_options(
         downscale=downscale,
         max_points=max_points,
