@@ -1,6 +1,8 @@
 """`python -m relaygs.bench sweeps`: the commands it times and how it reports a failing one."""
 
-from relaygs import bench, bench_sweeps
+import pytest
+
+from relaygs import bench, bench_sweeps, bench_train
 
 
 def test_commands_run_each_experiment_on_the_tiny_scene(tmp_path):
@@ -17,3 +19,17 @@ def test_a_failing_experiment_is_named_and_exits_non_zero(tmp_path, monkeypatch,
     assert code == 1
     assert "experiment 'no_such_experiment' exited" in capsys.readouterr().err
     assert not report.exists()
+
+
+@pytest.mark.parametrize("what", ["splat", "train", "sweeps"])
+def test_an_unwritable_json_path_stops_before_any_work(what, tmp_path, monkeypatch, capsys):
+    # A file where the report's folder should be: argparse refuses it before anything runs.
+    monkeypatch.setattr(bench_sweeps, "run", lambda args: pytest.fail("sweeps started"))
+    monkeypatch.setattr(bench_train, "run", lambda args: pytest.fail("train started"))
+    monkeypatch.setattr(bench, "bench_splat", lambda *args: pytest.fail("splat started"))
+    blocker = tmp_path / "taken"
+    blocker.write_text("")
+    with pytest.raises(SystemExit) as stopped:
+        bench.main([what, "--json", str(blocker / "report.json")])
+    assert stopped.value.code == 2
+    assert f"cannot create {blocker / 'report.json'}: {blocker}" in capsys.readouterr().err

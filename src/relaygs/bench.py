@@ -13,7 +13,8 @@ import numpy as np
 import torch
 
 from relaygs import bench_sweeps, bench_train
-from relaygs.bench_output import save_json
+from relaygs.bench_output import json_target, save_json
+from relaygs.device import usable_device
 from relaygs.errors import RelayGSError
 from relaygs.splat import rasterization
 
@@ -157,7 +158,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m relaygs.bench")
     sub = parser.add_subparsers(dest="what", required=True)
     splat = sub.add_parser("splat", help="time the splatting core")
-    splat.add_argument("--json", type=Path, help="also write the results as JSON here")
+    splat.add_argument("--json", type=json_target, help="also write the results as JSON here")
     splat.add_argument("--repeats", type=int, default=5, help="timed runs per case (median)")
     splat.add_argument("--device", default="cpu", help="cpu or cuda")
     splat.add_argument(
@@ -175,7 +176,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.what == "sweeps":
         return bench_sweeps.run(args)
     try:
-        device = torch.device(args.device)
+        device = usable_device(args.device, "--device")
         if device.type == "cpu":
             torch.set_num_threads(2)
         rows = bench_splat(max(1, args.repeats), device, args.cases.split(","))

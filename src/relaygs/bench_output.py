@@ -2,9 +2,26 @@
 
 from __future__ import annotations
 
+import argparse
 import json
+import os
 from pathlib import Path
 from typing import Any
+
+
+def json_target(value: str) -> Path:
+    """argparse type of `--json`: a path that can be written once the benchmark is done, checked
+    before it starts (so hours of timing are not lost to a bad path)."""
+    path = Path(value).expanduser().absolute()
+    if path.is_dir():
+        raise argparse.ArgumentTypeError(f"{path} is a folder, expected a file path")
+    ancestor = path.parent
+    while not ancestor.exists():
+        ancestor = ancestor.parent
+    if not ancestor.is_dir() or not os.access(ancestor, os.W_OK | os.X_OK):
+        reason = f"{ancestor} is not a writable folder"
+        raise argparse.ArgumentTypeError(f"cannot create {path}: {reason}")
+    return path
 
 
 def save_json(path: Path | None, report: dict[str, Any]) -> None:

@@ -25,7 +25,7 @@ from typing import Any
 
 import torch
 
-from relaygs.bench_output import save_json
+from relaygs.bench_output import json_target, save_json
 from relaygs.data import Scene, load_scene
 from relaygs.data.synthetic import generate
 from relaygs.errors import RelayGSError
@@ -45,7 +45,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--steps", type=int, default=30, help="steps timed per stage")
     parser.add_argument("--full", action="store_true", help="also time the whole small pipeline")
     parser.add_argument("--cache", type=Path, default=DEFAULT_CACHE, help="scene cache folder")
-    parser.add_argument("--json", type=Path, help="also write the results as JSON here")
+    parser.add_argument("--json", type=json_target, help="also write the results as JSON here")
     parser.add_argument(
         "--threads", type=int, default=0, help="torch CPU threads (0: torch's default)"
     )

@@ -6,9 +6,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-import torch
-
-from relaygs.errors import InputError
+from relaygs.device import usable_device
 from relaygs.stages.config import parse_section, require
 
 
@@ -46,12 +44,7 @@ class TrainSettings:
         require(self.log_every >= 1, "train.log_every", self.log_every, "an int >= 1")
         require(self.image_every >= 0, "train.image_every", self.image_every, "an int >= 0")
         require(self.checkpoint_every >= 1, "train.checkpoint_every", self.checkpoint_every, ">= 1")
-        try:
-            device = torch.device(self.device)
-        except RuntimeError:
-            message = f"train.device: expected a torch device, got {self.device!r}"
-            raise InputError(message) from None
-        _require_usable(device, self.device)
+        usable_device(self.device, "train.device")
 
     @classmethod
     def from_config(cls, data: Mapping[str, Any] | None) -> TrainSettings:
@@ -64,16 +57,3 @@ class TrainSettings:
             return self.downscale
         return 2 if early_stage and image_width > self.half_res_width else 1
 
-
-def _require_usable(device: torch.device, name: str) -> None:
-    """Fail in one line, before any work, on a device the splatting core does not run on, or
-    one this torch cannot allocate on (a CPU-only build, no GPU, an index past the last GPU)."""
-    if device.type == "cpu":
-        return
-    if device.type != "cuda":
-        raise InputError(f"train.device: expected 'cpu', 'cuda' or 'cuda:N', got {name!r}")
-    try:
-        torch.empty(0, device=device)
-    except (RuntimeError, AssertionError) as error:
-        reason = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
-        raise InputError(f"train.device: cannot use {name!r} here ({reason})") from None

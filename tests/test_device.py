@@ -1,0 +1,35 @@
+"""usable_device: the CPU always, CUDA only where this torch can allocate, nothing else."""
+
+import pytest
+import torch
+
+from relaygs import bench
+from relaygs.device import usable_device
+from relaygs.errors import InputError
+
+
+def test_cpu_is_always_usable() -> None:
+    assert usable_device("cpu", "train.device") == torch.device("cpu")
+
+
+@pytest.mark.parametrize("name", ["warp-drive", "meta", "mps:0"])
+def test_devices_the_core_does_not_run_on_are_refused(name: str) -> None:
+    with pytest.raises(
+        InputError, match=rf"^train\.device: expected 'cpu', 'cuda' or 'cuda:N', got '{name}'$"
+    ):
+        usable_device(name, "train.device")
+
+
+def test_an_unusable_cuda_device_is_named_with_the_reason() -> None:
+    # No CUDA here: plain "cuda" is unusable; with GPUs, the index one past the last one.
+    name = f"cuda:{torch.cuda.device_count()}" if torch.cuda.is_available() else "cuda"
+    with pytest.raises(InputError, match=rf"^--device: cannot use '{name}' here \(.+\)$"):
+        usable_device(name, "--device")
+
+
+def test_bench_refuses_a_bad_device_before_timing(monkeypatch, capsys) -> None:
+    monkeypatch.setattr(bench, "bench_splat", lambda *args: pytest.fail("benchmark started"))
+    assert bench.main(["splat", "--device", "meta"]) == 2
+    assert capsys.readouterr().err.strip() == (
+        "error: --device: expected 'cpu', 'cuda' or 'cuda:N', got 'meta'"
+    )
