@@ -80,6 +80,14 @@ def test_gc_removes_leftovers_and_unkept_artifacts(store, capsys):
     assert store.has("decouple", KEY_A) and not store.has("relay", KEY_B)
 
 
+def test_gc_keep_takes_prefixes_and_refuses_a_key_it_cannot_find(store, capsys):
+    code, _, err = _cli(capsys, store.root, "gc", "--keep", "beef")
+    assert code == 1 and err.startswith("error: no artifact with key starting 'beef'")
+    assert store.has("decouple", KEY_A) and store.has("relay", KEY_B)
+    code, _, _ = _cli(capsys, store.root, "gc", "--keep", KEY_A[:8])
+    assert code == 0 and store.has("decouple", KEY_A) and not store.has("relay", KEY_B)
+
+
 def test_missing_store_is_one_line_error(tmp_path, capsys):
     code, out, err = _cli(capsys, tmp_path / "nowhere", "ls")
     assert code == 1 and out == "" and err.startswith("error: no artifact store at")

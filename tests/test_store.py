@@ -207,6 +207,16 @@ def test_gc_with_keep_set_keeps_lineage_and_removes_the_rest(tmp_path):
     assert not store.has("decouple", other)
 
 
+def test_gc_keeping_an_unknown_key_removes_nothing(tmp_path):
+    store = ArtifactStore(tmp_path)
+    _build(store, CountingStage())
+    leftover = store.root / "decouple" / f".tmp-{KEY}-killed"
+    leftover.mkdir()
+    with pytest.raises(InputError, match=f"no finished artifact with key {CHILD_KEY}"):
+        store.gc(keep={KEY, CHILD_KEY})
+    assert store.has("decouple", KEY) and leftover.exists()
+
+
 def test_the_next_build_of_a_key_clears_its_killed_builds_temp_dirs(tmp_path):
     store = ArtifactStore(tmp_path)
     leftover = store.root / "decouple" / f".tmp-{KEY}-killed"

@@ -63,8 +63,8 @@ def _parser() -> argparse.ArgumentParser:
         "--keep",
         nargs="+",
         metavar="KEY",
-        help="also remove every artifact that is neither one of these nor in their lineage "
-        "(the evaluations of what is kept stay)",
+        help="also remove every artifact that is neither one of these (full keys or unique "
+        "prefixes) nor in their lineage (the evaluations of what is kept stay)",
     )
     gc.add_argument("--dry-run", action="store_true", help="only print what would be removed")
     gc.set_defaults(command_fn=_gc)
@@ -134,7 +134,8 @@ def _verify(store: ArtifactStore, args: argparse.Namespace) -> int:
 
 def _gc(store: ArtifactStore, args: argparse.Namespace) -> int:
     """Remove garbage (see ArtifactStore.gc) and print what went."""
-    report = store.gc(keep=args.keep, dry_run=args.dry_run, annotations=(EVAL_STAGE,))
+    keep = None if args.keep is None else [store.find(prefix).key for prefix in args.keep]
+    report = store.gc(keep=keep, dry_run=args.dry_run, annotations=(EVAL_STAGE,))
     verb = "would remove" if args.dry_run else "removed"
     for path in report.removed:
         print(f"{verb} {path}")

@@ -13,6 +13,7 @@ from pathlib import Path
 
 from filelock import FileLock, Timeout
 
+from relaygs.errors import InputError
 from relaygs.pipeline.fsio import remove_tree
 from relaygs.pipeline.integrity import CorruptArtifactError, is_sealed
 from relaygs.pipeline.layout import (
@@ -45,7 +46,8 @@ def collect_garbage(
     `keep`, unkept) artifacts, unkept artifacts when `keep` is given, and free lock files.
 
     Entries of an `annotations` stage (e.g. stored evaluations) are kept with what they
-    describe: when every one of their upstreams is kept."""
+    describe: when every one of their upstreams is kept. A kept key that names no finished
+    artifact (a typo would otherwise keep nothing) fails before anything is removed."""
     report = GcReport()
     kept = _kept_keys(root, keep, annotations) if keep is not None else None
     for stage_dir in stage_dirs(root):
@@ -89,6 +91,11 @@ def _kept_keys(root: Path, keep: Collection[str], annotations: Collection[str]) 
                 parents[folder.name] = []
             if folder.parent.name in annotations:
                 annotation_keys.append(folder.name)
+    unknown = sorted(set(keep) - set(parents))
+    if unknown:
+        raise InputError(
+            f"gc: no finished artifact with key {unknown[0]} in {root}; nothing was removed"
+        )
     kept: set[str] = set()
     pending = list(keep)
     while pending:

@@ -56,4 +56,3 @@ class TrainSettings:
         if self.downscale is not None:
             return self.downscale
         return 2 if early_stage and image_width > self.half_res_width else 1
-
