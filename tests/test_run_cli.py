@@ -51,6 +51,7 @@ def _main(args):
         (["relay.kk=3"], "relay.kk"),
         (["hydra/launcher=nope"], "Could not find 'hydra/launcher/nope'"),
         (["relay.k=[1,"], "cannot parse overrides"),
+        (["train=nope"], "train: expected a config section (a mapping), got 'nope'"),
     ],
 )
 def test_bad_input_is_one_line_before_any_work(fakes, tmp_path, capsys, args, fragment):
@@ -61,6 +62,24 @@ def test_bad_input_is_one_line_before_any_work(fakes, tmp_path, capsys, args, fr
     assert lines[0].startswith("error: ") and fragment in lines[0]
     assert fakes.calls == []
     assert list(tmp_path.iterdir()) == []  # no run dir, no store, no scene
+
+
+@pytest.mark.parametrize(
+    ("override", "fragment"),
+    [
+        ("artifacts.root=taken", "artifacts.root: {root}/taken is not a folder"),
+        ("paths.outputs=taken/out", "paths.outputs: cannot create {root}/taken/out: {root}/taken"),
+    ],
+)
+def test_an_output_path_through_a_file_fails_before_any_work(
+    fakes, tmp_path, capsys, override, fragment
+):
+    (tmp_path / "taken").write_text("a file where a folder should be")
+    assert _main([override]) == 1
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and fragment.format(root=tmp_path) in lines[0], lines
+    assert fakes.calls == []
+    assert [path.name for path in tmp_path.iterdir()] == ["taken"]
 
 
 def test_a_launcher_whose_plugin_is_missing_names_the_package(fakes, monkeypatch, capsys):

@@ -6,6 +6,7 @@ holds what is expected, else the copy packaged inside `relaygs/_data/`.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable
 from pathlib import Path
 
@@ -33,6 +34,20 @@ def require_folder(path: Path, what: str) -> Path:
         return path
     problem = "is not a folder" if path.exists() else "does not exist"
     raise InputError(f"{what}: {path} {problem}")
+
+
+def require_creatable_folder(path: Path, what: str) -> Path:
+    """`path` when it is a folder or can be made one (its nearest existing ancestor is a
+    writable folder); else one line naming `what`. Checked before a run starts, so a bad
+    output path fails before any training, not when the first file is written."""
+    if path.exists():
+        return require_folder(path, what)
+    ancestor = path.parent
+    while not ancestor.exists():
+        ancestor = ancestor.parent
+    if not ancestor.is_dir() or not os.access(ancestor, os.W_OK | os.X_OK):
+        raise InputError(f"{what}: cannot create {path}: {ancestor} is not a writable folder")
+    return path
 
 
 def _locate(name: str, is_usable: Callable[[Path], bool]) -> Path:

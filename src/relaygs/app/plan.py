@@ -16,6 +16,7 @@ from typing import Any
 
 from relaygs.app.scenes import SceneSpec, scene_spec
 from relaygs.errors import InputError
+from relaygs.paths import require_creatable_folder
 from relaygs.pipeline import Node, Pipeline, load_pipeline
 from relaygs.pipeline.store import ON_CORRUPT_CHOICES
 
@@ -68,7 +69,13 @@ def plan_run(
         raise InputError(f"threads must be an integer >= 1 or null, got {threads!r}")
     pipeline = load_pipeline(str(cfg["pipeline"]["name"]), known_stages=stage_types)
     multiplier, scaled_keys = _budget(cfg.get("budget") or {})
-    eval_config = {"seed": seed, "train": dict(cfg["train"]), "eval": dict(cfg["eval"])}
+    eval_config = {"seed": seed, "train": _section(cfg, "train"), "eval": _section(cfg, "eval")}
+    for what, path in (
+        ("paths.outputs", cfg["paths"]["outputs"]),
+        ("paths.scenes", cfg["paths"]["scenes"]),
+        ("artifacts.root", artifacts["root"]),
+    ):
+        require_creatable_folder(Path(path), what)
     node_configs = {}
     for node in pipeline.topological_order():
         section = cfg.get(node.stage)
@@ -79,7 +86,7 @@ def plan_run(
         scaled = scale_steps(merged, multiplier, scaled_keys)
         node_configs[node.name] = {
             "seed": seed,
-            "train": copy.deepcopy(dict(cfg["train"])),
+            "train": copy.deepcopy(eval_config["train"]),
             node.stage: scaled,
         }
         evaluated = node is pipeline.output_node
@@ -129,6 +136,14 @@ def scale_steps(
         else:
             scaled[key] = copy.deepcopy(value)
     return scaled
+
+
+def _section(cfg: Mapping[str, Any], name: str) -> dict[str, Any]:
+    """A copy of the config section `name`, which must be a mapping."""
+    section = cfg.get(name)
+    if not isinstance(section, Mapping):
+        raise InputError(f"{name}: expected a config section (a mapping), got {section!r}")
+    return dict(section)
 
 
 def _budget(budget: Mapping[str, Any]) -> tuple[float, list[str]]:
