@@ -13,6 +13,7 @@ from fake_stages import TINY_SCENE, FakeStages
 from relaygs import run as run_module
 from relaygs.app import prelaunch
 from relaygs.app.task import run_task
+from relaygs.errors import Interrupted
 
 
 @pytest.fixture
@@ -80,6 +81,16 @@ def test_an_output_path_through_a_file_fails_before_any_work(
     assert len(lines) == 1 and fragment.format(root=tmp_path) in lines[0], lines
     assert fakes.calls == []
     assert [path.name for path in tmp_path.iterdir()] == ["taken"]
+
+
+def test_ctrl_c_ends_the_run_with_one_line_and_status_130(fakes, capsys):
+    def interrupt(stage, step, scalars, images=None):
+        raise Interrupted(f"{stage} stopped after step 3 of 9; run the same command again")
+
+    fakes.sinks.append(interrupt)
+    assert _main(["budget=smoke", *TINY_SCENE]) == run_module.INTERRUPTED_EXIT == 130
+    last = capsys.readouterr().err.strip().splitlines()[-1]
+    assert last == "interrupted: decouple stopped after step 3 of 9; run the same command again"
 
 
 def test_a_launcher_whose_plugin_is_missing_names_the_package(fakes, monkeypatch, capsys):

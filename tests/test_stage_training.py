@@ -11,7 +11,7 @@ import torch
 
 from conftest import stage_smoke_cfg
 from relaygs.data import Scene
-from relaygs.errors import DivergenceError
+from relaygs.errors import DivergenceError, Interrupted
 from relaygs.pipeline.artifact import Artifact
 from relaygs.pipeline.context import BuildContext, building
 from relaygs.pipeline.store import ArtifactStore
@@ -26,16 +26,24 @@ class KilledError(Exception):
     """Stands in for the process being killed mid-stage."""
 
 
-def _kill_at(step_to_die: int):
+def _kill_at(step_to_die: int, error: type[BaseException] = KilledError):
     def sink(stage: str, step: int, scalars, images=None) -> None:
         if step == step_to_die:
-            raise KilledError(f"{stage} killed at {step}")
+            raise error(f"{stage} killed at {step}")
 
     return sink
 
 
-def _run(stage: str, scene: Scene, upstream: dict, cfg: dict, root: Path, kill_at=None):
-    sink = _kill_at(kill_at) if kill_at is not None else None
+def _run(
+    stage: str,
+    scene: Scene,
+    upstream: dict,
+    cfg: dict,
+    root: Path,
+    kill_at: int | None = None,
+    error: type[BaseException] = KilledError,
+):
+    sink = _kill_at(kill_at, error) if kill_at is not None else None
     if sink is not None:
         log.add_sink(sink)
     try:
@@ -64,6 +72,22 @@ def test_resumed_run_ends_equal_to_uninterrupted(
         torch.testing.assert_close(resumed.tensors[key], tensor, rtol=1e-5, atol=1e-6, msg=key)
     for key in ("initial_loss", "final_loss"):
         assert resumed.meta["metrics"][key] == pytest.approx(whole.meta["metrics"][key], rel=1e-5)
+
+
+def test_ctrl_c_names_the_step_and_the_checkpoint_a_rerun_resumes_from(
+    stage_scene: Scene, tmp_path: Path
+) -> None:
+    cfg = stage_smoke_cfg(train={"checkpoint_every": 5, "log_every": 1})
+    with pytest.raises(Interrupted) as caught:
+        _run("decouple", stage_scene, {}, cfg, tmp_path, kill_at=13, error=KeyboardInterrupt)
+    steps = cfg["decouple"]["steps"]
+    assert str(caught.value) == (
+        f"decouple stopped after step 12 of {steps}; run the same command again to resume it "
+        "from its checkpoint of step 10"
+    )
+    assert isinstance(caught.value, KeyboardInterrupt)
+    resumed = _run("decouple", stage_scene, {}, cfg, tmp_path)
+    assert resumed.meta["metrics"]["resumed_from"] == 10
 
 
 def test_divergence_names_stage_step_tensor_and_stores_nothing(

@@ -11,3 +11,8 @@ class InputError(RelayGSError, ValueError):
 
 class DivergenceError(RelayGSError, FloatingPointError):
     """A training run produced a non-finite value; names the stage, step and tensor."""
+
+
+class Interrupted(KeyboardInterrupt):
+    """Ctrl-C during training; the message names the stage, the step and what a rerun resumes
+    from. A KeyboardInterrupt, so code that handles Ctrl-C still sees one."""

@@ -30,6 +30,8 @@ from relaygs.app.task import run_task
 from relaygs.errors import RelayGSError
 from relaygs.paths import config_dir
 
+INTERRUPTED_EXIT = 130  # the shell's status for a command stopped by Ctrl-C (128 + SIGINT)
+
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Check the command line, then hand it to Hydra; bad input exits 1 with one line, and so
@@ -49,6 +51,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     sys.argv = [sys.argv[0], *args]
     try:
         hydra.main(version_base="1.3", config_path=str(conf), config_name="config")(run_job)()
+    except KeyboardInterrupt as stop:
+        print(f"interrupted: {stop}" if str(stop) else "interrupted", file=sys.stderr)
+        return INTERRUPTED_EXIT
     finally:
         GlobalHydra.instance().clear()
     return 0

@@ -11,6 +11,8 @@ from dataclasses import dataclass
 from torch import Tensor
 from tqdm import tqdm
 
+from relaygs.errors import Interrupted
+from relaygs.pipeline.checkpoint import StageCheckpointer
 from relaygs.pipeline.context import current_build
 from relaygs.stages import log
 from relaygs.stages.loss import batch_psnr
@@ -109,32 +111,36 @@ def run_training(
         tracker.load_state(state.extras["losses"])
         previous_seconds = float(state.extras["seconds"])
     began = time.perf_counter()
-    with tqdm(
-        total=steps, initial=start, desc=stage, disable=not train.progress, leave=False
-    ) as bar:
-        for step in range(start + 1, steps + 1):
-            rates = session.prepare_step(step)
-            result = step_fn(step)
-            if result.loss.requires_grad:  # False only when nothing trainable was rendered
-                result.loss.backward()
-            session.check_finite(stage, step, result.loss)
-            session.apply_gradients(result.renders, step)
-            loss = float(result.loss.detach())
-            tracker.add(loss)
-            images = _images(result, train, step)
-            if step % train.log_every == 0 or step == steps or images is not None:
-                scalars = _scalars(loss, result, rates, counts)
-                log.emit(stage, step, scalars, images)
-                bar.set_postfix(loss=f"{loss:.4f}", psnr=f"{scalars['psnr']:.2f}")
-            if checkpointer is not None:
-                seconds = previous_seconds + time.perf_counter() - began
-                checkpointer.maybe_save(
-                    step,
-                    session.state_tensors(),
-                    session.optimizers(),
-                    {"losses": tracker.state(), "seconds": seconds},
-                )
-            bar.update(1)
+    bar = tqdm(total=steps, initial=start, desc=stage, disable=not train.progress, leave=False)
+    done = start  # steps completed, for the Ctrl-C message (a disabled bar does not count)
+    try:
+        with bar:
+            for step in range(start + 1, steps + 1):
+                rates = session.prepare_step(step)
+                result = step_fn(step)
+                if result.loss.requires_grad:  # False only when nothing trainable was rendered
+                    result.loss.backward()
+                session.check_finite(stage, step, result.loss)
+                session.apply_gradients(result.renders, step)
+                loss = float(result.loss.detach())
+                tracker.add(loss)
+                images = _images(result, train, step)
+                if step % train.log_every == 0 or step == steps or images is not None:
+                    scalars = _scalars(loss, result, rates, counts)
+                    log.emit(stage, step, scalars, images)
+                    bar.set_postfix(loss=f"{loss:.4f}", psnr=f"{scalars['psnr']:.2f}")
+                if checkpointer is not None:
+                    seconds = previous_seconds + time.perf_counter() - began
+                    checkpointer.maybe_save(
+                        step,
+                        session.state_tensors(),
+                        session.optimizers(),
+                        {"losses": tracker.state(), "seconds": seconds},
+                    )
+                bar.update(1)
+                done = step
+    except KeyboardInterrupt:
+        raise _interrupted(stage, done, steps, checkpointer) from None
     session.check_finite(stage, steps)
     run_seconds = time.perf_counter() - began
     return TrainReport(
@@ -144,6 +150,25 @@ def run_training(
         train_seconds=previous_seconds + run_seconds,
         run_seconds=run_seconds,
         resumed_from=start,
+    )
+
+
+def _interrupted(
+    stage: str, done: int, steps: int, checkpointer: StageCheckpointer | None
+) -> Interrupted:
+    """What Ctrl-C stopped and what running the same command again resumes from."""
+    where = f"{stage} stopped after step {done} of {steps}"
+    if checkpointer is None:
+        return Interrupted(f"{where} (not run through the artifact store: nothing to resume)")
+    every = checkpointer.every_n_steps
+    last = done - done % every
+    if last == 0:
+        return Interrupted(
+            f"{where}; no in-stage checkpoint yet (train.checkpoint_every={every}): the same "
+            "command starts this stage over, finished stages are reused"
+        )
+    return Interrupted(
+        f"{where}; run the same command again to resume it from its checkpoint of step {last}"
     )
 
 
