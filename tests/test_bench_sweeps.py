@@ -32,4 +32,5 @@ def test_an_unwritable_json_path_stops_before_any_work(what, tmp_path, monkeypat
     with pytest.raises(SystemExit) as stopped:
         bench.main([what, "--json", str(blocker / "report.json")])
     assert stopped.value.code == 2
-    assert f"cannot create {blocker / 'report.json'}: {blocker}" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert f"cannot write {blocker / 'report.json'}: {blocker} is not a folder" in err

@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 from pathlib import Path
 from typing import Any
+
+from relaygs.errors import InputError
+from relaygs.paths import require_creatable_folder
 
 
 def json_target(value: str) -> Path:
@@ -15,12 +17,10 @@ def json_target(value: str) -> Path:
     path = Path(value).expanduser().absolute()
     if path.is_dir():
         raise argparse.ArgumentTypeError(f"{path} is a folder, expected a file path")
-    ancestor = path.parent
-    while not ancestor.exists():
-        ancestor = ancestor.parent
-    if not ancestor.is_dir() or not os.access(ancestor, os.W_OK | os.X_OK):
-        reason = f"{ancestor} is not a writable folder"
-        raise argparse.ArgumentTypeError(f"cannot create {path}: {reason}")
+    try:
+        require_creatable_folder(path.parent, f"cannot write {path}")
+    except InputError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
     return path
 
 
