@@ -14,11 +14,11 @@ def usable_device(name: str, what: str) -> torch.device:
     try:
         device = torch.device(name)
     except RuntimeError:
-        raise InputError(f"{what}: expected 'cpu', 'cuda' or 'cuda:N', got {name!r}") from None
+        device = None
+    if device is None or device.type not in ("cpu", "cuda"):
+        raise InputError(f"{what}: expected 'cpu', 'cuda' or 'cuda:N', got {name!r}")
     if device.type == "cpu":
         return device
-    if device.type != "cuda":
-        raise InputError(f"{what}: expected 'cpu', 'cuda' or 'cuda:N', got {name!r}")
     try:
         torch.empty(0, device=device)
     except (RuntimeError, AssertionError) as error:
