@@ -112,32 +112,36 @@ def run_training(
         previous_seconds = float(state.extras["seconds"])
     began = time.perf_counter()
     bar = tqdm(total=steps, initial=start, desc=stage, disable=not train.progress, leave=False)
+
+    def train_step(step: int) -> None:
+        rates = session.prepare_step(step)
+        result = step_fn(step)
+        if result.loss.requires_grad:  # False only when nothing trainable was rendered
+            result.loss.backward()
+        session.check_finite(stage, step, result.loss)
+        session.apply_gradients(result.renders, step)
+        loss = float(result.loss.detach())
+        tracker.add(loss)
+        images = _images(result, train, step)
+        if step % train.log_every == 0 or step == steps or images is not None:
+            scalars = _scalars(loss, result, rates, counts)
+            log.emit(stage, step, scalars, images)
+            bar.set_postfix(loss=f"{loss:.4f}", psnr=f"{scalars['psnr']:.2f}")
+        if checkpointer is not None:
+            seconds = previous_seconds + time.perf_counter() - began
+            checkpointer.maybe_save(
+                step,
+                session.state_tensors(),
+                session.optimizers(),
+                {"losses": tracker.state(), "seconds": seconds},
+            )
+        bar.update(1)
+
     done = start  # steps completed, for the Ctrl-C message (a disabled bar does not count)
     try:
         with bar:
             for step in range(start + 1, steps + 1):
-                rates = session.prepare_step(step)
-                result = step_fn(step)
-                if result.loss.requires_grad:  # False only when nothing trainable was rendered
-                    result.loss.backward()
-                session.check_finite(stage, step, result.loss)
-                session.apply_gradients(result.renders, step)
-                loss = float(result.loss.detach())
-                tracker.add(loss)
-                images = _images(result, train, step)
-                if step % train.log_every == 0 or step == steps or images is not None:
-                    scalars = _scalars(loss, result, rates, counts)
-                    log.emit(stage, step, scalars, images)
-                    bar.set_postfix(loss=f"{loss:.4f}", psnr=f"{scalars['psnr']:.2f}")
-                if checkpointer is not None:
-                    seconds = previous_seconds + time.perf_counter() - began
-                    checkpointer.maybe_save(
-                        step,
-                        session.state_tensors(),
-                        session.optimizers(),
-                        {"losses": tracker.state(), "seconds": seconds},
-                    )
-                bar.update(1)
+                train_step(step)
                 done = step
     except KeyboardInterrupt:
         raise _interrupted(stage, done, steps, checkpointer) from None
