@@ -93,6 +93,13 @@ def test_resume_from_a_checkpoint_is_bitwise_identical(tmp_path):
     assert torch.equal(resumed, reference)
 
 
+def test_latest_due_is_the_last_step_a_checkpoint_was_written_after(tmp_path):
+    ckpt = StageCheckpointer(tmp_path, "train", KEY, every_n_steps=4)
+    written = [step for step in range(1, 12) if ckpt.due(step)]
+    assert written == [4, 8]
+    assert [ckpt.latest_due(step) for step in (0, 3, 4, 7, 8, 11)] == [0, 0, 4, 4, 8, 8]
+
+
 def test_resume_without_restoring_rng_would_differ(tmp_path):
     """The exactness above depends on the RNG states: dropping them changes the result."""
     reference, _ = train(None, total_steps=8)

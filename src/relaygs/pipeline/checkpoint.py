@@ -67,6 +67,10 @@ class StageCheckpointer:
         """True when a checkpoint should be written after `step` completed steps."""
         return step > 0 and step % self.every_n_steps == 0
 
+    def latest_due(self, step: int) -> int:
+        """The last step at or before `step` after which a checkpoint was due (0: none yet)."""
+        return step - step % self.every_n_steps
+
     def maybe_save(
         self,
         step: int,

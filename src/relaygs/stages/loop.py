@@ -164,11 +164,11 @@ def _interrupted(
     where = f"{stage} stopped after step {done} of {steps}"
     if checkpointer is None:
         return Interrupted(f"{where} (not run through the artifact store: nothing to resume)")
-    every = checkpointer.every_n_steps
-    last = done - done % every
+    last = checkpointer.latest_due(done)
     if last == 0:
         return Interrupted(
-            f"{where}; no in-stage checkpoint yet (train.checkpoint_every={every}): the same "
+            f"{where}; no in-stage checkpoint yet "
+            f"(train.checkpoint_every={checkpointer.every_n_steps}): the same "
             "command starts this stage over, finished stages are reused"
         )
     return Interrupted(
