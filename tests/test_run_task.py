@@ -81,6 +81,9 @@ def test_a_run_writes_a_flat_result_with_every_required_field(base_config, tmp_p
     assert written["eval_frames"] == 2  # smoke evaluates every 2nd of 3 frames
     out = capsys.readouterr().out
     assert "PSNR" in out and str(tmp_path / "run" / RESULT_FILE) in out
+    store = tmp_path / "artifacts"
+    render = f"relaygs.artifacts --root {store} render {written['output_key'][:16]} --scene /"
+    assert render in out
 
 
 def test_changing_k_reuses_decouple_and_rebuilds_relay_and_deform(base_config, tmp_path, capsys):

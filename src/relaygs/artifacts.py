@@ -1,6 +1,6 @@
-"""`python -m relaygs.artifacts [--root DIR] ls | show KEY | eval KEY --scene DIR | verify | gc`:
-inspect, score, check and clean the artifact store. Exit 0 on success, 1 on a problem (one line
-on stderr), 2 on usage."""
+"""`python -m relaygs.artifacts [--root DIR] ls | show KEY | eval KEY --scene DIR |
+render KEY --scene DIR | verify | gc`: inspect, score, look at, check and clean the artifact
+store. Exit 0 on success, 1 on a problem (one line on stderr), 2 on usage."""
 
 from __future__ import annotations
 
@@ -15,12 +15,17 @@ from safetensors import safe_open
 
 from relaygs.app.evaluation import EVAL_STAGE
 from relaygs.data import load_scene
+from relaygs.device import usable_device
 from relaygs.errors import RelayGSError
-from relaygs.pipeline.artifact import TENSORS_FILE
-from relaygs.pipeline.store import ArtifactStore
+from relaygs.paths import require_creatable_folder
+from relaygs.pipeline.artifact import TENSORS_FILE, Artifact
+from relaygs.pipeline.store import ArtifactStore, StoredArtifact
+from relaygs.renders import RenderSettings, write_renders
 from relaygs.stages import evaluate
+from relaygs.stages.scene_model import SceneModel
 
 DEFAULT_ROOT = "outputs/artifacts"
+DEFAULT_RENDERS = "outputs/renders"
 KEY_COLUMN_WIDTH = 16
 
 
@@ -56,6 +61,31 @@ def _parser() -> argparse.ArgumentParser:
     score.add_argument("--frame-stride", type=int, default=1, help="score every N-th frame")
     score.add_argument("--downscale", type=int, default=1, help="the run's image downscale factor")
     score.set_defaults(command_fn=_eval)
+    render = commands.add_parser(
+        "render",
+        help="render one artifact's model over time: a PNG per frame and an MP4 per camera",
+    )
+    render.add_argument("key", help="full key or a unique prefix (at least 4 hex digits)")
+    render.add_argument(
+        "--scene", type=Path, required=True, help="the scene folder it was trained on"
+    )
+    render.add_argument(
+        "--camera",
+        type=int,
+        action="append",
+        metavar="ID",
+        help="camera id to render (repeat for more; default: the test cameras)",
+    )
+    render.add_argument("--frame-stride", type=int, default=1, help="render every N-th frame")
+    render.add_argument("--downscale", type=int, default=1, help="image downscale factor")
+    render.add_argument("--truth", action="store_true", help="put the ground truth beside")
+    render.add_argument("--fps", type=float, default=15.0, help="video frame rate (default 15)")
+    render.add_argument("--no-video", action="store_true", help="write PNG frames only")
+    render.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N (default cpu)")
+    render.add_argument(
+        "--out", type=Path, help=f"output folder (default {DEFAULT_RENDERS}/<stage>-<key>)"
+    )
+    render.set_defaults(command_fn=_render)
     verify = commands.add_parser("verify", help="check every artifact's hashes (exit 1 if bad)")
     verify.set_defaults(command_fn=_verify)
     gc = commands.add_parser("gc", help="remove leftovers of killed builds and stale locks")
@@ -104,13 +134,7 @@ def _eval(store: ArtifactStore, args: argparse.Namespace) -> int:
     to see what each stage of a lineage contributes."""
     if args.frame_stride < 1:
         raise RelayGSError(f"--frame-stride must be >= 1, got {args.frame_stride}")
-    item = store.find(args.key)
-    if item.stage == EVAL_STAGE:
-        raise RelayGSError(
-            f"{item.key[:KEY_COLUMN_WIDTH]} is a stored evaluation, not a model: "
-            f"`show {args.key}` prints its metrics"
-        )
-    artifact = store.load(item.stage, item.key)
+    item, artifact = _model_artifact(store, args.key)
     scene = load_scene(args.scene, downscale=args.downscale)
     metrics = evaluate(scene, artifact, {"eval": {"frame_stride": args.frame_stride}})
     print(f"{item.stage} {item.key[:KEY_COLUMN_WIDTH]} on {args.scene}")
@@ -120,6 +144,41 @@ def _eval(store: ArtifactStore, args: argparse.Namespace) -> int:
         elif isinstance(value, int) or value is None:
             print(f"  {name:<16}{'n/a' if value is None else value}")
     return 0
+
+
+def _render(store: ArtifactStore, args: argparse.Namespace) -> int:
+    """Write the artifact's renders of the chosen cameras over time and say where they are."""
+    settings = RenderSettings(
+        camera_ids=tuple(args.camera) if args.camera else None,
+        frame_stride=args.frame_stride,
+        with_truth=args.truth,
+        fps=None if args.no_video else args.fps,
+    )
+    device = usable_device(args.device, "--device")
+    item, artifact = _model_artifact(store, args.key)
+    name = f"{item.stage}-{item.key[:KEY_COLUMN_WIDTH]}"
+    out = require_creatable_folder(args.out or Path(DEFAULT_RENDERS) / name, "--out")
+    scene = load_scene(args.scene, downscale=args.downscale)
+    model = SceneModel.from_artifact(artifact).to(device)
+    written = write_renders(scene, model, out, settings)
+    print(f"{item.stage} {item.key[:KEY_COLUMN_WIDTH]} rendered into {out}")
+    for camera in written:
+        video = f", video {camera.video}" if camera.video is not None else ""
+        print(
+            f"  camera {camera.camera_id}: {len(camera.frames)} frame(s) in {camera.folder}{video}"
+        )
+    return 0
+
+
+def _model_artifact(store: ArtifactStore, key_prefix: str) -> tuple[StoredArtifact, Artifact]:
+    """The stored model of `key_prefix`, refusing a stored evaluation (it holds no model)."""
+    item = store.find(key_prefix)
+    if item.stage == EVAL_STAGE:
+        raise RelayGSError(
+            f"{item.key[:KEY_COLUMN_WIDTH]} is a stored evaluation, not a model: "
+            f"`show {key_prefix}` prints its metrics"
+        )
+    return item, store.load(item.stage, item.key)
 
 
 def _verify(store: ArtifactStore, args: argparse.Namespace) -> int:

@@ -10,7 +10,7 @@ from __future__ import annotations
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import torch
 from omegaconf import DictConfig
@@ -29,11 +29,22 @@ from relaygs.app.result import (
 from relaygs.app.scenes import prepare_scene
 from relaygs.app.suite import StageSuite, load_stage_suite
 from relaygs.app.tensorboard import TensorBoardLog, flatten_config
+from relaygs.data import Scene
 from relaygs.pipeline import Artifact, ArtifactStore, NodeReport, PipelineRun, run_pipeline
 
 TENSORBOARD_DIR = "tb"
 HPARAM_EXCLUDED_SECTIONS = ("paths", "artifacts")
 """Config sections left out of TensorBoard HParams (where files go, not what was run)."""
+
+
+class _Outcome(NamedTuple):
+    """What a finished job made: its result (without `job_s`), the pipeline run, the
+    TensorBoard folder and the scene it ran on."""
+
+    result: dict[str, Scalar]
+    run: PipelineRun
+    log_dir: Path
+    scene: Scene
 
 
 def run_task(
@@ -57,16 +68,17 @@ def run_task(
     suite = suite or load_stage_suite()
     plan = plan_run(config, suite.stages, suite.validate)
     try:
-        result, run, log_dir = _execute(config, plan, suite, run_dir, overrides, job)
+        outcome = _execute(config, plan, suite, run_dir, overrides, job)
     except Exception as error:
         failed = build_failed_result(config, plan, error, overrides, job)
         failed["job_s"] = time.perf_counter() - started
         write_result(run_dir, failed)
         raise
+    result = outcome.result
     result["job_s"] = time.perf_counter() - started
     result_path = write_result(run_dir, result)
     print(format_summary(result))
-    print(_where(plan, run, result_path, log_dir))
+    print(_where(plan, outcome, result_path))
     return result
 
 
@@ -77,9 +89,8 @@ def _execute(
     run_dir: Path,
     overrides: Sequence[str],
     job: int | None,
-) -> tuple[dict[str, Scalar], PipelineRun, Path]:
-    """Prepare the scene, run the stages, evaluate and log: the result (without `job_s`), the
-    pipeline run and the TensorBoard folder."""
+) -> _Outcome:
+    """Prepare the scene, run the stages, evaluate and log."""
     if plan.threads is not None:
         torch.set_num_threads(plan.threads)
     scene = prepare_scene(plan.scene, plan.scenes_dir)
@@ -113,7 +124,7 @@ def _execute(
     finally:
         suite.remove_sink(log)
         log.close()
-    return result, run, log.log_dir
+    return _Outcome(result, run, log.log_dir, scene)
 
 
 def _announce(report: NodeReport) -> None:
@@ -161,13 +172,18 @@ def _log_previews(
         log.add_comparison("eval/render_vs_truth", render, scene.image(view), frame)
 
 
-def _where(plan: RunPlan, run: PipelineRun, result_path: Path, log_dir: Path) -> str:
-    """Where this run's outputs are."""
+def _where(plan: RunPlan, outcome: _Outcome, result_path: Path) -> str:
+    """Where this run's outputs are, and the command that renders its model as videos."""
+    output = outcome.run.reports[-1]
+    scene = outcome.scene
+    downscale = f" --downscale {scene.downscale}" if scene.downscale != 1 else ""
     lines = [
         "outputs:",
         f"  result       {result_path}",
-        f"  tensorboard  tensorboard --logdir {log_dir}",
-        f"  model        {run.reports[-1].path}",
+        f"  tensorboard  tensorboard --logdir {outcome.log_dir}",
+        f"  model        {output.path}",
         f"  store        {plan.artifacts_root}  (python -m relaygs.artifacts --root ... ls)",
+        f"  videos       python -m relaygs.artifacts --root {plan.artifacts_root} render "
+        f"{output.key[:16]} --scene {scene.root}{downscale} --truth",
     ]
     return "\n".join(lines)

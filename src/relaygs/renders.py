@@ -1,0 +1,169 @@
+"""A stored model's renders over time, to look at what a run reconstructed: one PNG per frame
+and one MP4 per camera, optionally with the ground truth beside each render.
+
+`python -m relaygs.artifacts render KEY --scene DIR` is the command line; every stage's output
+renders (decouple and relay show their copies, deform its motion field).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+from torch import Tensor
+from tqdm import tqdm
+
+from relaygs.data import Scene
+from relaygs.errors import InputError, RelayGSError
+from relaygs.stages.model_render import ModelRenderer
+from relaygs.stages.scene_model import SceneModel
+
+VIDEO_CODEC = "mp4v"  # MPEG-4 part 2: the encoder every OpenCV wheel carries
+
+
+@dataclass(frozen=True)
+class RenderSettings:
+    """Which cameras (None: the test cameras), every `frame_stride`-th frame, the ground truth
+    beside each render or not, and the videos' frame rate (None: no video)."""
+
+    camera_ids: tuple[int, ...] | None = None
+    frame_stride: int = 1
+    with_truth: bool = False
+    fps: float | None = 15.0
+
+    def __post_init__(self) -> None:
+        """Refuse a stride below 1 and a frame rate that is not a positive number."""
+        if self.frame_stride < 1:
+            raise InputError(f"render frame_stride: expected an int >= 1, got {self.frame_stride}")
+        if self.fps is not None and not (math.isfinite(self.fps) and self.fps > 0):
+            raise InputError(f"render fps: expected a positive number, got {self.fps}")
+
+
+@dataclass(frozen=True)
+class CameraRenders:
+    """What was written for one camera: its frames, their PNG folder and the video (if any)."""
+
+    camera_id: int
+    frames: list[int]
+    folder: Path
+    video: Path | None
+
+
+def chosen_cameras(scene: Scene, camera_ids: Sequence[int] | None) -> list[int]:
+    """`camera_ids` checked against the scene's cameras, or its test cameras (all cameras when
+    it holds none out) when None."""
+    available = sorted({view.camera.camera_id for view in scene.train_views + scene.test_views})
+    if camera_ids is None:
+        tests = sorted({view.camera.camera_id for view in scene.test_views})
+        return tests or available
+    unknown = [camera for camera in camera_ids if camera not in available]
+    if unknown:
+        raise InputError(f"camera {unknown[0]} is not in {scene.root}: its cameras are {available}")
+    return list(dict.fromkeys(camera_ids))
+
+
+def write_renders(
+    scene: Scene,
+    model: SceneModel,
+    out: Path,
+    settings: RenderSettings,
+    progress: bool = True,
+) -> list[CameraRenders]:
+    """Render `model` from the chosen cameras at every `frame_stride`-th frame into
+    `out`/cam<ID>/<frame>.png and, with a frame rate, `out`/cam<ID>.mp4 (written beside and
+    moved in when complete, so an interrupted run leaves no truncated video)."""
+    if model.num_frames != scene.num_frames:
+        raise InputError(
+            f"the model was trained on {model.num_frames} frames but {scene.root} has "
+            f"{scene.num_frames}: render it with the scene it was trained on"
+        )
+    cameras = chosen_cameras(scene, settings.camera_ids)
+    renderer = ModelRenderer(model)
+    sinks = {camera: _CameraSink(out, camera, settings.fps) for camera in cameras}
+    frames = range(0, scene.num_frames, settings.frame_stride)
+    try:
+        for frame in tqdm(frames, desc="render", unit="frame", disable=not progress, leave=False):
+            views = [v for v in scene.views_at(frame, "all") if v.camera.camera_id in sinks]
+            if not views:
+                continue
+            images = renderer.render([view.camera for view in views], views[0].time)
+            for view, image in zip(views, images, strict=True):
+                picture = image.cpu()
+                if settings.with_truth:
+                    picture = torch.cat([picture, scene.image(view)], dim=1)
+                sinks[view.camera.camera_id].add(frame, picture)
+        for sink in sinks.values():
+            sink.finish()
+    finally:
+        for sink in sinks.values():
+            sink.abandon()
+    return [sink.result() for sink in sinks.values()]
+
+
+class _CameraSink:
+    """PNG frames and an MP4 of one camera, the video built under a temporary name."""
+
+    def __init__(self, out: Path, camera_id: int, fps: float | None) -> None:
+        self.camera_id = camera_id
+        self.folder = out / f"cam{camera_id:02d}"
+        self.video = out / f"cam{camera_id:02d}.mp4" if fps is not None else None
+        self.partial = out / f".cam{camera_id:02d}.partial.mp4"
+        self.fps = fps
+        self.frames: list[int] = []
+        self._writer: cv2.VideoWriter | None = None
+
+    def add(self, frame: int, image: Tensor) -> None:
+        """Write `image` [H,W,3] in [0, 1] as frame `frame`."""
+        pixels = _to_bgr8(image)
+        self.folder.mkdir(parents=True, exist_ok=True)
+        path = self.folder / f"{frame:06d}.png"
+        if not cv2.imwrite(str(path), pixels):
+            raise RelayGSError(f"cannot write {path}")
+        if self.fps is not None:
+            self._video_writer(pixels).write(pixels)
+        self.frames.append(frame)
+
+    def finish(self) -> None:
+        """Close the video and move it to its name (every frame has been added)."""
+        if self._writer is not None and self.video is not None:
+            self._writer.release()
+            self._writer = None
+            os.replace(self.partial, self.video)
+
+    def abandon(self) -> None:
+        """Close and remove a video that was not finished (no-op after `finish`)."""
+        if self._writer is not None:
+            self._writer.release()
+            self._writer = None
+            self.partial.unlink(missing_ok=True)
+
+    def result(self) -> CameraRenders:
+        """What was written."""
+        video = self.video if self.frames else None
+        return CameraRenders(self.camera_id, list(self.frames), self.folder, video)
+
+    def _video_writer(self, pixels: np.ndarray) -> cv2.VideoWriter:
+        if self._writer is None:
+            height, width = pixels.shape[:2]
+            fourcc = cv2.VideoWriter_fourcc(*VIDEO_CODEC)
+            writer = cv2.VideoWriter(str(self.partial), fourcc, float(self.fps), (width, height))
+            if not writer.isOpened():
+                raise RelayGSError(
+                    f"cannot write {self.video}: this OpenCV has no {VIDEO_CODEC} encoder "
+                    "(pass --no-video for PNG frames only)"
+                )
+            self._writer = writer
+        return self._writer
+
+
+def _to_bgr8(image: Tensor) -> np.ndarray:
+    """[H,W,3] float RGB in [0, 1] as contiguous uint8 BGR (non-finite values as black)."""
+    clean = torch.nan_to_num(image.detach().float(), nan=0.0, posinf=1.0, neginf=0.0)
+    rgb = (clean.clamp(0.0, 1.0) * 255.0).round().to(torch.uint8).numpy()
+    return np.ascontiguousarray(rgb[..., ::-1])

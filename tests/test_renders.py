@@ -1,0 +1,132 @@
+"""`python -m relaygs.artifacts render`: a stored model's frames and videos over time."""
+
+import cv2
+import numpy as np
+import pytest
+
+from relaygs.artifacts import main
+from relaygs.data import load_scene
+from relaygs.errors import InputError
+from relaygs.pipeline.keys import artifact_key
+from relaygs.pipeline.store import ArtifactStore
+from relaygs.renders import RenderSettings, write_renders
+from relaygs.stages.model_render import ModelRenderer
+from relaygs.stages.scene_model import SceneModel
+
+
+@pytest.fixture
+def stored_deform(stage_deformed, tmp_path):
+    """The stage fixtures' deform artifact in a fresh store: (store, key)."""
+    store = ArtifactStore(tmp_path / "store")
+    key = artifact_key("deform", 1, {"steps": 20}, "juggle", [])
+    store.get_or_build("deform", key, lambda: stage_deformed, config={}, lineage=[])
+    return store, key
+
+
+def _render_cli(capsys, store, key, scene, *args):
+    code = main(["--root", str(store.root), "render", key[:8], "--scene", str(scene), *args])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def _bgr(image):
+    rgb = (image.clamp(0.0, 1.0) * 255.0).round().byte().numpy()
+    return rgb[..., ::-1]
+
+
+def test_render_writes_each_frame_beside_the_truth_and_a_video_per_camera(
+    stored_deform, stage_scene_path, stage_deformed, tmp_path, capsys
+):
+    store, key = stored_deform
+    out = tmp_path / "renders"
+    code, printed, _ = _render_cli(
+        capsys, store, key, stage_scene_path, "--frame-stride", "3", "--truth", "--out", str(out)
+    )
+    assert code == 0
+    scene = load_scene(stage_scene_path)
+    renderer = ModelRenderer(SceneModel.from_artifact(stage_deformed))
+    frames = [0, 3, 6]
+    for camera_id in (0, 10, 15, 30):  # the scene's test cameras
+        assert f"camera {camera_id}: 3 frame(s)" in printed
+        folder = out / f"cam{camera_id:02d}"
+        assert sorted(p.name for p in folder.iterdir()) == [f"{f:06d}.png" for f in frames]
+        for frame in frames:
+            view = next(v for v in scene.views_at(frame, "test") if v.camera.camera_id == camera_id)
+            expected = renderer.render([view.camera], view.time)[0]
+            written = cv2.imread(str(folder / f"{frame:06d}.png"))
+            width = view.camera.width
+            assert written.shape == (view.camera.height, 2 * width, 3)
+            np.testing.assert_array_equal(written[:, :width], _bgr(expected))
+            np.testing.assert_array_equal(written[:, width:], _bgr(scene.image(view)))
+        video = cv2.VideoCapture(str(out / f"cam{camera_id:02d}.mp4"))
+        assert int(video.get(cv2.CAP_PROP_FRAME_COUNT)) == 3
+        assert int(video.get(cv2.CAP_PROP_FRAME_WIDTH)) == 2 * scene.test_cameras[0].width
+    assert not list(out.glob(".*partial*"))
+
+
+def test_render_picks_cameras_and_skips_the_video_on_request(
+    stored_deform, stage_scene_path, tmp_path, capsys
+):
+    store, key = stored_deform
+    out = tmp_path / "renders"
+    code, _, _ = _render_cli(
+        capsys, store, key, stage_scene_path, "--camera", "3", "--no-video", "--out", str(out)
+    )
+    assert code == 0
+    assert sorted(p.name for p in out.iterdir()) == ["cam03"]
+    assert len(list((out / "cam03").glob("*.png"))) == 8
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--camera", "99"], "camera 99 is not in "),
+        (["--fps", "0"], "render fps: expected a positive number, got 0.0"),
+        (["--frame-stride", "0"], "render frame_stride: expected an int >= 1, got 0"),
+        (["--device", "mps"], "--device: expected 'cpu', 'cuda' or 'cuda:N', got 'mps'"),
+    ],
+)
+def test_bad_render_options_fail_in_one_line(
+    stored_deform, stage_scene_path, tmp_path, capsys, args, message
+):
+    store, key = stored_deform
+    out = tmp_path / "renders"
+    code, _, err = _render_cli(capsys, store, key, stage_scene_path, *args, "--out", str(out))
+    assert code == 1 and message in err and err.count("\n") == 1
+    assert not out.exists() or not any(out.rglob("*.png"))
+
+
+def test_render_refuses_an_output_file_and_a_scene_of_other_length(
+    stored_deform, stage_scene_path, tiny_synth_scene, tmp_path, capsys
+):
+    store, key = stored_deform
+    blocker = tmp_path / "file"
+    blocker.write_text("keep me")
+    code, _, err = _render_cli(capsys, store, key, stage_scene_path, "--out", str(blocker))
+    assert code == 1 and f"--out: {blocker} is not a folder" in err
+    assert blocker.read_text() == "keep me"
+    code, _, err = _render_cli(capsys, store, key, tiny_synth_scene, "--out", str(tmp_path / "r"))
+    assert code == 1 and "trained on 8 frames but" in err and "has 6" in err
+
+
+def test_an_interrupted_render_leaves_no_video(stage_scene, stage_deformed, tmp_path, monkeypatch):
+    calls = []
+    original = ModelRenderer.render
+
+    def failing(self, cameras, time):
+        calls.append(time)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+        return original(self, cameras, time)
+
+    monkeypatch.setattr(ModelRenderer, "render", failing)
+    model = SceneModel.from_artifact(stage_deformed)
+    with pytest.raises(KeyboardInterrupt):
+        write_renders(stage_scene, model, tmp_path, RenderSettings(), progress=False)
+    assert len(list((tmp_path / "cam00").glob("*.png"))) == 2
+    assert not list(tmp_path.glob("*.mp4")) and not list(tmp_path.glob(".*"))
+
+
+def test_render_settings_refuse_non_finite_fps():
+    with pytest.raises(InputError, match="render fps"):
+        RenderSettings(fps=float("nan"))
