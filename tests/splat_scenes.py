@@ -60,6 +60,11 @@ def random_scene(
 LEARNABLE = ("means", "quats", "scales", "opacities", "colors")
 
 
+def on_device(scene: dict, device: str) -> dict:
+    """Copy of a scene with every tensor on `device` (leaves, gradients not kept)."""
+    return {k: v.detach().to(device) if torch.is_tensor(v) else v for k, v in scene.items()}
+
+
 def with_grad(scene: dict, extra: tuple[str, ...] = ()) -> dict:
     """Copy of a scene whose learnable tensors (and `extra` keys) require grad."""
     out = dict(scene)
@@ -74,8 +79,9 @@ def render_and_grads(render_fn, scene: dict, seed: int = 0, **kwargs):
     keys = [k for k in (*LEARNABLE, "backgrounds") if torch.is_tensor(scene.get(k))]
     colors, alphas, meta = render_fn(**scene, **kwargs)
     gen = torch.Generator().manual_seed(seed)
-    w_c = torch.randn(colors.shape, generator=gen, dtype=colors.dtype)
-    w_a = torch.randn(alphas.shape, generator=gen, dtype=alphas.dtype)
+    # drawn on the CPU, so a render on another device is weighed by the same numbers
+    w_c = torch.randn(colors.shape, generator=gen, dtype=colors.dtype).to(colors.device)
+    w_a = torch.randn(alphas.shape, generator=gen, dtype=alphas.dtype).to(alphas.device)
     loss = (colors * w_c).sum() + (alphas * w_a).sum()
     grads = torch.autograd.grad(loss, [scene[k] for k in keys], allow_unused=True)
     return colors, alphas, meta, dict(zip(keys, grads, strict=True))

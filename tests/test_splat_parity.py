@@ -9,7 +9,7 @@ import torch
 
 from relaygs.splat import rasterization
 from relaygs.splat.reference import rasterization_reference
-from splat_scenes import random_scene, render_and_grads, with_grad
+from splat_scenes import on_device, random_scene, render_and_grads, with_grad
 
 CASES = [
     # (seed, n, cameras, width, height, channels, background)
@@ -62,6 +62,26 @@ def test_gradients_match_reference_float64(case):
     _, _, _, fast = render_and_grads(rasterization, scene)
     _, _, _, ref = render_and_grads(rasterization_reference, scene)
     _assert_grads_close(fast, ref)
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64], ids=["float32", "float64"])
+@pytest.mark.parametrize("case", CASES, ids=lambda c: f"seed{c[0]}-n{c[1]}-C{c[2]}-D{c[5]}")
+def test_cuda_matches_cpu_forward_and_backward(case, dtype):
+    scene = _scene(*case, dtype=dtype)
+    extra = ("backgrounds",)
+    cpu = render_and_grads(rasterization, with_grad(scene, extra))
+    gpu = render_and_grads(rasterization, with_grad(on_device(scene, "cuda"), extra))
+    atol = 1e-5 if dtype == torch.float32 else 1e-10
+    for got, expected in zip(gpu[:2], cpu[:2], strict=True):
+        torch.testing.assert_close(got.cpu(), expected, rtol=0, atol=atol)
+    torch.testing.assert_close(gpu[2]["radii"].cpu(), cpu[2]["radii"])
+    if dtype == torch.float64:
+        _assert_grads_close({k: g.cpu() for k, g in gpu[3].items()}, cpu[3])
+    else:
+        for key, expected in cpu[3].items():
+            rel = (gpu[3][key].cpu() - expected).norm() / expected.norm()
+            assert rel < 1e-4, f"{key}: relative error {rel.item():.3g}"
 
 
 def test_gradients_match_reference_float32():

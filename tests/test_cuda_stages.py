@@ -1,0 +1,45 @@
+"""The stages and the renders on CUDA: the smoke lineage as on the CPU, within float noise
+(skipped without a GPU; run where one is lent)."""
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from conftest import stage_smoke_cfg
+from relaygs.renders import RenderSettings, write_renders
+from relaygs.stages import STAGES
+from relaygs.stages.scene_model import SceneModel
+
+DEVICE = "cuda"
+pytestmark = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
+
+
+def _lineage(scene, device):
+    cfg = stage_smoke_cfg(train={"device": device, "progress": False})
+    decoupled = STAGES["decouple"](scene, {}, cfg)
+    relayed = STAGES["relay"](scene, {"decouple": decoupled}, cfg)
+    return [decoupled, relayed, STAGES["deform"](scene, {"relay": relayed}, cfg)]
+
+
+def test_the_smoke_lineage_on_the_gpu_matches_the_cpu(stage_scene):
+    for cpu, gpu in zip(_lineage(stage_scene, "cpu"), _lineage(stage_scene, DEVICE), strict=True):
+        for name, tensor in gpu.tensors.items():
+            assert tensor.device.type == "cpu", f"{gpu.stage} {name} left on {tensor.device}"
+            if tensor.is_floating_point():
+                assert bool(torch.isfinite(tensor).all()), f"{gpu.stage} {name} not finite"
+        expected, got = cpu.meta["metrics"]["final_loss"], gpu.meta["metrics"]["final_loss"]
+        assert abs(got - expected) <= 0.05 * expected, f"{gpu.stage}: {got} vs {expected}"
+
+
+def test_gpu_renders_match_cpu_renders(stage_scene, stage_deformed, tmp_path):
+    settings = RenderSettings(frame_stride=4, fps=None)
+    for device in ("cpu", DEVICE):
+        model = SceneModel.from_artifact(stage_deformed).to(device)
+        write_renders(stage_scene, model, tmp_path / device, settings, progress=False)
+    written = sorted((tmp_path / "cpu").rglob("*.png"))
+    assert written
+    for png in written:
+        cpu = cv2.imread(str(png)).astype(np.int16)
+        gpu = cv2.imread(str(tmp_path / DEVICE / png.relative_to(tmp_path / "cpu")))
+        assert np.abs(cpu - gpu.astype(np.int16)).max() <= 1, png.name
