@@ -77,6 +77,17 @@ def test_render_picks_cameras_and_skips_the_video_on_request(
     assert len(list((out / "cam03").glob("*.png"))) == 8
 
 
+def test_render_defaults_to_a_folder_named_after_the_model(
+    stored_deform, stage_scene_path, tmp_path, capsys, monkeypatch
+):
+    store, key = stored_deform
+    monkeypatch.chdir(tmp_path)
+    code, printed, _ = _render_cli(capsys, store, key, stage_scene_path, "--frame-stride", "4")
+    out = tmp_path / "outputs" / "renders" / f"deform-{key[:16]}"
+    assert code == 0 and f"rendered into {out}\n" in printed
+    assert len(list((out / "cam00").glob("*.png"))) == 2 and (out / "cam00.mp4").is_file()
+
+
 @pytest.mark.parametrize(
     ("args", "message"),
     [

@@ -157,7 +157,7 @@ def _render(store: ArtifactStore, args: argparse.Namespace) -> int:
     device = usable_device(args.device, "--device")
     item, artifact = _model_artifact(store, args.key)
     name = f"{item.stage}-{item.key[:KEY_COLUMN_WIDTH]}"
-    out = require_creatable_folder(args.out or Path(DEFAULT_RENDERS) / name, "--out")
+    out = require_creatable_folder((args.out or Path(DEFAULT_RENDERS) / name).absolute(), "--out")
     scene = load_scene(args.scene, downscale=args.downscale)
     model = SceneModel.from_artifact(artifact).to(device)
     written = write_renders(scene, model, out, settings)
