@@ -163,7 +163,7 @@ class _CameraSink:
 
 
 def _to_bgr8(image: Tensor) -> np.ndarray:
-    """[H,W,3] float RGB in [0, 1] as contiguous uint8 BGR (non-finite values as black)."""
+    """[H,W,3] float RGB in [0, 1] as contiguous uint8 BGR (NaN and -inf black, +inf white)."""
     clean = torch.nan_to_num(image.detach().float(), nan=0.0, posinf=1.0, neginf=0.0)
     rgb = (clean.clamp(0.0, 1.0) * 255.0).round().to(torch.uint8).numpy()
     return np.ascontiguousarray(rgb[..., ::-1])
