@@ -55,6 +55,12 @@ def _assert_grads_close(fast: dict, ref: dict) -> None:
         assert worst <= 0, f"{key}: max excess {worst.item():.3g} over rel 1e-4 / abs 1e-6"
 
 
+def _assert_grads_close_float32(fast: dict, ref: dict) -> None:
+    for key, expected in ref.items():
+        rel = (fast[key] - expected).norm() / expected.norm()
+        assert rel < 1e-4, f"{key}: relative error {rel.item():.3g}"
+
+
 @pytest.mark.parametrize("case", CASES, ids=lambda c: f"seed{c[0]}-n{c[1]}-C{c[2]}-D{c[5]}")
 def test_gradients_match_reference_float64(case):
     scene = _scene(*case, dtype=torch.float64)
@@ -76,21 +82,18 @@ def test_cuda_matches_cpu_forward_and_backward(case, dtype):
     for got, expected in zip(gpu[:2], cpu[:2], strict=True):
         torch.testing.assert_close(got.cpu(), expected, rtol=0, atol=atol)
     torch.testing.assert_close(gpu[2]["radii"].cpu(), cpu[2]["radii"])
+    on_cpu = {k: g.cpu() for k, g in gpu[3].items()}
     if dtype == torch.float64:
-        _assert_grads_close({k: g.cpu() for k, g in gpu[3].items()}, cpu[3])
+        _assert_grads_close(on_cpu, cpu[3])
     else:
-        for key, expected in cpu[3].items():
-            rel = (gpu[3][key].cpu() - expected).norm() / expected.norm()
-            assert rel < 1e-4, f"{key}: relative error {rel.item():.3g}"
+        _assert_grads_close_float32(on_cpu, cpu[3])
 
 
 def test_gradients_match_reference_float32():
     scene = with_grad(_scene(5, 200, 2, 40, 32, 3, True, torch.float32), extra=("backgrounds",))
     _, _, _, fast = render_and_grads(rasterization, scene)
     _, _, _, ref = render_and_grads(rasterization_reference, scene)
-    for key, expected in ref.items():
-        rel = (fast[key] - expected).norm() / expected.norm()
-        assert rel < 1e-4, f"{key}: relative error {rel.item():.3g}"
+    _assert_grads_close_float32(fast, ref)
 
 
 @pytest.mark.parametrize("mode", ["D", "RGB+D"])
