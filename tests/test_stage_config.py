@@ -6,6 +6,7 @@ import pytest
 import torch
 
 from relaygs.errors import InputError
+from relaygs.model import BACKGROUND_DENSIFY, FOREGROUND_DENSIFY
 from relaygs.stages import BUDGETS, CONFIGS, SCHEMA_VERSIONS, STAGES, validate_config
 from relaygs.stages.decouple import DecoupleConfig
 from relaygs.stages.deform import DeformConfig
@@ -38,6 +39,19 @@ def test_budgets_validate(budget: str, stage: str) -> None:
     validate_config(stage, BUDGETS[budget])
 
 
+@pytest.mark.parametrize("config", [RelayConfig, DeformConfig])
+def test_per_set_sections_start_from_the_papers_fg_and_bg_settings(config: type) -> None:
+    section = config.from_config({"freeze_background": False} if config is RelayConfig else {})
+    assert section.set_densify("fg") == FOREGROUND_DENSIFY
+    assert section.set_densify("bg") == BACKGROUND_DENSIFY
+    assert section.set_densify("fg").grad_threshold != BACKGROUND_DENSIFY.grad_threshold
+    decay = {"means": {"init": 1e-3, "final": 1e-5}}
+    tuned = config.from_config({"densify_fg": {"grad_threshold": 3e-4}, "lr_fg": decay})
+    assert tuned.set_densify("fg").grad_threshold == 3e-4
+    assert tuned.set_densify("fg").percent_dense == FOREGROUND_DENSIFY.percent_dense
+    assert tuned.set_rates("fg").for_param("means").max_steps == tuned.steps
+
+
 @pytest.mark.parametrize(
     ("stage", "section", "needle"),
     [
@@ -53,9 +67,12 @@ def test_budgets_validate(budget: str, stage: str) -> None:
         ("relay", {"k": 0}, "relay.k"),
         ("relay", {"p": 0}, "relay.p"),
         ("relay", {"densify_fg": {"max_gaussians": 0}}, "relay.densify_fg.max_gaussians"),
+        ("relay", {"freeze_background": False, "lr_bg": {"quats": -1.0}}, "relay.lr_bg.quats"),
         ("deform", {"steps": -5}, "deform.steps"),
         ("deform", {"color_affine": "maybe"}, "deform.color_affine"),
         ("deform", {"multires": []}, "deform.multires"),
+        ("deform", {"lr_fg": {"means": -1.0}}, "deform.lr_fg.means"),
+        ("deform", {"densify_bg": {"split_count": 1}}, "deform.densify_bg.split_count"),
         ("deform", {"lr_grid": {"init": 1.0, "final": 0.0}}, "deform.lr_grid.final"),
         ("replicate", {"k": -2}, "replicate.k"),
         ("warmup", {"init_opacity": 1.0}, "warmup.init_opacity"),

@@ -48,17 +48,18 @@ def plot_pareto(
     axes.scatter(times, scores, color="tab:blue", zorder=2, label="job")
     front = pareto_front(times, scores)
     if front:
+        front_times, front_scores = [times[i] for i in front], [scores[i] for i in front]
         axes.step(
-            [times[i] for i in front],
-            [scores[i] for i in front],
+            front_times,
+            front_scores,
             where="post",
             color="tab:red",
             zorder=1,
             label="Pareto front",
         )
         axes.scatter(
-            [times[i] for i in front],
-            [scores[i] for i in front],
+            front_times,
+            front_scores,
             facecolors="none",
             edgecolors="tab:red",
             s=140,

@@ -11,10 +11,17 @@ import dataclasses
 import types
 import typing
 from collections.abc import Mapping
-from typing import Any, TypeVar
+from typing import Any, ClassVar, TypeVar
 
 from relaygs.errors import InputError
-from relaygs.model import CORE_PARAMS, DensifySettings, LRSchedule, SetLearningRates
+from relaygs.model import (
+    BACKGROUND_DENSIFY,
+    CORE_PARAMS,
+    FOREGROUND_DENSIFY,
+    DensifySettings,
+    LRSchedule,
+    SetLearningRates,
+)
 
 T = TypeVar("T")
 
@@ -123,6 +130,28 @@ def learning_rates(config: Mapping[str, Any], steps: int, where: str) -> SetLear
         for name, value in rates.extras.items()
     }
     return SetLearningRates(**core, extras=extras)
+
+
+class PerSetSections:
+    """Mixin of stage settings that train background and foreground sets separately.
+
+    The dataclass holds `steps` and, per set name ("bg" or "fg"), `lr_<set>` and
+    `densify_<set>` sections; the subclass names its stage in `stage` (for error messages).
+    """
+
+    stage: ClassVar[str]
+    steps: int
+
+    def set_rates(self, name: str) -> SetLearningRates:
+        """Learning-rate schedules of set `name` over the stage's steps."""
+        key = f"lr_{name}"
+        return learning_rates(getattr(self, key), self.steps, f"{self.stage}.{key}")
+
+    def set_densify(self, name: str) -> DensifySettings:
+        """Density control of set `name`: the paper's fg or bg settings with the overrides."""
+        base = FOREGROUND_DENSIFY if name == "fg" else BACKGROUND_DENSIFY
+        key = f"densify_{name}"
+        return densify_settings(getattr(self, key), base, f"{self.stage}.{key}")
 
 
 def schedule(value: float | Mapping[str, Any], steps: int, where: str) -> LRSchedule:

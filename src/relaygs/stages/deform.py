@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, ClassVar
 
 import torch
 
@@ -23,19 +23,11 @@ from relaygs.data import Scene, frame_time
 from relaygs.data.effects import COLOR_INCONSISTENCY
 from relaygs.errors import InputError
 from relaygs.field import ColorAffine
-from relaygs.model import (
-    BACKGROUND_DENSIFY,
-    CORE_PARAMS,
-    FOREGROUND_DENSIFY,
-    DensifySettings,
-    GaussianSet,
-    SetLearningRates,
-)
+from relaygs.model import CORE_PARAMS, GaussianSet, SetLearningRates
 from relaygs.pipeline.artifact import Artifact
 from relaygs.stages.common import GAUSSIAN_LR, single_upstream, stage_meta, upstream_model
 from relaygs.stages.config import (
-    densify_settings,
-    learning_rates,
+    PerSetSections,
     parse_section,
     require,
     require_steps,
@@ -59,7 +51,7 @@ MLP_LR = {"init": 1.6e-4, "final": 1.6e-5}  # 4D-GS, × scene extent
 
 
 @dataclass(frozen=True)
-class DeformConfig:
+class DeformConfig(PerSetSections):
     """Settings of the deform stage (`cfg["deform"]`); defaults follow the paper and 4D-GS.
 
     Field: 16 channels, spatial resolution 64, multires [1, 2], time resolution ceil(T/2)
@@ -69,6 +61,7 @@ class DeformConfig:
     the scene declares colour inconsistency; true/false force it.
     """
 
+    stage: ClassVar[str] = STAGE
     steps: int = 20000
     isolate_fg_bg: bool = True
     gamma: bool = True
@@ -127,7 +120,7 @@ class DeformConfig:
 
     def plans(self) -> dict[str, SetPlan]:
         """Training plans of the background and foreground sets (fg lr includes γ)."""
-        fg_rates = self._rates("lr_fg")
+        fg_rates = self.set_rates("fg")
         if self.gamma:
             gamma = schedule(self.lr_gamma, self.steps, f"{STAGE}.lr_gamma")
             fg_rates = SetLearningRates(
@@ -135,8 +128,8 @@ class DeformConfig:
                 extras={**fg_rates.extras, GAMMA: gamma},
             )
         return {
-            "bg": SetPlan(self._rates("lr_bg"), self._densify("densify_bg"), self.sh_every),
-            "fg": SetPlan(fg_rates, self._densify("densify_fg"), self.sh_every),
+            "bg": SetPlan(self.set_rates("bg"), self.set_densify("bg"), self.sh_every),
+            "fg": SetPlan(fg_rates, self.set_densify("fg"), self.sh_every),
         }
 
     def module_schedules(self) -> dict[str, Any]:
@@ -167,13 +160,6 @@ class DeformConfig:
             "width": self.width,
             "depth": self.depth,
         }
-
-    def _rates(self, key: str) -> SetLearningRates:
-        return learning_rates(getattr(self, key), self.steps, f"{STAGE}.{key}")
-
-    def _densify(self, key: str) -> DensifySettings:
-        base = FOREGROUND_DENSIFY if key == "densify_fg" else BACKGROUND_DENSIFY
-        return densify_settings(getattr(self, key), base, f"{STAGE}.{key}")
 
 
 def deform(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, Any]) -> Artifact:

@@ -11,18 +11,12 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, ClassVar
 
 import torch
 
 from relaygs.data import Scene
-from relaygs.model import (
-    BACKGROUND_DENSIFY,
-    FOREGROUND_DENSIFY,
-    DensifySettings,
-    GaussianSet,
-    SetLearningRates,
-)
+from relaygs.model import GaussianSet
 from relaygs.pipeline.artifact import Artifact
 from relaygs.stages.carve import HullSettings
 from relaygs.stages.common import (
@@ -34,8 +28,7 @@ from relaygs.stages.common import (
     upstream_model,
 )
 from relaygs.stages.config import (
-    densify_settings,
-    learning_rates,
+    PerSetSections,
     parse_section,
     require,
     require_steps,
@@ -56,7 +49,7 @@ ACCEPTED_UPSTREAM = ("decouple",)
 
 
 @dataclass(frozen=True)
-class RelayConfig:
+class RelayConfig(PerSetSections):
     """Settings of the relay stage (`cfg["relay"]`); defaults follow the paper.
 
     Foreground copies use the paper's foreground settings (position lr 1e-3, densify gradient
@@ -64,6 +57,7 @@ class RelayConfig:
     only matter with `freeze_background: false`.
     """
 
+    stage: ClassVar[str] = STAGE
     steps: int = 14000
     k: int = 16
     pseudo_views: bool = True
@@ -104,21 +98,14 @@ class RelayConfig:
 
     def plans(self) -> dict[str, SetPlan]:
         """Training plan of the foreground copies and (when trained) the background."""
-        plans = {"fg": SetPlan(self._rates("lr_fg"), self._densify("densify_fg"), self.sh_every)}
+        plans = {"fg": SetPlan(self.set_rates("fg"), self.set_densify("fg"), self.sh_every)}
         if not self.freeze_background:
-            plans["bg"] = SetPlan(self._rates("lr_bg"), self._densify("densify_bg"), self.sh_every)
+            plans["bg"] = SetPlan(self.set_rates("bg"), self.set_densify("bg"), self.sh_every)
         return plans
 
     def hull(self) -> HullSettings:
         """Visual-hull settings of `seed_copies: carve`."""
         return HullSettings(self.hull_residual, self.hull_voxels, self.hull_misses)
-
-    def _rates(self, key: str) -> SetLearningRates:
-        return learning_rates(getattr(self, key), self.steps, f"{STAGE}.{key}")
-
-    def _densify(self, key: str) -> DensifySettings:
-        base = FOREGROUND_DENSIFY if key == "densify_fg" else BACKGROUND_DENSIFY
-        return densify_settings(getattr(self, key), base, f"{STAGE}.{key}")
 
 
 def relay(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, Any]) -> Artifact:
