@@ -17,10 +17,10 @@ import cv2
 import numpy as np
 import torch
 from torch import Tensor
-from tqdm import tqdm
 
 from relaygs.data import Scene
 from relaygs.errors import InputError, RelayGSError
+from relaygs.progress import progress_bar
 from relaygs.stages.model_render import ModelRenderer
 from relaygs.stages.scene_model import SceneModel
 
@@ -88,7 +88,9 @@ def write_renders(
     sinks = {camera: _CameraSink(out, camera, settings.fps) for camera in cameras}
     frames = range(0, scene.num_frames, settings.frame_stride)
     try:
-        for frame in tqdm(frames, desc="render", unit="frame", disable=not progress, leave=False):
+        for frame in progress_bar(
+            frames, desc="render", unit="frame", disable=not progress, leave=False
+        ):
             views = [v for v in scene.views_at(frame, "all") if v.camera.camera_id in sinks]
             if not views:
                 continue

@@ -9,11 +9,11 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from torch import Tensor
-from tqdm import tqdm
 
 from relaygs.errors import Interrupted
 from relaygs.pipeline.checkpoint import StageCheckpointer
 from relaygs.pipeline.context import current_build
+from relaygs.progress import progress_bar
 from relaygs.stages import log
 from relaygs.stages.loss import batch_psnr
 from relaygs.stages.render import Render
@@ -111,7 +111,9 @@ def run_training(
         tracker.load_state(state.extras["losses"])
         previous_seconds = float(state.extras["seconds"])
     began = time.perf_counter()
-    bar = tqdm(total=steps, initial=start, desc=stage, disable=not train.progress, leave=False)
+    bar = progress_bar(
+        total=steps, initial=start, desc=stage, disable=not train.progress, leave=False
+    )
 
     def train_step(step: int) -> None:
         rates = session.prepare_step(step)
@@ -126,7 +128,7 @@ def run_training(
         if step % train.log_every == 0 or step == steps or images is not None:
             scalars = _scalars(loss, result, rates, counts)
             log.emit(stage, step, scalars, images)
-            bar.set_postfix(loss=f"{loss:.4f}", psnr=f"{scalars['psnr']:.2f}")
+            bar.set_postfix(loss=f"{loss:.4f}", psnr=f"{scalars['psnr']:.2f}", refresh=False)
         if checkpointer is not None:
             seconds = previous_seconds + time.perf_counter() - began
             checkpointer.maybe_save(

@@ -1,0 +1,56 @@
+"""Progress bars: live in a terminal, throttled when written to a log file."""
+
+from __future__ import annotations
+
+import io
+
+from relaygs.progress import LOG_INTERVAL_S, is_terminal, progress_bar
+
+
+class _Terminal(io.StringIO):
+    """A text stream that says it is a terminal."""
+
+    def isatty(self) -> bool:
+        return True
+
+
+class _Clock:
+    """A clock that moves one second each time it is read: 200 updates span minutes."""
+
+    def __init__(self, start: float) -> None:
+        self.now = start
+
+    def __call__(self) -> float:
+        self.now += 1.0
+        return self.now
+
+
+def _records(stream: io.StringIO, updates: int) -> int:
+    """Carriage-return records written by a bar over `updates` updates a second or more apart."""
+    with progress_bar(total=updates, stream=stream) as bar:
+        bar._time = _Clock(bar.last_print_t)  # tqdm reads its clock through this attribute
+        for _ in range(updates):
+            bar.update(1)
+    return stream.getvalue().count("\r")
+
+
+def test_a_log_file_gets_the_throttled_interval_and_a_terminal_keeps_tqdm_s() -> None:
+    with progress_bar(total=10, stream=io.StringIO()) as logged:
+        assert logged.mininterval == LOG_INTERVAL_S
+        assert logged.maxinterval == LOG_INTERVAL_S
+    with progress_bar(total=10, stream=_Terminal()) as live:
+        assert live.mininterval < 1.0
+
+
+def test_a_logged_bar_redraws_every_half_minute_where_a_live_one_redraws_each_second() -> None:
+    logged, live = _records(io.StringIO(), 200), _records(_Terminal(), 200)
+    assert 3 <= logged <= 2 * 200 / LOG_INTERVAL_S + 3  # still alive, but sparse
+    assert live >= 100
+
+
+def test_is_terminal_is_false_for_closed_and_plain_streams() -> None:
+    closed = io.StringIO()
+    closed.close()
+    assert not is_terminal(closed)
+    assert not is_terminal(io.StringIO())
+    assert is_terminal(_Terminal())
