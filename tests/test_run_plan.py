@@ -60,6 +60,11 @@ def test_checkpoint_interval_does_not_change_any_key(config):
     assert _keys(_plan(config)) == _keys(_plan(config, train__checkpoint_every=7))
 
 
+def test_progress_follows_train_progress(config):
+    assert _plan(config).progress
+    assert not _plan(config, train__progress=False).progress
+
+
 def test_pipeline_overrides_pin_the_4dgs_deform_settings(config):
     plan = _plan(config, pipeline__name="4dgs", deform__gamma=True)
     deform = plan.config_for(plan.pipeline.nodes["deform"])["deform"]

@@ -93,6 +93,15 @@ def test_static_frames_are_identical_and_have_no_foreground(tmp_path: Path):
         assert not any(mask.any() for mask in _images(root, "seg", camera))
 
 
+def test_a_progress_bar_counts_the_rendered_views_only_when_asked(tmp_path: Path, capsys):
+    generate("static", tmp_path / "quiet", **TINY_SYNTH_SIZE)
+    assert capsys.readouterr().err == ""
+    generate("static", tmp_path / "shown", progress=True, **TINY_SYNTH_SIZE)
+    views = len(PRESETS["static"].rig(32, 18)) * TINY_SYNTH_SIZE["frames"]
+    shown = capsys.readouterr().err
+    assert shown.startswith("\r") and "generate:" in shown and f"0/{views} " in shown
+
+
 def test_court_without_effects_is_still_and_each_background_effect_adds_motion(tmp_path: Path):
     size = {"frames": 4, "width": 32, "height": 18}
     still = generate("court", tmp_path / "still", effects=[], **size)

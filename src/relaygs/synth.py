@@ -70,6 +70,7 @@ def main(argv: list[str] | None = None) -> int:
             height=args.height,
             seed=args.seed,
             effects=parse_effect_list(args.effects),
+            progress=True,
         )
     except RelayGSError as error:
         print(f"error: {error}", file=sys.stderr)

@@ -42,6 +42,11 @@ class RunPlan:
     eval_config: dict[str, Any]
     threads: int | None = None
 
+    @property
+    def progress(self) -> bool:
+        """Whether progress bars are shown (`train.progress`, on unless set false)."""
+        return bool(self.eval_config["train"].get("progress", True))
+
     def config_for(self, node: Node) -> dict[str, Any]:
         """The stage config node `node` runs with (what `run_pipeline` asks for)."""
         return self.node_configs[node.name]

@@ -100,8 +100,9 @@ def synthetic_folder(spec: SceneSpec, scenes_dir: Path) -> Path:
     return scenes_dir / f"{spec.preset}-{digest[:HASH_LENGTH]}"
 
 
-def prepare_scene(spec: SceneSpec, scenes_dir: Path) -> Scene:
-    """Load the scene, generating a synthetic one first if its cache folder is missing."""
+def prepare_scene(spec: SceneSpec, scenes_dir: Path, progress: bool = True) -> Scene:
+    """Load the scene, generating a synthetic one first if its cache folder is missing
+    (`progress`: with a bar over the rendered views)."""
     if not spec.is_synthetic:
         return load_scene(spec.path, **spec.loader, effects=spec.effects)
     folder = synthetic_folder(spec, scenes_dir)
@@ -118,6 +119,7 @@ def prepare_scene(spec: SceneSpec, scenes_dir: Path) -> Scene:
                 height=spec.height,
                 seed=spec.seed,
                 effects=spec.effects,
+                progress=progress,
             )
     return load_scene(folder, **spec.loader)
 

@@ -93,7 +93,7 @@ def _execute(
     """Prepare the scene, run the stages, evaluate and log."""
     if plan.threads is not None:
         torch.set_num_threads(plan.threads)
-    scene = prepare_scene(plan.scene, plan.scenes_dir)
+    scene = prepare_scene(plan.scene, plan.scenes_dir, progress=plan.progress)
     store = ArtifactStore(plan.artifacts_root)
     log = TensorBoardLog(Path(run_dir) / TENSORBOARD_DIR)
     suite.add_sink(log)

@@ -29,6 +29,7 @@ from relaygs.data.synthetic.sensor import (
 )
 from relaygs.data.synthetic.world import World
 from relaygs.errors import InputError
+from relaygs.progress import progress_bar
 
 GENERATOR = "relaygs.synth"
 GENERATOR_VERSION = "1"
@@ -49,11 +50,13 @@ def generate(
     height: int = 90,
     seed: int = 0,
     effects: Iterable[str] | None = None,
+    progress: bool = False,
 ) -> Path:
     """Write preset `preset` to `out_dir` (Panoptic layout + scene.json); returns the folder.
 
     `effects=None` uses the preset's default effects; otherwise exactly the given ones are
     simulated. An existing folder is replaced only if it holds a previously generated scene.
+    `progress` shows a bar over the rendered views on stderr.
     """
     recipe = PRESETS.get(preset)
     if recipe is None:
@@ -74,7 +77,7 @@ def generate(
     out = Path(out_dir).expanduser().absolute()
     staging = _staging_folder(out)
     try:
-        _write_scene(world, staging, declared, seed)
+        _write_scene(world, staging, declared, seed, progress)
         _write_json(staging / SCENE_JSON, _declaration(recipe, world, declared, seed))
         if out.exists():
             shutil.rmtree(out)
@@ -150,7 +153,9 @@ def _declaration(recipe: Preset, world: World, effects: frozenset[str], seed: in
     }
 
 
-def _write_scene(world: World, folder: Path, effects: frozenset[str], seed: int) -> None:
+def _write_scene(
+    world: World, folder: Path, effects: frozenset[str], seed: int, progress: bool
+) -> None:
     """Render every camera and frame into ims/ and seg/, then the meta files and point cloud."""
     num_frames = len(world.times_s)
     static = Layer([primitive for primitive in world.primitives if not primitive.animated])
@@ -166,24 +171,33 @@ def _write_scene(world: World, folder: Path, effects: frozenset[str], seed: int)
         1, min(round(POINTS_PER_PIXEL * world.width * world.height), MAX_POINTS // len(train_ids))
     )
     points = []
-    for camera_id, camera in enumerate(world.cameras):
-        rays = camera_rays(camera, world.width, world.height, SUPERSAMPLE)
-        base = Buffers.empty(rays.shape)
-        static.render(static_pose, 0.0, rays, base)
-        (folder / "ims" / str(camera_id)).mkdir(parents=True)
-        (folder / "seg" / str(camera_id)).mkdir(parents=True)
-        encoded: tuple[bytes, bytes] | None = None
-        for frame in range(num_frames):
-            if encoded is None or animated or noisy:
-                buffers = base.copy() if animated else base
-                dynamic.render(dynamic_poses[frame], world.times_s[frame], rays, buffers)
-                if frame == 0 and camera_id in train_ids:
-                    points.append(_surface_points(buffers, rays, per_camera, points_rng))
-                noise = noise_generator(seed, camera_id, frame) if noisy else None
-                encoded = _encode_view(buffers, gains[camera_id], offsets[camera_id], noise)
-            name = f"{camera_id}/{frame:06d}.png"
-            (folder / "ims" / name).write_bytes(encoded[0])
-            (folder / "seg" / name).write_bytes(encoded[1])
+    views = progress_bar(
+        total=len(world.cameras) * num_frames,
+        desc="generate",
+        unit="view",
+        disable=not progress,
+        leave=False,
+    )
+    with views:
+        for camera_id, camera in enumerate(world.cameras):
+            rays = camera_rays(camera, world.width, world.height, SUPERSAMPLE)
+            base = Buffers.empty(rays.shape)
+            static.render(static_pose, 0.0, rays, base)
+            (folder / "ims" / str(camera_id)).mkdir(parents=True)
+            (folder / "seg" / str(camera_id)).mkdir(parents=True)
+            encoded: tuple[bytes, bytes] | None = None
+            for frame in range(num_frames):
+                if encoded is None or animated or noisy:
+                    buffers = base.copy() if animated else base
+                    dynamic.render(dynamic_poses[frame], world.times_s[frame], rays, buffers)
+                    if frame == 0 and camera_id in train_ids:
+                        points.append(_surface_points(buffers, rays, per_camera, points_rng))
+                    noise = noise_generator(seed, camera_id, frame) if noisy else None
+                    encoded = _encode_view(buffers, gains[camera_id], offsets[camera_id], noise)
+                name = f"{camera_id}/{frame:06d}.png"
+                (folder / "ims" / name).write_bytes(encoded[0])
+                (folder / "seg" / name).write_bytes(encoded[1])
+                views.update(1)
     test_ids = list(world.test_cameras)
     _write_json(folder / "train_meta.json", _meta(world, train_ids))
     _write_json(folder / "test_meta.json", _meta(world, test_ids))
