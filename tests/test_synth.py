@@ -10,6 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
+from conftest import TINY_SYNTH_SIZE
 from relaygs.data import load_scene
 from relaygs.data.effects import (
     BACKGROUND_JITTER,
@@ -27,8 +28,6 @@ from relaygs.data.synthetic.rig import look_at
 from relaygs.data.synthetic.sensor import NOISE_SIGMA
 from relaygs.data.synthetic.world import RigCamera
 from relaygs.errors import InputError
-
-TINY_SYNTH_SIZE = {"frames": 6, "width": 32, "height": 18}
 
 
 def _images(root: Path, folder: str, camera: int) -> list[np.ndarray]:
@@ -97,7 +96,8 @@ def test_a_progress_bar_counts_the_rendered_views_only_when_asked(tmp_path: Path
     generate("static", tmp_path / "quiet", **TINY_SYNTH_SIZE)
     assert capsys.readouterr().err == ""
     generate("static", tmp_path / "shown", progress=True, **TINY_SYNTH_SIZE)
-    views = len(PRESETS["static"].rig(32, 18)) * TINY_SYNTH_SIZE["frames"]
+    size = TINY_SYNTH_SIZE
+    views = len(PRESETS["static"].rig(size["width"], size["height"])) * size["frames"]
     shown = capsys.readouterr().err
     assert shown.startswith("\r") and "generate:" in shown and f"0/{views} " in shown
 
