@@ -99,6 +99,15 @@ def test_a_launcher_whose_plugin_is_missing_names_the_package(fakes, monkeypatch
     assert "pip install hydra-joblib-launcher" in capsys.readouterr().err
 
 
+def test_help_lists_examples_and_experiments_and_does_no_work(fakes, tmp_path, capsys):
+    assert _main(["--help"]) in (0, None)
+    shown = capsys.readouterr().out
+    assert shown.startswith("python -m relaygs.run: train and evaluate RelayGS")
+    assert "python -m relaygs.run +experiment=ablation_k" in shown
+    assert "experiment: ablation_components, ablation_k, baseline, budget, smoke" in shown
+    assert not (tmp_path / "outputs").exists()
+
+
 def test_a_single_run_writes_its_result_in_a_run_dir_under_outputs(fakes, tmp_path):
     assert _main(["budget=smoke", *TINY_SCENE, "seed=3"]) == 0
     (result_path,) = tmp_path.glob("outputs/runs/*/result.json")
