@@ -141,6 +141,8 @@ def test_eval_scores_a_stored_model_like_the_evaluator(stage_scene_path, stage_d
     )
     assert f"psnr            {expected['psnr']:.4f}" in done.stdout
     assert f"num_fg          {expected['num_fg']}" in done.stdout
+    stored_mb = store.manifest("decouple", key).size_mb  # what result.json reports
+    assert f"storage_mb      {stored_mb:.4f}" in done.stdout
 
 
 def test_eval_names_a_missing_scene_and_a_bad_stride(store, capsys, tmp_path):

@@ -128,7 +128,7 @@ def test_training_loss_falls(stage_scene: Scene, stage_relayed: Artifact) -> Non
 
 def test_test_metrics_are_finite(stage_deformed: Artifact, stage_scene: Scene) -> None:
     metrics = evaluate(stage_scene, stage_deformed, stage_smoke_cfg(eval={"frame_stride": 3}))
-    for key in ("psnr", "ssim", "fg_psnr", "render_fps", "storage_mb"):
+    for key in ("psnr", "ssim", "fg_psnr", "render_fps"):
         assert math.isfinite(metrics[key]) and metrics[key] > 0, key
     assert metrics["num_gaussians"] == stage_deformed.meta["counts"]["total"]
     frames = len(range(0, stage_scene.num_frames, 3))

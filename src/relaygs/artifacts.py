@@ -59,7 +59,9 @@ def _parser() -> argparse.ArgumentParser:
         "--scene", type=Path, required=True, help="the scene folder it was trained on"
     )
     score.add_argument("--frame-stride", type=int, default=1, help="score every N-th frame")
-    score.add_argument("--downscale", type=int, default=1, help="the run's image downscale factor")
+    score.add_argument(
+        "--downscale", type=int, default=1, help="the run's scene.loader.downscale (default 1)"
+    )
     score.set_defaults(command_fn=_eval)
     render = commands.add_parser(
         "render",
@@ -110,7 +112,7 @@ def _ls(store: ArtifactStore, args: argparse.Namespace) -> int:
         upstream = ",".join(f"{e.stage}:{e.key[:8]}" for e in manifest.lineage) or "-"
         print(
             f"{item.stage:<12} {item.key[:KEY_COLUMN_WIDTH]:<{KEY_COLUMN_WIDTH}} "
-            f"{manifest.size_bytes / 1e6:>9.3f} {manifest.wall_seconds:>9.2f}  "
+            f"{manifest.size_mb:>9.3f} {manifest.wall_seconds:>9.2f}  "
             f"{manifest.created}  {upstream}"
         )
     print(f"{len(items)} artifact(s) in {store.root}")
@@ -137,6 +139,7 @@ def _eval(store: ArtifactStore, args: argparse.Namespace) -> int:
     item, artifact = _model_artifact(store, args.key)
     scene = load_scene(args.scene, downscale=args.downscale)
     metrics = evaluate(scene, artifact, {"eval": {"frame_stride": args.frame_stride}})
+    metrics["storage_mb"] = item.manifest.size_mb  # as a run's result.json reports it
     print(f"{item.stage} {item.key[:KEY_COLUMN_WIDTH]} on {args.scene}")
     for name, value in metrics.items():
         if isinstance(value, float):

@@ -116,7 +116,7 @@ def _execute(
         previews = config["tensorboard"]["preview_frames"]
         _log_previews(log, suite, scene, run.output, previews)
         output = run.reports[-1]
-        storage_mb = store.manifest(output.stage, output.key).size_bytes / 1e6
+        storage_mb = store.manifest(output.stage, output.key).size_mb
         result = build_result(config, plan, run, evaluation, storage_mb, overrides, job)
         hparams = {k: v for k, v in config.items() if k not in HPARAM_EXCLUDED_SECTIONS}
         logged = (*METRIC_FIELDS, "train_s_total", "train_s_computed", "storage_mb")

@@ -45,6 +45,11 @@ class Manifest:
         """Bytes of the artifact's data files (tensors and meta)."""
         return sum(int(entry["bytes"]) for entry in self.files.values())
 
+    @property
+    def size_mb(self) -> float:
+        """The artifact's size on disk in MB (10^6 bytes): the storage every table reports."""
+        return self.size_bytes / 1e6
+
 
 def describe_files(folder: Path, names: list[str]) -> dict[str, dict[str, Any]]:
     """Per-file sha256 and size for the manifest."""

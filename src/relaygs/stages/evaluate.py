@@ -2,7 +2,7 @@
 
 PSNR and SSIM are per image, averaged; fg-PSNR runs over ground-truth foreground pixels of
 the images that have a non-empty mask (None when the scene has no masks); render FPS counts
-rendering only (no metric time); storage is the artifact's tensor bytes in MiB.
+rendering only (no metric time). Storage is the store's to report (`Manifest.size_mb`).
 """
 
 from __future__ import annotations
@@ -21,8 +21,6 @@ from relaygs.stages.config import parse_section, require
 from relaygs.stages.model_render import ModelRenderer
 from relaygs.stages.scene_model import SceneModel
 from relaygs.stages.train_settings import TrainSettings
-
-MIB = 1024 * 1024
 
 
 @dataclass(frozen=True)
@@ -75,7 +73,6 @@ def evaluate(scene: Scene, artifact: Artifact, cfg: Mapping[str, Any]) -> dict[s
         "num_gaussians": n_bg + n_fg,
         "num_bg": n_bg,
         "num_fg": n_fg,
-        "storage_mb": artifact.nbytes / MIB,
         "num_test_images": rendered,
     }
 
