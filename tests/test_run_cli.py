@@ -2,6 +2,7 @@
 multirun, the sweep-summary callback) driven in-process on fake stages."""
 
 import functools
+import io
 import json
 import subprocess
 import sys
@@ -117,6 +118,29 @@ def test_a_single_run_writes_its_result_in_a_run_dir_under_outputs(fakes, tmp_pa
     assert (result_path.parent / "tb").is_dir()
     assert (tmp_path / "outputs" / "artifacts" / "deform").is_dir()
     assert len(list((tmp_path / "outputs" / "scenes").glob("juggle-*"))) == 1
+
+
+class _FlushLog(io.StringIO):
+    """Stdout that keeps what had been written at each flush, as a log file would show it."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.flushed: list[str] = []
+
+    def flush(self) -> None:
+        self.flushed.append(self.getvalue())
+
+
+def test_each_stage_line_and_a_jobs_summary_reach_the_log_when_printed(fakes, monkeypatch):
+    log = _FlushLog()
+    monkeypatch.setattr(sys, "stdout", log)
+    assert _main(["-m", "budget=smoke", *TINY_SCENE, "seed=3,4"]) == 0
+    ends = [text.rstrip("\n").rsplit("\n", 1)[-1] for text in log.flushed]
+    for node in ("decouple", "relay", "deform"):
+        assert any(end.startswith(f"[{node}] built {node} artifact") for end in ends), node
+    assert any(end.startswith("[eval] evaluated the test views") for end in ends)
+    jobs_done = [end for end in ends if end.lstrip().startswith("videos ")]
+    assert len(set(jobs_done)) == 2  # job 0's summary is out before job 1 starts
 
 
 def test_ablation_k_sweep_shares_decouple_and_writes_the_summary(fakes, tmp_path):

@@ -78,7 +78,7 @@ def run_task(
     result["job_s"] = time.perf_counter() - started
     result_path = write_result(run_dir, result)
     print(format_summary(result))
-    print(_where(plan, outcome, result_path))
+    print(_where(plan, outcome, result_path), flush=True)  # before a sweep's next job starts
     return result
 
 
@@ -128,26 +128,25 @@ def _execute(
 
 
 def _announce(report: NodeReport) -> None:
-    """Say whether a node's artifact was reused from the store or built now."""
-    key = report.key[:12]
+    """Say whether a node's artifact was reused from the store or built now (flushed at once,
+    so a log file shows each stage as it ends, in order with the progress bars on stderr)."""
+    key, seconds = report.key[:12], report.wall_seconds
     if report.cache_hit:
-        print(
-            f"[{report.node}] reused {report.stage} artifact {key} from the store "
-            f"(built earlier in {report.wall_seconds:.1f} s)",
-            flush=True,
-        )
+        line = f"reused {report.stage} artifact {key} from the store "
+        line += f"(built earlier in {seconds:.1f} s)"
     else:
-        print(f"[{report.node}] built {report.stage} artifact {key} in {report.wall_seconds:.1f} s")
+        line = f"built {report.stage} artifact {key} in {seconds:.1f} s"
+    print(f"[{report.node}] {line}", flush=True)
 
 
 def _announce_evaluation(evaluation: Evaluation) -> None:
-    """Say whether the test metrics were read back from the store or computed now."""
-    key = evaluation.key[:12]
-    seconds = evaluation.wall_seconds
+    """Say whether the test metrics were read back from the store or computed now (flushed)."""
+    key, seconds = evaluation.key[:12], evaluation.wall_seconds
     if evaluation.cache_hit:
-        print(f"[eval] reused evaluation {key} from the store (made earlier in {seconds:.1f} s)")
+        line = f"reused evaluation {key} from the store (made earlier in {seconds:.1f} s)"
     else:
-        print(f"[eval] evaluated the test views in {seconds:.1f} s (stored as {key})")
+        line = f"evaluated the test views in {seconds:.1f} s (stored as {key})"
+    print(f"[eval] {line}", flush=True)
 
 
 def _log_previews(
