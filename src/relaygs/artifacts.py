@@ -79,7 +79,9 @@ def _parser() -> argparse.ArgumentParser:
         help="camera id to render (repeat for more; default: the test cameras)",
     )
     render.add_argument("--frame-stride", type=int, default=1, help="render every N-th frame")
-    render.add_argument("--downscale", type=int, default=1, help="image downscale factor")
+    render.add_argument(
+        "--downscale", type=int, default=1, help="the run's scene.loader.downscale (default 1)"
+    )
     render.add_argument("--truth", action="store_true", help="put the ground truth beside")
     render.add_argument("--fps", type=float, default=15.0, help="video frame rate (default 15)")
     render.add_argument("--no-video", action="store_true", help="write PNG frames only")
