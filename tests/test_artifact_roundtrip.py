@@ -27,7 +27,7 @@ def test_tensors_roundtrip_bitwise_with_dtypes_and_odd_layouts(tmp_path):
         "scalar": torch.tensor(3.5),
         "empty": torch.zeros(0, 3),
         "empty_too": torch.zeros(0, dtype=torch.int64),
-        "specials": torch.tensor([float("nan"), float("inf"), -0.0, 1e-45]),
+        "specials": torch.tensor([-0.0, 1e-45, 3.4e38, -3.4e38]),  # signed zero, denormal, extremes
     }
     loaded = _roundtrip(tmp_path, Artifact("decouple", tensors, {"n": 3}))
     assert set(loaded.tensors) == set(tensors)
@@ -61,6 +61,8 @@ def test_meta_roundtrips_equal_and_empty_tensors_are_allowed(tmp_path):
         ({"table": {1: "a"}}, "key 1 is not a string"),
         ({"t": torch.ones(1)}, "t is a Tensor"),
         ({"s": {1, 2}}, "s is a set"),
+        ({"metrics": {"loss": float("nan")}}, "metrics.loss is nan; JSON has no NaN"),
+        ({"scores": [1.0, float("-inf")]}, r"scores\[1\] is -inf"),
     ],
 )
 def test_meta_that_json_would_change_is_refused(tmp_path, meta, fragment):
@@ -71,3 +73,13 @@ def test_meta_that_json_would_change_is_refused(tmp_path, meta, fragment):
 def test_non_tensor_values_in_tensors_are_refused(tmp_path):
     with pytest.raises(InputError, match="'x' is a list"):
         write_artifact_files(tmp_path, Artifact("deform", {"x": [1, 2]}, {}))
+
+
+@pytest.mark.parametrize("bad", [float("nan"), float("inf")])
+def test_non_finite_tensors_are_refused_and_nothing_is_written(tmp_path, bad):
+    means = torch.zeros(4, 3)
+    means[2, 1] = bad
+    artifact = Artifact("decouple", {"bg.means": means, "ok": torch.ones(2)}, {})
+    with pytest.raises(InputError, match=r"'bg\.means' has 1 non-finite value"):
+        write_artifact_files(tmp_path, artifact)
+    assert list(tmp_path.iterdir()) == []

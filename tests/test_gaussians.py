@@ -7,7 +7,7 @@ import torch
 
 from relaygs.errors import InputError
 from relaygs.model import MAX_LOG_SCALE, SH_C0, GaussianSet, mean_sq_knn_distance
-from relaygs.model.gaussians import normalize_quats, sh_degree_for_step
+from relaygs.model.gaussians import inverse_sigmoid, normalize_quats, sh_degree_for_step
 
 
 def random_set(n: int = 6, seed: int = 0) -> GaussianSet:
@@ -141,3 +141,11 @@ def test_registry_rejects_bad_names_and_shapes() -> None:
         g.add_param("delta", torch.zeros(3, 3))
     with pytest.raises(InputError, match="floating point"):
         g.add_param("ids", torch.zeros(4, dtype=torch.int64))
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float16, torch.bfloat16, torch.float64])
+def test_inverse_sigmoid_is_finite_at_0_and_1_in_every_float_dtype(dtype):
+    logits = inverse_sigmoid(torch.tensor([0.0, 0.5, 1.0], dtype=dtype))
+    assert logits.dtype == dtype
+    assert torch.isfinite(logits).all()
+    assert logits[0] < 0 == logits[1] < logits[2]

@@ -47,8 +47,9 @@ def test_psnr_of_a_known_error_is_exact():
     assert psnr(gt - 0.01, gt).item() == pytest.approx(40.0, abs=1e-3)
 
 
-def test_psnr_of_identical_images_is_capped_at_100_db():
-    image = torch.rand(4, 5, 3)
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float16, torch.bfloat16])
+def test_psnr_of_identical_images_is_capped_at_100_db(dtype):
+    image = torch.rand(4, 5, 3).to(dtype)
     value = psnr(image, image)
     assert math.isfinite(value.item())
     assert value.item() == pytest.approx(100.0)

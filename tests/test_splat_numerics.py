@@ -111,8 +111,9 @@ def test_quaternion_norm_does_not_change_the_image(quat):
     )
 
 
-def test_zero_quaternion_renders_as_identity_with_zero_gradient():
-    zero = with_grad(_base_scene({"quats": [0.0] * 4, "scales": [0.3, 0.1, 0.05]}))
+@pytest.mark.parametrize("quat", [[0.0] * 4, [1e-39, -2e-39, 0.0, 0.0]])  # zero, denormal
+def test_vanishing_quaternion_renders_as_identity_with_zero_gradient(quat):
+    zero = with_grad(_base_scene({"quats": quat, "scales": [0.3, 0.1, 0.05]}))
     ident = _base_scene({"quats": [1.0, 0, 0, 0], "scales": [0.3, 0.1, 0.05]})
     colors, _, _, grads = render_and_grads(rasterization, zero)
     torch.testing.assert_close(colors, rasterization(**ident)[0], rtol=0, atol=1e-6)

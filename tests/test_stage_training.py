@@ -12,12 +12,13 @@ import torch
 from conftest import stage_smoke_cfg
 from relaygs.data import Scene
 from relaygs.errors import DivergenceError, Interrupted
-from relaygs.pipeline.artifact import Artifact
+from relaygs.pipeline.artifact import Artifact, write_artifact_files
 from relaygs.pipeline.context import BuildContext, building
 from relaygs.pipeline.store import ArtifactStore
 from relaygs.stages import STAGES, log
 from relaygs.stages import relay as relay_module
 from relaygs.stages.loss import photometric_loss
+from relaygs.stages.session import TrainingSession
 
 KEY = "ab" * 32
 
@@ -112,6 +113,37 @@ def test_divergence_names_stage_step_tensor_and_stores_nothing(
     checkpoints = store.root / "decouple" / f"{KEY}.ckpt"
     saved = [int(p.name.split("-")[1]) for p in checkpoints.glob("step-*")]
     assert all(saved_step < step for saved_step in saved)
+
+
+def test_non_finite_optimiser_step_stops_before_its_checkpoint(
+    stage_scene: Scene, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    apply_gradients = TrainingSession.apply_gradients
+
+    def poisoned_at_step_4(self, renders, step):
+        reports = apply_gradients(self, renders, step)
+        if step == 4:
+            with torch.no_grad():
+                next(iter(self.sets.values())).params["opacity_logits"][0] = float("inf")
+        return reports
+
+    monkeypatch.setattr(TrainingSession, "apply_gradients", poisoned_at_step_4)
+    cfg = stage_smoke_cfg(train={"checkpoint_every": 2})
+    with pytest.raises(
+        DivergenceError, match=r"'decouple' diverged at step 4: tensor 'all.opacity_logits'"
+    ):
+        _run("decouple", stage_scene, {}, cfg, tmp_path)
+    checkpoints = tmp_path / "decouple" / f"{KEY}.ckpt"
+    assert sorted(p.name for p in checkpoints.glob("step-*")) == [f"step-{2:012d}"]
+
+
+def test_a_stage_of_zero_steps_stores_no_loss(stage_scene: Scene, tmp_path: Path) -> None:
+    cfg = stage_smoke_cfg(decouple={"steps": 0})
+    artifact = _run("decouple", stage_scene, {}, cfg, tmp_path)
+    metrics = artifact.meta["metrics"]
+    assert (metrics["steps"], metrics["initial_loss"], metrics["final_loss"]) == (0, None, None)
+    write_artifact_files(tmp_path, artifact)
+    assert '"final_loss": null' in (tmp_path / "meta.json").read_text()
 
 
 def test_non_finite_loss_stops_the_stage(

@@ -60,9 +60,9 @@ def train(ckpt: StageCheckpointer | None, total_steps: int, step_sleep: float = 
     for step in range(start, total_steps):
         _one_step(param, optimizer)
         time.sleep(step_sleep)
-        if ckpt is not None:
+        if ckpt is not None and ckpt.due(step + 1):
             extras = {"note": "resume", "loss_history": [step + 1]}
-            ckpt.maybe_save(step + 1, {"param": param}, {"adam": optimizer}, extras)
+            ckpt.save(step + 1, {"param": param}, {"adam": optimizer}, extras)
         if log is not None:
             log(f"step {step + 1}")
     return param.detach().clone(), start

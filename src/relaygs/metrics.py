@@ -94,6 +94,8 @@ def _batched(pred: torch.Tensor, gt: torch.Tensor) -> tuple[torch.Tensor, torch.
         raise ValueError(
             f"expected float images [H,W,C] or [B,H,W,C], got {pred.dtype} {list(pred.shape)}"
         )
+    wide = torch.promote_types(pred.dtype, torch.float32)  # MSE_FLOOR is 0 in half precision
+    pred, gt = pred.to(wide), gt.to(wide)
     if pred.ndim == 3:
         return pred.unsqueeze(0), gt.unsqueeze(0)
     return pred, gt

@@ -40,9 +40,10 @@ def sh_degree_for_step(step: int, max_degree: int, every: int = 1000) -> int:
 
 
 def inverse_sigmoid(p: Tensor, eps: float = 1e-6) -> Tensor:
-    """Logit of probabilities clamped to [eps, 1 − eps] so the result is always finite."""
-    p = p.clamp(eps, 1.0 - eps)
-    return torch.log(p / (1.0 - p))
+    """Logit of probabilities clamped to [eps, 1 − eps] so the result is always finite
+    (computed in at least float32: in half precision 1 − eps would round to 1)."""
+    wide = p.to(torch.promote_types(p.dtype, torch.float32)).clamp(eps, 1.0 - eps)
+    return torch.log(wide / (1.0 - wide)).to(p.dtype)
 
 
 def normalize_quats(quats: Tensor) -> Tensor:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -62,6 +63,12 @@ def _cpu_owned(name: str, tensor: Any, seen_storages: set[int]) -> torch.Tensor:
     if not isinstance(tensor, torch.Tensor):
         raise InputError(f"artifact tensor {name!r} is a {type(tensor).__name__}, not a tensor")
     cpu = tensor.detach().to("cpu")
+    if cpu.is_floating_point() and not bool(torch.isfinite(cpu).all()):
+        bad = int((~torch.isfinite(cpu)).sum())
+        raise InputError(
+            f"artifact tensor {name!r} has {bad} non-finite value(s) of {cpu.numel()}; "
+            "artifacts hold finite values only"
+        )
     storage = cpu.untyped_storage()
     owns_storage = (
         cpu.is_contiguous()
@@ -78,12 +85,13 @@ def _cpu_owned(name: str, tensor: Any, seen_storages: set[int]) -> torch.Tensor:
 def _meta_json(artifact: Artifact) -> str:
     """Serialise meta after checking it round-trips exactly through JSON."""
     check_json_exact(artifact.meta, f"{artifact.stage} artifact meta")
-    return json.dumps(artifact.meta, sort_keys=True, indent=1)
+    return json.dumps(artifact.meta, sort_keys=True, indent=1, allow_nan=False)
 
 
 def check_json_exact(value: Any, where: str) -> None:
     """Raise InputError unless `value` survives a JSON round trip unchanged (no tuples, no
-    non-string keys, no numpy/torch objects); `where` names the value in the message."""
+    non-string keys, no NaN or infinity, no numpy/torch objects); `where` names the value in
+    the message."""
     if isinstance(value, dict):
         for key, item in value.items():
             if not isinstance(key, str):
@@ -92,6 +100,8 @@ def check_json_exact(value: Any, where: str) -> None:
     elif isinstance(value, list):
         for index, item in enumerate(value):
             check_json_exact(item, f"{where}[{index}]")
+    elif isinstance(value, float) and not math.isfinite(value):
+        raise InputError(f"{where} is {value}; JSON has no NaN or infinity")
     elif value is not None and not isinstance(value, str | int | float | bool):
         raise InputError(
             f"{where} is a {type(value).__name__}; expected a JSON value "

@@ -71,19 +71,6 @@ class StageCheckpointer:
         """The last step at or before `step` after which a checkpoint was due (0: none yet)."""
         return step - step % self.every_n_steps
 
-    def maybe_save(
-        self,
-        step: int,
-        tensors: Mapping[str, torch.Tensor],
-        optimizers: Mapping[str, torch.optim.Optimizer] | None = None,
-        extras: Mapping[str, Any] | None = None,
-    ) -> bool:
-        """`save` when `due(step)`; returns whether a checkpoint was written."""
-        if not self.due(step):
-            return False
-        self.save(step, tensors, optimizers, extras)
-        return True
-
     def save(
         self,
         step: int,

@@ -40,11 +40,13 @@ def quat_to_rotmat(quats: torch.Tensor) -> torch.Tensor:
     """Rotation matrices [N,3,3] from wxyz quaternions of any norm.
 
     The quaternion is first divided by its largest component (no overflow for huge
-    values, no underflow for tiny ones); a zero quaternion maps to the identity with
-    zero gradient.
+    values, no underflow for tiny ones). One whose largest component is below the square
+    root of the dtype's smallest normal number (about 1e-19 in float32; zero included) maps
+    to the identity with zero gradient: the gradient of the division grows as 1/peak², which
+    would overflow there.
     """
     peak = quats.abs().amax(dim=-1, keepdim=True)
-    degenerate = peak <= 0
+    degenerate = peak < torch.finfo(quats.dtype).tiny ** 0.5
     scaled = quats / torch.where(degenerate, torch.ones_like(peak), peak)
     norm = torch.linalg.vector_norm(scaled, dim=-1, keepdim=True)
     identity = torch.zeros_like(quats)

@@ -40,13 +40,13 @@ class TrainReport:
     """Summary of a finished training run (seconds include those before a resume)."""
 
     steps: int
-    initial_loss: float
-    final_loss: float
+    initial_loss: float | None  # None when the stage ran no steps
+    final_loss: float | None
     train_seconds: float
     run_seconds: float
     resumed_from: int
 
-    def metrics(self) -> dict[str, float | int]:
+    def metrics(self) -> dict[str, float | int | None]:
         """As JSON-ready artifact metrics."""
         return {
             "steps": self.steps,
@@ -129,9 +129,10 @@ def run_training(
             scalars = _scalars(loss, result, rates, counts)
             log.emit(stage, step, scalars, images)
             bar.set_postfix(loss=f"{loss:.4f}", psnr=f"{scalars['psnr']:.2f}", refresh=False)
-        if checkpointer is not None:
+        if checkpointer is not None and checkpointer.due(step):
+            session.check_finite(stage, step)  # the optimiser step must not reach the disk
             seconds = previous_seconds + time.perf_counter() - began
-            checkpointer.maybe_save(
+            checkpointer.save(
                 step,
                 session.state_tensors(),
                 session.optimizers(),
@@ -202,5 +203,6 @@ def _images(result: StepResult, train: TrainSettings, step: int) -> dict[str, Te
     }
 
 
-def _mean(values: list[float]) -> float:
-    return sum(values) / len(values) if values else float("nan")
+def _mean(values: list[float]) -> float | None:
+    """The mean, or None for no values (JSON has no NaN, and a stage may run 0 steps)."""
+    return sum(values) / len(values) if values else None
