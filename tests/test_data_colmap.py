@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import shutil
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -116,18 +117,57 @@ def _expect(root: Path, *fragments: str) -> None:
         assert fragment in str(caught.value), str(caught.value)
 
 
-def test_distorted_cameras_are_refused(multiview_copy: Path):
-    folder = multiview_copy / "sparse" / "0"
+def _rewrite_model(root: Path, edit) -> None:
+    folder = root / "sparse" / "0"
     model = read_model(folder)
-    camera = model.cameras[1]
-    fx, fy, cx, cy = camera.params
-    model.cameras[1] = ColmapCamera(
-        1, "OPENCV", camera.width, camera.height, (fx, fy, cx, cy, 0.1, 0, 0, 0)
-    )
+    edit(model)
     for path in folder.iterdir():
         path.unlink()
-    write_model(folder, model, binary=multiview_copy.name == "binary")
+    write_model(folder, model, binary=root.name == "binary")
+
+
+def test_distorted_cameras_are_refused(multiview_copy: Path):
+    def distort(model) -> None:
+        camera = model.cameras[1]
+        fx, fy, cx, cy = camera.params
+        model.cameras[1] = ColmapCamera(
+            1, "OPENCV", camera.width, camera.height, (fx, fy, cx, cy, 0.1, 0, 0, 0)
+        )
+
+    _rewrite_model(multiview_copy, distort)
     _expect(multiview_copy, "camera 1 (OPENCV)", "non-zero distortion")
+
+
+@pytest.mark.parametrize("focal", [0.0, -50.0, float("nan"), float("inf")])
+def test_cameras_without_a_finite_positive_focal_length_are_refused(
+    multiview_copy: Path, focal: float
+):
+    def bad_focal(model) -> None:
+        camera = model.cameras[1]
+        _, fy, cx, cy = camera.params
+        model.cameras[1] = replace(camera, params=(focal, fy, cx, cy))
+
+    _rewrite_model(multiview_copy, bad_focal)
+    _expect(multiview_copy, "camera 1 (PINHOLE)", "fx, fy > 0")
+
+
+@pytest.mark.parametrize(
+    ("qvec", "tvec"),
+    [((0.0, 0.0, 0.0, 0.0), (0.0, 0.0, 4.0)), ((1.0, 0.0, 0.0, 0.0), (float("nan"), 0.0, 4.0))],
+)
+def test_images_without_a_usable_pose_are_refused(multiview_copy: Path, qvec, tvec):
+    def bad_pose(model) -> None:
+        image_id = min(model.images)
+        model.images[image_id] = replace(model.images[image_id], qvec=qvec, tvec=tvec)
+
+    _rewrite_model(multiview_copy, bad_pose)
+    _expect(multiview_copy, "has pose qvec", "non-zero quaternion")
+
+
+@pytest.mark.parametrize("qvec", [[0.0, 0.0, 0.0, 0.0], [np.nan, 0.0, 0.0, 1.0]])
+def test_quaternion_of_no_direction_is_refused(qvec):
+    with pytest.raises(ValueError, match="expected a finite non-zero one"):
+        qvec_to_rotation(np.array(qvec))
 
 
 def test_cameras_with_different_frame_counts_are_refused(multiview_copy: Path):

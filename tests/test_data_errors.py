@@ -81,6 +81,23 @@ def test_wrong_matrix_shape(tiny_synth_copy: Path):
     _expect(tiny_synth_copy, "'k'", "[T][C][3][3]")
 
 
+def test_zero_focal_length(tiny_synth_copy: Path):
+    def zero_fx(meta: dict) -> None:
+        meta["k"][2][1][0][0] = 0.0
+
+    _edit_meta(tiny_synth_copy, "train_meta.json", zero_fx)
+    _expect(tiny_synth_copy, "train_meta.json: field 'k'", "fx, fy > 0")
+
+
+def test_pose_that_is_not_rigid(tiny_synth_copy: Path):
+    def scale_rotation(meta: dict) -> None:
+        pose = meta["w2c"][0][3]
+        pose[:3] = [[2.0 * value for value in line[:3]] + line[3:] for line in pose[:3]]
+
+    _edit_meta(tiny_synth_copy, "test_meta.json", scale_rotation)
+    _expect(tiny_synth_copy, "test_meta.json: field 'w2c'", "rigid world→camera")
+
+
 def test_non_positive_image_size_field(tiny_synth_copy: Path):
     _edit_meta(tiny_synth_copy, "train_meta.json", lambda meta: meta.update(w=0))
     _expect(tiny_synth_copy, "train_meta.json", "'w'", "positive integer", "0")

@@ -49,6 +49,20 @@ def test_extent_follows_the_3dgs_rule(scene: Scene):
     assert scene.extent == pytest.approx(1.1 * radius, rel=1e-6)
 
 
+def test_a_single_train_camera_takes_its_extent_from_the_points(tiny_synth_copy: Path):
+    path = tiny_synth_copy / "train_meta.json"
+    meta = json.loads(path.read_text())
+    for field in ("k", "w2c", "fn", "cam_id"):
+        meta[field] = [row[:1] for row in meta[field]]
+    path.write_text(json.dumps(meta))
+    scene = load_scene(tiny_synth_copy)
+    assert len(scene.train_cameras) == 1
+    xyz = scene.points.xyz.double()
+    radius = (xyz - xyz.mean(0)).norm(dim=1).max().item()
+    assert radius > 0.1
+    assert scene.extent == pytest.approx(1.1 * radius, rel=1e-6)
+
+
 def test_images_and_masks_load_as_float_and_bool(scene: Scene):
     view = scene.train_views[40]
     image = scene.image(view)

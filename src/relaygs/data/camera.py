@@ -4,7 +4,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
 import torch
+
+from relaygs.errors import InputError
+
+POSE_TOLERANCE = 1e-3
+"""How far a loaded rotation may be from orthonormal (largest entry of |R Rᵀ - I|)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -51,3 +57,40 @@ class Camera:
         c2w[:3, :3] = self.w2c[:3, :3].T
         c2w[:3, 3] = self.center
         return c2w
+
+
+def check_intrinsics(K: np.ndarray, where: str) -> None:
+    """Raise InputError naming `where` unless every K [..., 3, 3] is a pinhole matrix with
+    finite entries and positive focal lengths (the projection divides by them)."""
+    if not (bool(np.isfinite(K).all()) and _is_pinhole(K)):
+        raise InputError(
+            f"{where} must hold intrinsics [[fx,0,cx],[0,fy,cy],[0,0,1]] with finite entries "
+            "and fx, fy > 0"
+        )
+
+
+def _is_pinhole(K: np.ndarray) -> bool:
+    return bool(
+        np.allclose(K[..., 2, :], [0.0, 0.0, 1.0])
+        and (K[..., 0, 0] > 0).all()
+        and (K[..., 1, 1] > 0).all()
+    )
+
+
+def check_rigid(w2c: np.ndarray, where: str) -> None:
+    """Raise InputError naming `where` unless every w2c [..., 4, 4] is a finite rigid transform."""
+    if not (bool(np.isfinite(w2c).all()) and _is_rigid(w2c)):
+        raise InputError(
+            f"{where} must hold rigid world→camera transforms "
+            "(finite, rotation with det +1, last row 0 0 0 1)"
+        )
+
+
+def _is_rigid(w2c: np.ndarray) -> bool:
+    rotation = w2c[..., :3, :3]
+    gram = rotation @ np.swapaxes(rotation, -1, -2)
+    return bool(
+        np.abs(gram - np.eye(3)).max() < POSE_TOLERANCE
+        and (np.linalg.det(rotation) > 0).all()
+        and np.allclose(w2c[..., 3, :], [0.0, 0.0, 0.0, 1.0])
+    )

@@ -8,8 +8,14 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from relaygs.data.camera import Camera
-from relaygs.data.colmap import ColmapCamera, ColmapModel, is_model_folder, read_model
+from relaygs.data.camera import Camera, check_intrinsics
+from relaygs.data.colmap import (
+    ColmapCamera,
+    ColmapImage,
+    ColmapModel,
+    is_model_folder,
+    read_model,
+)
 from relaygs.data.fingerprint import digest, file_record
 from relaygs.data.metafiles import SCENE_JSON, declared_effects
 from relaygs.data.options import LoaderOptions
@@ -141,6 +147,7 @@ def _cameras(folders: list[Path], model: ColmapModel, model_folder: Path) -> lis
             )
         intrinsics = model.cameras[image.camera_id]
         K = _intrinsics(intrinsics, model_folder)
+        _check_pose(image, model_folder)
         w2c = torch.from_numpy(image.w2c().astype(np.float32))
         cameras.append(Camera(camera_id, K, w2c, intrinsics.width, intrinsics.height))
     return cameras
@@ -160,7 +167,20 @@ def _intrinsics(camera: ColmapCamera, model_folder: Path) -> torch.Tensor:
             f"{list(distortion)}; undistort the images first (colmap image_undistorter)"
         )
     fx, fy, cx, cy = (camera.params[index] for index in indices)
-    return torch.tensor([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]], dtype=torch.float32)
+    K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+    check_intrinsics(K, f"{model_folder}: camera {camera.camera_id} ({camera.model})")
+    return torch.from_numpy(K.astype(np.float32))
+
+
+def _check_pose(image: ColmapImage, model_folder: Path) -> None:
+    """A finite translation and a finite quaternion of non-zero norm (it is normalised)."""
+    pose = np.array([*image.qvec, *image.tvec], dtype=np.float64)
+    norm = float(np.linalg.norm(pose[:4]))
+    if not (np.isfinite(pose).all() and np.isfinite(norm) and norm > 0):
+        raise InputError(
+            f"{model_folder}: image {image.name!r} has pose qvec {list(image.qvec)} tvec "
+            f"{list(image.tvec)}; expected finite values and a non-zero quaternion"
+        )
 
 
 def _views(

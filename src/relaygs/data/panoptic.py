@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from relaygs.data.camera import Camera
+from relaygs.data.camera import Camera, check_intrinsics, check_rigid
 from relaygs.data.fingerprint import digest, file_record
 from relaygs.data.metafiles import SCENE_JSON, declared_effects, read_json
 from relaygs.data.options import LoaderOptions
@@ -21,7 +21,6 @@ from relaygs.errors import InputError
 TRAIN_META = "train_meta.json"
 TEST_META = "test_meta.json"
 POINTS_FILE = "init_pt_cld.npz"
-_POSE_TOLERANCE = 1e-3
 
 
 @dataclass(frozen=True)
@@ -84,8 +83,8 @@ def read_meta(path: Path) -> PanopticMeta:
     K = _array_field(meta, "k", path, shape, (3, 3))
     w2c = _array_field(meta, "w2c", path, shape, (4, 4))
     cam_id = _array_field(meta, "cam_id", path, shape, (), integer=True)
-    _check_intrinsics(K, path)
-    _check_poses(w2c, path)
+    check_intrinsics(K, f"{path}: field 'k'")
+    check_rigid(w2c, f"{path}: field 'w2c'")
     return PanopticMeta(path, width, height, K, w2c, fn, cam_id)
 
 
@@ -139,27 +138,6 @@ def _array_field(
             raise InputError(f"{path}: field '{name}' must hold non-negative integers")
         return array.astype(np.int64)
     return array
-
-
-def _check_intrinsics(K: np.ndarray, path: Path) -> None:
-    bottom_ok = np.allclose(K[..., 2, :], [0.0, 0.0, 1.0])
-    if not bottom_ok or (K[..., 0, 0] <= 0).any() or (K[..., 1, 1] <= 0).any():
-        raise InputError(
-            f"{path}: field 'k' must hold intrinsics [[fx,0,cx],[0,fy,cy],[0,0,1]] with fx, fy > 0"
-        )
-
-
-def _check_poses(w2c: np.ndarray, path: Path) -> None:
-    rotation = w2c[..., :3, :3]
-    gram = rotation @ np.swapaxes(rotation, -1, -2)
-    orthonormal = np.abs(gram - np.eye(3)).max() < _POSE_TOLERANCE
-    proper = (np.linalg.det(rotation) > 0).all()
-    bottom_ok = np.allclose(w2c[..., 3, :], [0.0, 0.0, 0.0, 1.0])
-    if not (orthonormal and proper and bottom_ok):
-        raise InputError(
-            f"{path}: field 'w2c' must hold rigid world→camera transforms "
-            "(rotation with det +1, last row 0 0 0 1)"
-        )
 
 
 def _check_compatible(train: PanopticMeta, test: PanopticMeta) -> None:

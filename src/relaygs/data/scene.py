@@ -16,6 +16,9 @@ from relaygs.data.options import require_int
 from relaygs.data.points import PointCloud
 from relaygs.errors import InputError
 
+SAME_POSITION = 1e-6
+"""Cameras whose centres spread less than this fraction of the point cloud share one position."""
+
 
 @dataclass(frozen=True)
 class View:
@@ -137,11 +140,24 @@ def split_views(
     return train_views, test_views
 
 
-def camera_extent(cameras: list[Camera]) -> float:
-    """Radius of the camera centres around their mean, ×1.1 (the 3DGS scene-extent rule)."""
+def scene_extent(cameras: list[Camera], points: PointCloud) -> float:
+    """Radius of the camera centres around their mean, ×1.1 (the 3DGS scene-extent rule).
+
+    Learning rates and density thresholds scale with it, so when the cameras share one
+    position (a single train camera, a co-located rig) the radius of the point cloud stands
+    in: a radius of zero would freeze the means and prune every Gaussian.
+    """
     centers = np.stack([camera.center.double().numpy() for camera in cameras])
-    radius = float(np.linalg.norm(centers - centers.mean(axis=0), axis=1).max())
+    radius = _radius(centers)
+    cloud = _radius(points.xyz.double().numpy())
+    if radius <= SAME_POSITION * cloud:
+        radius = cloud
     return max(radius, 1e-6) * 1.1
+
+
+def _radius(positions: np.ndarray) -> float:
+    """The largest distance of a position [N,3] from their mean."""
+    return float(np.linalg.norm(positions - positions.mean(axis=0), axis=1).max())
 
 
 def assemble_scene(
@@ -157,7 +173,8 @@ def assemble_scene(
     content_digest: str,
     cache_mb: float,
 ) -> Scene:
-    """Build a Scene from full-resolution views: extent from the train cameras, views scaled."""
+    """Build a Scene from full-resolution views: extent from the train cameras (or the points,
+    `scene_extent`), views scaled."""
     train_cameras = {id(view.camera): view.camera for view in train_views}
     return Scene(
         name=root.name,
@@ -168,7 +185,7 @@ def assemble_scene(
         num_frames=num_frames,
         points=points,
         effects=effects,
-        extent=camera_extent(list(train_cameras.values())),
+        extent=scene_extent(list(train_cameras.values()), points),
         downscale=downscale,
         content_digest=content_digest,
         cache=TensorCache(cache_mb),

@@ -63,8 +63,12 @@ class ColmapModel:
 
 
 def qvec_to_rotation(qvec: np.ndarray) -> np.ndarray:
-    """Rotation matrix of a quaternion (w, x, y, z); the quaternion is normalised first."""
-    w, x, y, z = qvec / np.linalg.norm(qvec)
+    """Rotation matrix of a quaternion (w, x, y, z); the quaternion is normalised first, so it
+    must be finite and non-zero (ValueError otherwise: loaders check poses before this)."""
+    norm = float(np.linalg.norm(qvec))
+    if not (np.isfinite(norm) and norm > 0):
+        raise ValueError(f"quaternion {list(qvec)} has norm {norm}; expected a finite non-zero one")
+    w, x, y, z = qvec / norm
     return np.array(
         [
             [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
