@@ -54,6 +54,14 @@ def _main(args):
         (["hydra/launcher=nope"], "Could not find 'hydra/launcher/nope'"),
         (["relay.k=[1,"], "cannot parse overrides"),
         (["train=nope"], "train: expected a config section (a mapping), got 'nope'"),
+        (["relay.k=${nope}"], "cannot resolve the config: Interpolation key 'nope' not found"),
+        (["scene.loader=abc"], "scene.loader must be a mapping of loader options"),
+        (["scene.effects=[dynamic_panels]"], "scene.effects: preset 'juggle' cannot simulate"),
+        (["tensorboard.preview_frames=abc"], "tensorboard.preview_frames must be an integer"),
+        (["+tensorboard.every=3"], "tensorboard: unknown setting(s) ['every']"),
+        (["hydra.run.dir=/proc/relaygs-run"], "hydra.run.dir: cannot write in /proc"),
+        (["-m", "hydra.sweep.dir=/proc/relaygs-sweep"], "hydra.sweep.dir: cannot write in /proc"),
+        (["artifacts.root=/proc/relaygs-store"], "artifacts.root: cannot write in /proc"),
     ],
 )
 def test_bad_input_is_one_line_before_any_work(fakes, tmp_path, capsys, args, fragment):
@@ -129,6 +137,12 @@ class _FlushLog(io.StringIO):
 
     def flush(self) -> None:
         self.flushed.append(self.getvalue())
+
+
+def test_multirun_flag_may_follow_the_overrides(fakes, tmp_path):
+    assert _main(["budget=smoke", *TINY_SCENE, "seed=3,4", "-m"]) == 0
+    (sweep,) = tmp_path.glob("outputs/sweeps/*")
+    assert sorted(pd.read_csv(sweep / "summary.csv").seed) == [3, 4]
 
 
 def test_each_stage_line_and_a_jobs_summary_reach_the_log_when_printed(fakes, monkeypatch):

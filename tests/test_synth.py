@@ -281,3 +281,18 @@ def test_refuses_to_overwrite_a_folder_that_is_not_a_generated_scene(tmp_path: P
     with pytest.raises(InputError, match="refusing to overwrite"):
         generate("static", tmp_path / "notes", frames=1, width=8, height=6)
     assert (tmp_path / "notes" / "keep.txt").read_text() == "mine"
+
+
+def test_refuses_to_overwrite_a_generated_scene_that_holds_other_files(tmp_path: Path):
+    scene = generate("static", tmp_path / "scene", frames=1, width=8, height=6)
+    (scene / "my_results").mkdir()
+    (scene / "my_results" / "notes.txt").write_text("mine")
+    with pytest.raises(InputError, match=r"besides a generated scene it holds \['my_results'\]"):
+        generate("static", scene, frames=2, width=8, height=6)
+    assert (scene / "my_results" / "notes.txt").read_text() == "mine"
+
+
+def test_an_unwritable_target_is_one_line(tmp_path: Path):
+    (tmp_path / "taken").write_text("a file")
+    with pytest.raises(InputError, match="is not a folder"):
+        generate("static", tmp_path / "taken" / "scene", frames=1, width=8, height=6)

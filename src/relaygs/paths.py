@@ -6,7 +6,7 @@ holds what is expected, else the copy packaged inside `relaygs/_data/`.
 
 from __future__ import annotations
 
-import os
+import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
@@ -37,16 +37,24 @@ def require_folder(path: Path, what: str) -> Path:
 
 
 def require_creatable_folder(path: Path, what: str) -> Path:
-    """`path` when it is a folder or can be made one (its nearest existing ancestor is a
-    writable folder); else one line naming `what`. Checked before a run starts, so a bad
-    output path fails before any training, not when the first file is written."""
+    """`path` when it is a folder or can be made one, and files can be written there; else one
+    line naming `what`. Checked before a run starts, so a bad output path fails before any
+    training, not when the first file is written."""
     if path.exists():
-        return require_folder(path, what)
-    ancestor = path.parent
-    while not ancestor.exists():
-        ancestor = ancestor.parent
-    if not ancestor.is_dir() or not os.access(ancestor, os.W_OK | os.X_OK):
-        raise InputError(f"{what}: cannot create {path}: {ancestor} is not a writable folder")
+        require_folder(path, what)
+        probe_in = path
+    else:
+        probe_in = path.parent
+        while not probe_in.exists():
+            probe_in = probe_in.parent
+        if not probe_in.is_dir():
+            raise InputError(f"{what}: cannot create {path}: {probe_in} is not a folder")
+    try:  # permissions alone miss read-only mounts, /proc and root's overrides
+        with tempfile.TemporaryFile(dir=probe_in, prefix=".relaygs-write-test-"):
+            pass
+    except OSError as error:
+        reason = error.strerror or type(error).__name__
+        raise InputError(f"{what}: cannot write in {probe_in} ({reason})") from None
     return path
 
 

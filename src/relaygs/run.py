@@ -23,7 +23,7 @@ from omegaconf import DictConfig
 
 from relaygs.app.config import resolve_config
 from relaygs.app.plan import plan_run
-from relaygs.app.prelaunch import check_command_line
+from relaygs.app.prelaunch import MULTIRUN_FLAGS, check_command_line
 from relaygs.app.result import RESULT_FILE, error_line
 from relaygs.app.suite import load_stage_suite
 from relaygs.app.task import run_task
@@ -48,7 +48,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except RelayGSError as error:
         print(f"error: {error}", file=sys.stderr)
         return 1
-    sys.argv = [sys.argv[0], *args]
+    # Hydra takes flags only before the overrides: `seed=0 -m k=1,2` goes as `-m seed=0 k=1,2`
+    flags = [arg for arg in args if arg in MULTIRUN_FLAGS]
+    sys.argv = [sys.argv[0], *flags, *(arg for arg in args if arg not in MULTIRUN_FLAGS)]
     try:
         hydra.main(version_base="1.3", config_path=str(conf), config_name="config")(run_job)()
     except KeyboardInterrupt as stop:

@@ -12,6 +12,9 @@ from pathlib import Path
 from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
+from omegaconf.errors import OmegaConfBaseException
+
+from relaygs.errors import InputError, one_line
 
 PATH_KEYS = ("paths.outputs", "paths.scenes", "artifacts.root", "scene.path")
 """Dotted keys holding file-system paths (None is left as is)."""
@@ -19,9 +22,12 @@ PATH_KEYS = ("paths.outputs", "paths.scenes", "artifacts.root", "scene.path")
 
 def resolve_config(cfg: DictConfig | Mapping[str, Any], base_dir: Path) -> dict[str, Any]:
     """Interpolations resolved, `hydra` dropped, and each of PATH_KEYS absolute (relative ones
-    taken from `base_dir`, `~` expanded)."""
+    taken from `base_dir`, `~` expanded); an interpolation that does not resolve is one line."""
     if isinstance(cfg, DictConfig):
-        config = OmegaConf.to_container(cfg, resolve=True)
+        try:
+            config = OmegaConf.to_container(cfg, resolve=True)
+        except OmegaConfBaseException as error:  # e.g. relay.k=${nope}
+            raise InputError(f"cannot resolve the config: {one_line(error)}") from error
     else:
         config = copy.deepcopy(dict(cfg))
     config.pop("hydra", None)

@@ -40,6 +40,7 @@ class RunPlan:
     artifacts_root: Path
     scenes_dir: Path
     eval_config: dict[str, Any]
+    preview_frames: int
     threads: int | None = None
 
     @property
@@ -106,6 +107,7 @@ def plan_run(
         artifacts_root=Path(artifacts["root"]),
         scenes_dir=Path(cfg["paths"]["scenes"]),
         eval_config=eval_config,
+        preview_frames=_preview_frames(cfg),
         threads=threads,
     )
 
@@ -149,6 +151,18 @@ def _section(cfg: Mapping[str, Any], name: str) -> dict[str, Any]:
     if not isinstance(section, Mapping):
         raise InputError(f"{name}: expected a config section (a mapping), got {section!r}")
     return dict(section)
+
+
+def _preview_frames(cfg: Mapping[str, Any]) -> int:
+    """`tensorboard.preview_frames`: how many render-vs-truth frames TensorBoard gets (>= 0)."""
+    section = _section(cfg, "tensorboard")
+    unknown = sorted(set(section) - {"preview_frames"})
+    if unknown:
+        raise InputError(f"tensorboard: unknown setting(s) {unknown}; expected ['preview_frames']")
+    count = section.get("preview_frames")
+    if isinstance(count, bool) or not isinstance(count, int) or count < 0:
+        raise InputError(f"tensorboard.preview_frames must be an integer >= 0, got {count!r}")
+    return count
 
 
 def _budget(budget: Mapping[str, Any]) -> tuple[float, list[str]]:

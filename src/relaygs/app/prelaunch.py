@@ -12,7 +12,6 @@ from __future__ import annotations
 import importlib.util
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
 
 import yaml
 from hydra import compose, initialize_config_dir
@@ -24,7 +23,8 @@ from hydra.types import RunMode
 from omegaconf import DictConfig
 from omegaconf.errors import OmegaConfBaseException
 
-from relaygs.errors import InputError
+from relaygs.errors import InputError, one_line
+from relaygs.paths import require_creatable_folder
 
 MULTIRUN_FLAGS = frozenset({"-m", "--multirun"})
 BASIC_SWEEPER = "hydra._internal.core_plugins.basic_sweeper.BasicSweeper"
@@ -45,7 +45,8 @@ JobValidator = Callable[[DictConfig], None]
 
 def check_command_line(argv: Sequence[str], conf_dir: Path, validate: JobValidator) -> None:
     """Raise a one-line InputError if the command line names an unknown config, does not
-    compose, or would launch a job whose config `validate` rejects.
+    compose, would launch a job whose config `validate` rejects, or names a run (sweep) folder
+    that cannot be written.
 
     Command lines with Hydra flags other than --multirun (--help, --cfg, -cn ...) are left
     to Hydra.
@@ -57,12 +58,16 @@ def check_command_line(argv: Sequence[str], conf_dir: Path, validate: JobValidat
     overrides = _parse(args)
     check_group_choices(overrides, conf_dir)
     with initialize_config_dir(config_dir=str(conf_dir), version_base="1.3", job_name="run"):
-        for job in planned_jobs(args, overrides, multirun=bool(flags)):
+        plain = [o.input_line for o in overrides if not o.is_sweep_override()]
+        hydra_cfg = _compose(plain, with_hydra=True).hydra
+        multirun = bool(flags) or hydra_cfg.mode == RunMode.MULTIRUN
+        for job in planned_jobs(args, overrides, hydra_cfg, multirun):
             try:
                 validate(_compose(job))
             except InputError as error:
                 where = f"job {' '.join(job)}: " if job != args else ""
                 raise InputError(f"{where}{error}") from error
+        check_output_folder(hydra_cfg, multirun)  # after the jobs' own paths, often its parents
 
 
 def check_group_choices(overrides: Sequence[Override], conf_dir: Path) -> None:
@@ -91,12 +96,21 @@ def check_group_choices(overrides: Sequence[Override], conf_dir: Path) -> None:
             )
 
 
-def planned_jobs(args: list[str], overrides: Sequence[Override], multirun: bool) -> list[list[str]]:
-    """The override lists of the jobs this command line would run (one in run mode)."""
+def check_output_folder(hydra_cfg: DictConfig, multirun: bool) -> None:
+    """The run folder (`hydra.run.dir`, or `hydra.sweep.dir` for a multirun) must be a folder
+    that files can be written in, or one that can be created."""
+    key = "sweep" if multirun else "run"
+    folder = Path(str(hydra_cfg[key].dir)).expanduser().absolute()
+    require_creatable_folder(folder, f"hydra.{key}.dir")
+
+
+def planned_jobs(
+    args: list[str], overrides: Sequence[Override], hydra_cfg: DictConfig, multirun: bool
+) -> list[list[str]]:
+    """The override lists of the jobs this command line would run (one in run mode), given the
+    composed `hydra` section and whether this is a multirun."""
     plain = [o.input_line for o in overrides if not o.is_sweep_override()]
     sweeps = [o.input_line for o in overrides if o.is_sweep_override()]
-    hydra_cfg = _compose(plain, with_hydra=True).hydra
-    multirun = multirun or hydra_cfg.mode == RunMode.MULTIRUN
     if not multirun:
         if sweeps:
             raise InputError(
@@ -110,7 +124,7 @@ def planned_jobs(args: list[str], overrides: Sequence[Override], multirun: bool)
     try:
         batches = BasicSweeper.split_arguments(_parse([*params, *args]), None)
     except HydraException as error:
-        raise InputError(_one_line(error)) from error
+        raise InputError(one_line(error)) from error
     return batches[0]
 
 
@@ -160,7 +174,7 @@ def _parse(args: Sequence[str]) -> list[Override]:
     try:
         return OverridesParser.create().parse_overrides(list(args))
     except HydraException as error:
-        raise InputError(f"cannot parse overrides: {_one_line(error)}") from error
+        raise InputError(f"cannot parse overrides: {one_line(error)}") from error
 
 
 def _compose(overrides: Sequence[str], with_hydra: bool = False) -> DictConfig:
@@ -168,10 +182,4 @@ def _compose(overrides: Sequence[str], with_hydra: bool = False) -> DictConfig:
     try:
         return compose(CONFIG_NAME, overrides=list(overrides), return_hydra_config=with_hydra)
     except (HydraException, OmegaConfBaseException) as error:
-        raise InputError(_one_line(error)) from error
-
-
-def _one_line(error: Any) -> str:
-    """An exception's message folded into one line (Hydra's span several)."""
-    lines = [line.strip() for line in str(error).splitlines() if line.strip()]
-    return " ".join(line for line in lines if not line.startswith("See https://"))
+        raise InputError(one_line(error)) from error

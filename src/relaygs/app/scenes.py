@@ -15,7 +15,7 @@ from filelock import FileLock
 from relaygs.data import Scene, detect_format, load_scene
 from relaygs.data.effects import parse_effects
 from relaygs.data.options import make_options
-from relaygs.data.synthetic import GENERATOR_VERSION, PRESETS, generate
+from relaygs.data.synthetic import GENERATOR_VERSION, PRESETS, declared_effects, generate
 from relaygs.errors import InputError
 from relaygs.paths import require_folder
 from relaygs.pipeline.keys import canonical_json
@@ -60,7 +60,13 @@ def scene_spec(section: Mapping[str, Any]) -> SceneSpec:
     effects = section.get("effects")
     if effects is not None:
         effects = tuple(sorted(parse_effects(effects, source="scene.effects")))
-    loader = dict(section.get("loader") or {})
+    loader = section.get("loader") or {}
+    if not isinstance(loader, Mapping):
+        raise InputError(
+            f"scene.loader must be a mapping of loader options {list(LOADER_OPTIONS)}, "
+            f"got {loader!r}"
+        )
+    loader = dict(loader)
     unknown = sorted(set(loader) - set(LOADER_OPTIONS))
     if unknown:
         raise InputError(
@@ -81,6 +87,7 @@ def scene_spec(section: Mapping[str, Any]) -> SceneSpec:
             f"scene.preset: unknown synthetic preset {preset!r} (available: "
             f"{', '.join(sorted(PRESETS))}); or set scene.path=DIR for a capture"
         )
+    declared_effects(PRESETS[preset], effects, source="scene.effects")
     name = str(section.get("name") or preset)
     return SceneSpec(name, preset, None, **counts, seed=seed, effects=effects, loader=loader)
 

@@ -113,8 +113,7 @@ def _execute(
             store, scene, run, plan.eval_config, suite.evaluate, plan.on_corrupt
         )
         _announce_evaluation(evaluation)
-        previews = config["tensorboard"]["preview_frames"]
-        _log_previews(log, suite, scene, run.output, previews)
+        _log_previews(log, suite, scene, run.output, plan.preview_frames)
         output = run.reports[-1]
         storage_mb = store.manifest(output.stage, output.key).size_mb
         result = build_result(config, plan, run, evaluation, storage_mb, overrides, job)

@@ -14,6 +14,7 @@ import numpy as np
 
 from relaygs.data.effects import COLOR_INCONSISTENCY, SENSOR_NOISE, parse_effects
 from relaygs.data.metafiles import SCENE_JSON
+from relaygs.data.panoptic import POINTS_FILE, TEST_META, TRAIN_META
 from relaygs.data.synthetic.presets import DURATION_S, PRESETS, Preset
 from relaygs.data.synthetic.render import (
     Buffers,
@@ -29,10 +30,13 @@ from relaygs.data.synthetic.sensor import (
 )
 from relaygs.data.synthetic.world import World
 from relaygs.errors import InputError
+from relaygs.paths import require_creatable_folder
 from relaygs.progress import progress_bar
 
 GENERATOR = "relaygs.synth"
 GENERATOR_VERSION = "1"
+GENERATED_ENTRIES = frozenset({"ims", "seg", TRAIN_META, TEST_META, POINTS_FILE, SCENE_JSON})
+"""What a generated scene folder holds (regenerating replaces exactly these)."""
 SUPERSAMPLE = 2
 POINTS_PER_PIXEL = 0.1
 """Initial-cloud samples per pixel of each training camera's frame 0 ..."""
@@ -64,7 +68,7 @@ def generate(
     for name, value in (("frames", frames), ("width", width), ("height", height)):
         _require_count(name, value, minimum=1)
     _require_count("seed", seed, minimum=0)
-    declared = _declared_effects(recipe, effects)
+    declared = declared_effects(recipe, effects)
     times = np.linspace(0.0, DURATION_S, frames) if frames > 1 else np.zeros(1)
     world = World(
         cameras=recipe.rig(width, height),
@@ -93,25 +97,39 @@ def _require_count(name: str, value: object, *, minimum: int) -> None:
         raise InputError(f"{name} must be an integer >= {minimum}, got {value!r}")
 
 
-def _declared_effects(recipe: Preset, effects: Iterable[str] | None) -> frozenset[str]:
+def declared_effects(
+    recipe: Preset, effects: Iterable[str] | None, source: str = "effects"
+) -> frozenset[str]:
+    """The effects a scene of `recipe` simulates: its defaults when `effects` is None, else
+    `effects` (named by `source` in errors), each of which the preset must support."""
     if effects is None:
         return recipe.default_effects
-    declared = parse_effects(effects, source="effects")
+    declared = parse_effects(effects, source=source)
     unsupported = sorted(declared - recipe.supported_effects)
     if unsupported:
         raise InputError(
-            f"preset {recipe.name!r} cannot simulate {', '.join(unsupported)}; it supports: "
-            f"{', '.join(sorted(recipe.supported_effects))}"
+            f"{source}: preset {recipe.name!r} cannot simulate {', '.join(unsupported)}; "
+            f"it supports: {', '.join(sorted(recipe.supported_effects))}"
         )
     return declared
 
 
 def _staging_folder(out: Path) -> Path:
+    """A fresh sibling folder to write into; `out` may only hold a scene this generator wrote,
+    which the new one replaces (anything else in it would be lost with it)."""
     if out.exists():
         if not out.is_dir():
             raise InputError(f"output path exists and is not a folder: {out}")
-        if any(out.iterdir()) and not _is_generated(out):
+        entries = {entry.name for entry in out.iterdir()}
+        if entries and not _is_generated(out):
             raise InputError(f"refusing to overwrite {out}: not empty and not a generated scene")
+        foreign = sorted(entries - GENERATED_ENTRIES)
+        if foreign:
+            raise InputError(
+                f"refusing to overwrite {out}: besides a generated scene it holds {foreign}; "
+                "move them or write the scene elsewhere"
+            )
+    require_creatable_folder(out.parent, "synthetic scene folder")
     out.parent.mkdir(parents=True, exist_ok=True)
     staging = out.parent / f".{out.name}.partial-{os.getpid()}"
     if staging.exists():
@@ -199,9 +217,9 @@ def _write_scene(
                 (folder / "seg" / name).write_bytes(encoded[1])
                 views.update(1)
     test_ids = list(world.test_cameras)
-    _write_json(folder / "train_meta.json", _meta(world, train_ids))
-    _write_json(folder / "test_meta.json", _meta(world, test_ids))
-    np.savez(folder / "init_pt_cld.npz", data=np.concatenate(points).astype(np.float32))
+    _write_json(folder / TRAIN_META, _meta(world, train_ids))
+    _write_json(folder / TEST_META, _meta(world, test_ids))
+    np.savez(folder / POINTS_FILE, data=np.concatenate(points).astype(np.float32))
 
 
 def _encode_view(
