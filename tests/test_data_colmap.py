@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import shutil
+import struct
 from dataclasses import replace
 from pathlib import Path
 
@@ -191,6 +192,30 @@ def test_truncated_binary_model_is_refused(panoptic: Scene, tmp_path: Path):
     path = root / "sparse" / "0" / "images.bin"
     path.write_bytes(path.read_bytes()[:-20])
     _expect(root, "images.bin", "truncated")
+
+
+def test_binary_point_count_beyond_the_file_is_refused(panoptic: Scene, tmp_path: Path):
+    root = export_multiview(panoptic, tmp_path / "binary", binary=True)
+    path = root / "sparse" / "0" / "points3D.bin"
+    path.write_bytes(struct.pack("<Q", 2**40) + path.read_bytes()[8:])
+    _expect(root, "points3D.bin: declares 1099511627776 points", "the file is damaged")
+
+
+def test_text_model_that_is_not_utf8_is_refused(panoptic: Scene, tmp_path: Path):
+    root = export_multiview(panoptic, tmp_path / "text", binary=False)
+    path = root / "sparse" / "0" / "cameras.txt"
+    path.write_bytes(b"\xff\xfe" + path.read_bytes())
+    _expect(root, "cameras.txt: not UTF-8 text (byte 0xff at offset 0)")
+
+
+def test_text_model_colour_beyond_255_is_refused(panoptic: Scene, tmp_path: Path):
+    root = export_multiview(panoptic, tmp_path / "text", binary=False)
+    path = root / "sparse" / "0" / "points3D.txt"
+    lines = path.read_text().splitlines()
+    fields = lines[1].split()
+    lines[1] = " ".join([*fields[:4], "300", *fields[5:]])
+    path.write_text("\n".join(lines) + "\n")
+    _expect(root, "points3D.txt line 2", "R G B in 0..255, got [300,")
 
 
 def test_malformed_text_model_line_is_refused(panoptic: Scene, tmp_path: Path):

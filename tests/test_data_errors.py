@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import json
 import shutil
 from collections.abc import Callable
@@ -140,6 +141,55 @@ def test_missing_image(tiny_synth_copy: Path):
     _expect(tiny_synth_copy, "missing image file", "000003.png")
 
 
+def test_empty_image_file(tiny_synth_copy: Path):
+    (tiny_synth_copy / "ims" / "7" / "000003.png").write_bytes(b"")
+    _expect(tiny_synth_copy, "ims/7/000003.png: empty file, expected an image")
+
+
+def _cut_to_60_percent(data: bytes) -> bytes:
+    return data[: len(data) * 6 // 10]
+
+
+def _flip_first_idat_byte(data: bytes) -> bytes:
+    at = data.index(b"IDAT") + 4
+    return data[:at] + bytes([data[at] ^ 0xFF]) + data[at + 1 :]
+
+
+@pytest.mark.parametrize(
+    ("name", "damage", "reason"),
+    [
+        ("ims/7/000003.png", _cut_to_60_percent, "chunk IDAT is cut short"),
+        ("ims/7/000003.png", _flip_first_idat_byte, "chunk IDAT fails its CRC"),
+        ("ims/7/000003.png", lambda data: data[:33], "no IEND chunk"),
+        ("ims/7/000003.png", lambda data: data[:33] + data[-12:], "no IDAT image data"),
+        ("seg/7/000003.png", _cut_to_60_percent, "chunk IDAT is cut short"),
+    ],
+    ids=["truncated", "flipped byte", "header only", "no IDAT", "truncated mask"],
+)
+def test_damaged_png_is_refused_when_the_scene_loads(
+    tiny_synth_copy: Path, name: str, damage: Callable[[bytes], bytes], reason: str
+):
+    path = tiny_synth_copy / name
+    path.write_bytes(damage(path.read_bytes()))
+    _expect(tiny_synth_copy, f"{name}: damaged image file", reason)
+
+
+def test_truncated_jpeg_is_refused_and_an_intact_one_loads(tiny_synth_copy: Path):
+    png = tiny_synth_copy / "ims" / "7" / "000003.png"
+    jpeg = png.with_suffix(".jpg")
+    cv2.imwrite(str(jpeg), cv2.imread(str(png)))
+
+    def use_jpeg(meta: dict) -> None:
+        meta["fn"] = [
+            [{"7/000003.png": "7/000003.jpg"}.get(n, n) for n in row] for row in meta["fn"]
+        ]
+
+    _edit_meta(tiny_synth_copy, "train_meta.json", use_jpeg)
+    assert any(view.image_path == jpeg for view in load_scene(tiny_synth_copy).train_views)
+    jpeg.write_bytes(_cut_to_60_percent(jpeg.read_bytes()))
+    _expect(tiny_synth_copy, "7/000003.jpg: damaged image file", "no JPEG end marker FFD9")
+
+
 def test_empty_point_cloud(tiny_synth_copy: Path):
     np.savez(tiny_synth_copy / "init_pt_cld.npz", data=np.zeros((0, 7), np.float32))
     _expect(tiny_synth_copy, "init_pt_cld.npz", "non-empty")
@@ -156,7 +206,62 @@ def test_point_cloud_with_wrong_columns_or_key(tiny_synth_copy: Path):
     np.savez(tiny_synth_copy / "init_pt_cld.npz", data=np.zeros((5, 6), np.float32))
     _expect(tiny_synth_copy, "init_pt_cld.npz", "[N,7]")
     np.savez(tiny_synth_copy / "init_pt_cld.npz", points=np.zeros((5, 7), np.float32))
-    _expect(tiny_synth_copy, "init_pt_cld.npz", "missing array 'data'")
+    message = _expect(tiny_synth_copy, "init_pt_cld.npz: missing array 'data'")
+    assert message.count("init_pt_cld.npz") == 1, message
+
+
+def _written(write: Callable[[io.BytesIO], None]) -> bytes:
+    buffer = io.BytesIO()
+    write(buffer)
+    return buffer.getvalue()
+
+
+@pytest.mark.parametrize(
+    "content",
+    [
+        _written(lambda out: np.save(out, np.zeros((5, 7), np.float32))),
+        _written(lambda out: np.savez(out, data=np.full((5, 7), None, dtype=object))),
+        bytes(range(256)) * 4,
+        b"x y z r g b seg\n0 0 0 1 1 1 1\n",
+    ],
+    ids=[".npy file", "pickled objects", "random bytes", "text"],
+)
+def test_point_cloud_that_is_not_an_npz_of_numbers(tiny_synth_copy: Path, content: bytes):
+    (tiny_synth_copy / "init_pt_cld.npz").write_bytes(content)
+    message = _expect(tiny_synth_copy, "init_pt_cld.npz: not a readable .npz point cloud")
+    assert "pickle" not in message, message
+
+
+def test_complex_point_cloud(tiny_synth_copy: Path):
+    np.savez(tiny_synth_copy / "init_pt_cld.npz", data=np.ones((5, 7), np.complex64))
+    _expect(tiny_synth_copy, "init_pt_cld.npz", "dtype complex64, expected real numbers")
+
+
+def test_camera_id_beyond_int32(tiny_synth_copy: Path):
+    _edit_meta(
+        tiny_synth_copy, "train_meta.json", lambda meta: meta["cam_id"][0].__setitem__(0, 1e30)
+    )
+    _expect(tiny_synth_copy, "train_meta.json: field 'cam_id'", "integers in 0..2147483647")
+
+
+def test_camera_listed_twice_in_a_frame(tiny_synth_copy: Path):
+    def repeat_camera(meta: dict) -> None:
+        meta["cam_id"][2][1] = meta["cam_id"][2][0]
+
+    _edit_meta(tiny_synth_copy, "train_meta.json", repeat_camera)
+    _expect(tiny_synth_copy, "train_meta.json: field 'cam_id'", "columns 0 and 1 of frame 2")
+
+
+@pytest.mark.parametrize("name", ["", ".", "3/.."])
+def test_file_name_that_names_no_file(tiny_synth_copy: Path, name: str):
+    _edit_meta(tiny_synth_copy, "train_meta.json", lambda meta: meta["fn"][2].__setitem__(1, name))
+    _expect(tiny_synth_copy, f"train_meta.json: field 'fn' at [2][1] is {name!r}")
+
+
+def test_meta_file_that_is_a_folder(tiny_synth_copy: Path):
+    (tiny_synth_copy / "train_meta.json").unlink()
+    (tiny_synth_copy / "train_meta.json").mkdir()
+    _expect(tiny_synth_copy, "train_meta.json: is a folder, expected a file")
 
 
 def test_unknown_effect_in_scene_json(tiny_synth_copy: Path):

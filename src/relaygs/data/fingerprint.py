@@ -27,7 +27,8 @@ _RECORDS_LOCK = threading.Lock()
 
 
 def file_record(path: Path, *, image: bool = False, what: str = "file") -> FileRecord:
-    """Hash a file's bytes (and read an image's size) once per (path, size, mtime) per process."""
+    """Hash a file's bytes (and check an image's bytes, read its size) once per (path, size,
+    mtime) per process."""
     try:
         stat = path.stat()
     except OSError as error:

@@ -1,7 +1,8 @@
-"""Reading image files: size from the header bytes, decoding to float RGB and boolean masks."""
+"""Reading image files: size and integrity from the bytes, decoding to float RGB and masks."""
 
 from __future__ import annotations
 
+import zlib
 from pathlib import Path
 
 import cv2
@@ -10,22 +11,59 @@ import numpy as np
 from relaygs.errors import InputError
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+_JPEG_SOI = b"\xff\xd8"
+_JPEG_EOI = b"\xff\xd9"
 _JPEG_SOF_MARKERS = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
 _JPEG_STANDALONE_MARKERS = frozenset({0x01, *range(0xD0, 0xDA)})
 
 
 def image_size(data: bytes, path: Path) -> tuple[int, int]:
-    """(width, height) of a PNG or JPEG from its header; other types are decoded to find out."""
+    """(width, height) of an image file's bytes, refusing damaged files before any training.
+
+    PNG and JPEG are read from the header after a cheap integrity check (no pixel decoding);
+    other types are decoded to find out.
+    """
     if data.startswith(_PNG_SIGNATURE):
         if len(data) < 24 or data[12:16] != b"IHDR":
             raise InputError(f"{path}: not a readable image (truncated PNG header)")
+        _check_png_chunks(data, path)
         return int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
-    if data.startswith(b"\xff\xd8"):
+    if data.startswith(_JPEG_SOI):
+        if not data.rstrip(b"\x00").endswith(_JPEG_EOI):
+            raise _damaged(path, "no JPEG end marker FFD9: truncated")
         return _jpeg_size(data, path)
+    if not data:
+        raise InputError(f"{path}: empty file, expected an image")
     decoded = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
     if decoded is None:
         raise InputError(f"{path}: not a readable image")
     return int(decoded.shape[1]), int(decoded.shape[0])
+
+
+def _check_png_chunks(data: bytes, path: Path) -> None:
+    """Walk the chunks after the signature: each must fit the file and pass its CRC32, at least
+    one IDAT must come before IEND, and IEND must be reached (bytes after it are ignored)."""
+    view = memoryview(data)
+    pos, seen_idat = len(_PNG_SIGNATURE), False
+    while pos + 12 <= len(data):
+        length = int.from_bytes(data[pos : pos + 4], "big")
+        kind = data[pos + 4 : pos + 8].decode("ascii", "backslashreplace")
+        end = pos + 8 + length
+        if end + 4 > len(data):
+            raise _damaged(path, f"chunk {kind} is cut short: truncated")
+        if zlib.crc32(view[pos + 4 : end]) != int.from_bytes(data[end : end + 4], "big"):
+            raise _damaged(path, f"chunk {kind} fails its CRC")
+        if kind == "IEND":
+            if not seen_idat:
+                raise _damaged(path, "no IDAT image data")
+            return
+        seen_idat = seen_idat or kind == "IDAT"
+        pos = end + 4
+    raise _damaged(path, "no IEND chunk: truncated")
+
+
+def _damaged(path: Path, reason: str) -> InputError:
+    return InputError(f"{path}: damaged image file ({reason})")
 
 
 def _jpeg_size(data: bytes, path: Path) -> tuple[int, int]:

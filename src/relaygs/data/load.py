@@ -14,8 +14,9 @@ from relaygs.paths import require_folder
 
 
 def detect_format(root: Path) -> str:
-    """'panoptic' when train_meta.json exists, 'multiview' when camXX/ folders exist."""
-    if (root / TRAIN_META).is_file():
+    """'panoptic' when train_meta.json exists (a folder of that name is refused when it is
+    read), 'multiview' when camXX/ folders exist."""
+    if (root / TRAIN_META).exists():
         return "panoptic"
     if camera_folders(root):
         return "multiview"

@@ -1,4 +1,4 @@
-"""Reading the JSON files of a scene folder with one-line errors, and its declared effects."""
+"""Reading the text and JSON files of a scene folder with one-line errors; declared effects."""
 
 from __future__ import annotations
 
@@ -12,14 +12,27 @@ from relaygs.errors import InputError
 SCENE_JSON = "scene.json"
 
 
-def read_json(path: Path) -> Any:
-    """Parse a JSON file; a missing or malformed file is an InputError naming it."""
+def read_text(path: Path) -> str:
+    """A UTF-8 text file's contents; missing, a folder, unreadable or not UTF-8 is an InputError
+    naming the file."""
     try:
-        text = path.read_text(encoding="utf-8")
+        return path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise InputError(f"missing file: {path}") from None
-    except (OSError, UnicodeDecodeError) as error:
-        raise InputError(f"cannot read {path}: {error}") from None
+    except IsADirectoryError:
+        raise InputError(f"{path}: is a folder, expected a file") from None
+    except OSError as error:
+        raise InputError(f"cannot read {path} ({error.strerror})") from None
+    except UnicodeDecodeError as error:
+        raise InputError(
+            f"{path}: not UTF-8 text (byte 0x{error.object[error.start]:02x} at offset "
+            f"{error.start})"
+        ) from None
+
+
+def read_json(path: Path) -> Any:
+    """Parse a JSON file; a missing, unreadable or malformed file is an InputError naming it."""
+    text = read_text(path)
     try:
         return json.loads(text)
     except json.JSONDecodeError as error:

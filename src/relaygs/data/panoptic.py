@@ -21,6 +21,8 @@ from relaygs.errors import InputError
 TRAIN_META = "train_meta.json"
 TEST_META = "test_meta.json"
 POINTS_FILE = "init_pt_cld.npz"
+MAX_CAMERA_ID = 2**31 - 1
+"""Largest camera id: ids must fit a signed 32-bit integer."""
 
 
 @dataclass(frozen=True)
@@ -83,6 +85,7 @@ def read_meta(path: Path) -> PanopticMeta:
     K = _array_field(meta, "k", path, shape, (3, 3))
     w2c = _array_field(meta, "w2c", path, shape, (4, 4))
     cam_id = _array_field(meta, "cam_id", path, shape, (), integer=True)
+    _check_unique_cameras(cam_id, path)
     check_intrinsics(K, f"{path}: field 'k'")
     check_rigid(w2c, f"{path}: field 'w2c'")
     return PanopticMeta(path, width, height, K, w2c, fn, cam_id)
@@ -103,6 +106,12 @@ def _file_names(meta: dict, path: Path) -> list[list[str]]:
     widths = {len(row) for row in fn}
     if len(widths) != 1:
         raise InputError(f"{path}: field 'fn' rows have different camera counts {sorted(widths)}")
+    for t, row in enumerate(fn):
+        for c, name in enumerate(row):
+            if os.path.normpath(name) == ".":
+                raise InputError(
+                    f"{path}: field 'fn' at [{t}][{c}] is {name!r}, expected an image file name"
+                )
     return fn
 
 
@@ -134,10 +143,22 @@ def _array_field(
     if not np.isfinite(array).all():
         raise InputError(f"{path}: field '{name}' holds non-finite values")
     if integer:
-        if (array != np.round(array)).any() or (array < 0).any():
-            raise InputError(f"{path}: field '{name}' must hold non-negative integers")
+        if (array != np.round(array)).any() or (array < 0).any() or (array > MAX_CAMERA_ID).any():
+            raise InputError(f"{path}: field '{name}' must hold integers in 0..{MAX_CAMERA_ID}")
         return array.astype(np.int64)
     return array
+
+
+def _check_unique_cameras(cam_id: np.ndarray, path: Path) -> None:
+    """Each column of a frame is a different camera: a repeated id would give one camera two
+    views (and possibly two poses) at the same time."""
+    for t, row in enumerate(cam_id.tolist()):
+        for c, camera_id in enumerate(row):
+            if camera_id in row[:c]:
+                raise InputError(
+                    f"{path}: field 'cam_id' lists camera {camera_id} in columns "
+                    f"{row.index(camera_id)} and {c} of frame {t}; expected one column per camera"
+                )
 
 
 def _check_compatible(train: PanopticMeta, test: PanopticMeta) -> None:
@@ -230,19 +251,33 @@ def _split(
 
 
 def _read_points(path: Path, max_points: int) -> PointCloud:
-    try:
-        with np.load(path, allow_pickle=False) as archive:
-            if "data" not in archive.files:
-                raise InputError(f"{path}: missing array 'data' (expected [N,7] xyz, rgb, seg)")
-            data = archive["data"]
-    except FileNotFoundError:
-        raise InputError(f"missing file: {path}") from None
-    except (OSError, ValueError, zipfile.BadZipFile) as error:
-        raise InputError(f"{path}: not a readable .npz point cloud ({error})") from None
-    if data.ndim != 2 or data.shape[1] != 7 or not np.issubdtype(data.dtype, np.number):
+    data = _points_array(path)
+    if data.ndim != 2 or data.shape[1] != 7:
         raise InputError(
             f"{path}: array 'data' has shape {list(data.shape)}, expected [N,7] xyz, rgb, seg"
         )
+    if data.dtype.kind not in "iuf":
+        raise InputError(f"{path}: array 'data' has dtype {data.dtype}, expected real numbers")
     return point_cloud_from_arrays(
         data[:, :3], data[:, 3:6], data[:, 6] > 0.5, source=str(path), max_points=max_points
     )
+
+
+def _points_array(path: Path) -> np.ndarray:
+    """Array 'data' of the .npz archive at `path`, never unpickling: a .npy, text or any other
+    file is refused in one line."""
+    if not path.exists():
+        raise InputError(f"missing file: {path}")
+    unreadable = InputError(f"{path}: not a readable .npz point cloud")
+    if not zipfile.is_zipfile(path):
+        raise unreadable
+    try:
+        with np.load(path, allow_pickle=False) as archive:
+            data = archive["data"] if "data" in archive.files else None
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile):
+        raise unreadable from None
+    if data is None:
+        raise InputError(f"{path}: missing array 'data' (expected [N,7] xyz, rgb, seg)")
+    if not isinstance(data, np.ndarray):
+        raise unreadable
+    return data

@@ -16,6 +16,11 @@ from relaygs.data.colmap.model import (
 )
 from relaygs.errors import InputError
 
+# The smallest record of each file, to bound a record count by the bytes that follow it.
+_LEAST_CAMERA = "iiQQ3d"  # SIMPLE_PINHOLE, the model with the fewest parameters
+_LEAST_IMAGE = "I7dIxQ"  # an empty name (just its NUL) and no 2D points
+_LEAST_POINT = "Q3d3BdQ"  # an empty track
+
 
 class _Reader:
     """Sequential little-endian reader over a file's bytes, failing with the file's name."""
@@ -32,6 +37,18 @@ class _Reader:
         values = struct.unpack_from("<" + fmt, self.data, self.pos)
         self.pos += size
         return values
+
+    def count(self, least: str, what: str) -> int:
+        """A record count, refused when the bytes left cannot hold that many records of at least
+        struct format `least`, so a damaged count fails before anything is allocated."""
+        count = self.unpack("Q")[0]
+        left, size = len(self.data) - self.pos, struct.calcsize("<" + least)
+        if count * size > left:
+            raise InputError(
+                f"{self.path}: declares {count} {what} but the {left} bytes that follow hold at "
+                f"most {left // size}; the file is damaged"
+            )
+        return count
 
     def skip(self, size: int) -> None:
         if self.pos + size > len(self.data):
@@ -59,7 +76,7 @@ def read_binary_model(folder: Path) -> ColmapModel:
 def _read_cameras(path: Path) -> dict[int, ColmapCamera]:
     reader = _Reader(path)
     cameras = {}
-    for _ in range(reader.unpack("Q")[0]):
+    for _ in range(reader.count(_LEAST_CAMERA, "cameras")):
         camera_id, model_id, width, height = reader.unpack("iiQQ")
         if model_id not in MODEL_NAMES:
             raise InputError(f"{path}: camera {camera_id} has unknown model id {model_id}")
@@ -72,7 +89,7 @@ def _read_cameras(path: Path) -> dict[int, ColmapCamera]:
 def _read_images(path: Path) -> dict[int, ColmapImage]:
     reader = _Reader(path)
     images = {}
-    for _ in range(reader.unpack("Q")[0]):
+    for _ in range(reader.count(_LEAST_IMAGE, "images")):
         image_id, *pose, camera_id = reader.unpack("I7dI")
         name = reader.string()
         reader.skip(reader.unpack("Q")[0] * struct.calcsize("<ddq"))
@@ -82,7 +99,7 @@ def _read_images(path: Path) -> dict[int, ColmapImage]:
 
 def _read_points(path: Path) -> dict[str, np.ndarray]:
     reader = _Reader(path)
-    count = reader.unpack("Q")[0]
+    count = reader.count(_LEAST_POINT, "points")
     xyz = np.zeros((count, 3))
     rgb = np.zeros((count, 3), dtype=np.uint8)
     for index in range(count):

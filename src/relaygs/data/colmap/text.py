@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from relaygs.data.colmap.model import CAMERA_MODELS, ColmapCamera, ColmapImage, ColmapModel
+from relaygs.data.metafiles import read_text
 from relaygs.errors import InputError
 
 
@@ -23,10 +24,7 @@ def read_text_model(folder: Path) -> ColmapModel:
 
 def _lines(path: Path) -> list[tuple[int, str]]:
     """(line number, text) of every line that is not a comment, blank lines included."""
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise InputError(f"missing file: {path}") from None
+    text = read_text(path)
     return [
         (number, line.strip())
         for number, line in enumerate(text.splitlines(), start=1)
@@ -92,6 +90,8 @@ def _read_points(path: Path) -> tuple[np.ndarray, np.ndarray]:
             raise _bad_line(path, number, "POINT3D_ID X Y Z R G B ERROR TRACK[]") from None
         if len(fields) < 8 or len(xyz[-1]) != 3 or len(rgb[-1]) != 3:
             raise _bad_line(path, number, "POINT3D_ID X Y Z R G B ERROR TRACK[]")
+        if not all(0 <= value <= 255 for value in rgb[-1]):
+            raise _bad_line(path, number, f"colour R G B in 0..255, got {rgb[-1]}")
     return np.asarray(xyz, dtype=np.float64).reshape(-1, 3), np.asarray(
         rgb, dtype=np.uint8
     ).reshape(-1, 3)
