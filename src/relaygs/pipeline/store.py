@@ -224,7 +224,8 @@ class ArtifactStore:
         except CorruptArtifactError as error:
             if on_corrupt == "error":
                 raise CorruptArtifactError(
-                    f"{error} (on_corrupt=error: delete it or rerun with on_corrupt=rebuild)"
+                    f"{error} (artifacts.on_corrupt=error: delete it or rerun with "
+                    "artifacts.on_corrupt=rebuild)"
                 ) from error
             return None
         return artifact, BuildInfo(stage, key, True, manifest.wall_seconds, self.path(stage, key))
