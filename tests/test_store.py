@@ -102,7 +102,10 @@ def test_a_changed_byte_is_refused_under_on_corrupt_error(tmp_path):
     store, fake = ArtifactStore(tmp_path), CountingStage()
     _build(store, fake)
     _flip_byte(store.path("decouple", KEY) / "tensors.safetensors")
-    with pytest.raises(CorruptArtifactError, match=r"tensors\.safetensors.*rerun with artifacts\.on_corrupt=rebuild"):
+    with pytest.raises(
+        CorruptArtifactError,
+        match=r"tensors\.safetensors.*rerun with artifacts\.on_corrupt=rebuild",
+    ):
         _build(store, fake, on_corrupt="error")
     assert fake.calls == 1
 
