@@ -182,3 +182,63 @@ def test_eval_of_a_stored_evaluation_says_it_is_no_model(store, capsys):
     assert code == 1
     message = f"{key[:16]} is a stored evaluation, not a model: `show {key[:8]}` prints its metrics"
     assert err == f"error: {message}\n"
+
+
+def test_usage_errors_are_one_line_and_help_still_works(capsys):
+    for argv in (["show"], ["gc", "--keep"], ["eval", KEY_A[:8]]):
+        with pytest.raises(SystemExit) as caught:
+            main(argv)
+        err = capsys.readouterr().err
+        assert caught.value.code == 2 and err.startswith("error: ") and err.count("\n") == 1
+    with pytest.raises(SystemExit) as caught:
+        main(["show", "--help"])
+    assert caught.value.code == 0 and "usage:" in capsys.readouterr().out
+
+
+def test_show_of_an_artifact_with_emptied_tensors_says_it_is_damaged(store, capsys):
+    (store.path("relay", KEY_B) / "tensors.safetensors").write_bytes(b"")
+    code, out, err = _cli(capsys, store.root, "show", KEY_B[:8])
+    assert code == 1 and out == "" and err.count("\n") == 1
+    assert err.startswith("error: damaged artifact: ") and "tensors.safetensors" in err
+    assert "artifacts verify" in err
+
+
+def test_an_artifact_with_a_damaged_manifest_is_named_as_damaged_not_missing(store, capsys):
+    (store.path("relay", KEY_B) / "manifest.json").write_text("{broken")
+    for command in (["show", KEY_B[:8]], ["gc", "--keep", KEY_B[:8]]):
+        code, _, err = _cli(capsys, store.root, *command)
+        assert code == 1 and err.count("\n") == 1
+        assert err.startswith(f"error: artifact relay/{KEY_B[:16]} is damaged, not missing: ")
+        assert "manifest.json" in err and "artifacts verify" in err
+    assert store.has("decouple", KEY_A)  # gc refused before removing anything
+    code, out, _ = _cli(capsys, store.root, "ls")
+    assert code == 0 and "1 artifact(s)" in out
+    assert "1 damaged artifact folder(s) not listed: `python -m relaygs.artifacts verify`" in out
+
+
+def _store_model(tmp_path, artifact):
+    store = ArtifactStore(tmp_path / "store")
+    key = artifact_key(artifact.stage, 1, {"steps": 2}, "juggle", [])
+    store.get_or_build(artifact.stage, key, lambda: artifact, config={}, lineage=[])
+    return store, key
+
+
+def test_eval_refuses_a_scene_of_other_length(stage_decoupled, tiny_synth_scene, tmp_path, capsys):
+    store, key = _store_model(tmp_path, stage_decoupled)
+    code, out, err = _cli(capsys, store.root, "eval", key[:8], "--scene", str(tiny_synth_scene))
+    assert code == 1 and out == "" and err.count("\n") == 1
+    assert f"the model was trained on 8 frames but {tiny_synth_scene} has 6" in err
+
+
+def test_eval_refuses_a_scene_with_other_train_cameras(
+    stage_decoupled, stage_scene_path, tmp_path, capsys
+):
+    from relaygs.field import ColorAffine
+    from relaygs.stages.scene_model import SceneModel
+
+    model = SceneModel.from_artifact(stage_decoupled)
+    model.affine_cameras, model.affine = [1, 2, 3], ColorAffine(3)  # as deform fits it
+    store, key = _store_model(tmp_path, model.to_artifact({}))
+    code, out, err = _cli(capsys, store.root, "eval", key[:8], "--scene", str(stage_scene_path))
+    assert code == 1 and out == "" and err.count("\n") == 1
+    assert f"the model was trained on 3 train cameras but {stage_scene_path} has 27" in err

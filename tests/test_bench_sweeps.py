@@ -1,5 +1,7 @@
 """`python -m relaygs.bench sweeps`: the commands it times and how it reports a failing one."""
 
+import subprocess
+
 import pytest
 
 from relaygs import bench, bench_sweeps, bench_train
@@ -34,3 +36,49 @@ def test_an_unwritable_json_path_stops_before_any_work(what, tmp_path, monkeypat
     assert stopped.value.code == 2
     err = capsys.readouterr().err
     assert f"cannot write {blocker / 'report.json'}: {blocker} is not a folder" in err
+
+
+def test_a_failing_experiment_is_reported_with_its_error_line_not_hydras_hint(
+    tmp_path, monkeypatch, capsys
+):
+    stderr = (
+        "Traceback (most recent call last):\n  ...\n"
+        "error: paths.outputs: cannot create /proc/x\n"
+        "Set the environment variable HYDRA_FULL_ERROR=1 for a complete stack trace.\n"
+    )
+    failed = subprocess.CompletedProcess([], 1, stdout="", stderr=stderr)
+    monkeypatch.setattr(bench_sweeps.subprocess, "run", lambda *args, **kwargs: failed)
+    assert bench_sweeps.measure(tmp_path) is None
+    assert capsys.readouterr().err == (
+        "error: experiment 'smoke' exited 1: paths.outputs: cannot create /proc/x\n"
+    )
+
+
+@pytest.mark.parametrize(
+    ("stderr", "line"),
+    [
+        ("boom\nSet the environment variable HYDRA_FULL_ERROR=1 for a complete trace.\n", "boom"),
+        ("", "(no output)"),
+    ],
+)
+def test_without_an_error_line_the_last_line_that_is_not_hydras_hint_is_kept(stderr, line):
+    assert bench_sweeps.failure_line(stderr) == line
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["splat", "--repeats", "0"], "argument --repeats: expected an integer >= 1, got '0'"),
+        (["train", "--steps", "0"], "argument --steps: expected an integer >= 2, got '0'"),
+        (["train", "--threads", "-4"], "argument --threads: expected an integer >= 1, got '-4'"),
+        (["foo"], "argument command: invalid choice: 'foo'"),
+    ],
+)
+def test_bad_options_are_refused_in_one_line_before_any_work(argv, message, monkeypatch, capsys):
+    monkeypatch.setattr(bench_train, "run", lambda args: pytest.fail("train started"))
+    monkeypatch.setattr(bench, "bench_splat", lambda *args: pytest.fail("splat started"))
+    with pytest.raises(SystemExit) as stopped:
+        bench.main(argv)
+    err = capsys.readouterr().err
+    assert stopped.value.code == 2 and err.startswith(f"error: {message}")
+    assert err.count("\n") == 1

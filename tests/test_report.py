@@ -206,3 +206,67 @@ def test_a_budget_sweep_says_what_a_minute_buys_and_which_points_are_on_the_fron
 def test_no_budget_table_at_one_multiplier(sweep):
     assert report.write_reports(sweep).budget is None
     assert not (sweep / "summary_budget.md").exists()
+
+
+def test_usage_errors_are_one_line_and_help_still_works(capsys):
+    with pytest.raises(SystemExit) as caught:
+        report.main([])
+    err = capsys.readouterr().err
+    assert caught.value.code == 2 and err.count("\n") == 1
+    assert err.startswith("error: the following arguments are required: sweep_dir")
+    with pytest.raises(SystemExit) as caught:
+        report.main(["--help"])
+    assert caught.value.code == 0 and "usage:" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        (b"\xff\xfe{}", "unreadable result ('utf-8' codec can't decode byte 0xff"),
+        (b"{}", "not a job result, it lacks variant, job, pipeline, scene, seed, psnr"),
+        (
+            b'{"variant": "k8", "pipeline": "relaygs", "scene": "juggle", "seed": 0}',
+            "not a job result, it lacks job, psnr",
+        ),
+    ],
+)
+def test_an_unreadable_or_incomplete_result_is_named(sweep, capsys, content, message):
+    path = sweep / "0_k8" / "result.json"
+    path.write_bytes(content)
+    assert report.main([str(sweep)]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: {path}: {message}") and err.count("\n") == 1
+    assert not (sweep / "summary.md").exists()
+
+
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [("job", "x"), ("psnr", "abc"), ("train_s_total", True), ("budget.multiplier", "2x")],
+)
+def test_a_result_with_a_non_numeric_value_is_named_with_its_key(sweep, capsys, field, value):
+    path = sweep / "1_k16" / "result.json"
+    path.write_text(json.dumps({**json.loads(path.read_text()), field: value}))
+    assert report.main([str(sweep)]) == 1
+    err = capsys.readouterr().err
+    expected = f"error: {path}: {field}: expected a finite number or null, got {value!r}\n"
+    assert err == expected
+
+
+@pytest.mark.parametrize("name", ["summary.md", "pareto.png"])
+def test_a_folder_where_a_report_file_goes_is_named(sweep, capsys, name):
+    (sweep / name).mkdir()
+    assert report.main([str(sweep)]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: cannot write {sweep / name}: ") and err.count("\n") == 1
+
+
+def test_a_single_run_folder_is_not_taken_for_a_sweep(tmp_path, capsys):
+    _job(tmp_path, 0, "k16", 26.0, 20.0)
+    run = tmp_path / "0_k16"
+    assert report.main([str(run)]) == 1
+    err = capsys.readouterr().err
+    assert err == (
+        f"error: {run} is one run's folder (it holds result.json), not a sweep folder: "
+        "pass the folder that holds the job folders\n"
+    )
+    assert sorted(p.name for p in run.iterdir()) == ["result.json"]

@@ -11,15 +11,16 @@ from collections.abc import Sequence
 from dataclasses import asdict
 from pathlib import Path
 
-from safetensors import safe_open
+from safetensors import SafetensorError, safe_open
 
 from relaygs.app.evaluation import EVAL_STAGE
+from relaygs.cli import OneLineErrorParser
 from relaygs.data import load_scene
 from relaygs.device import usable_device
 from relaygs.errors import RelayGSError
 from relaygs.paths import require_creatable_folder
 from relaygs.pipeline.artifact import TENSORS_FILE, Artifact
-from relaygs.pipeline.store import ArtifactStore, StoredArtifact
+from relaygs.pipeline.store import VERIFY_HINT, ArtifactStore, StoredArtifact
 from relaygs.renders import RenderSettings, write_renders
 from relaygs.stages import evaluate
 from relaygs.stages.scene_model import SceneModel
@@ -44,7 +45,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _parser() -> argparse.ArgumentParser:
     """The argument parser with one sub-command per store operation."""
-    parser = argparse.ArgumentParser(prog="python -m relaygs.artifacts", description=__doc__)
+    parser = OneLineErrorParser(prog="python -m relaygs.artifacts", description=__doc__)
     parser.add_argument("--root", default=DEFAULT_ROOT, help=f"store root (default {DEFAULT_ROOT})")
     commands = parser.add_subparsers(dest="command", required=True)
     commands.add_parser("ls", help="list finished artifacts").set_defaults(command_fn=_ls)
@@ -118,19 +119,37 @@ def _ls(store: ArtifactStore, args: argparse.Namespace) -> int:
             f"{manifest.created}  {upstream}"
         )
     print(f"{len(items)} artifact(s) in {store.root}")
+    damaged = store.damaged()
+    if damaged:
+        print(f"{len(damaged)} damaged artifact folder(s) not listed: {VERIFY_HINT}")
     return 0
 
 
 def _show(store: ArtifactStore, args: argparse.Namespace) -> int:
     """The artifact's folder, manifest (JSON) and tensor names, dtypes and shapes."""
     item = store.find(args.key)
+    tensors = _tensor_lines(item)
     print(f"path: {item.path}")
     print(json.dumps(asdict(item.manifest), indent=2, sort_keys=True))
-    with safe_open(str(item.path / TENSORS_FILE), framework="pt") as tensors:
-        for name in sorted(tensors.keys()):
-            view = tensors.get_slice(name)
-            print(f"tensor {name}: {view.get_dtype()} {list(view.get_shape())}")
+    for line in tensors:
+        print(line)
     return 0
+
+
+def _tensor_lines(item: StoredArtifact) -> list[str]:
+    """`tensor <name>: <dtype> <shape>` per stored tensor, read from the file's header; a file
+    that cannot be parsed is reported as a damaged artifact."""
+    path = item.path / TENSORS_FILE
+    try:
+        with safe_open(str(path), framework="pt") as tensors:
+            views = {name: tensors.get_slice(name) for name in sorted(tensors.keys())}
+            return [
+                f"tensor {name}: {view.get_dtype()} {list(view.get_shape())}"
+                for name, view in views.items()
+            ]
+    except (OSError, SafetensorError) as error:
+        message = f"damaged artifact: {path} is unreadable ({error}); {VERIFY_HINT}"
+        raise RelayGSError(message) from error
 
 
 def _eval(store: ArtifactStore, args: argparse.Namespace) -> int:

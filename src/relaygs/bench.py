@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
 import statistics
 import sys
 import time
@@ -14,6 +13,7 @@ import torch
 
 from relaygs import bench_sweeps, bench_train
 from relaygs.bench_output import json_target, save_json
+from relaygs.cli import OneLineErrorParser, int_at_least
 from relaygs.device import usable_device
 from relaygs.errors import RelayGSError
 from relaygs.splat import rasterization
@@ -155,11 +155,13 @@ def _print_table(rows: list[dict]) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """CLI entry."""
-    parser = argparse.ArgumentParser(prog="python -m relaygs.bench")
-    sub = parser.add_subparsers(dest="what", required=True)
+    parser = OneLineErrorParser(prog="python -m relaygs.bench", description=__doc__)
+    sub = parser.add_subparsers(dest="command", required=True)
     splat = sub.add_parser("splat", help="time the splatting core")
     splat.add_argument("--json", type=json_target, help="also write the results as JSON here")
-    splat.add_argument("--repeats", type=int, default=5, help="timed runs per case (median)")
+    splat.add_argument(
+        "--repeats", type=int_at_least(1), default=5, help="timed runs per case (median)"
+    )
     splat.add_argument("--device", default="cpu", help="cpu or cuda")
     splat.add_argument(
         "--cases",
@@ -171,15 +173,15 @@ def main(argv: list[str] | None = None) -> int:
     sweeps = sub.add_parser("sweeps", help="time the five experiments at the smoke budget")
     bench_sweeps.add_arguments(sweeps)
     args = parser.parse_args(argv)
-    if args.what == "train":
+    if args.command == "train":
         return bench_train.run(args)
-    if args.what == "sweeps":
+    if args.command == "sweeps":
         return bench_sweeps.run(args)
     try:
         device = usable_device(args.device, "--device")
         if device.type == "cpu":
             torch.set_num_threads(2)
-        rows = bench_splat(max(1, args.repeats), device, args.cases.split(","))
+        rows = bench_splat(args.repeats, device, args.cases.split(","))
     except RelayGSError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2

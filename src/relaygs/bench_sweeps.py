@@ -21,6 +21,8 @@ from relaygs.bench_output import json_target, save_json
 TINY_SCENE = ("budget=smoke", "scene.frames=8", "scene.width=48", "scene.height=27")
 EXPERIMENTS = ("smoke", "ablation_k", "ablation_components", "baseline", "budget")
 TARGET_S = 300.0
+ERROR_PREFIX = "error: "
+HYDRA_HINT = "Set the environment variable HYDRA_FULL_ERROR"
 
 
 def command(name: str, outputs: Path, *overrides: str) -> list[str]:
@@ -64,12 +66,21 @@ def measure(outputs: Path) -> dict[str, Any] | None:
         done = subprocess.run(command(name, outputs), capture_output=True, text=True)
         seconds[name] = time.perf_counter() - started
         if done.returncode != 0:
-            last = (done.stderr.strip().splitlines() or ["(no output)"])[-1]
-            print(f"error: experiment {name!r} exited {done.returncode}: {last}", file=sys.stderr)
+            why = failure_line(done.stderr)
+            print(f"error: experiment {name!r} exited {done.returncode}: {why}", file=sys.stderr)
             return None
         print(f"{name:<22}{seconds[name]:>8.1f} s", flush=True)
     total = sum(seconds.values())
     return {"seconds": seconds, "total_s": total, "target_s": TARGET_S, "met": total <= TARGET_S}
+
+
+def failure_line(stderr: str) -> str:
+    """Why a child run failed: its last `error: ...` line (prefix dropped), else its last line
+    that is not Hydra's hint about HYDRA_FULL_ERROR."""
+    lines = [line.strip() for line in stderr.splitlines() if line.strip()]
+    errors = [line.removeprefix(ERROR_PREFIX) for line in lines if line.startswith(ERROR_PREFIX)]
+    others = [line for line in lines if not line.startswith(HYDRA_HINT)]
+    return (errors or others or ["(no output)"])[-1]
 
 
 def _print(report: dict[str, Any]) -> None:

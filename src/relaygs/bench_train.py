@@ -26,6 +26,7 @@ from typing import Any
 import torch
 
 from relaygs.bench_output import json_target, save_json
+from relaygs.cli import int_at_least
 from relaygs.data import Scene, load_scene
 from relaygs.data.synthetic import generate
 from relaygs.errors import RelayGSError
@@ -42,18 +43,20 @@ NO_DENSITY = {"densify_until": 0, "opacity_reset_every": 0}
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The `train` subcommand's options."""
-    parser.add_argument("--steps", type=int, default=30, help="steps timed per stage")
+    parser.add_argument(
+        "--steps", type=int_at_least(2), default=30, help="steps timed per stage (>= 2)"
+    )
     parser.add_argument("--full", action="store_true", help="also time the whole small pipeline")
     parser.add_argument("--cache", type=Path, default=DEFAULT_CACHE, help="scene cache folder")
     parser.add_argument("--json", type=json_target, help="also write the results as JSON here")
     parser.add_argument(
-        "--threads", type=int, default=0, help="torch CPU threads (0: torch's default)"
+        "--threads", type=int_at_least(1), help="torch CPU threads (default: torch's default)"
     )
 
 
 def run(args: argparse.Namespace) -> int:
     """Run the measurements, print a table, optionally write JSON; returns the exit code."""
-    if args.threads > 0:
+    if args.threads is not None:
         torch.set_num_threads(args.threads)
     try:
         report = measure(args)
@@ -70,8 +73,8 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
     scene = bench_scene(args.cache)
     report: dict[str, Any] = {
         "scene": {**SCENE, "points": len(scene.points), "threads": torch.get_num_threads()},
-        "stages": stage_speeds(scene, max(1, args.steps)),
-        "ratio": step_cost_ratio(scene, max(1, args.steps)),
+        "stages": stage_speeds(scene, args.steps),
+        "ratio": step_cost_ratio(scene, args.steps),
     }
     if args.full:
         report["full"] = full_pipeline(scene)

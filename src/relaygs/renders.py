@@ -21,6 +21,7 @@ from torch import Tensor
 from relaygs.data import Scene
 from relaygs.errors import InputError, RelayGSError
 from relaygs.progress import progress_bar
+from relaygs.stages.evaluate import require_its_scene
 from relaygs.stages.model_render import ModelRenderer
 from relaygs.stages.scene_model import SceneModel
 
@@ -78,11 +79,7 @@ def write_renders(
     """Render `model` from the chosen cameras at every `frame_stride`-th frame into
     `out`/cam<ID>/<frame>.png and, with a frame rate, `out`/cam<ID>.mp4 (written beside and
     moved in when complete, so an interrupted run leaves no truncated video)."""
-    if model.num_frames != scene.num_frames:
-        raise InputError(
-            f"the model was trained on {model.num_frames} frames but {scene.root} has "
-            f"{scene.num_frames}: render it with the scene it was trained on"
-        )
+    require_its_scene(model, scene)
     cameras = chosen_cameras(scene, settings.camera_ids)
     renderer = ModelRenderer(model)
     sinks = {camera: _CameraSink(out, camera, settings.fps) for camera in cameras}

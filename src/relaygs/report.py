@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import argparse
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -14,6 +13,7 @@ import pandas as pd
 from relaygs.app.aggregate import aggregate_markdown, aggregate_table
 from relaygs.app.marginal import marginal_markdown, marginal_table, varies_budget
 from relaygs.app.pareto import plot_pareto
+from relaygs.app.result import RESULT_FILE
 from relaygs.app.summary import (
     collect_results,
     failed_jobs,
@@ -21,7 +21,8 @@ from relaygs.app.summary import (
     markdown_table,
     summary_table,
 )
-from relaygs.errors import RelayGSError
+from relaygs.cli import OneLineErrorParser
+from relaygs.errors import InputError, RelayGSError
 from relaygs.paths import require_folder
 
 SUMMARY_CSV = "summary.csv"
@@ -50,8 +51,31 @@ class ReportFiles:
 
 def write_reports(sweep_dir: Path) -> ReportFiles:
     """Collect the sweep's results and write the table (CSV, Markdown) and the Pareto plot."""
-    sweep_dir = require_folder(Path(sweep_dir), "sweep folder")
+    sweep_dir = _require_sweep_folder(Path(sweep_dir))
     table = summary_table(collect_results(sweep_dir))
+    try:
+        return _write_files(table, sweep_dir)
+    except OSError as error:
+        raise InputError(
+            f"cannot write {error.filename or sweep_dir}: {error.strerror or error}"
+        ) from error
+
+
+def _require_sweep_folder(sweep_dir: Path) -> Path:
+    """`sweep_dir` if it is a folder that is not one run's own folder (a run holds its
+    `result.json` itself, a sweep in job folders below; the report would land among the run's
+    files and describe only it)."""
+    sweep_dir = require_folder(sweep_dir, "sweep folder")
+    if (sweep_dir / RESULT_FILE).exists():
+        raise InputError(
+            f"{sweep_dir} is one run's folder (it holds {RESULT_FILE}), not a sweep folder: "
+            "pass the folder that holds the job folders"
+        )
+    return sweep_dir
+
+
+def _write_files(table: pd.DataFrame, sweep_dir: Path) -> ReportFiles:
+    """Write the summary table, the Pareto plot and the optional mean and budget tables."""
     title = _title(table, sweep_dir)
     csv_path = sweep_dir / SUMMARY_CSV
     table.to_csv(csv_path, index=False)
@@ -103,8 +127,9 @@ def _write_budget(table: pd.DataFrame, sweep_dir: Path, title: str) -> Path | No
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Command-line entry: exit 0 on success, 1 with one line on stderr on bad input."""
-    parser = argparse.ArgumentParser(prog="python -m relaygs.report", description=__doc__)
+    """Command-line entry: exit 0 on success, 1 with one line on stderr on bad input (2 on a
+    usage error)."""
+    parser = OneLineErrorParser(prog="python -m relaygs.report", description=__doc__)
     parser.add_argument("sweep_dir", type=Path, help="a multirun folder holding job folders")
     args = parser.parse_args(argv)
     try:

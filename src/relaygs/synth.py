@@ -9,24 +9,16 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from typing import NoReturn
 
+from relaygs.cli import OneLineErrorParser
 from relaygs.data.effects import ALL_EFFECTS
 from relaygs.data.synthetic import PRESETS, generate
 from relaygs.errors import RelayGSError
 
 
-class _OneLineErrorParser(argparse.ArgumentParser):
-    """An argument parser whose usage errors are a single stderr line (exit status 2)."""
-
-    def error(self, message: str) -> NoReturn:
-        """Print `error: message` and exit 2, without the usage block."""
-        self.exit(2, f"error: {message} (see --help)\n")
-
-
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the synth command."""
-    parser = _OneLineErrorParser(
+    parser = OneLineErrorParser(
         prog="python -m relaygs.synth",
         description="Render a synthetic multi-view video scene in the PanopticSports layout.",
         epilog="presets: "

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from relaygs.app.result import RESULT_FILE, STATUS_FAILED, STATUS_OK
+from relaygs.app.result import METRIC_FIELDS, RESULT_FILE, STATUS_FAILED, STATUS_OK
 from relaygs.errors import InputError
 
 MISSING = "n/a"
@@ -35,6 +35,20 @@ LEADING_COLUMNS = (
     "status",
     "error",
 )
+REQUIRED_FIELDS = ("variant", "job", "pipeline", "scene", "seed", "psnr")
+"""Fields every result.json carries (null where unknown, e.g. a failed job's metrics)."""
+NUMERIC_FIELDS = (
+    "job",
+    *METRIC_FIELDS,
+    "train_s_total",
+    "train_s_computed",
+    "eval_s_total",
+    "eval_s_computed",
+    "storage_mb",
+    "cache_hits",
+    "budget.multiplier",
+)
+"""Fields the tables sort or compute with: a finite number or null when present."""
 MARKDOWN_COLUMNS = (
     ("Variant", "variant", "{}"),
     ("PSNR ↑", "psnr", "{:.2f}"),
@@ -55,19 +69,30 @@ def collect_results(sweep_dir: Path) -> pd.DataFrame:
     paths = sorted(Path(sweep_dir).rglob(RESULT_FILE))
     if not paths:
         raise InputError(f"no {RESULT_FILE} found under {sweep_dir}")
-    rows = []
-    for path in paths:
-        try:
-            row = json.loads(path.read_text(encoding="utf-8"))
-        except (OSError, json.JSONDecodeError) as error:
-            raise InputError(f"{path}: unreadable result ({error})") from error
-        if not isinstance(row, dict):
-            raise InputError(f"{path}: expected a JSON object")
-        rows.append({"status": STATUS_OK, **row, "run_dir": str(path.parent)})
-    table = pd.DataFrame(rows)
-    if "job" in table:
-        table = table.sort_values("job", kind="stable", na_position="last")
+    rows = [
+        {"status": STATUS_OK, **_read_result(path), "run_dir": str(path.parent)} for path in paths
+    ]
+    table = pd.DataFrame(rows).sort_values("job", kind="stable", na_position="last")
     return table.reset_index(drop=True)
+
+
+def _read_result(path: Path) -> dict[str, Any]:
+    """One job's result, refused with its path when it is unreadable, lacks a REQUIRED_FIELDS
+    key, or holds anything but a finite number (or null) under a NUMERIC_FIELDS key."""
+    try:
+        row = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as error:  # ValueError: bad UTF-8 or bad JSON
+        raise InputError(f"{path}: unreadable result ({error})") from error
+    if not isinstance(row, dict):
+        raise InputError(f"{path}: expected a JSON object")
+    missing = [name for name in REQUIRED_FIELDS if name not in row]
+    if missing:
+        raise InputError(f"{path}: not a job result, it lacks {', '.join(missing)}")
+    for name in NUMERIC_FIELDS:
+        value = row.get(name)
+        if value is not None and not is_number(value):
+            raise InputError(f"{path}: {name}: expected a finite number or null, got {value!r}")
+    return row
 
 
 def summary_table(results: pd.DataFrame) -> pd.DataFrame:

@@ -43,6 +43,7 @@ from relaygs.pipeline.manifest import (
 
 OnCorrupt = Literal["rebuild", "error"]
 ON_CORRUPT_CHOICES = ("rebuild", "error")
+VERIFY_HINT = "`python -m relaygs.artifacts verify` lists the damaged artifacts"
 
 
 class MissingArtifactError(RelayGSError, LookupError):
@@ -165,24 +166,30 @@ class ArtifactStore:
         return stored, info
 
     def list(self) -> list[StoredArtifact]:
-        """Every finished artifact, sorted by stage then creation time; temp, incomplete
-        and unreadable folders are skipped (`verify` reports the last two)."""
-        found = []
-        for folder in key_dirs(self.root):
-            if not is_sealed(folder):
-                continue
-            try:
-                found.append(StoredArtifact(folder, read_manifest(folder)))
-            except CorruptArtifactError:
-                continue
-        return sorted(found, key=lambda item: (item.stage, item.manifest.created, item.key))
+        """Every finished artifact, sorted by stage then creation time; temp folders are
+        skipped, incomplete and unreadable ones left out (`damaged` lists them)."""
+        return self._scan(check_hashes=False)[0]
+
+    def damaged(self) -> list[VerifyProblem]:
+        """The folders `list` leaves out: incomplete (no completion marker) or with an
+        unreadable manifest. Hashes are not checked here; `verify` does that."""
+        return self._scan(check_hashes=False)[1]
 
     def find(self, key_prefix: str) -> StoredArtifact:
-        """The one finished artifact whose key starts with `key_prefix` (any stage)."""
+        """The one finished artifact whose key starts with `key_prefix` (any stage); a prefix
+        that matches only a damaged folder says so rather than that nothing matches."""
         prefix = key_prefix.strip().lower()
         if len(prefix) < 4:
             raise InputError(f"key prefix {key_prefix!r} is too short (need at least 4 hex digits)")
-        matches = [item for item in self.list() if item.key.startswith(prefix)]
+        found, damaged = self._scan(check_hashes=False)
+        matches = [item for item in found if item.key.startswith(prefix)]
+        if not matches:
+            for problem in damaged:
+                if problem.path.name.startswith(prefix):
+                    name = f"{problem.path.parent.name}/{problem.path.name[:16]}"
+                    raise CorruptArtifactError(
+                        f"artifact {name} is damaged, not missing: {problem.message}; {VERIFY_HINT}"
+                    )
         if len(matches) != 1:
             what = "no artifact" if not matches else f"{len(matches)} artifacts"
             raise MissingArtifactError(f"{what} with key starting {prefix!r} in {self.root}")
@@ -190,17 +197,24 @@ class ArtifactStore:
 
     def verify(self) -> list[VerifyProblem]:
         """Check every artifact folder's hashes; return the bad ones (empty when all good)."""
-        problems = []
+        return self._scan(check_hashes=True)[1]
+
+    def _scan(self, check_hashes: bool) -> tuple[list[StoredArtifact], list[VerifyProblem]]:
+        """The readable artifacts (sorted as `list` says) and the problem of every other
+        artifact folder; with `check_hashes`, each file's hash is checked too."""
+        found, problems = [], []
         for folder in key_dirs(self.root):
             if not is_sealed(folder):
                 problems.append(VerifyProblem(folder, "incomplete (no completion marker)"))
                 continue
             try:
-                check_seal(folder)
-                read_manifest(folder)
+                if check_hashes:
+                    check_seal(folder)
+                found.append(StoredArtifact(folder, read_manifest(folder)))
             except CorruptArtifactError as error:
                 problems.append(VerifyProblem(folder, str(error)))
-        return problems
+        found.sort(key=lambda item: (item.stage, item.manifest.created, item.key))
+        return found, problems
 
     def gc(
         self,

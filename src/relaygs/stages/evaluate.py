@@ -15,6 +15,7 @@ from typing import Any
 import torch
 
 from relaygs.data import Scene
+from relaygs.errors import InputError
 from relaygs.metrics import fg_psnr, psnr, ssim
 from relaygs.pipeline.artifact import Artifact
 from relaygs.stages.config import parse_section, require
@@ -44,7 +45,9 @@ def evaluate(scene: Scene, artifact: Artifact, cfg: Mapping[str, Any]) -> dict[s
     Gaussian counts and the number of test images)."""
     settings = EvalSettings.from_config(cfg.get("eval"))
     device = torch.device(TrainSettings.from_config(cfg.get("train")).device)
-    model = SceneModel.from_artifact(artifact).to(device)
+    model = SceneModel.from_artifact(artifact)
+    require_its_scene(model, scene)
+    model = model.to(device)
     renderer = ModelRenderer(model)
     psnrs, ssims, fg_psnrs = [], [], []
     rendered, render_seconds = 0, 0.0
@@ -75,6 +78,24 @@ def evaluate(scene: Scene, artifact: Artifact, cfg: Mapping[str, Any]) -> dict[s
         "num_fg": n_fg,
         "num_test_images": rendered,
     }
+
+
+def require_its_scene(model: SceneModel, scene: Scene) -> None:
+    """Refuse a scene the model cannot have been trained on, whose renders and scores would mean
+    nothing: another frame count, or other train cameras than its colour affine was fit to."""
+    if model.num_frames != scene.num_frames:
+        raise InputError(
+            f"the model was trained on {model.num_frames} frames but {scene.root} has "
+            f"{scene.num_frames}: use the scene it was trained on"
+        )
+    train_cameras = sorted({view.camera.camera_id for view in scene.train_views})
+    if model.affine_cameras and model.affine_cameras != train_cameras:
+        trained = model.affine_cameras
+        which = " different ones" if len(trained) == len(train_cameras) else ""
+        raise InputError(
+            f"the model was trained on {len(trained)} train cameras but {scene.root} has "
+            f"{len(train_cameras)}{which}: use the scene it was trained on"
+        )
 
 
 def _mean(values: list[float]) -> float | None:
