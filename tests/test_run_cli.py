@@ -9,6 +9,7 @@ import sys
 
 import pandas as pd
 import pytest
+import yaml
 
 from fake_stages import TINY_SCENE, FakeStages
 from relaygs import run as run_module
@@ -137,6 +138,26 @@ class _FlushLog(io.StringIO):
 
     def flush(self) -> None:
         self.flushed.append(self.getvalue())
+
+
+@pytest.mark.parametrize(
+    ("args", "fragment"),
+    [
+        (["--cfg", "job", "scene=mars"], "unknown scene 'mars'"),
+        (["--cfg", "job", "nosuch=1"], "Could not override 'nosuch'"),
+        (["--info", "defaults", "relay.k=[1,"], "cannot parse overrides"),
+    ],
+)
+def test_printing_commands_check_their_overrides_in_one_line(fakes, capsys, args, fragment):
+    assert _main(args) == 1
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: ") and fragment in lines[0], lines
+
+
+def test_cfg_job_prints_the_config_and_does_no_work(fakes, tmp_path, capsys):
+    assert _main(["--cfg", "job", "relay.k=4"]) in (0, None)
+    assert yaml.safe_load(capsys.readouterr().out)["relay"]["k"] == 4
+    assert fakes.calls == [] and list(tmp_path.iterdir()) == []
 
 
 def test_multirun_flag_may_follow_the_overrides(fakes, tmp_path):

@@ -27,6 +27,10 @@ from relaygs.errors import InputError, one_line
 from relaygs.paths import require_creatable_folder
 
 MULTIRUN_FLAGS = frozenset({"-m", "--multirun"})
+CONFIG_LOCATION_FLAGS = frozenset(
+    {"-cn", "--config-name", "-cp", "--config-path", "-cd", "--config-dir"}
+)
+"""Hydra flags that compose another config than conf/config.yaml (checked by Hydra alone)."""
 BASIC_SWEEPER = "hydra._internal.core_plugins.basic_sweeper.BasicSweeper"
 LAUNCHER_PLUGINS = {
     "joblib": ("hydra_plugins.hydra_joblib_launcher", "hydra-joblib-launcher"),
@@ -48,11 +52,15 @@ def check_command_line(argv: Sequence[str], conf_dir: Path, validate: JobValidat
     compose, would launch a job whose config `validate` rejects, or names a run (sweep) folder
     that cannot be written.
 
-    Command lines with Hydra flags other than --multirun (--help, --cfg, -cn ...) are left
-    to Hydra.
+    With Hydra's other flags (--help, --cfg job, --info ...) the command prints rather than
+    runs: only its overrides are checked, that they parse, name known configs and compose.
+    Flags that choose another config (-cn, -cp, -cd) leave the whole check to Hydra.
     """
     flags = [arg for arg in argv if arg.startswith("-")]
+    if any(flag.split("=")[0] in CONFIG_LOCATION_FLAGS for flag in flags):
+        return
     if any(flag not in MULTIRUN_FLAGS for flag in flags):
+        _check_printing_command([arg for arg in argv if _is_override(arg)], conf_dir)
         return
     args = [arg for arg in argv if not arg.startswith("-")]
     overrides = _parse(args)
@@ -68,6 +76,22 @@ def check_command_line(argv: Sequence[str], conf_dir: Path, validate: JobValidat
                 where = f"job {' '.join(job)}: " if job != args else ""
                 raise InputError(f"{where}{error}") from error
         check_output_folder(hydra_cfg, multirun)  # after the jobs' own paths, often its parents
+
+
+def _is_override(arg: str) -> bool:
+    """Whether a command-line word is a Hydra override (`key=value`, `+key=...`, `~key`) and
+    not a flag or a flag's value (`--cfg job`, `--info defaults`)."""
+    return not arg.startswith("-") and ("=" in arg or arg.startswith("~"))
+
+
+def _check_printing_command(args: list[str], conf_dir: Path) -> None:
+    """The overrides of a command that only prints (--cfg, --info, --help) parse, name known
+    configs and compose; sweeps are composed with their first value as Hydra would show."""
+    overrides = _parse(args)
+    check_group_choices(overrides, conf_dir)
+    plain = [o.input_line for o in overrides if not o.is_sweep_override()]
+    with initialize_config_dir(config_dir=str(conf_dir), version_base="1.3", job_name="run"):
+        _compose(plain)
 
 
 def check_group_choices(overrides: Sequence[Override], conf_dir: Path) -> None:
