@@ -14,6 +14,7 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import torch
 import torch.nn.functional as F
@@ -271,8 +272,19 @@ class CompositeGaussians(torch.autograd.Function):
 
     @staticmethod
     def forward(
-        ctx, means2d, conics, opacities, colors, backgrounds, bounds, bins, width, height, fixed
-    ):
+        ctx: Any,
+        means2d: torch.Tensor,
+        conics: torch.Tensor,
+        opacities: torch.Tensor,
+        colors: torch.Tensor,
+        backgrounds: torch.Tensor | None,
+        bounds: torch.Tensor,
+        bins: TileBins,
+        width: int,
+        height: int,
+        fixed: FixedLayer | None,
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Composite tile group by group, keeping the pairs for backward if they fit the budget."""
         c, n, d = colors.shape
         table = _pack(means2d.detach(), conics.detach(), opacities.detach(), bounds)
         flat_colors = colors.detach().reshape(c * n, d)
@@ -309,7 +321,10 @@ class CompositeGaussians(torch.autograd.Function):
 
     @staticmethod
     @torch.autograd.function.once_differentiable
-    def backward(ctx, grad_colors, grad_alphas):
+    def backward(
+        ctx: Any, grad_colors: torch.Tensor, grad_alphas: torch.Tensor
+    ) -> tuple[torch.Tensor | None, ...]:
+        """Gradients for means2d, conics, opacities, colors and backgrounds, tile group by group."""
         means2d, conics, opacities, colors, backgrounds, bounds, t_final = ctx.saved_tensors
         bins: TileBins = ctx.bins
         c, n, d = colors.shape
