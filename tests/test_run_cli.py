@@ -4,11 +4,15 @@ multirun, the sweep-summary callback) driven in-process on fake stages."""
 import functools
 import io
 import json
+import os
+import signal
 import subprocess
 import sys
+import time
 
 import pandas as pd
 import pytest
+import torch
 import yaml
 
 from fake_stages import TINY_SCENE, FakeStages
@@ -16,6 +20,10 @@ from relaygs import run as run_module
 from relaygs.app import prelaunch
 from relaygs.app.task import run_task
 from relaygs.errors import Interrupted
+from relaygs.paths import config_dir
+
+UNUSABLE_GPU = f"cuda:{torch.cuda.device_count()}"
+"""One past the last GPU: unusable on every machine, a CPU-only torch included."""
 
 
 @pytest.fixture
@@ -63,6 +71,8 @@ def _main(args):
         (["hydra.run.dir=/proc/relaygs-run"], "hydra.run.dir: cannot write in /proc"),
         (["-m", "hydra.sweep.dir=/proc/relaygs-sweep"], "hydra.sweep.dir: cannot write in /proc"),
         (["artifacts.root=/proc/relaygs-store"], "artifacts.root: cannot write in /proc"),
+        ([f"train.device={UNUSABLE_GPU}"], f"train.device: cannot use '{UNUSABLE_GPU}' here ("),
+        (["train.device=tpu"], "train.device: expected 'cpu', 'cuda' or 'cuda:N', got 'tpu'"),
     ],
 )
 def test_bad_input_is_one_line_before_any_work(fakes, tmp_path, capsys, args, fragment):
@@ -93,6 +103,32 @@ def test_an_output_path_through_a_file_fails_before_any_work(
     assert [path.name for path in tmp_path.iterdir()] == ["taken"]
 
 
+@pytest.mark.parametrize(
+    ("launcher", "runs_here"), [("basic", True), ("joblib", True), ("slurm", False)]
+)
+def test_the_device_is_checked_here_unless_the_launcher_sends_jobs_elsewhere(
+    tmp_path, monkeypatch, launcher, runs_here
+):
+    pytest.importorskip(prelaunch.LAUNCHER_PLUGINS.get(launcher, ("hydra",))[0])
+    monkeypatch.setattr(prelaunch.shutil, "which", lambda name: f"/usr/bin/{name}")
+    seen = []
+    args = ["-m", f"hydra/launcher={launcher}", "relay.k=8,16", f"hydra.sweep.dir={tmp_path}"]
+    prelaunch.check_command_line(
+        args, config_dir(), lambda cfg, here: seen.append((cfg.relay.k, here))
+    )
+    assert seen == [(8, runs_here), (16, runs_here)]
+
+
+def test_a_slurm_sweep_off_a_cluster_is_one_line_before_any_work(fakes, tmp_path, capsys):
+    pytest.importorskip("hydra_plugins.hydra_submitit_launcher")
+    assert _main(["-m", "hydra/launcher=slurm", "relay.k=8,16"]) == 1
+    assert capsys.readouterr().err.strip() == (
+        "error: hydra/launcher: SlurmLauncher submits with sbatch and srun, but this machine "
+        "has no sbatch or srun on PATH: run the sweep from the cluster's login node"
+    )
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_ctrl_c_ends_the_run_with_one_line_and_status_130(fakes, capsys):
     def interrupt(stage, step, scalars, images=None):
         raise Interrupted(f"{stage} stopped after step 3 of 9; run the same command again")
@@ -101,6 +137,18 @@ def test_ctrl_c_ends_the_run_with_one_line_and_status_130(fakes, capsys):
     assert _main(["budget=smoke", *TINY_SCENE]) == run_module.INTERRUPTED_EXIT == 130
     last = capsys.readouterr().err.strip().splitlines()[-1]
     assert last == "interrupted: decouple stopped after step 3 of 9; run the same command again"
+
+
+def test_sigterm_stops_the_run_as_ctrl_c_does_with_status_143(fakes, capsys):
+    def terminate(stage, step, scalars, images=None):
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(5)  # the handler raises before this ends
+
+    fakes.sinks.append(terminate)
+    previous = signal.getsignal(signal.SIGTERM)
+    assert _main(["budget=smoke", *TINY_SCENE]) == run_module.TERMINATED_EXIT == 143
+    assert capsys.readouterr().err.strip().splitlines()[-1] == "interrupted"
+    assert signal.getsignal(signal.SIGTERM) is previous
 
 
 def test_a_launcher_whose_plugin_is_missing_names_the_package(fakes, monkeypatch, capsys):
@@ -146,6 +194,8 @@ class _FlushLog(io.StringIO):
         (["--cfg", "job", "scene=mars"], "unknown scene 'mars'"),
         (["--cfg", "job", "nosuch=1"], "Could not override 'nosuch'"),
         (["--info", "defaults", "relay.k=[1,"], "cannot parse overrides"),
+        (["-m", "relay.k=8,16", "--cfg", "job"], "--cfg and --multirun cannot be combined"),
+        (["-r", "-c", "job"], "--cfg and --run cannot be combined: Hydra takes one of --run,"),
     ],
 )
 def test_printing_commands_check_their_overrides_in_one_line(fakes, capsys, args, fragment):
@@ -164,6 +214,14 @@ def test_multirun_flag_may_follow_the_overrides(fakes, tmp_path):
     assert _main(["budget=smoke", *TINY_SCENE, "seed=3,4", "-m"]) == 0
     (sweep,) = tmp_path.glob("outputs/sweeps/*")
     assert sorted(pd.read_csv(sweep / "summary.csv").seed) == [3, 4]
+
+
+def test_run_flag_runs_one_checked_job_wherever_it_stands(fakes, tmp_path, capsys):
+    assert _main(["relay.k=0", "-r"]) == 1  # checked before any work, as without -r
+    assert "relay.k" in capsys.readouterr().err and list(tmp_path.iterdir()) == []
+    assert _main(["budget=smoke", *TINY_SCENE, "seed=3", "-r"]) == 0
+    (result_path,) = tmp_path.glob("outputs/runs/*/result.json")
+    assert json.loads(result_path.read_text())["seed"] == 3
 
 
 def test_each_stage_line_and_a_jobs_summary_reach_the_log_when_printed(fakes, monkeypatch):

@@ -5,7 +5,9 @@ import threading
 import time
 
 import pytest
+from omegaconf import OmegaConf
 
+from fake_stages import compose_config
 from relaygs.app import scenes
 from relaygs.app.scenes import prepare_scene, scene_spec, synthetic_folder
 from relaygs.errors import InputError
@@ -81,3 +83,22 @@ def test_capture_paths_must_exist_and_have_a_known_layout(tmp_path):
 def test_unknown_scene_fields_are_rejected():
     with pytest.raises(InputError, match=r"scene: unknown field\(s\) \['colour'\]"):
         scene_spec({**TINY, "colour": "red"})
+
+
+@pytest.mark.parametrize(
+    ("overrides", "label"),
+    [
+        ([], "juggle"),
+        (["scene=court"], "court"),
+        (["scene.path={capture}"], "{capture_name}"),
+        (["scene.path={capture}", "scene.name=basketball"], "basketball"),
+    ],
+)
+def test_results_label_the_scene_by_name_else_capture_folder_else_preset(
+    tiny_synth_copy, tmp_path, overrides, label
+):
+    capture = tiny_synth_copy.rename(tmp_path / "studio_take2")
+    fill = {"capture": str(capture), "capture_name": capture.name}
+    cfg = compose_config([item.format(**fill) for item in overrides], tmp_path)
+    section = OmegaConf.to_container(cfg.scene, resolve=True)
+    assert scene_spec(section).name == label.format(**fill)

@@ -102,11 +102,13 @@ def test_bad_shared_sections_name_the_key(cfg: dict, needle: str) -> None:
         validate_config("decouple", cfg)
 
 
-def test_unusable_cuda_device_fails_before_any_work() -> None:
+def test_an_unusable_cuda_device_is_refused_where_the_stage_would_train() -> None:
     # No CUDA here: plain "cuda" is unusable; with GPUs, the index one past the last one.
     device = f"cuda:{torch.cuda.device_count()}" if torch.cuda.is_available() else "cuda"
+    validate_config("decouple", {"train": {"device": device}})  # may be a Slurm node's GPU
+    train = TrainSettings.from_config({"device": device})
     with pytest.raises(InputError, match=rf"train\.device: cannot use '{device}'") as caught:
-        validate_config("decouple", {"train": {"device": device}})
+        train.torch_device()
     assert "\n" not in str(caught.value)
 
 

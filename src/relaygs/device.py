@@ -7,16 +7,22 @@ import torch
 from relaygs.errors import InputError
 
 
-def usable_device(name: str, what: str) -> torch.device:
-    """`name` as a torch device, or one line naming `what` when the splatting core does not run
-    there or this torch cannot allocate there (a CPU-only build, no GPU, an index past the last
-    GPU). Checked before any work starts."""
+def parse_device(name: str, what: str) -> torch.device:
+    """`name` as a torch device the splatting core runs on ('cpu', 'cuda', 'cuda:N'), or one
+    line naming `what`. Says nothing of this machine: a job may run on another one."""
     try:
         device = torch.device(name)
     except RuntimeError:
         device = None
     if device is None or device.type not in ("cpu", "cuda"):
         raise InputError(f"{what}: expected 'cpu', 'cuda' or 'cuda:N', got {name!r}")
+    return device
+
+
+def usable_device(name: str, what: str) -> torch.device:
+    """`parse_device`, and this torch can allocate there, else one line naming `what` and why
+    (a CPU-only build, no GPU, an index past the last GPU). Checked before any work starts."""
+    device = parse_device(name, what)
     if device.type == "cpu":
         return device
     try:

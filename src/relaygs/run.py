@@ -9,6 +9,7 @@ Hydra composes the config and calls `relaygs.app.task.run_task` for each job.
 
 from __future__ import annotations
 
+import signal
 import sys
 import traceback
 from collections.abc import Sequence
@@ -23,14 +24,16 @@ from omegaconf import DictConfig
 
 from relaygs.app.config import resolve_config
 from relaygs.app.plan import plan_run
-from relaygs.app.prelaunch import MULTIRUN_FLAGS, check_command_line
+from relaygs.app.prelaunch import LAUNCH_FLAGS, check_command_line
 from relaygs.app.result import RESULT_FILE, error_line
 from relaygs.app.suite import load_stage_suite
 from relaygs.app.task import run_task
+from relaygs.device import usable_device
 from relaygs.errors import RelayGSError
 from relaygs.paths import config_dir
 
 INTERRUPTED_EXIT = 130  # the shell's status for a command stopped by Ctrl-C (128 + SIGINT)
+TERMINATED_EXIT = 143  # and by SIGTERM (`kill PID`, a scheduler's stop): 128 + SIGTERM
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -41,22 +44,32 @@ def main(argv: Sequence[str] | None = None) -> int:
         conf = config_dir()
         suite = load_stage_suite()
 
-        def validate(cfg: DictConfig) -> None:
-            plan_run(resolve_config(cfg, Path.cwd()), suite.stages, suite.validate)
+        def validate(cfg: DictConfig, runs_here: bool) -> None:
+            plan = plan_run(resolve_config(cfg, Path.cwd()), suite.stages, suite.validate)
+            if runs_here:  # a Slurm job's GPU is on its node, not on the submitting machine
+                usable_device(plan.device, "train.device")
 
         check_command_line(args, conf, validate)
     except RelayGSError as error:
         print(f"error: {error}", file=sys.stderr)
         return 1
     # Hydra takes flags only before the overrides: `seed=0 -m k=1,2` goes as `-m seed=0 k=1,2`
-    flags = [arg for arg in args if arg in MULTIRUN_FLAGS]
-    sys.argv = [sys.argv[0], *flags, *(arg for arg in args if arg not in MULTIRUN_FLAGS)]
+    flags = [arg for arg in args if arg in LAUNCH_FLAGS]
+    sys.argv = [sys.argv[0], *flags, *(arg for arg in args if arg not in LAUNCH_FLAGS)]
+    terminated = []
+
+    def stop_like_ctrl_c(signum: int, frame: object) -> None:
+        terminated.append(signum)
+        raise KeyboardInterrupt  # the stage names where it stopped and what a rerun resumes
+
+    previous = signal.signal(signal.SIGTERM, stop_like_ctrl_c)
     try:
         hydra.main(version_base="1.3", config_path=str(conf), config_name="config")(run_job)()
     except KeyboardInterrupt as stop:
         print(f"interrupted: {stop}" if str(stop) else "interrupted", file=sys.stderr)
-        return INTERRUPTED_EXIT
+        return TERMINATED_EXIT if terminated else INTERRUPTED_EXIT
     finally:
+        signal.signal(signal.SIGTERM, previous)
         GlobalHydra.instance().clear()
     return 0
 

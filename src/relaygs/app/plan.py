@@ -44,6 +44,11 @@ class RunPlan:
     threads: int | None = None
 
     @property
+    def device(self) -> str:
+        """`train.device`, where every stage trains and the evaluation renders."""
+        return str(self.eval_config["train"].get("device", "cpu"))
+
+    @property
     def progress(self) -> bool:
         """Whether progress bars are shown (`train.progress`, on unless set false)."""
         return bool(self.eval_config["train"].get("progress", True))

@@ -10,6 +10,7 @@ is one line before any work starts.
 from __future__ import annotations
 
 import importlib.util
+import shutil
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
@@ -27,6 +28,16 @@ from relaygs.errors import InputError, one_line
 from relaygs.paths import require_creatable_folder
 
 MULTIRUN_FLAGS = frozenset({"-m", "--multirun"})
+LAUNCH_FLAGS = MULTIRUN_FLAGS | {"-r", "--run"}
+"""Flags that run jobs (the others print); Hydra reads them only before the overrides."""
+MODE_FLAGS = {
+    **{flag: "--run" for flag in ("-r", "--run")},
+    **{flag: "--multirun" for flag in MULTIRUN_FLAGS},
+    **{flag: "--cfg" for flag in ("-c", "--cfg")},
+    **{flag: "--info" for flag in ("-i", "--info")},
+    **{flag: "--shell-completion" for flag in ("-sc", "--shell-completion")},
+}
+"""Hydra's flags that choose what the command does, of which it takes one."""
 CONFIG_LOCATION_FLAGS = frozenset(
     {"-cn", "--config-name", "-cp", "--config-path", "-cd", "--config-dir"}
 )
@@ -40,11 +51,17 @@ LAUNCHER_PLUGINS = {
 }
 """Launcher choices that need a plugin: (its module, its pip package). Others (Hydra's
 `basic`, any installed plugin) are checked by composing."""
+REMOTE_LAUNCHERS = {
+    "hydra_plugins.hydra_submitit_launcher.submitit_launcher.SlurmLauncher": ("sbatch", "srun")
+}
+"""Launchers whose jobs run on other machines (a job's device is checked where it runs), with
+the commands they submit through, which must be on this machine's PATH."""
 GROUP_HINTS = {"scene": "; or set scene.path=DIR for a capture"}
 CONFIG_NAME = "config"
 
-JobValidator = Callable[[DictConfig], None]
-"""Raises InputError when a composed job config is bad."""
+JobValidator = Callable[[DictConfig, bool], None]
+"""Raises InputError when a composed job config is bad; the flag says whether the job runs on
+this machine, so that what it needs from the machine (its device) can be checked here."""
 
 
 def check_command_line(argv: Sequence[str], conf_dir: Path, validate: JobValidator) -> None:
@@ -57,9 +74,17 @@ def check_command_line(argv: Sequence[str], conf_dir: Path, validate: JobValidat
     Flags that choose another config (-cn, -cp, -cd) leave the whole check to Hydra.
     """
     flags = [arg for arg in argv if arg.startswith("-")]
+    modes = sorted(
+        {MODE_FLAGS[name] for name in (f.split("=")[0] for f in flags) if name in MODE_FLAGS}
+    )
+    if len(modes) > 1:
+        raise InputError(
+            f"{' and '.join(modes)} cannot be combined: Hydra takes one of "
+            f"{', '.join(dict.fromkeys(MODE_FLAGS.values()))}"
+        )
     if any(flag.split("=")[0] in CONFIG_LOCATION_FLAGS for flag in flags):
         return
-    if any(flag not in MULTIRUN_FLAGS for flag in flags):
+    if any(flag not in LAUNCH_FLAGS for flag in flags):
         _check_printing_command([arg for arg in argv if _is_override(arg)], conf_dir)
         return
     args = [arg for arg in argv if not arg.startswith("-")]
@@ -68,10 +93,15 @@ def check_command_line(argv: Sequence[str], conf_dir: Path, validate: JobValidat
     with initialize_config_dir(config_dir=str(conf_dir), version_base="1.3", job_name="run"):
         plain = [o.input_line for o in overrides if not o.is_sweep_override()]
         hydra_cfg = _compose(plain, with_hydra=True).hydra
-        multirun = bool(flags) or hydra_cfg.mode == RunMode.MULTIRUN
+        # --run does not override a config's `hydra.mode: MULTIRUN`; --multirun does
+        multirun = "--multirun" in modes or hydra_cfg.mode == RunMode.MULTIRUN
+        launcher = hydra_cfg.launcher.get("_target_")
+        runs_here = not multirun or launcher not in REMOTE_LAUNCHERS
+        if not runs_here:
+            _check_submit_commands(launcher)
         for job in planned_jobs(args, overrides, hydra_cfg, multirun):
             try:
-                validate(_compose(job))
+                validate(_compose(job), runs_here)
             except InputError as error:
                 where = f"job {' '.join(job)}: " if job != args else ""
                 raise InputError(f"{where}{error}") from error
@@ -167,6 +197,17 @@ def available_choices(conf_dir: Path, group: str) -> list[str]:
     return sorted(
         path.stem for path in (conf_dir / group).glob("*.yaml") if not path.stem.startswith("_")
     )
+
+
+def _check_submit_commands(launcher: str) -> None:
+    """A launcher that submits to a cluster needs its commands here (a login node's PATH)."""
+    missing = [name for name in REMOTE_LAUNCHERS[launcher] if shutil.which(name) is None]
+    if missing:
+        raise InputError(
+            f"hydra/launcher: {launcher.rsplit('.', 1)[-1]} submits with "
+            f"{' and '.join(REMOTE_LAUNCHERS[launcher])}, but this machine has no "
+            f"{' or '.join(missing)} on PATH: run the sweep from the cluster's login node"
+        )
 
 
 def _check_launcher_plugin(choice: str) -> None:

@@ -123,7 +123,7 @@ def decouple(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, A
     section = DecoupleConfig.from_config(cfg.get(STAGE))
     train = TrainSettings.from_config(cfg.get("train"))
     seed = int(cfg.get("seed", 0))
-    device = torch.device(train.device)
+    device = train.torch_device()
     training = training_scene(scene, train, early_stage=True)
     plan = SetPlan(section.learning_rates(), section.densify_settings(), section.sh_every)
     session = static_session(SET, scene, section, plan, seed, device, {MASK: section.mask_init})

@@ -168,7 +168,7 @@ def deform(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, Any
     section = DeformConfig.from_config(cfg.get(STAGE))
     train = TrainSettings.from_config(cfg.get("train"))
     seed = int(cfg.get("seed", 0))
-    device = torch.device(train.device)
+    device = train.torch_device()
     model = _starting_model(upstream_model(artifact, scene, STAGE), section, scene, seed)
     model.to(device)
     session = _session(model, section, scene, seed, device)

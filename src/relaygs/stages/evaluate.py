@@ -12,8 +12,6 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-import torch
-
 from relaygs.data import Scene
 from relaygs.errors import InputError
 from relaygs.metrics import fg_psnr, psnr, ssim
@@ -44,7 +42,7 @@ def evaluate(scene: Scene, artifact: Artifact, cfg: Mapping[str, Any]) -> dict[s
     """Test metrics of the artifact's model on `scene` (keys in the module docstring, plus
     Gaussian counts and the number of test images)."""
     settings = EvalSettings.from_config(cfg.get("eval"))
-    device = torch.device(TrainSettings.from_config(cfg.get("train")).device)
+    device = TrainSettings.from_config(cfg.get("train")).torch_device()
     model = SceneModel.from_artifact(artifact)
     require_its_scene(model, scene)
     model = model.to(device)

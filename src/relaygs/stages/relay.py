@@ -114,7 +114,7 @@ def relay(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, Any]
     section = RelayConfig.from_config(cfg.get(STAGE))
     train = TrainSettings.from_config(cfg.get("train"))
     seed = int(cfg.get("seed", 0))
-    device = torch.device(train.device)
+    device = train.torch_device()
     source = upstream_model(artifact, scene, STAGE).to(device)
     segments = num_segments(scene.num_frames, section.k)
     training = training_scene(scene, train, early_stage=True)
@@ -161,7 +161,7 @@ def _train(
     seed: int,
 ) -> tuple[dict[str, GaussianSet], TrainReport]:
     """Fit copy s (and a trainable background) to segment s's targets; returns the sets."""
-    device = torch.device(train.device)
+    device = train.torch_device()
     plans = section.plans()
     session = TrainingSession(
         sets=sets,

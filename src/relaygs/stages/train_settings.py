@@ -6,7 +6,9 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from relaygs.device import usable_device
+import torch
+
+from relaygs.device import parse_device, usable_device
 from relaygs.stages.config import parse_section, require
 
 
@@ -44,12 +46,17 @@ class TrainSettings:
         require(self.log_every >= 1, "train.log_every", self.log_every, "an int >= 1")
         require(self.image_every >= 0, "train.image_every", self.image_every, "an int >= 0")
         require(self.checkpoint_every >= 1, "train.checkpoint_every", self.checkpoint_every, ">= 1")
-        usable_device(self.device, "train.device")
+        parse_device(self.device, "train.device")  # usable here is checked where the job runs
 
     @classmethod
     def from_config(cls, data: Mapping[str, Any] | None) -> TrainSettings:
         """Parse `cfg["train"]` (missing keys keep defaults)."""
         return parse_section(cls, data, "train")
+
+    def torch_device(self) -> torch.device:
+        """The device to train on, once this machine is known to allocate there (one line
+        naming `train.device` if not)."""
+        return usable_device(self.device, "train.device")
 
     def downscale_for(self, image_width: int, early_stage: bool) -> int:
         """Resolution factor a stage trains at, given the scene's full image width."""
