@@ -204,6 +204,12 @@ def test_printing_commands_check_their_overrides_in_one_line(fakes, capsys, args
     assert len(lines) == 1 and lines[0].startswith("error: ") and fragment in lines[0], lines
 
 
+def test_shell_completion_is_left_to_hydra(fakes, tmp_path, capsys):
+    assert _main(["-sc", "install=bash"]) == 0
+    assert "complete" in capsys.readouterr().out  # the bash completion script
+    assert fakes.calls == [] and list(tmp_path.iterdir()) == []
+
+
 def test_cfg_job_prints_the_config_and_does_no_work(fakes, tmp_path, capsys):
     assert _main(["--cfg", "job", "relay.k=4"]) in (0, None)
     assert yaml.safe_load(capsys.readouterr().out)["relay"]["k"] == 4

@@ -71,7 +71,8 @@ def check_command_line(argv: Sequence[str], conf_dir: Path, validate: JobValidat
 
     With Hydra's other flags (--help, --cfg job, --info ...) the command prints rather than
     runs: only its overrides are checked, that they parse, name known configs and compose.
-    Flags that choose another config (-cn, -cp, -cd) leave the whole check to Hydra.
+    Flags that choose another config (-cn, -cp, -cd) and shell completion (-sc) leave the whole
+    check to Hydra.
     """
     flags = [arg for arg in argv if arg.startswith("-")]
     modes = sorted(
@@ -82,8 +83,10 @@ def check_command_line(argv: Sequence[str], conf_dir: Path, validate: JobValidat
             f"{' and '.join(modes)} cannot be combined: Hydra takes one of "
             f"{', '.join(dict.fromkeys(MODE_FLAGS.values()))}"
         )
-    if any(flag.split("=")[0] in CONFIG_LOCATION_FLAGS for flag in flags):
-        return
+    if "--shell-completion" in modes or any(
+        flag.split("=")[0] in CONFIG_LOCATION_FLAGS for flag in flags
+    ):
+        return  # `-sc install=bash` is Hydra's own command, not an override
     if any(flag not in LAUNCH_FLAGS for flag in flags):
         _check_printing_command([arg for arg in argv if _is_override(arg)], conf_dir)
         return
