@@ -8,7 +8,12 @@ import numpy as np
 import pytest
 import torch
 
-from relaygs.metrics import SSIM_C1, SSIM_C2, fg_psnr, psnr, ssim
+from relaygs.metrics import fg_psnr, psnr, ssim
+
+# SSIM stabilisers for data range 1 (Wang et al. 2004), written out rather than imported so
+# that the tests check the module's constants instead of reusing them.
+C1 = 0.01**2
+C2 = 0.03**2
 
 
 def _gaussian_taps() -> np.ndarray:
@@ -34,9 +39,9 @@ def _direct_ssim(x: np.ndarray, y: np.ndarray) -> float:
                 vy = (weights * wy * wy).sum() - my * my
                 cxy = (weights * wx * wy).sum() - mx * my
                 values.append(
-                    (2 * mx * my + SSIM_C1)
-                    * (2 * cxy + SSIM_C2)
-                    / ((mx * mx + my * my + SSIM_C1) * (vx + vy + SSIM_C2))
+                    (2 * mx * my + C1)
+                    * (2 * cxy + C2)
+                    / ((mx * mx + my * my + C1) * (vx + vy + C2))
                 )
     return float(np.mean(values))
 
@@ -103,13 +108,30 @@ def test_ssim_of_constant_images_matches_the_hand_formula():
     w = np.outer(mass_rows, mass_cols)
     # Zero padding: mean = value·w, variance = value²·w(1 − w), covariance = a·b·w(1 − w).
     expected = (
-        (2 * a * b * w * w + SSIM_C1)
-        * (2 * a * b * w * (1 - w) + SSIM_C2)
-        / (((a * a + b * b) * w * w + SSIM_C1) * ((a * a + b * b) * w * (1 - w) + SSIM_C2))
+        (2 * a * b * w * w + C1)
+        * (2 * a * b * w * (1 - w) + C2)
+        / (((a * a + b * b) * w * w + C1) * ((a * a + b * b) * w * (1 - w) + C2))
     ).mean()
-    interior = (2 * a * b + SSIM_C1) / (a * a + b * b + SSIM_C1)
+    interior = (2 * a * b + C1) / (a * a + b * b + C1)
     assert ssim(pred, gt).item() == pytest.approx(expected, abs=1e-7)
     assert ssim(pred, gt).item() != pytest.approx(interior, abs=1e-3)
+
+
+def test_ssim_of_a_single_pixel_matches_the_closed_form():
+    """A 1×1 image: the zero-padded window sees only its centre tap, of weight w = g₀².
+
+    With g₀ = 1 / Σ_{k=-5..5} exp(−k²/4.5): μ = w·v, σ² = w·v² − (w·v)² = v²·w(1 − w) and
+    σxy = a·b·w(1 − w), so SSIM is a closed form in a, b and w alone.
+    """
+    a, b = 0.2, 0.8
+    w = (1.0 / sum(math.exp(-(k**2) / 4.5) for k in range(-5, 6))) ** 2
+    s = w * (1.0 - w)
+    expected = (2 * a * b * w * w + C1) * (2 * a * b * s + C2)
+    expected /= ((a * a + b * b) * w * w + C1) * ((a * a + b * b) * s + C2)
+    pred = torch.full((1, 1, 1), a, dtype=torch.float64)
+    gt = torch.full((1, 1, 1), b, dtype=torch.float64)
+    # rel 1e-6: the window taps are float32 even for float64 images.
+    assert ssim(pred, gt).item() == pytest.approx(expected, rel=1e-6)
 
 
 def test_ssim_matches_a_direct_window_computation():
