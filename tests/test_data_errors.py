@@ -285,3 +285,38 @@ def test_unknown_effect_in_scene_json(tiny_synth_copy: Path):
 )
 def test_bad_loader_options(tiny_synth_scene: Path, options: dict, fragment: str):
     _expect(tiny_synth_scene, fragment, **options)
+
+
+def test_pose_that_is_a_reflection(tiny_synth_copy: Path):
+    # diag(1, 1, -1) · R is orthonormal (R Rᵀ = I) but has det -1: a mirror, not a rotation.
+    def mirror_z(meta: dict) -> None:
+        pose = meta["w2c"][1][2]
+        pose[2] = [-value for value in pose[2][:3]] + pose[2][3:]
+
+    _edit_meta(tiny_synth_copy, "test_meta.json", mirror_z)
+    _expect(tiny_synth_copy, "test_meta.json: field 'w2c'", "rotation with det +1")
+
+
+def test_zero_vertical_focal_length(tiny_synth_copy: Path):
+    def zero_fy(meta: dict) -> None:
+        meta["k"][4][0][1][1] = 0.0
+
+    _edit_meta(tiny_synth_copy, "test_meta.json", zero_fy)
+    _expect(tiny_synth_copy, "test_meta.json: field 'k'", "fx, fy > 0")
+
+
+def test_test_camera_that_is_also_a_train_camera(tiny_synth_copy: Path):
+    train_ids = json.loads((tiny_synth_copy / "train_meta.json").read_text())["cam_id"]
+    shared = train_ids[0][1]
+
+    def reuse_train_camera(meta: dict) -> None:
+        for row in meta["cam_id"]:
+            row[0] = shared
+
+    _edit_meta(tiny_synth_copy, "test_meta.json", reuse_train_camera)
+    _expect(
+        tiny_synth_copy,
+        "test_meta.json: camera ids",
+        f"[{shared}] also appear in",
+        "train and test cameras must differ",
+    )

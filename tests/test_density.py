@@ -174,3 +174,30 @@ def test_screen_radius_pruning_when_enabled() -> None:
     controller.accumulate(torch.zeros(1, 3, 2), radii, 100, 100)
     assert controller.prune(size_limits=False) == 0
     assert controller.prune(size_limits=True) == 1 and len(g) == 2
+
+
+def test_densification_starts_only_after_densify_from() -> None:
+    # 3DGS densifies when step > densify_from: with from = 6 and every = 2, step 6 is the
+    # last step that does not densify and step 8 the first that does.
+    g = make_set([SMALL_LOG_SCALE] * 3)
+    settings = DensifySettings(
+        densify_from=6, densify_every=2, densify_until=20, opacity_reset_every=0
+    )
+    controller = DensityController(g, settings, 1.0)
+    feed(controller, [1e-3, 0.0, 0.0])
+    assert controller.step(6) is None and len(g) == 3
+    report = controller.step(8)
+    assert (report.cloned, report.split, report.total) == (1, 0, 4)
+
+
+def test_screen_radius_pruning_uses_the_largest_radius_seen() -> None:
+    # A Gaussian once 30 px wide (over the 20 px limit) and later 5 px is still pruned: the
+    # statistic is the running maximum over the accumulated steps, not the last step's radius.
+    g = make_set([SMALL_LOG_SCALE] * 2)
+    controller = DensityController(g, DensifySettings(max_screen_radius=20.0), 1.0)
+    big_then_small = [[[30, 30], [3, 3]]], [[[5, 5], [3, 3]]]
+    for radii in big_then_small:
+        controller.accumulate(torch.zeros(1, 2, 2), torch.tensor(radii, dtype=torch.int32), 9, 9)
+    means = g.means.detach().clone()
+    assert controller.prune(size_limits=True) == 1
+    assert torch.equal(g.means.detach(), means[[1]])

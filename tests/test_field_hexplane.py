@@ -188,3 +188,24 @@ def test_cuda_matches_cpu() -> None:
     expected = hexplane(xyz, 0.7)
     got = hexplane.cuda()(xyz.cuda(), 0.7)
     torch.testing.assert_close(got.cpu(), expected)
+
+
+def test_time_l1_is_the_mean_absolute_distance_from_one() -> None:
+    # Values on both sides of 1: the xt plane at -2 is 3 away, the yt plane at 2 is 1 away and
+    # the zt plane (still 1) 0 away; each plane's mean is summed, so the L1 is 3 + 1 + 0 = 4.
+    # Without the absolute value the yt plane would count as -1.
+    hexplane = tiny_hexplane(resolution=3, time_resolution=4)
+    with torch.no_grad():
+        hexplane.time_planes[0][0].fill_(-2.0)
+        hexplane.time_planes[0][1].fill_(2.0)
+    assert hexplane.time_l1().item() == pytest.approx(4.0)
+
+
+def test_time_l1_averages_each_plane_and_sums_over_levels() -> None:
+    # Two levels of two channels: level 0's xt plane has one channel at 3 (distance 2) and one
+    # at 1 (distance 0), mean 1; level 1's zt plane is all 0.5 (distance 0.5). Total 1.5.
+    hexplane = HexPlane(UNIT_BOX, 3, multires=[1, 2], spatial_resolution=2, channels=2)
+    with torch.no_grad():
+        hexplane.time_planes[0][0, 0].fill_(3.0)
+        hexplane.time_planes[1][2].fill_(0.5)
+    assert hexplane.time_l1().item() == pytest.approx(1.5)

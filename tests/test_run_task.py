@@ -1,6 +1,7 @@
 """The job function end to end on fake stages: result.json, shared artifacts, TensorBoard."""
 
 import copy
+import dataclasses
 import json
 
 import pytest
@@ -9,6 +10,7 @@ from omegaconf import OmegaConf
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from fake_stages import TINY_SCENE, FakeStages, compose_config
+from relaygs.app import task as task_module
 from relaygs.app.evaluation import evaluation_config
 from relaygs.app.result import RESULT_FILE
 from relaygs.app.task import run_task
@@ -213,3 +215,24 @@ def test_hparams_flatten_to_dotted_keys_with_none_as_text():
         "f": True,
         "g": "x",
     }
+
+
+def test_non_finite_metrics_are_written_as_null(base_config, tmp_path, monkeypatch):
+    # JSON has no NaN: a metric that came out NaN or infinite must read back as null rather
+    # than break result.json. (The eval store refuses such metrics, so the evaluation is
+    # replaced after it was stored.)
+    real = task_module.evaluate_through_store
+
+    def non_finite(*args, **kwargs):
+        evaluation = real(*args, **kwargs)
+        metrics = {**evaluation.metrics, "psnr": float("nan"), "lpips": float("inf")}
+        return dataclasses.replace(evaluation, metrics=metrics)
+
+    monkeypatch.setattr(task_module, "evaluate_through_store", non_finite)
+    result = _run(base_config, tmp_path / "run", FakeStages())
+    text = (tmp_path / "run" / RESULT_FILE).read_text()
+    assert '"psnr": null' in text and "NaN" not in text and "Infinity" not in text
+    written = json.loads(text)
+    assert written == result
+    assert written["psnr"] is None and written["ssim"] == 0.5
+    assert "lpips" not in written  # extra metrics are kept only when they have a value

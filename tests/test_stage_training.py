@@ -13,6 +13,7 @@ from conftest import stage_smoke_cfg
 from relaygs.data import Scene
 from relaygs.errors import DivergenceError, Interrupted
 from relaygs.pipeline.artifact import Artifact, write_artifact_files
+from relaygs.pipeline.checkpoint import StageCheckpointer
 from relaygs.pipeline.context import BuildContext, building
 from relaygs.pipeline.store import ArtifactStore
 from relaygs.stages import STAGES, log
@@ -181,3 +182,19 @@ def test_sinks_receive_live_metrics(stage_scene: Scene, stage_relayed: Artifact)
     assert 0.0 < scalars["fg_fraction"] < 1.0
     assert records[0][3] is None
     assert images["render"].shape == images["target"].shape == (27, 48, 3)
+
+
+def test_resumed_run_counts_the_seconds_before_the_kill(stage_scene: Scene, tmp_path: Path) -> None:
+    cfg = stage_smoke_cfg(train={"checkpoint_every": 2, "log_every": 1}, decouple={"steps": 6})
+    with pytest.raises(KilledError):
+        _run("decouple", stage_scene, {}, cfg, tmp_path, kill_at=3)
+    state = StageCheckpointer(tmp_path, "decouple", KEY, 2).load()
+    assert state is not None and state.step == 2
+    before_kill = float(state.extras["seconds"])
+    assert before_kill > 0.0
+    metrics = _run("decouple", stage_scene, {}, cfg, tmp_path).meta["metrics"]
+    assert metrics["resumed_from"] == 2
+    # steps_per_second covers only this run's steps, so it gives this run's seconds back.
+    this_run = (metrics["steps"] - 2) / metrics["steps_per_second"]
+    assert metrics["train_seconds"] >= before_kill
+    assert metrics["train_seconds"] == pytest.approx(before_kill + this_run, rel=1e-9)

@@ -1,6 +1,7 @@
 """ArtifactStore in one process: layout, manifest, cache hits, corruption, missing keys, gc."""
 
 import json
+import shutil
 
 import pytest
 import torch
@@ -227,3 +228,51 @@ def test_the_next_build_of_a_key_clears_its_killed_builds_temp_dirs(tmp_path):
     (leftover / "meta.json").write_text("{")
     _build(store, CountingStage())
     assert not leftover.exists() and store.verify() == []
+
+
+@pytest.mark.parametrize("victim", ["tensors.safetensors", "meta.json"])
+def test_a_deleted_file_is_named_by_verify_and_rebuilt(tmp_path, victim):
+    store, fake = ArtifactStore(tmp_path), CountingStage()
+    _build(store, fake)
+    (store.path("decouple", KEY) / victim).unlink()
+    problems = store.verify()
+    assert [p.path.name for p in problems] == [KEY]
+    assert victim in problems[0].message and "missing" in problems[0].message
+    with pytest.raises(CorruptArtifactError, match=rf"{victim}: file listed in .* is missing"):
+        store.load("decouple", KEY)
+    artifact, info = _build(store, fake)
+    assert fake.calls == 2 and not info.cache_hit and info.replaced_corrupt
+    assert artifact.meta["calls"] == 2 and store.verify() == []
+
+
+def test_a_deleted_file_is_refused_under_on_corrupt_error(tmp_path):
+    store, fake = ArtifactStore(tmp_path), CountingStage()
+    _build(store, fake)
+    (store.path("decouple", KEY) / "meta.json").unlink()
+    with pytest.raises(CorruptArtifactError, match=r"meta\.json.*missing.*on_corrupt=rebuild"):
+        _build(store, fake, on_corrupt="error")
+    assert fake.calls == 1
+
+
+def test_a_folder_copied_under_another_key_is_not_loaded_as_that_key(tmp_path):
+    # The copy's files match their own hashes, but its manifest names KEY, not OTHER.
+    store, fake = ArtifactStore(tmp_path), CountingStage()
+    _build(store, fake)
+    other = artifact_key("decouple", 1, {"steps": 4}, "scene", [])
+    shutil.copytree(store.path("decouple", KEY), store.path("decouple", other))
+    assert store.has("decouple", other)
+    with pytest.raises(CorruptArtifactError, match=f"manifest names decouple/{KEY}, not"):
+        store.load("decouple", other)
+    assert [problem.path.name for problem in store.verify()] == [other]
+    assert [item.key for item in store.list()] == [KEY]
+    with pytest.raises(CorruptArtifactError, match="manifest names"):
+        _build(store, fake, key=other, on_corrupt="error")
+    assert fake.calls == 1
+    rebuild = CountingStage(offset=1)
+    artifact, info = _build(store, rebuild, key=other)
+    assert not info.cache_hit and info.replaced_corrupt
+    assert artifact.tensors["xyz"][0, 0] == 1.0
+    # the rebuild replaced the copy: the key is served from the store from now on
+    assert store.manifest("decouple", other).key == other and store.verify() == []
+    _, again = _build(store, rebuild, key=other)
+    assert again.cache_hit and rebuild.calls == 1

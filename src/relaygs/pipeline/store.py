@@ -210,7 +210,7 @@ class ArtifactStore:
             try:
                 if check_hashes:
                     check_seal(folder)
-                found.append(StoredArtifact(folder, read_manifest(folder)))
+                found.append(StoredArtifact(folder, read_own_manifest(folder)))
             except CorruptArtifactError as error:
                 problems.append(VerifyProblem(folder, str(error)))
         found.sort(key=lambda item: (item.stage, item.manifest.created, item.key))
@@ -250,11 +250,7 @@ class ArtifactStore:
         folder = self.path(stage, key)
         if verify:
             check_seal(folder)
-        manifest = read_manifest(folder)
-        if (manifest.stage, manifest.key) != (stage, key):
-            raise CorruptArtifactError(
-                f"{folder}: manifest names {manifest.stage}/{manifest.key}, not {stage}/{key}"
-            )
+        manifest = read_own_manifest(folder)
         try:
             return read_artifact_files(folder, stage), manifest
         except (OSError, ValueError) as error:
@@ -298,12 +294,26 @@ class ArtifactStore:
             raise MissingArtifactError(f"no artifact {stage}/{key} in {self.root}")
 
 
+def read_own_manifest(folder: Path) -> Manifest:
+    """The manifest of artifact folder `<root>/<stage>/<key>`, once it names that stage and
+    key: a folder copied or renamed under another key is corrupt there, its hashes intact."""
+    manifest = read_manifest(folder)
+    stage, key = folder.parent.name, folder.name
+    if (manifest.stage, manifest.key) != (stage, key):
+        raise CorruptArtifactError(
+            f"{folder}: manifest names {manifest.stage}/{manifest.key}, not {stage}/{key}"
+        )
+    return manifest
+
+
 def _is_intact(folder: Path) -> bool:
-    """True when `folder` is a sealed artifact whose hashes all match."""
+    """True when `folder` is a sealed artifact whose hashes all match and whose manifest
+    names it."""
     if not is_sealed(folder):
         return False
     try:
         check_seal(folder)
+        read_own_manifest(folder)
     except CorruptArtifactError:
         return False
     return True
