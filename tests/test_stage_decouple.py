@@ -2,13 +2,18 @@
 
 from __future__ import annotations
 
+from typing import Any
+
+import pytest
 import torch
 
+import relaygs.stages.decouple as decouple_module
 from conftest import stage_smoke_cfg
-from relaygs.data import Scene
+from relaygs.data import Scene, View
 from relaygs.pipeline.artifact import Artifact
 from relaygs.stages import STAGES, SceneModel
 from relaygs.stages.decouple import straight_through_mask
+from relaygs.stages.views import TrainViews
 
 # On the test scene, after 200 steps: ≥ 60 % of the cloud's mover points end nearest to a
 # Gaussian marked foreground, ≥ 85 % of its static (floor, wall, props) points nearest to
@@ -76,3 +81,54 @@ def test_warmup_is_all_background(stage_scene: Scene) -> None:
     assert torch.isfinite(artifact.tensors["bg.means"]).all()
     # the smoke budget densifies and prunes: the count moved off the initial 1500
     assert artifact.meta["counts"]["bg"] != 1500
+
+
+def test_every_batch_has_frame0_views_rendered_without_the_mask(
+    stage_scene: Scene, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """`frame0_views` of each step's `batch_views` are frame-0 views, and exactly those are
+    rendered with every Gaussian (no opacity × M): the separation needs frame 0 in every batch."""
+    frame0_views, batch_views, steps = 2, 4, 4
+    batches: list[list[View]] = []  # per step: the views whose targets were read
+    renders: list[list[tuple[int, bool]]] = []  # per step: (cameras, masked) per splat call
+
+    class RecordingViews(TrainViews):
+        def image(self, view: View) -> torch.Tensor:
+            batches[-1].append(view)
+            return super().image(view)
+
+    real_run_training, real_splat = decouple_module.run_training, decouple_module.splat
+
+    def run_training(stage: str, session: Any, count: int, train: Any, step_fn: Any, counts: Any):
+        def recorded_step(step: int) -> Any:
+            batches.append([])
+            renders.append([])
+            return step_fn(step)
+
+        return real_run_training(stage, session, count, train, recorded_step, counts)
+
+    def splat(parts: list[Any], cameras: list[Any], *args: Any, **kwargs: Any) -> Any:
+        renders[-1].append((len(cameras), parts[0].opacity_factor is not None))
+        return real_splat(parts, cameras, *args, **kwargs)
+
+    monkeypatch.setattr(decouple_module, "TrainViews", RecordingViews)
+    monkeypatch.setattr(decouple_module, "run_training", run_training)
+    monkeypatch.setattr(decouple_module, "splat", splat)
+    cfg = stage_smoke_cfg(
+        decouple={
+            "steps": steps,
+            "frame0_views": frame0_views,
+            "init_points": 300,
+            "densify": {"densify_until": 0, "opacity_reset_every": 0},
+        },
+        train={"batch_views": batch_views},
+    )
+    STAGES["decouple"](stage_scene, {}, cfg)
+    assert len(batches) == steps
+    for views, calls in zip(batches, renders, strict=True):
+        assert len(views) == batch_views
+        at_zero = sum(view.frame == 0 for view in views)
+        assert at_zero >= frame0_views
+        unmasked = sum(count for count, masked in calls if not masked)
+        masked = sum(count for count, masked in calls if masked)
+        assert (unmasked, masked) == (at_zero, batch_views - at_zero)

@@ -147,3 +147,27 @@ def test_one_frame_segments_give_a_copy_per_frame(
         image = stage_scene.image(views.view(frame, camera))
         assert torch.equal(blended.target(camera, frame, generator), image)
         assert torch.equal(single.target(camera, frame, generator), image)
+
+
+def test_a_step_on_one_segment_leaves_the_other_copies_untouched(
+    stage_scene: Scene, stage_decoupled: Artifact
+) -> None:
+    """Replicated (identical) copies, one relay step: the step renders and fits only the copy
+    of the segment it drew, so exactly one copy moves and every other stays bit-identical."""
+    cfg = stage_smoke_cfg(relay={"steps": 1, "seed_copies": "replicate"})
+    relayed = STAGES["relay"](stage_scene, {"decouple": stage_decoupled}, cfg)
+    segment = relayed.tensors["fg.buffer.segment"]
+    upstream = {
+        name: tensor
+        for name, tensor in stage_decoupled.tensors.items()
+        if name.startswith("fg.") and tensor.is_floating_point()
+    }
+    assert "fg.means" in upstream
+    changed = []
+    for copy in range(math.ceil(stage_scene.num_frames / STAGE_K)):
+        rows = segment == copy
+        assert int(rows.sum()) == stage_decoupled.meta["counts"]["fg"]
+        changed.append(
+            any(not torch.equal(relayed.tensors[name][rows], up) for name, up in upstream.items())
+        )
+    assert sum(changed) == 1
