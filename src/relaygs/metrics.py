@@ -67,10 +67,11 @@ def ssim(pred: torch.Tensor, gt: torch.Tensor) -> torch.Tensor:
 
 
 def gaussian_window(size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA) -> torch.Tensor:
-    """Normalised 1D Gaussian weights [size] centred on the middle tap."""
+    """Normalised 1D Gaussian weights [size] centred on the middle tap, in float64 (the blur
+    casts them to the images' dtype)."""
     offsets = torch.arange(size, dtype=torch.float64) - (size - 1) / 2
     weights = torch.exp(-(offsets**2) / (2 * sigma**2))
-    return (weights / weights.sum()).float()
+    return weights / weights.sum()
 
 
 def _gaussian_blur(images: torch.Tensor) -> torch.Tensor:
