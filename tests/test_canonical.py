@@ -29,6 +29,7 @@ def test_relay_and_replicate_k_at_or_above_the_frame_count_is_one_segment_of_t()
     assert cfg["relay"]["k"] == 128  # the input is not changed
     for k in (1, 32, FRAMES):
         assert canonical_config("relay", {"relay": {"k": k}}, scene)["relay"]["k"] == k
+    assert canonical_config("relay", {"relay": {"k": FRAMES + 1}}, scene)["relay"]["k"] == FRAMES
     assert canonical_config("replicate", {"replicate": {"k": 100}}, scene)["replicate"]["k"] == 64
     deform = {"seed": 0, "deform": {"k": 128}}
     assert canonical_config("deform", deform, scene) == deform  # no canonical form: unchanged

@@ -238,3 +238,30 @@ def test_config_and_pipeline_folders_prefer_the_repo_then_the_packaged_copy(tmp_
         paths.config_dir()  # a conf/ without config.yaml does not count
     (repo / "conf" / "config.yaml").write_text("seed: 0\n")
     assert paths.config_dir() == repo / "conf"
+
+
+def test_a_canonical_form_is_what_is_keyed_and_what_the_stage_runs_with(tmp_path):
+    stages = FakeStages()
+    table = stages.table()
+    seen = []
+
+    def recording_relay(scene, upstream, cfg):
+        seen.append(cfg)
+        return stages.fn("relay")(scene, upstream, cfg)
+
+    def cap_k(stage, cfg, scene):
+        return {**cfg, "k": min(cfg["k"], 4)} if stage == "relay" else cfg
+
+    table["relay"] = recording_relay
+    wide = {**BASE, "relay": {"scale": 2.0, "k": 16}}
+    run = run_pipeline(
+        load_pipeline("relaygs"),
+        table,
+        FakeScene("scene-a"),
+        lambda node: wide[node.stage],
+        ArtifactStore(tmp_path / "canonical"),
+        canonical=cap_k,
+    )
+    assert seen == [BASE["relay"]]  # built (no cache) with k capped to 4
+    plain = _run(ArtifactStore(tmp_path / "plain"), FakeStages(), BASE)
+    assert [r.key for r in run.reports] == [r.key for r in plain.reports]

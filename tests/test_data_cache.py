@@ -48,3 +48,14 @@ def test_voxel_downsample_meets_the_budget_and_averages():
     assert abs(out_rgb.mean() - rgb.mean()) < 0.05
     same = voxel_downsample(xyz, rgb, is_fg, 5000)
     assert same[0] is xyz
+
+
+def test_an_oversized_tensor_evicts_nothing():
+    cache = TensorCache(budget_mb=2 * 1024 / 2**20)  # two 256-float tensors
+    for key in "ab":
+        cache.get(key, lambda: torch.zeros(256))
+    big = cache.get("big", lambda: torch.zeros(768))  # 1.5x the 2048-byte budget
+    assert big.numel() == 768
+    assert len(cache) == 2 and cache.used_bytes == 2 * 1024
+    kept = torch.ones(1)
+    assert cache.get("a", lambda: kept) is not kept  # still cached, not reloaded

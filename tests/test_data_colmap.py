@@ -223,3 +223,45 @@ def test_malformed_text_model_line_is_refused(panoptic: Scene, tmp_path: Path):
     path = root / "sparse" / "0" / "cameras.txt"
     path.write_text(path.read_text().replace("PINHOLE", "PINHOLE 32", 1))
     _expect(root, "cameras.txt line 2", "4 PINHOLE params")
+
+
+def _two_image_model() -> ColmapModel:
+    return ColmapModel(
+        cameras={1: ColmapCamera(1, "PINHOLE", 64, 48, (50.0, 51.0, 32.0, 24.5))},
+        images={
+            3: ColmapImage(3, (0.5, 0.5, -0.5, 0.5), (0.1, -2.0, 3.5), 1, "cam00.png"),
+            8: ColmapImage(8, (1.0, 0.0, 0.0, 0.0), (0.0, 0.0, 1.0), 1, "cam01.png"),
+        },
+        xyz=np.zeros((2, 3)),
+        rgb=np.full((2, 3), 255, dtype=np.uint8),
+    )
+
+
+def test_binary_images_with_2d_observations_are_read_past_them(tmp_path: Path):
+    # COLMAP stores each image's 2D points (x, y as doubles, point3D id as int64) after its
+    # name; the writer stores none, so write them here: 3 for the first image, 1 for the next
+    model = _two_image_model()
+    write_model(tmp_path, model, binary=True)
+    blob = [struct.pack("<Q", len(model.images))]
+    for image, observations in zip(model.images.values(), (3, 1), strict=True):
+        blob.append(struct.pack("<I7dI", image.image_id, *image.qvec, *image.tvec, 1))
+        blob.append(image.name.encode() + b"\x00" + struct.pack("<Q", observations))
+        blob += [struct.pack("<ddq", 1.5 * n, 2.5, n - 1) for n in range(observations)]
+    (tmp_path / "images.bin").write_bytes(b"".join(blob))
+    assert read_model(tmp_path).images == model.images
+
+
+@pytest.mark.parametrize(("value", "refused"), [(255, False), (256, True), (-1, True)])
+def test_text_model_colour_limits_are_0_and_255(tmp_path: Path, value: int, refused: bool):
+    write_model(tmp_path, _two_image_model(), binary=False)
+    path = tmp_path / "points3D.txt"
+    lines = path.read_text().splitlines()
+    index = next(i for i, line in enumerate(lines) if line and not line.startswith("#"))
+    fields = lines[index].split()
+    lines[index] = " ".join([*fields[:4], str(value), *fields[5:]])
+    path.write_text("\n".join(lines) + "\n")
+    if refused:
+        with pytest.raises(InputError, match=r"R G B in 0\.\.255"):
+            read_model(tmp_path)
+    else:
+        assert read_model(tmp_path).rgb[0, 0] == value

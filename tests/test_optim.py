@@ -83,3 +83,8 @@ def test_reindex_rows_moves_adam_state_with_rows() -> None:
     g.params["opacity_logits"].sum().backward()
     optimizer.step()
     assert not torch.equal(before, g.params["opacity_logits"].detach())
+
+
+def test_log_linear_is_zero_before_the_first_step() -> None:
+    assert log_linear(1e-3, 1e-5, -1, 100) == 0.0
+    assert log_linear(1e-3, 1e-5, -1, 100, delay_steps=10, delay_mult=0.5) == 0.0

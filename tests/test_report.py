@@ -6,6 +6,7 @@ import pandas as pd
 import pytest
 
 from relaygs import report
+from relaygs.app import pareto
 from relaygs.app.pareto import pareto_front, point_labels
 from relaygs.app.summary import summary_table
 
@@ -270,3 +271,89 @@ def test_a_single_run_folder_is_not_taken_for_a_sweep(tmp_path, capsys):
         "pass the folder that holds the job folders\n"
     )
     assert sorted(p.name for p in run.iterdir()) == ["result.json"]
+
+
+def test_jobs_are_ordered_by_job_number_not_by_folder_name(tmp_path):
+    # folder names sort "10_k8" before "2_k16"; the table follows the job numbers
+    _job(tmp_path, 10, "k8", 25.0, 30.0)
+    _job(tmp_path, 2, "k16", 26.0, 20.0)
+    table = report.collect_results(tmp_path)
+    assert list(table.job) == [2, 10]
+    assert list(table.variant) == ["k16", "k8"]
+
+
+def test_mean_table_keeps_first_appearance_and_one_run_has_zero_std(tmp_path):
+    # k8 appears first (and sorts after k16 as text); k16 ran once
+    runs = [("k8", 0, 25.0), ("k16", 0, 27.0), ("k8", 1, 26.0)]
+    for number, (variant, seed, psnr) in enumerate(runs):
+        _job(tmp_path, number, variant, psnr, 10.0, seed=seed)
+    report.write_reports(tmp_path)
+    mean = pd.read_csv(tmp_path / "summary_mean.csv")
+    assert list(mean.variant) == ["k8", "k16"]
+    assert list(mean.runs) == [2, 1]
+    assert list(mean.psnr_mean) == pytest.approx([25.5, 27.0])
+    # sample std of (25, 26): sqrt((0.25 + 0.25) / 1); a single run: 0
+    assert list(mean.psnr_std) == pytest.approx([0.5**0.5, 0.0])
+
+
+def test_budget_points_follow_the_multiplier_and_gain_needs_more_time(tmp_path):
+    # written out of order; multipliers 1 and 2 took the same time (e.g. a time cap)
+    runs = [(2.0, 25.0, 10), (0.5, 23.0, 5), (1.0, 24.0, 10)]
+    for number, (multiplier, psnr, minutes) in enumerate(runs):
+        _job(
+            tmp_path,
+            number,
+            "k16",
+            psnr,
+            minutes * 60.0,
+            **{"budget.multiplier": multiplier, "seed": number},
+        )
+    report.write_reports(tmp_path)
+    table = pd.read_csv(tmp_path / "summary_budget.csv")
+    assert table.multiplier.tolist() == [0.5, 1.0, 2.0]
+    gains = table.db_per_minute.tolist()
+    # 0.5 -> 1: +1 dB over 5 more minutes; 1 -> 2: no more time, so no gain
+    assert pd.isna(gains[0]) and gains[1] == pytest.approx(0.2) and pd.isna(gains[2])
+    # (10 min, 24 dB) is beaten by (10 min, 25 dB)
+    assert table.on_front.tolist() == [True, False, True]
+
+
+def test_no_budget_table_when_every_job_ran_at_the_same_multiplier(tmp_path):
+    for number, psnr in enumerate([25.0, 26.0]):
+        _job(tmp_path, number, "k16", psnr, 60.0, **{"budget.multiplier": 1.0, "seed": number})
+    assert report.write_reports(tmp_path).budget is None
+    assert not (tmp_path / "summary_budget.csv").exists()
+
+
+def test_no_sharing_line_without_any_stage_time(tmp_path):
+    _job(tmp_path, 0, "k16", 26.0, 0.0)
+    _job(tmp_path, 1, "k8", 25.0, 0.0)
+    text = report.write_reports(tmp_path).markdown.read_text()
+    assert "Stage time" not in text
+    assert text.count("\n| k") == 2
+
+
+def test_a_pipe_in_a_variant_label_does_not_split_the_markdown_row(tmp_path):
+    _job(tmp_path, 0, "k16", 26.0, 20.0)
+    path = tmp_path / "0_k16" / "result.json"
+    path.write_text(json.dumps({**json.loads(path.read_text()), "variant": "k16|fast"}))
+    text = report.write_reports(tmp_path).markdown.read_text()
+    row = next(line for line in text.splitlines() if line.startswith("| k16"))
+    assert row.startswith("| k16\\|fast | 26.00 |")
+
+
+@pytest.mark.parametrize(("slowest", "scale"), [(30.0, "log"), (15.0, "linear")])
+def test_pareto_time_axis_is_logarithmic_only_for_a_wide_time_range(
+    tmp_path, monkeypatch, slowest, scale
+):
+    figures = []
+
+    class RecordingFigure(pareto.Figure):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            figures.append(self)
+
+    monkeypatch.setattr(pareto, "Figure", RecordingFigure)
+    # the slowest job takes 30x (log) or 15x (linear) the fastest; the threshold is 20x
+    pareto.plot_pareto([1.0, slowest], [20.0, 25.0], ["a", "b"], tmp_path / "p.png", "t")
+    assert figures[0].axes[0].get_xscale() == scale

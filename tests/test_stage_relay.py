@@ -12,13 +12,22 @@ from relaygs.data import Scene
 from relaygs.errors import InputError
 from relaygs.pipeline.artifact import Artifact
 from relaygs.stages import STAGES, SceneModel
-from relaygs.stages.segments import SegmentTargets, pseudo_frames, segment_frames
+from relaygs.stages.segments import SegmentTargets, num_segments, pseudo_frames, segment_frames
 from relaygs.stages.views import TrainViews
 
 
 def test_segments_cover_every_frame_once() -> None:
     frames = [f for s in range(math.ceil(70 / 16)) for f in segment_frames(s, 16, 70)]
     assert frames == list(range(70))
+
+
+@pytest.mark.parametrize(
+    ("num_frames", "k", "count"), [(70, 16, 5), (64, 16, 4), (1, 16, 1), (5, 1, 5), (17, 16, 2)]
+)
+def test_num_segments_counts_a_short_last_segment(num_frames: int, k: int, count: int) -> None:
+    assert num_segments(num_frames, k) == count
+    covered = [f for s in range(count) for f in segment_frames(s, k, num_frames)]
+    assert covered == list(range(num_frames))
 
 
 @pytest.mark.parametrize(

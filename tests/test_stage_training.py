@@ -3,6 +3,7 @@ nothing, live metrics reach the log sinks."""
 
 from __future__ import annotations
 
+import math
 import re
 from pathlib import Path
 
@@ -12,13 +13,14 @@ import torch
 from conftest import stage_smoke_cfg
 from relaygs.data import Scene
 from relaygs.errors import DivergenceError, Interrupted
+from relaygs.metrics import ssim
 from relaygs.pipeline.artifact import Artifact, write_artifact_files
 from relaygs.pipeline.checkpoint import StageCheckpointer
 from relaygs.pipeline.context import BuildContext, building
 from relaygs.pipeline.store import ArtifactStore
 from relaygs.stages import STAGES, log
 from relaygs.stages import relay as relay_module
-from relaygs.stages.loss import photometric_loss
+from relaygs.stages.loss import batch_psnr, photometric_loss
 from relaygs.stages.session import TrainingSession
 
 KEY = "ab" * 32
@@ -198,3 +200,23 @@ def test_resumed_run_counts_the_seconds_before_the_kill(stage_scene: Scene, tmp_
     this_run = (metrics["steps"] - 2) / metrics["steps_per_second"]
     assert metrics["train_seconds"] >= before_kill
     assert metrics["train_seconds"] == pytest.approx(before_kill + this_run, rel=1e-9)
+
+
+def test_photometric_loss_is_l1_plus_weighted_d_ssim_and_zero_on_a_match() -> None:
+    generator = torch.Generator().manual_seed(0)
+    target = torch.rand(16, 20, 3, generator=generator)
+    pred = target * 0.5
+    assert float(photometric_loss([target], [target], 0.2)) == pytest.approx(0.0, abs=1e-6)
+    l1 = float((pred - target).abs().mean())
+    d_ssim = 1.0 - float(ssim(pred, target))
+    assert 0.0 < d_ssim < 1.0
+    # mean over two views: the mismatched one and an exact match (loss 0)
+    loss = photometric_loss([pred, target], [target, target], 0.2)
+    assert float(loss) == pytest.approx((l1 + 0.2 * d_ssim) / 2, rel=1e-5)
+    assert float(photometric_loss([pred], [target], 0.0)) == pytest.approx(l1, rel=1e-6)
+
+
+def test_batch_psnr_clamps_renders_to_the_displayable_range() -> None:
+    target = torch.full((4, 5, 3), 0.5)
+    over = torch.full((4, 5, 3), 1.5)  # shown as 1.0: squared error 0.25 -> 10·log10(4) dB
+    assert batch_psnr([over], [target]) == pytest.approx(10 * math.log10(4.0), rel=1e-5)

@@ -276,3 +276,35 @@ def test_a_folder_copied_under_another_key_is_not_loaded_as_that_key(tmp_path):
     assert store.manifest("decouple", other).key == other and store.verify() == []
     _, again = _build(store, rebuild, key=other)
     assert again.cache_hit and rebuild.calls == 1
+
+
+def test_a_dry_run_gc_reports_but_removes_nothing_not_even_free_locks(tmp_path):
+    store = ArtifactStore(tmp_path)
+    _build(store, CountingStage())
+    leftover = store.root / "decouple" / f".tmp-{KEY}-killed"
+    leftover.mkdir()
+    lock_file = store.root / ".locks" / f"decouple.{KEY}.lock"
+    lock_file.parent.mkdir(exist_ok=True)
+    lock_file.touch()
+    report = store.gc(dry_run=True)
+    assert {leftover, lock_file} <= set(report.removed)
+    assert leftover.exists() and lock_file.exists()
+    assert store.has("decouple", KEY)
+
+
+def test_gc_keeps_only_annotations_whose_upstreams_are_all_kept(tmp_path):
+    store = ArtifactStore(tmp_path)
+    _build(store, CountingStage())
+    other = artifact_key("decouple", 1, {"steps": 4}, "scene", [])
+    _build(store, CountingStage(offset=1), key=other)
+    evaluate = CountingStage("evaluate")
+    described = artifact_key("evaluate", 1, {}, "scene", [KEY])
+    of_other = artifact_key("evaluate", 1, {}, "scene", [other])
+    orphan = artifact_key("evaluate", 1, {}, "scene", [])
+    _build(store, evaluate, key=described, lineage=[LineageEntry("decouple", "decouple", KEY)])
+    _build(store, evaluate, key=of_other, lineage=[LineageEntry("decouple", "decouple", other)])
+    _build(store, evaluate, key=orphan)  # describes nothing: nothing keeps it
+    store.gc(keep={KEY}, annotations={"evaluate"})
+    assert store.has("decouple", KEY) and store.has("evaluate", described)
+    assert not store.has("decouple", other) and not store.has("evaluate", of_other)
+    assert not store.has("evaluate", orphan)

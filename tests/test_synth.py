@@ -20,6 +20,7 @@ from relaygs.data.effects import (
     LARGE_MOTION,
     NONRIGID,
     SENSOR_NOISE,
+    parse_effects,
 )
 from relaygs.data.synthetic import GENERATOR_VERSION, PRESETS, generate
 from relaygs.data.synthetic.actors import HEAD_RADIUS
@@ -206,6 +207,18 @@ def test_limbs_swing_only_when_nonrigid_is_declared():
     assert np.ptp(rigid, axis=1).max() < 1e-9
     swinging = _limb_offsets(_foreground("court", {LARGE_MOTION, NONRIGID}))
     assert np.ptp(swinging, axis=1).max() > 0.2
+
+
+def test_jugglers_arms_move_only_when_nonrigid_is_declared():
+    rigid = _limb_offsets(_foreground("juggle", {LARGE_MOTION}))
+    assert np.ptp(rigid, axis=1).max() < 1e-9
+    juggling = _limb_offsets(_foreground("juggle", {LARGE_MOTION, NONRIGID}))
+    assert np.ptp(juggling, axis=1).max() > 0.05
+
+
+def test_a_single_effect_name_is_one_effect_not_its_letters():
+    assert parse_effects(SENSOR_NOISE, source="x") == frozenset({SENSOR_NOISE})
+    assert parse_effects([SENSOR_NOISE, NONRIGID], source="x") == {SENSOR_NOISE, NONRIGID}
 
 
 def test_fast_objects_exist_only_when_declared_and_move_fast():
