@@ -172,6 +172,20 @@ def test_jobs_on_the_same_point_share_one_label():
     assert labels == {(1.0, 5.0): "k64", (2.0, 6.0): "k128, k8"}
 
 
+def _budget_jobs(sweep, runs):
+    """One `k16` job per (pipeline, multiplier, psnr, minutes), each with its own seed."""
+    for number, (pipeline, multiplier, psnr, minutes) in enumerate(runs):
+        _job(
+            sweep,
+            number,
+            "k16",
+            psnr,
+            minutes * 60.0,
+            pipeline=pipeline,
+            **{"budget.multiplier": multiplier, "seed": number},
+        )
+
+
 def test_a_budget_sweep_says_what_a_minute_buys_and_which_points_are_on_the_front(tmp_path):
     runs = [
         ("relaygs", 0.5, 23.0, 5),
@@ -181,16 +195,7 @@ def test_a_budget_sweep_says_what_a_minute_buys_and_which_points_are_on_the_fron
         ("4dgs", 1.0, 23.0, 11),
         ("4dgs", 1.0, 24.0, 13),  # a second seed: the point is the mean
     ]
-    for number, (pipeline, multiplier, psnr, minutes) in enumerate(runs):
-        _job(
-            tmp_path,
-            number,
-            "k16",
-            psnr,
-            minutes * 60.0,
-            pipeline=pipeline,
-            **{"budget.multiplier": multiplier, "seed": number},
-        )
+    _budget_jobs(tmp_path, runs)
     files = report.write_reports(tmp_path)
     table = pd.read_csv(tmp_path / "summary_budget.csv")
     assert list(table.pipeline) == ["relaygs"] * 3 + ["4dgs"] * 2
@@ -298,16 +303,10 @@ def test_mean_table_keeps_first_appearance_and_one_run_has_zero_std(tmp_path):
 
 def test_budget_points_follow_the_multiplier_and_gain_needs_more_time(tmp_path):
     # written out of order; multipliers 1 and 2 took the same time (e.g. a time cap)
-    runs = [(2.0, 25.0, 10), (0.5, 23.0, 5), (1.0, 24.0, 10)]
-    for number, (multiplier, psnr, minutes) in enumerate(runs):
-        _job(
-            tmp_path,
-            number,
-            "k16",
-            psnr,
-            minutes * 60.0,
-            **{"budget.multiplier": multiplier, "seed": number},
-        )
+    _budget_jobs(
+        tmp_path,
+        [("relaygs", 2.0, 25.0, 10), ("relaygs", 0.5, 23.0, 5), ("relaygs", 1.0, 24.0, 10)],
+    )
     report.write_reports(tmp_path)
     table = pd.read_csv(tmp_path / "summary_budget.csv")
     assert table.multiplier.tolist() == [0.5, 1.0, 2.0]
