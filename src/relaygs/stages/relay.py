@@ -133,7 +133,7 @@ def relay(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, Any]
         trainable["bg"] = source.background
     report = None
     if trainable:  # nothing to train without foreground when the background is frozen
-        trainable, report = _train(training, source, trainable, section, train, seed)
+        trainable, report = _train(training, source, trainable, section, train, seed, device)
     model = SceneModel(
         stage=STAGE,
         background=trainable.get("bg", source.background),
@@ -159,9 +159,10 @@ def _train(
     section: RelayConfig,
     train: TrainSettings,
     seed: int,
+    device: torch.device,
 ) -> tuple[dict[str, GaussianSet], TrainReport]:
-    """Fit copy s (and a trainable background) to segment s's targets; returns the sets."""
-    device = train.torch_device()
+    """Fit copy s (and a trainable background) to segment s's targets on `device`; returns the
+    sets."""
     plans = section.plans()
     session = TrainingSession(
         sets=sets,
