@@ -1,5 +1,6 @@
 """`python -m relaygs.artifacts`: ls, show, verify and gc, their output and exit codes."""
 
+import json
 import subprocess
 import sys
 
@@ -8,6 +9,7 @@ import torch
 
 from relaygs.artifacts import main
 from relaygs.pipeline.artifact import Artifact
+from relaygs.pipeline.integrity import seal
 from relaygs.pipeline.keys import artifact_key
 from relaygs.pipeline.manifest import LineageEntry
 from relaygs.pipeline.store import ArtifactStore
@@ -86,6 +88,35 @@ def test_gc_keep_takes_prefixes_and_refuses_a_key_it_cannot_find(store, capsys):
     assert store.has("decouple", KEY_A) and store.has("relay", KEY_B)
     code, _, _ = _cli(capsys, store.root, "gc", "--keep", KEY_A[:8])
     assert code == 0 and store.has("decouple", KEY_A) and not store.has("relay", KEY_B)
+
+
+def test_an_ambiguous_prefix_names_the_artifacts_it_matches(tmp_path, capsys):
+    keys = {}
+    steps = 0
+    while True:  # two keys sharing their first 4 hex digits (a few hundred tries)
+        key = artifact_key("decouple", 1, {"steps": steps}, "scene", [])
+        if key[:4] in keys:
+            break
+        keys[key[:4]] = key
+        steps += 1
+    store = ArtifactStore(tmp_path / "store")
+    artifact = Artifact("decouple", {"xyz": torch.zeros(1, 3)}, {})
+    for each in (keys[key[:4]], key):
+        store.get_or_build("decouple", each, lambda: artifact, config={}, lineage=[])
+    code, _, err = _cli(capsys, store.root, "show", key[:4])
+    assert code == 1 and err.count("\n") == 1
+    assert f"2 artifacts with key starting '{key[:4]}'" in err and "give more digits" in err
+    assert f"decouple/{key[:16]}" in err and f"decouple/{keys[key[:4]][:16]}" in err
+
+
+def test_gc_leaves_files_named_like_keys_alone(store, capsys):
+    blob = store.root / "blobs" / KEY_A  # e.g. --root at another tool's content-addressed cache
+    blob.parent.mkdir()
+    blob.write_text("not ours")
+    code, out, _ = _cli(capsys, store.root, "ls")
+    assert code == 0 and "damaged" not in out
+    code, out, _ = _cli(capsys, store.root, "gc")
+    assert code == 0 and str(blob) not in out and blob.read_text() == "not ours"
 
 
 def test_missing_store_is_one_line_error(tmp_path, capsys):
@@ -214,6 +245,36 @@ def test_an_artifact_with_a_damaged_manifest_is_named_as_damaged_not_missing(sto
     code, out, _ = _cli(capsys, store.root, "ls")
     assert code == 0 and "1 artifact(s)" in out
     assert "1 damaged artifact folder(s) not listed: `python -m relaygs.artifacts verify`" in out
+
+
+@pytest.mark.parametrize(
+    ("edit", "problem"),
+    [
+        (lambda manifest: "text", "expected a JSON object, got str"),
+        (lambda manifest: {**manifest, "wall_seconds": "1.5"}, "field 'wall_seconds'"),
+        (lambda manifest: {**manifest, "files": ["tensors.safetensors"]}, "field 'files'"),
+        (lambda manifest: {**manifest, "files": {"a": {}}}, "files entry 'a' has no byte"),
+        (
+            lambda manifest: {**manifest, "lineage": [{"node": "d", "stage": "d", "key": 7}]},
+            "lineage entry is not an object of strings",
+        ),
+    ],
+)
+def test_a_resealed_manifest_of_the_wrong_shape_is_damaged_not_a_crash(
+    store, capsys, edit, problem
+):
+    folder = store.path("relay", KEY_B)
+    manifest = json.loads((folder / "manifest.json").read_text())
+    (folder / "manifest.json").write_text(json.dumps(edit(manifest)))
+    seal(folder)  # hashes match: only the shape is wrong
+    code, out, _ = _cli(capsys, store.root, "ls")
+    assert code == 0 and "1 artifact(s)" in out and "1 damaged artifact folder(s)" in out
+    code, out, _ = _cli(capsys, store.root, "verify")
+    assert code == 1 and "CORRUPT" in out and problem in out
+    for command in (["show", KEY_B[:8]], ["gc", "--keep", KEY_B[:8]]):
+        code, _, err = _cli(capsys, store.root, *command)
+        assert code == 1 and err.count("\n") == 1 and problem in err
+    assert store.has("decouple", KEY_A)
 
 
 def _store_model(tmp_path, artifact):

@@ -138,6 +138,22 @@ def test_an_interrupted_render_leaves_no_video(stage_scene, stage_deformed, tmp_
     assert not list(tmp_path.glob("*.mp4")) and not list(tmp_path.glob(".*"))
 
 
+@pytest.mark.parametrize("blocked", ["cam00", "cam00.mp4"])
+def test_a_path_in_the_way_of_a_render_is_named_and_no_partial_video_is_left(
+    stage_scene, stage_deformed, tmp_path, blocked
+):
+    if blocked.endswith(".mp4"):
+        (tmp_path / blocked).mkdir()
+    else:
+        (tmp_path / blocked).touch()
+    model = SceneModel.from_artifact(stage_deformed)
+    settings = RenderSettings(camera_ids=(0,), frame_stride=stage_scene.num_frames)
+    with pytest.raises(InputError) as caught:
+        write_renders(stage_scene, model, tmp_path, settings, progress=False)
+    assert str(caught.value).startswith(f"cannot write {tmp_path / blocked}: ")
+    assert not list(tmp_path.glob(".*"))
+
+
 def test_render_settings_refuse_non_finite_fps():
     with pytest.raises(InputError, match="render fps"):
         RenderSettings(fps=float("nan"))

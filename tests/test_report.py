@@ -258,6 +258,16 @@ def test_a_result_with_a_non_numeric_value_is_named_with_its_key(sweep, capsys, 
     assert err == expected
 
 
+@pytest.mark.parametrize(("field", "value"), [("scene", ["juggle"]), ("variant", {"k": 16})])
+def test_a_result_with_a_list_or_object_value_is_named_with_its_key(sweep, capsys, field, value):
+    path = sweep / "1_k16" / "result.json"
+    path.write_text(json.dumps({**json.loads(path.read_text()), field: value}))
+    assert report.main([str(sweep)]) == 1
+    err = capsys.readouterr().err
+    expected = f"error: {path}: {field}: expected a number, string, bool or null, got {value!r}\n"
+    assert err == expected
+
+
 @pytest.mark.parametrize("name", ["summary.md", "pareto.png"])
 def test_a_folder_where_a_report_file_goes_is_named(sweep, capsys, name):
     (sweep / name).mkdir()

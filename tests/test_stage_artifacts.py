@@ -9,9 +9,12 @@ import torch
 
 from relaygs.data import Scene
 from relaygs.errors import InputError
+from relaygs.field import ColorAffine
+from relaygs.model import GaussianSet
 from relaygs.pipeline.artifact import Artifact, read_artifact_files, write_artifact_files
 from relaygs.stages import SceneModel, render_model
 from relaygs.stages.model_render import ModelRenderer
+from relaygs.stages.scene_model import build_field, foreground_with_segments
 
 
 def _round_trip(artifact: Artifact, folder: Path) -> Artifact:
@@ -57,3 +60,57 @@ def test_missing_meta_is_an_input_error(stage_relayed: Artifact) -> None:
     broken = Artifact(stage_relayed.stage, stage_relayed.tensors, {"k": 4})
     with pytest.raises(InputError, match="num_frames"):
         SceneModel.from_artifact(broken)
+
+
+def _tiny_deformed() -> Artifact:
+    """A deform-like artifact of a few Gaussians with a small field and a colour affine."""
+    points = torch.rand(4, 3) * 2 - 1
+    gaussians = GaussianSet.from_points(points, torch.rand(4, 3))
+    settings = {
+        "aabb": [[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]],
+        "time_resolution": 2,
+        "isolate_fg_bg": True,
+        "multires": [1],
+        "spatial_resolution": 4,
+        "channels": 2,
+        "width": 4,
+        "depth": 0,
+    }
+    model = SceneModel(
+        stage="deform",
+        background=gaussians,
+        foreground=foreground_with_segments(gaussians, torch.zeros(4)),
+        num_frames=2,
+        segment_length=2,
+        field=build_field(settings),
+        field_settings=settings,
+        affine=ColorAffine(2),
+        affine_cameras=[1, 2],
+    )
+    return model.to_artifact({})
+
+
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        (lambda meta, tensors: ([1], tensors), "meta is a list"),
+        (lambda meta, tensors: ({**meta, "k": 0}, tensors), "meta 'k' missing or not an int >= 1"),
+        (lambda meta, tensors: ({**meta, "field": "x"}, tensors), "its field does not match"),
+        (
+            lambda meta, tensors: ({**meta, "field": {**meta["field"], "width": 5}}, tensors),
+            "its field does not match its settings (Error(s) in loading state_dict",
+        ),
+        (
+            lambda meta, tensors: (meta, {k: v for k, v in tensors.items() if "offset" not in k}),
+            "its affine does not match its settings",
+        ),
+    ],
+)
+def test_meta_or_module_tensors_that_do_not_fit_are_an_input_error(edit, message) -> None:
+    artifact = _tiny_deformed()
+    assert SceneModel.from_artifact(artifact).field is not None
+    meta, tensors = edit(artifact.meta, artifact.tensors)
+    with pytest.raises(InputError) as caught:
+        SceneModel.from_artifact(Artifact("deform", tensors, meta))
+    assert str(caught.value).startswith("deform artifact: ") and message in str(caught.value)
+    assert "\n" not in str(caught.value)

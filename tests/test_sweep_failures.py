@@ -67,3 +67,29 @@ def test_a_failing_job_leaves_a_summary_of_the_sweep_and_exit_status_1(
     assert err.strip().splitlines()[-1] == f"error: 1 of 3 job(s) failed: job 1 (k16): {ERROR}"
     assert report.main([str(sweep)]) == 0  # rewriting the report lists the failure again
     assert "job 1 (k16): " + ERROR in capsys.readouterr().out
+
+
+def test_a_sweep_in_a_folder_of_an_earlier_one_names_its_jobs_and_skips_its_failures(
+    monkeypatch, tmp_path, capsys
+):
+    fakes = FakeStages(fail_when=_relay_k_is(16))
+    monkeypatch.setattr(run_module, "load_stage_suite", fakes.suite)
+    monkeypatch.setattr(run_module, "run_task", functools.partial(run_task, suite=fakes.suite()))
+    folder = tmp_path / "sweep"
+    common = ["variant=k${relay.k}", "budget=smoke", f"hydra.sweep.dir={folder}", *TINY_SCENE]
+
+    def sweep(values):
+        try:
+            return run_module.main(["-m", f"relay.k={values}", *common])
+        except SystemExit as stop:
+            return stop.code
+
+    assert sweep("8,16") == 1
+    capsys.readouterr()
+    assert sweep("32") == 0  # the failed job is the earlier sweep's, not this one's
+    err = capsys.readouterr().err
+    assert err.strip().splitlines()[-1] == (
+        f"note: the summary also holds 2 job(s) of an earlier sweep in {folder}: 0_k8, 1_k16; "
+        "give each sweep its own hydra.sweep.dir"
+    )
+    assert list(pd.read_csv(folder / "summary.csv").variant) == ["k32", "k8", "k16"]

@@ -46,6 +46,17 @@ def test_cli_bad_input_is_a_single_line_and_exit_2(tmp_path: Path, capsys, args,
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.parametrize("target", ["scene", "nowhere"])
+def test_cli_refuses_a_symbolic_link_as_output(tmp_path: Path, capsys, target):
+    (tmp_path / "scene").mkdir()
+    link = tmp_path / "link"
+    link.symlink_to(tmp_path / target)
+    assert main(["static", str(link), "--frames", "1", "--width", "8", "--height", "6"]) == 2
+    err = capsys.readouterr().err
+    assert err == f"error: output path is a symbolic link: {link}; pass the folder it points to\n"
+    assert link.is_symlink() and sorted(p.name for p in tmp_path.iterdir()) == ["link", "scene"]
+
+
 def test_cli_process_exits_nonzero_without_traceback(tmp_path: Path):
     command = [
         sys.executable,

@@ -78,7 +78,8 @@ def write_renders(
 ) -> list[CameraRenders]:
     """Render `model` from the chosen cameras at every `frame_stride`-th frame into
     `out`/cam<ID>/<frame>.png and, with a frame rate, `out`/cam<ID>.mp4 (written beside and
-    moved in when complete, so an interrupted run leaves no truncated video)."""
+    moved in when complete, so an interrupted run leaves no truncated video); a path that
+    cannot be written is one line naming it."""
     require_its_scene(model, scene)
     cameras = chosen_cameras(scene, settings.camera_ids)
     renderer = ModelRenderer(model)
@@ -99,6 +100,9 @@ def write_renders(
                 sinks[view.camera.camera_id].add(frame, picture)
         for sink in sinks.values():
             sink.finish()
+    except OSError as error:  # e.g. a file where a camera's folder goes
+        where = error.filename2 or error.filename or out  # filename2: where a move went
+        raise InputError(f"cannot write {where}: {error.strerror or error}") from error
     finally:
         for sink in sinks.values():
             sink.abandon()
@@ -140,7 +144,7 @@ class _CameraSink:
         if self._writer is not None:
             self._writer.release()
             self._writer = None
-            self.partial.unlink(missing_ok=True)
+        self.partial.unlink(missing_ok=True)  # also when moving it into place failed
 
     def result(self) -> CameraRenders:
         """What was written."""

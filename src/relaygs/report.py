@@ -15,6 +15,7 @@ from relaygs.app.marginal import marginal_markdown, marginal_table, varies_budge
 from relaygs.app.pareto import plot_pareto
 from relaygs.app.result import RESULT_FILE
 from relaygs.app.summary import (
+    FailedJob,
     collect_results,
     failed_jobs,
     is_number,
@@ -37,14 +38,14 @@ BUDGET_MD = "summary_budget.md"
 @dataclass(frozen=True)
 class ReportFiles:
     """The files a report wrote (`pareto` is None when no job has both PSNR and a time) and
-    the failed jobs, one `job <n> (<variant>): <error>` line each; `mean` and `budget` are
+    the failed jobs (each with its `job <n> (<variant>): <error>` line); `mean` and `budget` are
     written only for sweeps that repeat seeds or vary the step multiplier."""
 
     csv: Path
     markdown: Path
     pareto: Path | None
     jobs: int
-    failed: tuple[str, ...]
+    failed: tuple[FailedJob, ...]
     mean: Path | None = None
     budget: Path | None = None
 
@@ -151,7 +152,7 @@ def describe(files: ReportFiles) -> str:
             lines.append(f"  {extra}")
     if files.failed:
         lines.append(f"{len(files.failed)} of {files.jobs} job(s) failed:")
-        lines += [f"  {line}" for line in files.failed]
+        lines += [f"  {job.line}" for job in files.failed]
     return "\n".join(lines)
 
 

@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 
+from relaygs.app.summary import results_written_before
 from relaygs.errors import RelayGSError
 from relaygs.report import describe, write_reports
 
@@ -16,9 +18,15 @@ from relaygs.report import describe, write_reports
 class SweepSummary(Callback):
     """On multirun end: `summary.csv`, `summary.md` and `pareto.png` in the sweep folder."""
 
+    def __init__(self) -> None:
+        """Note when the sweep starts (Hydra makes its callbacks before the first job), to
+        tell this sweep's results from those an earlier sweep left in the same folder."""
+        self.started = time.time()
+
     def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
         """Write the report of the sweep folder (a failure to write it is reported, not
-        raised); when a job failed, say which on stderr and exit with status 1."""
+        raised); name the jobs in it that an earlier sweep ran; when a job of this sweep
+        failed, say which on stderr and exit with status 1."""
         sweep_dir = Path(str(config.hydra.sweep.dir))
         try:
             files = write_reports(sweep_dir)
@@ -26,10 +34,19 @@ class SweepSummary(Callback):
             print(f"error: no sweep summary: {error}", file=sys.stderr)
             return
         print(describe(files))
-        if files.failed:
-            failed = "; ".join(files.failed)
+        earlier = results_written_before(sweep_dir, self.started)
+        if earlier:
+            names = ", ".join(str(folder.relative_to(sweep_dir)) for folder in earlier)
             print(
-                f"error: {len(files.failed)} of {files.jobs} job(s) failed: {failed}",
+                f"note: the summary also holds {len(earlier)} job(s) of an earlier sweep in "
+                f"{sweep_dir}: {names}; give each sweep its own hydra.sweep.dir",
+                file=sys.stderr,
+            )
+        failed = [job.line for job in files.failed if job.run_dir not in earlier]
+        if failed:
+            print(
+                f"error: {len(failed)} of {files.jobs - len(earlier)} job(s) failed: "
+                f"{'; '.join(failed)}",
                 file=sys.stderr,
             )
             # Hydra turns a callback's exception into a warning; SystemExit ends the command.

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import math
 import numbers
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -78,7 +79,8 @@ def collect_results(sweep_dir: Path) -> pd.DataFrame:
 
 def _read_result(path: Path) -> dict[str, Any]:
     """One job's result, refused with its path when it is unreadable, lacks a REQUIRED_FIELDS
-    key, or holds anything but a finite number (or null) under a NUMERIC_FIELDS key."""
+    key, holds anything but a finite number (or null) under a NUMERIC_FIELDS key, or is not
+    flat (a list or object as a value: the tables group and compare values)."""
     try:
         row = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, ValueError) as error:  # ValueError: bad UTF-8 or bad JSON
@@ -92,6 +94,10 @@ def _read_result(path: Path) -> dict[str, Any]:
         value = row.get(name)
         if value is not None and not is_number(value):
             raise InputError(f"{path}: {name}: expected a finite number or null, got {value!r}")
+    for name, value in row.items():
+        if isinstance(value, dict | list):
+            expected = "a number, string, bool or null"
+            raise InputError(f"{path}: {name}: expected {expected}, got {value!r}")
     return row
 
 
@@ -131,7 +137,7 @@ def markdown_table(table: pd.DataFrame, title: str) -> str:
     failed = failed_jobs(table)
     if failed:
         lines += ["", f"{len(failed)} of {len(table)} job(s) failed:", ""]
-        lines += [f"- {line}" for line in failed]
+        lines += [f"- {job.line}" for job in failed]
     return "\n".join(lines) + "\n"
 
 
@@ -164,14 +170,35 @@ def _seconds(table: pd.DataFrame, columns: tuple[str, ...]) -> float | None:
     return sum(float(v) for column in columns for v in table[column] if is_number(v))
 
 
-def failed_jobs(table: pd.DataFrame) -> list[str]:
-    """`job <n> (<variant>): <error>` for every row whose status is failed."""
+@dataclass(frozen=True)
+class FailedJob:
+    """A failed row: its job folder and the line that names it, `job <n> (<variant>): <error>`."""
+
+    run_dir: Path
+    line: str
+
+
+def failed_jobs(table: pd.DataFrame) -> list[FailedJob]:
+    """Every row whose status is failed."""
     if "status" not in table:
         return []
     failed = table[table["status"] == STATUS_FAILED]
     return [
-        f"job {_cell(row.get('job'), '{:.0f}')} ({row.get('variant')}): {row.get('error')}"
+        FailedJob(
+            Path(row["run_dir"]),
+            f"job {_cell(row.get('job'), '{:.0f}')} ({row.get('variant')}): {row.get('error')}",
+        )
         for _, row in failed.iterrows()
+    ]
+
+
+def results_written_before(sweep_dir: Path, moment: float) -> list[Path]:
+    """The job folders below `sweep_dir` whose `result.json` is older than `moment` (seconds
+    since the epoch): results a sweep started at `moment` did not write."""
+    return [
+        path.parent
+        for path in sorted(Path(sweep_dir).rglob(RESULT_FILE))
+        if path.stat().st_mtime < moment
     ]
 
 

@@ -23,7 +23,7 @@ from relaygs.pipeline.layout import (
     key_dirs,
     key_of_temp_name,
     lock_path,
-    stage_dirs,
+    store_entries,
 )
 from relaygs.pipeline.manifest import read_manifest
 
@@ -50,11 +50,10 @@ def collect_garbage(
     artifact (a typo would otherwise keep nothing) fails before anything is removed."""
     report = GcReport()
     kept = _kept_keys(root, keep, annotations) if keep is not None else None
-    for stage_dir in stage_dirs(root):
-        for path in sorted(stage_dir.iterdir()):
-            key = _owning_key(path)
-            if key is not None and _is_garbage(path, key, kept):
-                _remove_if_free(root, stage_dir.name, key, path, dry_run, report)
+    for path in store_entries(root):
+        key = _owning_key(path)
+        if key is not None and _is_garbage(path, key, kept):
+            _remove_if_free(root, path.parent.name, key, path, dry_run, report)
     _remove_free_locks(root, dry_run, report)
     return report
 

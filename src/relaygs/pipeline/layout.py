@@ -76,4 +76,10 @@ def stage_dirs(root: Path) -> list[Path]:
 
 def key_dirs(root: Path) -> list[Path]:
     """Folders named like a key under every stage folder (finished or not)."""
-    return [p for stage in stage_dirs(root) for p in sorted(stage.iterdir()) if is_key(p.name)]
+    return [p for p in store_entries(root) if is_key(p.name)]
+
+
+def store_entries(root: Path) -> list[Path]:
+    """The folders in every stage folder: what the store writes there is only ever a folder,
+    so a file (say a content-addressed blob of some other tool's cache) is none of its own."""
+    return [p for stage in stage_dirs(root) for p in sorted(stage.iterdir()) if p.is_dir()]

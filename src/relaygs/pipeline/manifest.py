@@ -13,6 +13,20 @@ from relaygs.pipeline.integrity import CorruptArtifactError, file_sha256
 
 MANIFEST_FILE = "manifest.json"
 MANIFEST_FORMAT = 1
+_FIELD_TYPES: dict[str, type | tuple[type, ...]] = {
+    "key": str,
+    "stage": str,
+    "config": dict,
+    "lineage": list,
+    "metrics": dict,
+    "wall_seconds": (int, float),
+    "created": str,
+    "package_version": str,
+    "files": dict,
+    "provenance": dict,
+    "format": int,
+}
+"""The JSON type of each manifest field (a missing one is refused when the Manifest is made)."""
 
 
 @dataclass(frozen=True)
@@ -80,7 +94,25 @@ def read_manifest(folder: Path) -> Manifest:
     path = folder / MANIFEST_FILE
     try:
         raw = json.loads(path.read_text(encoding="utf-8"))
+        _check_types(raw)
         lineage = [LineageEntry(**entry) for entry in raw.pop("lineage")]
         return Manifest(lineage=lineage, **raw)
     except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError) as error:
         raise CorruptArtifactError(f"{path}: unreadable manifest ({error})") from error
+
+
+def _check_types(raw: Any) -> None:
+    """Raise TypeError naming the first field, file entry or lineage entry of a parsed
+    manifest that is not of the type written, so that no reader trips over an edited one."""
+    if not isinstance(raw, dict):
+        raise TypeError(f"expected a JSON object, got {type(raw).__name__}")
+    for name, expected in _FIELD_TYPES.items():
+        value = raw.get(name)
+        if name in raw and (isinstance(value, bool) or not isinstance(value, expected)):
+            raise TypeError(f"field {name!r} has the wrong type: {value!r}")
+    for name, entry in raw.get("files", {}).items():
+        if not isinstance(entry, dict) or not isinstance(entry.get("bytes"), int):
+            raise TypeError(f"files entry {name!r} has no byte count: {entry!r}")
+    for entry in raw.get("lineage", []):
+        if not isinstance(entry, dict) or not all(isinstance(v, str) for v in entry.values()):
+            raise TypeError(f"lineage entry is not an object of strings: {entry!r}")

@@ -190,9 +190,14 @@ class ArtifactStore:
                     raise CorruptArtifactError(
                         f"artifact {name} is damaged, not missing: {problem.message}; {VERIFY_HINT}"
                     )
-        if len(matches) != 1:
-            what = "no artifact" if not matches else f"{len(matches)} artifacts"
-            raise MissingArtifactError(f"{what} with key starting {prefix!r} in {self.root}")
+        if len(matches) > 1:
+            names = ", ".join(f"{item.stage}/{item.key[:16]}" for item in matches)
+            raise MissingArtifactError(
+                f"{len(matches)} artifacts with key starting {prefix!r} in {self.root} "
+                f"({names}): give more digits"
+            )
+        if not matches:
+            raise MissingArtifactError(f"no artifact with key starting {prefix!r} in {self.root}")
         return matches[0]
 
     def verify(self) -> list[VerifyProblem]:

@@ -16,14 +16,15 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Mapping
+import textwrap
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeVar
 
 import torch
 from torch import Tensor
 
-from relaygs.errors import InputError
+from relaygs.errors import InputError, one_line
 from relaygs.field import ColorAffine, DeformationField
 from relaygs.model import GaussianSet
 from relaygs.pipeline.artifact import Artifact
@@ -105,9 +106,13 @@ class SceneModel:
     def from_artifact(cls, artifact: Artifact) -> SceneModel:
         """Rebuild the model a stage wrote (exact: the same tensors give the same renders)."""
         meta, tensors = artifact.meta, artifact.tensors
+        if not isinstance(meta, Mapping):
+            raise InputError(f"{artifact.stage} artifact: meta is a {type(meta).__name__}")
         for key in ("num_frames", "k"):
-            if not isinstance(meta.get(key), int):
-                raise InputError(f"{artifact.stage} artifact: meta {key!r} missing or not an int")
+            if not isinstance(meta.get(key), int) or meta[key] < 1:
+                raise InputError(
+                    f"{artifact.stage} artifact: meta {key!r} missing or not an int >= 1"
+                )
         background = GaussianSet.from_tensors(_with_prefix(tensors, "bg."), "bg.")
         foreground = GaussianSet.from_tensors(_with_prefix(tensors, "fg."), "fg.")
         if SEGMENT not in foreground.buffers:
@@ -122,11 +127,13 @@ class SceneModel:
             affine_cameras=list(meta.get("affine_cameras") or []),
         )
         if model.field_settings is not None:
-            model.field = build_field(model.field_settings)
-            model.field.load_state_dict(_with_prefix(tensors, FIELD_PREFIX, strip=True))
+            model.field = _restored(
+                artifact, "field", lambda: build_field(model.field_settings), FIELD_PREFIX
+            )
         if model.affine_cameras:
-            model.affine = ColorAffine(len(model.affine_cameras))
-            model.affine.load_state_dict(_with_prefix(tensors, AFFINE_PREFIX, strip=True))
+            model.affine = _restored(
+                artifact, "affine", lambda: ColorAffine(len(model.affine_cameras)), AFFINE_PREFIX
+            )
         return model
 
     def to(self, device: torch.device | str) -> SceneModel:
@@ -138,6 +145,23 @@ class SceneModel:
         if self.affine is not None:
             self.affine.to(device)
         return self
+
+
+_Module = TypeVar("_Module", bound=torch.nn.Module)
+
+
+def _restored(artifact: Artifact, what: str, build: Callable[[], _Module], prefix: str) -> _Module:
+    """`build()` loaded with the artifact's `prefix` tensors; settings in its meta or tensors
+    that do not fit are one line naming the artifact and `what` (the field or the affine)."""
+    try:
+        module = build()
+        module.load_state_dict(_with_prefix(artifact.tensors, prefix, strip=True))
+    except (AttributeError, KeyError, TypeError, ValueError, RuntimeError) as error:
+        detail = textwrap.shorten(one_line(error), 300)
+        raise InputError(
+            f"{artifact.stage} artifact: its {what} does not match its settings ({detail})"
+        ) from error
+    return module
 
 
 def build_field(settings: Mapping[str, Any], seed: int = 0) -> DeformationField:

@@ -116,7 +116,10 @@ def declared_effects(
 
 def _staging_folder(out: Path) -> Path:
     """A fresh sibling folder to write into; `out` may only hold a scene this generator wrote,
-    which the new one replaces (anything else in it would be lost with it)."""
+    which the new one replaces (anything else in it would be lost with it); a symbolic link
+    is refused rather than replaced or followed."""
+    if out.is_symlink():
+        raise InputError(f"output path is a symbolic link: {out}; pass the folder it points to")
     if out.exists():
         if not out.is_dir():
             raise InputError(f"output path exists and is not a folder: {out}")
