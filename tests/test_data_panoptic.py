@@ -13,6 +13,8 @@ import torch
 
 from relaygs.data import Camera, Scene, detect_format, load_scene
 from relaygs.data.effects import COLOR_INCONSISTENCY, SENSOR_NOISE
+from relaygs.model import GaussianSet
+from relaygs.stages.render import part_of, splat
 
 
 @pytest.fixture(scope="module")
@@ -173,3 +175,43 @@ def test_detects_the_layout(tiny_synth_scene: Path, tmp_path: Path):
     assert detect_format(tiny_synth_scene) == "panoptic"
     (tmp_path / "cam00").mkdir()
     assert detect_format(tmp_path) == "multiview"
+
+
+def _scale_world(root: Path, factor: float) -> None:
+    """Scale a Panoptic scene's world in place: camera translations and the point cloud."""
+    for name in ("train_meta.json", "test_meta.json"):
+        meta = json.loads((root / name).read_text())
+        w2c = np.array(meta["w2c"])
+        w2c[..., :3, 3] *= factor
+        meta["w2c"] = w2c.tolist()
+        (root / name).write_text(json.dumps(meta))
+    data = np.load(root / "init_pt_cld.npz")["data"].copy()
+    data[:, :3] *= factor
+    np.savez(root / "init_pt_cld.npz", data=data)
+
+
+def test_a_scene_in_small_units_renders_like_the_same_scene_in_metres(
+    scene: Scene, tiny_synth_copy: Path
+):
+    """The near plane scales with the extent below 1: at 1/1000 scale the cameras are ~4 mm
+    from the subject, and gsplat's fixed 0.01 would cull almost every Gaussian."""
+    factor = 1e-3
+    _scale_world(tiny_synth_copy, factor)
+    small = load_scene(tiny_synth_copy)
+    assert small.extent == pytest.approx(scene.extent * factor, rel=1e-4)
+    assert {view.camera.near for view in scene.train_views + scene.test_views} == {0.01}
+    nears = {view.camera.near for view in small.train_views + small.test_views}
+    assert nears == {0.01 * small.extent}
+    assert small.rescaled(2).train_cameras[0].near == small.train_cameras[0].near
+
+    big = GaussianSet.from_points(scene.points.xyz, scene.points.rgb, max_sh_degree=0)
+    tiny = GaussianSet.from_points(scene.points.xyz, scene.points.rgb, max_sh_degree=0)
+    tiny.params["means"].data.mul_(factor)
+    tiny.params["log_scales"].data.add_(float(np.log(factor)))
+    cameras = small.test_cameras
+    assert cameras[0].near < 0.01 and scene.test_cameras[0].near == 0.01
+    expected = splat([part_of("all", big, 0, frozen=True)], scene.test_cameras, 0)
+    got = splat([part_of("all", tiny, 0, frozen=True)], cameras, 0)
+    for want, have in zip(expected.alphas, got.alphas, strict=True):
+        assert float(want.mean()) > 0.2
+        assert torch.allclose(have, want, atol=1e-3)

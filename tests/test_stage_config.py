@@ -75,6 +75,15 @@ def test_per_set_sections_start_from_the_papers_fg_and_bg_settings(config: type)
         ("deform", {"densify_bg": {"split_count": 1}}, "deform.densify_bg.split_count"),
         ("deform", {"lr_grid": {"init": 1.0, "final": 0.0}}, "deform.lr_grid.final"),
         ("replicate", {"k": -2}, "replicate.k"),
+        # an infinite rate or weight would turn the first step's parameters into NaN
+        ("decouple", {"lr": {"sh_dc": float("inf")}}, "decouple.lr.sh_dc"),
+        ("decouple", {"lr": {"means": {"init": float("inf"), "final": 1.0}}}, "lr.means.init"),
+        ("decouple", {"lr": {"means": {"init": 1.0, "final": float("inf")}}}, "lr.means.final"),
+        ("decouple", {"mask_lr": float("inf")}, "decouple.mask_lr"),
+        ("relay", {"lr_fg": {"means": float("inf")}}, "relay.lr_fg.means"),
+        ("deform", {"lr_mlp": {"init": float("inf"), "final": 1e-5}}, "deform.lr_mlp.init"),
+        ("deform", {"lr_gamma": float("inf")}, "deform.lr_gamma"),
+        ("deform", {"plane_smoothness": float("inf")}, "deform.plane_smoothness"),
         ("warmup", {"init_opacity": 1.0}, "warmup.init_opacity"),
     ],
 )

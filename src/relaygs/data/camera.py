@@ -12,13 +12,25 @@ from relaygs.errors import InputError
 POSE_TOLERANCE = 1e-3
 """How far a loaded rotation may be from orthonormal (largest entry of |R Rᵀ - I|)."""
 
+NEAR_PLANE = 0.01
+"""Near-plane distance of the splatting core (gsplat's default), used as is for scenes of extent
+>= 1 and scaled with the extent below it (`near_plane_for`)."""
+
+
+def near_plane_for(extent: float) -> float:
+    """A scene's near plane: NEAR_PLANE × min(1, extent), so a capture in small units (cameras
+    millimetres from the subject) is not culled whole while every scene of extent >= 1 keeps
+    gsplat's 0.01."""
+    return NEAR_PLANE * min(1.0, extent)
+
 
 @dataclass(frozen=True, eq=False)
 class Camera:
     """A calibrated pinhole camera: intrinsics K, world→camera pose (OpenCV axes) and image size.
 
     Pixel j covers [j, j + 1) in image coordinates, so its centre is at j + 0.5 (the
-    convention of COLMAP and the 3DGS rasteriser).
+    convention of COLMAP and the 3DGS rasteriser). `near`: depth below which Gaussians are
+    culled (the loaders set it from the scene's extent, `near_plane_for`).
     """
 
     camera_id: int
@@ -26,6 +38,7 @@ class Camera:
     w2c: torch.Tensor
     width: int
     height: int
+    near: float = NEAR_PLANE
 
     def scaled(self, factor: float) -> Camera:
         """The same camera seen at 1/`factor` resolution (factor 2 gives half-size images).
@@ -42,7 +55,7 @@ class Camera:
         scale = torch.tensor(
             [[width / self.width], [height / self.height], [1.0]], dtype=torch.float32
         )
-        return Camera(self.camera_id, self.K * scale, self.w2c.clone(), width, height)
+        return Camera(self.camera_id, self.K * scale, self.w2c.clone(), width, height, self.near)
 
     @property
     def center(self) -> torch.Tensor:

@@ -9,7 +9,7 @@ import numpy as np
 import torch
 
 from relaygs.data.cache import TensorCache
-from relaygs.data.camera import Camera
+from relaygs.data.camera import Camera, near_plane_for
 from relaygs.data.fingerprint import digest
 from relaygs.data.imageio import read_mask, read_rgb
 from relaygs.data.options import require_int
@@ -127,6 +127,18 @@ def scale_views(views: list[View], downscale: int) -> list[View]:
     return result
 
 
+def with_near(views: list[View], near: float) -> list[View]:
+    """Views whose cameras have near plane `near`; views sharing a camera keep sharing one."""
+    cameras: dict[int, Camera] = {}
+    result = []
+    for view in views:
+        key = id(view.camera)
+        if key not in cameras:
+            cameras[key] = replace(view.camera, near=near)
+        result.append(replace(view, camera=cameras[key]))
+    return result
+
+
 def split_views(
     views: list[View], test_ids: set[int], source: Path
 ) -> tuple[list[View], list[View]]:
@@ -174,8 +186,11 @@ def assemble_scene(
     cache_mb: float,
 ) -> Scene:
     """Build a Scene from full-resolution views: extent from the train cameras (or the points,
-    `scene_extent`), views scaled."""
+    `scene_extent`), every camera's near plane from the extent, views scaled."""
     train_cameras = {id(view.camera): view.camera for view in train_views}
+    extent = scene_extent(list(train_cameras.values()), points)
+    near = near_plane_for(extent)
+    train_views, test_views = with_near(train_views, near), with_near(test_views, near)
     return Scene(
         name=root.name,
         root=root,
@@ -185,7 +200,7 @@ def assemble_scene(
         num_frames=num_frames,
         points=points,
         effects=effects,
-        extent=scene_extent(list(train_cameras.values()), points),
+        extent=extent,
         downscale=downscale,
         content_digest=content_digest,
         cache=TensorCache(cache_mb),

@@ -103,7 +103,7 @@ def _consistent(
     for index, camera in enumerate(cameras):
         cam = homogeneous @ camera.w2c.to(torch.float32).T
         depth = cam[:, 2]
-        in_front = depth > 1e-3
+        in_front = depth > 0.1 * camera.near  # 1e-3 at the default near plane
         safe_depth = torch.where(in_front, depth, torch.ones_like(depth))
         pixels = (cam[:, :3] / safe_depth[:, None]) @ camera.K.to(torch.float32).T
         column, row = pixels[:, 0].floor().long(), pixels[:, 1].floor().long()

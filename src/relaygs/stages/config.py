@@ -8,6 +8,7 @@ configuration before any work starts. Errors are one-line `InputError`s naming `
 from __future__ import annotations
 
 import dataclasses
+import math
 import types
 import typing
 from collections.abc import Mapping
@@ -167,9 +168,11 @@ def _resolved(parsed: LRSchedule, steps: int, where: str) -> LRSchedule:
 
 
 def _check_schedule(schedule: LRSchedule, where: str) -> None:
-    require(schedule.init >= 0.0, where, schedule.init, "a learning rate >= 0")
+    name = where if schedule.final is None else f"{where}.init"
+    require(0.0 <= schedule.init < math.inf, name, schedule.init, "a finite learning rate >= 0")
     if schedule.final is not None:
-        require(schedule.final > 0.0, f"{where}.final", schedule.final, "a final rate > 0")
+        final = schedule.final
+        require(0.0 < final < math.inf, f"{where}.final", final, "a finite final rate > 0")
         require(schedule.init > 0.0, f"{where}.init", schedule.init, "an initial rate > 0")
     require(schedule.max_steps >= 0, f"{where}.max_steps", schedule.max_steps, "an int >= 0")
 

@@ -9,6 +9,7 @@ Output: background (M = 1) and foreground (M = 0) sets.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -78,7 +79,8 @@ class DecoupleConfig:
         require_steps("decouple.steps", self.steps)
         threshold = self.mask_threshold
         require(0.0 < threshold < 1.0, "decouple.mask_threshold", threshold, "a value in (0, 1)")
-        require(self.mask_lr >= 0.0, "decouple.mask_lr", self.mask_lr, "a learning rate >= 0")
+        lr = self.mask_lr
+        require(0.0 <= lr < math.inf, "decouple.mask_lr", lr, "a finite learning rate >= 0")
         require(self.frame0_views >= 0, "decouple.frame0_views", self.frame0_views, "an int >= 0")
         check_static_settings(self, STAGE)
         self.learning_rates()

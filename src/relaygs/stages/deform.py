@@ -109,7 +109,8 @@ class DeformConfig(PerSetSections):
         require(self.depth >= 0, "deform.depth", self.depth, "an int >= 0")
         require(self.sh_every >= 0, "deform.sh_every", self.sh_every, "an int >= 0")
         for key in (*REGULARISERS, "lr_gamma", "lr_affine"):
-            require(getattr(self, key) >= 0.0, f"deform.{key}", getattr(self, key), "a number >= 0")
+            value = getattr(self, key)
+            require(0.0 <= value < math.inf, f"deform.{key}", value, "a finite number >= 0")
         self.plans()
         self.module_schedules()
 

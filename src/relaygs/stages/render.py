@@ -172,6 +172,7 @@ def splat(
             group[0].width,
             group[0].height,
             sh_degree=sh_degree,
+            near_plane=group[0].near,
             fixed=fixed,
         )
         for slot, index in enumerate(indices):
@@ -211,8 +212,8 @@ def screen_statistics(render: Render, name: str, set_size: int) -> tuple[Tensor,
 
 
 def _size_groups(cameras: list[Camera]) -> list[list[int]]:
-    """Camera indices grouped by image size, in first-seen order."""
-    groups: dict[tuple[int, int], list[int]] = {}
+    """Camera indices grouped by image size and near plane, in first-seen order."""
+    groups: dict[tuple[int, int, float], list[int]] = {}
     for index, camera in enumerate(cameras):
-        groups.setdefault((camera.width, camera.height), []).append(index)
+        groups.setdefault((camera.width, camera.height, camera.near), []).append(index)
     return list(groups.values())
