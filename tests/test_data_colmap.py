@@ -127,6 +127,19 @@ def _rewrite_model(root: Path, edit) -> None:
     write_model(folder, model, binary=root.name == "binary")
 
 
+@pytest.mark.parametrize("binary", [True, False])
+def test_a_model_without_points_names_its_points_file(panoptic: Scene, tmp_path: Path, binary):
+    root = export_multiview(panoptic, tmp_path / ("binary" if binary else "text"), binary=binary)
+
+    folder = root / "sparse" / "0"
+    model = read_model(folder)
+    for path in folder.iterdir():
+        path.unlink()
+    write_model(folder, replace(model, xyz=model.xyz[:0], rgb=model.rgb[:0]), binary=binary)
+    suffix = ".bin" if binary else ".txt"
+    _expect(root, f"sparse/0/points3D{suffix}: expected a non-empty point cloud")
+
+
 def test_distorted_cameras_are_refused(multiview_copy: Path):
     def distort(model) -> None:
         camera = model.cameras[1]

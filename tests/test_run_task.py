@@ -12,7 +12,7 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 from fake_stages import TINY_SCENE, FakeStages, compose_config
 from relaygs.app import task as task_module
 from relaygs.app.evaluation import evaluation_config
-from relaygs.app.result import RESULT_FILE
+from relaygs.app.result import NO_TEST_VIEWS, RESULT_FILE, format_summary
 from relaygs.app.task import run_task
 from relaygs.app.tensorboard import flatten_config
 from relaygs.errors import InputError
@@ -67,8 +67,15 @@ def _run(config, run_dir, fakes, overrides=()):
 
 def test_a_run_writes_a_flat_result_with_every_required_field(base_config, tmp_path, capsys):
     fakes = FakeStages()
-    overrides = ["relay.k=8", "+component=full", "paths.outputs=/x", "hydra.verbose=true"]
-    result = _run(base_config, tmp_path / "run", fakes, overrides=overrides)
+    overrides = [
+        "relay.k=8",
+        "+component=full",
+        "scene.loader.test_cameras=[0,2]",
+        "paths.outputs=/x",
+        "hydra.verbose=true",
+    ]
+    config = _with(base_config, scene__loader__test_cameras=[0, 2])
+    result = _run(config, tmp_path / "run", fakes, overrides=overrides)
     written = json.loads((tmp_path / "run" / RESULT_FILE).read_text())
     assert written == result
     assert set(written) >= REQUIRED_FIELDS
@@ -76,6 +83,7 @@ def test_a_run_writes_a_flat_result_with_every_required_field(base_config, tmp_p
     assert (written["pipeline"], written["scene"], written["seed"]) == ("relaygs", "juggle", 0)
     assert written["relay.k"] == base_config["relay"]["k"]
     assert written["component"] == "full"
+    assert written["scene.loader.test_cameras"] == "[0, 2]"  # a list as its JSON text
     assert not any(key.startswith(("paths", "hydra")) for key in written)
     assert written["storage_mb"] > 0
     assert written["train_s_total"] >= written["train_s_computed"] > 0
@@ -236,3 +244,9 @@ def test_non_finite_metrics_are_written_as_null(base_config, tmp_path, monkeypat
     assert written == result
     assert written["psnr"] is None and written["ssim"] == 0.5
     assert "lpips" not in written  # extra metrics are kept only when they have a value
+
+
+def test_the_summary_says_why_a_run_without_test_views_has_no_metrics():
+    shown = format_summary({"pipeline": "relaygs", "psnr": None, "num_test_images": 0})
+    assert "PSNR" in shown and shown.splitlines()[-1] == f"  {NO_TEST_VIEWS}"
+    assert NO_TEST_VIEWS not in format_summary({"psnr": 20.0, "num_test_images": 4})

@@ -29,6 +29,11 @@ NOT_RECORDED = ("hydra", "paths.", "artifacts.")
 """Override key prefixes that say where outputs go or how Hydra runs, not what was run."""
 
 Scalar = bool | int | float | str | None
+NO_TEST_VIEWS = (
+    "no test views were scored: the scene holds no test cameras "
+    "(hold some out with scene.loader.test_cameras=[ID,...])"
+)
+"""Why the metrics of a run read n/a when its scene has nothing to evaluate on."""
 
 STATUS_OK = "ok"
 STATUS_FAILED = "failed"
@@ -104,16 +109,12 @@ def recorded_overrides(overrides: Sequence[str]) -> dict[str, str]:
 def effective_value(cfg: Mapping[str, Any], plan: RunPlan, key: str) -> Scalar:
     """What `key` was for this run: a stage setting as the pipeline set it (after the node's
     overrides and the budget, before the stage's canonical form, so a swept `relay.k` keeps the
-    swept value; None when no node runs that stage), a group by its `name`, else the config
-    value."""
+    swept value; None when no node runs that stage), else the config value (`_parameter`)."""
     head, _, rest = key.partition(".")
     if head in plan.stage_types:
         sections = [config[head] for config in plan.node_configs.values() if head in config]
-        return _scalar(_lookup(sections[0], rest)) if sections else None
-    value = _lookup(cfg, key)
-    if isinstance(value, Mapping):
-        return _scalar(value.get("name"))
-    return _scalar(value)
+        return _parameter(_lookup(sections[0], rest)) if sections else None
+    return _parameter(_lookup(cfg, key))
 
 
 def write_result(run_dir: Path, result: Mapping[str, Scalar]) -> Path:
@@ -125,7 +126,8 @@ def write_result(run_dir: Path, result: Mapping[str, Scalar]) -> Path:
 
 
 def format_summary(result: Mapping[str, Scalar]) -> str:
-    """A short human-readable table of one run's results."""
+    """A short human-readable table of one run's results (and why its metrics are missing when
+    no test view was scored)."""
     rows = [
         ("PSNR", _fmt(result.get("psnr"), ".2f", " dB")),
         ("SSIM", _fmt(result.get("ssim"), ".4f")),
@@ -139,7 +141,10 @@ def format_summary(result: Mapping[str, Scalar]) -> str:
     ]
     title = f"{result.get('pipeline')} on {result.get('scene')} (seed {result.get('seed')})"
     width = max(len(label) for label, _ in rows)
-    return "\n".join([title, *(f"  {label:<{width}}  {value}" for label, value in rows)])
+    lines = [title, *(f"  {label:<{width}}  {value}" for label, value in rows)]
+    if result.get("num_test_images") == 0:
+        lines.append(f"  {NO_TEST_VIEWS}")
+    return "\n".join(lines)
 
 
 def _identity(cfg: Mapping[str, Any], plan: RunPlan, job: int | None) -> dict[str, Scalar]:
@@ -174,6 +179,16 @@ def _lookup(config: Mapping[str, Any], dotted: str) -> Any:
             return None
         value = value[part]
     return value
+
+
+def _parameter(value: Any) -> Scalar:
+    """A setting as a result field: a group by its `name`, a list (`test_cameras=[0,10]`) as
+    its JSON text so that sweeps over lists stay apart in the tables, else a JSON scalar."""
+    if isinstance(value, Mapping):
+        return _scalar(value.get("name"))
+    if isinstance(value, list | tuple):
+        return json.dumps(value)
+    return _scalar(value)
 
 
 def _scalar(value: Any) -> Scalar:

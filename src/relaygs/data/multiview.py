@@ -14,6 +14,7 @@ from relaygs.data.colmap import (
     ColmapImage,
     ColmapModel,
     is_model_folder,
+    model_suffix,
     read_model,
 )
 from relaygs.data.fingerprint import digest, file_record
@@ -68,7 +69,7 @@ def load_multiview(root: Path, options: LoaderOptions) -> Scene:
         model.xyz,
         model.rgb.astype(np.float64) / 255.0,
         np.zeros(len(model.xyz), dtype=bool),
-        source=f"{model_folder}/points3D",
+        source=str(model_folder / f"points3D{model_suffix(model_folder)}"),
         max_points=options.max_points,
     )
     effects = declared_effects(root) if options.effects is None else options.effects

@@ -19,22 +19,31 @@ from relaygs.errors import InputError
 MODEL_FILES = ("cameras", "images", "points3D")
 
 
+MODEL_SUFFIXES = (".bin", ".txt")
+"""The two forms of a model, in the order they are preferred when a folder holds both."""
+
+
+def model_suffix(folder: Path) -> str | None:
+    """The suffix of the complete model in `folder` (binary preferred), or None without one."""
+    for suffix in MODEL_SUFFIXES:
+        if all((folder / f"{name}{suffix}").is_file() for name in MODEL_FILES):
+            return suffix
+    return None
+
+
 def is_model_folder(folder: Path) -> bool:
     """True when `folder` holds a complete binary or text COLMAP model."""
-    return any(
-        all((folder / f"{name}{ext}").is_file() for name in MODEL_FILES) for ext in (".bin", ".txt")
-    )
+    return model_suffix(folder) is not None
 
 
 def read_model(folder: Path) -> ColmapModel:
     """Read the model in `folder`, preferring the binary files when both forms exist."""
-    if all((folder / f"{name}.bin").is_file() for name in MODEL_FILES):
-        return read_binary_model(folder)
-    if all((folder / f"{name}.txt").is_file() for name in MODEL_FILES):
-        return read_text_model(folder)
-    raise InputError(
-        f"{folder}: expected a COLMAP model (cameras, images, points3D as .bin or .txt)"
-    )
+    suffix = model_suffix(folder)
+    if suffix is None:
+        raise InputError(
+            f"{folder}: expected a COLMAP model (cameras, images, points3D as .bin or .txt)"
+        )
+    return read_binary_model(folder) if suffix == ".bin" else read_text_model(folder)
 
 
 def write_model(folder: Path, model: ColmapModel, *, binary: bool = True) -> None:
@@ -51,6 +60,7 @@ __all__ = [
     "ColmapImage",
     "ColmapModel",
     "is_model_folder",
+    "model_suffix",
     "qvec_to_rotation",
     "read_model",
     "rotation_to_qvec",
