@@ -366,3 +366,12 @@ def test_pareto_time_axis_is_logarithmic_only_for_a_wide_time_range(
     # the slowest job takes 30x (log) or 15x (linear) the fastest; the threshold is 20x
     pareto.plot_pareto([1.0, slowest], [20.0, 25.0], ["a", "b"], tmp_path / "p.png", "t")
     assert figures[0].axes[0].get_xscale() == scale
+
+
+def test_whole_number_columns_with_missing_rows_are_written_without_a_decimal_point(sweep):
+    _job(sweep, 4, "k4", 22.0, 8.0, **{"relay.k": None})
+    lines = report.write_reports(sweep).csv.read_text().splitlines()
+    header = lines[0].split(",")
+    column = header.index("relay.k")
+    assert [line.split(",")[column] for line in lines[1:]] == ["8", "16", "32", "64", ""]
+    assert lines[1].split(",")[header.index("psnr")] == "25.0"

@@ -79,7 +79,7 @@ def _write_files(table: pd.DataFrame, sweep_dir: Path) -> ReportFiles:
     """Write the summary table, the Pareto plot and the optional mean and budget tables."""
     title = _title(table, sweep_dir)
     csv_path = sweep_dir / SUMMARY_CSV
-    table.to_csv(csv_path, index=False)
+    _write_csv(table, csv_path)
     markdown_path = sweep_dir / SUMMARY_MD
     markdown_path.write_text(markdown_table(table, title), encoding="utf-8")
     plottable = zip(table.psnr, table.train_s_total, strict=True)
@@ -107,7 +107,7 @@ def _write_mean(table: pd.DataFrame, sweep_dir: Path, title: str) -> Path | None
     if not table.duplicated(["scene", "variant"]).any():
         return None
     mean = aggregate_table(table)
-    mean.to_csv(sweep_dir / MEAN_CSV, index=False)
+    _write_csv(mean, sweep_dir / MEAN_CSV)
     path = sweep_dir / MEAN_MD
     path.write_text(aggregate_markdown(mean, f"{title}: mean ± std over seeds"), encoding="utf-8")
     return path
@@ -121,7 +121,7 @@ def _write_budget(table: pd.DataFrame, sweep_dir: Path, title: str) -> Path | No
     marginal = marginal_table(table)
     if marginal.empty:
         return None
-    marginal.to_csv(sweep_dir / BUDGET_CSV, index=False)
+    _write_csv(marginal, sweep_dir / BUDGET_CSV)
     path = sweep_dir / BUDGET_MD
     path.write_text(marginal_markdown(marginal, f"{title}: what a minute buys"), encoding="utf-8")
     return path
@@ -154,6 +154,12 @@ def describe(files: ReportFiles) -> str:
         lines.append(f"{len(files.failed)} of {files.jobs} job(s) failed:")
         lines += [f"  {job.line}" for job in files.failed]
     return "\n".join(lines)
+
+
+def _write_csv(table: pd.DataFrame, path: Path) -> None:
+    """`table` as CSV, each column in its narrowest type: a whole-number column with missing
+    rows (`relay.k` where a pipeline runs no relay) is written 16, not 16.0."""
+    table.convert_dtypes().to_csv(path, index=False)
 
 
 def _title(table, sweep_dir: Path) -> str:
