@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -115,28 +116,22 @@ class Scene:
         )
 
 
+def map_cameras(views: list[View], change: Callable[[Camera], Camera]) -> list[View]:
+    """Views with each camera replaced by `change(camera)`; views sharing a camera keep sharing
+    one (per-camera caches key on it)."""
+    changed: dict[int, Camera] = {}
+    result = []
+    for view in views:
+        key = id(view.camera)
+        if key not in changed:
+            changed[key] = change(view.camera)
+        result.append(replace(view, camera=changed[key]))
+    return result
+
+
 def scale_views(views: list[View], downscale: int) -> list[View]:
-    """Views with cameras downscaled by `downscale`; views sharing a camera keep sharing one."""
-    scaled: dict[int, Camera] = {}
-    result = []
-    for view in views:
-        key = id(view.camera)
-        if key not in scaled:
-            scaled[key] = view.camera.scaled(downscale)
-        result.append(replace(view, camera=scaled[key]))
-    return result
-
-
-def with_near(views: list[View], near: float) -> list[View]:
-    """Views whose cameras have near plane `near`; views sharing a camera keep sharing one."""
-    cameras: dict[int, Camera] = {}
-    result = []
-    for view in views:
-        key = id(view.camera)
-        if key not in cameras:
-            cameras[key] = replace(view.camera, near=near)
-        result.append(replace(view, camera=cameras[key]))
-    return result
+    """Views with cameras downscaled by `downscale`."""
+    return map_cameras(views, lambda camera: camera.scaled(downscale))
 
 
 def split_views(
@@ -190,7 +185,10 @@ def assemble_scene(
     train_cameras = {id(view.camera): view.camera for view in train_views}
     extent = scene_extent(list(train_cameras.values()), points)
     near = near_plane_for(extent)
-    train_views, test_views = with_near(train_views, near), with_near(test_views, near)
+    train_views, test_views = (
+        map_cameras(views, lambda camera: replace(camera, near=near))
+        for views in (train_views, test_views)
+    )
     return Scene(
         name=root.name,
         root=root,
