@@ -57,6 +57,18 @@ def test_cli_refuses_a_symbolic_link_as_output(tmp_path: Path, capsys, target):
     assert link.is_symlink() and sorted(p.name for p in tmp_path.iterdir()) == ["link", "scene"]
 
 
+def test_cli_out_of_memory_is_one_line_and_leaves_no_folder(tmp_path: Path, capsys, monkeypatch):
+    def no_memory(*args, **kwargs):
+        raise MemoryError
+
+    module = sys.modules["relaygs.data.synthetic.generate"]  # the package exports the function
+    monkeypatch.setattr(module, "_write_scene", no_memory)
+    assert main(["static", str(tmp_path / "out"), "--width", "30000", "--height", "20000"]) == 1
+    err = capsys.readouterr().err
+    assert err == "error: not enough memory to render 30000x20000 images: ask for fewer pixels\n"
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_cli_process_exits_nonzero_without_traceback(tmp_path: Path):
     command = [
         sys.executable,

@@ -67,6 +67,13 @@ def main(argv: list[str] | None = None) -> int:
     except RelayGSError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
+    except MemoryError:
+        size = f"{args.width}x{args.height}"
+        print(
+            f"error: not enough memory to render {size} images: ask for fewer pixels",
+            file=sys.stderr,
+        )
+        return 1
     print(f"wrote {out} in {time.perf_counter() - started:.1f} s")
     return 0
 
