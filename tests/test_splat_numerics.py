@@ -275,6 +275,12 @@ def test_means2d_carries_the_screen_space_gradient():
         ({"render_mode": "RGBD"}, "render_mode must be one of"),
         ({"sh_degree": 4, "colors": torch.zeros(3, 25, 3)}, "sh_degree must be 0..3"),
         ({"backgrounds": torch.zeros(1, 4)}, "backgrounds must be [1,3]"),
+        # a depth of 0 inside [near, far] would divide by zero in the projection
+        ({"near_plane": 0.0}, "0 < near_plane < far_plane"),
+        ({"near_plane": float("nan")}, "0 < near_plane < far_plane"),
+        ({"near_plane": 2.0, "far_plane": 1.0}, "0 < near_plane < far_plane"),
+        ({"eps2d": -0.3}, "eps2d must be finite and >= 0"),
+        ({"eps2d": float("inf")}, "eps2d must be finite and >= 0"),
     ],
 )
 def test_bad_inputs_raise_one_line_errors(change, message):

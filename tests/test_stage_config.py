@@ -52,6 +52,9 @@ def test_per_set_sections_start_from_the_papers_fg_and_bg_settings(config: type)
     assert tuned.set_rates("fg").for_param("means").max_steps == tuned.steps
 
 
+DELAYED = {"init": 1e-3, "final": 1e-5, "delay_steps": 10}
+
+
 @pytest.mark.parametrize(
     ("stage", "section", "needle"),
     [
@@ -84,6 +87,18 @@ def test_per_set_sections_start_from_the_papers_fg_and_bg_settings(config: type)
         ("deform", {"lr_mlp": {"init": float("inf"), "final": 1e-5}}, "deform.lr_mlp.init"),
         ("deform", {"lr_gamma": float("inf")}, "deform.lr_gamma"),
         ("deform", {"plane_smoothness": float("inf")}, "deform.plane_smoothness"),
+        (
+            "decouple",
+            {"lr": {"means": {**DELAYED, "delay_mult": float("inf")}}},
+            "lr.means.delay_mult",
+        ),
+        (
+            "relay",
+            {"lr_fg": {"means": {**DELAYED, "delay_mult": float("nan")}}},
+            "lr_fg.means.delay_mult",
+        ),
+        ("deform", {"lr_grid": {**DELAYED, "delay_mult": -1.0}}, "deform.lr_grid.delay_mult"),
+        ("deform", {"lr_mlp": {**DELAYED, "delay_steps": -1}}, "deform.lr_mlp.delay_steps"),
         ("warmup", {"init_opacity": 1.0}, "warmup.init_opacity"),
     ],
 )

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -87,6 +88,17 @@ def validate_inputs(
         )
 
 
+def validate_planes(near_plane: float, far_plane: float, eps2d: float) -> None:
+    """Raise InputError unless 0 < near_plane < far_plane and eps2d is finite and >= 0 (the
+    projection divides by depths >= near_plane: a depth of 0 would give NaN gradients)."""
+    _check(
+        0.0 < near_plane < far_plane,
+        f"near_plane and far_plane must satisfy 0 < near_plane < far_plane, "
+        f"got {near_plane} and {far_plane}",
+    )
+    _check(0.0 <= eps2d < math.inf, f"eps2d must be finite and >= 0, got {eps2d}")
+
+
 def camera_colors(
     means: torch.Tensor, colors: torch.Tensor, viewmats: torch.Tensor, sh_degree: int | None
 ) -> torch.Tensor:
@@ -140,6 +152,7 @@ def prepare(
         means, quats, scales, opacities, colors, viewmats, Ks, width, height,
         sh_degree, backgrounds, render_mode,
     )  # fmt: skip
+    validate_planes(near_plane, far_plane, eps2d)
     shade = functools.partial(
         _project_and_shade, viewmats=viewmats, Ks=Ks, width=width, height=height,
         sh_degree=sh_degree, render_mode=render_mode, near_plane=near_plane,

@@ -175,6 +175,10 @@ def _check_schedule(schedule: LRSchedule, where: str) -> None:
         require(0.0 < final < math.inf, f"{where}.final", final, "a finite final rate > 0")
         require(schedule.init > 0.0, f"{where}.init", schedule.init, "an initial rate > 0")
     require(schedule.max_steps >= 0, f"{where}.max_steps", schedule.max_steps, "an int >= 0")
+    require(schedule.delay_steps >= 0, f"{where}.delay_steps", schedule.delay_steps, "an int >= 0")
+    mult = schedule.delay_mult
+    # an infinite or NaN multiplier gives a NaN rate, which turns the first step's parameters NaN
+    require(0.0 <= mult < math.inf, f"{where}.delay_mult", mult, "a finite number >= 0")
 
 
 def densify_settings(
