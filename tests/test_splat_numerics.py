@@ -68,6 +68,38 @@ def test_culled_gaussian_is_finite_and_gets_exactly_zero_gradient(hard):
         assert grads[key][:2].abs().sum() > 0, f"visible Gaussians lost their {key} gradient"
 
 
+@pytest.mark.parametrize("render_mode", ["RGB", "RGB+D"])
+@pytest.mark.parametrize("hard", CULLED.values(), ids=CULLED.keys())
+def test_culled_gaussian_with_sh_colours_and_depth_is_finite_with_zero_gradient(hard, render_mode):
+    """The SH view direction of a mean at the camera centre has no length: it must not reach
+    the colours or the gradients as NaN, nor must the depth channel's division."""
+    scene = _base_scene(hard)
+    scene["colors"] = 0.3 * torch.randn(3, 16, 3, generator=torch.Generator().manual_seed(0))
+    scene = with_grad(scene)
+    colors, alphas, _, grads = render_and_grads(
+        rasterization, scene, sh_degree=3, render_mode=render_mode
+    )
+    _assert_all_finite(colors, alphas, grads)
+    for key in LEARNABLE:
+        assert torch.all(grads[key][2] == 0), f"culled Gaussian got a gradient on {key}"
+
+
+@pytest.mark.parametrize("render_mode", ["RGB", "D", "RGB+D"])
+def test_nothing_in_view_renders_the_background_with_zero_gradient(render_mode):
+    scene = _base_scene({})
+    scene["means"] = scene["means"] * torch.tensor([1.0, 1.0, -1.0])  # all behind the camera
+    scene = with_grad(scene)
+    background = torch.tensor([[0.2, 0.4, 0.6]])
+    colors, alphas, _, grads = render_and_grads(
+        rasterization, scene, render_mode=render_mode, backgrounds=background
+    )
+    assert torch.all(alphas == 0)
+    expected = {"RGB": [0.2, 0.4, 0.6], "D": [0.0], "RGB+D": [0.2, 0.4, 0.6, 0.0]}[render_mode]
+    assert torch.equal(colors[0, 0, 0], torch.tensor(expected))
+    for key, grad in grads.items():
+        assert grad is None or torch.all(grad == 0), f"gradient on {key} with nothing in view"
+
+
 KEPT = {
     "exactly on the near plane": {"means": [0.0, 0.0, 0.01]},
     "zero quaternion": {"quats": [0.0, 0.0, 0.0, 0.0], "scales": [0.3, 0.1, 0.05]},
