@@ -76,6 +76,18 @@ def test_zero_extent_axis_stays_finite() -> None:
     hexplane(xyz, 0.5).sum().backward()
     assert torch.isfinite(hexplane.half_extent).all()
     assert torch.isfinite(xyz.grad).all()
+    for plane in [*hexplane.spatial_planes, *hexplane.time_planes]:
+        assert torch.isfinite(plane.grad).all()
+
+
+def test_points_and_times_outside_the_grid_have_finite_gradients() -> None:
+    hexplane = HexPlane(UNIT_BOX, 4, multires=[1, 2], spatial_resolution=8, channels=2)
+    xyz = torch.tensor([[5.0, -7.0, 0.0], [1e6, 1e6, -1e6], [0.3, 0.2, 0.1]], requires_grad=True)
+    times = torch.tensor([-0.5, 2.0, 1.0])
+    hexplane(xyz, times).square().sum().backward()
+    assert torch.isfinite(xyz.grad).all()
+    for plane in [*hexplane.spatial_planes, *hexplane.time_planes]:
+        assert torch.isfinite(plane.grad).all() and float(plane.grad.abs().sum()) > 0.0
 
 
 def test_gradients_reach_every_plane() -> None:
