@@ -92,3 +92,20 @@ def test_all_frozen_or_all_trainable_parts_render_without_a_layer():
             for a, b in zip(splat(parts, cameras, 1, cached).images, plain, strict=True)
         )
         assert not cached._cache, "no frozen/trainable mix: nothing to cache"
+
+
+def test_a_cached_frozen_render_does_not_depend_on_the_cameras_batched_with_it():
+    """A stage resumed from a checkpoint starts with an empty cache and so first renders each
+    camera beside other cameras than the uninterrupted run did; the cache must hold the same
+    bits either way, or the resumed stage drifts from the uninterrupted one."""
+    background, foreground = _sets()
+    cameras = _cameras()
+    parts = [part_of("bg", background, 1, frozen=True), part_of("fg", foreground, 1)]
+    together, one_by_one = FrozenRenders(), FrozenRenders()
+    batched = together.layer(parts, cameras, 1)
+    for camera in reversed(cameras):
+        one_by_one.layer(parts, [camera], 1)
+    alone = one_by_one.layer(parts, cameras, 1)
+    assert torch.equal(batched.colors, alone.colors)
+    assert torch.equal(batched.alphas, alone.alphas)
+    assert torch.equal(batched.features, alone.features)

@@ -6,6 +6,8 @@ build in progress in another process is never disturbed.
 
 from __future__ import annotations
 
+import os
+import uuid
 from collections.abc import Collection, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -19,6 +21,7 @@ from relaygs.pipeline.integrity import CorruptArtifactError, is_sealed
 from relaygs.pipeline.layout import (
     CHECKPOINT_SUFFIX,
     LOCKS_DIR,
+    TRASH_PREFIX,
     is_key,
     key_dirs,
     key_of_temp_name,
@@ -133,7 +136,18 @@ def _remove_if_free(
             return
         report.removed.append(path)
         if not dry_run:
-            remove_tree(path)
+            _hide_and_remove(path, key)
+
+
+def _hide_and_remove(path: Path, key: str) -> None:
+    """Delete a store entry so that a kill part-way leaves no half-deleted artifact: a folder
+    under its own name (an artifact, a checkpoint folder) is first renamed to a trash name,
+    which `ls` and `verify` ignore and the next gc removes."""
+    if key_of_temp_name(path.name) is None:
+        trash = path.parent / f"{TRASH_PREFIX}{key}-{uuid.uuid4().hex[:8]}"
+        os.replace(path, trash)
+        path = trash
+    remove_tree(path)
 
 
 def _remove_free_locks(root: Path, dry_run: bool, report: GcReport) -> None:

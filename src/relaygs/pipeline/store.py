@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
-from filelock import FileLock
+from filelock import FileLock, Timeout
 
 from relaygs.errors import InputError, RelayGSError
 from relaygs.pipeline.artifact import Artifact, read_artifact_files, write_artifact_files
@@ -141,13 +141,15 @@ class ArtifactStore:
             "provenance": json.loads(canonical_json(provenance or {}, f"{stage} provenance")),
         }
         hit = self._try_load(stage, key, on_corrupt)
-        if hit is not None:
-            return hit
         lock_file = lock_path(self.root, stage, key)
+        if hit is not None:
+            self._clear_stale_checkpoints(stage, key, lock_file)
+            return hit
         lock_file.parent.mkdir(parents=True, exist_ok=True)
         with FileLock(str(lock_file)):
             hit = self._try_load(stage, key, on_corrupt)
             if hit is not None:
+                remove_tree(checkpoint_dir(self.root, stage, key))
                 return hit
             replaced_corrupt = self.has(stage, key)
             self._remove_own_temps(stage, key)
@@ -287,6 +289,23 @@ class ArtifactStore:
                 publish_dir(temp, final)
         finally:
             remove_tree(temp)
+
+    def _clear_stale_checkpoints(self, stage: str, key: str, lock_file: Path) -> None:
+        """Delete the checkpoints of a finished artifact that a build killed between storing it
+        and deleting them left behind, unless another process holds the key's lock."""
+        folder = checkpoint_dir(self.root, stage, key)
+        if not folder.exists():
+            return
+        lock_file.parent.mkdir(parents=True, exist_ok=True)
+        lock = FileLock(str(lock_file))
+        try:
+            lock.acquire(timeout=0)
+        except Timeout:
+            return
+        try:
+            remove_tree(folder)
+        finally:
+            lock.release()
 
     def _remove_own_temps(self, stage: str, key: str) -> None:
         """Delete temp folders a killed build of this key left (the caller holds its lock)."""

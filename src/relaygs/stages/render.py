@@ -94,15 +94,16 @@ class FrozenRenders:
     def layer(self, parts: list[Part], cameras: list[Camera], sh_degree: int) -> FixedLayer:
         """The frozen rows of `parts` as a FixedLayer over all their rows, for `cameras`."""
         missing = [camera for camera in cameras if not self._cached(camera, sh_degree)]
-        if missing:
+        for camera in missing:
+            # One camera per render: a batched render differs from a lone one in the last bits,
+            # so the cache must not depend on which cameras happened to be missing together
+            # (a stage resumed from a checkpoint starts with an empty cache).
             with torch.no_grad():
-                render = splat([p for p in parts if p.frozen], missing, sh_degree)
-            for slot, camera in enumerate(missing):
-                indices, meta = next(g for g in render.groups if slot in g[0])
-                row = indices.index(slot)
-                entry = {name: meta[name][row] for name in (*_PROJECTION_FIELDS, "features")}
-                entry["colors"], entry["alphas"] = render.images[slot], render.alphas[slot]
-                self._cache[camera.camera_id, sh_degree] = (camera, entry)
+                render = splat([p for p in parts if p.frozen], [camera], sh_degree)
+            meta = render.groups[0][1]
+            entry = {name: meta[name][0] for name in (*_PROJECTION_FIELDS, "features")}
+            entry["colors"], entry["alphas"] = render.images[0], render.alphas[0]
+            self._cache[camera.camera_id, sh_degree] = (camera, entry)
         entries = [self._cache[camera.camera_id, sh_degree][1] for camera in cameras]
         stacked = {name: torch.stack([e[name] for e in entries]) for name in entries[0]}
         projection = Projection(**{name: stacked[name] for name in _PROJECTION_FIELDS})
