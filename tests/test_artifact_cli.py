@@ -7,6 +7,7 @@ import sys
 import pytest
 import torch
 
+from relaygs import artifacts as artifacts_module
 from relaygs.artifacts import main
 from relaygs.pipeline.artifact import Artifact
 from relaygs.pipeline.integrity import seal
@@ -117,6 +118,16 @@ def test_gc_leaves_files_named_like_keys_alone(store, capsys):
     assert code == 0 and "damaged" not in out
     code, out, _ = _cli(capsys, store.root, "gc")
     assert code == 0 and str(blob) not in out and blob.read_text() == "not ours"
+
+
+def test_ctrl_c_during_a_command_is_one_line_and_status_130(store, capsys, monkeypatch):
+    # a render or eval stopped by Ctrl-C (say while loading the scene) ends like a run does
+    def interrupted(*args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(artifacts_module, "_ls", interrupted)
+    code, out, err = _cli(capsys, store.root, "ls")
+    assert (code, out, err) == (130, "", "interrupted\n")
 
 
 def test_missing_store_is_one_line_error(tmp_path, capsys):

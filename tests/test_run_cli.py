@@ -151,6 +151,27 @@ def test_sigterm_stops_the_run_as_ctrl_c_does_with_status_143(fakes, capsys):
     assert signal.getsignal(signal.SIGTERM) is previous
 
 
+@pytest.mark.parametrize(
+    ("signum", "status"),
+    [(signal.SIGINT, run_module.INTERRUPTED_EXIT), (signal.SIGTERM, run_module.TERMINATED_EXIT)],
+)
+def test_a_signal_while_the_command_line_is_checked_is_one_line_not_a_traceback(
+    fakes, monkeypatch, tmp_path, capsys, signum, status
+):
+    # composing and validating every job comes before Hydra starts and takes a while: a Ctrl-C
+    # or SIGTERM then must end the command as one during a stage does
+    def stopped(*args):
+        os.kill(os.getpid(), signum)
+        time.sleep(5)  # the handler raises before this ends
+
+    monkeypatch.setattr(run_module, "check_command_line", stopped)
+    previous = signal.getsignal(signal.SIGTERM)
+    assert _main(["budget=smoke", *TINY_SCENE]) == status
+    assert capsys.readouterr().err.strip() == "interrupted"
+    assert signal.getsignal(signal.SIGTERM) is previous
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_a_launcher_whose_plugin_is_missing_names_the_package(fakes, monkeypatch, capsys):
     monkeypatch.setattr(prelaunch, "is_installed", lambda module: False)
     assert _main(["hydra/launcher=joblib", "-m", "relay.k=8,16"]) == 1

@@ -3,6 +3,7 @@
 import copy
 import dataclasses
 import json
+import os
 
 import pytest
 import torch
@@ -12,7 +13,7 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 from fake_stages import TINY_SCENE, FakeStages, compose_config
 from relaygs.app import task as task_module
 from relaygs.app.evaluation import evaluation_config
-from relaygs.app.result import NO_TEST_VIEWS, RESULT_FILE, format_summary
+from relaygs.app.result import NO_TEST_VIEWS, RESULT_FILE, format_summary, write_result
 from relaygs.app.task import run_task
 from relaygs.app.tensorboard import flatten_config
 from relaygs.errors import InputError
@@ -244,6 +245,29 @@ def test_non_finite_metrics_are_written_as_null(base_config, tmp_path, monkeypat
     assert written == result
     assert written["psnr"] is None and written["ssim"] == 0.5
     assert "lpips" not in written  # extra metrics are kept only when they have a value
+
+
+class KilledError(BaseException):
+    """Stands in for a kill (or SIGTERM's KeyboardInterrupt) at the injected point."""
+
+
+def test_a_result_write_stopped_part_way_keeps_the_previous_result(
+    base_config, tmp_path, monkeypatch
+):
+    # a truncated result.json makes the sweep report refuse the whole sweep folder: a write
+    # stopped before it completes must leave the previous result whole (and no stray file)
+    run_dir = tmp_path / "run"
+    before = _run(base_config, run_dir, FakeStages())
+
+    def killed(source, target):
+        raise KilledError
+
+    monkeypatch.setattr(os, "replace", killed)
+    with pytest.raises(KilledError):
+        write_result(run_dir, {**before, "psnr": 1.0})
+    monkeypatch.undo()
+    assert json.loads((run_dir / RESULT_FILE).read_text()) == before
+    assert sorted(p.name for p in run_dir.iterdir() if p.is_file()) == [RESULT_FILE]
 
 
 def test_the_summary_says_why_a_run_without_test_views_has_no_metrics():

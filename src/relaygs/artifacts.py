@@ -28,6 +28,7 @@ from relaygs.stages.scene_model import SceneModel
 DEFAULT_ROOT = "outputs/artifacts"
 DEFAULT_RENDERS = "outputs/renders"
 KEY_COLUMN_WIDTH = 16
+INTERRUPTED_EXIT = 130  # 128 + SIGINT, as `python -m relaygs.run` ends on Ctrl-C
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -41,6 +42,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except RelayGSError as error:
         print(f"error: {error}", file=sys.stderr)
         return 1
+    except KeyboardInterrupt:  # Ctrl-C mid-render or mid-eval: one line, the shell's 130
+        print("interrupted", file=sys.stderr)
+        return INTERRUPTED_EXIT
 
 
 def _parser() -> argparse.ArgumentParser:

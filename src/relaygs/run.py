@@ -24,9 +24,9 @@ from omegaconf import DictConfig
 
 from relaygs.app.config import resolve_config
 from relaygs.app.plan import plan_run
-from relaygs.app.prelaunch import LAUNCH_FLAGS, check_command_line
+from relaygs.app.prelaunch import LAUNCH_FLAGS, JobValidator, check_command_line
 from relaygs.app.result import RESULT_FILE, error_line
-from relaygs.app.suite import load_stage_suite
+from relaygs.app.suite import StageSuite, load_stage_suite
 from relaygs.app.task import run_task
 from relaygs.device import usable_device
 from relaygs.errors import RelayGSError
@@ -40,31 +40,25 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Check the command line, then hand it to Hydra; bad input exits 1 with one line, and so
     does a sweep with a failed job once its summary is written (`SweepSummary`)."""
     args = list(sys.argv[1:] if argv is None else argv)
-    try:
-        conf = config_dir()
-        suite = load_stage_suite()
-
-        def validate(cfg: DictConfig, runs_here: bool) -> None:
-            plan = plan_run(resolve_config(cfg, Path.cwd()), suite.stages, suite.validate)
-            if runs_here:  # a Slurm job's GPU is on its node, not on the submitting machine
-                usable_device(plan.device, "train.device")
-
-        check_command_line(args, conf, validate)
-    except RelayGSError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 1
-    # Hydra takes flags only before the overrides: `seed=0 -m k=1,2` goes as `-m seed=0 k=1,2`
-    flags = [arg for arg in args if arg in LAUNCH_FLAGS]
-    sys.argv = [sys.argv[0], *flags, *(arg for arg in args if arg not in LAUNCH_FLAGS)]
     terminated = []
 
     def stop_like_ctrl_c(signum: int, frame: object) -> None:
         terminated.append(signum)
         raise KeyboardInterrupt  # the stage names where it stopped and what a rerun resumes
 
+    # installed before the command line is checked (composing every job takes a while), so a
+    # Ctrl-C or SIGTERM then also ends with one line and 130/143, not a traceback
     previous = signal.signal(signal.SIGTERM, stop_like_ctrl_c)
     try:
+        conf = config_dir()
+        check_command_line(args, conf, _job_validator(load_stage_suite()))
+        # Hydra takes flags only before the overrides: `seed=0 -m k=1,2` goes as `-m seed=0 k=1,2`
+        flags = [arg for arg in args if arg in LAUNCH_FLAGS]
+        sys.argv = [sys.argv[0], *flags, *(arg for arg in args if arg not in LAUNCH_FLAGS)]
         hydra.main(version_base="1.3", config_path=str(conf), config_name="config")(run_job)()
+    except RelayGSError as error:  # the command line (a job's own errors end in run_job)
+        print(f"error: {error}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt as stop:
         print(f"interrupted: {stop}" if str(stop) else "interrupted", file=sys.stderr)
         return TERMINATED_EXIT if terminated else INTERRUPTED_EXIT
@@ -72,6 +66,18 @@ def main(argv: Sequence[str] | None = None) -> int:
         signal.signal(signal.SIGTERM, previous)
         GlobalHydra.instance().clear()
     return 0
+
+
+def _job_validator(suite: StageSuite) -> JobValidator:
+    """The check of one composed job: its run plan, and its device where the job runs here (a
+    Slurm job's GPU is on its node, not on the submitting machine)."""
+
+    def validate(cfg: DictConfig, runs_here: bool) -> None:
+        plan = plan_run(resolve_config(cfg, Path.cwd()), suite.stages, suite.validate)
+        if runs_here:
+            usable_device(plan.device, "train.device")
+
+    return validate
 
 
 def run_job(cfg: DictConfig) -> dict[str, Any] | None:

@@ -12,6 +12,7 @@ from typing import Any
 from relaygs.app.evaluation import Evaluation
 from relaygs.app.plan import RunPlan
 from relaygs.pipeline import PipelineRun
+from relaygs.pipeline.fsio import publish_text
 
 RESULT_FILE = "result.json"
 METRIC_FIELDS = ("psnr", "ssim", "fg_psnr", "render_fps", "num_gaussians")
@@ -118,10 +119,11 @@ def effective_value(cfg: Mapping[str, Any], plan: RunPlan, key: str) -> Scalar:
 
 
 def write_result(run_dir: Path, result: Mapping[str, Scalar]) -> Path:
-    """Write `result.json` into the run dir and return its path."""
+    """Write `result.json` into the run dir and return its path; written whole or not at all
+    (`publish_text`), as a truncated result would make the sweep report refuse the folder."""
     path = Path(run_dir) / RESULT_FILE
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(dict(result), indent=2, allow_nan=False) + "\n", encoding="utf-8")
+    publish_text(path, json.dumps(dict(result), indent=2, allow_nan=False) + "\n")
     return path
 
 

@@ -30,6 +30,18 @@ def fsync_tree(folder: Path) -> None:
     fsync_path(folder)
 
 
+def publish_text(path: Path, text: str) -> None:
+    """Write `path` whole or not at all: the text goes to a hidden file beside it, is flushed
+    to disk and renamed in, so a kill mid-write leaves the previous file (or none)."""
+    partial = path.with_name(f".{path.name}.{os.getpid()}.partial")
+    try:
+        partial.write_text(text, encoding="utf-8")
+        fsync_path(partial)
+        os.replace(partial, path)
+    finally:
+        partial.unlink(missing_ok=True)  # nothing left to remove once renamed in
+
+
 def make_readable(folder: Path) -> None:
     """Give a private temp folder (mkdtemp makes 0700) and its files ordinary permissions,
     so a store shared between users or jobs can be read by all of them."""
