@@ -4,10 +4,9 @@ from __future__ import annotations
 
 import os
 import shutil
-import uuid
 from pathlib import Path
 
-from relaygs.pipeline.layout import TRASH_PREFIX
+from relaygs.pipeline.layout import trash_path
 
 PUBLISHED_DIR_MODE = 0o755
 PUBLISHED_FILE_MODE = 0o644
@@ -57,7 +56,7 @@ def publish_dir(temp: Path, final: Path) -> None:
     make_readable(temp)
     fsync_tree(temp)
     if final.exists():
-        trash = final.parent / f"{TRASH_PREFIX}{final.name}-{uuid.uuid4().hex[:8]}"
+        trash = trash_path(final.parent, final.name)
         os.replace(final, trash)
         os.replace(temp, final)
         shutil.rmtree(trash, ignore_errors=True)

@@ -7,7 +7,6 @@ build in progress in another process is never disturbed.
 from __future__ import annotations
 
 import os
-import uuid
 from collections.abc import Collection, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -21,12 +20,12 @@ from relaygs.pipeline.integrity import CorruptArtifactError, is_sealed
 from relaygs.pipeline.layout import (
     CHECKPOINT_SUFFIX,
     LOCKS_DIR,
-    TRASH_PREFIX,
     is_key,
     key_dirs,
     key_of_temp_name,
     lock_path,
     store_entries,
+    trash_path,
 )
 from relaygs.pipeline.manifest import read_manifest
 
@@ -144,7 +143,7 @@ def _hide_and_remove(path: Path, key: str) -> None:
     under its own name (an artifact, a checkpoint folder) is first renamed to a trash name,
     which `ls` and `verify` ignore and the next gc removes."""
     if key_of_temp_name(path.name) is None:
-        trash = path.parent / f"{TRASH_PREFIX}{key}-{uuid.uuid4().hex[:8]}"
+        trash = trash_path(path.parent, key)
         os.replace(path, trash)
         path = trash
     remove_tree(path)

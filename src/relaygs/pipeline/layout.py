@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import re
 import tempfile
+import uuid
 from pathlib import Path
 
 from relaygs.errors import InputError
@@ -56,6 +57,12 @@ def make_temp_dir(parent: Path, label: str) -> Path:
     """A fresh hidden temp folder beside the final one (same filesystem, so renames are atomic)."""
     parent.mkdir(parents=True, exist_ok=True)
     return Path(tempfile.mkdtemp(prefix=f"{TEMP_PREFIX}{label}-", dir=parent))
+
+
+def trash_path(parent: Path, name: str) -> Path:
+    """A fresh hidden path in `parent` to move `name` (an artifact's key) to before deleting
+    it, so that no reader ever sees it half-deleted under its own name."""
+    return parent / f"{TRASH_PREFIX}{name}-{uuid.uuid4().hex[:8]}"
 
 
 def key_of_temp_name(name: str) -> str | None:
