@@ -166,7 +166,13 @@ def test_a_signal_while_the_command_line_is_checked_is_one_line_not_a_traceback(
 
     monkeypatch.setattr(run_module, "check_command_line", stopped)
     previous = signal.getsignal(signal.SIGTERM)
-    assert _main(["budget=smoke", *TINY_SCENE]) == status
+    # Python's own Ctrl-C handler, whatever this process inherited (a shell's background job
+    # starts with SIGINT ignored)
+    inherited = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        assert _main(["budget=smoke", *TINY_SCENE]) == status
+    finally:
+        signal.signal(signal.SIGINT, inherited)
     assert capsys.readouterr().err.strip() == "interrupted"
     assert signal.getsignal(signal.SIGTERM) is previous
     assert list(tmp_path.iterdir()) == []
