@@ -7,6 +7,7 @@ import struct
 from dataclasses import replace
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 import torch
@@ -187,6 +188,15 @@ def test_quaternion_of_no_direction_is_refused(qvec):
 def test_cameras_with_different_frame_counts_are_refused(multiview_copy: Path):
     (multiview_copy / "cam04" / "frame_00005.png").unlink()
     _expect(multiview_copy, "cam04", "holds 5 frames", "cam00 holds 6")
+
+
+def test_two_files_of_one_frame_number_are_refused(multiview_copy: Path):
+    """A JPEG copy left beside each camera's PNG frame would otherwise double every camera's
+    frame count, each frame shown twice on a stretched time axis."""
+    for folder in sorted(multiview_copy.glob("cam*")):
+        png = folder / "frame_00003.png"
+        cv2.imwrite(str(png.with_suffix(".jpg")), cv2.imread(str(png)))
+    _expect(multiview_copy, "cam00: frame_00003.jpg and frame_00003.png are both frame 3")
 
 
 def test_missing_colmap_model_is_refused(multiview_copy: Path):

@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import json
 import pickle
+import struct
+import zlib
+from collections.abc import Callable
 from pathlib import Path
 
 import cv2
@@ -11,7 +14,7 @@ import numpy as np
 import pytest
 import torch
 
-from relaygs.data import Camera, Scene, detect_format, load_scene
+from relaygs.data import Camera, Scene, View, detect_format, load_scene
 from relaygs.data.effects import COLOR_INCONSISTENCY, SENSOR_NOISE
 from relaygs.model import GaussianSet
 from relaygs.stages.render import part_of, splat
@@ -75,6 +78,87 @@ def test_images_and_masks_load_as_float_and_bool(scene: Scene):
     mask = scene.mask(view)
     assert mask.shape == (18, 32) and mask.dtype == torch.bool
     assert scene.image(view) is image
+
+
+def _view_of(scene: Scene, image_path: Path) -> View:
+    return next(view for view in scene.train_views if view.image_path == image_path)
+
+
+def _with_orientation(data: bytes, orientation: int) -> bytes:
+    """An image file's bytes with an EXIF Orientation tag (a little-endian TIFF block holding one
+    SHORT): an APP1 segment after a JPEG's SOI, an eXIf chunk after a PNG's IHDR."""
+    entry = struct.pack("<HHHIHH", 1, 0x0112, 3, 1, orientation, 0)
+    exif = b"II*\x00" + struct.pack("<I", 8) + entry + struct.pack("<I", 0)
+    if data.startswith(b"\xff\xd8"):
+        payload = b"Exif\x00\x00" + exif
+        return data[:2] + b"\xff\xe1" + struct.pack(">H", len(payload) + 2) + payload + data[2:]
+    chunk = b"eXIf" + exif
+    crc = struct.pack(">I", zlib.crc32(chunk))
+    return data[:33] + struct.pack(">I", len(exif)) + chunk + crc + data[33:]
+
+
+@pytest.mark.parametrize("name", ["ims/1/000000.jpg", "ims/1/000000.png", "seg/1/000000.png"])
+def test_exif_orientation_is_not_applied(tiny_synth_copy: Path, name: str):
+    """w/h and the intrinsics (like COLMAP's) describe pixels as stored: a rotate-90° tag must not
+    turn a 32×18 frame into 18×32 pixels squeezed back to 32×18."""
+    path = tiny_synth_copy / name
+    if path.suffix == ".jpg":
+        png = path.with_suffix(".png")
+        path.write_bytes(cv2.imencode(".jpg", cv2.imread(str(png)))[1].tobytes())
+        png.unlink()
+        meta_path = tiny_synth_copy / "train_meta.json"
+        meta_path.write_text(meta_path.read_text().replace('"1/000000.png"', '"1/000000.jpg"'))
+    plain = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    path.write_bytes(_with_orientation(path.read_bytes(), 6))
+    scene = load_scene(tiny_synth_copy)
+    view = _view_of(scene, tiny_synth_copy / "ims" / "1" / f"000000{path.suffix}")
+    if name.startswith("seg"):
+        assert torch.equal(scene.mask(view), torch.from_numpy(plain > 0))
+    else:
+        assert torch.equal(scene.image(view), torch.from_numpy(plain[..., ::-1] / np.float32(255)))
+
+
+def test_16_bit_images_keep_their_low_bits(tiny_synth_copy: Path):
+    path = tiny_synth_copy / "ims" / "1" / "000000.png"
+    pixels = np.random.default_rng(0).integers(0, 65536, (18, 32, 3), dtype=np.uint16)
+    pixels[0, :3] = [1, 200, 65535]
+    cv2.imwrite(str(path), pixels)
+    scene = load_scene(tiny_synth_copy)
+    image = scene.image(_view_of(scene, path))
+    expected = pixels[..., ::-1].astype(np.float32) / np.float32(65535)
+    assert torch.allclose(image, torch.from_numpy(expected), rtol=0, atol=1e-7)
+
+
+def _label_16_bit(fg: np.ndarray) -> np.ndarray:
+    return fg.astype(np.uint16)
+
+
+def _faint_colour(fg: np.ndarray) -> np.ndarray:
+    colour = np.zeros((*fg.shape, 3), np.uint8)
+    colour[fg, 0] = 1
+    return colour
+
+
+def _white_on_opaque_alpha(fg: np.ndarray) -> np.ndarray:
+    rgba = np.zeros((*fg.shape, 4), np.uint8)
+    rgba[..., 3] = 255
+    rgba[fg, :3] = 255
+    return rgba
+
+
+@pytest.mark.parametrize("encode", [_label_16_bit, _faint_colour, _white_on_opaque_alpha])
+def test_mask_foreground_is_any_non_zero_grey_or_colour_value(
+    tiny_synth_copy: Path, encode: Callable[[np.ndarray], np.ndarray]
+):
+    """16-bit label 1 and colour (0, 0, 1) are foreground (an 8-bit grey conversion would make
+    both 0); an opaque alpha channel is not."""
+    path = tiny_synth_copy / "seg" / "1" / "000000.png"
+    fg = cv2.imread(str(path), cv2.IMREAD_UNCHANGED) > 0
+    assert fg.any() and not fg.all()
+    cv2.imwrite(str(path), encode(fg))
+    scene = load_scene(tiny_synth_copy)
+    view = _view_of(scene, tiny_synth_copy / "ims" / "1" / "000000.png")
+    assert torch.equal(scene.mask(view), torch.from_numpy(fg))
 
 
 def test_points_and_effects_come_from_the_scene_files(scene: Scene, tiny_synth_scene: Path):

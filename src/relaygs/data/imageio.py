@@ -88,21 +88,42 @@ def _jpeg_size(data: bytes, path: Path) -> tuple[int, int]:
 
 
 def read_rgb(path: Path, width: int, height: int) -> np.ndarray:
-    """Decode an image to float32 RGB [height,width,3] in [0,1], area-resized when sizes differ."""
-    bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    """Decode an 8- or 16-bit image to float32 RGB [height,width,3] in [0,1], area-resized when
+    sizes differ; pixels stay as stored (an EXIF orientation tag is not applied, as in COLMAP,
+    so they match the header size and the camera intrinsics)."""
+    flags = cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH | cv2.IMREAD_IGNORE_ORIENTATION
+    bgr = cv2.imread(str(path), flags)
     if bgr is None:
         raise InputError(f"{path}: cannot decode image")
-    rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB).astype(np.float32) / np.float32(255.0)
+    rgb = cv2.cvtColor(_unit_range(bgr, path), cv2.COLOR_BGR2RGB)
     return _resize(rgb, width, height)
 
 
+def _unit_range(pixels: np.ndarray, path: Path) -> np.ndarray:
+    """Integer pixels as float32 in [0,1], divided by their type's maximum (255 or 65535), so a
+    16-bit image keeps its low bits instead of being truncated to 8."""
+    if pixels.dtype not in (np.uint8, np.uint16):
+        raise InputError(f"{path}: {pixels.dtype} pixels, expected an 8- or 16-bit image")
+    return pixels.astype(np.float32) / np.float32(np.iinfo(pixels.dtype).max)
+
+
 def read_mask(path: Path, width: int, height: int) -> np.ndarray:
-    """Decode a mask image (any non-zero value is foreground) to bool [height,width]."""
-    raw = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    """Decode a mask image to bool [height,width]: foreground where any colour channel is
+    non-zero, at any bit depth (pixels as stored: no EXIF rotation, alpha ignored)."""
+    raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if raw is None:
         raise InputError(f"{path}: cannot decode mask image")
-    coverage = _resize((raw > 0).astype(np.float32), width, height)
+    coverage = _resize(_nonzero(raw).astype(np.float32), width, height)
     return coverage >= 0.5
+
+
+def _nonzero(raw: np.ndarray) -> np.ndarray:
+    """Where a decoded mask [H,W] or [H,W,C] has a non-zero grey or colour value; a 4th (alpha)
+    channel is left out. Converting to 8-bit grey first would lose 16-bit labels below 256 and
+    faint colours."""
+    if raw.ndim == 2:
+        return raw != 0
+    return (raw[..., :3] != 0).any(axis=2)
 
 
 def _resize(image: np.ndarray, width: int, height: int) -> np.ndarray:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import re
+from itertools import pairwise
 from pathlib import Path
 
 import numpy as np
@@ -92,11 +93,7 @@ def _frame_files(folders: list[Path]) -> list[list[Path]]:
     """Per camera folder, its frame files in frame order; every camera must hold the same frames."""
     per_camera = []
     for folder in folders:
-        numbered = sorted(
-            (int(match[1]), path)
-            for path in folder.iterdir()
-            if (match := FRAME_FILE.match(path.name))
-        )
+        numbered = _numbered_frames(folder)
         if not numbered:
             raise InputError(f"{folder}: no frame_XXXXX.(jpg|png) images")
         per_camera.append(numbered)
@@ -110,6 +107,21 @@ def _frame_files(folders: list[Path]) -> list[list[Path]]:
                 "every camera needs the same frame numbers"
             )
     return [[path for _, path in numbered] for numbered in per_camera]
+
+
+def _numbered_frames(folder: Path) -> list[tuple[int, Path]]:
+    """(frame number, path) of a camera folder's frame files in frame order; two files of one
+    number (frame_00000.png beside frame_00000.jpg) are refused, not read as two frames."""
+    numbered = sorted(
+        (int(match[1]), path) for path in folder.iterdir() if (match := FRAME_FILE.match(path.name))
+    )
+    for (number, first), (other, second) in pairwise(numbered):
+        if number == other:
+            raise InputError(
+                f"{folder}: {first.name} and {second.name} are both frame {number}; expected "
+                "one image per frame number"
+            )
+    return numbered
 
 
 def _find_model(root: Path) -> Path:
