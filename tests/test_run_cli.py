@@ -73,6 +73,21 @@ def _main(args):
         (["artifacts.root=/proc/relaygs-store"], "artifacts.root: cannot write in /proc"),
         ([f"train.device={UNUSABLE_GPU}"], f"train.device: cannot use '{UNUSABLE_GPU}' here ("),
         (["train.device=tpu"], "train.device: expected 'cpu', 'cuda' or 'cuda:N', got 'tpu'"),
+        # values that failed with a traceback, or were taken and broke the job only later
+        (["paths.outputs=null"], "paths.outputs: expected a path (a non-empty string), got None"),
+        (["artifacts.root=[a]"], "artifacts.root: expected a path (a non-empty string), got"),
+        (["~artifacts"], "artifacts: expected a config section (a mapping), got None"),
+        (["scene.preset=[a]"], "scene.preset: unknown synthetic preset ['a']"),
+        (["scene.effects=3"], "scene.effects: expected an effect name or a list of them, got 3"),
+        (["scene.loader.test_cameras=3"], "test_cameras must be a list of ids, got 3"),
+        (["budget.multiplier=1e307"], "budget.multiplier must keep every step count finite"),
+        (["experiment_name=nan"], "experiment_name: expected a string, a number or null, got nan"),
+        (["report.reference=[1]"], "report.reference: expected a string, a number or null"),
+        (["variant=null"], "variant: expected a string or a number, got None"),
+        # a typo added with `+` in a section that is not a stage's
+        (["+budget.multipler=2"], "budget: unknown setting(s) ['multipler']"),
+        (["+paths.output=x"], "paths: unknown setting(s) ['output']"),
+        (["+sed=1"], "top level: unknown setting(s) ['sed']"),
     ],
 )
 def test_bad_input_is_one_line_before_any_work(fakes, tmp_path, capsys, args, fragment):

@@ -91,6 +91,12 @@ def test_scale_steps_scales_named_counts_at_any_depth_and_keeps_them_positive():
     assert scale_steps({"steps": -4}, 2.0, ["steps"]) == {"steps": -4}
 
 
+def test_a_multiplier_that_overflows_a_step_count_is_one_line():
+    # a finite multiplier whose product is not (1e307 × 20) failed in round() with a traceback
+    with pytest.raises(InputError, match=r"budget.multiplier must keep every step count finite"):
+        scale_steps({"densify": {"densify_every": 20}}, 1e307, ["densify_every"])
+
+
 def test_merge_overrides_is_deep_and_rejects_unknown_settings():
     section = {"a": 1, "nested": {"x": 1, "y": 2}}
     merged = merge_overrides(section, {"nested": {"y": 5}}, "p.yaml: node 'n' overrides")

@@ -100,6 +100,31 @@ DELAYED = {"init": 1e-3, "final": 1e-5, "delay_steps": 10}
         ("deform", {"lr_grid": {**DELAYED, "delay_mult": -1.0}}, "deform.lr_grid.delay_mult"),
         ("deform", {"lr_mlp": {**DELAYED, "delay_steps": -1}}, "deform.lr_mlp.delay_steps"),
         ("warmup", {"init_opacity": 1.0}, "warmup.init_opacity"),
+        # a mask logit that is not a finite float32 stops the training at step 1 (diverged)
+        ("decouple", {"mask_init": float("nan")}, "decouple.mask_init"),
+        ("decouple", {"mask_init": float("-inf")}, "decouple.mask_init"),
+        ("decouple", {"mask_init": 1e300}, "decouple.mask_init"),
+        # learning rates of the wrong type: a traceback, or (a bool) silently the rate 1
+        ("decouple", {"lr": {"quats": "abc"}}, "decouple.lr.quats"),
+        ("decouple", {"lr": {"sh_dc": None}}, "decouple.lr.sh_dc"),
+        ("decouple", {"lr": {"opacity_logits": True}}, "decouple.lr.opacity_logits"),
+        ("warmup", {"lr": {"means": [1.0]}}, "warmup.lr.means"),
+        ("decouple", {"lr": {"means": {"init": "abc", "final": 1e-5}}}, "decouple.lr.means.init"),
+        ("relay", {"lr_fg": {"means": {**DELAYED, "max_steps": 2.5}}}, "lr_fg.means.max_steps"),
+        ("relay", {"lr_fg": {"means": {**DELAYED, "delay_steps": "x"}}}, "means.delay_steps"),
+        ("relay", {"lr_fg": {"extras": "abc"}}, "relay.lr_fg.extras"),
+        ("deform", {"lr_grid": {"init": None, "final": 1e-4}}, "deform.lr_grid.init"),
+        ("deform", {"lr_mlp": {"init": 1e-3, "final": "abc"}}, "deform.lr_mlp.final"),
+        ("deform", {"lr_mlp": {**DELAYED, "delay_mult": True}}, "deform.lr_mlp.delay_mult"),
+        # density control: a reset to opacity 0 is a logit of -inf, an infinite divisor a
+        # log-scale of -inf, a screen radius <= 0 prunes every Gaussian ever seen
+        ("decouple", {"densify": {"reset_opacity": 0.0}}, "decouple.densify.reset_opacity"),
+        ("deform", {"densify_fg": {"split_scale_divisor": float("inf")}}, "split_scale_divisor"),
+        ("warmup", {"densify": {"max_screen_radius": -1.0}}, "warmup.densify.max_screen_radius"),
+        ("relay", {"densify_fg": {"max_screen_radius": float("nan")}}, "max_screen_radius"),
+        # the background's settings enter the relay key even while it is frozen (the default)
+        ("relay", {"densify_bg": {"grad_treshold": 1.0}}, "relay.densify_bg"),
+        ("relay", {"lr_bg": {"quats": -1.0}}, "relay.lr_bg.quats"),
     ],
 )
 def test_bad_section_values_name_the_key(stage: str, section: dict, needle: str) -> None:

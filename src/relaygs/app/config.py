@@ -17,12 +17,15 @@ from omegaconf.errors import OmegaConfBaseException
 from relaygs.errors import InputError, one_line
 
 PATH_KEYS = ("paths.outputs", "paths.scenes", "artifacts.root", "scene.path")
-"""Dotted keys holding file-system paths (None is left as is)."""
+"""Dotted keys holding file-system paths."""
+OPTIONAL_PATHS = ("scene.path",)
+"""Those of PATH_KEYS that may be null (left as is): no `scene.path` is a synthetic scene."""
 
 
 def resolve_config(cfg: DictConfig | Mapping[str, Any], base_dir: Path) -> dict[str, Any]:
     """Interpolations resolved, `hydra` dropped, and each of PATH_KEYS absolute (relative ones
-    taken from `base_dir`, `~` expanded); an interpolation that does not resolve is one line."""
+    taken from `base_dir`, `~` expanded); an interpolation that does not resolve, or a path
+    that is no text, is one line."""
     if isinstance(cfg, DictConfig):
         try:
             config = OmegaConf.to_container(cfg, resolve=True)
@@ -36,7 +39,21 @@ def resolve_config(cfg: DictConfig | Mapping[str, Any], base_dir: Path) -> dict[
         section: Any = config
         for part in parents:
             section = section.get(part) if isinstance(section, dict) else None
-        if isinstance(section, dict) and section.get(leaf) is not None:
-            path = Path(str(section[leaf])).expanduser()
-            section[leaf] = str(path if path.is_absolute() else (Path(base_dir) / path).resolve())
+        if not isinstance(section, dict):
+            continue  # a missing section is reported where it is read
+        if section.get(leaf) is None and dotted in OPTIONAL_PATHS:
+            continue
+        path = Path(_path_text(section.get(leaf), dotted)).expanduser()
+        section[leaf] = str(path if path.is_absolute() else (Path(base_dir) / path).resolve())
     return config
+
+
+def _path_text(value: Any, dotted: str) -> str:
+    """A path setting as text: a non-empty string (a bare number, `paths.outputs=2024`, names a
+    folder too). Null, a bool, a list or a mapping names none: str() would turn `[a]` into a
+    folder called "['a']" and null into one called "None"."""
+    if isinstance(value, int) and not isinstance(value, bool):
+        value = str(value)
+    if not isinstance(value, str) or not value:
+        raise InputError(f"{dotted}: expected a path (a non-empty string), got {value!r}")
+    return value

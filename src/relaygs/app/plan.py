@@ -20,6 +20,23 @@ from relaygs.paths import require_creatable_folder
 from relaygs.pipeline import Node, Pipeline, load_pipeline
 from relaygs.pipeline.store import ON_CORRUPT_CHOICES
 
+SECTION_KEYS = {
+    "tensorboard": ("preview_frames",),
+    "report": ("reference",),
+    "paths": ("outputs", "scenes"),
+    "artifacts": ("root", "on_corrupt"),
+    "pipeline": ("name",),
+    "budget": ("name", "multiplier", "scaled_keys"),
+}
+"""The settings of the config sections that are not a stage's (stage sections, `train`,
+`eval` and `scene` are checked by their own parsers): a `+budget.multipler=2` is refused."""
+TOP_LEVEL_KEYS = frozenset(
+    {"seed", "variant", "experiment_name", "threads", "train", "eval", "scene", *SECTION_KEYS}
+)
+"""Top-level keys of a run config besides one section per stage type."""
+LABELS = ("variant", "experiment_name", "report.reference", "scene.name", "budget.name")
+"""Settings that only label a run in its result (null allowed but for `variant`)."""
+
 StageValidator = Callable[[str, Mapping[str, Any]], None]
 """Checks the config a stage type receives (its section, `train`, and `eval` when present);
 raises a one-line InputError naming the bad key."""
@@ -64,10 +81,11 @@ def plan_run(
     """Check the whole config (paths already absolute) and build the plan; bad input raises
     one-line InputErrors naming the field. `stage_types` are the implemented stage types;
     `validate` checks each node's stage config (the output node's with `eval` added)."""
+    _check_setting_names(cfg, stage_types)
     seed = cfg.get("seed")
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise InputError(f"seed must be an integer >= 0, got {seed!r}")
-    artifacts = cfg["artifacts"]
+    artifacts, paths = _section(cfg, "artifacts"), _section(cfg, "paths")
     if artifacts.get("on_corrupt") not in ON_CORRUPT_CHOICES:
         raise InputError(
             f"artifacts.on_corrupt must be one of {list(ON_CORRUPT_CHOICES)}, "
@@ -78,12 +96,14 @@ def plan_run(
         isinstance(threads, bool) or not isinstance(threads, int) or threads < 1
     ):
         raise InputError(f"threads must be an integer >= 1 or null, got {threads!r}")
-    pipeline = load_pipeline(str(cfg["pipeline"]["name"]), known_stages=stage_types)
+    pipeline = load_pipeline(str(_section(cfg, "pipeline")["name"]), known_stages=stage_types)
+    for dotted in LABELS:  # after the pipeline: `variant` is `${pipeline.name}` by default
+        _require_label(cfg, dotted)
     multiplier, scaled_keys = _budget(cfg.get("budget") or {})
     eval_config = {"seed": seed, "train": _section(cfg, "train"), "eval": _section(cfg, "eval")}
     for what, path in (
-        ("paths.outputs", cfg["paths"]["outputs"]),
-        ("paths.scenes", cfg["paths"]["scenes"]),
+        ("paths.outputs", paths["outputs"]),
+        ("paths.scenes", paths["scenes"]),
         ("artifacts.root", artifacts["root"]),
     ):
         require_creatable_folder(Path(path), what)
@@ -106,11 +126,11 @@ def plan_run(
         pipeline=pipeline,
         stage_types=frozenset(stage_types),
         node_configs=node_configs,
-        scene=scene_spec(cfg["scene"]),
+        scene=scene_spec(_section(cfg, "scene")),
         seed=seed,
         on_corrupt=artifacts["on_corrupt"],
         artifacts_root=Path(artifacts["root"]),
-        scenes_dir=Path(cfg["paths"]["scenes"]),
+        scenes_dir=Path(paths["scenes"]),
         eval_config=eval_config,
         preview_frames=_preview_frames(cfg),
         threads=threads,
@@ -144,7 +164,13 @@ def scale_steps(
         if isinstance(value, Mapping):
             scaled[key] = scale_steps(value, multiplier, keys)
         elif key in keys and isinstance(value, int) and not isinstance(value, bool) and value > 0:
-            scaled[key] = max(1, round(value * multiplier))
+            product = value * multiplier
+            if not math.isfinite(product):  # 1e307 × 20 steps: round() would raise
+                raise InputError(
+                    f"budget.multiplier must keep every step count finite, got {multiplier!r} "
+                    f"({key}: {value} times {multiplier!r} overflows)"
+                )
+            scaled[key] = max(1, round(product))
         else:
             scaled[key] = copy.deepcopy(value)
     return scaled
@@ -158,13 +184,42 @@ def _section(cfg: Mapping[str, Any], name: str) -> dict[str, Any]:
     return dict(section)
 
 
+def _check_setting_names(cfg: Mapping[str, Any], stage_types: Collection[str]) -> None:
+    """No top-level setting but TOP_LEVEL_KEYS and the stage sections, and none in a section
+    of SECTION_KEYS but its own."""
+    _require_known_keys(cfg, "top level", TOP_LEVEL_KEYS | set(stage_types))
+    for name, keys in SECTION_KEYS.items():
+        if name in cfg:  # a missing section is reported where it is read
+            _require_known_keys(_section(cfg, name), name, keys)
+
+
+def _require_known_keys(section: Mapping[str, Any], name: str, known: Collection[str]) -> None:
+    """Refuse settings of `section` (called `name`) outside `known`: a typo added with `+`
+    (`+budget.multipler=2`) would otherwise be ignored without a word."""
+    unknown = sorted(set(section) - set(known))
+    if unknown:
+        raise InputError(f"{name}: unknown setting(s) {unknown}; expected {sorted(known)}")
+
+
+def _require_label(cfg: Mapping[str, Any], dotted: str) -> None:
+    """A label setting (LABELS) is a string, a finite number or, but for `variant`, null: a
+    list or mapping would make `result.json` one that the sweep report refuses, and NaN one
+    that cannot be written, both only once the job has trained."""
+    section, _, key = dotted.rpartition(".")
+    values = cfg.get(section) if section else cfg
+    if not isinstance(values, Mapping) or key not in values:
+        return  # a missing section is reported where it is read
+    value = values[key]
+    number = isinstance(value, int | float) and math.isfinite(value)
+    nullable = value is None and dotted != "variant"
+    if not (isinstance(value, str) or number or nullable):
+        kind = "a string or a number" if dotted == "variant" else "a string, a number or null"
+        raise InputError(f"{dotted}: expected {kind}, got {value!r}")
+
+
 def _preview_frames(cfg: Mapping[str, Any]) -> int:
     """`tensorboard.preview_frames`: how many render-vs-truth frames TensorBoard gets (>= 0)."""
-    section = _section(cfg, "tensorboard")
-    unknown = sorted(set(section) - {"preview_frames"})
-    if unknown:
-        raise InputError(f"tensorboard: unknown setting(s) {unknown}; expected ['preview_frames']")
-    count = section.get("preview_frames")
+    count = _section(cfg, "tensorboard").get("preview_frames")
     if isinstance(count, bool) or not isinstance(count, int) or count < 0:
         raise InputError(f"tensorboard.preview_frames must be an integer >= 0, got {count!r}")
     return count

@@ -82,7 +82,7 @@ def scene_spec(section: Mapping[str, Any]) -> SceneSpec:
         name = str(section.get("name") or root.name)
         return SceneSpec(name, None, root, **counts, seed=seed, effects=effects, loader=loader)
     preset = section.get("preset")
-    if preset not in PRESETS:
+    if not isinstance(preset, str) or preset not in PRESETS:  # a list is no name (nor hashable)
         raise InputError(
             f"scene.preset: unknown synthetic preset {preset!r} (available: "
             f"{', '.join(sorted(PRESETS))}); or set scene.path=DIR for a capture"

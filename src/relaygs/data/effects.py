@@ -6,7 +6,7 @@ declares what its `scene.json` (or the `effects` loader option) says.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 
 from relaygs.errors import InputError
 
@@ -39,9 +39,12 @@ ALL_EFFECTS: frozenset[str] = frozenset(
 
 
 def parse_effects(names: Iterable[str], *, source: str) -> frozenset[str]:
-    """Validate effect names; `source` names where they came from for the error message."""
+    """Validate effect names (one name, or a list of them); `source` names where they came
+    from for the error message."""
     if isinstance(names, str):
         names = [names]
+    if isinstance(names, Mapping) or not isinstance(names, Iterable):  # e.g. `effects=3`
+        raise InputError(f"{source}: expected an effect name or a list of them, got {names!r}")
     parsed = []
     for name in names:
         if not isinstance(name, str) or name not in ALL_EFFECTS:

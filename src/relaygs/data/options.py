@@ -48,7 +48,7 @@ def make_options(
         raise InputError(f"loader option cache_mb must be a number > 0, got {cache_mb!r}")
     cameras = None
     if test_cameras is not None:
-        if isinstance(test_cameras, str | bytes):
+        if isinstance(test_cameras, str | bytes) or not isinstance(test_cameras, Iterable):
             raise InputError(
                 f"loader option test_cameras must be a list of ids, got {test_cameras!r}"
             )

@@ -122,7 +122,16 @@ def json_ready(value: Any) -> Any:
 def learning_rates(config: Mapping[str, Any], steps: int, where: str) -> SetLearningRates:
     """Per-parameter schedules from a config mapping; a decaying schedule without `max_steps`
     decays over the stage's `steps`. Rates must be >= 0 (final > 0)."""
-    rates = SetLearningRates.from_config(config, where)
+    checked: dict[str, Any] = {  # an unknown name is left for from_config to name
+        name: _rate_config(value, f"{where}.{name}") if name in CORE_PARAMS else value
+        for name, value in config.items()
+        if name != "extras"
+    }
+    extras = coerce(config.get("extras") or {}, dict, f"{where}.extras")
+    checked["extras"] = {
+        name: _rate_config(value, f"{where}.extras.{name}") for name, value in extras.items()
+    }
+    rates = SetLearningRates.from_config(checked, where)
     core = {
         name: _resolved(rates.for_param(name), steps, f"{where}.{name}") for name in CORE_PARAMS
     }
@@ -157,7 +166,21 @@ class PerSetSections:
 
 def schedule(value: float | Mapping[str, Any], steps: int, where: str) -> LRSchedule:
     """One learning rate (number or {init, final, ...}); decays over `steps` unless told."""
-    return _resolved(LRSchedule.from_config(value, where), steps, where)
+    return _resolved(LRSchedule.from_config(_rate_config(value, where), where), steps, where)
+
+
+def _rate_config(value: Any, where: str) -> float | dict[str, Any]:
+    """One learning rate of a config with its types checked: a number (a constant rate), or a
+    mapping of LRSchedule's fields that has `init` (ints for the step counts).
+
+    LRSchedule.from_config trusts its input: a string, list or null would fail later with a
+    traceback, and a bool would pass as the rate 1. Ranges are checked by `_check_schedule`.
+    """
+    value = coerce(value, float | dict[str, Any], where)
+    if not isinstance(value, dict):
+        return value
+    require("init" in value, where, value, "a number or a mapping with an 'init' rate")
+    return dataclasses.asdict(parse_section(LRSchedule, value, where))
 
 
 def _resolved(parsed: LRSchedule, steps: int, where: str) -> LRSchedule:
@@ -186,16 +209,31 @@ def densify_settings(
 ) -> DensifySettings:
     """Density-control settings: `base` with the keys of `config` replaced, each checked."""
     settings = parse_section(DensifySettings, {**dataclasses.asdict(base), **config}, where)
-    for name in ("grad_threshold", "percent_dense", "split_scale_divisor", "max_world_size"):
+    _check_densify(settings, where)
+    return settings
+
+
+def _check_densify(settings: DensifySettings, where: str) -> None:
+    """The ranges of density-control settings (errors name `<where>.<key>`)."""
+    for name in ("grad_threshold", "percent_dense", "max_world_size"):
         value = getattr(settings, name)
         require(value > 0.0, f"{where}.{name}", value, "a number > 0")
+    # an infinite divisor gives split children a log-scale of -inf: the training diverges
+    divisor = settings.split_scale_divisor
+    key = f"{where}.split_scale_divisor"
+    require(0.0 < divisor < math.inf, key, divisor, "a finite number > 0")
+    # a radius <= 0 prunes every Gaussian ever seen; NaN would silently never prune
+    radius = settings.max_screen_radius
+    key = f"{where}.max_screen_radius"
+    require(radius is None or radius > 0.0, key, radius, "None or a number > 0")
     for name in ("densify_from", "densify_until", "opacity_reset_every"):
         require_steps(f"{where}.{name}", getattr(settings, name))
     require(settings.densify_every >= 1, f"{where}.densify_every", settings.densify_every, ">= 1")
     require(settings.split_count >= 2, f"{where}.split_count", settings.split_count, ">= 2")
-    for name in ("reset_opacity", "prune_opacity"):
-        value = getattr(settings, name)
-        require(0.0 <= value < 1.0, f"{where}.{name}", value, "an opacity in [0, 1)")
+    # a reset to opacity 0 is a logit of -inf: every Gaussian goes dark for good, then is pruned
+    reset = settings.reset_opacity
+    require(0.0 < reset < 1.0, f"{where}.reset_opacity", reset, "an opacity in (0, 1)")
+    prune = settings.prune_opacity
+    require(0.0 <= prune < 1.0, f"{where}.prune_opacity", prune, "an opacity in [0, 1)")
     cap = settings.max_gaussians
     require(cap is None or cap >= 1, f"{where}.max_gaussians", cap, "None or an int >= 1")
-    return settings

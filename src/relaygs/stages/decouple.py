@@ -77,6 +77,9 @@ class DecoupleConfig:
     def __post_init__(self) -> None:
         """Check every value (errors name `decouple.<key>`)."""
         require_steps("decouple.steps", self.steps)
+        # the logits are float32: NaN, ±inf or 1e300 would stop the training at step 1 (diverged)
+        logit, largest = self.mask_init, torch.finfo(torch.float32).max
+        require(abs(logit) <= largest, "decouple.mask_init", logit, "a finite float32 logit")
         threshold = self.mask_threshold
         require(0.0 < threshold < 1.0, "decouple.mask_threshold", threshold, "a value in (0, 1)")
         lr = self.mask_lr

@@ -89,7 +89,9 @@ class RelayConfig(PerSetSections):
         require(self.seed_points >= 1, "relay.seed_points", self.seed_points, "an int >= 1")
         opacity = self.seed_opacity
         require(0.0 < opacity < 1.0, "relay.seed_opacity", opacity, "an opacity in (0, 1)")
-        self.plans()
+        for name in ("fg", "bg"):  # bg too: it enters the key even while the background is frozen
+            self.set_rates(name)
+            self.set_densify(name)
 
     @classmethod
     def from_config(cls, data: Mapping[str, Any] | None) -> RelayConfig:
