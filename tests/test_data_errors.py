@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from relaygs.data import load_scene
+from relaygs.data.imageio import image_size
 from relaygs.errors import InputError
 
 
@@ -188,6 +189,28 @@ def test_truncated_jpeg_is_refused_and_an_intact_one_loads(tiny_synth_copy: Path
     assert any(view.image_path == jpeg for view in load_scene(tiny_synth_copy).train_views)
     jpeg.write_bytes(_cut_to_60_percent(jpeg.read_bytes()))
     _expect(tiny_synth_copy, "7/000003.jpg: damaged image file", "no JPEG end marker FFD9")
+
+
+JPEG_VARIANTS = {
+    "baseline": ([], b""),
+    "progressive": ([cv2.IMWRITE_JPEG_PROGRESSIVE, 1], b""),
+    "restart markers": ([cv2.IMWRITE_JPEG_RST_INTERVAL, 1], b""),
+    "zero padding": ([], bytes(16)),
+    "motion photo": ([], b"\x00\x00\x00\x18ftypmp42" + bytes(range(256)) * 4),
+}
+
+
+@pytest.mark.parametrize("variant", JPEG_VARIANTS, ids=list(JPEG_VARIANTS))
+def test_jpeg_size_walks_to_the_end_marker(variant: str):
+    """Any intact JPEG gives its size, whatever follows its end marker (a phone's motion photo
+    appends a video); cut anywhere before that marker, it is refused as truncated."""
+    params, appended = JPEG_VARIANTS[variant]
+    pixels = np.random.default_rng(0).integers(0, 256, (24, 40, 3), dtype=np.uint8)
+    jpeg = cv2.imencode(".jpg", pixels, params)[1].tobytes()
+    assert image_size(jpeg + appended, Path("a.jpg")) == (40, 24)
+    for cut in (len(jpeg) - 2, len(jpeg) * 6 // 10, 40):
+        with pytest.raises(InputError, match=r"a\.jpg: damaged image file \(no JPEG end marker"):
+            image_size(jpeg[:cut], Path("a.jpg"))
 
 
 def test_empty_point_cloud(tiny_synth_copy: Path):

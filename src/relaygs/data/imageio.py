@@ -12,9 +12,10 @@ from relaygs.errors import InputError
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _JPEG_SOI = b"\xff\xd8"
-_JPEG_EOI = b"\xff\xd9"
+_JPEG_EOI = 0xD9
+_JPEG_SOS = 0xDA
 _JPEG_SOF_MARKERS = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
-_JPEG_STANDALONE_MARKERS = frozenset({0x01, *range(0xD0, 0xDA)})
+_JPEG_STANDALONE_MARKERS = frozenset({0x01, *range(0xD0, 0xD9)})  # TEM, RST0-7, SOI
 
 
 def image_size(data: bytes, path: Path) -> tuple[int, int]:
@@ -29,8 +30,6 @@ def image_size(data: bytes, path: Path) -> tuple[int, int]:
         _check_png_chunks(data, path)
         return int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
     if data.startswith(_JPEG_SOI):
-        if not data.rstrip(b"\x00").endswith(_JPEG_EOI):
-            raise _damaged(path, "no JPEG end marker FFD9: truncated")
         return _jpeg_size(data, path)
     if not data:
         raise InputError(f"{path}: empty file, expected an image")
@@ -67,24 +66,37 @@ def _damaged(path: Path, reason: str) -> InputError:
 
 
 def _jpeg_size(data: bytes, path: Path) -> tuple[int, int]:
-    pos = 2
-    while pos + 4 <= len(data):
-        if data[pos] != 0xFF:
-            break
-        marker = data[pos + 1]
-        if marker == 0xFF:
-            pos += 1
+    """(width, height) from a JPEG's frame header, walking its segments and scans up to the end
+    marker EOI: a file that stops before EOI is truncated; bytes after it (a motion photo's
+    appended video, zero padding) are ignored, as after a PNG's IEND."""
+    pos, size = 2, None
+    while (pos := data.find(b"\xff", pos)) >= 0 and pos + 1 < len(data):
+        marker = data[pos + 1]  # bytes between segments are skipped, as libjpeg does
+        if marker == _JPEG_EOI:
+            if size is None:
+                raise InputError(f"{path}: not a readable image (no JPEG frame header found)")
+            return size
+        if marker == 0xFF or marker in _JPEG_STANDALONE_MARKERS:
+            pos += 1 if marker == 0xFF else 2  # a fill byte, or a marker without a length
             continue
-        if marker in _JPEG_STANDALONE_MARKERS:
-            pos += 2
-            continue
-        length = int.from_bytes(data[pos + 2 : pos + 4], "big")
         if marker in _JPEG_SOF_MARKERS and pos + 9 <= len(data):
             height = int.from_bytes(data[pos + 5 : pos + 7], "big")
             width = int.from_bytes(data[pos + 7 : pos + 9], "big")
-            return width, height
-        pos += 2 + length
-    raise InputError(f"{path}: not a readable image (no JPEG frame header found)")
+            size = (width, height)
+        pos += 2 + int.from_bytes(data[pos + 2 : pos + 4], "big")
+        if marker == _JPEG_SOS:
+            pos = _end_of_scan(data, pos)
+    raise _damaged(path, "no JPEG end marker FFD9: truncated")
+
+
+def _end_of_scan(data: bytes, pos: int) -> int:
+    """Where a scan's entropy-coded data that starts at `pos` ends: at the first 0xFF that is
+    not a stuffed 0xFF00 or a restart marker RST0-7 (the data holds no other 0xFF)."""
+    while (pos := data.find(b"\xff", pos)) >= 0 and pos + 1 < len(data):
+        if data[pos + 1] != 0x00 and not 0xD0 <= data[pos + 1] <= 0xD7:
+            return pos
+        pos += 2
+    return len(data)
 
 
 def read_rgb(path: Path, width: int, height: int) -> np.ndarray:
