@@ -88,6 +88,7 @@ def _main(args):
         (["+budget.multipler=2"], "budget: unknown setting(s) ['multipler']"),
         (["+paths.output=x"], "paths: unknown setting(s) ['output']"),
         (["+sed=1"], "top level: unknown setting(s) ['sed']"),
+        (["threads=100000"], "threads must be an integer in [1, 1024] or null, got 100000"),
     ],
 )
 def test_bad_input_is_one_line_before_any_work(fakes, tmp_path, capsys, args, fragment):

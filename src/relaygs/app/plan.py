@@ -34,6 +34,9 @@ TOP_LEVEL_KEYS = frozenset(
     {"seed", "variant", "experiment_name", "threads", "train", "eval", "scene", *SECTION_KEYS}
 )
 """Top-level keys of a run config besides one section per stage type."""
+MAX_THREADS = 1024
+"""Most torch CPU threads a job may ask for: more fails in the OpenMP runtime at job start
+(16384 could not be created here, 100000 crashed the process), after the scene is ready."""
 LABELS = ("variant", "experiment_name", "report.reference", "scene.name", "budget.name")
 """Settings that only label a run in its result (null allowed but for `variant`)."""
 
@@ -93,9 +96,11 @@ def plan_run(
         )
     threads = cfg.get("threads")
     if threads is not None and (
-        isinstance(threads, bool) or not isinstance(threads, int) or threads < 1
+        isinstance(threads, bool) or not isinstance(threads, int) or not 1 <= threads <= MAX_THREADS
     ):
-        raise InputError(f"threads must be an integer >= 1 or null, got {threads!r}")
+        raise InputError(
+            f"threads must be an integer in [1, {MAX_THREADS}] or null, got {threads!r}"
+        )
     pipeline = load_pipeline(str(_section(cfg, "pipeline")["name"]), known_stages=stage_types)
     for dotted in LABELS:  # after the pipeline: `variant` is `${pipeline.name}` by default
         _require_label(cfg, dotted)
