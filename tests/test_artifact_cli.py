@@ -1,5 +1,6 @@
 """`python -m relaygs.artifacts`: ls, show, verify and gc, their output and exit codes."""
 
+import errno
 import json
 import subprocess
 import sys
@@ -314,3 +315,21 @@ def test_eval_refuses_a_scene_with_other_train_cameras(
     code, out, err = _cli(capsys, store.root, "eval", key[:8], "--scene", str(stage_scene_path))
     assert code == 1 and out == "" and err.count("\n") == 1
     assert f"the model was trained on 3 train cameras but {stage_scene_path} has 27" in err
+
+
+@pytest.mark.parametrize(
+    ("error", "message"),
+    [
+        (OSError(errno.ENOSPC, "No space left on device", "/out/f.png"), "No space left"),
+        (RuntimeError("DefaultCPUAllocator: can't allocate memory: 8 bytes"), "out of memory"),
+    ],
+    ids=["disk-full", "out-of-memory"],
+)
+def test_a_render_out_of_disk_or_memory_is_one_line(store, capsys, monkeypatch, error, message):
+    def failing(*args, **kwargs):
+        raise error
+
+    monkeypatch.setattr(artifacts_module, "_model_artifact", failing)
+    code, _, err = _cli(capsys, store.root, "render", KEY_A[:8], "--scene", "s", "--out", "o")
+    assert code == 1 and err.startswith(f"error: {message}") and err.count("\n") == 1
+    assert err.rstrip().endswith("then rerun the command")

@@ -2,6 +2,7 @@
 
 import copy
 import dataclasses
+import errno
 import json
 import os
 
@@ -11,6 +12,7 @@ from omegaconf import OmegaConf
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from fake_stages import TINY_SCENE, FakeStages, compose_config
+from relaygs import errors
 from relaygs.app import task as task_module
 from relaygs.app.evaluation import evaluation_config
 from relaygs.app.result import NO_TEST_VIEWS, RESULT_FILE, format_summary, write_result
@@ -274,3 +276,27 @@ def test_the_summary_says_why_a_run_without_test_views_has_no_metrics():
     shown = format_summary({"pipeline": "relaygs", "psnr": None, "num_test_images": 0})
     assert "PSNR" in shown and shown.splitlines()[-1] == f"  {NO_TEST_VIEWS}"
     assert NO_TEST_VIEWS not in format_summary({"psnr": 20.0, "num_test_images": 4})
+
+
+def _disk_full(*args, **kwargs):
+    raise OSError(errno.ENOSPC, "No space left on device", "/runs/x/.result.json.partial")
+
+
+def test_a_full_disk_refusing_the_result_is_one_resource_error(base_config, tmp_path, monkeypatch):
+    monkeypatch.setattr(task_module, "write_result", _disk_full)
+    with pytest.raises(errors.ResourceError, match=r"^No space left on device writing /runs/x/"):
+        _run(base_config, tmp_path / "run", FakeStages())
+
+
+def test_a_failed_result_the_full_disk_refuses_does_not_hide_why_the_run_failed(
+    base_config, tmp_path, monkeypatch
+):
+    def no_memory(stage, cfg):
+        if stage == "relay":
+            raise MemoryError
+        return False
+
+    monkeypatch.setattr(task_module, "write_result", _disk_full)
+    with pytest.raises(errors.ResourceError, match=r"^stage relay: out of memory") as raised:
+        _run(base_config, tmp_path / "run", FakeStages(fail_when=no_memory))
+    assert isinstance(raised.value.__cause__, MemoryError)

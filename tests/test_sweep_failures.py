@@ -1,6 +1,7 @@
 """A job that raises: its result.json records the failure, the rest of a sweep still runs, the
 summary lists the finished jobs and the failed one, and the command exits 1."""
 
+import errno
 import functools
 import json
 
@@ -93,3 +94,95 @@ def test_a_sweep_in_a_folder_of_an_earlier_one_names_its_jobs_and_skips_its_fail
         "give each sweep its own hydra.sweep.dir"
     )
     assert list(pd.read_csv(folder / "summary.csv").variant) == ["k32", "k8", "k16"]
+
+
+RERUN = "rerun the same command (finished stages are reused"
+ENVIRONMENT_FAILURES = [
+    pytest.param(
+        OSError(errno.ENOSPC, "No space left on device", "/store/x.safetensors"),
+        "stage relay: No space left on device writing /store/x.safetensors: free space, then",
+        id="disk-full",
+    ),
+    pytest.param(
+        OSError(errno.EDQUOT, "Disk quota exceeded", "/store/x.safetensors"),
+        "stage relay: Disk quota exceeded writing /store/x.safetensors: free space, then",
+        id="quota",
+    ),
+    pytest.param(
+        OSError(errno.EROFS, "Read-only file system", "/store/relay"),
+        "stage relay: cannot write /store/relay (Read-only file system): make it writable, then",
+        id="read-only",
+    ),
+    pytest.param(
+        PermissionError(errno.EACCES, "Permission denied", "/store/relay"),
+        "stage relay: cannot write /store/relay (Permission denied): make it writable, then",
+        id="permission",
+    ),
+    pytest.param(MemoryError(), "stage relay: out of memory: free memory", id="memory-error"),
+    pytest.param(
+        RuntimeError("DefaultCPUAllocator: can't allocate memory: you tried to allocate 8 bytes"),
+        "stage relay: out of memory: free memory",
+        id="cpu-allocator",
+    ),
+]
+
+
+def _raise_in_relay(error):
+    def fail_when(stage, cfg):
+        if stage == "relay" and cfg["relay"]["k"] != 4:
+            raise error
+        return False
+
+    return fail_when
+
+
+def _main_with(monkeypatch, fakes, args):
+    monkeypatch.setattr(run_module, "load_stage_suite", fakes.suite)
+    monkeypatch.setattr(run_module, "run_task", functools.partial(run_task, suite=fakes.suite()))
+    try:
+        return run_module.main(args)
+    except SystemExit as stop:
+        return stop.code
+
+
+@pytest.mark.parametrize(("error", "message"), ENVIRONMENT_FAILURES)
+def test_a_run_out_of_disk_or_memory_ends_in_one_line_and_records_it(
+    monkeypatch, tmp_path, capsys, error, message
+):
+    monkeypatch.chdir(tmp_path)
+    fakes = FakeStages(fail_when=_raise_in_relay(error))
+    assert _main_with(monkeypatch, fakes, ["budget=smoke", *TINY_SCENE]) == 1
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    assert err.strip().splitlines()[-1].startswith(f"error: {message}")
+    assert RERUN in err
+    (result_file,) = tmp_path.glob("outputs/runs/*/result.json")
+    result = json.loads(result_file.read_text())
+    assert result["status"] == "failed" and result["error"].startswith(f"ResourceError: {message}")
+
+
+def test_a_programming_error_in_a_run_keeps_its_traceback(monkeypatch, tmp_path, capsys):
+    monkeypatch.chdir(tmp_path)
+    fakes = FakeStages(fail_when=_raise_in_relay(FileNotFoundError(errno.ENOENT, "gone", "/x")))
+    assert _main_with(monkeypatch, fakes, ["budget=smoke", *TINY_SCENE]) == 1
+    err = capsys.readouterr().err
+    assert "Traceback" in err and "FileNotFoundError" in err
+
+
+def test_a_sweep_job_out_of_disk_is_recorded_in_one_line_and_the_others_run(
+    monkeypatch, tmp_path, capsys
+):
+    monkeypatch.chdir(tmp_path)
+    full = OSError(errno.ENOSPC, "No space left on device", "/store/x.safetensors")
+    fakes = FakeStages(fail_when=_raise_in_relay(full))
+    args = ["-m", "relay.k=2,4", "variant=k${relay.k}", "budget=smoke", *TINY_SCENE]
+    assert _main_with(monkeypatch, fakes, args) == 1
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    line = "ResourceError: stage relay: No space left on device writing /store/x.safetensors"
+    assert f"error: job 0 failed: {line}" in err
+    (sweep,) = tmp_path.glob("outputs/sweeps/*")
+    table = pd.read_csv(sweep / "summary.csv")
+    assert list(table.status) == ["failed", "ok"]
+    assert table.error[0].startswith(line)
+    assert fakes.ran("deform") == 1  # the job after the failed one still ran

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import json
 import subprocess
 import sys
@@ -90,3 +91,18 @@ def test_cli_usage_errors_are_one_line(capsys):
     assert stop.value.code == 2
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 1 and "--frames" in lines[0]
+
+
+def test_cli_full_disk_is_one_line_and_leaves_no_folder(tmp_path: Path, capsys, monkeypatch):
+    def disk_full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")  # a write's close names no file
+
+    module = sys.modules["relaygs.data.synthetic.generate"]
+    monkeypatch.setattr(module, "_write_scene", disk_full)
+    out = tmp_path / "out"
+    assert main(["static", str(out), "--frames", "1", "--width", "8", "--height", "6"]) == 1
+    err = capsys.readouterr().err
+    assert err == (
+        f"error: No space left on device writing {out}: free space, then rerun the command\n"
+    )
+    assert list(tmp_path.iterdir()) == []

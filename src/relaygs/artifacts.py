@@ -17,7 +17,7 @@ from relaygs.app.evaluation import EVAL_STAGE
 from relaygs.cli import OneLineErrorParser
 from relaygs.data import load_scene
 from relaygs.device import usable_device
-from relaygs.errors import RelayGSError
+from relaygs.errors import RERUN_COMMAND, RelayGSError, resource_error
 from relaygs.paths import require_creatable_folder
 from relaygs.pipeline.artifact import TENSORS_FILE, Artifact
 from relaygs.pipeline.store import VERIFY_HINT, ArtifactStore, StoredArtifact
@@ -41,6 +41,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         return args.command_fn(store, args)
     except RelayGSError as error:
         print(f"error: {error}", file=sys.stderr)
+        return 1
+    except (OSError, MemoryError, RuntimeError) as error:  # out of disk or memory: one line
+        failure = resource_error(error, rerun=RERUN_COMMAND)
+        if failure is None:
+            raise
+        print(f"error: {failure}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:  # Ctrl-C mid-render or mid-eval: one line, the shell's 130
         print("interrupted", file=sys.stderr)

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import errno
+import os
+
 
 class RelayGSError(Exception):
     """Base class for errors relaygs reports to the user as a single line."""
@@ -13,6 +16,54 @@ class InputError(RelayGSError, ValueError):
 
 class DivergenceError(RelayGSError, FloatingPointError):
     """A training run produced a non-finite value; names the stage, step and tensor."""
+
+
+class ResourceError(RelayGSError):
+    """The machine ran out of disk space or memory, or refused a write (a read-only or
+    permission-denied folder): an environmental failure, not a bug, so it ends a run in one
+    line that names what failed and what to do, instead of a traceback."""
+
+
+NO_SPACE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT})
+NOT_WRITABLE_ERRNOS = frozenset({errno.EROFS, errno.EACCES, errno.EPERM})
+ALLOCATION_FAILURES = ("can't allocate memory", "out of memory")
+"""Text of torch's failed allocations (CPU allocator; CUDA's torch.OutOfMemoryError)."""
+
+RERUN_RUN = (
+    "rerun the same command (finished stages are reused, an unfinished one resumes "
+    "from its last in-stage checkpoint)"
+)
+RERUN_COMMAND = "rerun the command"
+
+
+def resource_error(
+    error: BaseException, where: str = "", rerun: str = RERUN_RUN
+) -> ResourceError | None:
+    """The one-line ResourceError that `error` stands for (prefixed with `where`, e.g. the
+    stage), or None when it is no environmental failure: a full disk or quota, a read-only or
+    forbidden path, a failed allocation. Anything else keeps its type and traceback."""
+    prefix = f"{where}: " if where else ""
+    if isinstance(error, OSError) and error.errno in NO_SPACE_ERRNOS | NOT_WRITABLE_ERRNOS:
+        return ResourceError(prefix + _disk_failure(error, rerun))
+    if isinstance(error, MemoryError) or (
+        isinstance(error, RuntimeError) and any(text in str(error) for text in ALLOCATION_FAILURES)
+    ):
+        return ResourceError(
+            f"{prefix}out of memory: free memory or ask for less (a smaller scene or budget), "
+            f"then {rerun}"
+        )
+    return None
+
+
+def _disk_failure(error: OSError, rerun: str) -> str:
+    """What a full or unwritable disk stopped (the file, when the error names it) and what
+    the user can do about it."""
+    reason = error.strerror or os.strerror(error.errno or 0)
+    if error.errno in NO_SPACE_ERRNOS:
+        target = f" writing {error.filename}" if error.filename else ""
+        return f"{reason}{target}: free space, then {rerun}"
+    target = f" {error.filename}" if error.filename else ""
+    return f"cannot write{target} ({reason}): make it writable, then {rerun}"
 
 
 class Interrupted(KeyboardInterrupt):

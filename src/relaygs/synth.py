@@ -13,7 +13,7 @@ import time
 from relaygs.cli import OneLineErrorParser
 from relaygs.data.effects import ALL_EFFECTS
 from relaygs.data.synthetic import PRESETS, generate
-from relaygs.errors import RelayGSError
+from relaygs.errors import RERUN_COMMAND, RelayGSError, resource_error
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -73,6 +73,12 @@ def main(argv: list[str] | None = None) -> int:
             f"error: not enough memory to render {size} images: ask for fewer pixels",
             file=sys.stderr,
         )
+        return 1
+    except OSError as error:  # a full or read-only disk: one line; other OSErrors are bugs
+        failure = resource_error(error, rerun=RERUN_COMMAND)
+        if failure is None:
+            raise
+        print(f"error: {failure}", file=sys.stderr)
         return 1
     print(f"wrote {out} in {time.perf_counter() - started:.1f} s")
     return 0

@@ -30,6 +30,7 @@ from relaygs.app.scenes import prepare_scene
 from relaygs.app.suite import StageSuite, load_stage_suite
 from relaygs.app.tensorboard import TensorBoardLog, flatten_config
 from relaygs.data import Scene
+from relaygs.errors import resource_error
 from relaygs.pipeline import Artifact, ArtifactStore, NodeReport, PipelineRun, run_pipeline
 
 TENSORBOARD_DIR = "tb"
@@ -61,7 +62,8 @@ def run_task(
 
     `overrides` are the job's command-line/sweep overrides (recorded in the result), `job`
     its number in a sweep. Bad input raises InputError before any work starts; an error after
-    that is re-raised once a `result.json` with status `failed` and the error is written.
+    that is re-raised once a `result.json` with status `failed` and the error is written, as
+    a one-line ResourceError when the disk or memory ran out (`resource_error`).
     """
     started = time.perf_counter()
     config = resolve_config(cfg, original_cwd)
@@ -69,17 +71,30 @@ def run_task(
     plan = plan_run(config, suite.stages, suite.validate)
     try:
         outcome = _execute(config, plan, suite, run_dir, overrides, job)
+        result = outcome.result
+        result["job_s"] = time.perf_counter() - started
+        result_path = write_result(run_dir, result)
     except Exception as error:
-        failed = build_failed_result(config, plan, error, overrides, job)
+        failure = resource_error(error)
+        failed = build_failed_result(config, plan, failure or error, overrides, job)
         failed["job_s"] = time.perf_counter() - started
-        write_result(run_dir, failed)
-        raise
-    result = outcome.result
-    result["job_s"] = time.perf_counter() - started
-    result_path = write_result(run_dir, result)
+        _record_failure(run_dir, failed)
+        if failure is None:
+            raise
+        raise failure from error
     print(format_summary(result))
     print(_where(plan, outcome, result_path), flush=True)  # before a sweep's next job starts
     return result
+
+
+def _record_failure(run_dir: Path, failed: dict[str, Scalar]) -> None:
+    """Write the failed `result.json`, unless the disk that failed the job refuses it too: the
+    error raised next, not this second one, says what went wrong."""
+    try:
+        write_result(run_dir, failed)
+    except OSError as error:
+        if resource_error(error) is None:
+            raise
 
 
 def _execute(

@@ -9,9 +9,10 @@ from pathlib import Path
 from typing import Any
 
 import torch
-from safetensors.torch import load_file, save_file
+from safetensors.torch import load_file
 
 from relaygs.errors import InputError
+from relaygs.pipeline.fsio import save_tensors
 
 TENSORS_FILE = "tensors.safetensors"
 META_FILE = "meta.json"
@@ -46,7 +47,7 @@ class Artifact:
 def write_artifact_files(folder: Path, artifact: Artifact) -> list[str]:
     """Write `tensors.safetensors` and `meta.json` into `folder`; return the file names."""
     cpu = artifact.to_cpu_contiguous()
-    save_file(cpu.tensors, str(folder / TENSORS_FILE))
+    save_tensors(cpu.tensors, folder / TENSORS_FILE)
     (folder / META_FILE).write_text(_meta_json(artifact), encoding="utf-8")
     return [TENSORS_FILE, META_FILE]
 

@@ -17,10 +17,10 @@ from pathlib import Path
 from typing import Any
 
 import torch
-from safetensors.torch import load_file, save_file
+from safetensors.torch import load_file
 
 from relaygs.errors import InputError
-from relaygs.pipeline.fsio import publish_dir, remove_tree
+from relaygs.pipeline.fsio import publish_dir, remove_tree, save_tensors
 from relaygs.pipeline.integrity import CorruptArtifactError, check_seal, is_sealed, seal
 from relaygs.pipeline.layout import TEMP_PREFIX, checkpoint_dir, make_temp_dir
 from relaygs.pipeline.rngstate import capture_rng_state, restore_rng_state
@@ -95,7 +95,7 @@ class StageCheckpointer:
         self._remove_stale_temps()
         temp = make_temp_dir(self.folder, f"{STEP_PREFIX}{step}")
         try:
-            save_file(stored, str(temp / TENSORS_FILE))
+            save_tensors(stored, temp / TENSORS_FILE)
             (temp / STATE_FILE).write_text(json.dumps(skeleton, allow_nan=True), encoding="utf-8")
             seal(temp)
             final = self.folder / f"{STEP_PREFIX}{step:012d}"

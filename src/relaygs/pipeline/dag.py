@@ -12,7 +12,7 @@ from functools import partial
 from pathlib import Path
 from typing import Any, Protocol
 
-from relaygs.errors import InputError
+from relaygs.errors import InputError, resource_error
 from relaygs.pipeline.artifact import Artifact
 from relaygs.pipeline.keys import artifact_key, key_config
 from relaygs.pipeline.manifest import LineageEntry
@@ -129,15 +129,22 @@ def run_pipeline(
         key = artifact_key(node.stage, version, keyed_cfg, fingerprint, upstream_keys)
         upstream = {name: artifacts[name] for name in node.upstream}
         lineage = [LineageEntry(n, reports[n].stage, reports[n].key) for n in node.upstream]
-        artifact, info = store.get_or_build(
-            node.stage,
-            key,
-            partial(stage_fns[node.stage], scene, upstream, cfg),
-            config=keyed_cfg,
-            lineage=lineage,
-            provenance={"node": node.name, "schema_version": version, "scene": fingerprint},
-            on_corrupt=on_corrupt,
-        )
+        try:
+            artifact, info = store.get_or_build(
+                node.stage,
+                key,
+                partial(stage_fns[node.stage], scene, upstream, cfg),
+                config=keyed_cfg,
+                lineage=lineage,
+                provenance={"node": node.name, "schema_version": version, "scene": fingerprint},
+                on_corrupt=on_corrupt,
+            )
+        except (OSError, MemoryError, RuntimeError) as error:
+            # out of disk or memory: one line naming the node; anything else is a bug
+            failure = resource_error(error, f"stage {node.name}")
+            if failure is None:
+                raise
+            raise failure from error
         ancestors = _ancestors(pipeline, node)
         report = NodeReport(
             node=node.name,

@@ -3,8 +3,14 @@
 from __future__ import annotations
 
 import os
+import re
 import shutil
+from collections.abc import Mapping
 from pathlib import Path
+
+import torch
+from safetensors import SafetensorError
+from safetensors.torch import save_file
 
 from relaygs.pipeline.layout import trash_path
 
@@ -27,6 +33,24 @@ def fsync_tree(folder: Path) -> None:
         if path.is_file():
             fsync_path(path)
     fsync_path(folder)
+
+
+_OS_ERROR_NUMBER = re.compile(r"\(os error (\d+)\)")
+"""How safetensors' Rust writer reports an I/O failure in its message: `(os error 28)`."""
+
+
+def save_tensors(tensors: Mapping[str, torch.Tensor], path: Path) -> None:
+    """Write a safetensors file; an I/O failure (a full or read-only disk) is raised as the
+    OSError it is, with its errno and this path, not as safetensors' own error type, so
+    callers can tell a full disk from a bug (`relaygs.errors.resource_error`)."""
+    try:
+        save_file(dict(tensors), str(path))
+    except SafetensorError as error:
+        found = _OS_ERROR_NUMBER.search(str(error))
+        if found is None:
+            raise
+        number = int(found.group(1))
+        raise OSError(number, os.strerror(number), str(path)) from error
 
 
 def publish_text(path: Path, text: str) -> None:

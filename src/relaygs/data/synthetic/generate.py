@@ -86,6 +86,10 @@ def generate(
         if out.exists():
             shutil.rmtree(out)
         os.replace(staging, out)
+    except OSError as error:  # a write that fails on close names no file: name the scene's
+        if error.filename is None and error.errno is not None:
+            raise OSError(error.errno, error.strerror, str(out)) from error
+        raise
     finally:
         if staging.exists():
             shutil.rmtree(staging)
