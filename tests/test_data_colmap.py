@@ -231,6 +231,18 @@ def test_text_model_that_is_not_utf8_is_refused(panoptic: Scene, tmp_path: Path)
     _expect(root, "cameras.txt: not UTF-8 text (byte 0xff at offset 0)")
 
 
+def test_text_model_with_a_byte_order_mark_reads_as_without(tmp_path: Path):
+    # Windows editors may start a UTF-8 file with a BOM; COLMAP's "# Camera list" comment
+    # must still read as a comment
+    write_model(tmp_path, _two_image_model(), binary=False)
+    for name in ("cameras.txt", "images.txt", "points3D.txt"):
+        path = tmp_path / name
+        path.write_bytes(b"\xef\xbb\xbf" + path.read_bytes())
+    model, expected = read_model(tmp_path), _two_image_model()
+    assert (model.cameras, model.images) == (expected.cameras, expected.images)
+    np.testing.assert_array_equal(model.rgb, expected.rgb)
+
+
 def test_text_model_colour_beyond_255_is_refused(panoptic: Scene, tmp_path: Path):
     root = export_multiview(panoptic, tmp_path / "text", binary=False)
     path = root / "sparse" / "0" / "points3D.txt"

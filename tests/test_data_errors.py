@@ -52,6 +52,17 @@ def test_malformed_json(tiny_synth_copy: Path):
     _expect(tiny_synth_copy, "train_meta.json", "malformed JSON", "line 1")
 
 
+def test_meta_json_with_a_byte_order_mark_loads(tiny_synth_copy: Path):
+    def poses() -> list[tuple[int, int, list]]:
+        views = load_scene(tiny_synth_copy).train_views
+        return [(v.camera.camera_id, v.frame, v.camera.w2c.tolist()) for v in views]
+
+    expected = poses()
+    path = tiny_synth_copy / "train_meta.json"
+    path.write_bytes(b"\xef\xbb\xbf" + path.read_bytes())
+    assert poses() == expected
+
+
 def test_frame_counts_that_disagree_between_fields(tiny_synth_copy: Path):
     _edit_meta(tiny_synth_copy, "train_meta.json", lambda meta: meta["k"].pop())
     _expect(tiny_synth_copy, "train_meta.json", "'k'", "T=5", "T=6")

@@ -13,10 +13,10 @@ SCENE_JSON = "scene.json"
 
 
 def read_text(path: Path) -> str:
-    """A UTF-8 text file's contents; missing, a folder, unreadable or not UTF-8 is an InputError
-    naming the file."""
+    """A UTF-8 text file's contents, without the byte-order mark some Windows editors write;
+    missing, a folder, unreadable or not UTF-8 is an InputError naming the file."""
     try:
-        return path.read_text(encoding="utf-8")
+        return path.read_text(encoding="utf-8-sig")
     except FileNotFoundError:
         raise InputError(f"missing file: {path}") from None
     except IsADirectoryError:
