@@ -80,6 +80,15 @@ def _main(args):
         (["scene.preset=[a]"], "scene.preset: unknown synthetic preset ['a']"),
         (["scene.effects=3"], "scene.effects: expected an effect name or a list of them, got 3"),
         (["scene.loader.test_cameras=3"], "test_cameras must be a list of ids, got 3"),
+        (
+            ["scene.loader.test_cameras=[2,31,40]"],
+            "scene.loader.test_cameras: cameras [31, 40] are not in preset 'juggle' (camera "
+            "ids 0..30)",
+        ),
+        (
+            [f"scene.loader.test_cameras=[{','.join(map(str, range(34)))}]", "scene=court"],
+            "scene.loader.test_cameras: it holds out every camera of preset 'court'",
+        ),
         (["budget.multiplier=1e307"], "budget.multiplier must keep every step count finite"),
         (["experiment_name=nan"], "experiment_name: expected a string, a number or null, got nan"),
         (["report.reference=[1]"], "report.reference: expected a string, a number or null"),

@@ -80,6 +80,13 @@ def test_capture_paths_must_exist_and_have_a_known_layout(tmp_path):
         scene_spec({**TINY, "path": str(tmp_path)})
 
 
+def test_held_out_cameras_within_the_rig_are_accepted_before_generation():
+    # the highest id of juggle's 31-camera dome, and all but one camera, are valid
+    for held_out in ([30], list(range(30))):
+        spec = scene_spec({**TINY, "loader": {"test_cameras": held_out}})
+        assert spec.loader["test_cameras"] == held_out
+
+
 def test_unknown_scene_fields_are_rejected():
     with pytest.raises(InputError, match=r"scene: unknown field\(s\) \['colour'\]"):
         scene_spec({**TINY, "colour": "red"})

@@ -72,7 +72,7 @@ def scene_spec(section: Mapping[str, Any]) -> SceneSpec:
         raise InputError(
             f"scene.loader: unknown option(s) {unknown}; expected {list(LOADER_OPTIONS)}"
         )
-    make_options(**loader)
+    options = make_options(**loader)
     counts = {name: _count(section, name, minimum=1) for name in ("frames", "width", "height")}
     seed = _count(section, "seed", minimum=0)
     path = section.get("path")
@@ -88,6 +88,7 @@ def scene_spec(section: Mapping[str, Any]) -> SceneSpec:
             f"{', '.join(sorted(PRESETS))}); or set scene.path=DIR for a capture"
         )
     declared_effects(PRESETS[preset], effects, source="scene.effects")
+    _check_held_out(preset, options.test_cameras, counts["width"], counts["height"])
     name = str(section.get("name") or preset)
     return SceneSpec(name, preset, None, **counts, seed=seed, effects=effects, loader=loader)
 
@@ -129,6 +130,22 @@ def prepare_scene(spec: SceneSpec, scenes_dir: Path, progress: bool = True) -> S
                 progress=progress,
             )
     return load_scene(folder, **spec.loader)
+
+
+def _check_held_out(
+    preset: str, test_cameras: tuple[int, ...] | None, width: int, height: int
+) -> None:
+    """Refuse held-out camera ids the preset's rig lacks, or that leave it no train camera,
+    before the scene is generated (its loader would refuse them only after)."""
+    if test_cameras is None:
+        return
+    count = len(PRESETS[preset].rig(width, height))
+    missing = [camera_id for camera_id in test_cameras if camera_id >= count]
+    if missing or len(test_cameras) == count:
+        problem = f"cameras {missing} are not in" if missing else "it holds out every camera of"
+        raise InputError(
+            f"scene.loader.test_cameras: {problem} preset {preset!r} (camera ids 0..{count - 1})"
+        )
 
 
 def _count(section: Mapping[str, Any], name: str, minimum: int) -> int:
