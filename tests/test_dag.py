@@ -81,6 +81,48 @@ def test_invalid_pipelines_fail_in_one_line_naming_the_file(tmp_path, text, frag
     assert str(path) in str(caught.value) and "\n" not in str(caught.value)
 
 
+ACCEPTS = {"decouple": (), "relay": ("decouple",), "deform": ("relay", "warmup")}
+
+
+@pytest.mark.parametrize(
+    ("text", "fragment"),
+    [
+        (
+            "nodes:\n  a: {stage: warmup}\n  b: {stage: relay, upstream: [a]}\n",
+            "node 'b' \\(stage 'relay'\\) reads one upstream node of stage type decouple .*"
+            "got node 'a' of type 'warmup'",
+        ),
+        (
+            "nodes:\n  a: {stage: decouple}\n  b: {stage: decouple, upstream: [a]}\n",
+            "node 'b' \\(stage 'decouple'\\) reads no upstream node .*got node 'a'",
+        ),
+        ("nodes:\n  a: {stage: deform}\n", "reads one upstream node of stage type relay or warmup"),
+        (
+            "nodes:\n  a: {stage: warmup}\n  b: {stage: decouple}\n"
+            "  c: {stage: deform, upstream: [a, b]}\n",
+            "node 'c' .* got node 'a' of type 'warmup', node 'b' of type 'decouple'",
+        ),
+    ],
+)
+def test_an_upstream_a_stage_type_does_not_read_fails_before_any_stage_runs(
+    tmp_path, text, fragment
+):
+    # before: found only when the stage ran, after its upstreams had trained
+    path = _write(tmp_path, text)
+    with pytest.raises(InputError, match=fragment) as caught:
+        load_pipeline(path, known_stages=KNOWN_STAGES, accepted_upstream=ACCEPTS)
+    assert str(path) in str(caught.value) and "\n" not in str(caught.value)
+    load_pipeline(path, known_stages=KNOWN_STAGES)  # not checked without `accepted_upstream`
+
+
+def test_the_shipped_pipelines_read_upstreams_their_stages_accept():
+    from relaygs.stages import STAGES, UPSTREAM
+
+    assert set(UPSTREAM) == set(STAGES)
+    for name in SHIPPED:
+        load_pipeline(name, known_stages=STAGES, accepted_upstream=UPSTREAM)
+
+
 def test_unknown_pipeline_name_lists_the_available_ones():
     with pytest.raises(InputError, match=r"unknown pipeline 'nope' \(available: .*relaygs"):
         load_pipeline("nope")
@@ -265,3 +307,17 @@ def test_a_canonical_form_is_what_is_keyed_and_what_the_stage_runs_with(tmp_path
     assert seen == [BASE["relay"]]  # built (no cache) with k capped to 4
     plain = _run(ArtifactStore(tmp_path / "plain"), FakeStages(), BASE)
     assert [r.key for r in run.reports] == [r.key for r in plain.reports]
+
+
+@pytest.mark.parametrize("returned", [None, {"x": torch.zeros(1)}, FakeScene("not an artifact")])
+def test_a_stage_that_returns_no_artifact_is_one_line_naming_it(tmp_path, returned):
+    # before: AttributeError ('NoneType' object has no attribute 'stage', ... 'to_cpu_contiguous')
+    table = {**FakeStages().table(), "decouple": lambda scene, upstream, cfg: returned}
+    with pytest.raises(InputError, match=r"stage 'decouple' returned a \w+, expected an Artifact"):
+        run_pipeline(
+            load_pipeline("relaygs"),
+            table,
+            FakeScene("s"),
+            lambda n: BASE[n.stage],
+            ArtifactStore(tmp_path),
+        )

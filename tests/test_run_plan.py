@@ -153,3 +153,35 @@ def test_pipeline_overrides_must_be_a_mapping_of_names(tmp_path, value):
     path.write_text(f"nodes:\n  a: {{stage: decouple, overrides: {value}}}\n")
     with pytest.raises(InputError, match="'overrides' must be a mapping of setting names"):
         load_pipeline(path)
+
+
+@pytest.mark.parametrize(
+    ("pipeline", "fragment"),
+    [
+        ({}, r"pipeline.name: expected the name of a pipelines/<name>.yaml, got None \(each"),
+        ({"name": None}, "pipeline.name: expected the name"),
+        ("4dgs", "pipeline: expected a config section .* or in an experiment file with `defaults"),
+    ],
+)
+def test_a_pipeline_choice_without_a_name_is_one_line(config, pipeline, fragment):
+    # before: KeyError 'name' from a conf/pipeline/<name>.yaml without `name: <name>`
+    config = {**copy.deepcopy(config), "pipeline": pipeline}
+    with pytest.raises(InputError, match=fragment) as caught:
+        plan_run(config, STAGE_TYPES, validate_config)
+    assert "\n" not in str(caught.value)
+
+
+def test_an_experiment_without_its_package_line_says_so(config):
+    # before: "top level: unknown setting(s) ['experiment']; expected [...]"
+    config = {**copy.deepcopy(config), "experiment": {"variant": "x", "hydra": {}}}
+    with pytest.raises(InputError, match=r"must start with the line `# @package _global_`"):
+        plan_run(config, STAGE_TYPES, validate_config)
+
+
+def test_a_pipeline_whose_stage_does_not_read_its_upstream_fails_in_the_plan(config, tmp_path):
+    path = tmp_path / "p.yaml"
+    path.write_text("nodes:\n  w: {stage: warmup}\n  r: {stage: relay, upstream: [w]}\n")
+    config = {**copy.deepcopy(config), "pipeline": {"name": str(path)}}
+    plan_run(config, STAGE_TYPES, validate_config)  # the stage would refuse it once w trained
+    with pytest.raises(InputError, match=r"node 'r' \(stage 'relay'\) reads one upstream node"):
+        plan_run(config, STAGE_TYPES, validate_config, {"relay": ("decouple",)})

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 import torch
 
 from relaygs.errors import InputError
 from relaygs.model import BACKGROUND_DENSIFY, FOREGROUND_DENSIFY
-from relaygs.stages import BUDGETS, CONFIGS, SCHEMA_VERSIONS, STAGES, validate_config
+from relaygs.stages import BUDGETS, CONFIGS, SCHEMA_VERSIONS, STAGES, budgets, validate_config
 from relaygs.stages.decouple import DecoupleConfig
 from relaygs.stages.deform import DeformConfig
 from relaygs.stages.relay import RelayConfig
@@ -18,6 +20,33 @@ def test_every_stage_has_function_config_and_schema() -> None:
     expected = {"decouple", "relay", "deform", "warmup", "replicate"}
     assert set(STAGES) == set(CONFIGS) == set(SCHEMA_VERSIONS) == expected
     assert all(isinstance(version, int) and version >= 1 for version in SCHEMA_VERSIONS.values())
+
+
+@pytest.mark.parametrize("registry", ["CONFIGS", "SCHEMA_VERSIONS"])
+def test_a_stage_type_missing_from_a_registry_is_one_line(
+    monkeypatch: pytest.MonkeyPatch, registry: str
+) -> None:
+    # before: without SCHEMA_VERSIONS the stage was keyed as version 1 whatever its module
+    # said (a bump kept reusing stale artifacts); without CONFIGS, "unknown stage type"
+    from relaygs import stages
+
+    for name in ("STAGES", "CONFIGS", "SCHEMA_VERSIONS"):
+        if name != registry:
+            value = {"STAGES": STAGES["warmup"], "CONFIGS": CONFIGS["warmup"]}.get(name, 2)
+            monkeypatch.setitem(getattr(stages, name), "mine", value)
+    with pytest.raises(InputError, match=f"stage type 'mine' is not registered in {registry} of"):
+        validate_config("mine", {"mine": {}})
+
+
+def test_a_budget_section_missing_from_sections_is_one_line(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # before: left out of BUDGETS without a word, so tests trained it at its paper steps
+    (tmp_path / "budget").mkdir()
+    (tmp_path / "budget" / "tiny.yaml").write_text("budget: {name: tiny}\nmine: {steps: 2}\n")
+    monkeypatch.setattr(budgets, "config_dir", lambda: tmp_path)
+    with pytest.raises(InputError, match=r"tiny.yaml: section\(s\) \['mine'\] not in SECTIONS"):
+        budgets.load_budget("tiny")
 
 
 def test_paper_defaults() -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 from pathlib import Path
@@ -285,6 +286,31 @@ def test_other_sizes_work(tmp_path: Path):
 def test_bad_generator_input_is_rejected(tmp_path: Path, preset: str, kwargs: dict, message: str):
     with pytest.raises(InputError, match=message):
         generate(preset, tmp_path / "out", **kwargs)
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize(
+    ("changes", "message"),
+    [
+        # before: IndexError (list index out of range) while writing the metadata
+        (
+            {"test_cameras": (0, 31)},
+            r"test_cameras \[0, 31\] must be distinct indices into its rig",
+        ),
+        ({"test_cameras": (0, 0)}, "must be distinct"),
+        ({"test_cameras": tuple(range(31))}, "leaving some to train on"),
+        # before: written without a word, scene.json declaring an effect the world lacks
+        ({"default_effects": frozenset({DYNAMIC_PANELS})}, r"PRESETS\['mine'\].default_effects"),
+    ],
+)
+def test_a_new_preset_that_does_not_fit_its_rig_or_effects_is_one_line(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, changes: dict, message: str
+):
+    preset = dataclasses.replace(PRESETS["static"], name="mine", **changes)
+    monkeypatch.setitem(PRESETS, "mine", preset)
+    with pytest.raises(InputError, match=message) as caught:
+        generate("mine", tmp_path / "out", frames=1, width=8, height=6)
+    assert "\n" not in str(caught.value)
     assert not (tmp_path / "out").exists()
 
 

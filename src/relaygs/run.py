@@ -73,7 +73,8 @@ def _job_validator(suite: StageSuite) -> JobValidator:
     Slurm job's GPU is on its node, not on the submitting machine)."""
 
     def validate(cfg: DictConfig, runs_here: bool) -> None:
-        plan = plan_run(resolve_config(cfg, Path.cwd()), suite.stages, suite.validate)
+        config = resolve_config(cfg, Path.cwd())
+        plan = plan_run(config, suite.stages, suite.validate, suite.accepted_upstream)
         if runs_here:
             usable_device(plan.device, "train.device")
 

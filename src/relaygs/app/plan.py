@@ -30,6 +30,13 @@ SECTION_KEYS = {
 }
 """The settings of the config sections that are not a stage's (stage sections, `train`,
 `eval` and `scene` are checked by their own parsers): a `+budget.multipler=2` is refused."""
+SECTION_HINTS = {
+    "pipeline": (
+        "; choose a pipeline with pipeline=NAME, or in an experiment file with "
+        "`defaults: [override /pipeline: NAME]`"
+    ),
+}
+"""What to do when one of these sections is a value, not a config group's choice."""
 TOP_LEVEL_KEYS = frozenset(
     {"seed", "variant", "experiment_name", "threads", "train", "eval", "scene", *SECTION_KEYS}
 )
@@ -79,11 +86,15 @@ class RunPlan:
 
 
 def plan_run(
-    cfg: Mapping[str, Any], stage_types: Collection[str], validate: StageValidator
+    cfg: Mapping[str, Any],
+    stage_types: Collection[str],
+    validate: StageValidator,
+    accepted_upstream: Mapping[str, Collection[str]] | None = None,
 ) -> RunPlan:
     """Check the whole config (paths already absolute) and build the plan; bad input raises
     one-line InputErrors naming the field. `stage_types` are the implemented stage types;
-    `validate` checks each node's stage config (the output node's with `eval` added)."""
+    `validate` checks each node's stage config (the output node's with `eval` added);
+    `accepted_upstream` the pipeline's upstream node types (`load_pipeline`)."""
     _check_setting_names(cfg, stage_types)
     seed = cfg.get("seed")
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
@@ -101,7 +112,7 @@ def plan_run(
         raise InputError(
             f"threads must be an integer in [1, {MAX_THREADS}] or null, got {threads!r}"
         )
-    pipeline = load_pipeline(str(_section(cfg, "pipeline")["name"]), known_stages=stage_types)
+    pipeline = load_pipeline(_pipeline_name(cfg), stage_types, accepted_upstream)
     for dotted in LABELS:  # after the pipeline: `variant` is `${pipeline.name}` by default
         _require_label(cfg, dotted)
     multiplier, scaled_keys = _budget(cfg.get("budget") or {})
@@ -185,13 +196,32 @@ def _section(cfg: Mapping[str, Any], name: str) -> dict[str, Any]:
     """A copy of the config section `name`, which must be a mapping."""
     section = cfg.get(name)
     if not isinstance(section, Mapping):
-        raise InputError(f"{name}: expected a config section (a mapping), got {section!r}")
+        hint = SECTION_HINTS.get(name, "")
+        raise InputError(f"{name}: expected a config section (a mapping), got {section!r}{hint}")
     return dict(section)
+
+
+def _pipeline_name(cfg: Mapping[str, Any]) -> str:
+    """`pipeline.name`, which a file of conf/pipeline/ must set: without it the run cannot
+    know which pipelines/<name>.yaml to load."""
+    name = _section(cfg, "pipeline").get("name")
+    if isinstance(name, bool) or not isinstance(name, str | int) or name == "":
+        raise InputError(
+            f"pipeline.name: expected the name of a pipelines/<name>.yaml, got {name!r} "
+            "(each conf/pipeline/<name>.yaml holds `name: <name>`)"
+        )
+    return str(name)
 
 
 def _check_setting_names(cfg: Mapping[str, Any], stage_types: Collection[str]) -> None:
     """No top-level setting but TOP_LEVEL_KEYS and the stage sections, and none in a section
     of SECTION_KEYS but its own."""
+    if isinstance(cfg.get("experiment"), Mapping):
+        raise InputError(
+            f"top level: unknown setting 'experiment' (holding {sorted(cfg['experiment'])}): "
+            "an experiment file in conf/experiment/ must start with the line "
+            "`# @package _global_`, else its settings land under `experiment.`"
+        )
     _require_known_keys(cfg, "top level", TOP_LEVEL_KEYS | set(stage_types))
     for name, keys in SECTION_KEYS.items():
         if name in cfg:  # a missing section is reported where it is read

@@ -3,8 +3,8 @@ the whole app on fake stages and the real ones are imported only when a run star
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from collections.abc import Callable, Collection, Mapping
+from dataclasses import dataclass, field
 from typing import Any
 
 import torch
@@ -21,8 +21,8 @@ LogSink = Callable[..., None]
 @dataclass(frozen=True)
 class StageSuite:
     """Stage functions by type, their artifact schema versions, the canonical form of their
-    configs, config validation, evaluation, rendering and the log-sink hooks (see
-    `relaygs.stages`)."""
+    configs, config validation, evaluation, rendering, the log-sink hooks and the stage types
+    each stage type's upstream may have (see `relaygs.stages`; none listed: not checked)."""
 
     stages: Mapping[str, StageFn]
     schema_versions: Mapping[str, int]
@@ -32,6 +32,7 @@ class StageSuite:
     render_model: Callable[[Artifact, Any, float], torch.Tensor]
     add_sink: Callable[[LogSink], None]
     remove_sink: Callable[[LogSink], None]
+    accepted_upstream: Mapping[str, Collection[str]] = field(default_factory=dict)
 
 
 def load_stage_suite() -> StageSuite:
@@ -48,4 +49,5 @@ def load_stage_suite() -> StageSuite:
         render_model=stages.render_model,
         add_sink=log.add_sink,
         remove_sink=log.remove_sink,
+        accepted_upstream=stages.UPSTREAM,
     )

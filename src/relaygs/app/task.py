@@ -68,7 +68,7 @@ def run_task(
     started = time.perf_counter()
     config = resolve_config(cfg, original_cwd)
     suite = suite or load_stage_suite()
-    plan = plan_run(config, suite.stages, suite.validate)
+    plan = plan_run(config, suite.stages, suite.validate, suite.accepted_upstream)
     try:
         outcome = _execute(config, plan, suite, run_dir, overrides, job)
         result = outcome.result

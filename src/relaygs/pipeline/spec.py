@@ -18,7 +18,7 @@ the single node nothing else depends on.
 from __future__ import annotations
 
 import re
-from collections.abc import Collection
+from collections.abc import Collection, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -75,11 +75,16 @@ def available_pipelines() -> list[str]:
 
 
 def load_pipeline(
-    name_or_path: str | Path, known_stages: Collection[str] | None = None
+    name_or_path: str | Path,
+    known_stages: Collection[str] | None = None,
+    accepted_upstream: Mapping[str, Collection[str]] | None = None,
 ) -> Pipeline:
     """Load and validate a pipeline by name (`pipelines/<name>.yaml`) or by file path.
 
-    With `known_stages`, stage types outside it are rejected. Errors are one-line InputErrors.
+    With `known_stages`, stage types outside it are rejected; with `accepted_upstream` (stage
+    type → the stage types of the one upstream node it reads, empty for none), so are nodes of
+    a listed type whose upstream does not fit, before any stage runs. Errors are one-line
+    InputErrors.
     """
     path = _resolve(name_or_path)
     try:
@@ -88,7 +93,7 @@ def load_pipeline(
         reason = str(error).splitlines()[0] if str(error) else type(error).__name__
         raise InputError(f"{path}: cannot read pipeline ({reason})") from error
     pipeline = _parse(path, raw)
-    _check_graph(pipeline, known_stages)
+    _check_graph(pipeline, known_stages, accepted_upstream or {})
     return pipeline
 
 
@@ -150,8 +155,13 @@ def _parse_node(path: Path, name: Any, spec: Any) -> Node:
     return Node(name=name, stage=stage, upstream=tuple(upstream), overrides=overrides)
 
 
-def _check_graph(pipeline: Pipeline, known_stages: Collection[str] | None) -> None:
-    """Unknown upstreams, unknown stage types, cycles, and more than one output node."""
+def _check_graph(
+    pipeline: Pipeline,
+    known_stages: Collection[str] | None,
+    accepted_upstream: Mapping[str, Collection[str]],
+) -> None:
+    """Unknown upstreams, unknown stage types, upstreams a stage type does not read, cycles,
+    and more than one output node."""
     for node in pipeline.nodes.values():
         for parent in node.upstream:
             if parent not in pipeline.nodes:
@@ -164,6 +174,8 @@ def _check_graph(pipeline: Pipeline, known_stages: Collection[str] | None) -> No
                 f"{pipeline.path}: node {node.name!r} has unknown stage type {node.stage!r} "
                 f"(known: {', '.join(sorted(known_stages))})"
             )
+        if node.stage in accepted_upstream:
+            _check_upstream_types(pipeline, node, accepted_upstream[node.stage])
     _topological_order(pipeline)
     consumed = {name for node in pipeline.nodes.values() for name in node.upstream}
     outputs = [name for name in pipeline.nodes if name not in consumed]
@@ -171,6 +183,22 @@ def _check_graph(pipeline: Pipeline, known_stages: Collection[str] | None) -> No
         raise InputError(
             f"{pipeline.path}: a pipeline must end in exactly one output node, found {outputs}"
         )
+
+
+def _check_upstream_types(pipeline: Pipeline, node: Node, accepted: Collection[str]) -> None:
+    """`node` reads no upstream when its stage type takes none, else exactly one node of an
+    accepted stage type (the stage would refuse it only once its upstreams have trained)."""
+    found = [f"node {name!r} of type {pipeline.nodes[name].stage!r}" for name in node.upstream]
+    if not accepted and found:
+        expected = "no upstream node"
+    elif accepted and (len(found) != 1 or pipeline.nodes[node.upstream[0]].stage not in accepted):
+        expected = f"one upstream node of stage type {' or '.join(sorted(accepted))}"
+    else:
+        return
+    raise InputError(
+        f"{pipeline.path}: node {node.name!r} (stage {node.stage!r}) reads {expected} "
+        f"(relaygs.stages.UPSTREAM), got {', '.join(found) or 'none'}"
+    )
 
 
 def _topological_order(pipeline: Pipeline) -> list[Node]:

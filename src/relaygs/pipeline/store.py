@@ -157,6 +157,11 @@ class ArtifactStore:
                 started = time.perf_counter()
                 artifact = build()
                 wall_seconds = time.perf_counter() - started
+            if not isinstance(artifact, Artifact):
+                raise InputError(
+                    f"stage {stage!r} returned a {type(artifact).__name__}, expected an Artifact "
+                    "(a stage function ends with `return SceneModel(...).to_artifact(meta)`)"
+                )
             if artifact.stage != stage:
                 raise InputError(
                     f"stage {stage!r} returned an artifact labelled {artifact.stage!r}"

@@ -1,9 +1,10 @@
 """The method's stages as plain functions `(scene, upstream artifacts, cfg) -> Artifact`.
 
 `STAGES` maps each stage type to its function, `CONFIGS` to its settings dataclass (whose
-`from_config` validates a section), `SCHEMA_VERSIONS` to its artifact schema version, and
-`CANONICAL` (where a stage has one) to the canonical form of its section, which
-`canonical_config` applies before a config is keyed and run.
+`from_config` validates a section), `SCHEMA_VERSIONS` to its artifact schema version,
+`UPSTREAM` to the stage types its upstream node may have, and `CANONICAL` (where a stage has
+one) to the canonical form of its section, which `canonical_config` applies before a config
+is keyed and run.
 `evaluate` scores a final artifact on the test views; `render_model` renders any artifact.
 Live metrics go through `relaygs.stages.log` sinks.
 """
@@ -54,6 +55,16 @@ SCHEMA_VERSIONS: dict[str, int] = {
     "replicate": _replicate.SCHEMA_VERSION,
 }
 
+UPSTREAM: dict[str, tuple[str, ...]] = {
+    "decouple": (),
+    "relay": _relay.ACCEPTED_UPSTREAM,
+    "deform": _deform.ACCEPTED_UPSTREAM,
+    "warmup": (),
+    "replicate": _replicate.ACCEPTED_UPSTREAM,
+}
+"""The stage types of the one upstream node each stage type reads (empty: none, it starts
+from the scene); pipelines are checked against it before any stage runs."""
+
 CANONICAL: dict[str, SectionCanonical] = {
     "relay": one_segment_at_most,
     "replicate": one_segment_at_most,
@@ -72,11 +83,24 @@ def canonical_config(stage: str, cfg: Mapping[str, Any], scene: Scene) -> dict[s
 def validate_config(stage: str, cfg: Mapping[str, Any]) -> None:
     """Raise InputError (one line naming the key) unless `cfg` is valid for stage type `stage`:
     its own section, the shared `train` section and, when present, `eval`."""
-    if stage not in CONFIGS:
+    if stage not in CONFIGS and stage not in STAGES:
         raise InputError(f"unknown stage type {stage!r}; expected one of {sorted(CONFIGS)}")
+    require_registered(stage)
     CONFIGS[stage].from_config(cfg.get(stage))
     TrainSettings.from_config(cfg.get("train"))
     EvalSettings.from_config(cfg.get("eval"))
+
+
+def require_registered(stage: str) -> None:
+    """Raise InputError unless stage type `stage` is in all three registries of this module: one
+    missing from SCHEMA_VERSIONS would be keyed as version 1 and reuse stale artifacts."""
+    registries = {"STAGES": STAGES, "CONFIGS": CONFIGS, "SCHEMA_VERSIONS": SCHEMA_VERSIONS}
+    missing = [name for name, registry in registries.items() if stage not in registry]
+    if missing:
+        raise InputError(
+            f"stage type {stage!r} is not registered in {' and '.join(missing)} of "
+            "src/relaygs/stages/__init__.py (see docs/extending.md)"
+        )
 
 
 __all__ = [
@@ -85,6 +109,7 @@ __all__ = [
     "CONFIGS",
     "SCHEMA_VERSIONS",
     "STAGES",
+    "UPSTREAM",
     "EvalSettings",
     "ModelRenderer",
     "SceneModel",
@@ -93,5 +118,6 @@ __all__ = [
     "canonical_config",
     "evaluate",
     "render_model",
+    "require_registered",
     "validate_config",
 ]

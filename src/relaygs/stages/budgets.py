@@ -13,14 +13,26 @@ from typing import Any
 
 from omegaconf import OmegaConf
 
+from relaygs.errors import InputError
 from relaygs.paths import config_dir
 
 SECTIONS = ("train", "eval", "decouple", "warmup", "relay", "replicate", "deform")
+RUN_KEYS = ("budget", "threads", "tensorboard")
+"""Keys of a budget file that the app applies to the run, not to a stage's config."""
 
 
 def load_budget(name: str) -> dict[str, dict[str, Any]]:
-    """The section overrides of `conf/budget/<name>.yaml`."""
-    raw = OmegaConf.to_container(OmegaConf.load(config_dir() / "budget" / f"{name}.yaml"))
+    """The section overrides of `conf/budget/<name>.yaml`; a key that is neither in SECTIONS
+    nor in RUN_KEYS (a new stage's section not added to SECTIONS) is refused, as it would be
+    missing from BUDGETS and tests would train that stage at its paper step counts."""
+    path = config_dir() / "budget" / f"{name}.yaml"
+    raw = OmegaConf.to_container(OmegaConf.load(path))
+    unknown = sorted(set(raw) - set(SECTIONS) - set(RUN_KEYS))
+    if unknown:
+        raise InputError(
+            f"{path}: section(s) {unknown} not in SECTIONS of relaygs/stages/budgets.py; "
+            f"expected some of {[*SECTIONS, *RUN_KEYS]}"
+        )
     return {key: value for key, value in raw.items() if key in SECTIONS}
 
 

@@ -28,7 +28,7 @@ from relaygs.data.synthetic.sensor import (
     noise_generator,
     sensor_image,
 )
-from relaygs.data.synthetic.world import World
+from relaygs.data.synthetic.world import RigCamera, World
 from relaygs.errors import InputError
 from relaygs.paths import require_creatable_folder
 from relaygs.progress import progress_bar
@@ -71,7 +71,7 @@ def generate(
     declared = declared_effects(recipe, effects)
     times = np.linspace(0.0, DURATION_S, frames) if frames > 1 else np.zeros(1)
     world = World(
-        cameras=recipe.rig(width, height),
+        cameras=_rig_cameras(recipe, width, height),
         test_cameras=recipe.test_cameras,
         primitives=recipe.build(times, declared, seed),
         times_s=times,
@@ -96,6 +96,20 @@ def generate(
     return out
 
 
+def _rig_cameras(recipe: Preset, width: int, height: int) -> list[RigCamera]:
+    """The preset's rig, whose cameras must include each of its test cameras (indices into the
+    rig) and leave at least one to train on."""
+    cameras = recipe.rig(width, height)
+    count, test = len(cameras), recipe.test_cameras
+    fits = len(set(test)) == len(test) < count
+    if not fits or any(not 0 <= index < count for index in test):
+        raise InputError(
+            f"preset {recipe.name!r}: test_cameras {list(recipe.test_cameras)} must be distinct "
+            f"indices into its rig of {count} cameras (0..{count - 1}), leaving some to train on"
+        )
+    return cameras
+
+
 def _require_count(name: str, value: object, *, minimum: int) -> None:
     if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < minimum:
         raise InputError(f"{name} must be an integer >= {minimum}, got {value!r}")
@@ -107,15 +121,23 @@ def declared_effects(
     """The effects a scene of `recipe` simulates: its defaults when `effects` is None, else
     `effects` (named by `source` in errors), each of which the preset must support."""
     if effects is None:
+        source = f"PRESETS[{recipe.name!r}].default_effects (relaygs/data/synthetic/presets.py)"
+        _require_supported(recipe, recipe.default_effects, source)
         return recipe.default_effects
     declared = parse_effects(effects, source=source)
-    unsupported = sorted(declared - recipe.supported_effects)
+    _require_supported(recipe, declared, source)
+    return declared
+
+
+def _require_supported(recipe: Preset, effects: frozenset[str], source: str) -> None:
+    """Every effect in `effects` (named by `source`) is one the preset can simulate: a default
+    outside its supported effects would be declared in scene.json without being simulated."""
+    unsupported = sorted(effects - recipe.supported_effects)
     if unsupported:
         raise InputError(
             f"{source}: preset {recipe.name!r} cannot simulate {', '.join(unsupported)}; "
             f"it supports: {', '.join(sorted(recipe.supported_effects))}"
         )
-    return declared
 
 
 def _staging_folder(out: Path) -> Path:
