@@ -1,5 +1,7 @@
 """`python -m relaygs.report SWEEP_DIR`: (re)write a sweep's `summary.csv`, `summary.md` and
-`pareto.png` from its jobs' `result.json` files (the multirun end callback calls the same)."""
+`pareto.png`, with `summary_mean.csv/md` when it repeats a variant (e.g. over seeds) and
+`summary_budget.csv/md` when it varies `budget.multiplier`, from its jobs' `result.json` files
+(the multirun end callback calls the same)."""
 
 from __future__ import annotations
 
