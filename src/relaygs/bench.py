@@ -13,7 +13,7 @@ import torch
 
 from relaygs import bench_sweeps, bench_train
 from relaygs.bench_output import json_target, save_json
-from relaygs.cli import OneLineErrorParser, int_at_least
+from relaygs.cli import OneLineErrorParser, int_at_least, run_tool
 from relaygs.device import usable_device
 from relaygs.errors import RelayGSError
 from relaygs.splat import rasterization
@@ -191,4 +191,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_tool(main))

@@ -1,10 +1,16 @@
-"""Command-line plumbing the relaygs tools share: usage errors as one line, checked counts."""
+"""Command-line plumbing the relaygs tools share: usage errors as one line, checked counts, a
+quiet end when the reader of their output goes away."""
 
 from __future__ import annotations
 
 import argparse
+import os
+import sys
 from collections.abc import Callable
 from typing import NoReturn
+
+BROKEN_PIPE_EXIT = 141
+"""128 + SIGPIPE: what a shell tool returns when its reader closed the pipe (`... | head`)."""
 
 
 class OneLineErrorParser(argparse.ArgumentParser):
@@ -30,3 +36,17 @@ def int_at_least(minimum: int) -> Callable[[str], int]:
         return value
 
     return parse
+
+
+def run_tool(main: Callable[[], int]) -> int:
+    """Run a tool's `main` and return its exit status; output piped into a reader that stopped
+    early (`artifacts ls | head`) ends it with BROKEN_PIPE_EXIT instead of a traceback."""
+    try:
+        try:
+            return main()
+        finally:
+            sys.stdout.flush()  # buffered output meets the closed pipe here, not at exit
+    except BrokenPipeError:
+        # the interpreter flushes stdout again when it exits: give it somewhere to go
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return BROKEN_PIPE_EXIT

@@ -24,7 +24,7 @@ from relaygs.app.summary import (
     markdown_table,
     summary_table,
 )
-from relaygs.cli import OneLineErrorParser
+from relaygs.cli import OneLineErrorParser, run_tool
 from relaygs.errors import InputError, RelayGSError
 from relaygs.paths import require_folder
 
@@ -173,4 +173,4 @@ def _title(table, sweep_dir: Path) -> str:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_tool(main))

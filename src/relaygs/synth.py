@@ -10,7 +10,7 @@ import argparse
 import sys
 import time
 
-from relaygs.cli import OneLineErrorParser
+from relaygs.cli import OneLineErrorParser, run_tool
 from relaygs.data.effects import ALL_EFFECTS
 from relaygs.data.synthetic import PRESETS, generate
 from relaygs.errors import RERUN_COMMAND, RelayGSError, resource_error
@@ -85,4 +85,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_tool(main))

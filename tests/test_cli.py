@@ -1,0 +1,31 @@
+"""Command-line plumbing shared by the tools: output into a pipe whose reader went away."""
+
+import subprocess
+import sys
+
+import pytest
+
+from relaygs.cli import BROKEN_PIPE_EXIT
+
+LONG_OUTPUT = (
+    "import sys; from relaygs.cli import run_tool; sys.exit(run_tool(lambda: print('x' * 99)))"
+)
+
+
+def _closed_reader(args: list[str]) -> tuple[int, str]:
+    """Run `args` with its stdout a pipe closed before it writes: (exit status, stderr)."""
+    process = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    process.stdout.close()
+    stderr = process.stderr.read().decode()
+    return process.wait(timeout=120), stderr
+
+
+@pytest.mark.parametrize("command", ["artifacts", "run_tool"])
+def test_a_reader_that_closed_the_pipe_ends_the_tool_quietly(tmp_path, command):
+    # `python -m relaygs.artifacts ls | head`: before, a BrokenPipeError traceback (and
+    # "Exception ignored ... BrokenPipeError" when the interpreter flushed stdout at exit)
+    if command == "artifacts":
+        args = ["-m", "relaygs.artifacts", "--root", str(tmp_path), "ls"]
+    else:
+        args = ["-c", LONG_OUTPUT]
+    assert _closed_reader([sys.executable, *args]) == (BROKEN_PIPE_EXIT, "")
