@@ -246,6 +246,21 @@ def test_show_of_an_artifact_with_emptied_tensors_says_it_is_damaged(store, caps
     assert "artifacts verify" in err
 
 
+def test_show_of_an_artifact_gc_removes_meanwhile_says_removed_not_damaged(
+    store, capsys, monkeypatch
+):
+    real_open = artifacts_module.safe_open
+
+    def opened_after_a_gc(*args, **kwargs):
+        store.gc(keep={KEY_A})  # `gc --keep` beside `show`, between finding and reading
+        return real_open(*args, **kwargs)
+
+    monkeypatch.setattr(artifacts_module, "safe_open", opened_after_a_gc)
+    code, _, err = _cli(capsys, store.root, "show", KEY_B[:10])
+    assert code == 1
+    assert err == f"error: artifact relay/{KEY_B[:16]} was removed while it was read\n"
+
+
 def test_an_artifact_with_a_damaged_manifest_is_named_as_damaged_not_missing(store, capsys):
     (store.path("relay", KEY_B) / "manifest.json").write_text("{broken")
     for command in (["show", KEY_B[:8]], ["gc", "--keep", KEY_B[:8]]):

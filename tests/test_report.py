@@ -1,6 +1,7 @@
 """Sweep reports: summary.csv and summary.md rows with Δ vs the reference, Pareto plot, CLI."""
 
 import json
+from pathlib import Path
 
 import pandas as pd
 import pytest
@@ -105,6 +106,36 @@ def test_cli_regenerates_and_fails_in_one_line_without_results(sweep, tmp_path, 
     assert len(errors) == 3 and all(line.startswith("error: ") for line in errors)
     assert errors[1].endswith("missing does not exist")
     assert errors[2].endswith("summary.md is not a folder")
+
+
+def test_a_report_being_rewritten_is_never_read_half_written(sweep, monkeypatch):
+    # a second sweep sharing the folder, or `report` run beside a sweep, reads the tables while
+    # they are rewritten: it must see the previous file or the new one, never part of one
+    names = ("summary.md", "summary.csv")
+    report.write_reports(sweep)
+    before = {name: (sweep / name).read_bytes() for name in names}
+    _job(sweep, 4, "k128", 22.0, 8.0)
+    seen = []
+    write_bytes = Path.write_bytes
+
+    def written_in_two_halves(path, data):
+        write_bytes(path, data[: len(data) // 2])
+        seen.append({name: (sweep / name).read_bytes() for name in names})
+        return write_bytes(path, data)
+
+    def text_in_two_halves(path, text, encoding=None, errors=None, newline=None):
+        return written_in_two_halves(path, text.encode(encoding or "utf-8"))
+
+    monkeypatch.setattr(Path, "write_bytes", written_in_two_halves)
+    monkeypatch.setattr(Path, "write_text", text_in_two_halves)
+    report.write_reports(sweep)
+    monkeypatch.undo()
+    after = {name: (sweep / name).read_bytes() for name in names}
+    assert seen and after != before
+    for snapshot in seen:
+        for name, content in snapshot.items():
+            assert content in (before[name], after[name]), f"{name} was read half-written"
+    assert sorted(p.name for p in sweep.iterdir() if p.name.startswith(".")) == []
 
 
 def test_a_damaged_result_is_named(sweep, capsys):

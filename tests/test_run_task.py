@@ -19,7 +19,7 @@ from relaygs.app.result import NO_TEST_VIEWS, RESULT_FILE, format_summary, write
 from relaygs.app.task import run_task
 from relaygs.app.tensorboard import flatten_config
 from relaygs.errors import InputError
-from relaygs.pipeline import CorruptArtifactError
+from relaygs.pipeline import ArtifactStore, CorruptArtifactError
 
 REQUIRED_FIELDS = {
     "pipeline",
@@ -215,6 +215,29 @@ def test_a_corrupted_artifact_is_rebuilt_or_refused(base_config, tmp_path):
     assert fakes.ran("decouple") == 1
     result = _run(base_config, tmp_path / "c", fakes)
     assert fakes.ran("decouple") == 2 and result["cache_hits"] == 2
+
+
+def test_a_gc_removing_the_model_while_it_is_evaluated_does_not_fail_the_run(
+    base_config, tmp_path, monkeypatch
+):
+    """`gc --keep` run beside a job removes the model it just built (its lock is free while
+    the job evaluates): the job still reports the model's storage, from its manifest."""
+    fakes = FakeStages()
+    store = ArtifactStore(tmp_path / "artifacts")
+    recorded = []
+    real_evaluate = fakes._evaluate
+
+    def evaluate_while_gc_runs(scene, artifact, cfg):
+        stored = {item.stage: item for item in store.list()}
+        model = stored["deform"]
+        recorded.append(model.manifest.size_mb)
+        store.gc(keep={stored["decouple"].key})
+        assert not store.has("deform", model.key)
+        return real_evaluate(scene, artifact, cfg)
+
+    monkeypatch.setattr(fakes, "_evaluate", evaluate_while_gc_runs)
+    result = _run(base_config, tmp_path / "a", fakes)
+    assert result["status"] == "ok" and result["storage_mb"] == recorded[0] > 0
 
 
 def test_hparams_flatten_to_dotted_keys_with_none_as_text():

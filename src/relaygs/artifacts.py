@@ -20,7 +20,12 @@ from relaygs.device import usable_device
 from relaygs.errors import RERUN_COMMAND, RelayGSError, resource_error
 from relaygs.paths import require_creatable_folder
 from relaygs.pipeline.artifact import TENSORS_FILE, Artifact
-from relaygs.pipeline.store import VERIFY_HINT, ArtifactStore, StoredArtifact
+from relaygs.pipeline.store import (
+    VERIFY_HINT,
+    ArtifactStore,
+    MissingArtifactError,
+    StoredArtifact,
+)
 from relaygs.renders import RenderSettings, write_renders
 from relaygs.stages import evaluate
 from relaygs.stages.scene_model import SceneModel
@@ -148,7 +153,8 @@ def _show(store: ArtifactStore, args: argparse.Namespace) -> int:
 
 def _tensor_lines(item: StoredArtifact) -> list[str]:
     """`tensor <name>: <dtype> <shape>` per stored tensor, read from the file's header; a file
-    that cannot be parsed is reported as a damaged artifact."""
+    that cannot be parsed is reported as a damaged artifact, one that a gc removed meanwhile as
+    removed."""
     path = item.path / TENSORS_FILE
     try:
         with safe_open(str(path), framework="pt") as tensors:
@@ -158,6 +164,9 @@ def _tensor_lines(item: StoredArtifact) -> list[str]:
                 for name, view in views.items()
             ]
     except (OSError, SafetensorError) as error:
+        if not item.path.is_dir():  # a gc beside this command removed it after it was found
+            name = f"{item.stage}/{item.key[:KEY_COLUMN_WIDTH]}"
+            raise MissingArtifactError(f"artifact {name} was removed while it was read") from error
         message = f"damaged artifact: {path} is unreadable ({error}); {VERIFY_HINT}"
         raise RelayGSError(message) from error
 

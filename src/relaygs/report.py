@@ -27,6 +27,7 @@ from relaygs.app.summary import (
 from relaygs.cli import OneLineErrorParser, run_tool
 from relaygs.errors import InputError, RelayGSError
 from relaygs.paths import require_folder
+from relaygs.pipeline.fsio import publish_text
 
 SUMMARY_CSV = "summary.csv"
 SUMMARY_MD = "summary.md"
@@ -83,7 +84,7 @@ def _write_files(table: pd.DataFrame, sweep_dir: Path) -> ReportFiles:
     csv_path = sweep_dir / SUMMARY_CSV
     _write_csv(table, csv_path)
     markdown_path = sweep_dir / SUMMARY_MD
-    markdown_path.write_text(markdown_table(table, title), encoding="utf-8")
+    publish_text(markdown_path, markdown_table(table, title))
     plottable = zip(table.psnr, table.train_s_total, strict=True)
     plotted = table[[is_number(psnr) and is_number(time) for psnr, time in plottable]]
     pareto = None
@@ -111,7 +112,7 @@ def _write_mean(table: pd.DataFrame, sweep_dir: Path, title: str) -> Path | None
     mean = aggregate_table(table)
     _write_csv(mean, sweep_dir / MEAN_CSV)
     path = sweep_dir / MEAN_MD
-    path.write_text(aggregate_markdown(mean, f"{title}: mean ± std over seeds"), encoding="utf-8")
+    publish_text(path, aggregate_markdown(mean, f"{title}: mean ± std over seeds"))
     return path
 
 
@@ -125,7 +126,7 @@ def _write_budget(table: pd.DataFrame, sweep_dir: Path, title: str) -> Path | No
         return None
     _write_csv(marginal, sweep_dir / BUDGET_CSV)
     path = sweep_dir / BUDGET_MD
-    path.write_text(marginal_markdown(marginal, f"{title}: what a minute buys"), encoding="utf-8")
+    publish_text(path, marginal_markdown(marginal, f"{title}: what a minute buys"))
     return path
 
 
@@ -161,7 +162,7 @@ def describe(files: ReportFiles) -> str:
 def _write_csv(table: pd.DataFrame, path: Path) -> None:
     """`table` as CSV, each column in its narrowest type: a whole-number column with missing
     rows (`relay.k` where a pipeline runs no relay) is written 16, not 16.0."""
-    table.convert_dtypes().to_csv(path, index=False)
+    publish_text(path, table.convert_dtypes().to_csv(index=False))
 
 
 def _title(table, sweep_dir: Path) -> str:

@@ -129,8 +129,7 @@ def _execute(
         )
         _announce_evaluation(evaluation)
         _log_previews(log, suite, scene, run.output, plan.preview_frames)
-        output = run.reports[-1]
-        storage_mb = store.manifest(output.stage, output.key).size_mb
+        storage_mb = run.reports[-1].size_mb  # not read again: a gc may have removed it since
         result = build_result(config, plan, run, evaluation, storage_mb, overrides, job)
         hparams = {k: v for k, v in config.items() if k not in HPARAM_EXCLUDED_SECTIONS}
         logged = (*METRIC_FIELDS, "train_s_total", "train_s_computed", "storage_mb")

@@ -55,7 +55,8 @@ class NodeReport:
     """What happened at one node: its key, whether the store had it, and its cost.
 
     `wall_seconds` is the node's own build time (from the manifest on a cache hit);
-    `lineage_seconds` adds every distinct ancestor's build time.
+    `lineage_seconds` adds every distinct ancestor's build time; `size_mb` is the artifact's
+    size from its manifest, read when it was built or loaded.
     """
 
     node: str
@@ -65,6 +66,7 @@ class NodeReport:
     wall_seconds: float
     lineage_seconds: float
     path: Path
+    size_mb: float
 
 
 @dataclass(frozen=True)
@@ -154,6 +156,7 @@ def run_pipeline(
             wall_seconds=info.wall_seconds,
             lineage_seconds=info.wall_seconds + sum(reports[a].wall_seconds for a in ancestors),
             path=info.path,
+            size_mb=info.size_mb,
         )
         artifacts[node.name] = artifact
         reports[node.name] = report

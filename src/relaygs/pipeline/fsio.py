@@ -54,13 +54,24 @@ def save_tensors(tensors: Mapping[str, torch.Tensor], path: Path) -> None:
 
 
 def publish_text(path: Path, text: str) -> None:
-    """Write `path` whole or not at all: the text goes to a hidden file beside it, is flushed
-    to disk and renamed in, so a kill mid-write leaves the previous file (or none)."""
+    """Write `text` (UTF-8) to `path` whole or not at all (`publish_bytes`)."""
+    publish_bytes(path, text.encode("utf-8"))
+
+
+def publish_bytes(path: Path, data: bytes) -> None:
+    """Write `path` whole or not at all: the data goes to a hidden file beside it, is flushed
+    to disk and renamed in, so a kill mid-write leaves the previous file (or none) and a
+    reader, or a second writer, never sees part of one. An error names `path`, not the
+    hidden file."""
     partial = path.with_name(f".{path.name}.{os.getpid()}.partial")
     try:
-        partial.write_text(text, encoding="utf-8")
+        partial.write_bytes(data)
         fsync_path(partial)
         os.replace(partial, path)
+    except OSError as error:
+        if error.errno is None:
+            raise
+        raise OSError(error.errno, error.strerror, str(path)) from error
     finally:
         partial.unlink(missing_ok=True)  # nothing left to remove once renamed in
 

@@ -55,7 +55,7 @@ def collect_garbage(
     for path in store_entries(root):
         key = _owning_key(path)
         if key is not None and _is_garbage(path, key, kept):
-            _remove_if_free(root, path.parent.name, key, path, dry_run, report)
+            _remove_if_free(root, key, path, kept, dry_run, report)
     _remove_free_locks(root, dry_run, report)
     return report
 
@@ -124,14 +124,18 @@ def _lock_if_free(lock_file: Path) -> Iterator[bool]:
 
 
 def _remove_if_free(
-    root: Path, stage: str, key: str, path: Path, dry_run: bool, report: GcReport
+    root: Path, key: str, path: Path, kept: set[str] | None, dry_run: bool, report: GcReport
 ) -> None:
-    """Remove `path` while holding its key's lock, or note it as busy."""
-    lock_file = lock_path(root, stage, key)
+    """Remove `path` while holding its key's lock, or note it as busy. Whether it is garbage
+    is asked again under the lock: before it, a build may have finished and cleared it, or
+    another gc removed it."""
+    lock_file = lock_path(root, path.parent.name, key)
     lock_file.parent.mkdir(parents=True, exist_ok=True)
     with _lock_if_free(lock_file) as free:
         if not free:
             report.busy.append(path)
+            return
+        if not path.is_dir() or not _is_garbage(path, key, kept):
             return
         report.removed.append(path)
         if not dry_run:
@@ -150,7 +154,8 @@ def _hide_and_remove(path: Path, key: str) -> None:
 
 
 def _remove_free_locks(root: Path, dry_run: bool, report: GcReport) -> None:
-    """Delete lock files nobody holds (unlinked while held, so no waiter is fooled)."""
+    """Delete lock files nobody holds (unlinked while held: a waiter that opened one before
+    flocks a file no longer at its path, which filelock >= 3.20.4 sees and tries again)."""
     locks = root / LOCKS_DIR
     if not locks.is_dir():
         return

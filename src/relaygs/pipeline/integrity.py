@@ -41,6 +41,16 @@ def seal(folder: Path) -> dict[str, str]:
     return hashes
 
 
+def folder_identity(folder: Path) -> tuple[int, int] | None:
+    """(device, inode) of a folder, or None when it is gone: a folder published or removed by
+    another process (renamed in or out whole) changes identity, one left alone keeps it."""
+    try:
+        status = folder.stat()
+    except (FileNotFoundError, NotADirectoryError):
+        return None
+    return status.st_dev, status.st_ino
+
+
 def is_sealed(folder: Path) -> bool:
     """True when the folder carries a completion marker (its build finished)."""
     return (folder / MARKER_FILE).is_file()
@@ -57,9 +67,13 @@ def check_seal(folder: Path) -> None:
         raise CorruptArtifactError(f"{marker}: completion marker holds no file hashes")
     for name, expected in sorted(hashes.items()):
         path = folder / name
+        missing = CorruptArtifactError(f"{path}: file listed in {MARKER_FILE} is missing")
         if not path.is_file():
-            raise CorruptArtifactError(f"{path}: file listed in {MARKER_FILE} is missing")
-        actual = file_sha256(path)
+            raise missing
+        try:
+            actual = file_sha256(path)
+        except FileNotFoundError as error:  # the folder was moved away since (gc, a rebuild)
+            raise missing from error
         if actual != expected:
             raise CorruptArtifactError(
                 f"{path}: sha256 mismatch (recorded {expected[:12]}…, found {actual[:12]}…)"

@@ -21,7 +21,13 @@ from relaygs.pipeline.artifact import Artifact, read_artifact_files, write_artif
 from relaygs.pipeline.context import BuildContext, building
 from relaygs.pipeline.fsio import publish_dir, remove_tree
 from relaygs.pipeline.gc import GcReport, collect_garbage
-from relaygs.pipeline.integrity import CorruptArtifactError, check_seal, is_sealed, seal
+from relaygs.pipeline.integrity import (
+    CorruptArtifactError,
+    check_seal,
+    folder_identity,
+    is_sealed,
+    seal,
+)
 from relaygs.pipeline.keys import canonical_json
 from relaygs.pipeline.layout import (
     TEMP_PREFIX,
@@ -55,7 +61,9 @@ class BuildInfo:
     """How `get_or_build` satisfied a request: a cache hit or a fresh build.
 
     `wall_seconds` is the build's duration, read from the manifest on a hit, so the full
-    cost of a lineage can be summed whether or not this run computed it.
+    cost of a lineage can be summed whether or not this run computed it. `size_mb` is the
+    artifact's size as its manifest records it, so a caller need not read the store again (a
+    concurrent `gc --keep` may have removed the artifact by then).
     """
 
     stage: str
@@ -63,6 +71,7 @@ class BuildInfo:
     cache_hit: bool
     wall_seconds: float
     path: Path
+    size_mb: float
     replaced_corrupt: bool = False
 
 
@@ -167,9 +176,11 @@ class ArtifactStore:
                     f"stage {stage!r} returned an artifact labelled {artifact.stage!r}"
                 )
             stored = artifact.to_cpu_contiguous()
-            self._write(stage, key, stored, {**manifest_fields, "wall_seconds": wall_seconds})
+            fields = {**manifest_fields, "wall_seconds": wall_seconds}
+            manifest = self._write(stage, key, stored, fields)
             remove_tree(checkpoint_dir(self.root, stage, key))
-        info = BuildInfo(stage, key, False, wall_seconds, self.path(stage, key), replaced_corrupt)
+        path = self.path(stage, key)
+        info = BuildInfo(stage, key, False, wall_seconds, path, manifest.size_mb, replaced_corrupt)
         return stored, info
 
     def list(self) -> list[StoredArtifact]:
@@ -216,15 +227,11 @@ class ArtifactStore:
         artifact folder; with `check_hashes`, each file's hash is checked too."""
         found, problems = [], []
         for folder in key_dirs(self.root):
-            if not is_sealed(folder):
-                problems.append(VerifyProblem(folder, "incomplete (no completion marker)"))
-                continue
-            try:
-                if check_hashes:
-                    check_seal(folder)
-                found.append(StoredArtifact(folder, read_own_manifest(folder)))
-            except CorruptArtifactError as error:
-                problems.append(VerifyProblem(folder, str(error)))
+            outcome = _examine_steady(folder, check_hashes)
+            if isinstance(outcome, StoredArtifact):
+                found.append(outcome)
+            elif outcome is not None:
+                problems.append(outcome)
         found.sort(key=lambda item: (item.stage, item.manifest.created, item.key))
         return found, problems
 
@@ -242,19 +249,27 @@ class ArtifactStore:
     def _try_load(
         self, stage: str, key: str, on_corrupt: OnCorrupt
     ) -> tuple[Artifact, BuildInfo] | None:
-        """A verified cache hit, or None when the artifact is missing or (rebuildably) corrupt."""
-        if not self.has(stage, key):
+        """A verified cache hit, or None when the artifact is missing, (rebuildably) corrupt,
+        or was removed or replaced by another process while it was read (the caller then asks
+        again under the key's lock, which every removal and replacement holds)."""
+        identity = folder_identity(self.path(stage, key))
+        if identity is None or not self.has(stage, key):
             return None
         try:
             artifact, manifest = self._load_with_manifest(stage, key, verify=True)
-        except CorruptArtifactError as error:
+        except (MissingArtifactError, CorruptArtifactError) as error:
+            if folder_identity(self.path(stage, key)) != identity:
+                return None  # gc removed it, or a rebuild replaced it, while it was read
+            if not isinstance(error, CorruptArtifactError):
+                raise
             if on_corrupt == "error":
                 raise CorruptArtifactError(
                     f"{error} (artifacts.on_corrupt=error: delete it or rerun with "
                     "artifacts.on_corrupt=rebuild)"
                 ) from error
             return None
-        return artifact, BuildInfo(stage, key, True, manifest.wall_seconds, self.path(stage, key))
+        path = self.path(stage, key)
+        return artifact, BuildInfo(stage, key, True, manifest.wall_seconds, path, manifest.size_mb)
 
     def _load_with_manifest(self, stage: str, key: str, verify: bool) -> tuple[Artifact, Manifest]:
         """Load (optionally hash-checked) artifact files and manifest of a finished artifact."""
@@ -270,8 +285,9 @@ class ArtifactStore:
 
     def _write(
         self, stage: str, key: str, artifact: Artifact, manifest_fields: dict[str, Any]
-    ) -> None:
-        """Write the artifact into a temp folder, seal it, and rename it into place."""
+    ) -> Manifest:
+        """Write the artifact into a temp folder, seal it, and rename it into place; return
+        its manifest."""
         metrics = artifact.meta.get("metrics", {})
         if not isinstance(metrics, dict):
             raise InputError(f"{stage} artifact meta['metrics'] must be a mapping, got {metrics!r}")
@@ -294,6 +310,7 @@ class ArtifactStore:
                 publish_dir(temp, final)
         finally:
             remove_tree(temp)
+        return manifest
 
     def _clear_stale_checkpoints(self, stage: str, key: str, lock_file: Path) -> None:
         """Delete the checkpoints of a finished artifact that a build killed between storing it
@@ -333,6 +350,31 @@ def read_own_manifest(folder: Path) -> Manifest:
             f"{folder}: manifest names {manifest.stage}/{manifest.key}, not {stage}/{key}"
         )
     return manifest
+
+
+def _examine(folder: Path, check_hashes: bool) -> StoredArtifact | VerifyProblem:
+    """The artifact in `folder`, or its problem (with `check_hashes`, its hashes checked too)."""
+    if not is_sealed(folder):
+        return VerifyProblem(folder, "incomplete (no completion marker)")
+    try:
+        if check_hashes:
+            check_seal(folder)
+        return StoredArtifact(folder, read_own_manifest(folder))
+    except CorruptArtifactError as error:
+        return VerifyProblem(folder, str(error))
+
+
+def _examine_steady(folder: Path, check_hashes: bool) -> StoredArtifact | VerifyProblem | None:
+    """`_examine` of a folder no other process moved meanwhile: a problem seen while gc removed
+    the folder (None: it is gone) or a rebuild replaced it (looked at again) is not its own."""
+    identity = folder_identity(folder)
+    while identity is not None:
+        outcome = _examine(folder, check_hashes)
+        now = folder_identity(folder)
+        if isinstance(outcome, StoredArtifact) or now == identity:
+            return outcome
+        identity = now
+    return None
 
 
 def _is_intact(folder: Path) -> bool:

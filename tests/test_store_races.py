@@ -1,0 +1,163 @@
+"""Another process acting on the store between two steps of this one: a gc removing, or a build
+clearing, what this process was about to remove or read. Each interleaving is forced at the
+exact call (the other process's work runs inside a patched hook), not left to timing."""
+
+import fcntl
+
+import pytest
+import torch
+from filelock import FileLock, Timeout
+
+from relaygs.pipeline import gc as gc_module
+from relaygs.pipeline import integrity as integrity_module
+from relaygs.pipeline import store as store_module
+from relaygs.pipeline.artifact import Artifact
+from relaygs.pipeline.fsio import remove_tree
+from relaygs.pipeline.keys import artifact_key
+from relaygs.pipeline.store import ArtifactStore
+
+KEY = artifact_key("decouple", 1, {"steps": 3}, "scene", [])
+OTHER = artifact_key("decouple", 1, {"steps": 4}, "scene", [])
+
+
+class CountingBuild:
+    """A build that counts its calls and stores their number in its tensor."""
+
+    def __init__(self) -> None:
+        self.calls = 0
+
+    def __call__(self) -> Artifact:
+        self.calls += 1
+        return Artifact("decouple", {"x": torch.full((3,), float(self.calls))}, {})
+
+
+def _store_with(tmp_path, *keys: str) -> ArtifactStore:
+    """A store holding a finished artifact under each of `keys`."""
+    store = ArtifactStore(tmp_path)
+    for key in keys:
+        store.get_or_build("decouple", key, CountingBuild(), config={}, lineage=[])
+    return store
+
+
+def _after_running(other_process, action):
+    """`action`, whose first call first lets `other_process` act on the store."""
+    done = []
+
+    def wrapper(*args, **kwargs):
+        if not done:
+            done.append(True)
+            other_process()
+        return action(*args, **kwargs)
+
+    return wrapper
+
+
+def _then_running(action, other_process):
+    """`action`, whose first call lets `other_process` act on the store once it returned."""
+    done = []
+
+    def wrapper(*args, **kwargs):
+        result = action(*args, **kwargs)
+        if not done:
+            done.append(True)
+            other_process()
+        return result
+
+    return wrapper
+
+
+@pytest.mark.parametrize("entry", ["unkept artifact", "incomplete folder", "checkpoints"])
+def test_gc_passes_over_an_entry_another_process_removed_after_gc_listed_it(
+    tmp_path, monkeypatch, entry
+):
+    store = _store_with(tmp_path, KEY, OTHER)
+    stage_dir = store.root / "decouple"
+    path, keep = {
+        "unkept artifact": (stage_dir / OTHER, {KEY}),
+        "incomplete folder": (stage_dir / ("a" * 64), None),
+        "checkpoints": (stage_dir / f"{KEY}.ckpt", None),
+    }[entry]
+    path.mkdir(exist_ok=True)
+    real_is_garbage = gc_module._is_garbage
+
+    def another_gc_gets_there_first(candidate, key, kept):
+        garbage = real_is_garbage(candidate, key, kept)
+        if garbage and candidate == path:
+            remove_tree(path)  # a second gc, or a build clearing its checkpoints, under the lock
+        return garbage
+
+    monkeypatch.setattr(gc_module, "_is_garbage", another_gc_gets_there_first)
+    report = store.gc(keep=keep)
+    assert not path.exists() and path not in report.removed
+    assert store.has("decouple", KEY) and store.verify() == []
+
+
+@pytest.mark.parametrize("command", ["verify", "ls"])
+def test_an_artifact_gc_removes_while_it_is_read_is_not_reported_damaged(
+    tmp_path, monkeypatch, command
+):
+    store = _store_with(tmp_path, KEY, OTHER)
+    assert OTHER < KEY  # so OTHER's folder is the first read, and the hook removes it then
+
+    def gc_removes_other():
+        store.gc(keep={KEY})
+
+    if command == "verify":  # removed half-way through hashing the files of the first folder
+        hook = _after_running(gc_removes_other, integrity_module.file_sha256)
+        monkeypatch.setattr(integrity_module, "file_sha256", hook)
+        problems = store.verify()
+    else:  # removed between seeing the first folder's marker and reading its manifest
+        hook = _after_running(gc_removes_other, store_module.read_own_manifest)
+        monkeypatch.setattr(store_module, "read_own_manifest", hook)
+        problems = store.damaged()
+    assert problems == []
+    assert [item.key for item in store.list()] == [KEY]
+
+
+@pytest.mark.parametrize("on_corrupt", ["rebuild", "error"])
+@pytest.mark.parametrize("moment", ["after it was found", "while it was hashed"])
+def test_a_cache_hit_gc_removes_before_it_is_loaded_is_built_again(
+    tmp_path, monkeypatch, moment, on_corrupt
+):
+    store = _store_with(tmp_path, KEY, OTHER)
+
+    def gc_removes_other():
+        store.gc(keep={KEY})
+
+    if moment == "after it was found":
+        monkeypatch.setattr(store, "has", _then_running(store.has, gc_removes_other))
+    else:
+        hook = _after_running(gc_removes_other, integrity_module.file_sha256)
+        monkeypatch.setattr(integrity_module, "file_sha256", hook)
+    build = CountingBuild()
+    artifact, info = store.get_or_build(
+        "decouple", OTHER, build, config={}, lineage=[], on_corrupt=on_corrupt
+    )
+    assert build.calls == 1 and not info.cache_hit and not info.replaced_corrupt
+    assert torch.equal(artifact.tensors["x"], torch.ones(3)) and store.verify() == []
+
+
+def test_a_lock_file_gc_unlinks_under_a_waiter_is_not_taken_by_it(tmp_path, monkeypatch):
+    # gc deletes a free lock file while holding it; a waiter that opened the file just before
+    # then flocks an inode no longer at the path, while a newcomer locks a new one there. The
+    # store relies on filelock (>= 3.20.4) seeing this and trying again, or both would build.
+    store = ArtifactStore(tmp_path)
+    lock_file = store.root / ".locks" / f"decouple.{KEY}.lock"
+    lock_file.parent.mkdir(parents=True)
+    lock_file.touch()
+    real_flock = fcntl.flock
+    waiting = []
+
+    def gc_between_open_and_flock(fd, operation):
+        if operation & fcntl.LOCK_EX and not waiting:
+            waiting.append(fd)  # the waiter has the old file open: gc runs now
+            store.gc()
+            assert not lock_file.exists()
+        return real_flock(fd, operation)
+
+    monkeypatch.setattr(fcntl, "flock", gc_between_open_and_flock)
+    with FileLock(str(lock_file)):
+        monkeypatch.undo()
+        assert lock_file.exists(), "the waiter holds a lock on a deleted file"
+        with pytest.raises(Timeout):
+            FileLock(str(lock_file)).acquire(timeout=0)
