@@ -266,7 +266,10 @@ def test_schema_version_bump_rebuilds(tmp_path):
 def test_config_and_pipeline_folders_prefer_the_repo_then_the_packaged_copy(tmp_path, monkeypatch):
     repo, packaged = tmp_path / "repo", tmp_path / "packaged"
     monkeypatch.setattr(paths, "REPO_ROOT", repo)
+    monkeypatch.setattr(paths, "PACKAGE_DIR", repo / "src" / "relaygs")  # a relaygs checkout
     monkeypatch.setattr(paths, "PACKAGED_DATA_DIR", packaged)
+    repo.mkdir()
+    (repo / "pyproject.toml").write_text('[project]\nname = "relaygs"\n')
     with pytest.raises(InputError, match="no usable pipelines/ folder"):
         paths.pipelines_dir()
     (packaged / "pipelines").mkdir(parents=True)

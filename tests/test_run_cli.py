@@ -5,6 +5,7 @@ import functools
 import io
 import json
 import os
+import shlex
 import signal
 import subprocess
 import sys
@@ -62,6 +63,7 @@ def _main(args):
         (["relay.kk=3"], "relay.kk"),
         (["hydra/launcher=nope"], "Could not find 'hydra/launcher/nope'"),
         (["relay.k=[1,"], "cannot parse overrides"),
+        (["paths.outputs=/tmp/scène"], """need quotes around the value: 'scene.path="/data/"""),
         (["train=nope"], "train: expected a config section (a mapping), got 'nope'"),
         (["relay.k=${nope}"], "cannot resolve the config: Interpolation key 'nope' not found"),
         (["scene.loader=abc"], "scene.loader must be a mapping of loader options"),
@@ -227,6 +229,19 @@ def test_a_single_run_writes_its_result_in_a_run_dir_under_outputs(fakes, tmp_pa
     assert (result_path.parent / "tb").is_dir()
     assert (tmp_path / "outputs" / "artifacts" / "deform").is_dir()
     assert len(list((tmp_path / "outputs" / "scenes").glob("juggle-*"))) == 1
+
+
+def test_printed_commands_paste_as_is_when_paths_hold_spaces_and_accents(fakes, tmp_path, capsys):
+    outputs = tmp_path / "out dir ü"
+    assert _main(["budget=smoke", *TINY_SCENE, f'paths.outputs="{outputs}"']) == 0
+    lines = [line.strip() for line in capsys.readouterr().out.splitlines()]
+    (run_dir,) = outputs.glob("runs/*")
+    (scene_dir,) = outputs.glob("scenes/juggle-*")
+    tensorboard = next(line for line in lines if line.startswith("tensorboard "))
+    assert shlex.split(tensorboard)[1:] == ["tensorboard", "--logdir", str(run_dir / "tb")]
+    videos = shlex.split(next(line for line in lines if line.startswith("videos ")))
+    assert videos[videos.index("--root") + 1] == str(outputs / "artifacts")
+    assert videos[videos.index("--scene") + 1] == str(scene_dir)
 
 
 class _FlushLog(io.StringIO):

@@ -10,6 +10,35 @@ from relaygs import paths
 tomllib = pytest.importorskip("tomllib")  # Python >= 3.11
 
 
+def _install(monkeypatch, package_dir):
+    """Point `relaygs.paths` at a copy of the package in `package_dir` (data files only)."""
+    (package_dir / "_data" / "conf").mkdir(parents=True)
+    (package_dir / "_data" / "conf" / "config.yaml").write_text("packaged: true\n")
+    monkeypatch.setattr(paths, "PACKAGE_DIR", package_dir)
+    monkeypatch.setattr(paths, "REPO_ROOT", package_dir.parents[1])
+    monkeypatch.setattr(paths, "PACKAGED_DATA_DIR", package_dir / "_data")
+
+
+def _foreign_conf(app):
+    """Another project's Hydra config tree at `app/conf`."""
+    (app / "conf").mkdir()
+    (app / "conf" / "config.yaml").write_text("other_app: 1\n")
+
+
+def test_an_installed_copy_ignores_a_conf_folder_beside_its_install_dir(monkeypatch, tmp_path):
+    _install(monkeypatch, tmp_path / "app" / "lib" / "relaygs")  # pip install --target app/lib
+    _foreign_conf(tmp_path / "app")
+    assert paths.config_dir() == tmp_path / "app" / "lib" / "relaygs" / "_data" / "conf"
+
+
+def test_a_checkout_uses_its_own_conf_folder(monkeypatch, tmp_path):
+    _install(monkeypatch, tmp_path / "repo" / "src" / "relaygs")
+    _foreign_conf(tmp_path / "repo")
+    assert paths.config_dir() == paths.PACKAGED_DATA_DIR / "conf"  # no relaygs pyproject.toml
+    (tmp_path / "repo" / "pyproject.toml").write_text('[project]\nname = "relaygs"\n')
+    assert paths.config_dir() == tmp_path / "repo" / "conf"
+
+
 def test_packaged_data_links_point_at_the_repository_folders():
     assert (paths.PACKAGED_DATA_DIR / "conf").resolve() == paths.REPO_ROOT / "conf"
     assert (paths.PACKAGED_DATA_DIR / "pipelines").resolve() == paths.REPO_ROOT / "pipelines"

@@ -1,7 +1,8 @@
 """Locate the config tree and pipeline files for editable and regular installs alike.
 
-Rule (DESIGN.md "Config"): use the repository's absolute folder when it is present and
-holds what is expected, else the copy packaged inside `relaygs/_data/`.
+Rule (DESIGN.md "Config"): use the repository's absolute folder when the package runs from a
+relaygs checkout's `src/` and the folder holds what is expected, else the copy packaged inside
+`relaygs/_data/`.
 """
 
 from __future__ import annotations
@@ -60,9 +61,19 @@ def require_creatable_folder(path: Path, what: str) -> Path:
 
 def _locate(name: str, is_usable: Callable[[Path], bool]) -> Path:
     """Return the repo's `<name>/` when usable, else the packaged copy, else fail in one line."""
-    candidates = (REPO_ROOT / name, PACKAGED_DATA_DIR / name)
+    in_repository = (REPO_ROOT / name,) if _in_repository() else ()
+    candidates = (*in_repository, PACKAGED_DATA_DIR / name)
     for folder in candidates:
         if folder.is_dir() and is_usable(folder):
             return folder
     looked = ", ".join(str(folder) for folder in candidates)
     raise InputError(f"no usable {name}/ folder found (looked in {looked})")
+
+
+def _in_repository() -> bool:
+    """True when this package is the `src/relaygs` of a relaygs checkout; an installed copy's
+    parent folders (`pip install --target app/lib` beside an `app/conf`) belong to others."""
+    pyproject = REPO_ROOT / "pyproject.toml"
+    if PACKAGE_DIR.parent != REPO_ROOT / "src" or not pyproject.is_file():
+        return False
+    return 'name = "relaygs"' in pyproject.read_text(encoding="utf-8", errors="replace")

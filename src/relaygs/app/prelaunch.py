@@ -58,6 +58,8 @@ REMOTE_LAUNCHERS = {
 the commands they submit through, which must be on this machine's PATH."""
 GROUP_HINTS = {"scene": "; or set scene.path=DIR for a capture"}
 CONFIG_NAME = "config"
+QUOTE_HINT = """; non-ASCII characters need quotes around the value: 'scene.path="/data/scène"'"""
+"""Added to a parse error when an override holds characters Hydra reads only when quoted."""
 
 JobValidator = Callable[[DictConfig, bool], None]
 """Raises InputError when a composed job config is bad; the flag says whether the job runs on
@@ -238,11 +240,13 @@ def _choices(override: Override) -> list[str]:
 
 
 def _parse(args: Sequence[str]) -> list[Override]:
-    """Parse override strings; a syntax error becomes one line."""
+    """Parse override strings; a syntax error becomes one line (with how to quote a value, when
+    an override holds characters Hydra reads only inside quotes)."""
     try:
         return OverridesParser.create().parse_overrides(list(args))
     except HydraException as error:
-        raise InputError(f"cannot parse overrides: {one_line(error)}") from error
+        hint = "" if all(arg.isascii() for arg in args) else QUOTE_HINT
+        raise InputError(f"cannot parse overrides: {one_line(error)}{hint}") from error
 
 
 def _compose(overrides: Sequence[str], with_hydra: bool = False) -> DictConfig:

@@ -7,6 +7,7 @@ and fake stages.
 
 from __future__ import annotations
 
+import shlex
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -185,17 +186,19 @@ def _log_previews(
 
 
 def _where(plan: RunPlan, outcome: _Outcome, result_path: Path) -> str:
-    """Where this run's outputs are, and the command that renders its model as videos."""
+    """Where this run's outputs are, and the command that renders its model as videos (paths
+    in the commands shell-quoted, so a folder with spaces pastes as one argument)."""
     output = outcome.run.reports[-1]
     scene = outcome.scene
     downscale = f" --downscale {scene.downscale}" if scene.downscale != 1 else ""
+    root, scene_dir = shlex.quote(str(plan.artifacts_root)), shlex.quote(str(scene.root))
     lines = [
         "outputs:",
         f"  result       {result_path}",
-        f"  tensorboard  tensorboard --logdir {outcome.log_dir}",
+        f"  tensorboard  tensorboard --logdir {shlex.quote(str(outcome.log_dir))}",
         f"  model        {output.path}",
         f"  store        {plan.artifacts_root}  (python -m relaygs.artifacts --root ... ls)",
-        f"  videos       python -m relaygs.artifacts --root {plan.artifacts_root} render "
-        f"{output.key[:16]} --scene {scene.root}{downscale} --truth",
+        f"  videos       python -m relaygs.artifacts --root {root} render "
+        f"{output.key[:16]} --scene {scene_dir}{downscale} --truth",
     ]
     return "\n".join(lines)
