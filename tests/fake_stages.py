@@ -16,8 +16,11 @@ from relaygs.errors import InputError
 from relaygs.paths import config_dir
 from relaygs.pipeline import Artifact
 from relaygs.pipeline.dag import CanonicalFn
+from relaygs.stages.common import LOGGED_SCALARS, logged_scalars
 
 STAGE_TYPES = ("decouple", "relay", "replicate", "warmup", "deform")
+FAKE_CURVE = [[0, {"loss": 1.0}], [5, {"loss": 0.5}]]
+"""What every fake stage stores as the scalars it logged while it trained."""
 TINY_SCENE = ["scene.frames=3", "scene.width=16", "scene.height=9"]
 
 
@@ -51,6 +54,7 @@ class FakeStages:
             render_model=render_model,
             add_sink=self.sinks.append,
             remove_sink=self.sinks.remove,
+            logged_scalars=logged_scalars,
         )
 
     def ran(self, stage: str) -> int:
@@ -73,7 +77,8 @@ class FakeStages:
             score = sum(a.meta["score"] for a in upstream.values()) + _number(section)
             score += 0.01 * cfg["seed"]
             tensors = {"points": torch.full((10 + len(self.calls), 3), float(score))}
-            return Artifact(stage, tensors, {"score": score, "metrics": {"score": score}})
+            meta = {"score": score, "metrics": {"score": score}, LOGGED_SCALARS: FAKE_CURVE}
+            return Artifact(stage, tensors, meta)
 
         return build
 

@@ -185,6 +185,18 @@ def test_tensorboard_gets_stage_scalars_previews_and_hparams(base_config, tmp_pa
     assert "_hparams_/experiment" in plugins and "_hparams_/session_start_info" in plugins
 
 
+def test_a_job_that_reuses_stages_shows_their_curves_as_built(base_config, tmp_path):
+    fakes = FakeStages()
+    _run(_with(base_config, relay__k=8), tmp_path / "a", fakes)
+    _run(_with(base_config, relay__k=32), tmp_path / "b", fakes)  # decouple from the store
+    events = EventAccumulator(str(tmp_path / "b" / "tb"), size_guidance={"scalars": 0})
+    events.Reload()
+    # built here: the live record; reused: the curve the stage stored when it was built
+    assert [(e.step, e.value) for e in events.Scalars("relay/loss")] == [(0, 1.0)]
+    assert [(e.step, e.value) for e in events.Scalars("decouple/loss")] == [(0, 1.0), (5, 0.5)]
+    assert "decouple/render" not in events.Tags()["images"]  # images are not stored
+
+
 def test_bad_values_fail_before_any_stage_runs(base_config, tmp_path):
     fakes = FakeStages()
     for config, fragment in [

@@ -87,6 +87,9 @@ def test_resumed_run_ends_bitwise_equal_to_uninterrupted(
         assert torch.equal(resumed.tensors[key], tensor), key
     for key in ("initial_loss", "final_loss"):
         assert resumed.meta["metrics"][key] == whole.meta["metrics"][key]
+    # the curves before the kill come back from the checkpoint
+    assert resumed.meta["logged_scalars"] == whole.meta["logged_scalars"]
+    assert [step for step, _ in whole.meta["logged_scalars"]] == list(range(1, 21))
 
 
 def test_ctrl_c_names_the_step_and_the_checkpoint_a_rerun_resumes_from(
@@ -184,10 +187,11 @@ def test_sinks_receive_live_metrics(stage_scene: Scene, stage_relayed: Artifact)
     cfg = stage_smoke_cfg(train={"log_every": 4, "image_every": 8}, deform={"steps": 8})
     log.add_sink(sink)
     try:
-        STAGES["deform"](stage_scene, {"relay": stage_relayed}, cfg)
+        deformed = STAGES["deform"](stage_scene, {"relay": stage_relayed}, cfg)
     finally:
         log.remove_sink(sink)
     assert [step for _, step, _, _ in records] == [4, 8]
+    assert deformed.meta["logged_scalars"] == [[step, scalars] for _, step, scalars, _ in records]
     stage, _, scalars, images = records[-1]
     assert stage == "deform"
     for key in ("loss", "psnr", "num_bg", "num_fg", "fg_fraction", "lr/fg.means", "lr/grid"):
@@ -195,6 +199,28 @@ def test_sinks_receive_live_metrics(stage_scene: Scene, stage_relayed: Artifact)
     assert 0.0 < scalars["fg_fraction"] < 1.0
     assert records[0][3] is None
     assert images["render"].shape == images["target"].shape == (27, 48, 3)
+
+
+def test_a_resumed_run_sends_its_sinks_the_records_from_before_the_kill(
+    stage_scene: Scene, tmp_path: Path
+) -> None:
+    # a resumed job's TensorBoard would otherwise start its curves at the checkpoint
+    cfg = stage_smoke_cfg(train={"checkpoint_every": 2, "log_every": 1}, decouple={"steps": 6})
+    with pytest.raises(KilledError):
+        _run("decouple", stage_scene, {}, cfg, tmp_path, kill_at=5)
+    records = []
+
+    def sink(stage: str, step: int, scalars, images=None) -> None:
+        records.append((stage, step))
+
+    log.add_sink(sink)
+    try:
+        resumed = _run("decouple", stage_scene, {}, cfg, tmp_path)
+    finally:
+        log.remove_sink(sink)
+    assert resumed.meta["metrics"]["resumed_from"] == 4
+    assert records == [("decouple", step) for step in range(1, 7)]
+    assert [step for step, _ in resumed.meta["logged_scalars"]] == list(range(1, 7))
 
 
 def test_resumed_run_counts_the_seconds_before_the_kill(stage_scene: Scene, tmp_path: Path) -> None:

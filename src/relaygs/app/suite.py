@@ -16,13 +16,16 @@ from relaygs.pipeline.dag import CanonicalFn, StageFn
 
 LogSink = Callable[..., None]
 """Receives `(stage, step, scalars, images=None)` from the stages' `emit`."""
+ScalarRecord = tuple[int, dict[str, float]]
+"""A step and the scalars a stage logged at it."""
 
 
 @dataclass(frozen=True)
 class StageSuite:
     """Stage functions by type, their artifact schema versions, the canonical form of their
-    configs, config validation, evaluation, rendering, the log-sink hooks and the stage types
-    each stage type's upstream may have (see `relaygs.stages`; none listed: not checked)."""
+    configs, config validation, evaluation, rendering, the log-sink hooks, the stage types
+    each stage type's upstream may have (see `relaygs.stages`; none listed: not checked) and
+    the scalars an artifact's stage logged while it trained (none by default)."""
 
     stages: Mapping[str, StageFn]
     schema_versions: Mapping[str, int]
@@ -33,12 +36,14 @@ class StageSuite:
     add_sink: Callable[[LogSink], None]
     remove_sink: Callable[[LogSink], None]
     accepted_upstream: Mapping[str, Collection[str]] = field(default_factory=dict)
+    logged_scalars: Callable[[Artifact], list[ScalarRecord]] = lambda artifact: []
 
 
 def load_stage_suite() -> StageSuite:
     """The real stages from `relaygs.stages`."""
     from relaygs import stages
     from relaygs.stages import log
+    from relaygs.stages.common import logged_scalars
 
     return StageSuite(
         stages=stages.STAGES,
@@ -50,4 +55,5 @@ def load_stage_suite() -> StageSuite:
         add_sink=log.add_sink,
         remove_sink=log.remove_sink,
         accepted_upstream=stages.UPSTREAM,
+        logged_scalars=logged_scalars,
     )

@@ -125,6 +125,7 @@ def _execute(
             on_node_done=_announce,
             canonical=suite.canonical,
         )
+        _log_reused_stages(log, suite, run)
         evaluation = evaluate_through_store(
             store, scene, run, plan.eval_config, suite.evaluate, plan.on_corrupt
         )
@@ -139,6 +140,15 @@ def _execute(
         suite.remove_sink(log)
         log.close()
     return _Outcome(result, run, log.log_dir, scene)
+
+
+def _log_reused_stages(log: TensorBoardLog, suite: StageSuite, run: PipelineRun) -> None:
+    """Log the curves each stage reused from the store recorded when it was built, so every
+    job's TensorBoard shows its whole lineage, not only the stages it computed."""
+    for report in run.reports:
+        if report.cache_hit:
+            for step, scalars in suite.logged_scalars(run.artifacts[report.node]):
+                log(report.stage, step, scalars)
 
 
 def _announce(report: NodeReport) -> None:

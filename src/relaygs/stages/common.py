@@ -17,6 +17,9 @@ from relaygs.stages.scene_model import SceneModel
 from relaygs.stages.session import SetPlan, TrainingSession
 from relaygs.stages.train_settings import TrainSettings
 
+LOGGED_SCALARS = "logged_scalars"
+"""Artifact meta key of the scalars a stage emitted while it trained (`ScalarHistory`)."""
+
 # 3DGS / 4D-GS per-parameter learning rates (positions × scene extent).
 GAUSSIAN_LR: dict[str, Any] = {
     "means": {"init": 1.6e-4, "final": 1.6e-6},
@@ -127,9 +130,18 @@ def stage_meta(
     """Artifact metadata: schema, config echo, metrics (train report + stage counts), extras."""
     all_metrics = dict(report.metrics()) if report is not None else {}
     all_metrics.update(metrics)
+    history = [[step, scalars] for step, scalars in report.history] if report is not None else []
     return {
         "schema": schema,
         "config": {"section": json_ready(section), "train": json_ready(train)},
         "metrics": json_ready(all_metrics),
+        LOGGED_SCALARS: history,
         **json_ready(extra),
     }
+
+
+def logged_scalars(artifact: Artifact) -> list[tuple[int, dict[str, float]]]:
+    """The (step, scalars) records a stage emitted while it trained, from its artifact's meta
+    (none for a stage that does not train, or an artifact stored before they were kept)."""
+    records = artifact.meta.get(LOGGED_SCALARS, [])
+    return [(int(step), dict(scalars)) for step, scalars in records]

@@ -3,10 +3,11 @@ progress bar, and in-stage checkpoints (resume where a killed build stopped)."""
 
 from __future__ import annotations
 
+import math
 import time
 from collections import deque
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 
 from torch import Tensor
 
@@ -45,6 +46,7 @@ class TrainReport:
     train_seconds: float
     run_seconds: float
     resumed_from: int
+    history: list[ScalarRecord] = field(default_factory=list)
 
     def metrics(self) -> dict[str, float | int | None]:
         """As JSON-ready artifact metrics."""
@@ -84,6 +86,33 @@ class LossTracker:
         self.recent.extend(state["recent"])
 
 
+ScalarRecord = tuple[int, dict[str, float]]
+"""One emitted record's step and scalars."""
+
+
+class ScalarHistory:
+    """Every record of scalars a stage emitted, kept in its artifact's meta
+    (`common.LOGGED_SCALARS`) and its in-stage checkpoints, so a run that reuses or resumes the
+    stage shows its whole curves too. Non-finite values are left out (JSON has no NaN)."""
+
+    def __init__(self) -> None:
+        """Start with no records."""
+        self.records: list[ScalarRecord] = []
+
+    def add(self, step: int, scalars: Mapping[str, float]) -> None:
+        """Record one emitted step."""
+        finite = {name: float(value) for name, value in scalars.items() if math.isfinite(value)}
+        self.records.append((step, finite))
+
+    def state(self) -> list[list]:
+        """JSON-ready state (for checkpoints and artifact meta): `[[step, {name: value}], ...]`."""
+        return [[step, dict(scalars)] for step, scalars in self.records]
+
+    def load_state(self, state: list[list]) -> None:
+        """Restore what `state` returned."""
+        self.records = [(int(step), dict(scalars)) for step, scalars in state]
+
+
 CountsFn = Callable[[], tuple[int, int]]
 
 
@@ -103,13 +132,17 @@ def run_training(
     build = current_build()
     checkpointer = build.checkpointer(train.checkpoint_every) if build is not None else None
     tracker = LossTracker(max(1, min(LOSS_WINDOW, steps // 4)))
+    history = ScalarHistory()
     start, previous_seconds = 0, 0.0
     state = checkpointer.load() if checkpointer is not None else None
     if state is not None:
         session.restore(state)
         start = state.step
         tracker.load_state(state.extras["losses"])
+        history.load_state(state.extras.get("history", []))  # older checkpoints have none
         previous_seconds = float(state.extras["seconds"])
+        for step, scalars in history.records:  # this run's sinks see the steps before the kill
+            log.emit(stage, step, scalars)
     began = time.perf_counter()
     bar = progress_bar(
         total=steps, initial=start, desc=stage, disable=not train.progress, leave=False
@@ -127,6 +160,7 @@ def run_training(
         images = _images(result, train, step)
         if step % train.log_every == 0 or step == steps or images is not None:
             scalars = _scalars(loss, result, rates, counts)
+            history.add(step, scalars)
             log.emit(stage, step, scalars, images)
             bar.set_postfix(loss=f"{loss:.4f}", psnr=f"{scalars['psnr']:.2f}", refresh=False)
         if checkpointer is not None and checkpointer.due(step):
@@ -136,7 +170,7 @@ def run_training(
                 step,
                 session.state_tensors(),
                 session.optimizers(),
-                {"losses": tracker.state(), "seconds": seconds},
+                {"losses": tracker.state(), "seconds": seconds, "history": history.state()},
             )
         bar.update(1)
 
@@ -157,6 +191,7 @@ def run_training(
         train_seconds=previous_seconds + run_seconds,
         run_seconds=run_seconds,
         resumed_from=start,
+        history=history.records,
     )
 
 
