@@ -165,7 +165,7 @@ def _write_csv(table: pd.DataFrame, path: Path) -> None:
     publish_text(path, table.convert_dtypes().to_csv(index=False))
 
 
-def _title(table, sweep_dir: Path) -> str:
+def _title(table: pd.DataFrame, sweep_dir: Path) -> str:
     """'<experiment> on <scene>' when the jobs agree, else the folder name."""
     experiments = {e for e in table.get("experiment", []) if isinstance(e, str)}
     scenes = {s for s in table.get("scene", []) if isinstance(s, str)}

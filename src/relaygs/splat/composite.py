@@ -226,7 +226,9 @@ def _from_tiles(tiles: torch.Tensor, bins: TileBins, height: int, width: int) ->
     return image[:, :height, :width]
 
 
-def _pack(means2d, conics, opacities, bounds) -> torch.Tensor:
+def _pack(
+    means2d: torch.Tensor, conics: torch.Tensor, opacities: torch.Tensor, bounds: torch.Tensor
+) -> torch.Tensor:
     """[C·N, 10] table of everything a pair needs (box bounds are exact small integers)."""
     c, n = opacities.shape
     return torch.cat(
