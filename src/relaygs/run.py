@@ -29,7 +29,7 @@ from relaygs.app.result import RESULT_FILE, error_line
 from relaygs.app.suite import StageSuite, load_stage_suite
 from relaygs.app.task import run_task
 from relaygs.device import usable_device
-from relaygs.errors import RelayGSError
+from relaygs.errors import RERUN_RUN, RelayGSError
 from relaygs.paths import config_dir
 
 INTERRUPTED_EXIT = 130  # the shell's status for a command stopped by Ctrl-C (128 + SIGINT)
@@ -40,7 +40,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Check the command line, then hand it to Hydra; bad input exits 1 with one line, and so
     does a sweep with a failed job once its summary is written (`SweepSummary`)."""
     args = list(sys.argv[1:] if argv is None else argv)
-    terminated = []
+    terminated, launched = [], []
 
     def stop_like_ctrl_c(signum: int, frame: object) -> None:
         terminated.append(signum)
@@ -55,17 +55,27 @@ def main(argv: Sequence[str] | None = None) -> int:
         # Hydra takes flags only before the overrides: `seed=0 -m k=1,2` goes as `-m seed=0 k=1,2`
         flags = [arg for arg in args if arg in LAUNCH_FLAGS]
         sys.argv = [sys.argv[0], *flags, *(arg for arg in args if arg not in LAUNCH_FLAGS)]
+        launched.append(True)
         hydra.main(version_base="1.3", config_path=str(conf), config_name="config")(run_job)()
     except RelayGSError as error:  # the command line (a job's own errors end in run_job)
         print(f"error: {error}", file=sys.stderr)
         return 1
     except KeyboardInterrupt as stop:
-        print(f"interrupted: {stop}" if str(stop) else "interrupted", file=sys.stderr)
+        print(_interrupted_line(stop, bool(launched)), file=sys.stderr)
         return TERMINATED_EXIT if terminated else INTERRUPTED_EXIT
     finally:
         signal.signal(signal.SIGTERM, previous)
         GlobalHydra.instance().clear()
     return 0
+
+
+def _interrupted_line(stop: KeyboardInterrupt, launched: bool) -> str:
+    """The line a stopped command ends with: the stage's own account of where it stopped, else
+    (a parallel launcher's workers cannot report theirs) what running it again does, once jobs
+    had started."""
+    if str(stop):
+        return f"interrupted: {stop}"
+    return f"interrupted: {RERUN_RUN}" if launched else "interrupted"
 
 
 def _job_validator(suite: StageSuite) -> JobValidator:
