@@ -68,6 +68,10 @@ def test_topological_order_puts_upstreams_first_whatever_the_file_order(tmp_path
         ("nodes:\n  a: {stage: decouple, inputs: []}\n", r"unknown field\(s\) \['inputs'\]"),
         ("nodes:\n  a: {upstream: []}\n", "'stage' must be a stage type name"),
         ("nodes:\n  a: {stage: relay, upstream: b}\n", "'upstream' must be a list"),
+        (
+            "nodes:\n  a: {stage: decouple}\n  b: {stage: relay, upstream: [a, a]}\n",
+            r"node 'b': 'upstream' lists a node twice: \['a', 'a'\]",
+        ),
         ("nodes: {}\n", "'nodes' must be a non-empty mapping"),
         ("- a\n- b\n", "expected a mapping with 'nodes'"),
         ("nodes: [unclosed\n", "cannot read pipeline"),
@@ -96,7 +100,10 @@ ACCEPTS = {"decouple": (), "relay": ("decouple",), "deform": ("relay", "warmup")
             "nodes:\n  a: {stage: decouple}\n  b: {stage: decouple, upstream: [a]}\n",
             "node 'b' \\(stage 'decouple'\\) reads no upstream node .*got node 'a'",
         ),
-        ("nodes:\n  a: {stage: deform}\n", "reads one upstream node of stage type relay or warmup"),
+        (
+            "nodes:\n  a: {stage: deform}\n",
+            "reads one upstream node of stage type relay or warmup .*got none$",
+        ),
         (
             "nodes:\n  a: {stage: warmup}\n  b: {stage: decouple}\n"
             "  c: {stage: deform, upstream: [a, b]}\n",

@@ -167,6 +167,12 @@ def _flip_first_idat_byte(data: bytes) -> bytes:
     return data[:at] + bytes([data[at] ^ 0xFF]) + data[at + 1 :]
 
 
+def _cut_in_the_first_idat_crc(data: bytes) -> bytes:
+    start = data.index(b"IDAT") - 4
+    length = int.from_bytes(data[start : start + 4], "big")
+    return data[: start + 8 + length + 2]  # its data whole, two of its four CRC bytes
+
+
 @pytest.mark.parametrize(
     ("name", "damage", "reason"),
     [
@@ -175,8 +181,9 @@ def _flip_first_idat_byte(data: bytes) -> bytes:
         ("ims/7/000003.png", lambda data: data[:33], "no IEND chunk"),
         ("ims/7/000003.png", lambda data: data[:33] + data[-12:], "no IDAT image data"),
         ("seg/7/000003.png", _cut_to_60_percent, "chunk IDAT is cut short"),
+        ("ims/7/000003.png", _cut_in_the_first_idat_crc, "chunk IDAT is cut short: truncated"),
     ],
-    ids=["truncated", "flipped byte", "header only", "no IDAT", "truncated mask"],
+    ids=["truncated", "flipped byte", "header only", "no IDAT", "truncated mask", "cut in a CRC"],
 )
 def test_damaged_png_is_refused_when_the_scene_loads(
     tiny_synth_copy: Path, name: str, damage: Callable[[bytes], bytes], reason: str
@@ -222,6 +229,20 @@ def test_jpeg_size_walks_to_the_end_marker(variant: str):
     for cut in (len(jpeg) - 2, len(jpeg) * 6 // 10, 40):
         with pytest.raises(InputError, match=r"a\.jpg: damaged image file \(no JPEG end marker"):
             image_size(jpeg[:cut], Path("a.jpg"))
+
+
+def test_a_fill_byte_before_a_jpeg_marker_is_skipped_as_libjpeg_does():
+    pixels = np.random.default_rng(0).integers(0, 256, (24, 40, 3), dtype=np.uint8)
+    jpeg = cv2.imencode(".jpg", pixels)[1].tobytes()
+    frame = jpeg.index(b"\xff\xc0")
+    filled = jpeg[:frame] + b"\xff" + jpeg[frame:]  # one fill byte before the frame header
+    assert cv2.imdecode(np.frombuffer(filled, np.uint8), cv2.IMREAD_COLOR).shape == (24, 40, 3)
+    assert image_size(filled, Path("a.jpg")) == (40, 24)
+
+
+def test_a_jpeg_whose_frame_header_is_cut_short_has_no_size():
+    with pytest.raises(InputError, match="no JPEG frame header found"):
+        image_size(b"\xff\xd8\xff\xc0\x00\x02\xff\xd9", Path("a.jpg"))
 
 
 def test_empty_point_cloud(tiny_synth_copy: Path):
@@ -304,6 +325,20 @@ def test_unknown_effect_in_scene_json(tiny_synth_copy: Path):
     declaration["effects"] = ["nonrigid", "glitter"]
     path.write_text(json.dumps(declaration))
     _expect(tiny_synth_copy, "scene.json", "unknown effect 'glitter'")
+
+
+@pytest.mark.parametrize("effects", ["nonrigid", {"nonrigid": True}, None])
+def test_effects_in_scene_json_that_are_not_a_list(tiny_synth_copy: Path, effects):
+    path = tiny_synth_copy / "scene.json"
+    declaration = json.loads(path.read_text())
+    declaration["effects"] = effects
+    path.write_text(json.dumps(declaration))
+    _expect(tiny_synth_copy, "scene.json: field 'effects' must be a list of effect names")
+
+
+def test_a_scene_without_scene_json_declares_no_effects(tiny_synth_copy: Path):
+    (tiny_synth_copy / "scene.json").unlink()
+    assert load_scene(tiny_synth_copy).effects == frozenset()
 
 
 @pytest.mark.parametrize(

@@ -112,6 +112,13 @@ def test_bad_input_is_one_line_before_any_work(fakes, tmp_path, capsys, args, fr
     assert list(tmp_path.iterdir()) == []  # no run dir, no store, no scene
 
 
+def test_only_an_override_line_with_non_ascii_characters_gets_the_quoting_hint(fakes, capsys):
+    assert _main(["relay.k=[1,"]) == 1
+    assert "need quotes" not in capsys.readouterr().err
+    assert _main(["relay.k=8", "paths.outputs=/tmp/scène"]) == 1
+    assert "need quotes around the value" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize(
     ("override", "fragment"),
     [

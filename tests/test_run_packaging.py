@@ -29,12 +29,16 @@ def test_an_installed_copy_ignores_a_conf_folder_beside_its_install_dir(monkeypa
     _install(monkeypatch, tmp_path / "app" / "lib" / "relaygs")  # pip install --target app/lib
     _foreign_conf(tmp_path / "app")
     assert paths.config_dir() == tmp_path / "app" / "lib" / "relaygs" / "_data" / "conf"
+    (tmp_path / "app" / "pyproject.toml").write_text('[project]\nname = "relaygs"\n')
+    assert paths.config_dir() == tmp_path / "app" / "lib" / "relaygs" / "_data" / "conf"
 
 
 def test_a_checkout_uses_its_own_conf_folder(monkeypatch, tmp_path):
     _install(monkeypatch, tmp_path / "repo" / "src" / "relaygs")
     _foreign_conf(tmp_path / "repo")
     assert paths.config_dir() == paths.PACKAGED_DATA_DIR / "conf"  # no relaygs pyproject.toml
+    (tmp_path / "repo" / "pyproject.toml").write_text('[project]\nname = "otherapp"\n')
+    assert paths.config_dir() == paths.PACKAGED_DATA_DIR / "conf"  # another project's
     (tmp_path / "repo" / "pyproject.toml").write_text('[project]\nname = "relaygs"\n')
     assert paths.config_dir() == tmp_path / "repo" / "conf"
 

@@ -2,6 +2,7 @@
 pipeline files' per-node `overrides`."""
 
 import copy
+import shutil
 
 import pytest
 from omegaconf import OmegaConf
@@ -9,7 +10,9 @@ from omegaconf import OmegaConf
 from fake_stages import STAGE_TYPES, compose_config, validate_config
 from relaygs.app.plan import merge_overrides, plan_run, scale_steps
 from relaygs.errors import InputError
+from relaygs.paths import pipelines_dir
 from relaygs.pipeline import artifact_key, key_config, load_pipeline
+from relaygs.pipeline import spec as spec_module
 
 
 @pytest.fixture(scope="module")
@@ -160,6 +163,8 @@ def test_pipeline_overrides_must_be_a_mapping_of_names(tmp_path, value):
     [
         ({}, r"pipeline.name: expected the name of a pipelines/<name>.yaml, got None \(each"),
         ({"name": None}, "pipeline.name: expected the name"),
+        ({"name": ""}, "pipeline.name: expected the name of a pipelines/<name>.yaml, got ''"),
+        ({"name": True}, "pipeline.name: expected the name of a pipelines/<name>.yaml, got True"),
         ("4dgs", "pipeline: expected a config section .* or in an experiment file with `defaults"),
     ],
 )
@@ -176,6 +181,16 @@ def test_an_experiment_without_its_package_line_says_so(config):
     config = {**copy.deepcopy(config), "experiment": {"variant": "x", "hydra": {}}}
     with pytest.raises(InputError, match=r"must start with the line `# @package _global_`"):
         plan_run(config, STAGE_TYPES, validate_config)
+    with pytest.raises(InputError, match=r"'experiment' \(holding \['hydra', 'variant'\]\)"):
+        plan_run(config, STAGE_TYPES, validate_config)
+
+
+def test_a_pipeline_name_yaml_reads_as_a_number_names_its_file(config, tmp_path, monkeypatch):
+    # `name: 2024` in conf/pipeline/2024.yaml is an integer once YAML has read it
+    shutil.copy(pipelines_dir() / "4dgs.yaml", tmp_path / "2024.yaml")
+    monkeypatch.setattr(spec_module, "pipelines_dir", lambda: tmp_path)
+    config = {**copy.deepcopy(config), "pipeline": {"name": 2024}}
+    assert plan_run(config, STAGE_TYPES, validate_config).pipeline.name == "2024"
 
 
 def test_a_pipeline_whose_stage_does_not_read_its_upstream_fails_in_the_plan(config, tmp_path):

@@ -17,9 +17,10 @@ from relaygs.app import task as task_module
 from relaygs.app.evaluation import evaluation_config
 from relaygs.app.result import NO_TEST_VIEWS, RESULT_FILE, format_summary, write_result
 from relaygs.app.task import run_task
-from relaygs.app.tensorboard import flatten_config
+from relaygs.app.tensorboard import TensorBoardLog, flatten_config
 from relaygs.errors import InputError
 from relaygs.pipeline import ArtifactStore, CorruptArtifactError
+from relaygs.stages import UPSTREAM
 
 REQUIRED_FIELDS = {
     "pipeline",
@@ -197,6 +198,42 @@ def test_a_job_that_reuses_stages_shows_their_curves_as_built(base_config, tmp_p
     assert "decouple/render" not in events.Tags()["images"]  # images are not stored
 
 
+def test_reused_curves_are_logged_under_the_stage_type_whatever_the_node_is_called(
+    base_config, tmp_path
+):
+    # the live records of a stage are tagged `<stage type>/...`; its stored ones must match
+    pipeline = tmp_path / "renamed.yaml"
+    pipeline.write_text(
+        "nodes:\n  first: {stage: decouple}\n  second: {stage: relay, upstream: [first]}\n"
+        "  model: {stage: deform, upstream: [second]}\n"
+    )
+    fakes = FakeStages()
+    config = _with(base_config, pipeline__name=str(pipeline))
+    _run(_with(config, relay__k=8), tmp_path / "a", fakes)
+    _run(_with(config, relay__k=32), tmp_path / "b", fakes)
+    events = EventAccumulator(str(tmp_path / "b" / "tb"), size_guidance={"scalars": 0})
+    events.Reload()
+    assert [(e.step, e.value) for e in events.Scalars("decouple/loss")] == [(0, 1.0), (5, 0.5)]
+    assert not any(tag.startswith("first/") for tag in events.Tags()["scalars"])
+
+
+def test_the_suites_upstream_types_are_checked_before_any_stage_runs(base_config, tmp_path):
+    pipeline = tmp_path / "wrong.yaml"
+    pipeline.write_text("nodes:\n  a: {stage: warmup}\n  b: {stage: relay, upstream: [a]}\n")
+    fakes = FakeStages()
+    suite = dataclasses.replace(fakes.suite(), accepted_upstream=UPSTREAM)
+    config = _with(base_config, pipeline__name=str(pipeline))
+    with pytest.raises(InputError, match=r"node 'b' \(stage 'relay'\) reads one upstream node"):
+        run_task(config, run_dir=tmp_path / "run", original_cwd=tmp_path, suite=suite)
+    assert fakes.calls == []
+
+
+def test_the_printed_render_command_keeps_the_scenes_downscale(base_config, tmp_path, capsys):
+    _run(_with(base_config, scene__loader__downscale=2), tmp_path / "run", FakeStages())
+    videos = next(line for line in capsys.readouterr().out.splitlines() if "videos" in line)
+    assert videos.endswith(" --downscale 2 --truth")
+
+
 def test_bad_values_fail_before_any_stage_runs(base_config, tmp_path):
     fakes = FakeStages()
     for config, fragment in [
@@ -250,6 +287,18 @@ def test_a_gc_removing_the_model_while_it_is_evaluated_does_not_fail_the_run(
     monkeypatch.setattr(fakes, "_evaluate", evaluate_while_gc_runs)
     result = _run(base_config, tmp_path / "a", fakes)
     assert result["status"] == "ok" and result["storage_mb"] == recorded[0] > 0
+
+
+def test_hparams_metrics_of_zero_are_logged_and_missing_ones_skipped(tmp_path):
+    # a job that reused every stage computed for 0 s; a metric it could not measure is None
+    log = TensorBoardLog(tmp_path / "tb")
+    log.add_hparams({"relay.k": 8}, {"psnr": 25.0, "train_s_computed": 0.0, "lpips": None})
+    log.close()
+    events = EventAccumulator(str(tmp_path / "tb"))
+    events.Reload()
+    logged = {tag for tag in events.Tags()["scalars"] if tag.startswith("result/")}
+    assert logged == {"result/psnr", "result/train_s_computed"}
+    assert [event.value for event in events.Scalars("result/train_s_computed")] == [0.0]
 
 
 def test_hparams_flatten_to_dotted_keys_with_none_as_text():

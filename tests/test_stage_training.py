@@ -3,6 +3,7 @@ nothing, live metrics reach the log sinks."""
 
 from __future__ import annotations
 
+import json
 import math
 import re
 from pathlib import Path
@@ -20,6 +21,8 @@ from relaygs.pipeline.context import BuildContext, building
 from relaygs.pipeline.store import ArtifactStore
 from relaygs.stages import STAGES, log
 from relaygs.stages import relay as relay_module
+from relaygs.stages.common import logged_scalars
+from relaygs.stages.loop import ScalarHistory
 from relaygs.stages.loss import batch_psnr, photometric_loss
 from relaygs.stages.session import TrainingSession
 
@@ -223,6 +226,30 @@ def test_a_resumed_run_sends_its_sinks_the_records_from_before_the_kill(
     assert [step for step, _ in resumed.meta["logged_scalars"]] == list(range(1, 7))
 
 
+def test_a_checkpoint_from_before_scalars_were_kept_still_resumes(
+    stage_scene: Scene, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # an in-stage checkpoint written by an older relaygs holds no "history"
+    cfg = stage_smoke_cfg(train={"checkpoint_every": 2, "log_every": 1}, decouple={"steps": 6})
+    with pytest.raises(KilledError):
+        _run("decouple", stage_scene, {}, cfg, tmp_path, kill_at=5)
+    real_load = StageCheckpointer.load
+
+    def load_an_older_checkpoint(self):
+        state = real_load(self)
+        del state.extras["history"]
+        return state
+
+    monkeypatch.setattr(StageCheckpointer, "load", load_an_older_checkpoint)
+    resumed = _run("decouple", stage_scene, {}, cfg, tmp_path)
+    assert resumed.meta["metrics"]["resumed_from"] == 4
+    assert [step for step, _ in logged_scalars(resumed)] == [5, 6]
+
+
+def test_an_artifact_stored_before_scalars_were_kept_has_none() -> None:
+    assert logged_scalars(Artifact("decouple", {}, {"metrics": {}})) == []
+
+
 def test_resumed_run_counts_the_seconds_before_the_kill(stage_scene: Scene, tmp_path: Path) -> None:
     cfg = stage_smoke_cfg(train={"checkpoint_every": 2, "log_every": 1}, decouple={"steps": 6})
     with pytest.raises(KilledError):
@@ -257,3 +284,14 @@ def test_batch_psnr_clamps_renders_to_the_displayable_range() -> None:
     target = torch.full((4, 5, 3), 0.5)
     over = torch.full((4, 5, 3), 1.5)  # shown as 1.0: squared error 0.25 -> 10·log10(4) dB
     assert batch_psnr([over], [target]) == pytest.approx(10 * math.log10(4.0), rel=1e-5)
+
+
+def test_kept_scalars_leave_out_values_json_cannot_hold() -> None:
+    # a view rendered exactly has an infinite PSNR; artifact meta and checkpoints are JSON
+    history = ScalarHistory()
+    history.add(3, {"loss": 0.0, "psnr": math.inf, "fg_fraction": math.nan, "lr/grid": 1e-3})
+    assert history.state() == [[3, {"loss": 0.0, "lr/grid": 1e-3}]]
+    json.dumps(history.state(), allow_nan=False)
+    restored = ScalarHistory()
+    restored.load_state(json.loads(json.dumps(history.state())))
+    assert restored.records == history.records

@@ -68,6 +68,8 @@ def test_cache_hit_does_not_rebuild_and_reports_recorded_seconds(tmp_path):
     assert fake.calls == 1
     assert not first.cache_hit and second.cache_hit
     assert second.wall_seconds == first.wall_seconds
+    # the size a job reports comes from here, not from a second read of a store gc may change
+    assert second.size_mb == first.size_mb == store.manifest("decouple", KEY).size_mb > 0
     assert torch.equal(loaded.tensors["xyz"], built.tensors["xyz"])
     assert loaded.meta == built.meta
 
@@ -136,6 +138,9 @@ def test_missing_and_malformed_requests_fail_clearly(tmp_path):
     assert fake.calls == 0
     with pytest.raises(InputError, match="labelled 'relay'"):
         store.get_or_build("decouple", KEY, CountingStage("relay"), config={}, lineage=[])
+    assert not store.has("decouple", KEY)
+    with pytest.raises(InputError, match="stage 'decouple' returned a dict, expected an Artifact"):
+        store.get_or_build("decouple", KEY, lambda: {"x": 1}, config={}, lineage=[])
     assert not store.has("decouple", KEY)
 
 

@@ -92,6 +92,26 @@ def test_gc_passes_over_an_entry_another_process_removed_after_gc_listed_it(
     assert store.has("decouple", KEY) and store.verify() == []
 
 
+def test_gc_keeps_an_incomplete_folder_whose_build_finished_after_gc_listed_it(
+    tmp_path, monkeypatch
+):
+    store = _store_with(tmp_path, KEY)
+    path = store.root / "decouple" / OTHER
+    path.mkdir()  # OTHER's build is under way in another process, its folder not sealed yet
+    real_is_garbage = gc_module._is_garbage
+
+    def the_build_finishes_before_gc_locks_it(candidate, key, kept):
+        garbage = real_is_garbage(candidate, key, kept)
+        if garbage and candidate == path and not store.has("decouple", OTHER):
+            store.get_or_build("decouple", OTHER, CountingBuild(), config={}, lineage=[])
+        return garbage
+
+    monkeypatch.setattr(gc_module, "_is_garbage", the_build_finishes_before_gc_locks_it)
+    report = store.gc()
+    assert path not in report.removed
+    assert store.has("decouple", OTHER) and store.verify() == []
+
+
 @pytest.mark.parametrize("command", ["verify", "ls"])
 def test_an_artifact_gc_removes_while_it_is_read_is_not_reported_damaged(
     tmp_path, monkeypatch, command
@@ -112,6 +132,29 @@ def test_an_artifact_gc_removes_while_it_is_read_is_not_reported_damaged(
         problems = store.damaged()
     assert problems == []
     assert [item.key for item in store.list()] == [KEY]
+
+
+def test_a_damaged_artifact_a_rebuild_replaces_while_verify_reads_it_is_checked_again(
+    tmp_path, monkeypatch
+):
+    store = _store_with(tmp_path, KEY)
+    tensors = store.path("decouple", KEY) / "tensors.safetensors"
+    data = bytearray(tensors.read_bytes())
+    data[-1] ^= 0xFF  # damaged: verify would report it
+    tensors.write_bytes(bytes(data))
+    real_sha256 = integrity_module.file_sha256
+    rebuilt = []
+
+    def a_rebuild_replaces_it_once_read(path):
+        digest = real_sha256(path)
+        if path == tensors and not rebuilt:  # the damaged bytes are read, not yet reported
+            rebuilt.append(True)
+            store.get_or_build("decouple", KEY, CountingBuild(), config={}, lineage=[])
+        return digest
+
+    monkeypatch.setattr(integrity_module, "file_sha256", a_rebuild_replaces_it_once_read)
+    assert store.verify() == []  # what it reports is the folder now there, which is sound
+    assert rebuilt
 
 
 @pytest.mark.parametrize("on_corrupt", ["rebuild", "error"])

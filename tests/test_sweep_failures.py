@@ -118,6 +118,11 @@ ENVIRONMENT_FAILURES = [
         "stage relay: cannot write /store/relay (Permission denied): make it writable, then",
         id="permission",
     ),
+    pytest.param(
+        PermissionError(errno.EPERM, "Operation not permitted", "/store/relay"),
+        "stage relay: cannot write /store/relay (Operation not permitted): make it writable",
+        id="not-permitted",
+    ),
     pytest.param(MemoryError(), "stage relay: out of memory: free memory", id="memory-error"),
     pytest.param(
         RuntimeError("DefaultCPUAllocator: can't allocate memory: you tried to allocate 8 bytes"),
