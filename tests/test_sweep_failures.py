@@ -73,6 +73,7 @@ def test_a_failing_job_leaves_a_summary_of_the_sweep_and_exit_status_1(
 def test_a_sweep_in_a_folder_of_an_earlier_one_names_its_jobs_and_skips_its_failures(
     monkeypatch, tmp_path, capsys
 ):
+    monkeypatch.chdir(tmp_path)  # the store and scenes go under ./outputs, not the repo's
     fakes = FakeStages(fail_when=_relay_k_is(16))
     monkeypatch.setattr(run_module, "load_stage_suite", fakes.suite)
     monkeypatch.setattr(run_module, "run_task", functools.partial(run_task, suite=fakes.suite()))
