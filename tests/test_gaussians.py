@@ -93,7 +93,7 @@ def test_sh_degree_schedule_and_colors() -> None:
     g = random_set(3)
     counts = {}
     for step in (0, 999, 1000, 2500, 3000, 9000):
-        g.update_sh_degree(step)
+        g.active_sh_degree = sh_degree_for_step(step, g.max_sh_degree)
         counts[step] = g.colors().shape[1]
     assert counts == {0: 1, 999: 1, 1000: 4, 2500: 9, 3000: 16, 9000: 16}
     assert sh_degree_for_step(500, 2, every=100) == 2

@@ -160,18 +160,6 @@ class GaussianSet:
         self._buffers[name] = values.detach().clone()
         return self._buffers[name]
 
-    def set_buffer(self, name: str, values: Tensor) -> None:
-        """Replace the values of an existing buffer (same leading dim N)."""
-        if name not in self._buffers:
-            raise InputError(f"GaussianSet: no buffer {name!r}; have {sorted(self._buffers)}")
-        _check_rows(values, name, len(self))
-        self._buffers[name] = values.detach().clone()
-
-    def update_sh_degree(self, step: int, every: int = 1000) -> int:
-        """Set and return the active SH degree for `step` (one more per `every` steps)."""
-        self.active_sh_degree = sh_degree_for_step(step, self.max_sh_degree, every)
-        return self.active_sh_degree
-
     @property
     def means(self) -> nn.Parameter:
         """Gaussian centres [N,3] (world units)."""

@@ -24,7 +24,6 @@ from relaygs.splat.tiles import TileBins
 
 ALPHA_MAX = 0.99
 T_MIN = 1e-4
-LOG_T_MIN = math.log(T_MIN)
 # Power given to pixels outside a Gaussian's box.
 OUTSIDE_POWER = 1e30
 # Powers are clamped here before exp: o·exp(−40) < 1/255 for any o <= 1, and exp stays
