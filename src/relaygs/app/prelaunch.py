@@ -77,6 +77,22 @@ def check_command_line(argv: Sequence[str], conf_dir: Path, validate: JobValidat
     check to Hydra.
     """
     flags = [arg for arg in argv if arg.startswith("-")]
+    modes = _chosen_modes(flags)
+    if "--shell-completion" in modes or any(
+        flag.split("=")[0] in CONFIG_LOCATION_FLAGS for flag in flags
+    ):
+        return  # `-sc install=bash` is Hydra's own command, not an override
+    if any(flag not in LAUNCH_FLAGS for flag in flags):
+        _check_printing_command([arg for arg in argv if _is_override(arg)], conf_dir)
+        return
+    _check_launching_command(
+        [arg for arg in argv if not arg.startswith("-")], conf_dir, "--multirun" in modes, validate
+    )
+
+
+def _chosen_modes(flags: Sequence[str]) -> list[str]:
+    """The long names of the mode flags given (--run, --multirun, --cfg ...); more than one
+    is refused, as Hydra takes one."""
     modes = sorted(
         {MODE_FLAGS[name] for name in (f.split("=")[0] for f in flags) if name in MODE_FLAGS}
     )
@@ -85,21 +101,21 @@ def check_command_line(argv: Sequence[str], conf_dir: Path, validate: JobValidat
             f"{' and '.join(modes)} cannot be combined: Hydra takes one of "
             f"{', '.join(dict.fromkeys(MODE_FLAGS.values()))}"
         )
-    if "--shell-completion" in modes or any(
-        flag.split("=")[0] in CONFIG_LOCATION_FLAGS for flag in flags
-    ):
-        return  # `-sc install=bash` is Hydra's own command, not an override
-    if any(flag not in LAUNCH_FLAGS for flag in flags):
-        _check_printing_command([arg for arg in argv if _is_override(arg)], conf_dir)
-        return
-    args = [arg for arg in argv if not arg.startswith("-")]
+    return modes
+
+
+def _check_launching_command(
+    args: list[str], conf_dir: Path, multirun_flag: bool, validate: JobValidator
+) -> None:
+    """Every job a running command would launch composes and passes `validate`, a remote
+    launcher's submit commands exist, and the run (sweep) folder can be written."""
     overrides = _parse(args)
     check_group_choices(overrides, conf_dir)
     with initialize_config_dir(config_dir=str(conf_dir), version_base="1.3", job_name="run"):
         plain = [o.input_line for o in overrides if not o.is_sweep_override()]
         hydra_cfg = _compose(plain, with_hydra=True).hydra
         # --run does not override a config's `hydra.mode: MULTIRUN`; --multirun does
-        multirun = "--multirun" in modes or hydra_cfg.mode == RunMode.MULTIRUN
+        multirun = multirun_flag or hydra_cfg.mode == RunMode.MULTIRUN
         launcher = hydra_cfg.launcher.get("_target_")
         runs_here = not multirun or launcher not in REMOTE_LAUNCHERS
         if not runs_here:
