@@ -167,6 +167,15 @@ def test_schedule_and_size_pruning_after_first_reset() -> None:
     assert controller.step(20) is None
 
 
+def test_size_pruning_from_the_first_densification_when_resets_are_off() -> None:
+    g = make_set([SMALL_LOG_SCALE] * 3 + [math.log(0.5)])
+    settings = DensifySettings(
+        densify_from=0, densify_every=2, densify_until=20, opacity_reset_every=0
+    )
+    report = DensityController(g, settings, 1.0).step(2)
+    assert report.pruned == 1 and not report.opacity_reset and len(g) == 3
+
+
 def test_screen_radius_pruning_when_enabled() -> None:
     g = make_set([SMALL_LOG_SCALE] * 3)
     controller = DensityController(g, DensifySettings(max_screen_radius=20.0), 1.0)

@@ -22,7 +22,7 @@ GARDEN_PATH = Path(__file__).resolve().parents[3] / "shared" / "data" / "test_ga
 
 
 def random_case(n: int, seed: int = 0, size: int = 256) -> dict:
-    """The issue's random recipe: N Gaussians in front of one camera at the origin."""
+    """The random benchmark scene: N Gaussians in front of one camera at the origin."""
     gen = torch.Generator().manual_seed(seed)
     means = torch.empty(n, 3)
     means[:, :2] = torch.rand(n, 2, generator=gen) * 2 - 1

@@ -54,7 +54,8 @@ class ReportFiles:
 
 
 def write_reports(sweep_dir: Path) -> ReportFiles:
-    """Collect the sweep's results and write the table (CSV, Markdown) and the Pareto plot."""
+    """Collect the sweep's results and write the table (CSV, Markdown), the Pareto plot and,
+    where they apply, the mean and budget tables."""
     sweep_dir = _require_sweep_folder(Path(sweep_dir))
     table = summary_table(collect_results(sweep_dir))
     try:

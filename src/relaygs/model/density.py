@@ -8,6 +8,9 @@ gsplat) we also multiply by C unless told the loss is a sum.
 
 Schedule (3DGS): while `step < densify_until`, every `densify_every` steps once
 `step > densify_from` densify then prune; every `opacity_reset_every` steps reset opacities.
+World-size pruning starts after the first reset; with resets off (`opacity_reset_every: 0`,
+the refining stages of `small`, which start from decouple's trained and size-pruned set) there
+is no reset to wait for, so it applies from the first densification.
 Call `step()` after the optimiser step so that step's gradients are not discarded.
 """
 
@@ -45,7 +48,7 @@ class DensifySettings:
     prune_opacity: float = 0.005
     split_count: int = 2
     split_scale_divisor: float = 1.6  # 0.8 × split_count in 3DGS
-    max_world_size: float = 0.1  # × scene extent; pruned after the first opacity reset
+    max_world_size: float = 0.1  # × scene extent; pruned after the first reset (see above)
     max_screen_radius: float | None = None
     max_gaussians: int | None = None
 

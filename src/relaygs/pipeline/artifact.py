@@ -36,7 +36,8 @@ class Artifact:
 
     def to_cpu_contiguous(self) -> Artifact:
         """This artifact with detached contiguous CPU tensors that each own their whole
-        storage (what safetensors needs); tensors already in that form are not copied."""
+        storage (what safetensors needs); tensors already in that form are not copied. A value
+        that is no tensor, a non-finite one or meta that is not exact JSON is an InputError."""
         seen_storages: set[int] = set()
         tensors = {
             name: _cpu_owned(name, tensor, seen_storages) for name, tensor in self.tensors.items()

@@ -30,7 +30,8 @@ def file_sha256(path: Path) -> str:
 
 
 def seal(folder: Path) -> dict[str, str]:
-    """Write the completion marker listing the sha256 of every file now in `folder`."""
+    """Write the completion marker listing the sha256 of every file now in `folder`; return
+    those hashes by file name."""
     hashes = {
         path.name: file_sha256(path)
         for path in sorted(folder.iterdir())

@@ -26,7 +26,8 @@ _FIELD_TYPES: dict[str, type | tuple[type, ...]] = {
     "provenance": dict,
     "format": int,
 }
-"""The JSON type of each manifest field (a missing one is refused when the Manifest is made)."""
+"""The JSON type of each manifest field (a missing one without a default is refused when the
+Manifest is made)."""
 
 
 @dataclass(frozen=True)

@@ -1,7 +1,7 @@
 """Front-to-back alpha compositing of binned 2D Gaussians with a hand-written backward.
 
 Each tile group is a dense block [G, S, S, L] (tiles, pixel rows, pixel columns,
-depth-ordered list). Transmittance comes from a cumulative sum of log(1 − α) along L,
+depth-ordered list). Transmittance comes from a cumulative product of (1 − α) along L,
 so the 3DGS skip (α < 1/255) and early stop (T·(1 − α) < 1e-4) need no sequential loop.
 The forward keeps two floats per pixel–Gaussian pair (exp(−power) and the masked
 transmittance) when they fit a memory budget, else the backward recomputes them.

@@ -103,7 +103,8 @@ def rasterization_reference(
     eps2d: float = 0.3,
     render_mode: str = "RGB",
 ) -> tuple[torch.Tensor, torch.Tensor, dict[str, Any]]:
-    """Same contract as `relaygs.splat.rasterization`, computed densely."""
+    """`relaygs.splat.rasterization`'s images and alphas, computed densely (no tiles, no
+    FixedLayer); its meta holds only `means2d`, `radii` and `depths`."""
     prep = prepare(
         means, quats, scales, opacities, colors, viewmats, Ks, width, height,
         sh_degree=sh_degree, backgrounds=backgrounds, near_plane=near_plane,

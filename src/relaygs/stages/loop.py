@@ -38,7 +38,8 @@ class StepResult:
 
 @dataclass
 class TrainReport:
-    """Summary of a finished training run (seconds include those before a resume)."""
+    """Summary of a finished training run: `train_seconds` includes the seconds before a
+    resume, `run_seconds` only this run's (steps from `resumed_from` on)."""
 
     steps: int
     initial_loss: float | None  # None when the stage ran no steps

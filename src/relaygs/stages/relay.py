@@ -164,7 +164,7 @@ def _train(
     device: torch.device,
 ) -> tuple[dict[str, GaussianSet], TrainReport]:
     """Fit copy s (and a trainable background) to segment s's targets on `device`; returns the
-    sets."""
+    trained sets and the training report."""
     plans = section.plans()
     session = TrainingSession(
         sets=sets,

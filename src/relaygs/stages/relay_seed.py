@@ -100,7 +100,7 @@ def _hull_at(
 
 
 def _tagged(gaussians: GaussianSet, segment: int) -> GaussianSet:
-    """`gaussians` (core parameters) with every row tagged as `segment`."""
+    """`gaussians` with its buffers dropped and every row tagged as `segment`."""
     core = {k: v for k, v in gaussians.to_tensors().items() if not k.startswith("buffer.")}
     plain = GaussianSet.from_tensors(core)
     return foreground_with_segments(plain, torch.full((len(plain),), segment, dtype=torch.int32))

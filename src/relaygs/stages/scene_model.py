@@ -60,7 +60,8 @@ class SceneModel:
         return math.ceil(self.num_frames / self.segment_length)
 
     def segment_of(self, frame: int) -> int:
-        """The segment that frame `frame` belongs to (frame // k)."""
+        """The segment that frame `frame` belongs to (frame // k; frames past the last count as
+        the last)."""
         return min(frame, self.num_frames - 1) // self.segment_length
 
     def foreground_rows(self, frame: int) -> Tensor:
@@ -137,7 +138,7 @@ class SceneModel:
         return model
 
     def to(self, device: torch.device | str) -> SceneModel:
-        """This model with every tensor and module on `device` (modules move in place)."""
+        """Move every tensor and module of this model to `device`, in place; returns the model."""
         self.background = self.background.to(device)
         self.foreground = self.foreground.to(device)
         if self.field is not None:

@@ -53,7 +53,8 @@ class ModuleGroup:
 
 @dataclass
 class TrainingSession:
-    """The trainable state of a stage; call `build()` (or `restore`) before training."""
+    """The trainable state of a stage, with its optimisers built on construction (`build`
+    again after the sets or modules change; `restore` rebuilds from a checkpoint)."""
 
     sets: dict[str, GaussianSet]
     plans: dict[str, SetPlan]

@@ -1,6 +1,6 @@
 """The 4D-GS baseline's coarse stage: one static 3DGS fitted to every frame, no mask.
 
-Output: a model whose Gaussians are all background (`is_fg` all False, no foreground set).
+Output: a model whose Gaussians are all background (`is_fg` all False, an empty foreground).
 """
 
 from __future__ import annotations
