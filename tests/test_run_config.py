@@ -6,6 +6,8 @@ from hydra.types import RunMode
 from omegaconf import OmegaConf
 
 from relaygs import paths
+from relaygs.app.plan import scale_steps
+from relaygs.model import paper_schedule
 from relaygs.stages import BUDGETS, CONFIGS, EvalSettings, TrainSettings
 from relaygs.stages.config import json_ready
 
@@ -70,6 +72,23 @@ def test_run_and_sweep_dirs_are_unique_to_the_microsecond_and_avoid_runtime_cwd(
 def test_paper_budget_has_the_papers_step_counts(composer):
     cfg = composer(["budget=paper"])
     assert (cfg.decouple.steps, cfg.relay.steps, cfg.deform.steps) == (3000, 14000, 20000)
+
+
+def test_paper_density_schedule_is_in_the_config_so_the_multiplier_scales_it(composer):
+    # before: every `densify*` section was {} (the presets' 500/100/15000/3000 from code), so
+    # `budget.multiplier` scaled the paper budget's steps but not its density schedule
+    cfg = OmegaConf.to_container(composer(["budget=paper"]), resolve=True)
+    doubled = {key: 2 * value for key, value in paper_schedule().items()}
+    sections = [
+        (stage, name)
+        for stage in ("decouple", "warmup", "relay", "deform")
+        for name in cfg[stage]
+        if name.startswith("densify")
+    ]
+    assert len(sections) == 6
+    for stage, name in sections:
+        scaled = scale_steps(cfg[stage][name], 2.0, cfg["budget"]["scaled_keys"])
+        assert scaled == doubled, (stage, name)
 
 
 def test_budgets_order_by_cost(composer):

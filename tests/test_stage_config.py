@@ -2,18 +2,20 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
 import torch
 
 from relaygs.errors import InputError
-from relaygs.model import BACKGROUND_DENSIFY, FOREGROUND_DENSIFY
+from relaygs.model import BACKGROUND_DENSIFY, FOREGROUND_DENSIFY, DensityController, GaussianSet
 from relaygs.stages import BUDGETS, CONFIGS, SCHEMA_VERSIONS, STAGES, budgets, validate_config
 from relaygs.stages.decouple import DecoupleConfig
 from relaygs.stages.deform import DeformConfig
 from relaygs.stages.relay import RelayConfig
 from relaygs.stages.train_settings import TrainSettings
+from relaygs.stages.warmup import WarmupConfig
 
 
 def test_every_stage_has_function_config_and_schema() -> None:
@@ -71,8 +73,9 @@ def test_budgets_validate(budget: str, stage: str) -> None:
 @pytest.mark.parametrize("config", [RelayConfig, DeformConfig])
 def test_per_set_sections_start_from_the_papers_fg_and_bg_settings(config: type) -> None:
     section = config.from_config({"freeze_background": False} if config is RelayConfig else {})
-    assert section.set_densify("fg") == FOREGROUND_DENSIFY
-    assert section.set_densify("bg") == BACKGROUND_DENSIFY
+    for name, preset in (("fg", FOREGROUND_DENSIFY), ("bg", BACKGROUND_DENSIFY)):
+        until = min(preset.densify_until, section.steps)
+        assert section.set_densify(name) == replace(preset, densify_until=until)
     assert section.set_densify("fg").grad_threshold != BACKGROUND_DENSIFY.grad_threshold
     decay = {"means": {"init": 1e-3, "final": 1e-5}}
     tuned = config.from_config({"densify_fg": {"grad_threshold": 3e-4}, "lr_fg": decay})
@@ -203,6 +206,21 @@ def test_partial_mappings_merge_over_defaults() -> None:
     # a decaying schedule without max_steps decays over the stage's own steps
     assert rates.means.max_steps == 100
     assert rates.extras["mask_logit"].init == section.mask_lr
+
+
+def test_density_control_ends_before_a_stages_last_step() -> None:
+    # before: at the paper's 3000 decouple steps the opacity reset every 3000 fell on the last
+    # step, leaving relay a frozen, nearly transparent background; relay split on its last step
+    static = [DecoupleConfig.from_config({}), WarmupConfig.from_config({})]
+    ends = {section.steps: section.densify_settings() for section in static}
+    relay, deform = RelayConfig.from_config({}), DeformConfig.from_config({})
+    ends[relay.steps] = relay.plans()["fg"].densify
+    assert {steps: s.densify_until for steps, s in ends.items()} == {3000: 3000, 14000: 14000}
+    assert deform.plans()["bg"].densify.densify_until == 15000  # < its 20000 steps: unchanged
+    gaussians = GaussianSet.from_points(torch.rand(20, 3), torch.rand(20, 3))
+    controller = DensityController(gaussians, ends[3000], 1.0)
+    assert controller.step(3000) is None
+    assert controller.step(2900) is not None
 
 
 def test_foreground_settings_follow_the_paper() -> None:

@@ -6,6 +6,7 @@ from relaygs.model.density import (
     DensifyReport,
     DensifySettings,
     DensityController,
+    paper_schedule,
 )
 from relaygs.model.gaussians import (
     CORE_PARAMS,
@@ -48,6 +49,7 @@ __all__ = [
     "log_linear",
     "mean_sq_knn_distance",
     "normalize_quats",
+    "paper_schedule",
     "quats_to_rotmats",
     "sh_degree_for_step",
 ]

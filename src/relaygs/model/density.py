@@ -55,6 +55,14 @@ class DensifySettings:
 
 BACKGROUND_DENSIFY = DensifySettings()
 FOREGROUND_DENSIFY = DensifySettings(grad_threshold=1e-4, percent_dense=0.001)
+SCHEDULE_KEYS = ("densify_from", "densify_every", "densify_until", "opacity_reset_every")
+"""The step counts of density control, which both presets share."""
+
+
+def paper_schedule() -> dict[str, int]:
+    """The presets' (3DGS) schedule by key: the `densify*` default of every stage section,
+    spelled out there so that `budget.multiplier` scales it with the stage's steps."""
+    return {key: getattr(BACKGROUND_DENSIFY, key) for key in SCHEDULE_KEYS}
 
 
 @dataclass(frozen=True)

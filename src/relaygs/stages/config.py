@@ -161,7 +161,7 @@ class PerSetSections:
         """Density control of set `name`: the paper's fg or bg settings with the overrides."""
         base = FOREGROUND_DENSIFY if name == "fg" else BACKGROUND_DENSIFY
         key = f"densify_{name}"
-        return densify_settings(getattr(self, key), base, f"{self.stage}.{key}")
+        return densify_settings(getattr(self, key), base, f"{self.stage}.{key}", self.steps)
 
 
 def schedule(value: float | Mapping[str, Any], steps: int, where: str) -> LRSchedule:
@@ -205,12 +205,14 @@ def _check_schedule(schedule: LRSchedule, where: str) -> None:
 
 
 def densify_settings(
-    config: Mapping[str, Any], base: DensifySettings, where: str
+    config: Mapping[str, Any], base: DensifySettings, where: str, steps: int
 ) -> DensifySettings:
-    """Density-control settings: `base` with the keys of `config` replaced, each checked."""
+    """Density-control settings: `base` with the keys of `config` replaced, each checked, and
+    ended before the stage's last step (`densify_until` <= `steps`): a split or an opacity
+    reset there would be saved with no step left to optimise it."""
     settings = parse_section(DensifySettings, {**dataclasses.asdict(base), **config}, where)
     _check_densify(settings, where)
-    return settings
+    return dataclasses.replace(settings, densify_until=min(settings.densify_until, steps))
 
 
 def _check_densify(settings: DensifySettings, where: str) -> None:

@@ -18,7 +18,13 @@ import torch
 from torch import Tensor
 
 from relaygs.data import Scene
-from relaygs.model import BACKGROUND_DENSIFY, DensifySettings, GaussianSet, SetLearningRates
+from relaygs.model import (
+    BACKGROUND_DENSIFY,
+    DensifySettings,
+    GaussianSet,
+    SetLearningRates,
+    paper_schedule,
+)
 from relaygs.pipeline.artifact import Artifact
 from relaygs.stages.common import (
     BACKGROUND_LR,
@@ -72,7 +78,7 @@ class DecoupleConfig:
     sh_degree: int = 3
     sh_every: int = 1000
     lr: dict[str, Any] = field(default_factory=lambda: dict(BACKGROUND_LR))
-    densify: dict[str, Any] = field(default_factory=dict)
+    densify: dict[str, Any] = field(default_factory=paper_schedule)
 
     def __post_init__(self) -> None:
         """Check every value (errors name `decouple.<key>`)."""
@@ -102,7 +108,7 @@ class DecoupleConfig:
 
     def densify_settings(self) -> DensifySettings:
         """Background density control (the foreground is not known yet)."""
-        return densify_settings(self.densify, BACKGROUND_DENSIFY, f"{STAGE}.densify")
+        return densify_settings(self.densify, BACKGROUND_DENSIFY, f"{STAGE}.densify", self.steps)
 
 
 def check_static_settings(section: Any, stage: str) -> None:

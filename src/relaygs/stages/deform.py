@@ -23,7 +23,7 @@ from relaygs.data import Scene, frame_time
 from relaygs.data.effects import COLOR_INCONSISTENCY
 from relaygs.errors import InputError
 from relaygs.field import ColorAffine
-from relaygs.model import CORE_PARAMS, GaussianSet, SetLearningRates
+from relaygs.model import CORE_PARAMS, GaussianSet, SetLearningRates, paper_schedule
 from relaygs.pipeline.artifact import Artifact
 from relaygs.stages.common import GAUSSIAN_LR, single_upstream, stage_meta, upstream_model
 from relaygs.stages.config import (
@@ -83,8 +83,8 @@ class DeformConfig(PerSetSections):
     plane_smoothness: float = 2e-4
     time_smoothness: float = 1e-3
     time_l1: float = 1e-4
-    densify_bg: dict[str, Any] = field(default_factory=dict)
-    densify_fg: dict[str, Any] = field(default_factory=dict)
+    densify_bg: dict[str, Any] = field(default_factory=paper_schedule)
+    densify_fg: dict[str, Any] = field(default_factory=paper_schedule)
 
     def __post_init__(self) -> None:
         """Check every value (errors name `deform.<key>`)."""

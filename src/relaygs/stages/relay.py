@@ -16,7 +16,7 @@ from typing import Any, ClassVar
 import torch
 
 from relaygs.data import Scene
-from relaygs.model import GaussianSet
+from relaygs.model import GaussianSet, paper_schedule
 from relaygs.pipeline.artifact import Artifact
 from relaygs.stages.carve import HullSettings
 from relaygs.stages.common import (
@@ -72,8 +72,8 @@ class RelayConfig(PerSetSections):
     sh_every: int = 1000
     lr_fg: dict[str, Any] = field(default_factory=lambda: dict(FOREGROUND_LR))
     lr_bg: dict[str, Any] = field(default_factory=lambda: dict(BACKGROUND_LR))
-    densify_fg: dict[str, Any] = field(default_factory=dict)
-    densify_bg: dict[str, Any] = field(default_factory=dict)
+    densify_fg: dict[str, Any] = field(default_factory=paper_schedule)
+    densify_bg: dict[str, Any] = field(default_factory=paper_schedule)
 
     def __post_init__(self) -> None:
         """Check every value (errors name `relay.<key>`)."""

@@ -12,7 +12,7 @@ from typing import Any
 import torch
 
 from relaygs.data import Scene
-from relaygs.model import BACKGROUND_DENSIFY, DensifySettings, SetLearningRates
+from relaygs.model import BACKGROUND_DENSIFY, DensifySettings, SetLearningRates, paper_schedule
 from relaygs.pipeline.artifact import Artifact
 from relaygs.stages.common import (
     GAUSSIAN_LR,
@@ -47,7 +47,7 @@ class WarmupConfig:
     sh_degree: int = 3
     sh_every: int = 1000
     lr: dict[str, Any] = field(default_factory=lambda: dict(GAUSSIAN_LR))
-    densify: dict[str, Any] = field(default_factory=dict)
+    densify: dict[str, Any] = field(default_factory=paper_schedule)
 
     def __post_init__(self) -> None:
         """Check every value (errors name `warmup.<key>`)."""
@@ -67,7 +67,7 @@ class WarmupConfig:
 
     def densify_settings(self) -> DensifySettings:
         """3DGS density control."""
-        return densify_settings(self.densify, BACKGROUND_DENSIFY, f"{STAGE}.densify")
+        return densify_settings(self.densify, BACKGROUND_DENSIFY, f"{STAGE}.densify", self.steps)
 
 
 def warmup(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, Any]) -> Artifact:
