@@ -152,6 +152,8 @@ class HexPlane(nn.Module):
         """Squared second differences of the spatial planes along both axes (4D-GS plane TV).
 
         Summed over planes and levels, each plane's term a mean; the caller weights it.
+        4D-GS's compute_plane_smoothness takes one axis only, so at the same weight this term
+        counts about twice as much.
         """
         terms = [
             second_difference_energy(p, dim=2) + second_difference_energy(p, dim=3)

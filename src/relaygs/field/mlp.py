@@ -43,7 +43,8 @@ class HeadSwitches:
 def _head(width: int, out: int) -> nn.Sequential:
     last = nn.Linear(width, out)
     # Zero weights and bias in the last layer: the deform stage starts from the trained
-    # static model, so the initial deformation must be exactly the identity.
+    # static model, so the initial deformation must be exactly the identity (4D-GS gives
+    # every Linear Xavier weights, so its initial deformation is random).
     nn.init.zeros_(last.weight)
     nn.init.zeros_(last.bias)
     return nn.Sequential(nn.ReLU(), nn.Linear(width, width), nn.ReLU(), last)

@@ -11,6 +11,8 @@ Schedule (3DGS): while `step < densify_until`, every `densify_every` steps once
 World-size pruning starts after the first reset; with resets off (`opacity_reset_every: 0`,
 the refining stages of `small`, which start from decouple's trained and size-pruned set) there
 is no reset to wait for, so it applies from the first densification.
+Unlike 3DGS, which zeroes the Adam moments of every new row, only split children start with
+zero moments; a clone inherits its parent's.
 Call `step()` after the optimiser step so that step's gradients are not discarded.
 """
 

@@ -61,8 +61,10 @@ class DecoupleConfig:
 
     mask_threshold ε and mask_lr are not given by the paper: ε = 0.5 (the mask is off once the
     Gaussian is more likely off than on) and lr 0.05 (Adam, as opacity logits) let a mover's
-    mask cross the threshold in ~40 consistent steps, well inside the short budgets, while the
-    straight-through gradient lets a wrongly masked background Gaussian come back.
+    mask cross the threshold in ~40 consistent steps, well inside the short budgets; from
+    mask_init 2.0 a background Gaussian needs as long a consistent push to be dropped.
+    Dropping is final: at M = 0 the opacity × M is below the rasteriser's 1/255 cut, so the
+    render gives the logit zero gradient and only leftover Adam momentum still moves it.
     frame0_views: views of each batch drawn at frame 0 (the rest uniformly over all frames and
     train cameras): with 1 of 4, frame 0 is seen in ≥ 25 % of views, so the foreground there
     is fitted as fast as the background and is not absorbed by it.

@@ -56,9 +56,10 @@ class DeformConfig(PerSetSections):
 
     Field: 16 channels, spatial resolution 64, multires [1, 2], time resolution ceil(T/2)
     (None), MLP width 128 and depth 0 (4D-GS multi-view). Learning rates are 4D-GS's (grid and
-    MLP × scene extent). Not given by either paper: γ lr 5e-3 (a log-scale factor, like the
-    scaling lr) and colour-affine lr 1e-3. color_affine "auto" turns the affine on exactly when
-    the scene declares colour inconsistency; true/false force it.
+    MLP × scene extent), positions included for both sets: the supplement's foreground /
+    background position-lr split is not used here. Not given by either paper: γ lr 5e-3 (a
+    log-scale factor, like the scaling lr) and colour-affine lr 1e-3. color_affine "auto" turns
+    the affine on exactly when the scene declares colour inconsistency; true/false force it.
     """
 
     stage: ClassVar[str] = STAGE

@@ -1,4 +1,9 @@
-"""Image loss of every training stage: L1 + λ·D-SSIM with D-SSIM = 1 − SSIM (4D-GS form)."""
+"""Image loss of every training stage: L1 + λ·D-SSIM with D-SSIM = 1 − SSIM.
+
+L1 keeps weight 1 as in 4D-GS's code, whose default λ is 0 (L1 only); 3DGS uses
+(1 − λ)·L1 + λ·D-SSIM. With `train.ssim_weight` 0.2 the 4D-GS baseline's loss is thus not
+stock 4D-GS's.
+"""
 
 from __future__ import annotations
 

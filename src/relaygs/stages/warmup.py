@@ -39,7 +39,8 @@ SET = "bg"
 @dataclass(frozen=True)
 class WarmupConfig:
     """Settings of the static warm-up (`cfg["warmup"]`): 4D-GS's coarse stage, 3000 steps,
-    3DGS learning rates and density control."""
+    3DGS learning rates and density control. The position lr decays over these steps (to
+    1.6e-6 at 3000), not over 4D-GS's position_lr_max_steps 20000 (near 8e-5 at 3000)."""
 
     steps: int = 3000
     init_points: int | None = None
