@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import pytest
 import torch
 
 from conftest import stage_smoke_cfg
 from relaygs.data import Camera
+from relaygs.errors import InputError
 from relaygs.model import GaussianSet
 from relaygs.stages import STAGES
 from relaygs.stages.carve import (
@@ -137,3 +139,25 @@ def test_carved_copies_one_per_segment_capped_and_replica_when_nothing_moves(
     )
     assert len(fallback.foreground) == len(replicated.foreground)
     assert torch.equal(fallback.foreground.buffers[SEGMENT], replicated.foreground.buffers[SEGMENT])
+
+
+def test_hull_of_masks_that_do_not_match_the_cameras_is_refused() -> None:
+    cameras = _cameras()
+    bounds = torch.tensor([[-3.0, -3.0, 0.0], [3.0, 3.0, 2.5]])
+    masks = torch.ones(len(cameras) - 1, HEIGHT, WIDTH, dtype=torch.bool)
+    images = torch.zeros(len(cameras) - 1, HEIGHT, WIDTH, 3)
+    with pytest.raises(InputError, match=f"visual_hull: {len(cameras)} cameras, masks"):
+        visual_hull(masks, images, cameras, bounds, HullSettings())
+
+
+@pytest.mark.parametrize(
+    "bounds",
+    [[[1.0, 1.0, 1.0], [1.0, 1.0, 1.0]], [[0.0, 0.0, 0.0], [float("nan"), 1.0, 1.0]]],
+    ids=["a point", "nan"],
+)
+def test_hull_within_empty_or_non_finite_bounds_is_refused(bounds) -> None:
+    cameras = _cameras()
+    masks = torch.ones(len(cameras), HEIGHT, WIDTH, dtype=torch.bool)
+    images = torch.zeros(len(cameras), HEIGHT, WIDTH, 3)
+    with pytest.raises(InputError, match="visual_hull: empty bounds"):
+        visual_hull(masks, images, cameras, torch.tensor(bounds), HullSettings())

@@ -300,3 +300,131 @@ def test_text_model_colour_limits_are_0_and_255(tmp_path: Path, value: int, refu
             read_model(tmp_path)
     else:
         assert read_model(tmp_path).rgb[0, 0] == value
+
+
+def _edit_first_record(path: Path, edit) -> None:
+    """Replace the first non-comment line of a text model file with `edit(fields)` joined."""
+    lines = path.read_text().splitlines()
+    index = next(i for i, line in enumerate(lines) if line and not line.startswith("#"))
+    lines[index] = " ".join(edit(lines[index].split()))
+    path.write_text("\n".join(lines) + "\n")
+
+
+@pytest.mark.parametrize(
+    ("name", "edit", "fragment"),
+    [
+        (
+            "cameras.txt",
+            lambda f: [f[0], "KANNALA", *f[2:]],
+            "CAMERA_ID MODEL WIDTH HEIGHT PARAMS[] with a known COLMAP model",
+        ),
+        (
+            "cameras.txt",
+            lambda f: [f[0], f[1], "64.5", *f[3:]],
+            "expected CAMERA_ID MODEL WIDTH HEIGHT PARAMS[]",
+        ),
+        ("images.txt", lambda f: f[:9], "expected IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME"),
+        (
+            "images.txt",
+            lambda f: [f[0], "one", *f[2:]],
+            "expected IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME",
+        ),
+        ("points3D.txt", lambda f: [f[0], "x", *f[2:]], "expected POINT3D_ID X Y Z R G B"),
+        ("points3D.txt", lambda f: f[:7], "expected POINT3D_ID X Y Z R G B"),
+    ],
+    ids=["unknown model", "fractional width", "short image", "word qw", "word x", "short point"],
+)
+def test_malformed_text_model_records_are_refused_naming_file_and_line(
+    tmp_path: Path, name: str, edit, fragment: str
+):
+    write_model(tmp_path, _two_image_model(), binary=False)
+    _edit_first_record(tmp_path / name, edit)
+    with pytest.raises(InputError, match=rf"{name} line \d+: ") as caught:
+        read_model(tmp_path)
+    assert fragment in str(caught.value), str(caught.value)
+
+
+def test_folder_without_a_complete_model_is_refused(tmp_path: Path):
+    write_model(tmp_path, _two_image_model(), binary=False)
+    (tmp_path / "points3D.txt").unlink()
+    with pytest.raises(InputError, match=r"expected a COLMAP model \(cameras, images, points3D"):
+        read_model(tmp_path)
+
+
+def test_binary_camera_of_unknown_model_id_is_refused(tmp_path: Path):
+    write_model(tmp_path, _two_image_model(), binary=True)
+    path = tmp_path / "cameras.bin"
+    data = bytearray(path.read_bytes())
+    data[12:16] = struct.pack("<i", 99)  # after the count (Q) and camera id (i): the model id
+    path.write_bytes(bytes(data))
+    with pytest.raises(InputError, match=r"cameras\.bin: camera 1 has unknown model id 99"):
+        read_model(tmp_path)
+
+
+def _binary_images(name: bytes, observations: int, observation_bytes: int) -> bytes:
+    head = struct.pack("<QI7dI", 1, 3, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 1)
+    return head + name + struct.pack("<Q", observations) + b"\x00" * observation_bytes
+
+
+def test_binary_image_name_without_its_nul_is_refused(tmp_path: Path):
+    write_model(tmp_path, _two_image_model(), binary=True)
+    (tmp_path / "images.bin").write_bytes(_binary_images(b"cam00.png", 0, 0)[:-8])
+    with pytest.raises(InputError, match=r"images\.bin: unterminated image name at byte 72"):
+        read_model(tmp_path)
+
+
+def test_binary_image_with_fewer_2d_points_than_declared_is_refused(tmp_path: Path):
+    write_model(tmp_path, _two_image_model(), binary=True)
+    # 3 observations of 24 bytes declared, 2 present
+    (tmp_path / "images.bin").write_bytes(_binary_images(b"cam00.png\x00", 3, 48))
+    with pytest.raises(InputError, match=r"images\.bin: file is truncated at byte 90"):
+        read_model(tmp_path)
+
+
+def test_camera_folder_without_frames_is_refused(multiview_copy: Path):
+    for frame in (multiview_copy / "cam04").iterdir():
+        frame.unlink()
+    _expect(multiview_copy, "cam04: no frame_XXXXX.(jpg|png) images")
+
+
+def test_two_registered_images_of_one_camera_folder_are_refused(multiview_copy: Path):
+    def duplicate(model) -> None:
+        image_id = next(i for i, image in model.images.items() if "cam04" in image.name)
+        model.images[image_id] = replace(model.images[image_id], name="cam03_copy.png")
+
+    _rewrite_model(multiview_copy, duplicate)
+    _expect(multiview_copy, "'cam03_copy.png' both map to camera folder cam03")
+
+
+def test_registered_image_of_an_unknown_camera_is_refused(multiview_copy: Path):
+    def unknown_camera(model) -> None:
+        image_id = min(model.images)
+        model.images[image_id] = replace(model.images[image_id], camera_id=99)
+
+    _rewrite_model(multiview_copy, unknown_camera)
+    _expect(multiview_copy, "uses unknown camera 99")
+
+
+def test_fisheye_camera_model_is_refused(multiview_copy: Path):
+    def fisheye(model) -> None:
+        camera = model.cameras[1]
+        fx, _, cx, cy = camera.params
+        model.cameras[1] = ColmapCamera(
+            1, "SIMPLE_RADIAL_FISHEYE", camera.width, camera.height, (fx, cx, cy, 0.0)
+        )
+
+    _rewrite_model(multiview_copy, fisheye)
+    _expect(multiview_copy, "camera 1 uses model SIMPLE_RADIAL_FISHEYE", "undistort fisheye")
+
+
+def test_image_whose_size_differs_from_its_colmap_camera_is_refused(multiview_copy: Path):
+    def wider(model) -> None:
+        model.cameras[1] = replace(model.cameras[1], width=model.cameras[1].width * 2)
+
+    _rewrite_model(multiview_copy, wider)
+    _expect(multiview_copy, "image is 32x18, expected 64x18", "the COLMAP camera's width/height")
+
+
+def test_test_cameras_beyond_the_camera_folders_are_refused(multiview_root: Path):
+    with pytest.raises(InputError, match=r"test_cameras: cameras \[99\] are not in .* 0\.\.30"):
+        load_scene(multiview_root, test_cameras=[0, 99])

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from relaygs.data import load_scene
-from relaygs.data.imageio import image_size
+from relaygs.data.imageio import image_size, read_mask, read_rgb
 from relaygs.errors import InputError
 
 
@@ -389,3 +389,89 @@ def test_test_camera_that_is_also_a_train_camera(tiny_synth_copy: Path):
         f"[{shared}] also appear in",
         "train and test cameras must differ",
     )
+
+
+def test_meta_file_that_is_not_a_json_object(tiny_synth_copy: Path):
+    (tiny_synth_copy / "train_meta.json").write_text("[1, 2, 3]")
+    _expect(tiny_synth_copy, "train_meta.json: expected a JSON object with fields w, h, k")
+
+
+def _set_field(name: str, value) -> Callable[[dict], None]:
+    return lambda meta: meta.__setitem__(name, value)
+
+
+def _drop_field(name: str) -> Callable[[dict], None]:
+    return lambda meta: meta.pop(name)
+
+
+def _ragged_fn(meta: dict) -> None:
+    meta["fn"][1] = meta["fn"][1][:-1]
+
+
+def _nan_in_w2c(meta: dict) -> None:
+    meta["w2c"][2][0][1][3] = float("nan")  # json.dumps writes NaN, json.loads reads it back
+
+
+@pytest.mark.parametrize(
+    ("edit", "fragment"),
+    [
+        (_set_field("fn", []), "field 'fn' must be a non-empty [T][C] list of file names"),
+        (_set_field("fn", [[1, 2]]), "field 'fn' must be a non-empty [T][C] list of file names"),
+        (_ragged_fn, "field 'fn' rows have different camera counts"),
+        (_drop_field("k"), "missing field 'k' (expected [T][C][3][3])"),
+        (_set_field("w2c", "identity"), "field 'w2c' must be a [T][C][4][4] array of numbers"),
+        (_nan_in_w2c, "field 'w2c' holds non-finite values"),
+    ],
+    ids=["empty fn", "fn of numbers", "ragged fn", "no k", "w2c text", "nan w2c"],
+)
+def test_malformed_meta_fields_are_refused_naming_the_field(
+    tiny_synth_copy: Path, edit: Callable[[dict], None], fragment: str
+):
+    _edit_meta(tiny_synth_copy, "train_meta.json", edit)
+    _expect(tiny_synth_copy, f"train_meta.json: {fragment}")
+
+
+def test_test_meta_with_another_image_size_is_refused(tiny_synth_copy: Path):
+    _edit_meta(tiny_synth_copy, "test_meta.json", lambda meta: meta.__setitem__("w", meta["w"] + 1))
+    _expect(tiny_synth_copy, "test_meta.json: w/h 33x18 differ from", "train_meta.json (32x18)")
+
+
+def test_missing_point_cloud_file(tiny_synth_copy: Path):
+    (tiny_synth_copy / "init_pt_cld.npz").unlink()
+    _expect(tiny_synth_copy, "missing file: ", "init_pt_cld.npz")
+
+
+def test_point_colours_outside_0_1_are_refused(tiny_synth_copy: Path):
+    data = np.random.default_rng(0).random((50, 7)).astype(np.float32)
+    data[7, 4] = 255.0  # colours stored as 0..255 instead of 0..1
+    np.savez(tiny_synth_copy / "init_pt_cld.npz", data=data)
+    _expect(tiny_synth_copy, "init_pt_cld.npz: point colours must lie in [0, 1]")
+
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.mark.parametrize(
+    "data",
+    [PNG_SIGNATURE + b"\x00\x00\x00\x0dIHDR\x00\x00", PNG_SIGNATURE + b"\x00" * 16],
+    ids=["cut in IHDR", "no IHDR first"],
+)
+def test_png_without_a_whole_ihdr_header_has_no_size(data: bytes):
+    with pytest.raises(InputError, match=r"a.png: not a readable image \(truncated PNG header\)"):
+        image_size(data, Path("a.png"))
+
+
+def test_files_opencv_cannot_decode_are_refused_by_the_pixel_readers(tmp_path: Path):
+    path = tmp_path / "frame.png"
+    path.write_bytes(b"not an image at all")
+    with pytest.raises(InputError, match=r"frame\.png: cannot decode image"):
+        read_rgb(path, 4, 3)
+    with pytest.raises(InputError, match=r"frame\.png: cannot decode mask image"):
+        read_mask(path, 4, 3)
+
+
+def test_float_images_are_refused_not_scaled_as_integers(tmp_path: Path):
+    path = tmp_path / "frame.tiff"
+    assert cv2.imwrite(str(path), np.full((3, 4, 3), 0.5, np.float32))
+    with pytest.raises(InputError, match="float32 pixels, expected an 8- or 16-bit image"):
+        read_rgb(path, 4, 3)

@@ -261,6 +261,7 @@ def test_usage_errors_are_one_line_and_help_still_works(capsys):
     [
         (b"\xff\xfe{}", "unreadable result ('utf-8' codec can't decode byte 0xff"),
         (b"{}", "not a job result, it lacks variant, job, pipeline, scene, seed, psnr"),
+        (b'[{"variant": "k8"}]', "expected a JSON object"),
         (
             b'{"variant": "k8", "pipeline": "relaygs", "scene": "juggle", "seed": 0}',
             "not a job result, it lacks job, psnr",

@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 
 from relaygs.errors import InputError
 from relaygs.splat import rasterization
+from relaygs.splat.projection import ALPHA_MIN, MAX_SIGMA_MULT, opacity_sigma_multiplier
 from relaygs.splat.reference import rasterization_reference
 from splat_scenes import LEARNABLE, camera_rig, render_and_grads, with_grad
 
@@ -54,6 +55,9 @@ CULLED = {
     "log-scale 18": {"scales": [math.exp(18)] * 3},
     "log-scale 24": {"scales": [math.exp(24)] * 3},
     "log-scale 30": {"scales": [math.exp(30)] * 3},
+    "scale 1e20": {"scales": [1e20] * 3},
+    "scale 1e30, one axis": {"scales": [1e30, 1.0, 1.0]},
+    "scale 3e38": {"scales": [3e38] * 3},
 }
 
 
@@ -319,3 +323,14 @@ def test_bad_inputs_raise_one_line_errors(change, message):
     scene = {**_base_scene({}), **change}
     with pytest.raises(InputError, match=message.replace("[", r"\[")):
         rasterization(**scene)
+
+
+def test_sigma_multiplier_is_zero_below_the_alpha_threshold():
+    opacities = torch.tensor([0.0, 1e-30, 0.5 * ALPHA_MIN, ALPHA_MIN, 0.01, 1.0])
+    mult = opacity_sigma_multiplier(opacities)
+    assert torch.isfinite(mult).all()
+    assert mult[:4].tolist() == [0.0] * 4
+    # alpha = o·exp(−m²/2) falls to 1/255 at m = sqrt(2·ln(255·o)), at most MAX_SIGMA_MULT
+    for opacity, value in zip(opacities[4:].tolist(), mult[4:].tolist(), strict=True):
+        expected = math.sqrt(2 * math.log(opacity / ALPHA_MIN))
+        assert value == pytest.approx(expected, rel=1e-5) and value <= MAX_SIGMA_MULT

@@ -106,6 +106,8 @@ DELAYED = {"init": 1e-3, "final": 1e-5, "delay_steps": 10}
         ("deform", {"steps": -5}, "deform.steps"),
         ("deform", {"color_affine": "maybe"}, "deform.color_affine"),
         ("deform", {"multires": []}, "deform.multires"),
+        ("deform", {"multires": 2}, "deform.multires"),
+        ("deform", [{"steps": 5}], "deform: expected a mapping, got list"),
         ("deform", {"lr_fg": {"means": -1.0}}, "deform.lr_fg.means"),
         ("deform", {"densify_bg": {"split_count": 1}}, "deform.densify_bg.split_count"),
         ("deform", {"lr_grid": {"init": 1.0, "final": 0.0}}, "deform.lr_grid.final"),

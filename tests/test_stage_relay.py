@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from conftest import STAGE_K, stage_smoke_cfg
-from relaygs.data import Scene
+from relaygs.data import Scene, load_scene
 from relaygs.errors import InputError
 from relaygs.pipeline.artifact import Artifact
 from relaygs.stages import STAGES, SceneModel
@@ -180,3 +180,30 @@ def test_a_step_on_one_segment_leaves_the_other_copies_untouched(
             any(not torch.equal(relayed.tensors[name][rows], up) for name, up in upstream.items())
         )
     assert sum(changed) == 1
+
+
+def test_draws_at_a_frame_take_every_camera_once_before_repeating_one(stage_scene: Scene) -> None:
+    views = TrainViews(stage_scene, torch.device("cpu"))
+    cameras = {view.camera.camera_id for view in views.by_frame[3]}
+    drawn = views.random_views_at(3, len(cameras) + 5, torch.Generator().manual_seed(0))
+    assert len(drawn) == len(cameras) + 5 and {view.frame for view in drawn} == {3}
+    assert sorted(view.camera.camera_id for view in drawn[: len(cameras)]) == sorted(cameras)
+
+
+def test_train_views_name_a_missing_frame_or_camera(stage_scene: Scene) -> None:
+    views = TrainViews(stage_scene, torch.device("cpu"))
+    with pytest.raises(InputError, match="camera 999 has no train image at frame 0"):
+        views.view(0, 999)
+    frame = stage_scene.num_frames
+    with pytest.raises(InputError, match=f"no train views at frame {frame}"):
+        views.random_views_at(frame, 1, torch.Generator().manual_seed(0))
+
+
+def test_stages_refuse_upstreams_they_cannot_use(
+    stage_scene: Scene, stage_decoupled: Artifact, tiny_synth_scene
+) -> None:
+    with pytest.raises(InputError, match=r"'decouple': takes no upstream artifact, got \['x'\]"):
+        STAGES["decouple"](stage_scene, {"x": stage_decoupled}, stage_smoke_cfg())
+    other = load_scene(tiny_synth_scene)  # 6 frames, the upstream 8
+    with pytest.raises(InputError, match="upstream 'decouple' has 8 frames, the scene 6"):
+        STAGES["relay"](other, {"decouple": stage_decoupled}, stage_smoke_cfg())

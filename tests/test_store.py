@@ -11,7 +11,7 @@ import relaygs
 from relaygs.errors import InputError
 from relaygs.pipeline.artifact import Artifact
 from relaygs.pipeline.context import current_build
-from relaygs.pipeline.integrity import MARKER_FILE, CorruptArtifactError
+from relaygs.pipeline.integrity import MARKER_FILE, CorruptArtifactError, seal
 from relaygs.pipeline.keys import artifact_key
 from relaygs.pipeline.manifest import LineageEntry
 from relaygs.pipeline.store import ArtifactStore, MissingArtifactError
@@ -313,3 +313,46 @@ def test_gc_keeps_only_annotations_whose_upstreams_are_all_kept(tmp_path):
     assert store.has("decouple", KEY) and store.has("evaluate", described)
     assert not store.has("decouple", other) and not store.has("evaluate", of_other)
     assert not store.has("evaluate", orphan)
+
+
+def test_a_key_prefix_under_4_digits_is_refused(tmp_path):
+    store = ArtifactStore(tmp_path)
+    _build(store, CountingStage())
+    assert store.find(KEY[:4]).key == KEY
+    with pytest.raises(InputError, match=f"key prefix '{KEY[:3]}' is too short"):
+        store.find(KEY[:3])
+
+
+def test_metrics_that_are_not_a_mapping_are_refused_and_nothing_is_stored(tmp_path):
+    store = ArtifactStore(tmp_path)
+
+    def build():
+        return Artifact("decouple", {"xyz": torch.zeros(2, 3)}, {"metrics": [0.5]})
+
+    with pytest.raises(InputError, match=r"decouple artifact meta\['metrics'\] must be a mapping"):
+        store.get_or_build("decouple", KEY, build, config={}, lineage=[])
+    assert not store.has("decouple", KEY) and store.damaged() == []
+
+
+@pytest.mark.parametrize("name", ["meta.json", "tensors.safetensors"])
+def test_sealed_files_that_do_not_decode_are_corrupt_not_a_traceback(tmp_path, name):
+    # hashes that match undecodable bytes: a file damaged before it was sealed (safetensors
+    # raises its own SafetensorError, which escaped as a traceback)
+    store, fake = ArtifactStore(tmp_path), CountingStage()
+    _build(store, fake)
+    folder = store.path("decouple", KEY)
+    (folder / name).write_text("{not json")
+    seal(folder)
+    with pytest.raises(CorruptArtifactError, match="unreadable artifact files"):
+        store.load("decouple", KEY)
+    _, info = _build(store, fake)
+    assert fake.calls == 2 and info.replaced_corrupt
+
+
+def test_a_marker_without_a_hash_table_is_damaged(tmp_path):
+    store = ArtifactStore(tmp_path)
+    _build(store, CountingStage())
+    (store.path("decouple", KEY) / MARKER_FILE).write_text(json.dumps({"sha256": ["x"]}))
+    with pytest.raises(CorruptArtifactError, match="completion marker holds no file hashes"):
+        store.load("decouple", KEY)
+    assert [problem.path.name for problem in store.verify()] == [KEY]

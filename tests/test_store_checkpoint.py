@@ -15,8 +15,9 @@ import torch
 
 from relaygs.errors import InputError
 from relaygs.pipeline.artifact import Artifact
-from relaygs.pipeline.checkpoint import StageCheckpointer
+from relaygs.pipeline.checkpoint import STATE_FILE, TENSORS_FILE, StageCheckpointer
 from relaygs.pipeline.context import current_build
+from relaygs.pipeline.integrity import seal
 from relaygs.pipeline.keys import artifact_key
 from relaygs.pipeline.statecodec import decode_tree, encode_tree
 from relaygs.pipeline.store import ArtifactStore
@@ -190,3 +191,22 @@ def test_a_run_killed_with_sigkill_resumes_from_its_checkpoint(tmp_path):
     reference, _ = train(None, total_steps=total)
     assert torch.equal(artifact.tensors["param"], reference)
     assert not ckpt_dir.exists()
+
+
+@pytest.mark.parametrize(
+    ("name", "text"),
+    [
+        (STATE_FILE, json.dumps({"step": 4})),  # no tensors/optimizers/rng
+        (TENSORS_FILE, "junk"),  # safetensors' own SafetensorError escaped as a traceback
+    ],
+)
+def test_a_sealed_checkpoint_whose_state_does_not_decode_falls_back(tmp_path, name, text):
+    ckpt = StageCheckpointer(tmp_path, "train", KEY, every_n_steps=2, keep_last=2)
+    for step in (2, 4):
+        ckpt.save(step, {"x": torch.full((3,), float(step))})
+    newest = ckpt.folder / "step-000000000004"
+    (newest / name).write_text(text)
+    seal(newest)
+    with pytest.warns(UserWarning, match="unreadable checkpoint"):
+        state = ckpt.load()
+    assert state.step == 2 and torch.equal(state.tensors["x"], torch.full((3,), 2.0))

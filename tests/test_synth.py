@@ -323,6 +323,13 @@ def test_refuses_to_overwrite_a_folder_that_is_not_a_generated_scene(tmp_path: P
     assert (tmp_path / "notes" / "keep.txt").read_text() == "mine"
 
 
+def test_refuses_to_replace_a_file_with_a_scene(tmp_path: Path):
+    (tmp_path / "scene").write_text("mine")
+    with pytest.raises(InputError, match=r"output path exists and is not a folder: .*scene$"):
+        generate("static", tmp_path / "scene", frames=1, width=8, height=6)
+    assert (tmp_path / "scene").read_text() == "mine"
+
+
 def test_refuses_to_overwrite_a_generated_scene_that_holds_other_files(tmp_path: Path):
     scene = generate("static", tmp_path / "scene", frames=1, width=8, height=6)
     (scene / "my_results").mkdir()

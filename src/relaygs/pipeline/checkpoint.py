@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 import torch
+from safetensors import SafetensorError
 from safetensors.torch import load_file
 
 from relaygs.errors import InputError
@@ -152,5 +153,5 @@ def _read_state(folder: Path) -> TrainingState:
             rng=decode_tree(skeleton["rng"], stored),
             extras=decode_tree(skeleton["extras"], stored),
         )
-    except (OSError, ValueError, KeyError, TypeError) as error:
+    except (OSError, ValueError, KeyError, TypeError, SafetensorError) as error:
         raise CorruptArtifactError(f"{folder}: unreadable checkpoint ({error})") from error

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from filelock import FileLock, Timeout
+from safetensors import SafetensorError
 
 from relaygs.errors import InputError, RelayGSError
 from relaygs.pipeline.artifact import Artifact, read_artifact_files, write_artifact_files
@@ -280,7 +281,7 @@ class ArtifactStore:
         manifest = read_own_manifest(folder)
         try:
             return read_artifact_files(folder, stage), manifest
-        except (OSError, ValueError) as error:
+        except (OSError, ValueError, SafetensorError) as error:
             raise CorruptArtifactError(f"{folder}: unreadable artifact files ({error})") from error
 
     def _write(
