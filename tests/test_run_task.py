@@ -113,6 +113,19 @@ def test_changing_k_reuses_decouple_and_rebuilds_relay_and_deform(base_config, t
     assert "reused decouple artifact" in capsys.readouterr().out
 
 
+def test_a_run_folder_used_again_is_noted(base_config, tmp_path, capsys):
+    # a pinned hydra.run.dir used twice: the result is replaced and TensorBoard mixes the runs
+    fakes = FakeStages()
+    _run(base_config, tmp_path / "a", fakes)
+    assert "already holds a run" not in capsys.readouterr().err
+    _run(_with(base_config, relay__k=32), tmp_path / "a", fakes)
+    err = capsys.readouterr().err
+    assert f"note: {tmp_path / 'a'} already holds a run: its result.json is replaced" in err
+    (tmp_path / "a" / RESULT_FILE).unlink()  # a killed run's folder: only its curves
+    _run(base_config, tmp_path / "a", fakes)
+    assert "already holds a run" in capsys.readouterr().err
+
+
 def test_an_evaluated_model_is_not_evaluated_again(base_config, tmp_path, capsys):
     fakes = FakeStages()
     first = _run(base_config, tmp_path / "a", fakes)

@@ -8,6 +8,7 @@ and fake stages.
 from __future__ import annotations
 
 import shlex
+import sys
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -21,6 +22,7 @@ from relaygs.app.evaluation import Evaluation, evaluate_through_store
 from relaygs.app.plan import RunPlan, plan_run
 from relaygs.app.result import (
     METRIC_FIELDS,
+    RESULT_FILE,
     Scalar,
     build_failed_result,
     build_result,
@@ -111,6 +113,7 @@ def _execute(
         torch.set_num_threads(plan.threads)
     scene = prepare_scene(plan.scene, plan.scenes_dir, progress=plan.progress)
     store = ArtifactStore(plan.artifacts_root)
+    _note_earlier_run(Path(run_dir))
     log = TensorBoardLog(Path(run_dir) / TENSORBOARD_DIR)
     suite.add_sink(log)
     try:
@@ -149,6 +152,20 @@ def _log_reused_stages(log: TensorBoardLog, suite: StageSuite, run: PipelineRun)
         if report.cache_hit:
             for step, scalars in suite.logged_scalars(run.artifacts[report.node]):
                 log(report.stage, step, scalars)
+
+
+def _note_earlier_run(run_dir: Path) -> None:
+    """Say on stderr when the run folder already holds a run (a pinned `hydra.run.dir` used
+    again): its result is replaced and TensorBoard would show both runs' curves as one run."""
+    events = any((run_dir / TENSORBOARD_DIR).glob("events.out.tfevents.*"))
+    if events or (run_dir / RESULT_FILE).is_file():
+        print(
+            f"note: {run_dir} already holds a run: its {RESULT_FILE} is replaced and TensorBoard "
+            "shows its curves and this run's as one run; give each run its own folder "
+            "(hydra.run.dir, or hydra.sweep.dir for a sweep)",
+            file=sys.stderr,
+            flush=True,
+        )
 
 
 def _announce(report: NodeReport) -> None:
