@@ -123,7 +123,8 @@ def test_a_run_folder_used_again_is_noted(base_config, tmp_path, capsys):
     assert f"note: {tmp_path / 'a'} already holds a run: its result.json is replaced" in err
     (tmp_path / "a" / RESULT_FILE).unlink()  # a killed run's folder: only its curves
     _run(base_config, tmp_path / "a", fakes)
-    assert "already holds a run" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "already holds a run: TensorBoard shows its curves" in err
 
 
 def test_an_evaluated_model_is_not_evaluated_again(base_config, tmp_path, capsys):

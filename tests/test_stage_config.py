@@ -213,14 +213,17 @@ def test_partial_mappings_merge_over_defaults() -> None:
 def test_density_control_ends_before_a_stages_last_step() -> None:
     # before: at the paper's 3000 decouple steps the opacity reset every 3000 fell on the last
     # step, leaving relay a frozen, nearly transparent background; relay split on its last step
-    static = [DecoupleConfig.from_config({}), WarmupConfig.from_config({})]
-    ends = {section.steps: section.densify_settings() for section in static}
     relay, deform = RelayConfig.from_config({}), DeformConfig.from_config({})
-    ends[relay.steps] = relay.plans()["fg"].densify
-    assert {steps: s.densify_until for steps, s in ends.items()} == {3000: 3000, 14000: 14000}
-    assert deform.plans()["bg"].densify.densify_until == 15000  # < its 20000 steps: unchanged
+    ends = {
+        "decouple": DecoupleConfig.from_config({}).densify_settings(),
+        "warmup": WarmupConfig.from_config({}).densify_settings(),
+        "relay": relay.plans()["fg"].densify,
+        "deform": deform.plans()["bg"].densify,  # 15000 < its 20000 steps: unchanged
+    }
+    until = {stage: settings.densify_until for stage, settings in ends.items()}
+    assert until == {"decouple": 3000, "warmup": 3000, "relay": 14000, "deform": 15000}
     gaussians = GaussianSet.from_points(torch.rand(20, 3), torch.rand(20, 3))
-    controller = DensityController(gaussians, ends[3000], 1.0)
+    controller = DensityController(gaussians, ends["decouple"], 1.0)
     assert controller.step(3000) is None
     assert controller.step(2900) is not None
 

@@ -158,11 +158,13 @@ def _note_earlier_run(run_dir: Path) -> None:
     """Say on stderr when the run folder already holds a run (a pinned `hydra.run.dir` used
     again): its result is replaced and TensorBoard would show both runs' curves as one run."""
     events = any((run_dir / TENSORBOARD_DIR).glob("events.out.tfevents.*"))
-    if events or (run_dir / RESULT_FILE).is_file():
+    result = (run_dir / RESULT_FILE).is_file()
+    if events or result:
+        replaced = f"its {RESULT_FILE} is replaced and " if result else ""
         print(
-            f"note: {run_dir} already holds a run: its {RESULT_FILE} is replaced and TensorBoard "
-            "shows its curves and this run's as one run; give each run its own folder "
-            "(hydra.run.dir, or hydra.sweep.dir for a sweep)",
+            f"note: {run_dir} already holds a run: {replaced}TensorBoard shows its curves and "
+            "this run's as one run; give each run its own folder (hydra.run.dir, or "
+            "hydra.sweep.dir for a sweep)",
             file=sys.stderr,
             flush=True,
         )

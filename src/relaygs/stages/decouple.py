@@ -50,7 +50,7 @@ from relaygs.stages.train_settings import TrainSettings
 from relaygs.stages.views import TrainViews
 
 STAGE = "decouple"
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2  # 2: density control ends before the stage's last step
 MASK = "mask_logit"
 SET = "all"
 

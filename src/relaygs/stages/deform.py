@@ -43,7 +43,7 @@ from relaygs.stages.train_settings import TrainSettings
 from relaygs.stages.views import TrainViews
 
 STAGE = "deform"
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2  # 2: density control ends before the stage's last step
 ACCEPTED_UPSTREAM = ("relay", "replicate", "decouple", "warmup")
 REGULARISERS = ("plane_smoothness", "time_smoothness", "time_l1")
 GRID_LR = {"init": 1.6e-3, "final": 1.6e-4}  # 4D-GS, × scene extent

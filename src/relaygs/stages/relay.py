@@ -44,7 +44,7 @@ from relaygs.stages.train_settings import TrainSettings
 from relaygs.stages.views import TrainViews
 
 STAGE = "relay"
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2  # 2: density control ends before the stage's last step
 ACCEPTED_UPSTREAM = ("decouple",)
 
 
