@@ -8,8 +8,9 @@ import sys
 import pytest
 import torch
 
-from relaygs import artifacts as artifacts_module
-from relaygs.artifacts import main
+from relaygs.cli import start_tool
+from relaygs.commands import artifacts as artifacts_module
+from relaygs.commands.artifacts import main
 from relaygs.pipeline.artifact import Artifact
 from relaygs.pipeline.integrity import seal
 from relaygs.pipeline.keys import artifact_key
@@ -127,8 +128,10 @@ def test_ctrl_c_during_a_command_is_one_line_and_status_130(store, capsys, monke
         raise KeyboardInterrupt
 
     monkeypatch.setattr(artifacts_module, "_ls", interrupted)
-    code, out, err = _cli(capsys, store.root, "ls")
-    assert (code, out, err) == (130, "", "interrupted\n")
+    monkeypatch.setattr(sys, "argv", ["artifacts", "--root", str(store.root), "ls"])
+    with pytest.raises(SystemExit) as stop:
+        start_tool("relaygs.commands.artifacts")
+    assert (stop.value.code, *capsys.readouterr()) == (130, "", "interrupted\n")
 
 
 def test_missing_store_is_one_line_error(tmp_path, capsys):

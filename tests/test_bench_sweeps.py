@@ -4,7 +4,7 @@ import subprocess
 
 import pytest
 
-from relaygs import bench, bench_sweeps, bench_train
+from relaygs.commands import bench, bench_sweeps, bench_train
 
 
 def test_commands_run_each_experiment_on_the_tiny_scene(tmp_path):

@@ -12,8 +12,8 @@ import pytest
 from omegaconf import OmegaConf
 
 from fake_stages import FakeStages, compose_config
-from relaygs import run as run_module
 from relaygs.app.task import run_task
+from relaygs.commands import run as run_module
 from relaygs.pipeline import ArtifactStore
 from relaygs.stages import canonical_config
 

@@ -1,4 +1,5 @@
-"""Command-line plumbing shared by the tools: output into a pipe whose reader went away."""
+"""Command-line plumbing shared by the tools: their start, Ctrl-C, and output into a pipe
+whose reader went away."""
 
 import os
 import subprocess
@@ -6,7 +7,7 @@ import sys
 
 import pytest
 
-from relaygs.cli import BROKEN_PIPE_EXIT
+from relaygs.cli import BROKEN_PIPE_EXIT, INTERRUPTED_EXIT, start_tool
 
 LONG_OUTPUT = (
     "import sys; from relaygs.cli import run_tool; sys.exit(run_tool(lambda: print('x' * 99)))"
@@ -42,3 +43,53 @@ def test_buffered_output_that_meets_a_closed_pipe_at_the_end_is_quiet_too():
 
 def test_the_broken_pipe_status_is_the_shells_128_plus_sigpipe():
     assert BROKEN_PIPE_EXIT == 128 + 13 == 141
+
+
+TOOLS = ("run", "report", "artifacts", "bench", "synth")
+
+
+def test_the_entry_modules_load_nothing_heavy():
+    # `python -m relaygs.X` runs relaygs/X.py before anything can catch a Ctrl-C: it must not
+    # import torch or Hydra itself (one to three seconds), or a Ctrl-C then is a traceback
+    imports = "; ".join(f"import relaygs.{tool}" for tool in TOOLS)
+    heavy = "[name for name in ('torch', 'hydra', 'numpy', 'pandas') if name in sys.modules]"
+    script = f"import sys; {imports}; print({heavy})"
+    loaded = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
+    assert (loaded.returncode, loaded.stdout.strip()) == (0, "[]"), loaded.stderr
+
+
+@pytest.mark.parametrize("tool", TOOLS)
+def test_each_entry_module_starts_its_command(tool):
+    started = subprocess.run(
+        [sys.executable, "-m", f"relaygs.{tool}", "--help"], capture_output=True, text=True
+    )
+    assert started.returncode == 0 and f"python -m relaygs.{tool}" in started.stdout, started.stderr
+
+
+def _tool_module(tmp_path, monkeypatch, body: str) -> str:
+    """A throwaway tool module on sys.path whose source is `body`; returns its name."""
+    name = f"tool_{tmp_path.name}"
+    (tmp_path / f"{name}.py").write_text(body)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    return name
+
+
+@pytest.mark.parametrize(
+    "body",
+    [
+        "raise KeyboardInterrupt  # Ctrl-C while importing",
+        "def main():\n    raise KeyboardInterrupt",
+    ],
+)
+def test_ctrl_c_while_a_tool_loads_or_runs_is_one_line_and_130(tmp_path, monkeypatch, capsys, body):
+    with pytest.raises(SystemExit) as stop:
+        start_tool(_tool_module(tmp_path, monkeypatch, body))
+    assert (stop.value.code, *capsys.readouterr()) == (INTERRUPTED_EXIT, "", "interrupted\n")
+
+
+def test_a_started_tool_exits_with_its_mains_status(tmp_path, monkeypatch, capsys):
+    with pytest.raises(SystemExit) as stop:
+        start_tool(
+            _tool_module(tmp_path, monkeypatch, "def main():\n    print('ran')\n    return 3")
+        )
+    assert (stop.value.code, capsys.readouterr().out) == (3, "ran\n")

@@ -3,7 +3,7 @@
 import pytest
 import torch
 
-from relaygs import bench
+from relaygs.commands import bench
 from relaygs.device import usable_device
 from relaygs.errors import InputError
 

@@ -4,7 +4,7 @@ import cv2
 import numpy as np
 import pytest
 
-from relaygs.artifacts import main
+from relaygs.commands.artifacts import main
 from relaygs.data import load_scene
 from relaygs.errors import InputError
 from relaygs.pipeline.keys import artifact_key

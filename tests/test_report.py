@@ -6,10 +6,10 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from relaygs import report
 from relaygs.app import pareto
 from relaygs.app.pareto import pareto_front, point_labels
 from relaygs.app.summary import summary_table
+from relaygs.commands import report
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 

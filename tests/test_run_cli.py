@@ -17,9 +17,9 @@ import torch
 import yaml
 
 from fake_stages import TINY_SCENE, FakeStages
-from relaygs import run as run_module
 from relaygs.app import prelaunch
 from relaygs.app.task import run_task
+from relaygs.commands import run as run_module
 from relaygs.errors import RERUN_RUN, Interrupted
 from relaygs.paths import config_dir
 

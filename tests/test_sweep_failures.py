@@ -10,9 +10,9 @@ import pytest
 from omegaconf import OmegaConf
 
 from fake_stages import TINY_SCENE, FakeStages, compose_config
-from relaygs import report
-from relaygs import run as run_module
 from relaygs.app.task import run_task
+from relaygs.commands import report
+from relaygs.commands import run as run_module
 
 ERROR = "RuntimeError: relay diverged: loss is nan"
 

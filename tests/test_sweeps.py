@@ -13,7 +13,7 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 from tensorboard.plugins.hparams import plugin_data_pb2
 
 from relaygs.app.prelaunch import is_installed
-from relaygs.bench_sweeps import EXPERIMENTS, command
+from relaygs.commands.bench_sweeps import EXPERIMENTS, command
 
 pytestmark = pytest.mark.sweep
 

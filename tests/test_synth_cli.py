@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from relaygs.synth import main, parse_effect_list
+from relaygs.commands.synth import main, parse_effect_list
 
 
 def test_cli_writes_a_scene_with_the_requested_effects(tmp_path: Path, capsys):

@@ -1,9 +1,11 @@
-"""Command-line plumbing the relaygs tools share: usage errors as one line, checked counts, a
-quiet end when the reader of their output goes away."""
+"""Command-line plumbing the relaygs tools share: a start that imports the tool only once
+running, usage errors as one line, checked counts, a quiet end when the reader of their output
+goes away or Ctrl-C stops them."""
 
 from __future__ import annotations
 
 import argparse
+import importlib
 import os
 import sys
 from collections.abc import Callable
@@ -11,6 +13,21 @@ from typing import NoReturn
 
 BROKEN_PIPE_EXIT = 141
 """128 + SIGPIPE: what a shell tool returns when its reader closed the pipe (`... | head`)."""
+
+INTERRUPTED_EXIT = 130
+"""128 + SIGINT: what a command stopped by Ctrl-C returns, as shells expect."""
+
+
+def start_tool(module: str) -> NoReturn:
+    """Exit with the status of `module`'s `main()`, imported only now: the `python -m relaygs.X`
+    entry modules are this call alone, so that a Ctrl-C while torch and Hydra load (one to three
+    seconds) ends with one line and INTERRUPTED_EXIT, as it does once the tool runs."""
+    try:
+        status = run_tool(importlib.import_module(module).main)
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        status = INTERRUPTED_EXIT
+    raise SystemExit(status)
 
 
 class OneLineErrorParser(argparse.ArgumentParser):

@@ -11,8 +11,8 @@ from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 
 from relaygs.app.summary import results_written_before
+from relaygs.commands.report import describe, write_reports
 from relaygs.errors import RelayGSError
-from relaygs.report import describe, write_reports
 
 
 class SweepSummary(Callback):

@@ -16,7 +16,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from relaygs.bench_output import json_target, save_json
+from relaygs.commands.bench_output import json_target, save_json
 
 TINY_SCENE = ("budget=smoke", "scene.frames=8", "scene.width=48", "scene.height=27")
 EXPERIMENTS = ("smoke", "ablation_k", "ablation_components", "baseline", "budget")

@@ -25,8 +25,8 @@ from typing import Any
 
 import torch
 
-from relaygs.bench_output import json_target, save_json
 from relaygs.cli import int_at_least
+from relaygs.commands.bench_output import json_target, save_json
 from relaygs.data import Scene, load_scene
 from relaygs.data.synthetic import generate
 from relaygs.errors import RelayGSError

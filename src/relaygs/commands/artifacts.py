@@ -1,0 +1,243 @@
+"""`python -m relaygs.artifacts [--root DIR] ls | show KEY | eval KEY --scene DIR |
+render KEY --scene DIR | verify | gc`: inspect, score, look at, check and clean the artifact
+store. Exit 0 on success, 1 on a problem (one line on stderr), 2 on usage."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Sequence
+from dataclasses import asdict
+from pathlib import Path
+
+from safetensors import SafetensorError, safe_open
+
+from relaygs.app.evaluation import EVAL_STAGE
+from relaygs.cli import OneLineErrorParser
+from relaygs.data import load_scene
+from relaygs.device import usable_device
+from relaygs.errors import RERUN_COMMAND, RelayGSError, resource_error
+from relaygs.paths import require_creatable_folder
+from relaygs.pipeline.artifact import TENSORS_FILE, Artifact
+from relaygs.pipeline.store import (
+    VERIFY_HINT,
+    ArtifactStore,
+    MissingArtifactError,
+    StoredArtifact,
+)
+from relaygs.renders import RenderSettings, write_renders
+from relaygs.stages import evaluate
+from relaygs.stages.scene_model import SceneModel
+
+DEFAULT_ROOT = "outputs/artifacts"
+DEFAULT_RENDERS = "outputs/renders"
+KEY_COLUMN_WIDTH = 16
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Parse the command line, run one command, and return the process exit status."""
+    args = _parser().parse_args(argv)
+    store = ArtifactStore(args.root)
+    try:
+        if not store.root.is_dir():
+            raise RelayGSError(f"no artifact store at {store.root} (pass --root DIR)")
+        return args.command_fn(store, args)
+    except RelayGSError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 1
+    except (OSError, MemoryError, RuntimeError) as error:  # out of disk or memory: one line
+        failure = resource_error(error, rerun=RERUN_COMMAND)
+        if failure is None:
+            raise
+        print(f"error: {failure}", file=sys.stderr)
+        return 1
+
+
+def _parser() -> argparse.ArgumentParser:
+    """The argument parser with one sub-command per store operation."""
+    parser = OneLineErrorParser(prog="python -m relaygs.artifacts", description=__doc__)
+    parser.add_argument("--root", default=DEFAULT_ROOT, help=f"store root (default {DEFAULT_ROOT})")
+    commands = parser.add_subparsers(dest="command", required=True)
+    commands.add_parser("ls", help="list finished artifacts").set_defaults(command_fn=_ls)
+    show = commands.add_parser("show", help="print one artifact's manifest and tensors")
+    show.add_argument("key", help="full key or a unique prefix (at least 4 hex digits)")
+    show.set_defaults(command_fn=_show)
+    score = commands.add_parser(
+        "eval", help="score one artifact's model on a scene's test views (any stage's output)"
+    )
+    score.add_argument("key", help="full key or a unique prefix (at least 4 hex digits)")
+    score.add_argument(
+        "--scene", type=Path, required=True, help="the scene folder it was trained on"
+    )
+    score.add_argument("--frame-stride", type=int, default=1, help="score every N-th frame")
+    score.add_argument(
+        "--downscale", type=int, default=1, help="the run's scene.loader.downscale (default 1)"
+    )
+    score.set_defaults(command_fn=_eval)
+    render = commands.add_parser(
+        "render",
+        help="render one artifact's model over time: a PNG per frame and an MP4 per camera",
+    )
+    render.add_argument("key", help="full key or a unique prefix (at least 4 hex digits)")
+    render.add_argument(
+        "--scene", type=Path, required=True, help="the scene folder it was trained on"
+    )
+    render.add_argument(
+        "--camera",
+        type=int,
+        action="append",
+        metavar="ID",
+        help="camera id to render (repeat for more; default: the test cameras)",
+    )
+    render.add_argument("--frame-stride", type=int, default=1, help="render every N-th frame")
+    render.add_argument(
+        "--downscale", type=int, default=1, help="the run's scene.loader.downscale (default 1)"
+    )
+    render.add_argument("--truth", action="store_true", help="put the ground truth beside")
+    render.add_argument("--fps", type=float, default=15.0, help="video frame rate (default 15)")
+    render.add_argument("--no-video", action="store_true", help="write PNG frames only")
+    render.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N (default cpu)")
+    render.add_argument(
+        "--out", type=Path, help=f"output folder (default {DEFAULT_RENDERS}/<stage>-<key>)"
+    )
+    render.set_defaults(command_fn=_render)
+    verify = commands.add_parser("verify", help="check every artifact's hashes (exit 1 if bad)")
+    verify.set_defaults(command_fn=_verify)
+    gc = commands.add_parser("gc", help="remove leftovers of killed builds and stale locks")
+    gc.add_argument(
+        "--keep",
+        nargs="+",
+        metavar="KEY",
+        help="also remove every artifact that is neither one of these (full keys or unique "
+        "prefixes) nor in their lineage (the evaluations of what is kept stay)",
+    )
+    gc.add_argument("--dry-run", action="store_true", help="only print what would be removed")
+    gc.set_defaults(command_fn=_gc)
+    return parser
+
+
+def _ls(store: ArtifactStore, args: argparse.Namespace) -> int:
+    """One line per finished artifact: stage, key, size, build seconds, created, upstream."""
+    items = store.list()
+    print(f"{'STAGE':<12} {'KEY':<{KEY_COLUMN_WIDTH}} {'MB':>9} {'WALL_S':>9}  CREATED  UPSTREAM")
+    for item in items:
+        manifest = item.manifest
+        upstream = ",".join(f"{e.stage}:{e.key[:8]}" for e in manifest.lineage) or "-"
+        print(
+            f"{item.stage:<12} {item.key[:KEY_COLUMN_WIDTH]:<{KEY_COLUMN_WIDTH}} "
+            f"{manifest.size_mb:>9.3f} {manifest.wall_seconds:>9.2f}  "
+            f"{manifest.created}  {upstream}"
+        )
+    print(f"{len(items)} artifact(s) in {store.root}")
+    damaged = store.damaged()
+    if damaged:
+        print(f"{len(damaged)} damaged artifact folder(s) not listed: {VERIFY_HINT}")
+    return 0
+
+
+def _show(store: ArtifactStore, args: argparse.Namespace) -> int:
+    """The artifact's folder, manifest (JSON) and tensor names, dtypes and shapes."""
+    item = store.find(args.key)
+    tensors = _tensor_lines(item)
+    print(f"path: {item.path}")
+    print(json.dumps(asdict(item.manifest), indent=2, sort_keys=True))
+    for line in tensors:
+        print(line)
+    return 0
+
+
+def _tensor_lines(item: StoredArtifact) -> list[str]:
+    """`tensor <name>: <dtype> <shape>` per stored tensor, read from the file's header; a file
+    that cannot be parsed is reported as a damaged artifact, one that a gc removed meanwhile as
+    removed."""
+    path = item.path / TENSORS_FILE
+    try:
+        with safe_open(str(path), framework="pt") as tensors:
+            views = {name: tensors.get_slice(name) for name in sorted(tensors.keys())}
+            return [
+                f"tensor {name}: {view.get_dtype()} {list(view.get_shape())}"
+                for name, view in views.items()
+            ]
+    except (OSError, SafetensorError) as error:
+        if not item.path.is_dir():  # a gc beside this command removed it after it was found
+            name = f"{item.stage}/{item.key[:KEY_COLUMN_WIDTH]}"
+            raise MissingArtifactError(f"artifact {name} was removed while it was read") from error
+        message = f"damaged artifact: {path} is unreadable ({error}); {VERIFY_HINT}"
+        raise RelayGSError(message) from error
+
+
+def _eval(store: ArtifactStore, args: argparse.Namespace) -> int:
+    """Render the artifact's model at the scene's test views and print the test metrics, e.g.
+    to see what each stage of a lineage contributes."""
+    if args.frame_stride < 1:
+        raise RelayGSError(f"--frame-stride must be >= 1, got {args.frame_stride}")
+    item, artifact = _model_artifact(store, args.key)
+    scene = load_scene(args.scene, downscale=args.downscale)
+    metrics = evaluate(scene, artifact, {"eval": {"frame_stride": args.frame_stride}})
+    metrics["storage_mb"] = item.manifest.size_mb  # as a run's result.json reports it
+    print(f"{item.stage} {item.key[:KEY_COLUMN_WIDTH]} on {args.scene}")
+    for name, value in metrics.items():
+        if isinstance(value, float):
+            print(f"  {name:<16}{value:.4f}")
+        elif isinstance(value, int) or value is None:
+            print(f"  {name:<16}{'n/a' if value is None else value}")
+    return 0
+
+
+def _render(store: ArtifactStore, args: argparse.Namespace) -> int:
+    """Write the artifact's renders of the chosen cameras over time and say where they are."""
+    settings = RenderSettings(
+        camera_ids=tuple(args.camera) if args.camera else None,
+        frame_stride=args.frame_stride,
+        with_truth=args.truth,
+        fps=None if args.no_video else args.fps,
+    )
+    device = usable_device(args.device, "--device")
+    item, artifact = _model_artifact(store, args.key)
+    name = f"{item.stage}-{item.key[:KEY_COLUMN_WIDTH]}"
+    out = require_creatable_folder((args.out or Path(DEFAULT_RENDERS) / name).absolute(), "--out")
+    scene = load_scene(args.scene, downscale=args.downscale)
+    model = SceneModel.from_artifact(artifact).to(device)
+    written = write_renders(scene, model, out, settings)
+    print(f"{item.stage} {item.key[:KEY_COLUMN_WIDTH]} rendered into {out}")
+    for camera in written:
+        video = f", video {camera.video}" if camera.video is not None else ""
+        print(
+            f"  camera {camera.camera_id}: {len(camera.frames)} frame(s) in {camera.folder}{video}"
+        )
+    return 0
+
+
+def _model_artifact(store: ArtifactStore, key_prefix: str) -> tuple[StoredArtifact, Artifact]:
+    """The stored model of `key_prefix`, refusing a stored evaluation (it holds no model)."""
+    item = store.find(key_prefix)
+    if item.stage == EVAL_STAGE:
+        raise RelayGSError(
+            f"{item.key[:KEY_COLUMN_WIDTH]} is a stored evaluation, not a model: "
+            f"`show {key_prefix}` prints its metrics"
+        )
+    return item, store.load(item.stage, item.key)
+
+
+def _verify(store: ArtifactStore, args: argparse.Namespace) -> int:
+    """Check all artifacts; print each bad one and exit 1 when there is any."""
+    problems = store.verify()
+    for problem in problems:
+        print(f"CORRUPT {problem.path}: {problem.message}")
+    total = len(store.list())
+    print(f"{total} readable artifact(s), {len(problems)} problem(s) in {store.root}")
+    return 1 if problems else 0
+
+
+def _gc(store: ArtifactStore, args: argparse.Namespace) -> int:
+    """Remove garbage (see ArtifactStore.gc) and print what went."""
+    keep = None if args.keep is None else [store.find(prefix).key for prefix in args.keep]
+    report = store.gc(keep=keep, dry_run=args.dry_run, annotations=(EVAL_STAGE,))
+    verb = "would remove" if args.dry_run else "removed"
+    for path in report.removed:
+        print(f"{verb} {path}")
+    for path in report.busy:
+        print(f"in use, kept {path}")
+    print(f"{verb} {len(report.removed)} path(s), {len(report.busy)} in use")
+    return 0

@@ -1,0 +1,191 @@
+"""`python -m relaygs.bench splat|train|sweeps [--json PATH]`: benchmarks, not tests."""
+
+from __future__ import annotations
+
+import statistics
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from relaygs.cli import OneLineErrorParser, int_at_least
+from relaygs.commands import bench_sweeps, bench_train
+from relaygs.commands.bench_output import json_target, save_json
+from relaygs.device import usable_device
+from relaygs.errors import RelayGSError
+from relaygs.paths import REPO_ROOT
+from relaygs.splat import rasterization
+
+GARDEN_PATH = REPO_ROOT.parent / "shared" / "data" / "test_garden.npz"
+
+
+def random_case(n: int, seed: int = 0, size: int = 256) -> dict:
+    """The random benchmark scene: N Gaussians in front of one camera at the origin."""
+    gen = torch.Generator().manual_seed(seed)
+    means = torch.empty(n, 3)
+    means[:, :2] = torch.rand(n, 2, generator=gen) * 2 - 1
+    means[:, 2] = torch.rand(n, generator=gen) * 2 + 2
+    scales = (torch.rand(n, 1, generator=gen) * 0.04 + 0.01).expand(n, 3).contiguous()
+    quats = torch.nn.functional.normalize(torch.randn(n, 4, generator=gen), dim=-1)
+    opacities = torch.rand(n, generator=gen) * 0.8 + 0.1
+    colors = torch.rand(n, 3, generator=gen)
+    K = torch.tensor([[float(size), 0, size / 2], [0, float(size), size / 2], [0, 0, 1]])
+    return {
+        "means": means,
+        "quats": quats,
+        "scales": scales,
+        "opacities": opacities,
+        "colors": colors,
+        "viewmats": torch.eye(4)[None],
+        "Ks": K[None],
+        "width": size,
+        "height": size,
+    }
+
+
+def garden_case(path: Path = GARDEN_PATH, seed: int = 0) -> dict:
+    """The shared garden protocol: real means/colours in [-2,2]^3, random shapes, 3 cameras."""
+    if not path.is_file():
+        raise RelayGSError(
+            f"{path}: garden asset not found (expected ../shared/data beside the repo)"
+        )
+    data = np.load(path)
+    means = torch.from_numpy(data["means3d"]).float()
+    colors = torch.from_numpy(data["colors"]).float() / 255.0
+    keep = (means.abs() <= 2).all(dim=1)
+    means, colors = means[keep], colors[keep]
+    n = means.shape[0]
+    gen = torch.Generator().manual_seed(seed)
+    return {
+        "means": means,
+        "colors": colors,
+        "scales": torch.rand(n, 3, generator=gen) * (0.02 - 1e-4) + 1e-4,
+        "quats": torch.nn.functional.normalize(torch.randn(n, 4, generator=gen), dim=-1),
+        "opacities": torch.rand(n, generator=gen),
+        "viewmats": torch.from_numpy(data["viewmats"]).float(),
+        "Ks": torch.from_numpy(data["Ks"]).float(),
+        "width": int(data["width"]),
+        "height": int(data["height"]),
+    }
+
+
+def _median_ms(fn: Callable[[], None], repeats: int) -> float:
+    fn()  # warm-up
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        times.append((time.perf_counter() - start) * 1e3)
+    return statistics.median(times)
+
+
+def _peak_rss_mb() -> float:
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def time_splat(case: dict, repeats: int, device: torch.device) -> dict:
+    """Median forward and forward+backward milliseconds for one scene."""
+    case = {k: v.to(device) if torch.is_tensor(v) else v for k, v in case.items()}
+    learn = ("means", "quats", "scales", "opacities", "colors")
+
+    def forward() -> None:
+        with torch.no_grad():
+            rasterization(**case)
+
+    def forward_backward() -> None:
+        params = {k: case[k].detach().requires_grad_(True) for k in learn}
+        colors, alphas, _ = rasterization(**{**case, **params})
+        (colors.sum() + alphas.sum()).backward()
+
+    if device.type == "cuda":
+        torch.cuda.reset_peak_memory_stats()
+    fwd = _median_ms(forward, repeats)
+    fwd_bwd = _median_ms(forward_backward, repeats)
+    if device.type == "cuda":
+        torch.cuda.synchronize()
+        peak = torch.cuda.max_memory_allocated() / 2**20
+    else:
+        peak = _peak_rss_mb()
+    return {
+        "n_gaussians": int(case["means"].shape[0]),
+        "cameras": int(case["viewmats"].shape[0]),
+        "width": case["width"],
+        "height": case["height"],
+        "fwd_ms": round(fwd, 2),
+        "fwd_bwd_ms": round(fwd_bwd, 2),
+        "peak_mb": round(peak, 1),
+    }
+
+
+def bench_splat(repeats: int, device: torch.device, cases: list[str]) -> list[dict]:
+    """Run the named splat cases; garden is skipped with a note when its file is absent."""
+    makers = {
+        "random-2k-256": lambda: random_case(2_000),
+        "random-10k-256": lambda: random_case(10_000),
+        "random-50k-256": lambda: random_case(50_000),
+        "garden": garden_case,
+    }
+    results = []
+    for name in cases:
+        if name not in makers:
+            raise RelayGSError(f"unknown case {name!r}; choose from {', '.join(makers)}")
+        if name == "garden" and not GARDEN_PATH.is_file():
+            print(f"skipping garden: {GARDEN_PATH} not found", file=sys.stderr)
+            continue
+        results.append({"name": name, **time_splat(makers[name](), repeats, device)})
+    return results
+
+
+def _print_table(rows: list[dict]) -> None:
+    print(
+        f"{'case':<16}{'N':>9}{'cams':>6}{'size':>10}"
+        f"{'fwd ms':>10}{'fwd+bwd ms':>12}{'peak MB':>10}"
+    )
+    for r in rows:
+        size = f"{r['width']}x{r['height']}"
+        print(
+            f"{r['name']:<16}{r['n_gaussians']:>9}{r['cameras']:>6}{size:>10}"
+            f"{r['fwd_ms']:>10.1f}{r['fwd_bwd_ms']:>12.1f}{r['peak_mb']:>10.0f}"
+        )
+
+
+def main(argv: list[str] | None = None) -> int:
+    """CLI entry."""
+    parser = OneLineErrorParser(prog="python -m relaygs.bench", description=__doc__)
+    sub = parser.add_subparsers(dest="command", required=True)
+    splat = sub.add_parser("splat", help="time the splatting core")
+    splat.add_argument("--json", type=json_target, help="also write the results as JSON here")
+    splat.add_argument(
+        "--repeats", type=int_at_least(1), default=5, help="timed runs per case (median)"
+    )
+    splat.add_argument("--device", default="cpu", help="cpu or cuda")
+    splat.add_argument(
+        "--cases",
+        default="random-2k-256,random-10k-256,random-50k-256,garden",
+        help="comma-separated case names",
+    )
+    train = sub.add_parser("train", help="time the training stages on the default scene")
+    bench_train.add_arguments(train)
+    sweeps = sub.add_parser("sweeps", help="time the five experiments at the smoke budget")
+    bench_sweeps.add_arguments(sweeps)
+    args = parser.parse_args(argv)
+    if args.command == "train":
+        return bench_train.run(args)
+    if args.command == "sweeps":
+        return bench_sweeps.run(args)
+    try:
+        device = usable_device(args.device, "--device")
+        if device.type == "cpu":
+            torch.set_num_threads(2)
+        rows = bench_splat(args.repeats, device, args.cases.split(","))
+    except RelayGSError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    _print_table(rows)
+    save_json(args.json, {"device": str(device), "threads": torch.get_num_threads(), "cases": rows})
+    return 0

@@ -1,0 +1,174 @@
+"""`python -m relaygs.report SWEEP_DIR`: (re)write a sweep's `summary.csv`, `summary.md` and
+`pareto.png`, with `summary_mean.csv/md` when it repeats a variant (e.g. over seeds) and
+`summary_budget.csv/md` when it varies `budget.multiplier`, from its jobs' `result.json` files
+(the multirun end callback calls the same)."""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import pandas as pd
+
+from relaygs.app.aggregate import aggregate_markdown, aggregate_table
+from relaygs.app.marginal import marginal_markdown, marginal_table, varies_budget
+from relaygs.app.pareto import plot_pareto
+from relaygs.app.result import RESULT_FILE
+from relaygs.app.summary import (
+    FailedJob,
+    collect_results,
+    failed_jobs,
+    is_number,
+    markdown_table,
+    summary_table,
+)
+from relaygs.cli import OneLineErrorParser
+from relaygs.errors import InputError, RelayGSError
+from relaygs.paths import require_folder
+from relaygs.pipeline.fsio import publish_text
+
+SUMMARY_CSV = "summary.csv"
+SUMMARY_MD = "summary.md"
+PARETO_PNG = "pareto.png"
+MEAN_CSV = "summary_mean.csv"
+MEAN_MD = "summary_mean.md"
+BUDGET_CSV = "summary_budget.csv"
+BUDGET_MD = "summary_budget.md"
+
+
+@dataclass(frozen=True)
+class ReportFiles:
+    """The files a report wrote (`pareto` is None when no job has both PSNR and a time) and
+    the failed jobs (each with its `job <n> (<variant>): <error>` line); `mean` and `budget` are
+    written only for sweeps that repeat seeds or vary the step multiplier."""
+
+    csv: Path
+    markdown: Path
+    pareto: Path | None
+    jobs: int
+    failed: tuple[FailedJob, ...]
+    mean: Path | None = None
+    budget: Path | None = None
+
+
+def write_reports(sweep_dir: Path) -> ReportFiles:
+    """Collect the sweep's results and write the table (CSV, Markdown), the Pareto plot and,
+    where they apply, the mean and budget tables."""
+    sweep_dir = _require_sweep_folder(Path(sweep_dir))
+    table = summary_table(collect_results(sweep_dir))
+    try:
+        return _write_files(table, sweep_dir)
+    except OSError as error:
+        raise InputError(
+            f"cannot write {error.filename or sweep_dir}: {error.strerror or error}"
+        ) from error
+
+
+def _require_sweep_folder(sweep_dir: Path) -> Path:
+    """`sweep_dir` if it is a folder that is not one run's own folder (a run holds its
+    `result.json` itself, a sweep in job folders below; the report would land among the run's
+    files and describe only it)."""
+    sweep_dir = require_folder(sweep_dir, "sweep folder")
+    if (sweep_dir / RESULT_FILE).exists():
+        raise InputError(
+            f"{sweep_dir} is one run's folder (it holds {RESULT_FILE}), not a sweep folder: "
+            "pass the folder that holds the job folders"
+        )
+    return sweep_dir
+
+
+def _write_files(table: pd.DataFrame, sweep_dir: Path) -> ReportFiles:
+    """Write the summary table, the Pareto plot and the optional mean and budget tables."""
+    title = _title(table, sweep_dir)
+    csv_path = sweep_dir / SUMMARY_CSV
+    _write_csv(table, csv_path)
+    markdown_path = sweep_dir / SUMMARY_MD
+    publish_text(markdown_path, markdown_table(table, title))
+    plottable = zip(table.psnr, table.train_s_total, strict=True)
+    plotted = table[[is_number(psnr) and is_number(time) for psnr, time in plottable]]
+    pareto = None
+    if len(plotted):
+        pareto = plot_pareto(
+            [float(t) for t in plotted.train_s_total],
+            [float(p) for p in plotted.psnr],
+            [str(v) for v in plotted.variant],
+            sweep_dir / PARETO_PNG,
+            title,
+        )
+    mean = _write_mean(table, sweep_dir, title)
+    budget = _write_budget(table, sweep_dir, title)
+    failed = tuple(failed_jobs(table))
+    return ReportFiles(csv_path, markdown_path, pareto, len(table), failed, mean, budget)
+
+
+def _write_mean(table: pd.DataFrame, sweep_dir: Path, title: str) -> Path | None:
+    """`summary_mean.{csv,md}` (mean ± std per scene and variant) when a sweep repeats a
+    (scene, variant) pair, e.g. over seeds; else nothing."""
+    if not {"scene", "variant"} <= set(table.columns):
+        return None
+    if not table.duplicated(["scene", "variant"]).any():
+        return None
+    mean = aggregate_table(table)
+    _write_csv(mean, sweep_dir / MEAN_CSV)
+    path = sweep_dir / MEAN_MD
+    publish_text(path, aggregate_markdown(mean, f"{title}: mean ± std over seeds"))
+    return path
+
+
+def _write_budget(table: pd.DataFrame, sweep_dir: Path, title: str) -> Path | None:
+    """`summary_budget.{csv,md}` (PSNR and dB per extra minute at each step multiplier) when
+    the sweep varies `budget.multiplier`; else nothing."""
+    if not varies_budget(table):
+        return None
+    marginal = marginal_table(table)
+    if marginal.empty:
+        return None
+    _write_csv(marginal, sweep_dir / BUDGET_CSV)
+    path = sweep_dir / BUDGET_MD
+    publish_text(path, marginal_markdown(marginal, f"{title}: what a minute buys"))
+    return path
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Command-line entry: exit 0 on success, 1 with one line on stderr on bad input (2 on a
+    usage error)."""
+    parser = OneLineErrorParser(prog="python -m relaygs.report", description=__doc__)
+    parser.add_argument("sweep_dir", type=Path, help="a multirun folder holding job folders")
+    args = parser.parse_args(argv)
+    try:
+        files = write_reports(args.sweep_dir)
+    except RelayGSError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 1
+    print(describe(files))
+    return 0
+
+
+def describe(files: ReportFiles) -> str:
+    """Where a report's files are, one per line, then the failed jobs."""
+    lines = [f"summary of {files.jobs} job(s):", f"  {files.markdown}", f"  {files.csv}"]
+    if files.pareto is not None:
+        lines.append(f"  {files.pareto}")
+    for extra in (files.mean, files.budget):
+        if extra is not None:
+            lines.append(f"  {extra}")
+    if files.failed:
+        lines.append(f"{len(files.failed)} of {files.jobs} job(s) failed:")
+        lines += [f"  {job.line}" for job in files.failed]
+    return "\n".join(lines)
+
+
+def _write_csv(table: pd.DataFrame, path: Path) -> None:
+    """`table` as CSV, each column in its narrowest type: a whole-number column with missing
+    rows (`relay.k` where a pipeline runs no relay) is written 16, not 16.0."""
+    publish_text(path, table.convert_dtypes().to_csv(index=False))
+
+
+def _title(table: pd.DataFrame, sweep_dir: Path) -> str:
+    """'<experiment> on <scene>' when the jobs agree, else the folder name."""
+    experiments = {e for e in table.get("experiment", []) if isinstance(e, str)}
+    scenes = {s for s in table.get("scene", []) if isinstance(s, str)}
+    name = experiments.pop() if len(experiments) == 1 else sweep_dir.name
+    return f"{name} on {scenes.pop()}" if len(scenes) == 1 else name

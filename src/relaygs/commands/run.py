@@ -1,0 +1,121 @@
+"""`python -m relaygs.run [OVERRIDES]`: the Hydra app. With no arguments it generates the default
+synthetic scene (once), runs the `relaygs` pipeline at the `small` budget, evaluates, and
+prints the results and where the outputs are. `+experiment=NAME` runs an experiment (sweeps
+are multiruns). See docs/experiments.md.
+
+This module is a thin wrapper: the command line is checked up front (one-line errors), then
+Hydra composes the config and calls `relaygs.app.task.run_task` for each job.
+"""
+
+from __future__ import annotations
+
+import signal
+import sys
+import traceback
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import hydra
+from hydra.core.global_hydra import GlobalHydra
+from hydra.core.hydra_config import HydraConfig
+from hydra.types import RunMode
+from omegaconf import DictConfig
+
+from relaygs.app.config import resolve_config
+from relaygs.app.plan import plan_run
+from relaygs.app.prelaunch import LAUNCH_FLAGS, JobValidator, check_command_line
+from relaygs.app.result import RESULT_FILE, error_line
+from relaygs.app.suite import StageSuite, load_stage_suite
+from relaygs.app.task import run_task
+from relaygs.cli import INTERRUPTED_EXIT
+from relaygs.device import usable_device
+from relaygs.errors import RERUN_RUN, RelayGSError
+from relaygs.paths import config_dir
+
+TERMINATED_EXIT = 143  # a command stopped by SIGTERM (`kill PID`, a scheduler): 128 + SIGTERM
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Check the command line, then hand it to Hydra; bad input exits 1 with one line, and so
+    does a sweep with a failed job once its summary is written (`SweepSummary`)."""
+    args = list(sys.argv[1:] if argv is None else argv)
+    terminated, launched = [], []
+
+    def stop_like_ctrl_c(signum: int, frame: object) -> None:
+        terminated.append(signum)
+        raise KeyboardInterrupt  # the stage names where it stopped and what a rerun resumes
+
+    # installed before the command line is checked (composing every job takes a while), so a
+    # Ctrl-C or SIGTERM then also ends with one line and 130/143, not a traceback
+    previous = signal.signal(signal.SIGTERM, stop_like_ctrl_c)
+    try:
+        conf = config_dir()
+        check_command_line(args, conf, _job_validator(load_stage_suite()))
+        # Hydra takes flags only before the overrides: `seed=0 -m k=1,2` goes as `-m seed=0 k=1,2`
+        flags = [arg for arg in args if arg in LAUNCH_FLAGS]
+        sys.argv = [sys.argv[0], *flags, *(arg for arg in args if arg not in LAUNCH_FLAGS)]
+        launched.append(True)
+        hydra.main(version_base="1.3", config_path=str(conf), config_name="config")(run_job)()
+    except RelayGSError as error:  # the command line (a job's own errors end in run_job)
+        print(f"error: {error}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt as stop:
+        print(_interrupted_line(stop, bool(launched)), file=sys.stderr)
+        return TERMINATED_EXIT if terminated else INTERRUPTED_EXIT
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+        GlobalHydra.instance().clear()
+    return 0
+
+
+def _interrupted_line(stop: KeyboardInterrupt, launched: bool) -> str:
+    """The line a stopped command ends with: the stage's own account of where it stopped, else
+    (a parallel launcher's workers cannot report theirs) what running it again does, once jobs
+    had started."""
+    if str(stop):
+        return f"interrupted: {stop}"
+    return f"interrupted: {RERUN_RUN}" if launched else "interrupted"
+
+
+def _job_validator(suite: StageSuite) -> JobValidator:
+    """The check of one composed job: its run plan, and its device where the job runs here (a
+    Slurm job's GPU is on its node, not on the submitting machine)."""
+
+    def validate(cfg: DictConfig, runs_here: bool) -> None:
+        config = resolve_config(cfg, Path.cwd())
+        plan = plan_run(config, suite.stages, suite.validate, suite.accepted_upstream)
+        if runs_here:
+            usable_device(plan.device, "train.device")
+
+    return validate
+
+
+def run_job(cfg: DictConfig) -> dict[str, Any] | None:
+    """Hydra's task function: one job with its run dir, launch dir and overrides.
+
+    A RelayGS error ends a single run with one line on stderr (exit 1). In a multirun, a job
+    whose failure is recorded in its `result.json` (see `run_task`) reports it and returns
+    None, so the other jobs still run; the sweep summary lists it and the command exits 1.
+    """
+    hydra_cfg = HydraConfig.get()
+    multirun = hydra_cfg.mode == RunMode.MULTIRUN
+    run_dir = Path(hydra_cfg.runtime.output_dir)
+    try:
+        return run_task(
+            cfg,
+            run_dir=run_dir,
+            original_cwd=Path(hydra_cfg.runtime.cwd),
+            overrides=list(hydra_cfg.overrides.task),
+            job=hydra_cfg.job.num if multirun else None,
+        )
+    except Exception as error:
+        if multirun and (run_dir / RESULT_FILE).is_file():
+            if not isinstance(error, RelayGSError):
+                traceback.print_exc()
+            print(f"error: job {hydra_cfg.job.num} failed: {error_line(error)}", file=sys.stderr)
+            return None
+        if isinstance(error, RelayGSError):
+            print(f"error: {error}", file=sys.stderr)
+            raise SystemExit(1) from None
+        raise
