@@ -13,8 +13,9 @@ from relaygs.pipeline import integrity as integrity_module
 from relaygs.pipeline import store as store_module
 from relaygs.pipeline.artifact import Artifact
 from relaygs.pipeline.fsio import remove_tree
+from relaygs.pipeline.integrity import CorruptArtifactError
 from relaygs.pipeline.keys import artifact_key
-from relaygs.pipeline.store import ArtifactStore
+from relaygs.pipeline.store import ArtifactChangedError, ArtifactStore
 
 KEY = artifact_key("decouple", 1, {"steps": 3}, "scene", [])
 OTHER = artifact_key("decouple", 1, {"steps": 4}, "scene", [])
@@ -155,6 +156,25 @@ def test_a_damaged_artifact_a_rebuild_replaces_while_verify_reads_it_is_checked_
     monkeypatch.setattr(integrity_module, "file_sha256", a_rebuild_replaces_it_once_read)
     assert store.verify() == []  # what it reports is the folder now there, which is sound
     assert rebuilt
+
+
+@pytest.mark.parametrize("verify", [True, False])
+def test_a_load_gc_cuts_short_says_so_rather_than_calling_it_corrupt(tmp_path, monkeypatch, verify):
+    # `artifacts eval KEY` while another shell runs `artifacts gc`: before, "unreadable artifact
+    # files", which sends the user looking for a damaged disk
+    store = _store_with(tmp_path, KEY, OTHER)
+    hook = _after_running(lambda: store.gc(keep={KEY}), store_module.read_artifact_files)
+    monkeypatch.setattr(store_module, "read_artifact_files", hook)
+    with pytest.raises(ArtifactChangedError, match="removed or replaced by another process") as err:
+        store.load("decouple", OTHER, verify=verify)
+    assert str(store.path("decouple", OTHER)) in str(err.value) and "rerun" in str(err.value)
+
+
+def test_a_load_of_a_damaged_artifact_nobody_touches_is_still_corrupt(tmp_path):
+    store = _store_with(tmp_path, KEY)
+    (store.path("decouple", KEY) / "tensors.safetensors").write_bytes(b"not safetensors")
+    with pytest.raises(CorruptArtifactError):
+        store.load("decouple", KEY, verify=False)
 
 
 @pytest.mark.parametrize("on_corrupt", ["rebuild", "error"])

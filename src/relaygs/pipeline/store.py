@@ -17,7 +17,7 @@ from typing import Any, Literal
 from filelock import FileLock, Timeout
 from safetensors import SafetensorError
 
-from relaygs.errors import InputError, RelayGSError
+from relaygs.errors import RERUN_COMMAND, InputError, RelayGSError
 from relaygs.pipeline.artifact import Artifact, read_artifact_files, write_artifact_files
 from relaygs.pipeline.context import BuildContext, building
 from relaygs.pipeline.fsio import publish_dir, remove_tree
@@ -55,6 +55,10 @@ VERIFY_HINT = "`python -m relaygs.artifacts verify` lists the damaged artifacts"
 
 class MissingArtifactError(RelayGSError, LookupError):
     """The requested artifact is not in the store (or is ambiguous by key prefix)."""
+
+
+class ArtifactChangedError(MissingArtifactError):
+    """Another process removed (gc) or replaced (a rebuild) the artifact while it was read."""
 
 
 @dataclass(frozen=True)
@@ -123,8 +127,9 @@ class ArtifactStore:
 
     def load(self, stage: str, key: str, verify: bool = True) -> Artifact:
         """Load an artifact; with `verify`, every file's sha256 is checked first and a
-        mismatch raises CorruptArtifactError naming the folder and file."""
-        return self._load_with_manifest(stage, key, verify)[0]
+        mismatch raises CorruptArtifactError naming the folder and file. A read that another
+        process's gc or rebuild cut short raises ArtifactChangedError, not a corruption."""
+        return self._load_unchanged(stage, key, verify)[0]
 
     def get_or_build(
         self,
@@ -253,16 +258,11 @@ class ArtifactStore:
         """A verified cache hit, or None when the artifact is missing, (rebuildably) corrupt,
         or was removed or replaced by another process while it was read (the caller then asks
         again under the key's lock, which every removal and replacement holds)."""
-        identity = folder_identity(self.path(stage, key))
-        if identity is None or not self.has(stage, key):
-            return None
         try:
-            artifact, manifest = self._load_with_manifest(stage, key, verify=True)
-        except (MissingArtifactError, CorruptArtifactError) as error:
-            if folder_identity(self.path(stage, key)) != identity:
-                return None  # gc removed it, or a rebuild replaced it, while it was read
-            if not isinstance(error, CorruptArtifactError):
-                raise
+            artifact, manifest = self._load_unchanged(stage, key, verify=True)
+        except MissingArtifactError:  # ArtifactChangedError included
+            return None
+        except CorruptArtifactError as error:
             if on_corrupt == "error":
                 raise CorruptArtifactError(
                     f"{error} (artifacts.on_corrupt=error: delete it or rerun with "
@@ -271,6 +271,21 @@ class ArtifactStore:
             return None
         path = self.path(stage, key)
         return artifact, BuildInfo(stage, key, True, manifest.wall_seconds, path, manifest.size_mb)
+
+    def _load_unchanged(self, stage: str, key: str, verify: bool) -> tuple[Artifact, Manifest]:
+        """`_load_with_manifest`, whose failure becomes ArtifactChangedError when the folder was
+        removed or replaced meanwhile (renamed out or in whole, so its identity tells)."""
+        folder = self.path(stage, key)
+        identity = folder_identity(folder)
+        try:
+            return self._load_with_manifest(stage, key, verify)
+        except (MissingArtifactError, CorruptArtifactError) as error:
+            if identity is None or folder_identity(folder) == identity:
+                raise
+            raise ArtifactChangedError(
+                f"{folder} was removed or replaced by another process while it was read "
+                f"(a gc or a rebuild): {RERUN_COMMAND}"
+            ) from error
 
     def _load_with_manifest(self, stage: str, key: str, verify: bool) -> tuple[Artifact, Manifest]:
         """Load (optionally hash-checked) artifact files and manifest of a finished artifact."""
