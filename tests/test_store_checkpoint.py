@@ -15,10 +15,11 @@ import torch
 
 from relaygs.errors import InputError
 from relaygs.pipeline.artifact import Artifact
-from relaygs.pipeline.checkpoint import STATE_FILE, TENSORS_FILE, StageCheckpointer
+from relaygs.pipeline.checkpoint import STATE_FILE, StageCheckpointer
 from relaygs.pipeline.context import current_build
 from relaygs.pipeline.integrity import seal
 from relaygs.pipeline.keys import artifact_key
+from relaygs.pipeline.layout import TENSORS_FILE
 from relaygs.pipeline.statecodec import decode_tree, encode_tree
 from relaygs.pipeline.store import ArtifactStore
 

@@ -19,7 +19,8 @@ from relaygs.data import load_scene
 from relaygs.device import usable_device
 from relaygs.errors import RERUN_COMMAND, RelayGSError, resource_error
 from relaygs.paths import require_creatable_folder
-from relaygs.pipeline.artifact import TENSORS_FILE, Artifact
+from relaygs.pipeline.artifact import Artifact
+from relaygs.pipeline.layout import TENSORS_FILE
 from relaygs.pipeline.store import (
     VERIFY_HINT,
     ArtifactStore,

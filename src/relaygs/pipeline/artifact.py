@@ -13,8 +13,8 @@ from safetensors.torch import load_file
 
 from relaygs.errors import InputError
 from relaygs.pipeline.fsio import save_tensors
+from relaygs.pipeline.layout import TENSORS_FILE
 
-TENSORS_FILE = "tensors.safetensors"
 META_FILE = "meta.json"
 
 

@@ -23,12 +23,11 @@ from safetensors.torch import load_file
 from relaygs.errors import InputError
 from relaygs.pipeline.fsio import publish_dir, remove_tree, save_tensors
 from relaygs.pipeline.integrity import CorruptArtifactError, check_seal, is_sealed, seal
-from relaygs.pipeline.layout import TEMP_PREFIX, checkpoint_dir, make_temp_dir
+from relaygs.pipeline.layout import TEMP_PREFIX, TENSORS_FILE, checkpoint_dir, make_temp_dir
 from relaygs.pipeline.rngstate import capture_rng_state, restore_rng_state
 from relaygs.pipeline.statecodec import decode_tree, encode_tree
 
 STEP_PREFIX = "step-"
-TENSORS_FILE = "tensors.safetensors"
 STATE_FILE = "state.json"
 
 

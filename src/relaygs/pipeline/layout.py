@@ -18,6 +18,8 @@ LOCKS_DIR = ".locks"
 TEMP_PREFIX = ".tmp-"
 TRASH_PREFIX = ".trash-"
 CHECKPOINT_SUFFIX = ".ckpt"
+TENSORS_FILE = "tensors.safetensors"
+"""The tensors of an artifact folder and of a checkpoint folder."""
 _STAGE_RE = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]*")
 _KEY_RE = re.compile(r"[0-9a-f]{64}")
 
