@@ -79,6 +79,21 @@ def test_without_a_reference_variant_job_zero_is_the_reference(tmp_path):
     assert list(table.delta_psnr) == pytest.approx([0.0, 1.5])
 
 
+def test_when_no_job_is_the_reference_the_report_says_why_delta_is_missing(tmp_path, capsys):
+    # `+experiment=ablation_k relay.k=8,32` (k16 not swept), or a misspelt report.reference
+    _job(tmp_path, 0, "k8", 25.0, 30.0)
+    _job(tmp_path, 1, "k32", 24.0, 30.0)
+    assert report.main([str(tmp_path)]) == 0
+    line = "Δ PSNR is n/a: no job is the reference variant 'k16' (report.reference)"
+    assert f"{line}; this sweep's variants are k8, k32" in capsys.readouterr().out
+    assert line in (tmp_path / "summary.md").read_text()
+
+
+def test_no_absent_reference_line_when_the_reference_ran(sweep, capsys):
+    assert report.main([str(sweep)]) == 0
+    assert "Δ PSNR is n/a" not in capsys.readouterr().out + (sweep / "summary.md").read_text()
+
+
 @pytest.mark.parametrize(
     ("times", "scores", "front"),
     [

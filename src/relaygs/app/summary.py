@@ -134,6 +134,9 @@ def markdown_table(table: pd.DataFrame, title: str) -> str:
     sharing = sharing_line(table)
     if sharing:
         lines += ["", sharing]
+    absent = absent_reference_line(table)
+    if absent:
+        lines += ["", absent]
     failed = failed_jobs(table)
     if failed:
         lines += ["", f"{len(failed)} of {len(table)} job(s) failed:", ""]
@@ -161,6 +164,24 @@ def sharing_line(table: pd.DataFrame) -> str | None:
             f"(ratio {computed_all / alone_all:.2f})."
         )
     return line
+
+
+def absent_reference_line(table: pd.DataFrame) -> str | None:
+    """Why Δ PSNR is n/a when the reference variant the jobs name (`report.reference`: the
+    experiment's, or a misspelt one) is none of the sweep's variants; None when each is one."""
+    if "reference_variant" not in table or "variant" not in table:
+        return None
+    variants = set(table["variant"])
+    named = table["reference_variant"]
+    absent = sorted({ref for ref in named if isinstance(ref, str) and ref and ref not in variants})
+    if not absent:
+        return None
+    listed = ", ".join(str(variant) for variant in dict.fromkeys(table["variant"]))
+    quoted = " or ".join(repr(ref) for ref in absent)
+    return (
+        f"Δ PSNR is {MISSING}: no job is the reference variant {quoted} (report.reference); "
+        f"this sweep's variants are {listed}"
+    )
 
 
 def _seconds(table: pd.DataFrame, columns: tuple[str, ...]) -> float | None:

@@ -18,6 +18,7 @@ from relaygs.app.pareto import plot_pareto
 from relaygs.app.result import RESULT_FILE
 from relaygs.app.summary import (
     FailedJob,
+    absent_reference_line,
     collect_results,
     failed_jobs,
     is_number,
@@ -42,7 +43,8 @@ BUDGET_MD = "summary_budget.md"
 class ReportFiles:
     """The files a report wrote (`pareto` is None when no job has both PSNR and a time) and
     the failed jobs (each with its `job <n> (<variant>): <error>` line); `mean` and `budget` are
-    written only for sweeps that repeat seeds or vary the step multiplier."""
+    written only for sweeps that repeat seeds or vary the step multiplier; `absent_reference`
+    says why Δ PSNR is n/a when no job is the reference variant."""
 
     csv: Path
     markdown: Path
@@ -51,6 +53,7 @@ class ReportFiles:
     failed: tuple[FailedJob, ...]
     mean: Path | None = None
     budget: Path | None = None
+    absent_reference: str | None = None
 
 
 def write_reports(sweep_dir: Path) -> ReportFiles:
@@ -100,7 +103,8 @@ def _write_files(table: pd.DataFrame, sweep_dir: Path) -> ReportFiles:
     mean = _write_mean(table, sweep_dir, title)
     budget = _write_budget(table, sweep_dir, title)
     failed = tuple(failed_jobs(table))
-    return ReportFiles(csv_path, markdown_path, pareto, len(table), failed, mean, budget)
+    absent = absent_reference_line(table)
+    return ReportFiles(csv_path, markdown_path, pareto, len(table), failed, mean, budget, absent)
 
 
 def _write_mean(table: pd.DataFrame, sweep_dir: Path, title: str) -> Path | None:
@@ -147,13 +151,16 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def describe(files: ReportFiles) -> str:
-    """Where a report's files are, one per line, then the failed jobs."""
+    """Where a report's files are, one per line, then why Δ PSNR is n/a (if it is) and the
+    failed jobs."""
     lines = [f"summary of {files.jobs} job(s):", f"  {files.markdown}", f"  {files.csv}"]
     if files.pareto is not None:
         lines.append(f"  {files.pareto}")
     for extra in (files.mean, files.budget):
         if extra is not None:
             lines.append(f"  {extra}")
+    if files.absent_reference:
+        lines.append(files.absent_reference)
     if files.failed:
         lines.append(f"{len(files.failed)} of {files.jobs} job(s) failed:")
         lines += [f"  {job.line}" for job in files.failed]
