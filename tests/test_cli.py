@@ -4,9 +4,12 @@ whose reader went away."""
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
+import relaygs
+from relaygs.__main__ import COMMANDS
 from relaygs.cli import BROKEN_PIPE_EXIT, INTERRUPTED_EXIT, start_tool
 
 LONG_OUTPUT = (
@@ -45,7 +48,21 @@ def test_the_broken_pipe_status_is_the_shells_128_plus_sigpipe():
     assert BROKEN_PIPE_EXIT == 128 + 13 == 141
 
 
-TOOLS = ("run", "report", "artifacts", "bench", "synth")
+TOOLS = tuple(name for name, _ in COMMANDS)
+
+
+def test_python_m_relaygs_lists_every_command_it_has_an_entry_module_for():
+    entries = {
+        path.stem
+        for path in Path(relaygs.__file__).parent.glob("*.py")
+        if 'start_tool("relaygs.commands.' in path.read_text()
+    }
+    assert entries == set(TOOLS)
+    listed = subprocess.run([sys.executable, "-m", "relaygs"], capture_output=True, text=True)
+    assert listed.returncode == 0
+    assert [line.split()[2] for line in listed.stdout.splitlines()[1:]] == [
+        f"relaygs.{tool}" for tool in TOOLS
+    ]
 
 
 def test_the_entry_modules_load_nothing_heavy():
