@@ -6,10 +6,12 @@ import numpy as np
 import pytest
 import torch
 
-from conftest import stage_smoke_cfg
+from conftest import STAGE_K, stage_smoke_cfg
 from relaygs.renders import RenderSettings, write_renders
-from relaygs.stages import STAGES
-from relaygs.stages.scene_model import SceneModel
+from relaygs.stages import STAGES, relay_seed
+from relaygs.stages.relay import RelayConfig
+from relaygs.stages.scene_model import SEGMENT, SceneModel, core_only
+from relaygs.stages.views import TrainViews
 
 DEVICE = "cuda"
 pytestmark = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
@@ -43,3 +45,28 @@ def test_gpu_renders_match_cpu_renders(stage_scene, stage_deformed, tmp_path):
         cpu = cv2.imread(str(png)).astype(np.int16)
         gpu = cv2.imread(str(tmp_path / DEVICE / png.relative_to(tmp_path / "cpu")))
         assert np.abs(cpu - gpu.astype(np.int16)).max() <= 1, png.name
+
+
+def test_carved_copies_join_hull_seeds_and_replicas_on_the_gpu(
+    stage_scene, stage_decoupled, monkeypatch
+):
+    # segment 0's hull holds points (seeds carved on the CPU), segment 1's is empty (replica)
+    generator = torch.Generator().manual_seed(0)
+    hull = (torch.rand(30, 3, generator=generator), torch.rand(30, 3, generator=generator), 0.05)
+    monkeypatch.setattr(
+        relay_seed, "_hull_at", lambda views, renders, frame, *_: hull if frame < STAGE_K else None
+    )
+    source = SceneModel.from_artifact(stage_decoupled).to(DEVICE)
+    replica = core_only(source.foreground)
+    copies = relay_seed.carved_copies(
+        TrainViews(stage_scene, source.background.means.device),
+        source.background,
+        replica,
+        RelayConfig(k=STAGE_K),
+        seed=0,
+    )
+    for name, tensor in copies.to_tensors().items():
+        if tensor.ndim:
+            assert tensor.device.type == DEVICE, f"{name} on {tensor.device}"
+    seeds, replicas = torch.bincount(copies.buffers[SEGMENT].long().cpu(), minlength=2).tolist()
+    assert seeds > 0 and replicas == len(replica) > 0

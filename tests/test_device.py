@@ -1,10 +1,13 @@
-"""usable_device: the CPU always, CUDA only where this torch can allocate, nothing else."""
+"""usable_device: the CPU always, CUDA only where this torch can allocate, nothing else; timers
+wait for the device."""
+
+from types import SimpleNamespace
 
 import pytest
 import torch
 
 from relaygs.commands import bench
-from relaygs.device import usable_device
+from relaygs.device import synchronize, usable_device
 from relaygs.errors import InputError
 
 
@@ -33,3 +36,20 @@ def test_bench_refuses_a_bad_device_before_timing(monkeypatch, capsys) -> None:
     assert capsys.readouterr().err.strip() == (
         "error: --device: expected 'cpu', 'cuda' or 'cuda:N', got 'meta'"
     )
+
+
+def test_synchronize_waits_for_a_cuda_device_only(monkeypatch) -> None:
+    waited = []
+    monkeypatch.setattr(torch.cuda, "synchronize", waited.append)
+    synchronize(torch.device("cpu"))
+    synchronize(torch.device("cuda", 1))
+    assert waited == [torch.device("cuda", 1)]
+
+
+def test_bench_times_each_run_until_the_device_has_finished(monkeypatch) -> None:
+    events: list[str] = []
+    monkeypatch.setattr(bench, "synchronize", lambda device: events.append(f"sync {device}"))
+    clock = SimpleNamespace(perf_counter=lambda: events.append("clock") or 0.0)
+    monkeypatch.setattr(bench, "time", clock)
+    bench._median_ms(lambda: events.append("run"), 2, torch.device("cpu"))
+    assert events == ["run"] + ["sync cpu", "clock", "run", "sync cpu", "clock"] * 2

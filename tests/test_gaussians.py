@@ -7,6 +7,7 @@ import torch
 
 from relaygs.errors import InputError
 from relaygs.model import MAX_LOG_SCALE, SH_C0, GaussianSet, mean_sq_knn_distance
+from relaygs.model import gaussians as gaussians_module
 from relaygs.model.gaussians import inverse_sigmoid, normalize_quats, sh_degree_for_step
 
 
@@ -149,3 +150,12 @@ def test_inverse_sigmoid_is_finite_at_0_and_1_in_every_float_dtype(dtype):
     assert logits.dtype == dtype
     assert torch.isfinite(logits).all()
     assert logits[0] < 0 == logits[1] < logits[2]
+
+
+def test_from_points_makes_every_tensor_on_the_points_device(monkeypatch):
+    # the meta device stands in for a GPU (its nearest-neighbour search is data-dependent, so
+    # the distances are faked): a CPU tensor among CUDA ones would fail the first step there
+    monkeypatch.setattr(gaussians_module, "mean_sq_knn_distance", lambda xyz, k: xyz.new_ones(4))
+    made = GaussianSet.from_points(torch.rand(4, 3, device="meta"), torch.rand(4, 3))
+    devices = {name: t.device.type for name, t in made.to_tensors().items() if t.ndim}
+    assert devices == dict.fromkeys(devices, "meta") and "sh_rest" in devices

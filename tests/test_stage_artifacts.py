@@ -10,11 +10,16 @@ import torch
 from relaygs.data import Scene
 from relaygs.errors import InputError
 from relaygs.field import ColorAffine
-from relaygs.model import GaussianSet
+from relaygs.model import CORE_PARAMS, GaussianSet
 from relaygs.pipeline.artifact import Artifact, read_artifact_files, write_artifact_files
 from relaygs.stages import SceneModel, render_model
 from relaygs.stages.model_render import ModelRenderer
-from relaygs.stages.scene_model import build_field, foreground_with_segments
+from relaygs.stages.scene_model import (
+    SEGMENT,
+    build_field,
+    foreground_with_segments,
+    replicate_foreground,
+)
 
 
 def _round_trip(artifact: Artifact, folder: Path) -> Artifact:
@@ -114,3 +119,14 @@ def test_meta_or_module_tensors_that_do_not_fit_are_an_input_error(edit, message
         SceneModel.from_artifact(Artifact("deform", tensors, meta))
     assert str(caught.value).startswith("deform artifact: ") and message in str(caught.value)
     assert "\n" not in str(caught.value)
+
+
+def test_segment_buffers_are_made_on_the_device_of_the_set() -> None:
+    # the meta device stands in for a GPU: a CPU buffer beside its parameters would fail there
+    tensors = GaussianSet.from_points(torch.rand(3, 3), torch.rand(3, 3)).to_tensors()
+    gaussians = GaussianSet({name: tensors[name].to("meta") for name in CORE_PARAMS})
+    tagged = foreground_with_segments(gaussians, torch.zeros(3))
+    replicated = replicate_foreground(tagged, 2)
+    for made in (tagged, replicated):
+        assert made.buffers[SEGMENT].device == made.means.device == torch.device("meta")
+    assert replicated.buffers[SEGMENT].shape == (6,)

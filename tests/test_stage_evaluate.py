@@ -51,6 +51,18 @@ def test_render_fps_is_images_per_render_second(
     assert metrics["render_fps"] == pytest.approx(images / (len(frames) * tick))
 
 
+def test_render_time_waits_for_the_device(
+    stage_deformed: Artifact, stage_scene: Scene, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """CUDA renders run asynchronously: the clock stops only once the device has finished."""
+    events: list[str] = []
+    clock = SimpleNamespace(perf_counter=lambda: events.append("clock") or 0.0)
+    monkeypatch.setattr(evaluate_module, "time", clock)
+    monkeypatch.setattr(evaluate_module, "synchronize", lambda device: events.append(str(device)))
+    evaluate(stage_scene, stage_deformed, stage_smoke_cfg(eval={"frame_stride": STRIDE}))
+    assert events == ["clock", "cpu", "clock"] * len(_evaluated_frames(stage_scene))
+
+
 def _masked_psnr(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> float:
     squared = (pred - target).square()[mask]  # [pixels, 3]
     return 10 * math.log10(1.0 / max(float(squared.mean()), 1e-10))

@@ -32,3 +32,10 @@ def usable_device(name: str, what: str) -> torch.device:
         reason = text.splitlines()[0] if text else type(error).__name__
         raise InputError(f"{what}: cannot use {name!r} here ({reason})") from None
     return device
+
+
+def synchronize(device: torch.device) -> None:
+    """Wait until `device` has finished the work queued on it, so a timer read next counts
+    that work (CUDA kernels run asynchronously; on the CPU there is nothing to wait for)."""
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)

@@ -14,7 +14,7 @@ import torch
 from relaygs.cli import OneLineErrorParser, int_at_least
 from relaygs.commands import bench_sweeps, bench_train
 from relaygs.commands.bench_output import json_target, save_json
-from relaygs.device import usable_device
+from relaygs.device import synchronize, usable_device
 from relaygs.errors import RelayGSError
 from relaygs.paths import REPO_ROOT
 from relaygs.splat import rasterization
@@ -72,12 +72,15 @@ def garden_case(path: Path = GARDEN_PATH, seed: int = 0) -> dict:
     }
 
 
-def _median_ms(fn: Callable[[], None], repeats: int) -> float:
+def _median_ms(fn: Callable[[], None], repeats: int, device: torch.device) -> float:
+    """Median milliseconds of `fn` on `device`, each run timed until the device has finished."""
     fn()  # warm-up
     times = []
     for _ in range(repeats):
+        synchronize(device)
         start = time.perf_counter()
         fn()
+        synchronize(device)
         times.append((time.perf_counter() - start) * 1e3)
     return statistics.median(times)
 
@@ -103,12 +106,11 @@ def time_splat(case: dict, repeats: int, device: torch.device) -> dict:
         (colors.sum() + alphas.sum()).backward()
 
     if device.type == "cuda":
-        torch.cuda.reset_peak_memory_stats()
-    fwd = _median_ms(forward, repeats)
-    fwd_bwd = _median_ms(forward_backward, repeats)
+        torch.cuda.reset_peak_memory_stats(device)
+    fwd = _median_ms(forward, repeats, device)
+    fwd_bwd = _median_ms(forward_backward, repeats, device)
     if device.type == "cuda":
-        torch.cuda.synchronize()
-        peak = torch.cuda.max_memory_allocated() / 2**20
+        peak = torch.cuda.max_memory_allocated(device) / 2**20
     else:
         peak = _peak_rss_mb()
     return {

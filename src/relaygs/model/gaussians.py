@@ -107,7 +107,8 @@ class GaussianSet:
         max_sh_degree: int = 3,
         init_opacity: float = 0.1,
     ) -> GaussianSet:
-        """3DGS initialisation from a coloured point cloud (xyz [N,3], rgb [N,3] in [0,1])."""
+        """3DGS initialisation from a coloured point cloud (xyz [N,3], rgb [N,3] in [0,1]), on
+        the points' device."""
         if xyz.ndim != 2 or xyz.shape[1] != 3 or xyz.shape[0] == 0:
             raise InputError(f"from_points: xyz must be [N>0, 3], got {tuple(xyz.shape)}")
         if rgb.shape != xyz.shape:
@@ -116,15 +117,15 @@ class GaussianSet:
         n = xyz.shape[0]
         sq_dist = mean_sq_knn_distance(xyz, k=3).clamp_min(MIN_INIT_SQ_DIST)
         log_scale = 0.5 * torch.log(sq_dist)
-        quats = torch.zeros(n, 4)
+        quats = xyz.new_zeros(n, 4)
         quats[:, 0] = 1.0
         core = {
             "means": xyz,
             "log_scales": log_scale[:, None].expand(n, 3),
             "quats": quats,
-            "opacity_logits": inverse_sigmoid(torch.full((n,), init_opacity)),
-            "sh_dc": ((rgb.detach().to(torch.float32) - 0.5) / SH_C0)[:, None, :],
-            "sh_rest": torch.zeros(n, sh_coeff_count(max_sh_degree) - 1, 3),
+            "opacity_logits": inverse_sigmoid(xyz.new_full((n,), init_opacity)),
+            "sh_dc": ((rgb.detach().to(xyz.device, torch.float32) - 0.5) / SH_C0)[:, None, :],
+            "sh_rest": xyz.new_zeros(n, sh_coeff_count(max_sh_degree) - 1, 3),
         }
         return cls(core)
 

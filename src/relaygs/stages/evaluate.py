@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from relaygs.data import Scene
+from relaygs.device import synchronize
 from relaygs.errors import InputError
 from relaygs.metrics import fg_psnr, psnr, ssim
 from relaygs.pipeline.artifact import Artifact
@@ -55,6 +56,7 @@ def evaluate(scene: Scene, artifact: Artifact, cfg: Mapping[str, Any]) -> dict[s
             continue
         began = time.perf_counter()
         images = renderer.render([view.camera for view in views], views[0].time)
+        synchronize(device)  # render FPS counts the GPU's work, not only its launch
         render_seconds += time.perf_counter() - began
         rendered += len(images)
         for view, image in zip(views, images, strict=True):

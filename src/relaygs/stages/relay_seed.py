@@ -33,7 +33,8 @@ def carved_copies(
     seed: int,
 ) -> GaussianSet:
     """One copy per segment from the hull at its pseudo frames (at most `section.seed_points`
-    Gaussians, randomly thinned); a segment whose hull is empty keeps the replica."""
+    Gaussians, randomly thinned); a segment whose hull is empty keeps the replica. The copies
+    are on the replica's device."""
     scene = views.scene
     bounds = _bounds(scene.points.xyz)
     generator = torch.Generator().manual_seed(seed)
@@ -51,9 +52,10 @@ def carved_copies(
         if len(xyz) > section.seed_points:
             keep = torch.randperm(len(xyz), generator=generator)[: section.seed_points]
             xyz, rgb = xyz[keep], rgb[keep]
+        # the hull is carved on the CPU; the seeds join the replica's copies on its device
         seeds = GaussianSet.from_points(
             xyz, rgb.clamp(0.0, 1.0), replica.max_sh_degree, section.seed_opacity
-        )
+        ).to(replica.means.device)
         # the hull is a regular grid: one voxel is each seed's size (a stray hull point far
         # from the others would otherwise get a huge nearest-neighbour scale and haze the view)
         seeds.params["log_scales"].fill_(math.log(hulls[0][2]))

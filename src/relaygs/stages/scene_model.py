@@ -176,11 +176,12 @@ def build_field(settings: Mapping[str, Any], seed: int = 0) -> DeformationField:
 
 
 def foreground_with_segments(foreground: GaussianSet, segments: Tensor) -> GaussianSet:
-    """A copy of `foreground` whose `segment` buffer is `segments` (added if missing)."""
+    """A copy of `foreground` whose `segment` buffer is `segments` (added if missing), on the
+    set's device (a CPU buffer beside CUDA parameters would fail the first concat or index)."""
     tensors = {
         key: value for key, value in foreground.to_tensors().items() if key != f"buffer.{SEGMENT}"
     }
-    tensors[f"buffer.{SEGMENT}"] = segments.to(torch.int32)
+    tensors[f"buffer.{SEGMENT}"] = segments.to(foreground.means.device, torch.int32)
     return GaussianSet.from_tensors(tensors)
 
 
@@ -192,9 +193,8 @@ def replicate_foreground(foreground: GaussianSet, num_segments: int) -> Gaussian
         for key, value in tensors.items()
     }
     count = len(foreground)
-    stacked[f"buffer.{SEGMENT}"] = torch.arange(num_segments, dtype=torch.int32).repeat_interleave(
-        count
-    )
+    segments = torch.arange(num_segments, dtype=torch.int32, device=foreground.means.device)
+    stacked[f"buffer.{SEGMENT}"] = segments.repeat_interleave(count)
     return GaussianSet.from_tensors(stacked)
 
 
