@@ -65,6 +65,19 @@ def test_python_m_relaygs_lists_every_command_it_has_an_entry_module_for():
     ]
 
 
+@pytest.mark.parametrize(
+    ("argv", "start"),
+    [(["run", "seed=1"], "python -m relaygs.run ..."), (["nope"], "python -m relaygs.NAME")],
+)
+def test_python_m_relaygs_with_arguments_is_a_usage_error_not_a_silent_success(argv, start):
+    # `python -m relaygs run ...` in a script must not exit 0 having run nothing
+    command = [sys.executable, "-m", "relaygs", *argv]
+    called = subprocess.run(command, capture_output=True, text=True)
+    assert (called.returncode, called.stdout) == (2, "")
+    assert called.stderr.startswith("error: ") and start in called.stderr
+    assert called.stderr.count("\n") == 1
+
+
 def test_the_entry_modules_load_nothing_heavy():
     # `python -m relaygs.X` runs relaygs/X.py before anything can catch a Ctrl-C: it must not
     # import torch or Hydra itself (one to three seconds), or a Ctrl-C then is a traceback

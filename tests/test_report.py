@@ -84,8 +84,8 @@ def test_when_no_job_is_the_reference_the_report_says_why_delta_is_missing(tmp_p
     _job(tmp_path, 0, "k8", 25.0, 30.0)
     _job(tmp_path, 1, "k32", 24.0, 30.0)
     assert report.main([str(tmp_path)]) == 0
-    line = "Δ PSNR is n/a: no job is the reference variant 'k16' (report.reference)"
-    assert f"{line}; this sweep's variants are k8, k32" in capsys.readouterr().out
+    line = "Δ PSNR is n/a against the reference variant 'k16' (report.reference): no job is"
+    assert f"{line} that variant; this sweep's variants are k8, k32" in capsys.readouterr().out
     assert line in (tmp_path / "summary.md").read_text()
 
 

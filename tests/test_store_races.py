@@ -170,6 +170,30 @@ def test_a_load_gc_cuts_short_says_so_rather_than_calling_it_corrupt(tmp_path, m
     assert str(store.path("decouple", OTHER)) in str(err.value) and "rerun" in str(err.value)
 
 
+def test_a_hit_published_after_it_was_looked_for_and_cut_short_is_not_corrupt(
+    tmp_path, monkeypatch
+):
+    # a build beside this one publishes the folder just after this one found none, and a gc
+    # removes it while this one reads it: not on_corrupt=error's "corrupt", but asked again
+    store = _store_with(tmp_path, KEY, OTHER)
+    real_identity = store_module.folder_identity
+    looks = []
+
+    def not_there_at_first(folder):
+        looks.append(folder)
+        return None if len(looks) == 1 else real_identity(folder)
+
+    monkeypatch.setattr(store_module, "folder_identity", not_there_at_first)
+    hook = _after_running(lambda: store.gc(keep={KEY}), store_module.read_artifact_files)
+    monkeypatch.setattr(store_module, "read_artifact_files", hook)
+    build = CountingBuild()
+    artifact, info = store.get_or_build(
+        "decouple", OTHER, build, config={}, lineage=[], on_corrupt="error"
+    )
+    assert info.cache_hit and build.calls == 0  # read again under its lock: gc left it be
+    assert torch.equal(artifact.tensors["x"], torch.ones(3))
+
+
 def test_a_load_of_a_damaged_artifact_nobody_touches_is_still_corrupt(tmp_path):
     store = _store_with(tmp_path, KEY)
     (store.path("decouple", KEY) / "tensors.safetensors").write_bytes(b"not safetensors")

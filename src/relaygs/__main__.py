@@ -1,6 +1,7 @@
 """`python -m relaygs`: the list of the relaygs commands (the package itself runs nothing)."""
 
 import sys
+from collections.abc import Sequence
 
 COMMANDS = (
     ("run", "train and evaluate RelayGS, its ablations or 4D-GS; sweeps (+experiment=NAME)"),
@@ -19,6 +20,21 @@ def usage() -> str:
     return "\n".join(lines)
 
 
+def main(argv: Sequence[str]) -> int:
+    """Print the list (exit 0); any argument but --help is a usage error (exit 2, one line), so
+    that `python -m relaygs run ...` does not end in success having run nothing."""
+    if list(argv) in ([], ["-h"], ["--help"]):
+        print(usage())
+        return 0
+    name = argv[0]
+    start = f"python -m relaygs.{name}" if name in dict(COMMANDS) else "python -m relaygs.NAME"
+    print(
+        f"error: python -m relaygs only lists the commands, got {' '.join(argv)!r}: "
+        f"start one as `{start} ...` (see python -m relaygs)",
+        file=sys.stderr,
+    )
+    return 2
+
+
 if __name__ == "__main__":
-    print(usage())
-    sys.exit(0)
+    sys.exit(main(sys.argv[1:]))

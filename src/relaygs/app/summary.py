@@ -179,8 +179,8 @@ def absent_reference_line(table: pd.DataFrame) -> str | None:
     listed = ", ".join(str(variant) for variant in dict.fromkeys(table["variant"]))
     quoted = " or ".join(repr(ref) for ref in absent)
     return (
-        f"Δ PSNR is {MISSING}: no job is the reference variant {quoted} (report.reference); "
-        f"this sweep's variants are {listed}"
+        f"Δ PSNR is {MISSING} against the reference variant {quoted} (report.reference): no "
+        f"job is that variant; this sweep's variants are {listed}"
     )
 
 

@@ -277,10 +277,12 @@ class ArtifactStore:
         removed or replaced meanwhile (renamed out or in whole, so its identity tells)."""
         folder = self.path(stage, key)
         identity = folder_identity(folder)
+        if identity is None:  # no folder to compare with: one published from now on is not read
+            raise MissingArtifactError(f"no artifact {stage}/{key} in {self.root}")
         try:
             return self._load_with_manifest(stage, key, verify)
         except (MissingArtifactError, CorruptArtifactError) as error:
-            if identity is None or folder_identity(folder) == identity:
+            if folder_identity(folder) == identity:
                 raise
             raise ArtifactChangedError(
                 f"{folder} was removed or replaced by another process while it was read "
