@@ -4,7 +4,14 @@ import pytest
 import torch
 
 from relaygs.errors import InputError
-from relaygs.model import GaussianOptimizer, GaussianSet, LRSchedule, SetLearningRates, log_linear
+from relaygs.model import (
+    GaussianOptimizer,
+    GaussianSet,
+    LRSchedule,
+    SetLearningRates,
+    log_linear,
+    optim,
+)
 
 
 def make_set(n: int, seed: int) -> GaussianSet:
@@ -88,3 +95,41 @@ def test_reindex_rows_moves_adam_state_with_rows() -> None:
 def test_log_linear_is_zero_before_the_first_step() -> None:
     assert log_linear(1e-3, 1e-5, -1, 100) == 0.0
     assert log_linear(1e-3, 1e-5, -1, 100, delay_steps=10, delay_mult=0.5) == 0.0
+
+
+def _three_steps(optimizer_factory) -> torch.Tensor:
+    """A parameter after three Adam steps on a fixed quadratic, from a fixed start."""
+    param = torch.nn.Parameter(torch.linspace(-1.0, 2.0, 7))
+    optimizer = optimizer_factory([{"params": [param], "lr": 0.0}])
+    for group in optimizer.param_groups:
+        group["lr"] = 0.1
+    for _ in range(3):
+        optimizer.zero_grad()
+        (param**2 * torch.arange(1.0, 8.0)).sum().backward()
+        optimizer.step()
+    return param.detach()
+
+
+def test_adam_takes_the_foreach_step_where_torch_has_no_fused_kernel(monkeypatch) -> None:
+    """torch < 2.4 refuses fused=True on the CPU when the optimiser is built: adam() must then
+    build the foreach one, which steps the same."""
+    fused = _three_steps(optim.adam)
+    built = []
+
+    class AdamWithoutFused(torch.optim.Adam):
+        def __init__(self, params, **options):
+            if options.get("fused"):
+                raise RuntimeError("`fused=True` requires all the params to be on cuda")
+            built.append(options)
+            super().__init__(params, **options)
+
+    monkeypatch.setattr(torch.optim, "Adam", AdamWithoutFused)
+    optim.has_fused_adam.cache_clear()
+    try:
+        fallback = _three_steps(optim.adam)
+        assert not optim.has_fused_adam("cpu")
+    finally:
+        optim.has_fused_adam.cache_clear()
+    assert built and built[-1]["foreach"] is True
+    torch.testing.assert_close(fallback, fused, rtol=1e-6, atol=1e-7)
+    assert not torch.equal(fallback, torch.linspace(-1.0, 2.0, 7))

@@ -1,10 +1,13 @@
 """tools/setup_venv.sh reuses the torch its python imports: a venv made from a venv's python
-(`make venv` in an activated venv) sees that venv's torch instead of installing another."""
+(`make venv` in an activated venv) sees that venv's torch instead of installing another. With
+no torch, it installs one only where pip offers a CPU build, unless told to take a CUDA one."""
 
 import os
 import shutil
 import subprocess
 import sys
+import zipfile
+from pathlib import Path
 
 import pytest
 import torch
@@ -30,3 +33,57 @@ def test_a_venv_made_from_a_venvs_python_reuses_its_torch(tmp_path):
     probe = [str(venv / "bin" / "python"), "-c", "import torch; print(torch.__file__)"]
     found = subprocess.run(probe, env=env, capture_output=True, text=True, check=True).stdout
     assert found.strip() == torch.__file__
+
+
+def _fake_wheel(folder: Path, name: str, requires: list[str]) -> None:
+    """Write an empty wheel NAME 0.0.1 that depends on REQUIRES, for pip to resolve offline."""
+    dist_info = f"{name}-0.0.1.dist-info"
+    metadata = f"Metadata-Version: 2.1\nName: {name}\nVersion: 0.0.1\n"
+    metadata += "".join(f"Requires-Dist: {req}\n" for req in requires)
+    wheel = "Wheel-Version: 1.0\nGenerator: test\nRoot-Is-Purelib: true\nTag: py3-none-any\n"
+    with zipfile.ZipFile(folder / f"{name}-0.0.1-py3-none-any.whl", "w") as archive:
+        archive.writestr(f"{dist_info}/METADATA", metadata)
+        archive.writestr(f"{dist_info}/WHEEL", wheel)
+        archive.writestr(f"{dist_info}/RECORD", "")
+
+
+def _python_without_torch() -> str | None:
+    base = getattr(sys, "_base_executable", sys.executable)
+    probe = subprocess.run([base, "-c", "import torch"], capture_output=True)
+    return base if probe.returncode != 0 else None
+
+
+@pytest.mark.skipif(not SCRIPT.is_file() or shutil.which("bash") is None, reason="needs bash")
+@pytest.mark.skipif(_python_without_torch() is None, reason="needs a python without torch")
+@pytest.mark.parametrize(
+    ("torch_requires", "allow_cuda", "refused"),
+    [
+        (["nvidia-fake-runtime"], False, True),
+        (["nvidia-fake-runtime"], True, False),
+        ([], False, False),
+    ],
+    ids=["cuda-build-refused", "cuda-build-allowed", "cpu-build-installed"],
+)
+def test_setup_stops_before_pip_fetches_a_cuda_build_of_torch(
+    tmp_path, torch_requires, allow_cuda, refused
+):
+    wheels = tmp_path / "wheels"
+    wheels.mkdir()
+    _fake_wheel(wheels, "torch", torch_requires)
+    _fake_wheel(wheels, "nvidia_fake_runtime", [])
+    venv = tmp_path / "venv"
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("PIP_", "PYTHON"))}
+    env |= {"VENV": str(venv), "PYTHON": _python_without_torch(), "PIP_CONFIG_FILE": os.devnull}
+    env |= {"PIP_NO_INDEX": "1", "PIP_FIND_LINKS": str(wheels), "TORCH_SPEC": "torch==0.0.1"}
+    env |= {"ALLOW_CUDA_TORCH": "1"} if allow_cuda else {}
+    done = subprocess.run(
+        ["bash", str(SCRIPT)], cwd=paths.REPO_ROOT, env=env, capture_output=True, text=True
+    )
+    said = done.stdout + done.stderr
+    assert ("CUDA build of torch==0.0.1" in done.stderr) == refused, said
+    shown = subprocess.run([str(venv / "bin" / "python"), "-m", "pip", "show", "torch"], env=env)
+    # refused: nothing installed; otherwise the (fake) torch is in, and only the offline
+    # editable install of the project itself fails after it
+    assert (shown.returncode == 0) != refused, said
+    assert done.returncode != 0
+    assert not (venv / ".relaygs-installed").exists()

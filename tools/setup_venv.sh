@@ -4,11 +4,33 @@
 # (system site packages, plus a .pth to its site folder when $PYTHON is itself a venv's,
 # whose packages a venv made from it would not see); otherwise torch is installed first
 # (TORCH_SPEC, default torch==2.13.0: the CPU build where pip's wheel source offers it).
+# Where pip would fetch a CUDA build instead (torch plus nvidia-* wheels, several GB), setup
+# stops and says how to get the CPU build, unless ALLOW_CUDA_TORCH=1.
 set -euo pipefail
 VENV=${VENV:-.venv}
 PYTHON=${PYTHON:-python3}
 TORCH_SPEC=${TORCH_SPEC:-torch==2.13.0}
 stamp="$VENV/.relaygs-installed"
+
+# Exit with one line if installing $TORCH_SPEC would pull a CUDA build (nvidia-* wheels).
+refuse_cuda_torch() {
+  if [ "${ALLOW_CUDA_TORCH:-0}" = 1 ]; then
+    return
+  fi
+  local report="$VENV/.torch-resolution.json" nvidia
+  "$VENV/bin/python" -m pip install -qq --dry-run --ignore-installed --report "$report" "$TORCH_SPEC"
+  nvidia=$("$VENV/bin/python" -c 'import json, sys
+names = [p["metadata"]["name"].lower() for p in json.load(open(sys.argv[1]))["install"]]
+print(sum(name.startswith("nvidia") for name in names))' "$report")
+  rm -f "$report"
+  if [ "$nvidia" -gt 0 ]; then
+    echo "setup: pip would install a CUDA build of $TORCH_SPEC for $("$VENV/bin/python" -V)" \
+      "($nvidia nvidia-* wheels, several GB), not the CPU build; add PyTorch's CPU wheel index" \
+      "(PIP_EXTRA_INDEX_URL, see README), install the torch you want for $PYTHON first," \
+      "or set ALLOW_CUDA_TORCH=1 to take this one" >&2
+    exit 1
+  fi
+}
 
 # Make the torch that $PYTHON imports importable in $VENV, wherever it is installed.
 share_torch_site() {
@@ -34,7 +56,8 @@ if [ ! -x "$VENV/bin/python" ]; then
   fi
 fi
 if ! "$VENV/bin/python" -c "import torch" >/dev/null 2>&1; then
-  echo "setup: no torch found; installing the CPU build ($TORCH_SPEC)"
+  echo "setup: no torch found; installing $TORCH_SPEC"
+  refuse_cuda_torch
   "$VENV/bin/python" -m pip install -qq "$TORCH_SPEC"
 fi
 "$VENV/bin/python" -m pip install -qq -e ".[dev]"

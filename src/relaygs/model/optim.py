@@ -12,6 +12,7 @@ Position learning rates are multiplied by `spatial_lr_scale` (the scene extent),
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
@@ -128,10 +129,25 @@ class SetLearningRates:
         return cls(**core, extras=extras)
 
 
+@functools.cache
+def has_fused_adam(device_type: str) -> bool:
+    """Whether this torch has a fused Adam kernel for DEVICE_TYPE (the CPU's came in torch 2.4;
+    older versions refuse fused=True there when the optimiser is built)."""
+    probe = torch.zeros(1, device=device_type, requires_grad=True)
+    try:
+        torch.optim.Adam([probe], fused=True)
+    except RuntimeError:
+        return False
+    return True
+
+
 def adam(groups: list[dict], betas: tuple[float, float] = (0.9, 0.999)) -> torch.optim.Adam:
-    """Adam with eps 1e-15 over param groups, as one fused kernel per step (the per-tensor
-    loop costs several times more on the CPU; the update is the same)."""
-    return torch.optim.Adam(groups, lr=0.0, betas=betas, eps=ADAM_EPS, fused=True)
+    """Adam with eps 1e-15 over param groups, as one fused kernel per step where torch has one
+    for the params' device (the per-tensor loop costs several times more on the CPU), else as
+    the multi-tensor (foreach) step; the update is the same."""
+    fused = has_fused_adam(groups[0]["params"][0].device.type)
+    kernel = {"fused": True} if fused else {"foreach": True}
+    return torch.optim.Adam(groups, lr=0.0, betas=betas, eps=ADAM_EPS, **kernel)
 
 
 class GaussianOptimizer:
