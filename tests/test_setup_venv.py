@@ -15,13 +15,20 @@ import torch
 from relaygs import paths
 
 SCRIPT = paths.REPO_ROOT / "tools" / "setup_venv.sh"
+SETUP_VARIABLES = ("PIP_", "PYTHON", "TORCH_", "ALLOW_CUDA_TORCH", "VENV")
+
+
+def _setup_free_environment() -> dict[str, str]:
+    """This process's environment less what steers pip or the setup script (a make run with
+    ALLOW_CUDA_TORCH=1 must not leak it into a test that expects a refusal)."""
+    return {k: v for k, v in os.environ.items() if not k.startswith(SETUP_VARIABLES)}
 
 
 @pytest.mark.skipif(sys.prefix == sys.base_prefix, reason="needs tests run from a venv's python")
 @pytest.mark.skipif(not SCRIPT.is_file() or shutil.which("bash") is None, reason="needs bash")
 def test_a_venv_made_from_a_venvs_python_reuses_its_torch(tmp_path):
     venv = tmp_path / "venv"
-    env = {k: v for k, v in os.environ.items() if not k.startswith(("PIP_", "PYTHON"))}
+    env = _setup_free_environment()
     # pip offline with no wheel source: any install fails at once instead of downloading
     env |= {"VENV": str(venv), "PYTHON": sys.executable, "PIP_CONFIG_FILE": os.devnull}
     env |= {"PIP_NO_INDEX": "1", "TORCH_SPEC": "torch==0.0.0"}
@@ -72,7 +79,7 @@ def test_setup_stops_before_pip_fetches_a_cuda_build_of_torch(
     _fake_wheel(wheels, "torch", torch_requires)
     _fake_wheel(wheels, "nvidia_fake_runtime", [])
     venv = tmp_path / "venv"
-    env = {k: v for k, v in os.environ.items() if not k.startswith(("PIP_", "PYTHON"))}
+    env = _setup_free_environment()
     env |= {"VENV": str(venv), "PYTHON": _python_without_torch(), "PIP_CONFIG_FILE": os.devnull}
     env |= {"PIP_NO_INDEX": "1", "PIP_FIND_LINKS": str(wheels), "TORCH_SPEC": "torch==0.0.1"}
     env |= {"ALLOW_CUDA_TORCH": "1"} if allow_cuda else {}
