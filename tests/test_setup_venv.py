@@ -42,13 +42,16 @@ def test_a_venv_made_from_a_venvs_python_reuses_its_torch(tmp_path):
     assert found.strip() == torch.__file__
 
 
-def _fake_wheel(folder: Path, name: str, requires: list[str]) -> None:
-    """Write an empty wheel NAME 0.0.1 that depends on REQUIRES, for pip to resolve offline."""
+def _fake_wheel(folder: Path, name: str, requires: list[str], version: str | None = None) -> None:
+    """Write a wheel NAME 0.0.1 that depends on REQUIRES, for pip to resolve offline; with
+    VERSION it holds a module NAME whose __version__ is that."""
     dist_info = f"{name}-0.0.1.dist-info"
     metadata = f"Metadata-Version: 2.1\nName: {name}\nVersion: 0.0.1\n"
     metadata += "".join(f"Requires-Dist: {req}\n" for req in requires)
     wheel = "Wheel-Version: 1.0\nGenerator: test\nRoot-Is-Purelib: true\nTag: py3-none-any\n"
     with zipfile.ZipFile(folder / f"{name}-0.0.1-py3-none-any.whl", "w") as archive:
+        if version is not None:
+            archive.writestr(f"{name}/__init__.py", f"__version__ = {version!r}\n")
         archive.writestr(f"{dist_info}/METADATA", metadata)
         archive.writestr(f"{dist_info}/WHEEL", wheel)
         archive.writestr(f"{dist_info}/RECORD", "")
@@ -60,23 +63,15 @@ def _python_without_torch() -> str | None:
     return base if probe.returncode != 0 else None
 
 
-@pytest.mark.skipif(not SCRIPT.is_file() or shutil.which("bash") is None, reason="needs bash")
-@pytest.mark.skipif(_python_without_torch() is None, reason="needs a python without torch")
-@pytest.mark.parametrize(
-    ("torch_requires", "allow_cuda", "refused"),
-    [
-        (["nvidia-fake-runtime"], False, True),
-        (["nvidia-fake-runtime"], True, False),
-        ([], False, False),
-    ],
-    ids=["cuda-build-refused", "cuda-build-allowed", "cpu-build-installed"],
-)
-def test_setup_stops_before_pip_fetches_a_cuda_build_of_torch(
-    tmp_path, torch_requires, allow_cuda, refused
-):
+def _setup_with_fake_torch(
+    tmp_path: Path, torch_requires: list[str], torch_version: str | None, allow_cuda: bool
+) -> tuple[subprocess.CompletedProcess, Path]:
+    """Run the setup script offline on a python without torch, where pip finds only a fake
+    torch (and a fake nvidia-* wheel); the project's own install then fails for want of an
+    index, after everything these tests look at."""
     wheels = tmp_path / "wheels"
     wheels.mkdir()
-    _fake_wheel(wheels, "torch", torch_requires)
+    _fake_wheel(wheels, "torch", torch_requires, torch_version)
     _fake_wheel(wheels, "nvidia_fake_runtime", [])
     venv = tmp_path / "venv"
     env = _setup_free_environment()
@@ -86,11 +81,42 @@ def test_setup_stops_before_pip_fetches_a_cuda_build_of_torch(
     done = subprocess.run(
         ["bash", str(SCRIPT)], cwd=paths.REPO_ROOT, env=env, capture_output=True, text=True
     )
-    said = done.stdout + done.stderr
-    assert ("CUDA build of torch==0.0.1" in done.stderr) == refused, said
-    shown = subprocess.run([str(venv / "bin" / "python"), "-m", "pip", "show", "torch"], env=env)
-    # refused: nothing installed; otherwise the (fake) torch is in, and only the offline
-    # editable install of the project itself fails after it
-    assert (shown.returncode == 0) != refused, said
     assert done.returncode != 0
     assert not (venv / ".relaygs-installed").exists()
+    return done, venv
+
+
+needs_offline_setup = pytest.mark.skipif(
+    not SCRIPT.is_file() or shutil.which("bash") is None or _python_without_torch() is None,
+    reason="needs bash and a python without torch",
+)
+
+
+@pytest.mark.parametrize(
+    ("torch_requires", "allow_cuda", "refused"),
+    [
+        (["nvidia-fake-runtime"], False, True),
+        (["nvidia-fake-runtime"], True, False),
+        ([], False, False),
+    ],
+    ids=["cuda-build-refused", "cuda-build-allowed", "cpu-build-installed"],
+)
+@needs_offline_setup
+def test_setup_stops_before_pip_fetches_a_cuda_build_of_torch(
+    tmp_path, torch_requires, allow_cuda, refused
+):
+    done, venv = _setup_with_fake_torch(tmp_path, torch_requires, None, allow_cuda)
+    said = done.stdout + done.stderr
+    assert ("CUDA build of torch==0.0.1" in done.stderr) == refused, said
+    shown = subprocess.run([str(venv / "bin" / "python"), "-m", "pip", "show", "torch"])
+    # refused: nothing installed; otherwise the (fake) torch is in
+    assert (shown.returncode == 0) != refused, said
+
+
+@pytest.mark.parametrize(("torch_version", "pinned"), [("2.1.2+cu121", True), ("2.3.0", False)])
+@needs_offline_setup
+def test_setup_keeps_numpy_1_under_a_torch_older_than_2_3(tmp_path, torch_version, pinned):
+    done, _ = _setup_with_fake_torch(tmp_path, [], torch_version, allow_cuda=False)
+    said = done.stdout + done.stderr
+    assert (f"torch {torch_version} predates numpy 2; keeping numpy<2" in done.stdout) == pinned
+    assert "no torch found" in done.stdout, said

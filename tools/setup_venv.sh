@@ -60,5 +60,14 @@ if ! "$VENV/bin/python" -c "import torch" >/dev/null 2>&1; then
   refuse_cuda_torch
   "$VENV/bin/python" -m pip install -qq "$TORCH_SPEC"
 fi
-"$VENV/bin/python" -m pip install -qq -e ".[dev]"
+# A torch older than 2.3 was built against numpy 1 and cannot use numpy 2 ("Numpy is not
+# available"): keep pip from upgrading numpy past it.
+torch_version=$("$VENV/bin/python" -c 'import torch; print(torch.__version__)')
+IFS=. read -r major minor _ <<<"$torch_version"
+pins=()
+if [ "$major" -lt 2 ] || { [ "$major" -eq 2 ] && [ "$minor" -lt 3 ]; }; then
+  echo "setup: torch $torch_version predates numpy 2; keeping numpy<2"
+  pins=("numpy<2")
+fi
+"$VENV/bin/python" -m pip install -qq -e ".[dev]" ${pins[@]+"${pins[@]}"}
 touch "$stamp"
