@@ -62,7 +62,7 @@ if ! "$VENV/bin/python" -c "import torch" >/dev/null 2>&1; then
 fi
 # A torch older than 2.3 was built against numpy 1 and cannot use numpy 2 ("Numpy is not
 # available"): keep pip from upgrading numpy past it.
-torch_version=$("$VENV/bin/python" -c 'import torch; print(torch.__version__)')
+torch_version=$("$VENV/bin/python" -c 'import torch; print(torch.__version__)' 2>/dev/null)
 IFS=. read -r major minor _ <<<"$torch_version"
 pins=()
 if [ "$major" -lt 2 ] || { [ "$major" -eq 2 ] && [ "$minor" -lt 3 ]; }; then
