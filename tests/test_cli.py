@@ -123,3 +123,14 @@ def test_a_started_tool_exits_with_its_mains_status(tmp_path, monkeypatch, capsy
             _tool_module(tmp_path, monkeypatch, "def main():\n    print('ran')\n    return 3")
         )
     assert (stop.value.code, capsys.readouterr().out) == (3, "ran\n")
+
+
+def test_a_tools_output_its_terminal_cannot_encode_is_escaped_not_a_traceback(tmp_path):
+    (tmp_path / "greek_tool.py").write_text("def main():\n    print('Δ PSNR ↑')\n    return 0\n")
+    env = os.environ | {"PYTHONIOENCODING": "ascii", "PYTHONPATH": str(tmp_path)}
+    started = subprocess.run(
+        [sys.executable, "-c", "from relaygs.cli import start_tool; start_tool('greek_tool')"],
+        env=env,
+        capture_output=True,
+    )
+    assert (started.returncode, started.stdout) == (0, b"\\u0394 PSNR \\u2191\n"), started.stderr

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import io
 import os
 import sys
 from collections.abc import Callable
@@ -22,12 +23,21 @@ def start_tool(module: str) -> NoReturn:
     """Exit with the status of `module`'s `main()`, imported only now: the `python -m relaygs.X`
     entry modules are this call alone, so that a Ctrl-C while torch and Hydra load (one to three
     seconds) ends with one line and INTERRUPTED_EXIT, as it does once the tool runs."""
+    escape_unencodable_output()
     try:
         status = run_tool(importlib.import_module(module).main)
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         status = INTERRUPTED_EXIT
     raise SystemExit(status)
+
+
+def escape_unencodable_output() -> None:
+    """Make stdout write what its encoding cannot hold (a table's Δ or ↑ on a latin-1 terminal,
+    or redirected to a file under a Windows code page) as backslash escapes, as stderr does,
+    instead of ending the tool with UnicodeEncodeError."""
+    if isinstance(sys.stdout, io.TextIOWrapper):
+        sys.stdout.reconfigure(errors="backslashreplace")
 
 
 class OneLineErrorParser(argparse.ArgumentParser):
