@@ -127,7 +127,8 @@ def test_a_started_tool_exits_with_its_mains_status(tmp_path, monkeypatch, capsy
 
 def test_a_tools_output_its_terminal_cannot_encode_is_escaped_not_a_traceback(tmp_path):
     (tmp_path / "greek_tool.py").write_text("def main():\n    print('Δ PSNR ↑')\n    return 0\n")
-    env = os.environ | {"PYTHONIOENCODING": "ascii", "PYTHONPATH": str(tmp_path)}
+    path = os.pathsep.join(filter(None, [str(tmp_path), os.environ.get("PYTHONPATH")]))
+    env = os.environ | {"PYTHONIOENCODING": "ascii", "PYTHONPATH": path}
     started = subprocess.run(
         [sys.executable, "-c", "from relaygs.cli import start_tool; start_tool('greek_tool')"],
         env=env,

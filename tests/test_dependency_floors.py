@@ -1,5 +1,5 @@
-"""tools/dependency_floors.txt pins each of pyproject's dependencies at its floor release, so
-the set the suite is checked on is the one pyproject promises to work with."""
+"""tools/dependency_floors.txt pins each of pyproject's dependencies at its floor, so the set
+the suite is checked on is the one pyproject promises to work with."""
 
 import pytest
 from packaging.requirements import Requirement
@@ -37,6 +37,4 @@ def test_each_dependency_is_pinned_at_its_floor_release():
     pins = _pins()
     assert sorted(pins) == sorted(requirements)
     for name, requirement in requirements.items():
-        floor, pin = _floor(requirement), pins[name]
-        assert requirement.specifier.contains(pin), (name, str(pin))
-        assert pin.release[: len(floor.release)] == floor.release, (name, str(pin), str(floor))
+        assert pins[name] == _floor(requirement), (name, str(pins[name]))

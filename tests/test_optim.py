@@ -127,9 +127,19 @@ def test_adam_takes_the_foreach_step_where_torch_has_no_fused_kernel(monkeypatch
     optim.has_fused_adam.cache_clear()
     try:
         fallback = _three_steps(optim.adam)
-        assert not optim.has_fused_adam("cpu")
+        assert not optim.has_fused_adam(torch.device("cpu"))
     finally:
         optim.has_fused_adam.cache_clear()
     assert built and built[-1]["foreach"] is True
     torch.testing.assert_close(fallback, fused, rtol=1e-6, atol=1e-7)
     assert not torch.equal(fallback, torch.linspace(-1.0, 2.0, 7))
+
+
+@pytest.mark.skipif(
+    tuple(int(part) for part in torch.__version__.split(".")[:2]) < (2, 4),
+    reason="torch < 2.4 has no fused Adam on the CPU",
+)
+def test_adam_takes_the_fused_step_on_the_cpu_where_torch_has_one() -> None:
+    param = torch.nn.Parameter(torch.zeros(3))
+    assert optim.adam([{"params": [param]}]).defaults["fused"] is True
+    assert not optim.has_fused_adam(torch.device("meta"))

@@ -42,53 +42,58 @@ def test_a_venv_made_from_a_venvs_python_reuses_its_torch(tmp_path):
     assert found.strip() == torch.__file__
 
 
-def _fake_wheel(folder: Path, name: str, requires: list[str], version: str | None = None) -> None:
-    """Write a wheel NAME 0.0.1 that depends on REQUIRES, for pip to resolve offline; with
-    VERSION it holds a module NAME whose __version__ is that."""
+def _fake_wheel(folder: Path, name: str, requires: list[str], version: str) -> None:
+    """Write a wheel NAME 0.0.1 that depends on REQUIRES and holds a module NAME whose
+    __version__ is VERSION, for pip to resolve and install offline."""
     dist_info = f"{name}-0.0.1.dist-info"
     metadata = f"Metadata-Version: 2.1\nName: {name}\nVersion: 0.0.1\n"
     metadata += "".join(f"Requires-Dist: {req}\n" for req in requires)
     wheel = "Wheel-Version: 1.0\nGenerator: test\nRoot-Is-Purelib: true\nTag: py3-none-any\n"
     with zipfile.ZipFile(folder / f"{name}-0.0.1-py3-none-any.whl", "w") as archive:
-        if version is not None:
-            archive.writestr(f"{name}/__init__.py", f"__version__ = {version!r}\n")
+        archive.writestr(f"{name}/__init__.py", f"__version__ = {version!r}\n")
         archive.writestr(f"{dist_info}/METADATA", metadata)
         archive.writestr(f"{dist_info}/WHEEL", wheel)
         archive.writestr(f"{dist_info}/RECORD", "")
 
 
-def _python_without_torch() -> str | None:
-    base = getattr(sys, "_base_executable", sys.executable)
-    probe = subprocess.run([base, "-c", "import torch"], capture_output=True)
-    return base if probe.returncode != 0 else None
+def _python_without_torch(folder: Path) -> str:
+    """A python command that cannot import torch: this interpreter without site-packages."""
+    wrapper = folder / "python-without-site"
+    wrapper.write_text(f'#!/bin/sh\nexec "{sys.executable}" -S "$@"\n')
+    wrapper.chmod(0o755)
+    return str(wrapper)
 
 
 def _setup_with_fake_torch(
-    tmp_path: Path, torch_requires: list[str], torch_version: str | None, allow_cuda: bool
+    tmp_path: Path, torch_requires: list[str], torch_version: str, allow_cuda: bool
 ) -> tuple[subprocess.CompletedProcess, Path]:
-    """Run the setup script offline on a python without torch, where pip finds only a fake
-    torch (and a fake nvidia-* wheel); the project's own install then fails for want of an
-    index, after everything these tests look at."""
+    """Run the setup script traced (bash -x) and offline on a python without torch, where pip
+    finds only a fake torch (and a fake nvidia-* wheel). Past the torch checks the project's
+    own install fails for want of an index, so the run always ends non-zero and unstamped."""
     wheels = tmp_path / "wheels"
     wheels.mkdir()
     _fake_wheel(wheels, "torch", torch_requires, torch_version)
-    _fake_wheel(wheels, "nvidia_fake_runtime", [])
+    _fake_wheel(wheels, "nvidia_fake_runtime", [], "0.0.1")
     venv = tmp_path / "venv"
     env = _setup_free_environment()
-    env |= {"VENV": str(venv), "PYTHON": _python_without_torch(), "PIP_CONFIG_FILE": os.devnull}
-    env |= {"PIP_NO_INDEX": "1", "PIP_FIND_LINKS": str(wheels), "TORCH_SPEC": "torch==0.0.1"}
-    env |= {"ALLOW_CUDA_TORCH": "1"} if allow_cuda else {}
+    env |= {"VENV": str(venv), "PYTHON": _python_without_torch(tmp_path)}
+    env |= {"PIP_CONFIG_FILE": os.devnull, "PIP_NO_INDEX": "1", "PIP_FIND_LINKS": str(wheels)}
+    env |= {"TORCH_SPEC": "torch==0.0.1"} | ({"ALLOW_CUDA_TORCH": "1"} if allow_cuda else {})
     done = subprocess.run(
-        ["bash", str(SCRIPT)], cwd=paths.REPO_ROOT, env=env, capture_output=True, text=True
+        ["bash", "-x", str(SCRIPT)], cwd=paths.REPO_ROOT, env=env, capture_output=True, text=True
     )
     assert done.returncode != 0
     assert not (venv / ".relaygs-installed").exists()
     return done, venv
 
 
-needs_offline_setup = pytest.mark.skipif(
-    not SCRIPT.is_file() or shutil.which("bash") is None or _python_without_torch() is None,
-    reason="needs bash and a python without torch",
+def _reached_the_project_install(trace: str, pins: str = "") -> bool:
+    """Whether the traced run got as far as `pip install -e .[dev]` (with these extra args)."""
+    return any(line.endswith(f"-e '.[dev]'{pins}") for line in trace.splitlines())
+
+
+needs_bash = pytest.mark.skipif(
+    not SCRIPT.is_file() or shutil.which("bash") is None, reason="needs bash"
 )
 
 
@@ -101,22 +106,23 @@ needs_offline_setup = pytest.mark.skipif(
     ],
     ids=["cuda-build-refused", "cuda-build-allowed", "cpu-build-installed"],
 )
-@needs_offline_setup
-def test_setup_stops_before_pip_fetches_a_cuda_build_of_torch(
+@needs_bash
+def test_setup_stops_before_pip_installs_a_cuda_build_of_torch(
     tmp_path, torch_requires, allow_cuda, refused
 ):
-    done, venv = _setup_with_fake_torch(tmp_path, torch_requires, None, allow_cuda)
+    done, venv = _setup_with_fake_torch(tmp_path, torch_requires, "2.13.0", allow_cuda)
     said = done.stdout + done.stderr
-    assert ("CUDA build of torch==0.0.1" in done.stderr) == refused, said
-    shown = subprocess.run([str(venv / "bin" / "python"), "-m", "pip", "show", "torch"])
-    # refused: nothing installed; otherwise the (fake) torch is in
-    assert (shown.returncode == 0) != refused, said
+    assert ("setup: pip would install a CUDA build of torch==0.0.1" in done.stderr) == refused
+    # refused: the venv this run made is gone (a torch installed for PYTHON later must show
+    # through a new one); otherwise the fake torch is in and the run went on to the project
+    assert venv.exists() != refused, said
+    assert _reached_the_project_install(done.stderr) != refused, said
 
 
 @pytest.mark.parametrize(("torch_version", "pinned"), [("2.1.2+cu121", True), ("2.3.0", False)])
-@needs_offline_setup
+@needs_bash
 def test_setup_keeps_numpy_1_under_a_torch_older_than_2_3(tmp_path, torch_version, pinned):
     done, _ = _setup_with_fake_torch(tmp_path, [], torch_version, allow_cuda=False)
     said = done.stdout + done.stderr
-    assert (f"torch {torch_version} predates numpy 2; keeping numpy<2" in done.stdout) == pinned
-    assert "no torch found" in done.stdout, said
+    assert ("predates numpy 2; keeping numpy<2" in done.stdout) == pinned, said
+    assert _reached_the_project_install(done.stderr, " 'numpy<2'" if pinned else ""), said

@@ -130,12 +130,14 @@ class SetLearningRates:
 
 
 @functools.cache
-def has_fused_adam(device_type: str) -> bool:
-    """Whether this torch has a fused Adam kernel for DEVICE_TYPE (the CPU's came in torch 2.4;
-    older versions refuse fused=True there when the optimiser is built)."""
-    probe = torch.zeros(1, device=device_type, requires_grad=True)
+def has_fused_adam(device: torch.device) -> bool:
+    """Whether this torch has a fused Adam kernel for DEVICE, found by one step on a probe
+    there (the CPU's came in torch 2.4; older versions refuse fused=True when the optimiser is
+    built, newer ones when it steps)."""
+    probe = torch.zeros(1, device=device, requires_grad=True)
+    probe.grad = torch.zeros_like(probe)
     try:
-        torch.optim.Adam([probe], fused=True)
+        torch.optim.Adam([probe], fused=True).step()
     except RuntimeError:
         return False
     return True
@@ -145,7 +147,7 @@ def adam(groups: list[dict], betas: tuple[float, float] = (0.9, 0.999)) -> torch
     """Adam with eps 1e-15 over param groups, as one fused kernel per step where torch has one
     for the params' device (the per-tensor loop costs several times more on the CPU), else as
     the multi-tensor (foreach) step; the update is the same."""
-    fused = has_fused_adam(groups[0]["params"][0].device.type)
+    fused = has_fused_adam(groups[0]["params"][0].device)
     kernel = {"fused": True} if fused else {"foreach": True}
     return torch.optim.Adam(groups, lr=0.0, betas=betas, eps=ADAM_EPS, **kernel)
 
