@@ -4,10 +4,13 @@ from __future__ import annotations
 
 import copy
 import shutil
+import sys
 from pathlib import Path
+from typing import Any
 
 import pytest
 
+from relaygs import paths
 from relaygs.data import Scene, load_scene
 from relaygs.data.synthetic import generate
 from relaygs.pipeline.artifact import Artifact
@@ -25,6 +28,14 @@ def tiny_synth_scene(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def tiny_synth_copy(tiny_synth_scene: Path, tmp_path: Path) -> Path:
     """A private copy of `tiny_synth_scene` that a test may damage."""
     return Path(shutil.copytree(tiny_synth_scene, tmp_path / "scene"))
+
+
+@pytest.fixture(scope="session")
+def pyproject() -> dict[str, Any]:
+    """The repository's pyproject.toml, parsed: with tomllib from Python 3.11, with the dev
+    extra's tomli before (skips where neither is there)."""
+    toml = pytest.importorskip("tomllib" if sys.version_info >= (3, 11) else "tomli")
+    return toml.loads((paths.REPO_ROOT / "pyproject.toml").read_text())
 
 
 def pytest_configure(config: pytest.Config) -> None:

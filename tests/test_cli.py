@@ -23,7 +23,8 @@ def _closed_reader(args: list[str], buffered: bool = False) -> tuple[int, str]:
     env = {k: v for k, v in os.environ.items() if not (buffered and k == "PYTHONUNBUFFERED")}
     process = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
     process.stdout.close()
-    stderr = process.stderr.read().decode()
+    with process.stderr:
+        stderr = process.stderr.read().decode()
     return process.wait(timeout=120), stderr
 
 

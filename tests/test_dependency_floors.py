@@ -7,8 +7,6 @@ from packaging.version import Version
 
 from relaygs import paths
 
-tomllib = pytest.importorskip("tomllib")  # Python >= 3.11
-
 FLOORS = paths.REPO_ROOT / "tools" / "dependency_floors.txt"
 
 
@@ -31,9 +29,8 @@ def _floor(requirement: Requirement) -> Version:
 
 
 @pytest.mark.skipif(not FLOORS.is_file(), reason="needs the repository's tools/")
-def test_each_dependency_is_pinned_at_its_floor_release():
-    project = tomllib.loads((paths.REPO_ROOT / "pyproject.toml").read_text())["project"]
-    requirements = {r.name: r for r in map(Requirement, project["dependencies"])}
+def test_each_dependency_is_pinned_at_its_floor_release(pyproject):
+    requirements = {r.name: r for r in map(Requirement, pyproject["project"]["dependencies"])}
     pins = _pins()
     assert sorted(pins) == sorted(requirements)
     for name, requirement in requirements.items():

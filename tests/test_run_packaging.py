@@ -3,11 +3,7 @@ globs cover every file, so a regular install finds the same configs as the repos
 
 from pathlib import Path
 
-import pytest
-
 from relaygs import paths
-
-tomllib = pytest.importorskip("tomllib")  # Python >= 3.11
 
 
 def _install(monkeypatch, package_dir):
@@ -48,8 +44,7 @@ def test_packaged_data_links_point_at_the_repository_folders():
     assert (paths.PACKAGED_DATA_DIR / "pipelines").resolve() == paths.REPO_ROOT / "pipelines"
 
 
-def test_package_data_globs_cover_every_config_and_pipeline_file():
-    pyproject = tomllib.loads((paths.REPO_ROOT / "pyproject.toml").read_text())
+def test_package_data_globs_cover_every_config_and_pipeline_file(pyproject):
     patterns = pyproject["tool"]["setuptools"]["package-data"]["relaygs"]
     shipped = {
         path.relative_to(paths.PACKAGE_DIR).as_posix()
