@@ -14,6 +14,8 @@ from relaygs import paths
 from relaygs.data import Scene, load_scene
 from relaygs.data.synthetic import generate
 from relaygs.pipeline.artifact import Artifact
+from relaygs.pipeline.keys import artifact_key
+from relaygs.pipeline.store import ArtifactStore
 
 TINY_SYNTH_SIZE = {"frames": 6, "width": 32, "height": 18}
 
@@ -106,3 +108,12 @@ def stage_deformed(stage_scene: Scene, stage_relayed: Artifact) -> Artifact:
     from relaygs.stages import STAGES
 
     return STAGES["deform"](stage_scene, {"relay": stage_relayed}, stage_smoke_cfg())
+
+
+@pytest.fixture
+def stored_deform(stage_deformed: Artifact, tmp_path: Path) -> tuple[ArtifactStore, str]:
+    """The stage fixtures' deform artifact in a fresh store: (store, key)."""
+    store = ArtifactStore(tmp_path / "store")
+    key = artifact_key("deform", 1, {"steps": 20}, "juggle", [])
+    store.get_or_build("deform", key, lambda: stage_deformed, config={}, lineage=[])
+    return store, key

@@ -7,20 +7,9 @@ import pytest
 from relaygs.commands.artifacts import main
 from relaygs.data import load_scene
 from relaygs.errors import InputError
-from relaygs.pipeline.keys import artifact_key
-from relaygs.pipeline.store import ArtifactStore
 from relaygs.renders import RenderSettings, write_renders
 from relaygs.stages.model_render import ModelRenderer
 from relaygs.stages.scene_model import SceneModel
-
-
-@pytest.fixture
-def stored_deform(stage_deformed, tmp_path):
-    """The stage fixtures' deform artifact in a fresh store: (store, key)."""
-    store = ArtifactStore(tmp_path / "store")
-    key = artifact_key("deform", 1, {"steps": 20}, "juggle", [])
-    store.get_or_build("deform", key, lambda: stage_deformed, config={}, lineage=[])
-    return store, key
 
 
 def _render_cli(capsys, store, key, scene, *args):

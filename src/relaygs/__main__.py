@@ -6,7 +6,7 @@ from collections.abc import Sequence
 COMMANDS = (
     ("run", "train and evaluate RelayGS, its ablations or 4D-GS; sweeps (+experiment=NAME)"),
     ("report", "rebuild a sweep's summary tables and Pareto plot from its result.json files"),
-    ("artifacts", "inspect, score, render, verify and clean the artifact store"),
+    ("artifacts", "inspect, score, render, export, verify and clean the artifact store"),
     ("synth", "write a synthetic multi-view video scene"),
     ("bench", "splatting, training-step and sweep benchmarks"),
 )

@@ -1,6 +1,6 @@
 """`python -m relaygs.artifacts [--root DIR] ls | show KEY | eval KEY --scene DIR |
-render KEY --scene DIR | verify | gc`: inspect, score, look at, check and clean the artifact
-store. Exit 0 on success, 1 on a problem (one line on stderr), 2 on usage."""
+render KEY --scene DIR | ply KEY | verify | gc`: inspect, score, look at, export, check and
+clean the artifact store. Exit 0 on success, 1 on a problem (one line on stderr), 2 on usage."""
 
 from __future__ import annotations
 
@@ -27,12 +27,14 @@ from relaygs.pipeline.store import (
     MissingArtifactError,
     StoredArtifact,
 )
+from relaygs.ply import write_frame_plys
 from relaygs.renders import RenderSettings, write_renders
 from relaygs.stages import evaluate
 from relaygs.stages.scene_model import SceneModel
 
 DEFAULT_ROOT = "outputs/artifacts"
 DEFAULT_RENDERS = "outputs/renders"
+DEFAULT_PLY = "outputs/ply"
 KEY_COLUMN_WIDTH = 16
 
 
@@ -103,6 +105,22 @@ def _parser() -> argparse.ArgumentParser:
         "--out", type=Path, help=f"output folder (default {DEFAULT_RENDERS}/<stage>-<key>)"
     )
     render.set_defaults(command_fn=_render)
+    ply = commands.add_parser(
+        "ply", help="export one artifact's model as 3DGS PLY files, one per frame, for viewers"
+    )
+    ply.add_argument("key", help="full key or a unique prefix (at least 4 hex digits)")
+    ply.add_argument(
+        "--frame",
+        type=int,
+        action="append",
+        metavar="F",
+        help="frame to export (repeat for more; default: every --frame-stride-th frame)",
+    )
+    ply.add_argument("--frame-stride", type=int, default=1, help="export every N-th frame")
+    ply.add_argument(
+        "--out", type=Path, help=f"output folder (default {DEFAULT_PLY}/<stage>-<key>)"
+    )
+    ply.set_defaults(command_fn=_ply)
     verify = commands.add_parser("verify", help="check every artifact's hashes (exit 1 if bad)")
     verify.set_defaults(command_fn=_verify)
     gc = commands.add_parser("gc", help="remove leftovers of killed builds and stale locks")
@@ -207,6 +225,20 @@ def _render(store: ArtifactStore, args: argparse.Namespace) -> int:
         print(
             f"  camera {camera.camera_id}: {len(camera.frames)} frame(s) in {camera.folder}{video}"
         )
+    return 0
+
+
+def _ply(store: ArtifactStore, args: argparse.Namespace) -> int:
+    """Write the artifact's model at the chosen frames as PLY files and say where they are."""
+    if args.frame_stride < 1:
+        raise RelayGSError(f"--frame-stride must be >= 1, got {args.frame_stride}")
+    item, artifact = _model_artifact(store, args.key)
+    name = f"{item.stage}-{item.key[:KEY_COLUMN_WIDTH]}"
+    out = require_creatable_folder((args.out or Path(DEFAULT_PLY) / name).absolute(), "--out")
+    model = SceneModel.from_artifact(artifact)
+    frames = args.frame or range(0, model.num_frames, args.frame_stride)
+    written = write_frame_plys(model, out, list(dict.fromkeys(frames)))
+    print(f"{item.stage} {item.key[:KEY_COLUMN_WIDTH]}: {len(written)} PLY file(s) in {out}")
     return 0
 
 

@@ -8,7 +8,7 @@ from torch import Tensor
 from relaygs.data import Camera
 from relaygs.pipeline.artifact import Artifact
 from relaygs.stages.motion import deformed_parts
-from relaygs.stages.render import part_of, splat
+from relaygs.stages.render import Part, part_of, splat
 from relaygs.stages.scene_model import SceneModel
 
 
@@ -27,24 +27,26 @@ class ModelRenderer:
         return min(max(round(time * (frames - 1)), 0), frames - 1)
 
     @torch.no_grad()
-    def render(self, cameras: list[Camera], time: float) -> list[Tensor]:
-        """Images [H,W,3] in [0, 1], one per camera, of the model at `time`.
-
-        The foreground copy is the one of the nearest frame's segment; a deformed model
-        evaluates its field at exactly `time`. Train cameras get their colour affine.
-        """
+    def parts_at(self, time: float) -> list[Part]:
+        """The background and foreground Gaussians shown at `time` in [0, 1]: the copy of the
+        nearest frame's segment; a deformed model evaluates its field at exactly `time`."""
         model = self.model
         rows = model.foreground_rows(self.frame_at(time))
         if model.field is not None:
-            parts = deformed_parts(
+            return deformed_parts(
                 model.background, model.foreground, rows, model.field, time, self.sh_degree
             )
-        else:
-            parts = [
-                part_of("bg", model.background, self.sh_degree, frozen=True),
-                part_of("fg", model.foreground, self.sh_degree, rows=rows, frozen=True),
-            ]
-        images = splat(parts, cameras, self.sh_degree).images
+        return [
+            part_of("bg", model.background, self.sh_degree, frozen=True),
+            part_of("fg", model.foreground, self.sh_degree, rows=rows, frozen=True),
+        ]
+
+    @torch.no_grad()
+    def render(self, cameras: list[Camera], time: float) -> list[Tensor]:
+        """Images [H,W,3] in [0, 1], one per camera, of the model at `time` (`parts_at`);
+        train cameras get their colour affine."""
+        model = self.model
+        images = splat(self.parts_at(time), cameras, self.sh_degree).images
         out = []
         for camera, image in zip(cameras, images, strict=True):
             row = self._affine_rows.get(camera.camera_id)

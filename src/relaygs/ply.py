@@ -1,0 +1,87 @@
+"""A stored model as PLY files, one per frame, in the layout of the original 3DGS code, so
+that Gaussian splat viewers and tools made for 3DGS open what a run reconstructed.
+
+`python -m relaygs.artifacts ply KEY` is the command line. Each file holds the Gaussians the
+renderer draws at that frame (the background, the frame's relay copy, moved by the motion
+field when the model has one) with the values before activation that 3DGS stores: position,
+log scale, unit wxyz quaternion, opacity logit and SH coefficients (f_dc, then f_rest with
+all red coefficients first, then green, then blue). A deform model's per-camera colour
+affine is not part of the file: it corrects the training cameras only, as in evaluation.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from relaygs.data.scene import frame_time
+from relaygs.errors import InputError, RelayGSError
+from relaygs.model import normalize_quats
+from relaygs.pipeline.fsio import publish_bytes
+from relaygs.progress import progress_bar
+from relaygs.stages.model_render import ModelRenderer
+from relaygs.stages.render import Part
+from relaygs.stages.scene_model import SceneModel
+
+PLY_DTYPE = "<f4"  # every property is a little-endian float32, as 3DGS writes them
+
+
+def ply_columns(parts: Sequence[Part]) -> dict[str, torch.Tensor]:
+    """The 3DGS PLY properties, in file order, of the concatenated parts: name → [N] float32."""
+    means = torch.cat([part.means for part in parts])
+    sh = torch.cat([part.sh for part in parts])  # [N, K, 3]
+    columns = {name: means[:, axis] for axis, name in enumerate("xyz")}
+    columns.update({name: torch.zeros_like(means[:, 0]) for name in ("nx", "ny", "nz")})
+    columns.update({f"f_dc_{channel}": sh[:, 0, channel] for channel in range(3)})
+    rest = sh[:, 1:, :].transpose(1, 2).reshape(sh.shape[0], -1)  # channel-major, as 3DGS
+    columns.update({f"f_rest_{index}": rest[:, index] for index in range(rest.shape[1])})
+    columns["opacity"] = torch.cat([part.opacity_logits for part in parts])
+    log_scales = torch.cat([part.log_scales for part in parts])
+    columns.update({f"scale_{axis}": log_scales[:, axis] for axis in range(3)})
+    quats = normalize_quats(torch.cat([part.quats for part in parts]))
+    columns.update({f"rot_{index}": quats[:, index] for index in range(4)})
+    return columns
+
+
+def ply_bytes(columns: dict[str, torch.Tensor]) -> bytes:
+    """A binary little-endian PLY with one `vertex` element holding `columns`."""
+    count = next(iter(columns.values())).shape[0]
+    header = ["ply", "format binary_little_endian 1.0", f"element vertex {count}"]
+    header += [f"property float {name}" for name in columns]
+    header.append("end_header\n")
+    rows = np.empty(count, dtype=[(name, PLY_DTYPE) for name in columns])
+    for name, values in columns.items():
+        rows[name] = values.detach().to("cpu", torch.float32).numpy()
+    return "\n".join(header).encode("ascii") + rows.tobytes()
+
+
+def write_frame_plys(
+    model: SceneModel, out: Path, frames: Sequence[int], progress: bool = True
+) -> list[Path]:
+    """Write `out`/<frame>.ply for each of `frames` (each written whole or not at all) and
+    return their paths; a frame outside the model's or a value that is not finite is one
+    line naming it."""
+    outside = [frame for frame in frames if not 0 <= frame < model.num_frames]
+    if outside:
+        raise InputError(
+            f"frame {outside[0]} is not in the model: its frames are 0..{model.num_frames - 1}"
+        )
+    renderer = ModelRenderer(model)
+    written = []
+    for frame in progress_bar(frames, desc="ply", unit="frame", disable=not progress, leave=False):
+        columns = ply_columns(renderer.parts_at(frame_time(frame, model.num_frames)))
+        for name, values in columns.items():
+            if not torch.isfinite(values).all():
+                raise RelayGSError(f"frame {frame}: property {name} is not finite; not written")
+        path = out / f"{frame:06d}.ply"
+        try:
+            out.mkdir(parents=True, exist_ok=True)
+            publish_bytes(path, ply_bytes(columns))
+        except OSError as error:  # e.g. a file where the folder goes
+            where = error.filename or path
+            raise InputError(f"cannot write {where}: {error.strerror or error}") from error
+        written.append(path)
+    return written

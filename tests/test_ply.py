@@ -1,0 +1,163 @@
+"""`python -m relaygs.artifacts ply`: a stored model as 3DGS PLY files, one per frame."""
+
+import numpy as np
+import pytest
+import torch
+
+from relaygs.commands.artifacts import main
+from relaygs.data.scene import frame_time
+from relaygs.errors import InputError, RelayGSError
+from relaygs.ply import ply_columns, write_frame_plys
+from relaygs.stages.model_render import ModelRenderer
+from relaygs.stages.render import Part, splat
+from relaygs.stages.scene_model import SceneModel
+
+END_HEADER = b"end_header\n"
+
+
+def _read_ply(path):
+    """(header lines, rows as a structured array) of a binary little-endian float PLY."""
+    data = path.read_bytes()
+    end = data.index(END_HEADER) + len(END_HEADER)
+    lines = data[:end].decode("ascii").splitlines()
+    assert lines[:2] == ["ply", "format binary_little_endian 1.0"]
+    (count,) = [int(line.split()[2]) for line in lines if line.startswith("element vertex ")]
+    names = [line.split()[2] for line in lines if line.startswith("property float ")]
+    rows = np.frombuffer(data[end:], dtype=[(name, "<f4") for name in names], count=count)
+    assert len(data) == end + rows.nbytes  # nothing after the rows
+    return lines, rows
+
+
+def _columns(rows, *names):
+    return torch.from_numpy(np.stack([rows[name] for name in names], axis=1))
+
+
+def _part_from(rows):
+    """The Gaussians of a 3DGS PLY as one Part: f_rest holds every red coefficient, then
+    every green, then every blue."""
+    rest = [name for name in rows.dtype.names if name.startswith("f_rest_")]
+    bases = len(rest) // 3 + 1
+    sh_rest = _columns(rows, *rest).reshape(-1, 3, bases - 1).transpose(1, 2)
+    sh = torch.cat([_columns(rows, "f_dc_0", "f_dc_1", "f_dc_2").unsqueeze(1), sh_rest], dim=1)
+    return Part(
+        "ply",
+        None,
+        _columns(rows, "x", "y", "z"),
+        _columns(rows, "scale_0", "scale_1", "scale_2"),
+        _columns(rows, "rot_0", "rot_1", "rot_2", "rot_3"),
+        _columns(rows, "opacity")[:, 0],
+        sh,
+        frozen=True,
+    )
+
+
+@pytest.mark.parametrize(
+    ("fixture", "frame"),
+    [
+        ("stage_decoupled", 0),  # the decoupled movers show at frame 0 only
+        ("stage_decoupled", 5),
+        ("stage_relayed", 1),  # segment 0's copy
+        ("stage_relayed", 6),  # segment 1's
+        ("stage_deformed", 5),  # moved by the field, γ on the copies
+    ],
+)
+def test_a_frames_ply_renders_what_the_model_renders_at_that_frame(
+    request, stage_scene, tmp_path, fixture, frame
+):
+    model = SceneModel.from_artifact(request.getfixturevalue(fixture))
+    (path,) = write_frame_plys(model, tmp_path, [frame], progress=False)
+    assert path == tmp_path / f"{frame:06d}.ply"
+    _, rows = _read_ply(path)
+    renderer = ModelRenderer(model)
+    parts = renderer.parts_at(frame_time(frame, model.num_frames))
+    assert len(rows) == sum(part.count for part in parts) > 0
+    camera = stage_scene.test_views[0].camera  # no colour affine: the file has none
+    expected = renderer.render([camera], frame_time(frame, model.num_frames))[0]
+    from_file = splat([_part_from(rows)], [camera], renderer.sh_degree).images[0].clamp(0, 1)
+    assert torch.allclose(from_file, expected, atol=1e-5)
+
+
+def test_the_movers_leave_the_decoupled_models_later_frames(stage_decoupled, tmp_path):
+    model = SceneModel.from_artifact(stage_decoupled)
+    first, later = write_frame_plys(model, tmp_path, [0, 5], progress=False)
+    n_bg, n_fg = len(model.background), len(model.foreground)
+    assert n_fg > 0
+    assert (len(_read_ply(first)[1]), len(_read_ply(later)[1])) == (n_bg + n_fg, n_bg)
+
+
+def test_properties_follow_the_3dgs_layout_and_order():
+    n, bases = 2, 9  # SH degree 2
+    sh = torch.arange(n * bases * 3, dtype=torch.float32).reshape(n, bases, 3)
+    quats = torch.tensor([[2.0, 0.0, 0.0, 0.0], [0.0, 0.0, 3.0, 4.0]])
+    means, log_scales = torch.randn(n, 3), torch.randn(n, 3)
+    part = Part("p", None, means, log_scales, quats, torch.tensor([-1.0, 2.0]), sh)
+    columns = ply_columns([part])
+    rest = [f"f_rest_{i}" for i in range(3 * (bases - 1))]
+    assert list(columns) == [
+        *("x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"),
+        *rest,
+        *("opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"),
+    ]
+    for channel in range(3):
+        assert torch.equal(columns[f"f_dc_{channel}"], sh[:, 0, channel])
+        for basis in range(1, bases):  # all red coefficients first, then green, then blue
+            index = channel * (bases - 1) + basis - 1
+            assert torch.equal(columns[f"f_rest_{index}"], sh[:, basis, channel])
+    assert torch.equal(columns["nx"], torch.zeros(n))
+    assert torch.equal(columns["opacity"], torch.tensor([-1.0, 2.0]))  # logits, as stored
+    assert torch.equal(columns["scale_2"], log_scales[:, 2])  # log scales, as stored
+    unit = torch.stack([columns[f"rot_{i}"] for i in range(4)], dim=1)
+    assert torch.allclose(unit, torch.tensor([[1.0, 0, 0, 0], [0, 0, 0.6, 0.8]]))  # wxyz
+
+
+def test_a_frame_outside_the_model_or_a_value_not_finite_writes_nothing(stage_relayed, tmp_path):
+    model = SceneModel.from_artifact(stage_relayed)
+    with pytest.raises(InputError, match=r"frame 8 is not in the model: its frames are 0\.\.7"):
+        write_frame_plys(model, tmp_path, [0, 8], progress=False)
+    model.background.params["log_scales"].data[3, 1] = float("inf")
+    with pytest.raises(RelayGSError, match="frame 0: property scale_1 is not finite"):
+        write_frame_plys(model, tmp_path, [0], progress=False)
+    assert not list(tmp_path.iterdir())
+
+
+def _ply_cli(capsys, store, key, *args):
+    code = main(["--root", str(store.root), "ply", key[:8], *args])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_the_command_writes_the_chosen_frames_into_a_folder_named_after_the_model(
+    stored_deform, tmp_path, capsys, monkeypatch
+):
+    store, key = stored_deform
+    monkeypatch.chdir(tmp_path)
+    code, printed, _ = _ply_cli(capsys, store, key, "--frame-stride", "3")
+    out = tmp_path / "outputs" / "ply" / f"deform-{key[:16]}"
+    assert (code, printed) == (0, f"deform {key[:16]}: 3 PLY file(s) in {out}\n")
+    assert sorted(path.name for path in out.iterdir()) == [
+        "000000.ply",
+        "000003.ply",
+        "000006.ply",
+    ]
+    chosen = tmp_path / "chosen"
+    code, _, _ = _ply_cli(capsys, store, key, "--frame", "7", "--frame", "2", "--out", str(chosen))
+    assert code == 0 and sorted(path.name for path in chosen.iterdir()) == [
+        "000002.ply",
+        "000007.ply",
+    ]
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--frame", "8"], "frame 8 is not in the model: its frames are 0..7"),
+        (["--frame", "-1"], "frame -1 is not in the model"),
+        (["--frame-stride", "0"], "--frame-stride must be >= 1, got 0"),
+    ],
+)
+def test_bad_ply_options_fail_in_one_line(stored_deform, tmp_path, capsys, args, message):
+    store, key = stored_deform
+    out = tmp_path / "ply"
+    code, _, err = _ply_cli(capsys, store, key, *args, "--out", str(out))
+    assert code == 1 and message in err and err.count("\n") == 1
+    assert not out.exists() or not any(out.iterdir())
