@@ -7,9 +7,11 @@ import json
 
 import pandas as pd
 import pytest
+from filelock import FileLock
 from omegaconf import OmegaConf
 
 from fake_stages import TINY_SCENE, FakeStages, compose_config
+from relaygs.app.callbacks import SWEEP_LOCK_FILE
 from relaygs.app.task import run_task
 from relaygs.commands import report
 from relaygs.commands import run as run_module
@@ -192,3 +194,25 @@ def test_a_sweep_job_out_of_disk_is_recorded_in_one_line_and_the_others_run(
     assert list(table.status) == ["failed", "ok"]
     assert table.error[0].startswith(line)
     assert fakes.ran("deform") == 1  # the job after the failed one still ran
+
+
+def test_a_sweep_started_in_the_folder_of_a_running_one_stops_before_any_job(
+    monkeypatch, tmp_path, capsys
+):
+    # before, both wrote the same job folders: the result.json files of one were lost
+    monkeypatch.chdir(tmp_path)
+    folder = tmp_path / "sweep"
+    folder.mkdir()
+    fakes = FakeStages()
+    args = ["-m", "relay.k=2,4", "budget=smoke", f"hydra.sweep.dir={folder}", *TINY_SCENE]
+    with FileLock(folder / SWEEP_LOCK_FILE):  # held as the running sweep's process holds it
+        assert _main_with(monkeypatch, fakes, args) == 1
+    assert capsys.readouterr().err.splitlines() == [
+        f"error: another sweep is running in {folder}: wait for it to end, or give this one "
+        "its own hydra.sweep.dir"
+    ]
+    assert fakes.calls == [] and not list(folder.rglob("result.json"))
+    assert _main_with(monkeypatch, fakes, args) == 0  # once that sweep has ended
+    assert len(list(folder.rglob("result.json"))) == 2
+    with FileLock(folder / SWEEP_LOCK_FILE).acquire(timeout=0):  # which leaves the folder free
+        pass

@@ -1,4 +1,5 @@
-"""Hydra callback that writes the sweep's tables and Pareto plot when a multirun ends."""
+"""Hydra callbacks of a multirun: one sweep at a time per sweep folder, and the sweep's tables
+and Pareto plot when it ends."""
 
 from __future__ import annotations
 
@@ -7,12 +8,48 @@ import time
 from pathlib import Path
 from typing import Any
 
+from filelock import FileLock, Timeout
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 
 from relaygs.app.summary import results_written_before
 from relaygs.commands.report import describe, write_reports
 from relaygs.errors import RelayGSError
+
+SWEEP_LOCK_FILE = ".sweep.lock"
+
+
+class SweepFolderLock(Callback):
+    """Holds a lock in the sweep folder while the multirun's jobs run: a second sweep started
+    in the same folder (the same `hydra.sweep.dir`) stops at once instead of writing its jobs
+    over the first one's. Listed after `SweepSummary`, so its end comes first: the lock is
+    released before the summary, which may end the command (a failed job)."""
+
+    def __init__(self) -> None:
+        self._lock: FileLock | None = None
+
+    def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
+        """Take the sweep folder's lock, or end the command with one line if a sweep holds it."""
+        sweep_dir = Path(str(config.hydra.sweep.dir))
+        sweep_dir.mkdir(parents=True, exist_ok=True)
+        lock = FileLock(sweep_dir / SWEEP_LOCK_FILE)
+        try:
+            lock.acquire(timeout=0)
+        except Timeout:
+            print(
+                f"error: another sweep is running in {sweep_dir}: wait for it to end, or give "
+                "this one its own hydra.sweep.dir",
+                file=sys.stderr,
+            )
+            # Hydra turns a callback's exception into a warning; SystemExit ends the command.
+            raise SystemExit(1) from None
+        self._lock = lock
+
+    def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
+        """Let the next sweep in this folder start."""
+        if self._lock is not None:
+            self._lock.release()
+            self._lock = None
 
 
 class SweepSummary(Callback):
