@@ -7,6 +7,7 @@ import torch
 from relaygs.commands.artifacts import main
 from relaygs.data.scene import frame_time
 from relaygs.errors import InputError, RelayGSError
+from relaygs.model import MAX_LOG_SCALE
 from relaygs.ply import ply_columns, write_frame_plys
 from relaygs.stages.model_render import ModelRenderer
 from relaygs.stages.render import Part, splat
@@ -89,7 +90,7 @@ def test_properties_follow_the_3dgs_layout_and_order():
     n, bases = 2, 9  # SH degree 2
     sh = torch.arange(n * bases * 3, dtype=torch.float32).reshape(n, bases, 3)
     quats = torch.tensor([[2.0, 0.0, 0.0, 0.0], [0.0, 0.0, 3.0, 4.0]])
-    means, log_scales = torch.randn(n, 3), torch.randn(n, 3)
+    means, log_scales = torch.randn(n, 3), torch.tensor([[0.5, -2.0, 1e3], [-1.0, 0.0, 3.0]])
     part = Part("p", None, means, log_scales, quats, torch.tensor([-1.0, 2.0]), sh)
     columns = ply_columns([part])
     rest = [f"f_rest_{i}" for i in range(3 * (bases - 1))]
@@ -105,7 +106,9 @@ def test_properties_follow_the_3dgs_layout_and_order():
             assert torch.equal(columns[f"f_rest_{index}"], sh[:, basis, channel])
     assert torch.equal(columns["nx"], torch.zeros(n))
     assert torch.equal(columns["opacity"], torch.tensor([-1.0, 2.0]))  # logits, as stored
-    assert torch.equal(columns["scale_2"], log_scales[:, 2])  # log scales, as stored
+    assert torch.equal(columns["scale_1"], log_scales[:, 1])  # log scales, as stored
+    capped = torch.tensor([MAX_LOG_SCALE, 3.0])  # as the renderer caps them
+    assert torch.equal(columns["scale_2"], capped)
     unit = torch.stack([columns[f"rot_{i}"] for i in range(4)], dim=1)
     assert torch.allclose(unit, torch.tensor([[1.0, 0, 0, 0], [0, 0, 0.6, 0.8]]))  # wxyz
 
@@ -114,8 +117,8 @@ def test_a_frame_outside_the_model_or_a_value_not_finite_writes_nothing(stage_re
     model = SceneModel.from_artifact(stage_relayed)
     with pytest.raises(InputError, match=r"frame 8 is not in the model: its frames are 0\.\.7"):
         write_frame_plys(model, tmp_path, [0, 8], progress=False)
-    model.background.params["log_scales"].data[3, 1] = float("inf")
-    with pytest.raises(RelayGSError, match="frame 0: property scale_1 is not finite"):
+    model.background.params["means"].data[3, 1] = float("inf")
+    with pytest.raises(RelayGSError, match="frame 0: property y is not finite"):
         write_frame_plys(model, tmp_path, [0], progress=False)
     assert not list(tmp_path.iterdir())
 

@@ -4,9 +4,10 @@ that Gaussian splat viewers and tools made for 3DGS open what a run reconstructe
 `python -m relaygs.artifacts ply KEY` is the command line. Each file holds the Gaussians the
 renderer draws at that frame (the background, the frame's relay copy, moved by the motion
 field when the model has one) with the values before activation that 3DGS stores: position,
-log scale, unit wxyz quaternion, opacity logit and SH coefficients (f_dc, then f_rest with
-all red coefficients first, then green, then blue). A deform model's per-camera colour
-affine is not part of the file: it corrects the training cameras only, as in evaluation.
+log scale (capped at the renderer's MAX_LOG_SCALE), unit wxyz quaternion, opacity logit and
+SH coefficients (f_dc, then f_rest with all red coefficients first, then green, then blue).
+A deform model's per-camera colour affine is not part of the file: it corrects the training
+cameras only, as in evaluation.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ import torch
 
 from relaygs.data.scene import frame_time
 from relaygs.errors import InputError, RelayGSError
-from relaygs.model import normalize_quats
+from relaygs.model import MAX_LOG_SCALE, normalize_quats
 from relaygs.pipeline.fsio import publish_bytes
 from relaygs.progress import progress_bar
 from relaygs.stages.model_render import ModelRenderer
@@ -39,7 +40,7 @@ def ply_columns(parts: Sequence[Part]) -> dict[str, torch.Tensor]:
     rest = sh[:, 1:, :].transpose(1, 2).reshape(sh.shape[0], -1)  # channel-major, as 3DGS
     columns.update({f"f_rest_{index}": rest[:, index] for index in range(rest.shape[1])})
     columns["opacity"] = torch.cat([part.opacity_logits for part in parts])
-    log_scales = torch.cat([part.log_scales for part in parts])
+    log_scales = torch.cat([part.log_scales for part in parts]).clamp(max=MAX_LOG_SCALE)
     columns.update({f"scale_{axis}": log_scales[:, axis] for axis in range(3)})
     quats = normalize_quats(torch.cat([part.quats for part in parts]))
     columns.update({f"rot_{index}": quats[:, index] for index in range(4)})
