@@ -4,6 +4,7 @@ summary lists the finished jobs and the failed one, and the command exits 1."""
 import errno
 import functools
 import json
+import pickle
 
 import pandas as pd
 import pytest
@@ -11,7 +12,7 @@ from filelock import FileLock
 from omegaconf import OmegaConf
 
 from fake_stages import TINY_SCENE, FakeStages, compose_config
-from relaygs.app.callbacks import SWEEP_LOCK_FILE
+from relaygs.app.callbacks import SWEEP_LOCK_FILE, SweepFolderLock
 from relaygs.app.task import run_task
 from relaygs.commands import report
 from relaygs.commands import run as run_module
@@ -215,4 +216,19 @@ def test_a_sweep_started_in_the_folder_of_a_running_one_stops_before_any_job(
     assert _main_with(monkeypatch, fakes, args) == 0  # once that sweep has ended
     assert len(list(folder.rglob("result.json"))) == 2
     with FileLock(folder / SWEEP_LOCK_FILE).acquire(timeout=0):  # which leaves the folder free
+        pass
+
+
+def test_a_sweep_holding_its_folder_goes_to_parallel_workers_without_the_lock(tmp_path):
+    # the joblib launcher pickles Hydra's callbacks with every job
+    callback = SweepFolderLock()
+    callback.on_multirun_start(OmegaConf.create({"hydra": {"sweep": {"dir": str(tmp_path)}}}))
+    worker_copy = pickle.loads(pickle.dumps(callback))
+    worker_copy.on_multirun_end(OmegaConf.create({}))  # a worker's copy releases nothing
+    with pytest.raises(SystemExit):  # the launching process still holds the folder
+        SweepFolderLock().on_multirun_start(
+            OmegaConf.create({"hydra": {"sweep": {"dir": str(tmp_path)}}})
+        )
+    callback.on_multirun_end(OmegaConf.create({}))
+    with FileLock(tmp_path / SWEEP_LOCK_FILE).acquire(timeout=0):
         pass

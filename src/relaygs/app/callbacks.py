@@ -28,6 +28,11 @@ class SweepFolderLock(Callback):
     def __init__(self) -> None:
         self._lock: FileLock | None = None
 
+    def __getstate__(self) -> dict[str, Any]:
+        """What a parallel launcher sends its workers with each job: the callback without the
+        lock, which stays with the launching process (a lock cannot be pickled)."""
+        return {"_lock": None}
+
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
         """Take the sweep folder's lock, or end the command with one line if a sweep holds it."""
         sweep_dir = Path(str(config.hydra.sweep.dir))
