@@ -1,4 +1,7 @@
-"""`python -m relaygs.artifacts render`: a stored model's frames and videos over time."""
+"""`python -m relaygs.artifacts render`: a stored model's frames and videos over time, and
+videos along a camera path."""
+
+import itertools
 
 import cv2
 import numpy as np
@@ -6,6 +9,7 @@ import pytest
 
 from relaygs.commands.artifacts import main
 from relaygs.data import load_scene
+from relaygs.data.scene import frame_time
 from relaygs.errors import InputError
 from relaygs.renders import RenderSettings, write_renders
 from relaygs.stages.model_render import ModelRenderer
@@ -146,3 +150,57 @@ def test_a_path_in_the_way_of_a_render_is_named_and_no_partial_video_is_left(
 def test_render_settings_refuse_non_finite_fps():
     with pytest.raises(InputError, match="render fps"):
         RenderSettings(fps=float("nan"))
+
+
+@pytest.mark.parametrize(("hold", "times"), [([], [0.0, 0.5, 1.0]), (["--path-frame", "5"], None)])
+def test_a_path_through_one_camera_renders_that_camera_along_time_or_held(
+    stored_deform, stage_scene, stage_scene_path, stage_deformed, tmp_path, capsys, hold, times
+):
+    store, key = stored_deform
+    out = tmp_path / "renders"
+    args = ["--camera", "0", "--path", "3", "--no-video", *hold, "--out", str(out)]
+    code, printed, _ = _render_cli(capsys, store, key, stage_scene_path, *args)
+    assert code == 0 and f"  path: 3 frame(s) in {out / 'path'}\n" in printed
+    assert sorted(p.name for p in out.iterdir()) == ["path"]
+    renderer = ModelRenderer(SceneModel.from_artifact(stage_deformed))
+    camera = stage_scene.views_at(0, "test")[0].camera  # camera 0: no colour affine either way
+    assert camera.camera_id == 0
+    for view, time in enumerate(times or [frame_time(5, stage_scene.num_frames)] * 3):
+        written = cv2.imread(str(out / "path" / f"{view:06d}.png"))
+        np.testing.assert_array_equal(written, _bgr(renderer.render([camera], time)[0]))
+
+
+def test_a_path_through_the_train_cameras_is_a_video_by_default(
+    stored_deform, stage_scene_path, tmp_path, capsys
+):
+    store, key = stored_deform
+    out = tmp_path / "renders"
+    args = ["--path", "5", "--path-frame", "0", "--out", str(out)]
+    code, printed, _ = _render_cli(capsys, store, key, stage_scene_path, *args)
+    assert code == 0 and f"video {out / 'path.mp4'}" in printed
+    assert len(list((out / "path").glob("*.png"))) == 5
+    frames = [cv2.imread(str(out / "path" / f"{view:06d}.png")) for view in range(5)]
+    assert all(not np.array_equal(a, b) for a, b in itertools.pairwise(frames))
+    video = cv2.VideoCapture(str(out / "path.mp4"))
+    assert int(video.get(cv2.CAP_PROP_FRAME_COUNT)) == 5
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--path", "0"], "render path: expected at least 1 view, got 0"),
+        (["--path", "2", "--path-frame", "8"], "render path frame 8 is not in "),
+        (["--path", "2", "--truth"], "--truth: a camera path (--path) has no ground truth"),
+        (["--path", "2", "--frame-stride", "2"], "--frame-stride: a camera path (--path) has"),
+        (["--path-frame", "1"], "--path-frame needs --path N"),
+        (["--path", "2", "--camera", "99"], "camera 99 is not in "),
+    ],
+)
+def test_bad_path_options_fail_in_one_line(
+    stored_deform, stage_scene_path, tmp_path, capsys, args, message
+):
+    store, key = stored_deform
+    out = tmp_path / "renders"
+    code, _, err = _render_cli(capsys, store, key, stage_scene_path, *args, "--out", str(out))
+    assert code == 1 and message in err and err.count("\n") == 1
+    assert not out.exists() or not any(out.rglob("*.png"))

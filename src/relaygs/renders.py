@@ -1,5 +1,6 @@
 """A stored model's renders over time, to look at what a run reconstructed: one PNG per frame
-and one MP4 per camera, optionally with the ground truth beside each render.
+and one MP4 per camera, optionally with the ground truth beside each render, or a video along
+a camera path through the scene's cameras (views between the captured ones).
 
 `python -m relaygs.artifacts render KEY --scene DIR` is the command line; every stage's output
 renders (decouple and relay show their copies, deform its motion field).
@@ -9,7 +10,8 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -18,7 +20,9 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from relaygs.camera_path import path_cameras
 from relaygs.data import Scene
+from relaygs.data.scene import frame_time
 from relaygs.errors import InputError, RelayGSError
 from relaygs.progress import progress_bar
 from relaygs.stages.evaluate import require_its_scene
@@ -26,6 +30,7 @@ from relaygs.stages.model_render import ModelRenderer
 from relaygs.stages.scene_model import SceneModel
 
 VIDEO_CODEC = "mp4v"  # MPEG-4 part 2: the encoder every OpenCV wheel carries
+PATH_NAME = "path"  # a camera path's PNG folder and video are <out>/path and <out>/path.mp4
 
 
 @dataclass(frozen=True)
@@ -42,15 +47,39 @@ class RenderSettings:
         """Refuse a stride below 1 and a frame rate that is not a positive number."""
         if self.frame_stride < 1:
             raise InputError(f"render frame_stride: expected an int >= 1, got {self.frame_stride}")
-        if self.fps is not None and not (math.isfinite(self.fps) and self.fps > 0):
-            raise InputError(f"render fps: expected a positive number, got {self.fps}")
+        _require_fps(self.fps)
+
+
+@dataclass(frozen=True)
+class PathSettings:
+    """A video of `views` poses along the path through the chosen cameras (None: the train
+    cameras); the model at `frame` throughout (bullet time) or, when None, at times running
+    from the first frame to the last along the path; the video's frame rate (None: none)."""
+
+    views: int
+    camera_ids: tuple[int, ...] | None = None
+    frame: int | None = None
+    fps: float | None = 15.0
+
+    def __post_init__(self) -> None:
+        """Refuse fewer than 1 view and a frame rate that is not a positive number."""
+        if self.views < 1:
+            raise InputError(f"render path: expected at least 1 view, got {self.views}")
+        _require_fps(self.fps)
+
+
+def _require_fps(fps: float | None) -> None:
+    """One line unless `fps` is None or a positive finite number."""
+    if fps is not None and not (math.isfinite(fps) and fps > 0):
+        raise InputError(f"render fps: expected a positive number, got {fps}")
 
 
 @dataclass(frozen=True)
 class CameraRenders:
-    """What was written for one camera: its frames, their PNG folder and the video (if any)."""
+    """What was written for one camera (`camera_id` None for a camera path): its frames, their
+    PNG folder and the video (if any)."""
 
-    camera_id: int
+    camera_id: int | None
     frames: list[int]
     folder: Path
     video: Path | None
@@ -83,9 +112,11 @@ def write_renders(
     require_its_scene(model, scene)
     cameras = chosen_cameras(scene, settings.camera_ids)
     renderer = ModelRenderer(model)
-    sinks = {camera: _CameraSink(out, camera, settings.fps) for camera in cameras}
+    sinks = {
+        camera: _CameraSink(out, f"cam{camera:02d}", settings.fps, camera) for camera in cameras
+    }
     frames = range(0, scene.num_frames, settings.frame_stride)
-    try:
+    with _written_whole(out, list(sinks.values())):
         for frame in progress_bar(
             frames, desc="render", unit="frame", disable=not progress, leave=False
         ):
@@ -98,25 +129,78 @@ def write_renders(
                 if settings.with_truth:
                     picture = torch.cat([picture, scene.image(view)], dim=1)
                 sinks[view.camera.camera_id].add(frame, picture)
-        for sink in sinks.values():
-            sink.finish()
-    except OSError as error:  # e.g. a file where a camera's folder goes
-        where = error.filename2 or error.filename or out  # filename2: where a move went
-        raise InputError(f"cannot write {where}: {error.strerror or error}") from error
-    finally:
-        for sink in sinks.values():
-            sink.abandon()
     return [sink.result() for sink in sinks.values()]
 
 
-class _CameraSink:
-    """PNG frames and an MP4 of one camera, the video built under a temporary name."""
+def write_path_render(
+    scene: Scene,
+    model: SceneModel,
+    out: Path,
+    settings: PathSettings,
+    progress: bool = True,
+) -> CameraRenders:
+    """Render `model` along the camera path (`relaygs.camera_path`) through the chosen
+    cameras into `out`/path/<view>.png and, with a frame rate, `out`/path.mp4."""
+    require_its_scene(model, scene)
+    if settings.frame is not None and not 0 <= settings.frame < scene.num_frames:
+        raise InputError(
+            f"render path frame {settings.frame} is not in {scene.root}: its frames are "
+            f"0..{scene.num_frames - 1}"
+        )
+    ids = settings.camera_ids or [camera.camera_id for camera in scene.train_cameras]
+    at_start = {view.camera.camera_id: view.camera for view in scene.views_at(0, "all")}
+    keyframes = [at_start[camera] for camera in chosen_cameras(scene, ids)]
+    path = path_cameras(keyframes, settings.views, _scene_centre(scene))
+    if settings.frame is not None:
+        times = [frame_time(settings.frame, scene.num_frames)] * settings.views
+    else:
+        times = [view / max(settings.views - 1, 1) for view in range(settings.views)]
+    renderer = ModelRenderer(model)
+    sink = _CameraSink(out, PATH_NAME, settings.fps)
+    with _written_whole(out, [sink]):
+        bar = progress_bar(
+            range(settings.views), desc="path", unit="view", disable=not progress, leave=False
+        )
+        for view in bar:
+            sink.add(view, renderer.render([path[view]], times[view])[0].cpu())
+    return sink.result()
 
-    def __init__(self, out: Path, camera_id: int, fps: float | None) -> None:
+
+def _scene_centre(scene: Scene) -> Tensor:
+    """The point a camera path goes round: the median of the scene's points, or the mean of
+    its camera centres when it has none."""
+    if len(scene.points):
+        return scene.points.xyz.median(dim=0).values
+    return torch.stack([camera.center for camera in scene.train_cameras]).mean(dim=0)
+
+
+@contextmanager
+def _written_whole(out: Path, sinks: list[_CameraSink]) -> Iterator[None]:
+    """Finish every sink when the body completes; on any exit, remove unfinished videos. A
+    path that cannot be written (a file where a folder goes) is one line naming it."""
+    try:
+        yield
+        for sink in sinks:
+            sink.finish()
+    except OSError as error:
+        where = error.filename2 or error.filename or out  # filename2: where a move went
+        raise InputError(f"cannot write {where}: {error.strerror or error}") from error
+    finally:
+        for sink in sinks:
+            sink.abandon()
+
+
+class _CameraSink:
+    """PNG frames and an MP4 of one camera (or camera path) named `name`, the video built
+    under a temporary name."""
+
+    def __init__(
+        self, out: Path, name: str, fps: float | None, camera_id: int | None = None
+    ) -> None:
         self.camera_id = camera_id
-        self.folder = out / f"cam{camera_id:02d}"
-        self.video = out / f"cam{camera_id:02d}.mp4" if fps is not None else None
-        self.partial = out / f".cam{camera_id:02d}.partial.mp4"
+        self.folder = out / name
+        self.video = out / f"{name}.mp4" if fps is not None else None
+        self.partial = out / f".{name}.partial.mp4"
         self.fps = fps
         self.frames: list[int] = []
         self._writer: cv2.VideoWriter | None = None

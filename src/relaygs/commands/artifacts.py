@@ -28,7 +28,7 @@ from relaygs.pipeline.store import (
     StoredArtifact,
 )
 from relaygs.ply import write_frame_plys
-from relaygs.renders import RenderSettings, write_renders
+from relaygs.renders import PathSettings, RenderSettings, write_path_render, write_renders
 from relaygs.stages import evaluate
 from relaygs.stages.scene_model import SceneModel
 
@@ -98,6 +98,16 @@ def _parser() -> argparse.ArgumentParser:
         "--downscale", type=int, default=1, help="the run's scene.loader.downscale (default 1)"
     )
     render.add_argument("--truth", action="store_true", help="put the ground truth beside")
+    render.add_argument(
+        "--path",
+        type=int,
+        metavar="N",
+        help="instead, N views along a camera path through the --camera ids (default: the "
+        "train cameras), time running over the frames",
+    )
+    render.add_argument(
+        "--path-frame", type=int, metavar="F", help="with --path: hold the model at frame F"
+    )
     render.add_argument("--fps", type=float, default=15.0, help="video frame rate (default 15)")
     render.add_argument("--no-video", action="store_true", help="write PNG frames only")
     render.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N (default cpu)")
@@ -205,27 +215,41 @@ def _eval(store: ArtifactStore, args: argparse.Namespace) -> int:
 
 
 def _render(store: ArtifactStore, args: argparse.Namespace) -> int:
-    """Write the artifact's renders of the chosen cameras over time and say where they are."""
-    settings = RenderSettings(
-        camera_ids=tuple(args.camera) if args.camera else None,
-        frame_stride=args.frame_stride,
-        with_truth=args.truth,
-        fps=None if args.no_video else args.fps,
-    )
+    """Write the artifact's renders of the chosen cameras over time, or along a camera path,
+    and say where they are."""
+    settings = _render_settings(args)
     device = usable_device(args.device, "--device")
     item, artifact = _model_artifact(store, args.key)
     name = f"{item.stage}-{item.key[:KEY_COLUMN_WIDTH]}"
     out = require_creatable_folder((args.out or Path(DEFAULT_RENDERS) / name).absolute(), "--out")
     scene = load_scene(args.scene, downscale=args.downscale)
     model = SceneModel.from_artifact(artifact).to(device)
-    written = write_renders(scene, model, out, settings)
+    if isinstance(settings, PathSettings):
+        written = [write_path_render(scene, model, out, settings)]
+    else:
+        written = write_renders(scene, model, out, settings)
     print(f"{item.stage} {item.key[:KEY_COLUMN_WIDTH]} rendered into {out}")
-    for camera in written:
-        video = f", video {camera.video}" if camera.video is not None else ""
-        print(
-            f"  camera {camera.camera_id}: {len(camera.frames)} frame(s) in {camera.folder}{video}"
-        )
+    for renders in written:
+        video = f", video {renders.video}" if renders.video is not None else ""
+        what = "path" if renders.camera_id is None else f"camera {renders.camera_id}"
+        print(f"  {what}: {len(renders.frames)} frame(s) in {renders.folder}{video}")
     return 0
+
+
+def _render_settings(args: argparse.Namespace) -> RenderSettings | PathSettings:
+    """What `render` was asked for: a camera path with `--path`, else the cameras' frames;
+    options of the other kind are refused in one line."""
+    cameras = tuple(args.camera) if args.camera else None
+    fps = None if args.no_video else args.fps
+    if args.path is None:
+        if args.path_frame is not None:
+            raise RelayGSError("--path-frame needs --path N (a camera path of N views)")
+        return RenderSettings(cameras, args.frame_stride, args.truth, fps)
+    if args.truth:
+        raise RelayGSError("--truth: a camera path (--path) has no ground truth to show")
+    if args.frame_stride != 1:
+        raise RelayGSError("--frame-stride: a camera path (--path) has N views, not frames")
+    return PathSettings(args.path, cameras, args.path_frame, fps)
 
 
 def _ply(store: ArtifactStore, args: argparse.Namespace) -> int:
