@@ -1,4 +1,4 @@
-"""Camera paths through a scene's cameras: order, loop or open ends, and interpolated poses."""
+"""Camera paths: the orbit a scene's cameras place around its centre, a loop or an arc."""
 
 import math
 from itertools import pairwise
@@ -7,20 +7,13 @@ import numpy as np
 import pytest
 import torch
 
-from relaygs.camera_path import (
-    PATH_CAMERA_ID,
-    path_cameras,
-    path_keyframes,
-    rotmat_to_quat,
-    slerp,
-)
+from relaygs.camera_path import PATH_CAMERA_ID, path_cameras
 from relaygs.data import Camera
 from relaygs.data.synthetic.rig import look_at
 from relaygs.errors import InputError
-from relaygs.model import quats_to_rotmats
 
 TARGET = np.array([0.0, 0.0, 1.0])
-ORIGIN = torch.tensor(TARGET, dtype=torch.float32)
+CENTRE = torch.tensor(TARGET, dtype=torch.float32)
 
 
 def _camera(camera_id, azimuth_deg, radius=4.0, height=2.0, width=32):
@@ -36,97 +29,94 @@ def _azimuth(camera):
     return math.degrees(math.atan2(float(centre[1]), float(centre[0]))) % 360
 
 
-def _same_pose(a, b):
-    return torch.allclose(a.w2c, b.w2c, atol=1e-5)
-
-
-def _random_rotations(count):
-    generator = torch.Generator().manual_seed(0)
-    quats = torch.randn(count, 4, generator=generator, dtype=torch.float64)
-    return quats_to_rotmats(quats / quats.norm(dim=1, keepdim=True))
-
-
-def test_a_rotation_comes_back_from_its_quaternion_including_half_turns():
-    half_turns = torch.stack(
-        [torch.diag(torch.tensor(d, dtype=torch.float64)) for d in ([1, -1, -1], [-1, 1, -1])]
+def _same_angles(obtained, expected):
+    """Whether the angles (degrees) agree to 1e-3°, 360° apart counting as the same."""
+    return len(obtained) == len(expected) and all(
+        abs((a - b + 180) % 360 - 180) < 1e-3 for a, b in zip(obtained, expected, strict=True)
     )
-    for rotation in torch.cat([_random_rotations(50), half_turns]):
-        quat = rotmat_to_quat(rotation)
-        assert torch.isfinite(quat).all() and math.isclose(float(quat.norm()), 1.0)
-        assert torch.allclose(quats_to_rotmats(quat), rotation, atol=1e-12)
 
 
-def test_slerp_keeps_its_ends_halves_the_angle_and_takes_the_shorter_arc():
-    q0 = torch.tensor([1.0, 0.0, 0.0, 0.0], dtype=torch.float64)
-    turn = math.radians(120)  # about z
-    q1 = torch.tensor([math.cos(turn / 2), 0.0, 0.0, math.sin(turn / 2)], dtype=torch.float64)
-    assert torch.allclose(slerp(q0, q1, 0.0), q0) and torch.allclose(slerp(q0, q1, 1.0), q1)
-    half = torch.tensor([math.cos(turn / 4), 0.0, 0.0, math.sin(turn / 4)], dtype=torch.float64)
-    assert torch.allclose(slerp(q0, q1, 0.5), half)
-    assert torch.allclose(slerp(q0, -q1, 0.5), half)  # -q1 is the same rotation
-    nearly = torch.tensor([1.0, 1e-4, 0.0, 0.0], dtype=torch.float64)
-    nearly = nearly / nearly.norm()
-    assert math.isclose(float(slerp(q0, nearly, 0.3).norm()), 1.0)
+def _radius_and_height(camera):
+    centre = camera.center.double()
+    return float(centre[:2].norm()), float(centre[2])
 
 
-def test_cameras_around_the_centre_make_a_loop_in_azimuth_order():
+def _looks_at_the_centre(camera):
+    forward = camera.c2w[:3, 2]
+    to_centre = CENTRE - camera.center
+    return float(forward @ to_centre / to_centre.norm()) > 0.99999
+
+
+def test_cameras_around_the_centre_make_a_loop_from_the_first_cameras_azimuth():
     azimuths = [0, 135, 45, 270, 180, 315, 90, 225]  # ids out of order round the ring
     cameras = [_camera(index, azimuth) for index, azimuth in enumerate(azimuths)]
-    keys = path_keyframes(cameras, ORIGIN)
-    assert len(keys) == 9 and keys[0] is keys[-1]  # a loop
-    steps = [(_azimuth(b) - _azimuth(a)) % 360 for a, b in pairwise(keys)]
-    assert steps == pytest.approx([45] * 8, abs=1e-3)  # anticlockwise seen from above
-    path = path_cameras(cameras, 16, ORIGIN)
-    assert len(path) == 16
-    for index, key in enumerate(keys[:-1]):  # every other view is a captured camera
-        assert _same_pose(path[2 * index], key)
-    between = path[1]  # halfway along the arc: azimuth halfway, still looking at the centre
-    assert (_azimuth(between) - _azimuth(keys[0])) % 360 == pytest.approx(22.5, abs=1e-3)
-    forward = between.c2w[:3, 2]
-    to_centre = ORIGIN - between.center
-    assert float(forward @ to_centre / to_centre.norm()) > 0.999
+    path = path_cameras(cameras, 16, CENTRE)
+    # anticlockwise seen from above; the last view is one step short of the first
+    assert _same_angles([_azimuth(view) for view in path], [22.5 * step for step in range(16)])
+    for view in path:
+        assert _radius_and_height(view) == pytest.approx((4.0, 2.0), abs=1e-5)
+        assert _looks_at_the_centre(view)
+    for captured, view in zip(cameras, path[::2], strict=False):  # on the orbit: the cameras
+        assert torch.allclose(view.w2c, _camera(0, _azimuth(view)).w2c, atol=1e-5)
+        assert captured is not view
 
 
-def test_cameras_on_one_side_make_an_open_path_from_end_to_end():
+def test_cameras_on_one_side_make_an_arc_over_their_azimuths():
     cameras = [_camera(0, 60), _camera(1, 0), _camera(2, 30)]
-    keys = path_keyframes(cameras, ORIGIN)
-    assert [key.camera_id for key in keys] == [1, 2, 0]  # from 0° to 60°, no wrap-around
-    path = path_cameras(cameras, 5, ORIGIN)
-    assert _same_pose(path[0], keys[0]) and _same_pose(path[-1], keys[-1])
-    assert _same_pose(path[2], cameras[2])  # the middle camera halfway along
-    assert [_azimuth(camera) for camera in path] == pytest.approx([0, 15, 30, 45, 60], abs=1e-3)
+    path = path_cameras(cameras, 5, CENTRE)
+    assert _same_angles([_azimuth(view) for view in path], [0, 15, 30, 45, 60])
+    assert all(_looks_at_the_centre(view) for view in path)
 
 
-def test_path_cameras_take_the_first_cameras_intrinsics_and_match_no_scene_camera():
+def test_a_dome_of_rings_gives_one_orbit_at_their_mean_height_and_radius():
+    # azimuth order alternates between rings; the path must not bob between them
+    cameras = [
+        _camera(index, 30 * index, radius=4.0 - index % 3, height=1.5 + index % 3)
+        for index in range(12)
+    ]
+    path = path_cameras(cameras, 24, CENTRE)
+    for view in path:
+        assert _radius_and_height(view) == pytest.approx((3.0, 2.5), abs=1e-5)
+    steps = [_azimuth(b) - _azimuth(a) for a, b in pairwise(path)]
+    assert _same_angles(steps, [15.0] * 23)
+
+
+@pytest.mark.parametrize(("count", "closed"), [(4, True), (3, False)])
+def test_four_cameras_a_right_angle_apart_close_the_loop_and_three_do_not(count, closed):
+    cameras = [_camera(index, 360 * index / count) for index in range(count)]
+    path = path_cameras(cameras, 8, CENTRE)
+    covered = _azimuth(path[-1]) - _azimuth(path[0])  # where it starts is a tie here
+    assert _same_angles([covered], [315 if closed else 240])
+
+
+def test_views_are_upright_cameras_with_the_first_cameras_intrinsics():
     cameras = [_camera(3, 0, width=40), _camera(4, 90), _camera(5, 180), _camera(6, 270)]
-    path = path_cameras(cameras, 7, ORIGIN)
-    for camera in path:
-        assert (camera.width, camera.height, camera.camera_id) == (40, 18, PATH_CAMERA_ID)
-        assert torch.equal(camera.K, cameras[0].K)
-        rotation = camera.w2c[:3, :3]
+    for view in path_cameras(cameras, 7, CENTRE):
+        assert (view.width, view.height, view.camera_id) == (40, 18, PATH_CAMERA_ID)
+        assert torch.equal(view.K, cameras[0].K)
+        rotation = view.w2c[:3, :3]
         assert torch.allclose(rotation @ rotation.T, torch.eye(3), atol=1e-5)
+        assert float(torch.linalg.det(rotation)) == pytest.approx(1.0, abs=1e-5)
+        assert float(view.c2w[2, 1]) < 0  # the image's down axis points down the world
 
 
 def test_one_camera_is_a_still_path_and_bad_requests_are_one_line():
-    (camera,) = cameras = [_camera(0, 10)]
-    assert all(_same_pose(view, camera) for view in path_cameras(cameras, 3, ORIGIN))
-    assert len(path_cameras([_camera(0, 0), _camera(1, 90)], 1, ORIGIN)) == 1
+    cameras = [_camera(0, 10)]
+    path = path_cameras(cameras, 3, CENTRE)
+    assert all(torch.allclose(view.w2c, cameras[0].w2c, atol=1e-5) for view in path)
+    assert len(path_cameras([_camera(0, 0), _camera(1, 90)], 1, CENTRE)) == 1
     with pytest.raises(InputError, match="camera path: expected at least 1 view, got 0"):
-        path_cameras(cameras, 0, ORIGIN)
-    with pytest.raises(InputError, match="camera path: no cameras to go through"):
-        path_cameras([], 3, ORIGIN)
+        path_cameras(cameras, 0, CENTRE)
+    with pytest.raises(InputError, match="camera path: no cameras to go round"):
+        path_cameras([], 3, CENTRE)
 
 
-def test_cameras_right_above_the_centre_still_make_a_path():
-    # no azimuth to sort by (every centre on the up axis through the centre): a path all the same
-    eyes = [np.array([0.0, 0.0, 2.0 + index]) for index in range(3)]
-    w2cs = [look_at(eye, eye + np.array([5.0, 0.0, 0.0])) for eye in eyes]
+def test_cameras_right_above_the_centre_have_no_orbit_and_say_so():
     K = torch.tensor([[30.0, 0.0, 16.0], [0.0, 30.0, 9.0], [0.0, 0.0, 1.0]])
-    cameras = [
-        Camera(index, K, torch.tensor(w2c, dtype=torch.float32), 32, 18)
-        for index, w2c in enumerate(w2cs)
-    ]
-    path = path_cameras(cameras, 5, ORIGIN)
-    assert all(torch.isfinite(camera.w2c).all() for camera in path)
-    heights = sorted(float(camera.center[2]) for camera in path)
-    assert heights == pytest.approx([2.0, 2.5, 3.0, 3.5, 4.0])
+    cameras = []
+    for index in range(3):
+        eye = np.array([0.0, 0.0, 2.0 + index])
+        w2c = look_at(eye, eye + np.array([5.0, 0.0, 0.0]))
+        cameras.append(Camera(index, K, torch.tensor(w2c, dtype=torch.float32), 32, 18))
+    with pytest.raises(InputError, match="sit on the vertical through the scene's centre"):
+        path_cameras(cameras, 5, CENTRE)

@@ -53,28 +53,33 @@ def _part_from(rows):
 
 
 @pytest.mark.parametrize(
-    ("fixture", "frame"),
+    ("fixture", "frame", "active_degree"),
     [
-        ("stage_decoupled", 0),  # the decoupled movers show at frame 0 only
-        ("stage_decoupled", 5),
-        ("stage_relayed", 1),  # segment 0's copy
-        ("stage_relayed", 6),  # segment 1's
-        ("stage_deformed", 5),  # moved by the field, γ on the copies
+        ("stage_decoupled", 0, None),  # the decoupled movers show at frame 0 only
+        ("stage_decoupled", 5, None),
+        ("stage_relayed", 1, None),  # segment 0's copy
+        ("stage_relayed", 6, None),  # segment 1's
+        ("stage_deformed", 5, None),  # moved by the field, γ on the copies
+        ("stage_deformed", 2, 1),  # a model stopped before its last SH bands: zero in the file
     ],
 )
 def test_a_frames_ply_renders_what_the_model_renders_at_that_frame(
-    request, stage_scene, tmp_path, fixture, frame
+    request, stage_scene, tmp_path, fixture, frame, active_degree
 ):
     model = SceneModel.from_artifact(request.getfixturevalue(fixture))
+    if active_degree is not None:
+        model.background.active_sh_degree = model.foreground.active_sh_degree = active_degree
     (path,) = write_frame_plys(model, tmp_path, [frame], progress=False)
     assert path == tmp_path / f"{frame:06d}.ply"
     _, rows = _read_ply(path)
     renderer = ModelRenderer(model)
     parts = renderer.parts_at(frame_time(frame, model.num_frames))
     assert len(rows) == sum(part.count for part in parts) > 0
+    degree = model.foreground.max_sh_degree  # the model's full degree, as 3DGS's loader wants
+    assert sum(name.startswith("f_rest_") for name in rows.dtype.names) == 3 * (degree + 1) ** 2 - 3
     camera = stage_scene.test_views[0].camera  # no colour affine: the file has none
     expected = renderer.render([camera], frame_time(frame, model.num_frames))[0]
-    from_file = splat([_part_from(rows)], [camera], renderer.sh_degree).images[0].clamp(0, 1)
+    from_file = splat([_part_from(rows)], [camera], degree).images[0].clamp(0, 1)
     assert torch.allclose(from_file, expected, atol=1e-5)
 
 
@@ -92,8 +97,8 @@ def test_properties_follow_the_3dgs_layout_and_order():
     quats = torch.tensor([[2.0, 0.0, 0.0, 0.0], [0.0, 0.0, 3.0, 4.0]])
     means, log_scales = torch.randn(n, 3), torch.tensor([[0.5, -2.0, 1e3], [-1.0, 0.0, 3.0]])
     part = Part("p", None, means, log_scales, quats, torch.tensor([-1.0, 2.0]), sh)
-    columns = ply_columns([part])
-    rest = [f"f_rest_{i}" for i in range(3 * (bases - 1))]
+    columns = ply_columns([part], sh_degree=3)  # degree 3 has 16 bases: 7 more, zero
+    rest = [f"f_rest_{i}" for i in range(3 * 15)]
     assert list(columns) == [
         *("x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"),
         *rest,
@@ -101,9 +106,9 @@ def test_properties_follow_the_3dgs_layout_and_order():
     ]
     for channel in range(3):
         assert torch.equal(columns[f"f_dc_{channel}"], sh[:, 0, channel])
-        for basis in range(1, bases):  # all red coefficients first, then green, then blue
-            index = channel * (bases - 1) + basis - 1
-            assert torch.equal(columns[f"f_rest_{index}"], sh[:, basis, channel])
+        for basis in range(1, 16):  # all red coefficients first, then green, then blue
+            expected = sh[:, basis, channel] if basis < bases else torch.zeros(n)
+            assert torch.equal(columns[f"f_rest_{channel * 15 + basis - 1}"], expected)
     assert torch.equal(columns["nx"], torch.zeros(n))
     assert torch.equal(columns["opacity"], torch.tensor([-1.0, 2.0]))  # logits, as stored
     assert torch.equal(columns["scale_1"], log_scales[:, 1])  # log scales, as stored
@@ -117,10 +122,19 @@ def test_a_frame_outside_the_model_or_a_value_not_finite_writes_nothing(stage_re
     model = SceneModel.from_artifact(stage_relayed)
     with pytest.raises(InputError, match=r"frame 8 is not in the model: its frames are 0\.\.7"):
         write_frame_plys(model, tmp_path, [0, 8], progress=False)
-    model.background.params["means"].data[3, 1] = float("inf")
-    with pytest.raises(RelayGSError, match="frame 0: property y is not finite"):
-        write_frame_plys(model, tmp_path, [0], progress=False)
-    assert not list(tmp_path.iterdir())
+    later_copy = int((model.foreground.buffers["segment"] == 1).nonzero()[0])
+    model.foreground.params["means"].data[later_copy, 1] = float("inf")  # shown from frame 4
+    with pytest.raises(RelayGSError, match="frame 4: property y is not finite; nothing written"):
+        write_frame_plys(model, tmp_path, range(8), progress=False)
+    assert not list(tmp_path.iterdir())  # frames 0-3 were written, then removed
+
+
+def test_a_frame_without_gaussians_is_an_empty_file(stage_decoupled, tmp_path):
+    model = SceneModel.from_artifact(stage_decoupled)
+    model.background = model.background.subset(torch.zeros(0, dtype=torch.long))
+    (path,) = write_frame_plys(model, tmp_path, [5], progress=False)  # the movers show at 0 only
+    lines, rows = _read_ply(path)
+    assert "element vertex 0" in lines and len(rows) == 0
 
 
 def _ply_cli(capsys, store, key, *args):
@@ -156,6 +170,7 @@ def test_the_command_writes_the_chosen_frames_into_a_folder_named_after_the_mode
         (["--frame", "8"], "frame 8 is not in the model: its frames are 0..7"),
         (["--frame", "-1"], "frame -1 is not in the model"),
         (["--frame-stride", "0"], "--frame-stride must be >= 1, got 0"),
+        (["--frame", "1", "--frame-stride", "4"], "--frame-stride: --frame names the frames"),
     ],
 )
 def test_bad_ply_options_fail_in_one_line(stored_deform, tmp_path, capsys, args, message):

@@ -7,6 +7,7 @@ import cv2
 import numpy as np
 import pytest
 
+from relaygs.camera_path import path_cameras
 from relaygs.commands.artifacts import main
 from relaygs.data import load_scene
 from relaygs.data.scene import frame_time
@@ -153,8 +154,8 @@ def test_render_settings_refuse_non_finite_fps():
 
 
 @pytest.mark.parametrize(("hold", "times"), [([], [0.0, 0.5, 1.0]), (["--path-frame", "5"], None)])
-def test_a_path_through_one_camera_renders_that_camera_along_time_or_held(
-    stored_deform, stage_scene, stage_scene_path, stage_deformed, tmp_path, capsys, hold, times
+def test_a_path_renders_the_orbit_of_its_cameras_along_time_or_held(
+    stored_deform, stage_scene_path, stage_deformed, tmp_path, capsys, hold, times
 ):
     store, key = stored_deform
     out = tmp_path / "renders"
@@ -162,12 +163,13 @@ def test_a_path_through_one_camera_renders_that_camera_along_time_or_held(
     code, printed, _ = _render_cli(capsys, store, key, stage_scene_path, *args)
     assert code == 0 and f"  path: 3 frame(s) in {out / 'path'}\n" in printed
     assert sorted(p.name for p in out.iterdir()) == ["path"]
+    scene = load_scene(stage_scene_path)
+    (camera,) = [v.camera for v in scene.views_at(0, "all") if v.camera.camera_id == 0]
+    orbit = path_cameras([camera], 3, scene.points.xyz.median(dim=0).values)
     renderer = ModelRenderer(SceneModel.from_artifact(stage_deformed))
-    camera = stage_scene.views_at(0, "test")[0].camera  # camera 0: no colour affine either way
-    assert camera.camera_id == 0
-    for view, time in enumerate(times or [frame_time(5, stage_scene.num_frames)] * 3):
+    for view, time in enumerate(times or [frame_time(5, scene.num_frames)] * 3):
         written = cv2.imread(str(out / "path" / f"{view:06d}.png"))
-        np.testing.assert_array_equal(written, _bgr(renderer.render([camera], time)[0]))
+        np.testing.assert_array_equal(written, _bgr(renderer.render([orbit[view]], time)[0]))
 
 
 def test_a_path_through_the_train_cameras_is_a_video_by_default(
@@ -183,6 +185,9 @@ def test_a_path_through_the_train_cameras_is_a_video_by_default(
     assert all(not np.array_equal(a, b) for a, b in itertools.pairwise(frames))
     video = cv2.VideoCapture(str(out / "path.mp4"))
     assert int(video.get(cv2.CAP_PROP_FRAME_COUNT)) == 5
+    code, _, _ = _render_cli(capsys, store, key, stage_scene_path, *args[:1], "3", *args[2:])
+    assert code == 0  # a shorter path into the same folder replaces the frames
+    assert sorted(p.name for p in (out / "path").iterdir()) == [f"{v:06d}.png" for v in range(3)]
 
 
 @pytest.mark.parametrize(

@@ -1,10 +1,12 @@
-"""A camera path through a scene's cameras, to see a model from between the captured views.
+"""An orbit around a scene's centre, placed by its cameras, to see a model from between the
+captured views.
 
-The cameras are ordered by azimuth around the scene's centre, about the mean of their up
-directions. The path closes into a loop when they surround the centre and runs from one end
-to the other when they do not (when two neighbours are more than OPEN_GAP apart). Poses in
-between are interpolated: camera centres linearly, orientations by quaternion slerp. Every
-camera on the path has the intrinsics, image size and near plane of the first camera given.
+The orbit turns about the cameras' up direction through the centre, at their mean height
+above the centre and mean distance from that axis, each view looking at the centre. It is a
+full circle, starting at the first camera's azimuth, when the cameras surround the centre, and
+an arc over their azimuths when they do not (when two neighbours are more than OPEN_GAP
+apart), so it stays where cameras saw the scene. Every view has the intrinsics, image size and
+near plane of the first camera given.
 """
 
 from __future__ import annotations
@@ -18,100 +20,84 @@ from torch import Tensor
 
 from relaygs.data import Camera
 from relaygs.errors import InputError
-from relaygs.model import quats_to_rotmats
 
-OPEN_GAP = math.pi / 2  # an azimuth gap wider than this: the cameras do not surround the scene
+OPEN_GAP = math.radians(100)  # a wider azimuth gap: the cameras do not surround the scene
 PATH_CAMERA_ID = -1  # no scene camera has it, so no training camera's colour affine applies
-NEAR_PARALLEL = 0.9995  # quaternion dot product above which slerp is replaced by a lerp
+MIN_RADIUS = 1e-6  # below this fraction of their distance, the cameras are on the axis
+PARALLEL_SPREAD = 1e-4  # x axes this close to one direction (per camera): no common up
 
 
 def path_cameras(cameras: Sequence[Camera], count: int, centre: Tensor) -> list[Camera]:
-    """`count` cameras evenly spaced (by keyframe) along the path through `cameras` around
-    `centre` [3]; a loop does not repeat its first camera at the end, so its video repeats
-    seamlessly."""
+    """`count` views evenly spaced along the orbit that `cameras` place around `centre` [3]; a
+    full circle does not repeat its first view at the end, so its video repeats seamlessly."""
     if count < 1:
         raise InputError(f"camera path: expected at least 1 view, got {count}")
     if not cameras:
-        raise InputError("camera path: no cameras to go through")
-    keys = path_keyframes(cameras, centre)
-    segments = len(keys) - 1
-    closed = segments > 0 and keys[0] is keys[-1]
-    spacing = segments / (count if closed else max(count - 1, 1))
+        raise InputError("camera path: no cameras to go round")
+    centre = centre.to(torch.float64)
+    up = _up(cameras)
+    offsets = torch.stack([camera.center.to(torch.float64) for camera in cameras]) - centre
+    heights = offsets @ up
+    flat = offsets - heights[:, None] * up  # in the plane at right angles to `up`
+    radii = flat.norm(dim=1)
+    radius = float(radii.mean())
+    if radius <= MIN_RADIUS * float(offsets.norm(dim=1).mean()):
+        raise InputError(
+            "camera path: the cameras sit on the vertical through the scene's centre; "
+            "there is no orbit round it"
+        )
+    e1 = _unit(flat[int(radii.argmax())], fallback=_perpendicular(up))
+    e2 = torch.linalg.cross(up, e1)
+    start, span, closed = _azimuth_range(torch.atan2(flat @ e2, flat @ e1))
+    steps = count if closed else max(count - 1, 1)
+    reference = cameras[0]
     path = []
     for view in range(count):
-        position = view * spacing
-        index = min(int(position), max(segments - 1, 0))
-        end = keys[min(index + 1, segments)]
-        path.append(_between(keys[index], end, position - index, cameras[0]))
+        angle = start + span * view / steps
+        direction = math.cos(angle) * e1 + math.sin(angle) * e2
+        eye = centre + float(heights.mean()) * up + radius * direction
+        path.append(_looking_at(eye, centre, up, reference))
     return path
 
 
-def path_keyframes(cameras: Sequence[Camera], centre: Tensor) -> list[Camera]:
-    """`cameras` in path order: by azimuth around `centre`, starting after the widest gap;
-    a loop (no gap wider than OPEN_GAP) ends with its first camera again."""
+def _up(cameras: Sequence[Camera]) -> Tensor:
+    """The cameras' common up direction: the one at right angles to every camera's x axis
+    (level cameras have horizontal x axes, whichever way they tilt), pointing the way their
+    mean up does; their mean up when the x axes are all parallel (a row of cameras)."""
     c2ws = [camera.c2w.to(torch.float64) for camera in cameras]
     downs = torch.stack([c2w[:3, 1] for c2w in c2ws])  # OpenCV: a camera's y axis points down
-    up = _unit(-downs.sum(dim=0), fallback=-downs[0])
-    offsets = torch.stack([c2w[:3, 3] for c2w in c2ws]) - centre.to(torch.float64)
-    flat = offsets - (offsets @ up)[:, None] * up  # in the plane at right angles to `up`
-    e1 = _unit(flat[int(flat.norm(dim=1).argmax())], fallback=_perpendicular(up))
-    e2 = torch.linalg.cross(up, e1)
-    angles = torch.atan2(flat @ e2, flat @ e1).remainder(2 * math.pi)
-    order = sorted(range(len(cameras)), key=lambda index: float(angles[index]))
-    sorted_angles = [float(angles[index]) for index in order]
-    gaps = [b - a for a, b in pairwise(sorted_angles)]
-    gaps.append(sorted_angles[0] + 2 * math.pi - sorted_angles[-1])
+    mean_up = _unit(-downs.sum(dim=0), fallback=-downs[0])
+    rights = torch.stack([c2w[:3, 0] for c2w in c2ws])
+    spread, axes = torch.linalg.eigh(rights.T @ rights)  # ascending
+    if float(spread[1]) <= PARALLEL_SPREAD * len(cameras):
+        return mean_up
+    up = axes[:, 0]
+    return up if float(up @ mean_up) >= 0 else -up
+
+
+def _azimuth_range(angles: Tensor) -> tuple[float, float, bool]:
+    """(start, span, closed) of the orbit over azimuths `angles` [n]: the whole circle from
+    the first camera's when no gap between neighbours exceeds OPEN_GAP, else the arc from the
+    camera after the widest gap to the one before it."""
+    first = float(angles[0])
+    ordered = sorted(float(angle) % (2 * math.pi) for angle in angles)
+    gaps = [b - a for a, b in pairwise(ordered)]
+    gaps.append(ordered[0] + 2 * math.pi - ordered[-1])
     widest = max(range(len(gaps)), key=gaps.__getitem__)
-    start = (widest + 1) % len(order)
-    keys = [cameras[order[(start + step) % len(order)]] for step in range(len(order))]
-    if len(keys) > 1 and gaps[widest] <= OPEN_GAP:
-        keys.append(keys[0])
-    return keys
+    if len(ordered) > 1 and gaps[widest] <= OPEN_GAP:
+        return first, 2 * math.pi, True
+    return ordered[(widest + 1) % len(ordered)], 2 * math.pi - gaps[widest], False
 
 
-def rotmat_to_quat(rotation: Tensor) -> Tensor:
-    """The unit wxyz quaternion [4] of a rotation matrix [3, 3], taken from its largest
-    diagonal term (Shepperd's method), so no division comes near zero."""
-    m = rotation
-    trace = m[0, 0] + m[1, 1] + m[2, 2]
-    largest = int(torch.stack([trace, m[0, 0], m[1, 1], m[2, 2]]).argmax())
-    if largest == 0:
-        s = 2.0 * torch.sqrt(1.0 + trace)  # 4w, at least 2: trace >= 0 here
-        q = [s / 4, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
-    elif largest == 1:
-        s = 2.0 * torch.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])  # 4x, at least 2·sqrt(2/3)
-        q = [(m[2, 1] - m[1, 2]) / s, s / 4, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s]
-    elif largest == 2:
-        s = 2.0 * torch.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2])  # 4y
-        q = [(m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, s / 4, (m[1, 2] + m[2, 1]) / s]
-    else:
-        s = 2.0 * torch.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])  # 4z
-        q = [(m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, s / 4]
-    quat = torch.stack(q)
-    return quat / quat.norm()
-
-
-def slerp(q0: Tensor, q1: Tensor, t: float) -> Tensor:
-    """The unit quaternion a fraction `t` of the shorter arc from `q0` to `q1`."""
-    dot = float((q0 * q1).sum())
-    if dot < 0.0:  # q and -q are one rotation: take the shorter way round
-        q1, dot = -q1, -dot
-    if dot > NEAR_PARALLEL:  # sin θ below 0.032: the lerp is as exact and divides by nothing
-        blend = q0 + t * (q1 - q0)
-        return blend / blend.norm()
-    theta = math.acos(dot)
-    return (math.sin((1 - t) * theta) * q0 + math.sin(t * theta) * q1) / math.sin(theta)
-
-
-def _between(start: Camera, end: Camera, t: float, reference: Camera) -> Camera:
-    """The pose a fraction `t` from `start` to `end`, with `reference`'s intrinsics and size."""
-    first, second = start.w2c.to(torch.float64), end.w2c.to(torch.float64)
-    quat = slerp(rotmat_to_quat(first[:3, :3]), rotmat_to_quat(second[:3, :3]), t)
-    rotation = quats_to_rotmats(quat)
-    centre = (1 - t) * start.center.to(torch.float64) + t * end.center.to(torch.float64)
+def _looking_at(eye: Tensor, target: Tensor, up: Tensor, reference: Camera) -> Camera:
+    """A camera at `eye` looking at `target` with `up` up (OpenCV axes: x right, y down, z
+    forward), with `reference`'s intrinsics and size."""
+    forward = _unit(target - eye, fallback=-up)
+    right = _unit(torch.linalg.cross(forward, up), fallback=_perpendicular(forward))
+    down = torch.linalg.cross(forward, right)
     w2c = torch.eye(4, dtype=torch.float64)
-    w2c[:3, :3] = rotation
-    w2c[:3, 3] = -rotation @ centre
+    w2c[:3, :3] = torch.stack([right, down, forward])
+    w2c[:3, 3] = -w2c[:3, :3] @ eye
     return Camera(
         PATH_CAMERA_ID,
         reference.K.clone(),

@@ -30,14 +30,19 @@ from relaygs.stages.scene_model import SceneModel
 PLY_DTYPE = "<f4"  # every property is a little-endian float32, as 3DGS writes them
 
 
-def ply_columns(parts: Sequence[Part]) -> dict[str, torch.Tensor]:
-    """The 3DGS PLY properties, in file order, of the concatenated parts: name → [N] float32."""
+def ply_columns(parts: Sequence[Part], sh_degree: int) -> dict[str, torch.Tensor]:
+    """The 3DGS PLY properties, in file order, of the concatenated parts: name → [N] float32.
+    SH coefficients fill degree `sh_degree`, zero past the parts' own (3DGS writes and reads
+    its model's full degree; zero bands change no colour)."""
     means = torch.cat([part.means for part in parts])
     sh = torch.cat([part.sh for part in parts])  # [N, K, 3]
+    missing = (sh_degree + 1) ** 2 - sh.shape[1]
+    if missing > 0:
+        sh = torch.cat([sh, sh.new_zeros(sh.shape[0], missing, 3)], dim=1)
     columns = {name: means[:, axis] for axis, name in enumerate("xyz")}
     columns.update({name: torch.zeros_like(means[:, 0]) for name in ("nx", "ny", "nz")})
     columns.update({f"f_dc_{channel}": sh[:, 0, channel] for channel in range(3)})
-    rest = sh[:, 1:, :].transpose(1, 2).reshape(sh.shape[0], -1)  # channel-major, as 3DGS
+    rest = sh[:, 1:, :].transpose(1, 2).flatten(1)  # channel-major, as 3DGS
     columns.update({f"f_rest_{index}": rest[:, index] for index in range(rest.shape[1])})
     columns["opacity"] = torch.cat([part.opacity_logits for part in parts])
     log_scales = torch.cat([part.log_scales for part in parts]).clamp(max=MAX_LOG_SCALE)
@@ -62,27 +67,39 @@ def ply_bytes(columns: dict[str, torch.Tensor]) -> bytes:
 def write_frame_plys(
     model: SceneModel, out: Path, frames: Sequence[int], progress: bool = True
 ) -> list[Path]:
-    """Write `out`/<frame>.ply for each of `frames` (each written whole or not at all) and
-    return their paths; a frame outside the model's or a value that is not finite is one
-    line naming it."""
+    """Write `out`/<frame>.ply for each of `frames` and return their paths: all of them or,
+    when one fails or the export is interrupted, none (each file is also written whole or not
+    at all). A frame outside the model's or a value that is not finite is one line naming it."""
     outside = [frame for frame in frames if not 0 <= frame < model.num_frames]
     if outside:
         raise InputError(
             f"frame {outside[0]} is not in the model: its frames are 0..{model.num_frames - 1}"
         )
     renderer = ModelRenderer(model)
-    written = []
-    for frame in progress_bar(frames, desc="ply", unit="frame", disable=not progress, leave=False):
-        columns = ply_columns(renderer.parts_at(frame_time(frame, model.num_frames)))
-        for name, values in columns.items():
-            if not torch.isfinite(values).all():
-                raise RelayGSError(f"frame {frame}: property {name} is not finite; not written")
-        path = out / f"{frame:06d}.ply"
-        try:
-            out.mkdir(parents=True, exist_ok=True)
-            publish_bytes(path, ply_bytes(columns))
-        except OSError as error:  # e.g. a file where the folder goes
-            where = error.filename or path
-            raise InputError(f"cannot write {where}: {error.strerror or error}") from error
-        written.append(path)
+    sh_degree = max(model.background.max_sh_degree, model.foreground.max_sh_degree)
+    written: list[Path] = []
+    try:
+        bar = progress_bar(frames, desc="ply", unit="frame", disable=not progress, leave=False)
+        for frame in bar:
+            parts = renderer.parts_at(frame_time(frame, model.num_frames))
+            written.append(_write_frame(out, frame, ply_columns(parts, sh_degree)))
+    except BaseException:
+        for path in written:
+            path.unlink(missing_ok=True)
+        raise
     return written
+
+
+def _write_frame(out: Path, frame: int, columns: dict[str, torch.Tensor]) -> Path:
+    """Publish `out`/<frame>.ply after checking every value is finite; returns its path."""
+    for name, values in columns.items():
+        if not torch.isfinite(values).all():
+            raise RelayGSError(f"frame {frame}: property {name} is not finite; nothing written")
+    path = out / f"{frame:06d}.ply"
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        publish_bytes(path, ply_bytes(columns))
+    except OSError as error:  # e.g. a file where the folder goes
+        where = error.filename or path
+        raise InputError(f"cannot write {where}: {error.strerror or error}") from error
+    return path

@@ -1,6 +1,6 @@
 """A stored model's renders over time, to look at what a run reconstructed: one PNG per frame
 and one MP4 per camera, optionally with the ground truth beside each render, or a video along
-a camera path through the scene's cameras (views between the captured ones).
+an orbit that the scene's cameras place around its centre (views between the captured ones).
 
 `python -m relaygs.artifacts render KEY --scene DIR` is the command line; every stage's output
 renders (decouple and relay show their copies, deform its motion field).
@@ -31,6 +31,7 @@ from relaygs.stages.scene_model import SceneModel
 
 VIDEO_CODEC = "mp4v"  # MPEG-4 part 2: the encoder every OpenCV wheel carries
 PATH_NAME = "path"  # a camera path's PNG folder and video are <out>/path and <out>/path.mp4
+FRAME_GLOB = "[0-9]" * 6 + ".png"  # the frames a render writes: <frame or view>.png
 
 
 @dataclass(frozen=True)
@@ -52,9 +53,10 @@ class RenderSettings:
 
 @dataclass(frozen=True)
 class PathSettings:
-    """A video of `views` poses along the path through the chosen cameras (None: the train
-    cameras); the model at `frame` throughout (bullet time) or, when None, at times running
-    from the first frame to the last along the path; the video's frame rate (None: none)."""
+    """A video of `views` poses along the orbit that the chosen cameras (None: the train
+    cameras) place around the scene's centre (`relaygs.camera_path`); the model at `frame`
+    throughout (bullet time) or, when None, at times running from the first frame to the last
+    along the path; the video's frame rate (None: none)."""
 
     views: int
     camera_ids: tuple[int, ...] | None = None
@@ -139,8 +141,8 @@ def write_path_render(
     settings: PathSettings,
     progress: bool = True,
 ) -> CameraRenders:
-    """Render `model` along the camera path (`relaygs.camera_path`) through the chosen
-    cameras into `out`/path/<view>.png and, with a frame rate, `out`/path.mp4."""
+    """Render `model` along the camera path that the chosen cameras place into
+    `out`/path/<view>.png and, with a frame rate, `out`/path.mp4."""
     require_its_scene(model, scene)
     if settings.frame is not None and not 0 <= settings.frame < scene.num_frames:
         raise InputError(
@@ -150,7 +152,8 @@ def write_path_render(
     ids = settings.camera_ids or [camera.camera_id for camera in scene.train_cameras]
     at_start = {view.camera.camera_id: view.camera for view in scene.views_at(0, "all")}
     keyframes = [at_start[camera] for camera in chosen_cameras(scene, ids)]
-    path = path_cameras(keyframes, settings.views, _scene_centre(scene))
+    centre = scene.points.xyz.median(dim=0).values  # every loader refuses a scene without points
+    path = path_cameras(keyframes, settings.views, centre)
     if settings.frame is not None:
         times = [frame_time(settings.frame, scene.num_frames)] * settings.views
     else:
@@ -164,14 +167,6 @@ def write_path_render(
         for view in bar:
             sink.add(view, renderer.render([path[view]], times[view])[0].cpu())
     return sink.result()
-
-
-def _scene_centre(scene: Scene) -> Tensor:
-    """The point a camera path goes round: the median of the scene's points, or the mean of
-    its camera centres when it has none."""
-    if len(scene.points):
-        return scene.points.xyz.median(dim=0).values
-    return torch.stack([camera.center for camera in scene.train_cameras]).mean(dim=0)
 
 
 @contextmanager
@@ -206,10 +201,14 @@ class _CameraSink:
         self._writer: cv2.VideoWriter | None = None
 
     def add(self, frame: int, image: Tensor) -> None:
-        """Write `image` [H,W,3] in [0, 1] as frame `frame`."""
+        """Write `image` [H,W,3] in [0, 1] as frame `frame`; the first one removes the frames
+        an earlier render left in the folder (another stride or path would mix with them)."""
         pixels = _to_bgr8(image)
+        if not self.frames:
+            for earlier in self.folder.glob(FRAME_GLOB):
+                earlier.unlink()
         self.folder.mkdir(parents=True, exist_ok=True)
-        path = self.folder / f"{frame:06d}.png"
+        path = self.folder / f"{frame:06d}.png"  # as FRAME_GLOB
         if not cv2.imwrite(str(path), pixels):
             raise RelayGSError(f"cannot write {path}")
         if self.fps is not None:

@@ -31,7 +31,7 @@ class SweepFolderLock(Callback):
     def __getstate__(self) -> dict[str, Any]:
         """What a parallel launcher sends its workers with each job: the callback without the
         lock, which stays with the launching process (a lock cannot be pickled)."""
-        return {"_lock": None}
+        return {**self.__dict__, "_lock": None}
 
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
         """Take the sweep folder's lock, or end the command with one line if a sweep holds it."""

@@ -73,7 +73,9 @@ def _parser() -> argparse.ArgumentParser:
     score.add_argument(
         "--scene", type=Path, required=True, help="the scene folder it was trained on"
     )
-    score.add_argument("--frame-stride", type=int, default=1, help="score every N-th frame")
+    score.add_argument(
+        "--frame-stride", type=int, default=1, metavar="N", help="score every N-th frame"
+    )
     score.add_argument(
         "--downscale", type=int, default=1, help="the run's scene.loader.downscale (default 1)"
     )
@@ -93,7 +95,9 @@ def _parser() -> argparse.ArgumentParser:
         metavar="ID",
         help="camera id to render (repeat for more; default: the test cameras)",
     )
-    render.add_argument("--frame-stride", type=int, default=1, help="render every N-th frame")
+    render.add_argument(
+        "--frame-stride", type=int, default=1, metavar="N", help="render every N-th frame"
+    )
     render.add_argument(
         "--downscale", type=int, default=1, help="the run's scene.loader.downscale (default 1)"
     )
@@ -102,8 +106,8 @@ def _parser() -> argparse.ArgumentParser:
         "--path",
         type=int,
         metavar="N",
-        help="instead, N views along a camera path through the --camera ids (default: the "
-        "train cameras), time running over the frames",
+        help="instead, N views along the orbit that the --camera ids (default: the train "
+        "cameras) place around the scene's centre, time running over the frames",
     )
     render.add_argument(
         "--path-frame", type=int, metavar="F", help="with --path: hold the model at frame F"
@@ -126,7 +130,9 @@ def _parser() -> argparse.ArgumentParser:
         metavar="F",
         help="frame to export (repeat for more; default: every --frame-stride-th frame)",
     )
-    ply.add_argument("--frame-stride", type=int, default=1, help="export every N-th frame")
+    ply.add_argument(
+        "--frame-stride", type=int, default=1, metavar="N", help="export every N-th frame"
+    )
     ply.add_argument(
         "--out", type=Path, help=f"output folder (default {DEFAULT_PLY}/<stage>-<key>)"
     )
@@ -199,8 +205,7 @@ def _tensor_lines(item: StoredArtifact) -> list[str]:
 def _eval(store: ArtifactStore, args: argparse.Namespace) -> int:
     """Render the artifact's model at the scene's test views and print the test metrics, e.g.
     to see what each stage of a lineage contributes."""
-    if args.frame_stride < 1:
-        raise RelayGSError(f"--frame-stride must be >= 1, got {args.frame_stride}")
+    _require_stride(args.frame_stride)
     item, artifact = _model_artifact(store, args.key)
     scene = load_scene(args.scene, downscale=args.downscale)
     metrics = evaluate(scene, artifact, {"eval": {"frame_stride": args.frame_stride}})
@@ -220,8 +225,7 @@ def _render(store: ArtifactStore, args: argparse.Namespace) -> int:
     settings = _render_settings(args)
     device = usable_device(args.device, "--device")
     item, artifact = _model_artifact(store, args.key)
-    name = f"{item.stage}-{item.key[:KEY_COLUMN_WIDTH]}"
-    out = require_creatable_folder((args.out or Path(DEFAULT_RENDERS) / name).absolute(), "--out")
+    out = _output_folder(args.out, DEFAULT_RENDERS, item)
     scene = load_scene(args.scene, downscale=args.downscale)
     model = SceneModel.from_artifact(artifact).to(device)
     if isinstance(settings, PathSettings):
@@ -254,16 +258,29 @@ def _render_settings(args: argparse.Namespace) -> RenderSettings | PathSettings:
 
 def _ply(store: ArtifactStore, args: argparse.Namespace) -> int:
     """Write the artifact's model at the chosen frames as PLY files and say where they are."""
-    if args.frame_stride < 1:
-        raise RelayGSError(f"--frame-stride must be >= 1, got {args.frame_stride}")
+    _require_stride(args.frame_stride)
+    if args.frame and args.frame_stride != 1:
+        raise RelayGSError("--frame-stride: --frame names the frames to export; give one of them")
     item, artifact = _model_artifact(store, args.key)
-    name = f"{item.stage}-{item.key[:KEY_COLUMN_WIDTH]}"
-    out = require_creatable_folder((args.out or Path(DEFAULT_PLY) / name).absolute(), "--out")
+    out = _output_folder(args.out, DEFAULT_PLY, item)
     model = SceneModel.from_artifact(artifact)
     frames = args.frame or range(0, model.num_frames, args.frame_stride)
     written = write_frame_plys(model, out, list(dict.fromkeys(frames)))
     print(f"{item.stage} {item.key[:KEY_COLUMN_WIDTH]}: {len(written)} PLY file(s) in {out}")
     return 0
+
+
+def _require_stride(stride: int) -> None:
+    """One line unless `--frame-stride` is at least 1."""
+    if stride < 1:
+        raise RelayGSError(f"--frame-stride must be >= 1, got {stride}")
+
+
+def _output_folder(given: Path | None, default_root: str, item: StoredArtifact) -> Path:
+    """`--out` as an absolute folder that can be written, by default
+    `default_root`/<stage>-<key prefix> under the current directory."""
+    name = f"{item.stage}-{item.key[:KEY_COLUMN_WIDTH]}"
+    return require_creatable_folder((given or Path(default_root) / name).absolute(), "--out")
 
 
 def _model_artifact(store: ArtifactStore, key_prefix: str) -> tuple[StoredArtifact, Artifact]:
