@@ -141,8 +141,8 @@ def write_path_render(
     settings: PathSettings,
     progress: bool = True,
 ) -> CameraRenders:
-    """Render `model` along the camera path that the chosen cameras place into
-    `out`/path/<view>.png and, with a frame rate, `out`/path.mp4."""
+    """Render `model` along the orbit that the chosen cameras place around the scene's centre
+    into `out`/path/<view>.png and, with a frame rate, `out`/path.mp4."""
     require_its_scene(model, scene)
     if settings.frame is not None and not 0 <= settings.frame < scene.num_frames:
         raise InputError(
@@ -151,9 +151,9 @@ def write_path_render(
         )
     ids = settings.camera_ids or [camera.camera_id for camera in scene.train_cameras]
     at_start = {view.camera.camera_id: view.camera for view in scene.views_at(0, "all")}
-    keyframes = [at_start[camera] for camera in chosen_cameras(scene, ids)]
+    chosen = [at_start[camera] for camera in chosen_cameras(scene, ids)]
     centre = scene.points.xyz.median(dim=0).values  # every loader refuses a scene without points
-    path = path_cameras(keyframes, settings.views, centre)
+    path = path_cameras(chosen, settings.views, centre)
     if settings.frame is not None:
         times = [frame_time(settings.frame, scene.num_frames)] * settings.views
     else:
