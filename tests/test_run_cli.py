@@ -252,6 +252,8 @@ def test_printed_commands_paste_as_is_when_paths_hold_spaces_and_accents(fakes, 
     videos = shlex.split(next(line for line in lines if line.startswith("videos ")))
     assert videos[videos.index("--root") + 1] == str(outputs / "artifacts")
     assert videos[videos.index("--scene") + 1] == str(scene_dir)
+    ply = shlex.split(next(line for line in lines if line.startswith("ply ")))
+    assert ply[ply.index("--root") + 1] == str(outputs / "artifacts")
 
 
 class _FlushLog(io.StringIO):

@@ -215,8 +215,9 @@ def _log_previews(
 
 
 def _where(plan: RunPlan, outcome: _Outcome, result_path: Path) -> str:
-    """Where this run's outputs are, and the command that renders its model as videos (paths
-    in the commands shell-quoted, so a folder with spaces pastes as one argument)."""
+    """Where this run's outputs are, and the commands that export its model for 3DGS viewers
+    and render it as videos (paths in the commands shell-quoted, so a folder with spaces
+    pastes as one argument)."""
     output = outcome.run.reports[-1]
     scene = outcome.scene
     downscale = f" --downscale {scene.downscale}" if scene.downscale != 1 else ""
@@ -227,6 +228,7 @@ def _where(plan: RunPlan, outcome: _Outcome, result_path: Path) -> str:
         f"  tensorboard  tensorboard --logdir {shlex.quote(str(outcome.log_dir))}",
         f"  model        {output.path}",
         f"  store        {plan.artifacts_root}  (python -m relaygs.artifacts --root ... ls)",
+        f"  ply          python -m relaygs.artifacts --root {root} ply {output.key[:16]}",
         f"  videos       python -m relaygs.artifacts --root {root} render "
         f"{output.key[:16]} --scene {scene_dir}{downscale} --truth",
     ]
