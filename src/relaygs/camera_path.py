@@ -50,13 +50,12 @@ def path_cameras(cameras: Sequence[Camera], count: int, centre: Tensor) -> list[
     e2 = torch.linalg.cross(up, e1)
     start, span, closed = _azimuth_range(torch.atan2(flat @ e2, flat @ e1))
     steps = count if closed else max(count - 1, 1)
-    reference = cameras[0]
+    axis_point = centre + float(heights.mean()) * up  # the orbit's own centre, level with it
     path = []
     for view in range(count):
         angle = start + span * view / steps
-        direction = math.cos(angle) * e1 + math.sin(angle) * e2
-        eye = centre + float(heights.mean()) * up + radius * direction
-        path.append(_looking_at(eye, centre, up, reference))
+        eye = axis_point + radius * (math.cos(angle) * e1 + math.sin(angle) * e2)
+        path.append(_looking_at(eye, centre, up, cameras[0]))
     return path
 
 
