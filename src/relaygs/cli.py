@@ -10,7 +10,11 @@ import io
 import os
 import sys
 from collections.abc import Callable
+from pathlib import Path
 from typing import NoReturn
+
+from relaygs.errors import InputError
+from relaygs.paths import require_creatable_folder
 
 BROKEN_PIPE_EXIT = 141
 """128 + SIGPIPE: what a shell tool returns when its reader closed the pipe (`... | head`)."""
@@ -63,6 +67,19 @@ def int_at_least(minimum: int) -> Callable[[str], int]:
         return value
 
     return parse
+
+
+def writable_file(value: str) -> Path:
+    """argparse type of an output file option: a path that can be written once the command's
+    work is done, checked before it starts (so minutes of work are not lost to a bad path)."""
+    path = Path(value).expanduser().absolute()
+    if path.is_dir():
+        raise argparse.ArgumentTypeError(f"{path} is a folder, expected a file path")
+    try:
+        require_creatable_folder(path.parent, f"cannot write {path}")
+    except InputError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+    return path
 
 
 def run_tool(main: Callable[[], int]) -> int:

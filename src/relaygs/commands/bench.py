@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from relaygs.cli import OneLineErrorParser, int_at_least
+from relaygs.cli import OneLineErrorParser, int_at_least, writable_file
 from relaygs.commands import bench_sweeps, bench_train
-from relaygs.commands.bench_output import json_target, save_json
+from relaygs.commands.bench_output import save_json
 from relaygs.device import synchronize, usable_device
 from relaygs.errors import RelayGSError
 from relaygs.paths import REPO_ROOT
@@ -161,7 +161,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = OneLineErrorParser(prog="python -m relaygs.bench", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
     splat = sub.add_parser("splat", help="time the splatting core")
-    splat.add_argument("--json", type=json_target, help="also write the results as JSON here")
+    splat.add_argument("--json", type=writable_file, help="also write the results as JSON here")
     splat.add_argument(
         "--repeats", type=int_at_least(1), default=5, help="timed runs per case (median)"
     )

@@ -2,26 +2,9 @@
 
 from __future__ import annotations
 
-import argparse
 import json
 from pathlib import Path
 from typing import Any
-
-from relaygs.errors import InputError
-from relaygs.paths import require_creatable_folder
-
-
-def json_target(value: str) -> Path:
-    """argparse type of `--json`: a path that can be written once the benchmark is done, checked
-    before it starts (so hours of timing are not lost to a bad path)."""
-    path = Path(value).expanduser().absolute()
-    if path.is_dir():
-        raise argparse.ArgumentTypeError(f"{path} is a folder, expected a file path")
-    try:
-        require_creatable_folder(path.parent, f"cannot write {path}")
-    except InputError as error:
-        raise argparse.ArgumentTypeError(str(error)) from None
-    return path
 
 
 def save_json(path: Path | None, report: dict[str, Any]) -> None:

@@ -16,7 +16,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from relaygs.commands.bench_output import json_target, save_json
+from relaygs.cli import writable_file
+from relaygs.commands.bench_output import save_json
 
 TINY_SCENE = ("budget=smoke", "scene.frames=8", "scene.width=48", "scene.height=27")
 EXPERIMENTS = ("smoke", "ablation_k", "ablation_components", "baseline", "budget")
@@ -41,7 +42,7 @@ def command(name: str, outputs: Path, *overrides: str) -> list[str]:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The `sweeps` subcommand's options."""
     parser.add_argument("--outputs", type=Path, help="output folder (default: a temporary one)")
-    parser.add_argument("--json", type=json_target, help="also write the results as JSON here")
+    parser.add_argument("--json", type=writable_file, help="also write the results as JSON here")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -25,8 +25,8 @@ from typing import Any
 
 import torch
 
-from relaygs.cli import int_at_least
-from relaygs.commands.bench_output import json_target, save_json
+from relaygs.cli import int_at_least, writable_file
+from relaygs.commands.bench_output import save_json
 from relaygs.data import Scene, load_scene
 from relaygs.data.synthetic import generate
 from relaygs.errors import RelayGSError
@@ -48,7 +48,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--full", action="store_true", help="also time the whole small pipeline")
     parser.add_argument("--cache", type=Path, default=DEFAULT_CACHE, help="scene cache folder")
-    parser.add_argument("--json", type=json_target, help="also write the results as JSON here")
+    parser.add_argument("--json", type=writable_file, help="also write the results as JSON here")
     parser.add_argument(
         "--threads", type=int_at_least(1), help="torch CPU threads (default: torch's default)"
     )
