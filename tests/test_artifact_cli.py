@@ -11,6 +11,7 @@ import torch
 from relaygs.cli import start_tool
 from relaygs.commands import artifacts as artifacts_module
 from relaygs.commands.artifacts import main
+from relaygs.per_view import PER_VIEW, read_per_view
 from relaygs.pipeline.artifact import Artifact
 from relaygs.pipeline.integrity import seal
 from relaygs.pipeline.keys import artifact_key
@@ -177,6 +178,8 @@ def test_eval_scores_a_stored_model_like_the_evaluator(stage_scene_path, stage_d
             str(stage_scene_path),
             "--frame-stride",
             "3",
+            "--per-view",
+            str(tmp_path / "scores" / "views.csv"),
         ],
         capture_output=True,
         text=True,
@@ -189,6 +192,33 @@ def test_eval_scores_a_stored_model_like_the_evaluator(stage_scene_path, stage_d
     assert f"num_fg          {expected['num_fg']}" in done.stdout
     stored_mb = store.manifest("decouple", key).size_mb  # what result.json reports
     assert f"storage_mb      {stored_mb:.4f}" in done.stdout
+    written = read_per_view(tmp_path / "scores" / "views.csv")
+    assert written == [pytest.approx(record) for record in expected[PER_VIEW]]
+    views = len(expected[PER_VIEW])
+    assert f"per-view metrics of {views} image(s) in {tmp_path / 'scores' / 'views.csv'}" in (
+        done.stdout
+    )
+
+
+def test_eval_refuses_a_per_view_path_it_cannot_write_before_any_work(store, tmp_path, capsys):
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    for target in (tmp_path, blocker / "views.csv"):
+        with pytest.raises(SystemExit) as caught:
+            main(
+                [
+                    "--root",
+                    str(store.root),
+                    "eval",
+                    KEY_A[:8],
+                    "--scene",
+                    ".",
+                    "--per-view",
+                    str(target),
+                ]
+            )
+        err = capsys.readouterr().err
+        assert caught.value.code == 2 and "--per-view" in err and str(target) in err
 
 
 def test_eval_names_a_missing_scene_and_a_bad_stride(store, capsys, tmp_path):

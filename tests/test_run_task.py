@@ -19,6 +19,7 @@ from relaygs.app.result import NO_TEST_VIEWS, RESULT_FILE, format_summary, write
 from relaygs.app.task import run_task
 from relaygs.app.tensorboard import TensorBoardLog, flatten_config
 from relaygs.errors import InputError
+from relaygs.per_view import PER_VIEW, PER_VIEW_FILE, read_per_view
 from relaygs.pipeline import ArtifactStore, CorruptArtifactError
 from relaygs.stages import UPSTREAM
 
@@ -139,6 +140,35 @@ def test_an_evaluated_model_is_not_evaluated_again(base_config, tmp_path, capsys
     # another frame stride is another evaluation of the same model
     _run(_with(base_config, eval__frame_stride=1), tmp_path / "c", fakes)
     assert fakes.evaluations == 2 and fakes.ran("deform") == 1
+
+
+def test_a_run_writes_per_view_metrics_and_logs_their_frame_means(base_config, tmp_path, capsys):
+    fakes = FakeStages()
+    result = _run(base_config, tmp_path / "a", fakes)
+    path = tmp_path / "a" / PER_VIEW_FILE
+    records = read_per_view(path)
+    assert [(r["frame"], r["camera"]) for r in records] == [(0, 0), (0, 7), (2, 0), (2, 7)]
+    assert f"per view     {path}" in capsys.readouterr().out
+    assert PER_VIEW not in result  # the result stays flat
+    events = EventAccumulator(str(tmp_path / "a" / "tb"), size_guidance={"scalars": 0})
+    events.Reload()
+    # the fake's two cameras score psnr ± frame: their mean is psnr at every frame
+    logged = [(e.step, e.value) for e in events.Scalars("eval/psnr_by_frame")]
+    assert logged == [(0, pytest.approx(result["psnr"])), (2, pytest.approx(result["psnr"]))]
+    assert "eval/fg_psnr_by_frame" not in events.Tags()["scalars"]  # no value at any frame
+    # a job that reads the evaluation back from the store writes the same records
+    _run(base_config, tmp_path / "b", fakes)
+    assert fakes.evaluations == 1
+    assert read_per_view(tmp_path / "b" / PER_VIEW_FILE) == records
+
+
+def test_an_evaluation_without_per_view_metrics_writes_no_file(base_config, tmp_path, capsys):
+    fakes = FakeStages()
+    whole = fakes._evaluate
+    fakes._evaluate = lambda *args: {k: v for k, v in whole(*args).items() if k != PER_VIEW}
+    _run(base_config, tmp_path / "a", fakes)
+    assert not (tmp_path / "a" / PER_VIEW_FILE).exists()
+    assert "per view" not in capsys.readouterr().out
 
 
 def test_another_cpu_thread_count_is_another_evaluation(base_config, tmp_path):
@@ -367,7 +397,7 @@ def test_a_result_write_stopped_part_way_keeps_the_previous_result(
         write_result(run_dir, {**before, "psnr": 1.0})
     monkeypatch.undo()
     assert json.loads((run_dir / RESULT_FILE).read_text()) == before
-    assert sorted(p.name for p in run_dir.iterdir() if p.is_file()) == [RESULT_FILE]
+    assert sorted(p.name for p in run_dir.iterdir() if p.is_file()) == [PER_VIEW_FILE, RESULT_FILE]
 
 
 def test_the_summary_says_why_a_run_without_test_views_has_no_metrics():

@@ -11,6 +11,8 @@ import torch
 
 from conftest import stage_smoke_cfg
 from relaygs.data import Scene
+from relaygs.metrics import psnr
+from relaygs.per_view import METRIC_COLUMNS, PER_VIEW
 from relaygs.pipeline.artifact import Artifact
 from relaygs.stages import SceneModel, evaluate
 from relaygs.stages.model_render import ModelRenderer
@@ -84,3 +86,25 @@ def test_fg_psnr_runs_over_the_foreground_masks(
     assert scores  # the juggle scene has foreground in its test views
     assert metrics["fg_psnr"] == pytest.approx(sum(scores) / len(scores), abs=1e-4)
     assert abs(metrics["fg_psnr"] - metrics["psnr"]) > 0.1  # not the full-image score
+
+
+def test_per_view_records_score_each_test_image_and_average_to_the_metrics(
+    stage_deformed: Artifact, stage_scene: Scene
+) -> None:
+    metrics = evaluate(stage_scene, stage_deformed, stage_smoke_cfg(eval={"frame_stride": STRIDE}))
+    records = metrics[PER_VIEW]
+    expected = [
+        (view.frame, view.camera.camera_id)
+        for frame in _evaluated_frames(stage_scene)
+        for view in stage_scene.views_at(frame, "test")
+    ]
+    assert [(r["frame"], r["camera"]) for r in records] == expected
+    assert len(records) == metrics["num_test_images"]
+    for name in METRIC_COLUMNS:
+        scored = [r[name] for r in records if r[name] is not None]
+        assert metrics[name] == pytest.approx(sum(scored) / len(scored), abs=1e-9)
+    assert len({round(r["psnr"], 3) for r in records}) > 1  # each image its own score
+    renderer = ModelRenderer(SceneModel.from_artifact(stage_deformed))
+    last = stage_scene.views_at(expected[-1][0], "test")[-1]
+    image = renderer.render([last.camera], last.time)[0]
+    assert records[-1]["psnr"] == pytest.approx(float(psnr(image, stage_scene.image(last))))

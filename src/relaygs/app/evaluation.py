@@ -22,7 +22,7 @@ from relaygs.pipeline.keys import artifact_key, key_config
 from relaygs.pipeline.store import OnCorrupt
 
 EVAL_STAGE = "eval"
-EVAL_SCHEMA_VERSION = 1
+EVAL_SCHEMA_VERSION = 2
 
 EvaluateFn = Callable[[Any, Artifact, dict[str, Any]], Mapping[str, Any]]
 

@@ -34,6 +34,7 @@ from relaygs.app.suite import StageSuite, load_stage_suite
 from relaygs.app.tensorboard import TensorBoardLog, flatten_config
 from relaygs.data import Scene
 from relaygs.errors import resource_error
+from relaygs.per_view import METRIC_COLUMNS, PER_VIEW, PER_VIEW_FILE, frame_means, write_per_view
 from relaygs.pipeline import Artifact, ArtifactStore, NodeReport, PipelineRun, run_pipeline
 
 TENSORBOARD_DIR = "tb"
@@ -43,12 +44,13 @@ HPARAM_EXCLUDED_SECTIONS = ("paths", "artifacts")
 
 class _Outcome(NamedTuple):
     """What a finished job made: its result (without `job_s`), the pipeline run, the
-    TensorBoard folder and the scene it ran on."""
+    TensorBoard folder, the scene it ran on and its per-view metrics file (if any)."""
 
     result: dict[str, Scalar]
     run: PipelineRun
     log_dir: Path
     scene: Scene
+    per_view: Path | None
 
 
 def run_task(
@@ -133,6 +135,7 @@ def _execute(
             store, scene, run, plan.eval_config, suite.evaluate, plan.on_corrupt
         )
         _announce_evaluation(evaluation)
+        per_view = _record_per_view(Path(run_dir), log, evaluation)
         _log_previews(log, suite, scene, run.output, plan.preview_frames)
         storage_mb = run.reports[-1].size_mb  # not read again: a gc may have removed it since
         result = build_result(config, plan, run, evaluation, storage_mb, overrides, job)
@@ -142,7 +145,20 @@ def _execute(
     finally:
         suite.remove_sink(log)
         log.close()
-    return _Outcome(result, run, log.log_dir, scene)
+    return _Outcome(result, run, log.log_dir, scene, per_view)
+
+
+def _record_per_view(run_dir: Path, log: TensorBoardLog, evaluation: Evaluation) -> Path | None:
+    """Write the evaluation's per-view metrics to `per_view.csv` and log their means over each
+    frame's test views (`eval/<metric>_by_frame`, step = frame); None when the evaluation
+    reports no per-view metrics."""
+    records = evaluation.metrics.get(PER_VIEW)
+    if records is None:
+        return None
+    for metric in METRIC_COLUMNS:
+        for frame, value in frame_means(records, metric).items():
+            log("eval", frame, {f"{metric}_by_frame": value})
+    return write_per_view(run_dir / PER_VIEW_FILE, records)
 
 
 def _log_reused_stages(log: TensorBoardLog, suite: StageSuite, run: PipelineRun) -> None:
@@ -225,6 +241,7 @@ def _where(plan: RunPlan, outcome: _Outcome, result_path: Path) -> str:
     lines = [
         "outputs:",
         f"  result       {result_path}",
+        *([f"  per view     {outcome.per_view}"] if outcome.per_view else []),
         f"  tensorboard  tensorboard --logdir {shlex.quote(str(outcome.log_dir))}",
         f"  model        {output.path}",
         f"  store        {plan.artifacts_root}  (python -m relaygs.artifacts --root ... ls)",

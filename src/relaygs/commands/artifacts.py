@@ -14,11 +14,12 @@ from pathlib import Path
 from safetensors import SafetensorError, safe_open
 
 from relaygs.app.evaluation import EVAL_STAGE
-from relaygs.cli import OneLineErrorParser
+from relaygs.cli import OneLineErrorParser, writable_file
 from relaygs.data import load_scene
 from relaygs.device import usable_device
 from relaygs.errors import RERUN_COMMAND, RelayGSError, resource_error
 from relaygs.paths import require_creatable_folder
+from relaygs.per_view import PER_VIEW, write_per_view
 from relaygs.pipeline.artifact import Artifact
 from relaygs.pipeline.layout import TENSORS_FILE
 from relaygs.pipeline.store import (
@@ -78,6 +79,12 @@ def _parser() -> argparse.ArgumentParser:
     )
     score.add_argument(
         "--downscale", type=int, default=1, help="the run's scene.loader.downscale (default 1)"
+    )
+    score.add_argument(
+        "--per-view",
+        type=writable_file,
+        metavar="CSV",
+        help="also write each test image's metrics (frame, camera, PSNR, SSIM, fg-PSNR) here",
     )
     score.set_defaults(command_fn=_eval)
     render = commands.add_parser(
@@ -216,6 +223,9 @@ def _eval(store: ArtifactStore, args: argparse.Namespace) -> int:
             print(f"  {name:<16}{value:.4f}")
         elif isinstance(value, int) or value is None:
             print(f"  {name:<16}{'n/a' if value is None else value}")
+    if args.per_view is not None:
+        written = write_per_view(args.per_view, metrics[PER_VIEW])
+        print(f"  per-view metrics of {len(metrics[PER_VIEW])} image(s) in {written}")
     return 0
 
 

@@ -1,7 +1,7 @@
-"""`python -m relaygs.report SWEEP_DIR`: (re)write a sweep's `summary.csv`, `summary.md` and
-`pareto.png`, with `summary_mean.csv/md` when it repeats a variant (e.g. over seeds) and
-`summary_budget.csv/md` when it varies `budget.multiplier`, from its jobs' `result.json` files
-(the multirun end callback calls the same)."""
+"""`python -m relaygs.report SWEEP_DIR`: (re)write a sweep's `summary.csv`, `summary.md`,
+`pareto.png` and `psnr_by_frame.png`, with `summary_mean.csv/md` when it repeats a variant
+(e.g. over seeds) and `summary_budget.csv/md` when it varies `budget.multiplier`, from its
+jobs' `result.json` and `per_view.csv` files (the multirun end callback calls the same)."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ from pathlib import Path
 import pandas as pd
 
 from relaygs.app.aggregate import aggregate_markdown, aggregate_table
+from relaygs.app.frame_curves import plot_frame_curves
 from relaygs.app.marginal import marginal_markdown, marginal_table, varies_budget
 from relaygs.app.pareto import plot_pareto
 from relaygs.app.result import RESULT_FILE
@@ -33,6 +34,7 @@ from relaygs.pipeline.fsio import publish_text
 SUMMARY_CSV = "summary.csv"
 SUMMARY_MD = "summary.md"
 PARETO_PNG = "pareto.png"
+FRAMES_PNG = "psnr_by_frame.png"
 MEAN_CSV = "summary_mean.csv"
 MEAN_MD = "summary_mean.md"
 BUDGET_CSV = "summary_budget.csv"
@@ -41,10 +43,11 @@ BUDGET_MD = "summary_budget.md"
 
 @dataclass(frozen=True)
 class ReportFiles:
-    """The files a report wrote (`pareto` is None when no job has both PSNR and a time) and
-    the failed jobs (each with its `job <n> (<variant>): <error>` line); `mean` and `budget` are
-    written only for sweeps that repeat seeds or vary the step multiplier; `absent_reference`
-    says why Δ PSNR is n/a when no job is the reference variant."""
+    """The files a report wrote (`pareto` is None when no job has both PSNR and a time,
+    `frames` when no job has per-view metrics) and the failed jobs (each with its
+    `job <n> (<variant>): <error>` line); `mean` and `budget` are written only for sweeps that
+    repeat seeds or vary the step multiplier; `absent_reference` says why Δ PSNR is n/a when no
+    job is the reference variant."""
 
     csv: Path
     markdown: Path
@@ -54,6 +57,7 @@ class ReportFiles:
     mean: Path | None = None
     budget: Path | None = None
     absent_reference: str | None = None
+    frames: Path | None = None
 
 
 def write_reports(sweep_dir: Path) -> ReportFiles:
@@ -83,7 +87,8 @@ def _require_sweep_folder(sweep_dir: Path) -> Path:
 
 
 def _write_files(table: pd.DataFrame, sweep_dir: Path) -> ReportFiles:
-    """Write the summary table, the Pareto plot and the optional mean and budget tables."""
+    """Write the summary table, the Pareto and per-frame plots and the optional mean and
+    budget tables."""
     title = _title(table, sweep_dir)
     csv_path = sweep_dir / SUMMARY_CSV
     _write_csv(table, csv_path)
@@ -100,11 +105,14 @@ def _write_files(table: pd.DataFrame, sweep_dir: Path) -> ReportFiles:
             sweep_dir / PARETO_PNG,
             title,
         )
+    frames = plot_frame_curves(table, sweep_dir / FRAMES_PNG, title)
     mean = _write_mean(table, sweep_dir, title)
     budget = _write_budget(table, sweep_dir, title)
     failed = tuple(failed_jobs(table))
     absent = absent_reference_line(table)
-    return ReportFiles(csv_path, markdown_path, pareto, len(table), failed, mean, budget, absent)
+    return ReportFiles(
+        csv_path, markdown_path, pareto, len(table), failed, mean, budget, absent, frames
+    )
 
 
 def _write_mean(table: pd.DataFrame, sweep_dir: Path, title: str) -> Path | None:
@@ -154,9 +162,7 @@ def describe(files: ReportFiles) -> str:
     """Where a report's files are, one per line, then why Δ PSNR is n/a (if it is) and the
     failed jobs."""
     lines = [f"summary of {files.jobs} job(s):", f"  {files.markdown}", f"  {files.csv}"]
-    if files.pareto is not None:
-        lines.append(f"  {files.pareto}")
-    for extra in (files.mean, files.budget):
+    for extra in (files.pareto, files.frames, files.mean, files.budget):
         if extra is not None:
             lines.append(f"  {extra}")
     if files.absent_reference:

@@ -2,7 +2,9 @@
 
 PSNR and SSIM are per image, averaged; fg-PSNR runs over ground-truth foreground pixels of
 the images that have a non-empty mask (None when the scene has no masks); render FPS counts
-rendering only (no metric time). Storage is the store's to report (`Manifest.size_mb`).
+rendering only (no metric time). `per_view` lists every scored image's own metrics, so a run
+can show where in time (at which motion) quality drops. Storage is the store's to report
+(`Manifest.size_mb`).
 """
 
 from __future__ import annotations
@@ -12,10 +14,13 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from relaygs.data import Scene
+import torch
+
+from relaygs.data import Scene, View
 from relaygs.device import synchronize
 from relaygs.errors import InputError
 from relaygs.metrics import fg_psnr, psnr, ssim
+from relaygs.per_view import METRIC_COLUMNS, PER_VIEW, ViewRecord
 from relaygs.pipeline.artifact import Artifact
 from relaygs.stages.config import parse_section, require
 from relaygs.stages.model_render import ModelRenderer
@@ -48,7 +53,7 @@ def evaluate(scene: Scene, artifact: Artifact, cfg: Mapping[str, Any]) -> dict[s
     require_its_scene(model, scene)
     model = model.to(device)
     renderer = ModelRenderer(model)
-    psnrs, ssims, fg_psnrs = [], [], []
+    per_view: list[ViewRecord] = []
     rendered, render_seconds = 0, 0.0
     for frame in range(0, scene.num_frames, settings.frame_stride):
         views = scene.views_at(frame, "test")
@@ -59,24 +64,36 @@ def evaluate(scene: Scene, artifact: Artifact, cfg: Mapping[str, Any]) -> dict[s
         synchronize(device)  # render FPS counts the GPU's work, not only its launch
         render_seconds += time.perf_counter() - began
         rendered += len(images)
-        for view, image in zip(views, images, strict=True):
-            pred = image.cpu()
-            target = scene.image(view)
-            psnrs.append(float(psnr(pred, target)))
-            ssims.append(float(ssim(pred, target)))
-            mask = scene.mask(view)
-            if mask is not None and bool(mask.any()):
-                fg_psnrs.append(float(fg_psnr(pred, target, mask)))
+        per_view += [
+            view_metrics(scene, view, image.cpu())
+            for view, image in zip(views, images, strict=True)
+        ]
     n_bg, n_fg = len(model.background), len(model.foreground)
     return {
-        "psnr": _mean(psnrs),
-        "ssim": _mean(ssims),
-        "fg_psnr": _mean(fg_psnrs),
+        **{name: _mean(per_view, name) for name in METRIC_COLUMNS},
         "render_fps": rendered / render_seconds if render_seconds > 0 else None,
         "num_gaussians": n_bg + n_fg,
         "num_bg": n_bg,
         "num_fg": n_fg,
         "num_test_images": rendered,
+        PER_VIEW: per_view,
+    }
+
+
+def view_metrics(scene: Scene, view: View, pred: torch.Tensor) -> ViewRecord:
+    """One test image's record: its frame, camera and METRIC_COLUMNS (fg-PSNR None when the view
+    has no mask or an empty one)."""
+    target = scene.image(view)
+    mask = scene.mask(view)
+    foreground = None
+    if mask is not None and bool(mask.any()):
+        foreground = float(fg_psnr(pred, target, mask))
+    return {
+        "frame": view.frame,
+        "camera": view.camera.camera_id,
+        "psnr": float(psnr(pred, target)),
+        "ssim": float(ssim(pred, target)),
+        "fg_psnr": foreground,
     }
 
 
@@ -98,6 +115,8 @@ def require_its_scene(model: SceneModel, scene: Scene) -> None:
         )
 
 
-def _mean(values: list[float]) -> float | None:
-    """Mean, or None for no values (e.g. fg-PSNR without masks; JSON has no NaN)."""
+def _mean(records: list[ViewRecord], name: str) -> float | None:
+    """Mean of `name` over the records that have it, or None when none has (e.g. fg-PSNR
+    without masks; JSON has no NaN)."""
+    values = [record[name] for record in records if record[name] is not None]
     return sum(values) / len(values) if values else None

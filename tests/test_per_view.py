@@ -1,0 +1,130 @@
+"""Per-view metrics: per_view.csv written and read back, per-frame means, and the sweep's
+PSNR-by-frame plot averaged over seeds."""
+
+import json
+
+import pytest
+
+from relaygs.app.frame_curves import frame_curves
+from relaygs.app.summary import collect_results
+from relaygs.commands import report
+from relaygs.errors import InputError
+from relaygs.per_view import PER_VIEW_FILE, frame_means, read_per_view, write_per_view
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+RECORDS = [
+    {"frame": 0, "camera": 3, "psnr": 25.125, "ssim": 0.75, "fg_psnr": 18.5},
+    {"frame": 0, "camera": 9, "psnr": 23.0, "ssim": 0.5, "fg_psnr": None},
+    {"frame": 4, "camera": 3, "psnr": 1 / 3, "ssim": 0.25, "fg_psnr": 11.0},
+]
+
+
+def test_records_survive_the_csv_exactly(tmp_path):
+    path = write_per_view(tmp_path / "run" / PER_VIEW_FILE, RECORDS)
+    assert path.read_text().splitlines()[0] == "frame,camera,psnr,ssim,fg_psnr"
+    assert read_per_view(path) == RECORDS  # 1/3 included: floats round-trip exactly
+
+
+def test_frame_means_average_each_frames_views_that_have_the_metric():
+    assert frame_means(RECORDS, "psnr") == pytest.approx({0: 24.0625, 4: 1 / 3})
+    assert frame_means(RECORDS, "fg_psnr") == {0: 18.5, 4: 11.0}  # the None is left out
+    assert list(frame_means(list(reversed(RECORDS)), "psnr")) == [0, 4]  # frames in order
+    assert frame_means([{**r, "fg_psnr": None} for r in RECORDS], "fg_psnr") == {}
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        ("frame,camera,psnr\n0,1,2\n", "expected the header frame,camera,psnr,ssim,fg_psnr"),
+        ("", "expected the header"),
+        ("frame,camera,psnr,ssim,fg_psnr\n0,1,2,3\n", ":2: expected 5 values, got 4"),
+        ("frame,camera,psnr,ssim,fg_psnr\n0,1,x,3,\n", ":2: expected numbers, got 0,1,x,3,"),
+        ("frame,camera,psnr,ssim,fg_psnr\n0,1,2,3,\n0,1,nan,3,\n", ":3: expected finite"),
+        ("frame,camera,psnr,ssim,fg_psnr\n0.5,1,2,3,\n", ":2: expected numbers"),
+    ],
+)
+def test_a_damaged_file_is_named_with_its_line(tmp_path, content, message):
+    path = tmp_path / PER_VIEW_FILE
+    path.write_text(content)
+    with pytest.raises(InputError, match=message) as caught:
+        read_per_view(path)
+    assert str(path) in str(caught.value)
+
+
+def _job(sweep, number, variant, seed, per_frame, scene="juggle", status="ok"):
+    """A job folder with its result and a per_view.csv of two cameras per frame whose mean
+    PSNR at frame f is per_frame[f]."""
+    folder = sweep / f"{number}_{variant}"
+    folder.mkdir(parents=True)
+    result = {
+        "experiment": "ablation_k",
+        "variant": variant,
+        "job": number,
+        "pipeline": "relaygs",
+        "scene": scene,
+        "seed": seed,
+        "psnr": 20.0,
+        "train_s_total": 10.0 + number,
+        "status": status,
+    }
+    (folder / "result.json").write_text(json.dumps(result))
+    if per_frame is not None:
+        records = [
+            {"frame": f, "camera": c, "psnr": v + d, "ssim": 0.5, "fg_psnr": v - 5}
+            for f, v in per_frame.items()
+            for c, d in ((0, 1.0), (1, -1.0))
+        ]
+        write_per_view(folder / PER_VIEW_FILE, records)
+
+
+def test_curves_average_each_variant_over_its_seeds(tmp_path):
+    _job(tmp_path, 0, "k8", 0, {0: 20.0, 2: 22.0})
+    _job(tmp_path, 1, "k8", 1, {0: 24.0, 2: 26.0})
+    _job(tmp_path, 2, "k16", 0, {0: 21.0, 2: 21.5})
+    curves = frame_curves(collect_results(tmp_path))
+    assert curves["psnr"] == {"k8": {0: 22.0, 2: 24.0}, "k16": {0: 21.0, 2: 21.5}}
+    assert curves["fg_psnr"]["k8"] == {0: 17.0, 2: 19.0}
+
+
+def test_curves_leave_out_failed_jobs_and_jobs_without_per_view_metrics(tmp_path):
+    _job(tmp_path, 0, "k8", 0, {0: 20.0})
+    _job(tmp_path, 1, "k16", 0, {0: 30.0}, status="failed")
+    _job(tmp_path, 2, "k32", 0, None)  # written before per-view metrics existed
+    assert frame_curves(collect_results(tmp_path))["psnr"] == {"k8": {0: 20.0}}
+
+
+def test_a_sweep_over_scenes_labels_each_line_with_its_scene(tmp_path):
+    _job(tmp_path, 0, "relaygs", 0, {0: 20.0}, scene="juggle")
+    _job(tmp_path, 1, "relaygs", 0, {0: 26.0}, scene="court")
+    curves = frame_curves(collect_results(tmp_path))["psnr"]
+    assert curves == {"relaygs (juggle)": {0: 20.0}, "relaygs (court)": {0: 26.0}}
+
+
+def test_a_job_evaluated_at_other_frames_counts_only_where_it_has_values(tmp_path):
+    _job(tmp_path, 0, "k8", 0, {0: 20.0, 1: 21.0})
+    _job(tmp_path, 1, "k8", 1, {0: 24.0})  # e.g. another eval.frame_stride
+    assert frame_curves(collect_results(tmp_path))["psnr"] == {"k8": {0: 22.0, 1: 21.0}}
+
+
+def test_the_report_plots_psnr_by_frame_and_lists_it(tmp_path, capsys):
+    _job(tmp_path, 0, "k8", 0, {0: 20.0, 2: 22.0})
+    assert report.main([str(tmp_path)]) == 0
+    plot = tmp_path / report.FRAMES_PNG
+    assert plot.read_bytes().startswith(PNG_SIGNATURE)
+    assert str(plot) in capsys.readouterr().out
+
+
+def test_no_plot_when_no_job_has_per_view_metrics(tmp_path):
+    _job(tmp_path, 0, "k8", 0, None)
+    files = report.write_reports(tmp_path)
+    assert files.frames is None
+    assert not (tmp_path / report.FRAMES_PNG).exists()
+
+
+def test_a_damaged_per_view_file_fails_the_report_in_one_line(tmp_path, capsys):
+    _job(tmp_path, 0, "k8", 0, {0: 20.0})
+    (tmp_path / "0_k8" / PER_VIEW_FILE).write_text("frame,camera,psnr,ssim,fg_psnr\n0,0,x,1,\n")
+    assert report.main([str(tmp_path)]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and err.count("\n") == 1
+    assert f"0_k8/{PER_VIEW_FILE}:2" in err
