@@ -1,15 +1,26 @@
-"""Per-view metrics: per_view.csv written and read back, per-frame means, and the sweep's
-PSNR-by-frame plot averaged over seeds."""
+"""Per-view metrics: per_view.csv and the eval artifact's tensors written and read back,
+per-frame means, and the sweep's PSNR-by-frame plot averaged over seeds."""
 
 import json
+from types import SimpleNamespace
 
 import pytest
 
+from relaygs.app.evaluation import evaluate_through_store
 from relaygs.app.frame_curves import frame_curves
 from relaygs.app.summary import collect_results
 from relaygs.commands import report
 from relaygs.errors import InputError
-from relaygs.per_view import PER_VIEW_FILE, frame_means, read_per_view, write_per_view
+from relaygs.per_view import (
+    PER_VIEW,
+    PER_VIEW_FILE,
+    frame_means,
+    from_tensors,
+    read_per_view,
+    to_tensors,
+    write_per_view,
+)
+from relaygs.pipeline import ArtifactStore
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 RECORDS = [
@@ -128,3 +139,28 @@ def test_a_damaged_per_view_file_fails_the_report_in_one_line(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.startswith("error: ") and err.count("\n") == 1
     assert f"0_k8/{PER_VIEW_FILE}:2" in err
+
+
+@pytest.mark.parametrize("records", [RECORDS, []])
+def test_records_survive_the_artifact_tensors_exactly(records):
+    tensors = to_tensors(records)
+    assert all(bool(t.isfinite().all()) for t in tensors.values() if t.is_floating_point())
+    assert from_tensors(tensors) == records
+    assert from_tensors({}) is None  # an artifact without per-view records
+
+
+def test_a_stored_evaluation_keeps_its_records_out_of_the_manifest(tmp_path):
+    store = ArtifactStore(tmp_path / "store")
+    output = SimpleNamespace(node="deform", stage="deform", key="ab" * 32)
+    run = SimpleNamespace(reports=[output], output=None)
+    scene = SimpleNamespace(fingerprint="scene")
+    config = {"eval": {"frame_stride": 1}, "train": {"device": "cpu"}}
+
+    def evaluate(scene, artifact, cfg):
+        return {"psnr": 24.0, PER_VIEW: RECORDS}
+
+    first = evaluate_through_store(store, scene, run, config, evaluate)
+    again = evaluate_through_store(store, scene, run, config, evaluate)
+    assert (first.cache_hit, again.cache_hit) == (False, True)
+    assert again.metrics == first.metrics == {"psnr": 24.0, PER_VIEW: RECORDS}
+    assert store.manifest("eval", first.key).metrics == {"psnr": 24.0}

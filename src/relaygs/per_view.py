@@ -10,6 +10,8 @@ from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+import torch
+
 from relaygs.errors import InputError
 from relaygs.pipeline.fsio import publish_text
 
@@ -21,6 +23,7 @@ ID_COLUMNS = ("frame", "camera")
 METRIC_COLUMNS = ("psnr", "ssim", "fg_psnr")
 """The per-image metrics; a run's psnr, ssim and fg_psnr are their means over the images."""
 COLUMNS = (*ID_COLUMNS, *METRIC_COLUMNS)
+TENSOR_PREFIX = f"{PER_VIEW}."
 
 ViewRecord = dict[str, Any]
 """{frame: int, camera: int, psnr/ssim/fg_psnr: float or None}."""
@@ -61,6 +64,40 @@ def frame_means(records: Sequence[Mapping[str, Any]], metric: str) -> dict[int, 
         if value is not None:
             sums.setdefault(int(record["frame"]), []).append(float(value))
     return {frame: sum(values) / len(values) for frame, values in sorted(sums.items())}
+
+
+def to_tensors(records: Sequence[Mapping[str, Any]]) -> dict[str, torch.Tensor]:
+    """The records as tensors for an artifact, one per column (`per_view.<column>`: ids int64,
+    metrics float64 so stored values read back exactly), a metric's missing values as 0 with
+    `per_view.has_<metric>` false there (artifacts hold no NaN)."""
+    tensors = {
+        f"{TENSOR_PREFIX}{name}": torch.tensor([int(r[name]) for r in records], dtype=torch.int64)
+        for name in ID_COLUMNS
+    }
+    for name in METRIC_COLUMNS:
+        values = [record.get(name) for record in records]
+        tensors[f"{TENSOR_PREFIX}{name}"] = torch.tensor(
+            [0.0 if v is None else float(v) for v in values], dtype=torch.float64
+        )
+        tensors[f"{TENSOR_PREFIX}has_{name}"] = torch.tensor(
+            [v is not None for v in values], dtype=torch.bool
+        )
+    return tensors
+
+
+def from_tensors(tensors: Mapping[str, torch.Tensor]) -> list[ViewRecord] | None:
+    """The records `to_tensors` stored, or None when the tensors hold none."""
+    if f"{TENSOR_PREFIX}frame" not in tensors:
+        return None
+    columns = {name: tensors[f"{TENSOR_PREFIX}{name}"].tolist() for name in COLUMNS}
+    present = {name: tensors[f"{TENSOR_PREFIX}has_{name}"].tolist() for name in METRIC_COLUMNS}
+    return [
+        {
+            **{name: columns[name][i] for name in ID_COLUMNS},
+            **{name: columns[name][i] if present[name][i] else None for name in METRIC_COLUMNS},
+        }
+        for i in range(len(columns["frame"]))
+    ]
 
 
 def _record(path: Path, line: int, row: list[str]) -> ViewRecord:

@@ -3,10 +3,11 @@ keyed by the model's key, the `eval` settings, the device and the scene, so a jo
 was already evaluated the same way (a re-run, or sweep jobs that share their output artifact)
 reads the metrics back instead of rendering every test view again.
 
-The entry holds no tensors; its manifest carries the metrics and the seconds the evaluation
-took. Render FPS is the one measured when the entry was made, which is why the device and, on
-the CPU, torch's thread count enter the key. Bump EVAL_SCHEMA_VERSION when
-evaluation changes what it reports, so stored metrics are not mistaken for new ones.
+The entry's manifest carries the metrics and the seconds the evaluation took; its tensors hold
+the per-view records (`relaygs.per_view.to_tensors`; in the manifest they would swell every
+`artifacts ls` and `show`). Render FPS is the one measured when the entry was made, which is
+why the device and, on the CPU, torch's thread count enter the key. Bump EVAL_SCHEMA_VERSION
+when evaluation changes what it reports, so stored metrics are not mistaken for new ones.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from typing import Any
 
 import torch
 
+from relaygs.per_view import PER_VIEW, from_tensors, to_tensors
 from relaygs.pipeline import Artifact, ArtifactStore, LineageEntry, PipelineRun
 from relaygs.pipeline.keys import artifact_key, key_config
 from relaygs.pipeline.store import OnCorrupt
@@ -60,7 +62,9 @@ def evaluate_through_store(
 
     def build() -> Artifact:
         metrics = dict(evaluate(scene, run.output, eval_config))
-        return Artifact(EVAL_STAGE, meta={"metrics": metrics})
+        records = metrics.pop(PER_VIEW, None)
+        tensors = to_tensors(records) if records is not None else {}
+        return Artifact(EVAL_STAGE, tensors=tensors, meta={"metrics": metrics})
 
     artifact, info = store.get_or_build(
         EVAL_STAGE,
@@ -71,7 +75,11 @@ def evaluate_through_store(
         provenance={"schema_version": EVAL_SCHEMA_VERSION, "scene": fingerprint},
         on_corrupt=on_corrupt,
     )
-    return Evaluation(dict(artifact.meta["metrics"]), key, info.cache_hit, info.wall_seconds)
+    metrics = dict(artifact.meta["metrics"])
+    records = from_tensors(artifact.tensors)
+    if records is not None:
+        metrics[PER_VIEW] = records
+    return Evaluation(metrics, key, info.cache_hit, info.wall_seconds)
 
 
 def evaluation_config(eval_config: Mapping[str, Any]) -> dict[str, Any]:
