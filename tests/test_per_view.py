@@ -2,10 +2,12 @@
 per-frame means, and the sweep's PSNR-by-frame plot averaged over seeds."""
 
 import json
+import re
 from types import SimpleNamespace
 
 import pytest
 
+from relaygs.app import frame_curves as frame_curves_module
 from relaygs.app.evaluation import evaluate_through_store
 from relaygs.app.frame_curves import frame_curves
 from relaygs.app.summary import collect_results
@@ -62,7 +64,7 @@ def test_a_damaged_file_is_named_with_its_line(tmp_path, content, message):
     assert str(path) in str(caught.value)
 
 
-def _job(sweep, number, variant, seed, per_frame, scene="juggle", status="ok"):
+def _job(sweep, number, variant, seed, per_frame, scene="juggle", status="ok", **extra):
     """A job folder with its result and a per_view.csv of two cameras per frame whose mean
     PSNR at frame f is per_frame[f]."""
     folder = sweep / f"{number}_{variant}"
@@ -77,6 +79,7 @@ def _job(sweep, number, variant, seed, per_frame, scene="juggle", status="ok"):
         "psnr": 20.0,
         "train_s_total": 10.0 + number,
         "status": status,
+        **extra,
     }
     (folder / "result.json").write_text(json.dumps(result))
     if per_frame is not None:
@@ -108,7 +111,35 @@ def test_a_sweep_over_scenes_labels_each_line_with_its_scene(tmp_path):
     _job(tmp_path, 0, "relaygs", 0, {0: 20.0}, scene="juggle")
     _job(tmp_path, 1, "relaygs", 0, {0: 26.0}, scene="court")
     curves = frame_curves(collect_results(tmp_path))["psnr"]
-    assert curves == {"relaygs (juggle)": {0: 20.0}, "relaygs (court)": {0: 26.0}}
+    assert curves == {"relaygs (scene=juggle)": {0: 20.0}, "relaygs (scene=court)": {0: 26.0}}
+
+
+def test_jobs_of_one_variant_apart_in_a_parameter_get_their_own_lines(tmp_path):
+    _job(tmp_path, 0, "relaygs", 0, {0: 20.0}, **{"relay.k": 8})
+    _job(tmp_path, 1, "relaygs", 0, {0: 22.0}, **{"relay.k": 16})
+    _job(tmp_path, 2, "relaygs", 1, {0: 24.0}, **{"relay.k": 16})  # another seed: averaged
+    _job(tmp_path, 3, "4dgs", 0, {0: 18.0}, **{"relay.k": None})  # apart only from relaygs
+    curves = frame_curves(collect_results(tmp_path))["psnr"]
+    assert curves == {
+        "relaygs (relay.k=8)": {0: 20.0},
+        "relaygs (relay.k=16)": {0: 23.0},
+        "4dgs": {0: 18.0},
+    }
+
+
+def test_every_panel_draws_a_line_in_the_colour_the_legend_gives_it(tmp_path, monkeypatch):
+    _job(tmp_path, 0, "k8", 0, {0: 20.0, 1: 21.0})
+    _job(tmp_path, 1, "k16", 0, {0: 22.0, 1: 23.0})
+    curves = frame_curves(collect_results(tmp_path))
+    del curves["fg_psnr"]["k8"]  # k8 without fg-PSNR: k16 is the fg panel's first line
+    figures = []
+    monkeypatch.setattr(frame_curves_module, "save_png", lambda figure, _: figures.append(figure))
+    frame_curves_module.plot_frame_curves(curves, tmp_path / "plot.png", "t")
+    psnr_axes, fg_axes = figures[0].axes
+    colour = {line.get_label(): line.get_color() for line in psnr_axes.lines}
+    assert colour["k8"] != colour["k16"]
+    assert {line.get_label(): line.get_color() for line in fg_axes.lines} == {"k16": colour["k16"]}
+    assert [t.get_text() for t in fg_axes.get_legend().get_texts()] == ["k16"]
 
 
 def test_a_job_evaluated_at_other_frames_counts_only_where_it_has_values(tmp_path):
@@ -132,13 +163,47 @@ def test_no_plot_when_no_job_has_per_view_metrics(tmp_path):
     assert not (tmp_path / report.FRAMES_PNG).exists()
 
 
-def test_a_damaged_per_view_file_fails_the_report_in_one_line(tmp_path, capsys):
+def test_a_damaged_per_view_file_fails_the_report_in_one_line_before_it_writes(tmp_path, capsys):
     _job(tmp_path, 0, "k8", 0, {0: 20.0})
     (tmp_path / "0_k8" / PER_VIEW_FILE).write_text("frame,camera,psnr,ssim,fg_psnr\n0,0,x,1,\n")
     assert report.main([str(tmp_path)]) == 1
     err = capsys.readouterr().err
     assert err.startswith("error: ") and err.count("\n") == 1
     assert f"0_k8/{PER_VIEW_FILE}:2" in err
+    assert not (tmp_path / report.SUMMARY_MD).exists()  # no half-renewed set of report files
+
+
+@pytest.mark.parametrize(
+    ("record", "message"),
+    [
+        ({"frame": 0, "camera": 1, "psnr": 20.0, "ssim": 0.5}, "record 0 lacks fg_psnr"),
+        ({**RECORDS[0], "frame": 0.0}, "record 0: frame and camera must be ints"),
+        ({**RECORDS[0], "camera": True}, "record 0: frame and camera must be ints"),
+        ({**RECORDS[0], "psnr": float("nan")}, "(frame 0, camera 3): psnr must be a finite"),
+        ({**RECORDS[0], "ssim": float("inf")}, "ssim must be a finite number or None, got inf"),
+        ({**RECORDS[0], "fg_psnr": "18"}, "fg_psnr must be a finite number or None, got '18'"),
+    ],
+)
+def test_records_an_evaluation_gives_are_checked_before_they_are_stored(tmp_path, record, message):
+    for store in (to_tensors, lambda records: write_per_view(tmp_path / "v.csv", records)):
+        with pytest.raises(InputError, match=re.escape(message)):
+            store([record])
+    assert not (tmp_path / "v.csv").exists()
+
+
+def test_records_from_a_generator_are_stored_whole():
+    tensors = to_tensors(record for record in RECORDS)
+    assert from_tensors(tensors) == RECORDS
+
+
+def test_stored_columns_of_unequal_length_are_refused():
+    tensors = to_tensors(RECORDS)
+    tensors["per_view.ssim"] = tensors["per_view.ssim"][:2]
+    with pytest.raises(InputError, match="incomplete or unequal"):
+        from_tensors(tensors)
+    del tensors["per_view.ssim"]
+    with pytest.raises(InputError, match="incomplete or unequal"):
+        from_tensors(tensors)
 
 
 @pytest.mark.parametrize("records", [RECORDS, []])

@@ -152,9 +152,9 @@ def test_a_run_writes_per_view_metrics_and_logs_their_frame_means(base_config, t
     assert PER_VIEW not in result  # the result stays flat
     events = EventAccumulator(str(tmp_path / "a" / "tb"), size_guidance={"scalars": 0})
     events.Reload()
-    # the fake's two cameras score psnr ± frame: their mean is psnr at every frame
+    # the fake's two cameras score psnr + f and psnr + 2f at frame f: their mean is psnr + 1.5 f
     logged = [(e.step, e.value) for e in events.Scalars("eval/psnr_by_frame")]
-    assert logged == [(0, pytest.approx(result["psnr"])), (2, pytest.approx(result["psnr"]))]
+    assert logged == [(0, pytest.approx(result["psnr"])), (2, pytest.approx(result["psnr"] + 3))]
     assert "eval/fg_psnr_by_frame" not in events.Tags()["scalars"]  # no value at any frame
     # a job that reads the evaluation back from the store writes the same records
     _run(base_config, tmp_path / "b", fakes)
@@ -162,12 +162,16 @@ def test_a_run_writes_per_view_metrics_and_logs_their_frame_means(base_config, t
     assert read_per_view(tmp_path / "b" / PER_VIEW_FILE) == records
 
 
-def test_an_evaluation_without_per_view_metrics_writes_no_file(base_config, tmp_path, capsys):
+def test_an_evaluation_without_per_view_metrics_leaves_no_file(base_config, tmp_path, capsys):
+    _run(base_config, tmp_path / "a", FakeStages())
+    assert (tmp_path / "a" / PER_VIEW_FILE).is_file()
+    capsys.readouterr()
     fakes = FakeStages()
     whole = fakes._evaluate
     fakes._evaluate = lambda *args: {k: v for k, v in whole(*args).items() if k != PER_VIEW}
-    _run(base_config, tmp_path / "a", fakes)
-    assert not (tmp_path / "a" / PER_VIEW_FILE).exists()
+    _run(_with(base_config, seed=1), tmp_path / "a", fakes)  # a new model, the same folder
+    assert fakes.evaluations == 1
+    assert not (tmp_path / "a" / PER_VIEW_FILE).exists()  # the earlier run's is gone
     assert "per view" not in capsys.readouterr().out
 
 

@@ -11,7 +11,7 @@ import torch
 
 from conftest import stage_smoke_cfg
 from relaygs.data import Scene
-from relaygs.metrics import psnr
+from relaygs.metrics import psnr, ssim
 from relaygs.per_view import METRIC_COLUMNS, PER_VIEW
 from relaygs.pipeline.artifact import Artifact
 from relaygs.stages import SceneModel, evaluate
@@ -108,3 +108,4 @@ def test_per_view_records_score_each_test_image_and_average_to_the_metrics(
     last = stage_scene.views_at(expected[-1][0], "test")[-1]
     image = renderer.render([last.camera], last.time)[0]
     assert records[-1]["psnr"] == pytest.approx(float(psnr(image, stage_scene.image(last))))
+    assert records[-1]["ssim"] == pytest.approx(float(ssim(image, stage_scene.image(last))))

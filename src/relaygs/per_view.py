@@ -6,7 +6,8 @@ from __future__ import annotations
 import csv
 import io
 import math
-from collections.abc import Iterable, Mapping, Sequence
+import numbers
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -29,13 +30,36 @@ ViewRecord = dict[str, Any]
 """{frame: int, camera: int, psnr/ssim/fg_psnr: float or None}."""
 
 
+def checked_records(records: Iterable[Mapping[str, Any]]) -> list[ViewRecord]:
+    """The records as a list of ViewRecords, refused in one line when one lacks a column or
+    holds anything but an int id and finite (or None) metrics, e.g. a diverged model's NaN."""
+    checked = []
+    for index, record in enumerate(records):
+        missing = [name for name in COLUMNS if name not in record]
+        if missing:
+            raise InputError(f"per-view record {index} lacks {', '.join(missing)}: {record!r}")
+        ids = {name: record[name] for name in ID_COLUMNS}
+        if not all(_is_int(value) for value in ids.values()):
+            raise InputError(f"per-view record {index}: frame and camera must be ints: {ids!r}")
+        for name in METRIC_COLUMNS:
+            value = record[name]
+            if value is not None and not _is_finite(value):
+                raise InputError(
+                    f"per-view record {index} (frame {ids['frame']}, camera {ids['camera']}): "
+                    f"{name} must be a finite number or None, got {value!r}"
+                )
+        checked.append({name: record[name] for name in COLUMNS})
+    return checked
+
+
 def write_per_view(path: Path, records: Iterable[Mapping[str, Any]]) -> Path:
-    """Write the records as CSV (a metric that is None as an empty cell), whole or not at all."""
+    """Write the records (`checked_records`) as CSV, a metric that is None as an empty cell,
+    whole or not at all."""
     text = io.StringIO()
     writer = csv.writer(text, lineterminator="\n")
     writer.writerow(COLUMNS)
-    for record in records:
-        metrics = [_cell(record.get(name)) for name in METRIC_COLUMNS]
+    for record in checked_records(records):
+        metrics = [_cell(record[name]) for name in METRIC_COLUMNS]
         writer.writerow([int(record["frame"]), int(record["camera"]), *metrics])
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -56,26 +80,34 @@ def read_per_view(path: Path) -> list[ViewRecord]:
     return [_record(path, number, row) for number, row in enumerate(rows[1:], start=2)]
 
 
-def frame_means(records: Sequence[Mapping[str, Any]], metric: str) -> dict[int, float]:
+def frame_means(records: Iterable[Mapping[str, Any]], metric: str) -> dict[int, float]:
     """{frame: mean of `metric` over that frame's views that have it}, frames in order."""
-    sums: dict[int, list[float]] = {}
-    for record in records:
-        value = record.get(metric)
-        if value is not None:
-            sums.setdefault(int(record["frame"]), []).append(float(value))
-    return {frame: sum(values) / len(values) for frame, values in sorted(sums.items())}
+    return means_by_key(
+        (int(record["frame"]), float(record[metric]))
+        for record in records
+        if record.get(metric) is not None
+    )
 
 
-def to_tensors(records: Sequence[Mapping[str, Any]]) -> dict[str, torch.Tensor]:
-    """The records as tensors for an artifact, one per column (`per_view.<column>`: ids int64,
-    metrics float64 so stored values read back exactly), a metric's missing values as 0 with
-    `per_view.has_<metric>` false there (artifacts hold no NaN)."""
+def means_by_key(pairs: Iterable[tuple[int, float]]) -> dict[int, float]:
+    """{key: mean of its values} over (key, value) pairs, keys in order."""
+    values: dict[int, list[float]] = {}
+    for key, value in pairs:
+        values.setdefault(key, []).append(value)
+    return {key: sum(group) / len(group) for key, group in sorted(values.items())}
+
+
+def to_tensors(records: Iterable[Mapping[str, Any]]) -> dict[str, torch.Tensor]:
+    """The records (`checked_records`) as tensors for an artifact, one per column
+    (`per_view.<column>`: ids int64, metrics float64 so stored values read back exactly), a
+    metric's missing values as 0 with `per_view.has_<metric>` false there (no NaN)."""
+    checked = checked_records(records)
     tensors = {
-        f"{TENSOR_PREFIX}{name}": torch.tensor([int(r[name]) for r in records], dtype=torch.int64)
+        f"{TENSOR_PREFIX}{name}": torch.tensor([r[name] for r in checked], dtype=torch.int64)
         for name in ID_COLUMNS
     }
     for name in METRIC_COLUMNS:
-        values = [record.get(name) for record in records]
+        values = [record[name] for record in checked]
         tensors[f"{TENSOR_PREFIX}{name}"] = torch.tensor(
             [0.0 if v is None else float(v) for v in values], dtype=torch.float64
         )
@@ -86,9 +118,15 @@ def to_tensors(records: Sequence[Mapping[str, Any]]) -> dict[str, torch.Tensor]:
 
 
 def from_tensors(tensors: Mapping[str, torch.Tensor]) -> list[ViewRecord] | None:
-    """The records `to_tensors` stored, or None when the tensors hold none."""
-    if f"{TENSOR_PREFIX}frame" not in tensors:
+    """The records `to_tensors` stored, or None when the tensors hold none; refused in one
+    line when the columns are incomplete or of unequal length."""
+    names = [f"{TENSOR_PREFIX}{name}" for name in COLUMNS]
+    names += [f"{TENSOR_PREFIX}has_{name}" for name in METRIC_COLUMNS]
+    if names[0] not in tensors:
         return None
+    lengths = {tensors[name].numel() if name in tensors else -1 for name in names}
+    if len(lengths) != 1:
+        raise InputError(f"per-view tensors {', '.join(names)} are incomplete or unequal")
     columns = {name: tensors[f"{TENSOR_PREFIX}{name}"].tolist() for name in COLUMNS}
     present = {name: tensors[f"{TENSOR_PREFIX}has_{name}"].tolist() for name in METRIC_COLUMNS}
     return [
@@ -119,3 +157,13 @@ def _record(path: Path, line: int, row: list[str]) -> ViewRecord:
 def _cell(value: Any) -> str:
     """A metric as CSV text: empty for None, else the float's shortest round-trip form."""
     return "" if value is None else repr(float(value))
+
+
+def _is_int(value: Any) -> bool:
+    """An integer (numpy's too), not a bool."""
+    return isinstance(value, numbers.Integral) and not isinstance(value, bool)
+
+
+def _is_finite(value: Any) -> bool:
+    """A finite real number (numpy's too), not a bool."""
+    return isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)

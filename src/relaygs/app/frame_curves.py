@@ -4,72 +4,86 @@ evaluated frame, one line per variant (the mean over its jobs, e.g. seeds), read
 
 from __future__ import annotations
 
-import io
 from pathlib import Path
+from typing import Any
 
 import pandas as pd
 from matplotlib.figure import Figure
 
+from relaygs.app.figures import save_png
 from relaygs.app.result import STATUS_OK
-from relaygs.per_view import PER_VIEW_FILE, frame_means, read_per_view
-from relaygs.pipeline.fsio import publish_bytes
+from relaygs.per_view import PER_VIEW_FILE, frame_means, means_by_key, read_per_view
 
 FRAME_METRICS = (("psnr", "PSNR (dB)"), ("fg_psnr", "fg-PSNR (dB)"))
 """The metrics plotted, one panel each (a panel without values is left out)."""
 
-Curves = dict[str, dict[int, float]]
-"""{line label: {frame: value}}."""
+Curves = dict[str, dict[str, dict[int, float]]]
+"""{metric: {line label: {frame: value}}}."""
 
 
-def frame_curves(table: pd.DataFrame) -> dict[str, Curves]:
-    """{metric: curves} for FRAME_METRICS: per label (the variant, with the scene when the
-    sweep has several), the mean over its finished jobs of the metric at each frame. Jobs
-    without a `per_view.csv` are left out, and so is a metric no job has."""
-    several_scenes = "scene" in table and table["scene"].nunique() > 1
+def frame_curves(table: pd.DataFrame) -> Curves:
+    """For FRAME_METRICS, per line (`line_labels`) the mean over its finished jobs of the metric
+    at each frame. Jobs without a `per_view.csv` are left out, and so is a metric no job has;
+    a damaged file is refused (`read_per_view`)."""
     per_metric: dict[str, dict[str, list[dict[int, float]]]] = {}
-    for _, row in table.iterrows():
+    for label, (_, row) in zip(line_labels(table), table.iterrows(), strict=True):
         path = Path(str(row.get("run_dir"))) / PER_VIEW_FILE
         if row.get("status") != STATUS_OK or not path.is_file():
             continue
         records = read_per_view(path)
-        label = f"{row['variant']} ({row['scene']})" if several_scenes else str(row["variant"])
         for metric, _ in FRAME_METRICS:
             means = frame_means(records, metric)
             if means:
                 per_metric.setdefault(metric, {}).setdefault(label, []).append(means)
     return {
-        metric: {label: _mean_by_frame(jobs) for label, jobs in per_label.items()}
+        metric: {
+            label: means_by_key(pair for job in jobs for pair in job.items())
+            for label, jobs in per_label.items()
+        }
         for metric, per_label in per_metric.items()
     }
 
 
-def plot_frame_curves(table: pd.DataFrame, path: Path, title: str) -> Path | None:
-    """Write the per-frame plot to `path` (PNG); None, and nothing written, when no job has
-    per-view metrics."""
-    curves = frame_curves(table)
+def line_labels(table: pd.DataFrame) -> list[str]:
+    """Each row's line: its variant, followed by the scene and dotted parameters that differ
+    between rows of that variant (`relaygs (relay.k=8)`), so only repeats such as seeds share
+    a line."""
+    candidates = [c for c in table.columns if c == "scene" or "." in c]
+    labels = []
+    for _, row in table.iterrows():
+        same = table[table["variant"] == row["variant"]]
+        varying = [c for c in candidates if same[c].astype(str).nunique() > 1]
+        details = ", ".join(f"{column}={_text(row[column])}" for column in varying)
+        labels.append(f"{row['variant']} ({details})" if details else str(row["variant"]))
+    return labels
+
+
+def plot_frame_curves(curves: Curves, path: Path, title: str) -> Path | None:
+    """Write `frame_curves`' lines to `path` (PNG), a panel per metric and one colour per line
+    on every panel; None, and nothing written, when there are none."""
     panels = [(label, curves[metric]) for metric, label in FRAME_METRICS if metric in curves]
     if not panels:
         return None
+    names = list(dict.fromkeys(name for _, lines in panels for name in lines))
+    colours = {name: f"C{index % 10}" for index, name in enumerate(names)}
     figure = Figure(figsize=(7.0, 3.2 * len(panels)), layout="constrained")
     axes_list = figure.subplots(len(panels), 1, sharex=True, squeeze=False)[:, 0]
     for axes, (label, lines) in zip(axes_list, panels, strict=True):
         for name, values in lines.items():
-            axes.plot(list(values), list(values.values()), marker=".", label=name)
+            axes.plot(
+                list(values), list(values.values()), marker=".", color=colours[name], label=name
+            )
         axes.set_ylabel(label)
         axes.grid(True, alpha=0.3)
+        axes.legend(fontsize=8, loc="best")
     axes_list[0].set_title(f"{title}: test views by frame")
-    axes_list[0].legend(fontsize=8, loc="best")
     axes_list[-1].set_xlabel("frame")
-    image = io.BytesIO()
-    figure.savefig(image, format="png", dpi=120)
-    publish_bytes(Path(path), image.getvalue())  # whole: a concurrent report never leaves half
-    return Path(path)
+    return save_png(figure, path)
 
 
-def _mean_by_frame(jobs: list[dict[int, float]]) -> dict[int, float]:
-    """Per frame, the mean over the jobs that evaluated it, frames in order."""
-    frames = sorted({frame for job in jobs for frame in job})
-    return {
-        frame: sum(job[frame] for job in jobs if frame in job) / sum(frame in job for job in jobs)
-        for frame in frames
-    }
+def _text(value: Any) -> str:
+    """A label value: a whole float as an int (pandas turns an int column with gaps into
+    floats, `relay.k` 16 into 16.0)."""
+    if isinstance(value, float) and value.is_integer():
+        return str(int(value))
+    return str(value)

@@ -3,14 +3,13 @@ the Pareto front (no other job is both faster and more accurate) marked."""
 
 from __future__ import annotations
 
-import io
 import math
 from collections.abc import Sequence
 from pathlib import Path
 
 from matplotlib.figure import Figure
 
-from relaygs.pipeline.fsio import publish_bytes
+from relaygs.app.figures import save_png
 
 LOG_SCALE_RATIO = 20.0
 """Use a log time axis when the slowest job takes more than this many times the fastest."""
@@ -78,8 +77,4 @@ def plot_pareto(
     axes.set_title(title)
     axes.grid(True, alpha=0.3)
     axes.legend(loc="lower right")
-    path = Path(path)
-    image = io.BytesIO()
-    figure.savefig(image, format="png", dpi=120)
-    publish_bytes(path, image.getvalue())  # whole: a concurrent report never leaves half a plot
-    return path
+    return save_png(figure, path)

@@ -151,9 +151,11 @@ def _execute(
 def _record_per_view(run_dir: Path, log: TensorBoardLog, evaluation: Evaluation) -> Path | None:
     """Write the evaluation's per-view metrics to `per_view.csv` and log their means over each
     frame's test views (`eval/<metric>_by_frame`, step = frame); None when the evaluation
-    reports no per-view metrics."""
+    reports no per-view metrics (an earlier run's file in the folder is then removed, as the
+    sweep report would take it for this run's)."""
     records = evaluation.metrics.get(PER_VIEW)
     if records is None:
+        (run_dir / PER_VIEW_FILE).unlink(missing_ok=True)
         return None
     for metric in METRIC_COLUMNS:
         for frame, value in frame_means(records, metric).items():

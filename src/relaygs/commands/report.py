@@ -13,7 +13,7 @@ from pathlib import Path
 import pandas as pd
 
 from relaygs.app.aggregate import aggregate_markdown, aggregate_table
-from relaygs.app.frame_curves import plot_frame_curves
+from relaygs.app.frame_curves import frame_curves, plot_frame_curves
 from relaygs.app.marginal import marginal_markdown, marginal_table, varies_budget
 from relaygs.app.pareto import plot_pareto
 from relaygs.app.result import RESULT_FILE
@@ -90,6 +90,7 @@ def _write_files(table: pd.DataFrame, sweep_dir: Path) -> ReportFiles:
     """Write the summary table, the Pareto and per-frame plots and the optional mean and
     budget tables."""
     title = _title(table, sweep_dir)
+    curves = frame_curves(table)  # reads every per_view.csv: refuses a damaged one before writing
     csv_path = sweep_dir / SUMMARY_CSV
     _write_csv(table, csv_path)
     markdown_path = sweep_dir / SUMMARY_MD
@@ -105,7 +106,7 @@ def _write_files(table: pd.DataFrame, sweep_dir: Path) -> ReportFiles:
             sweep_dir / PARETO_PNG,
             title,
         )
-    frames = plot_frame_curves(table, sweep_dir / FRAMES_PNG, title)
+    frames = plot_frame_curves(curves, sweep_dir / FRAMES_PNG, title)
     mean = _write_mean(table, sweep_dir, title)
     budget = _write_budget(table, sweep_dir, title)
     failed = tuple(failed_jobs(table))
