@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import shutil
 import struct
 from dataclasses import replace
@@ -428,3 +429,61 @@ def test_image_whose_size_differs_from_its_colmap_camera_is_refused(multiview_co
 def test_test_cameras_beyond_the_camera_folders_are_refused(multiview_root: Path):
     with pytest.raises(InputError, match=r"test_cameras: cameras \[99\] are not in .* 0\.\.30"):
         load_scene(multiview_root, test_cameras=[0, 99])
+
+
+PYCOLMAP_FIXTURE = Path(__file__).parent / "data" / "pycolmap"
+"""A model written by COLMAP's own code (pycolmap 4.2.1, `tools/make_pycolmap_fixture.py`):
+rigs and frames files, tracks and keypoints included; expected.json is what pycolmap reads."""
+
+
+def _pycolmap_expected() -> dict:
+    return json.loads((PYCOLMAP_FIXTURE / "expected.json").read_text())
+
+
+def _sorted_points(xyz: np.ndarray, rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Points ordered by x, then y, then z (expected.json's order)."""
+    order = np.lexsort(xyz.T[::-1])
+    return xyz[order], rgb[order]
+
+
+@pytest.mark.parametrize("kind", ["bin", "txt"])
+def test_a_model_colmap_wrote_reads_as_colmap_reads_it(kind):
+    expected = _pycolmap_expected()
+    model = read_model(PYCOLMAP_FIXTURE / kind)
+    images = {image.name: image for image in model.images.values()}
+    assert set(images) == set(expected["images"])
+    for name, want in expected["images"].items():
+        image = images[name]
+        assert (image.image_id, image.camera_id) == (want["image_id"], want["camera_id"])
+        np.testing.assert_allclose(image.qvec, want["qvec"], rtol=0, atol=1e-15)
+        np.testing.assert_allclose(image.tvec, want["tvec"], rtol=0, atol=1e-15)
+        np.testing.assert_allclose(image.w2c()[:3, :3], want["rotation"], rtol=0, atol=1e-12)
+        camera = model.cameras[image.camera_id]
+        assert (camera.model, list(camera.params)) == (want["model"], want["params"])
+        assert [camera.width, camera.height] == expected["size"]
+    xyz, rgb = _sorted_points(model.xyz, model.rgb)
+    np.testing.assert_allclose(xyz, expected["xyz"], rtol=0, atol=1e-15)
+    assert rgb.tolist() == expected["rgb"]
+
+
+def test_a_capture_posed_by_a_model_colmap_wrote_loads_with_its_poses(tmp_path):
+    expected = _pycolmap_expected()
+    width, height = expected["size"]
+    for name in expected["images"]:
+        for frame in (0, 1):
+            path = tmp_path / Path(name).parent / f"frame_{frame:05d}.png"
+            path.parent.mkdir(exist_ok=True)
+            cv2.imwrite(str(path), np.full((height, width, 3), 40 * frame, dtype=np.uint8))
+    shutil.copytree(PYCOLMAP_FIXTURE / "bin", tmp_path / "sparse" / "0")
+    scene = load_scene(tmp_path, test_cameras=[1])
+    assert scene.num_frames == 2
+    assert [c.camera_id for c in scene.train_cameras] == [0, 2]
+    cameras = {c.camera_id: c for c in scene.train_cameras + scene.test_cameras}
+    for camera_id, name in enumerate(sorted(expected["images"])):  # cam00, cam01, cam02
+        want, camera = expected["images"][name], cameras[camera_id]
+        np.testing.assert_allclose(camera.K.numpy(), want["K"], rtol=1e-6)
+        np.testing.assert_allclose(camera.w2c[:3, :3].numpy(), want["rotation"], atol=1e-6)
+        np.testing.assert_allclose(camera.w2c[:3, 3].numpy(), want["tvec"], atol=1e-6)
+        assert (camera.width, camera.height) == (width, height)
+    xyz, _ = _sorted_points(scene.points.xyz.double().numpy(), scene.points.rgb.numpy())
+    np.testing.assert_allclose(xyz, expected["xyz"], atol=1e-6)
