@@ -424,3 +424,9 @@ def test_whole_number_columns_with_missing_rows_are_written_without_a_decimal_po
     column = header.index("relay.k")
     assert [line.split(",")[column] for line in lines[1:]] == ["8", "16", "32", "64", ""]
     assert lines[1].split(",")[header.index("psnr")] == "25.0"
+
+
+def test_the_title_names_the_experiment_only_when_every_job_ran_it(sweep):
+    _job(sweep, 4, "k128", 20.0, 5.0, experiment=None)  # a single run copied in beside them
+    report.write_reports(sweep)
+    assert (sweep / "summary.md").read_text().startswith(f"# {sweep.name} on juggle")

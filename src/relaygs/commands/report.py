@@ -181,8 +181,10 @@ def _write_csv(table: pd.DataFrame, path: Path) -> None:
 
 
 def _title(table: pd.DataFrame, sweep_dir: Path) -> str:
-    """'<experiment> on <scene>' when the jobs agree, else the folder name."""
-    experiments = {e for e in table.get("experiment", []) if isinstance(e, str)}
+    """'<experiment> on <scene>' when the jobs agree (a single run's result, which names no
+    experiment, disagrees with every experiment), else the folder name."""
+    experiments = {e if isinstance(e, str) else None for e in table.get("experiment", [None])}
     scenes = {s for s in table.get("scene", []) if isinstance(s, str)}
-    name = experiments.pop() if len(experiments) == 1 else sweep_dir.name
+    experiment = experiments.pop() if len(experiments) == 1 else None
+    name = experiment or sweep_dir.name
     return f"{name} on {scenes.pop()}" if len(scenes) == 1 else name
