@@ -11,6 +11,7 @@ from relaygs.camera_path import path_cameras
 from relaygs.commands.artifacts import main
 from relaygs.data import load_scene
 from relaygs.data.scene import frame_time
+from relaygs.error_map import error_image
 from relaygs.errors import InputError
 from relaygs.renders import RenderSettings, write_renders
 from relaygs.stages.model_render import ModelRenderer
@@ -82,6 +83,29 @@ def test_render_defaults_to_a_folder_named_after_the_model(
     assert len(list((out / "cam00").glob("*.png"))) == 2 and (out / "cam00.mp4").is_file()
 
 
+@pytest.mark.parametrize("with_truth", [True, False])
+def test_render_puts_the_error_image_last(
+    stored_deform, stage_scene_path, stage_deformed, tmp_path, capsys, with_truth
+):
+    store, key = stored_deform
+    out = tmp_path / "renders"
+    truth_flag = ["--truth"] if with_truth else []
+    args = ["--camera", "10", "--frame-stride", "5", "--error", *truth_flag, "--no-video"]
+    code, _, _ = _render_cli(capsys, store, key, stage_scene_path, *args, "--out", str(out))
+    assert code == 0
+    scene = load_scene(stage_scene_path)
+    view = next(v for v in scene.views_at(5, "all") if v.camera.camera_id == 10)
+    renderer = ModelRenderer(SceneModel.from_artifact(stage_deformed))
+    render = renderer.render([view.camera], view.time)[0]
+    written = cv2.imread(str(out / "cam10" / "000005.png"))
+    width, panels = view.camera.width, 3 if with_truth else 2
+    assert written.shape == (view.camera.height, panels * width, 3)
+    np.testing.assert_array_equal(written[:, :width], _bgr(render))
+    error = written[:, (panels - 1) * width :]
+    np.testing.assert_array_equal(error, _bgr(error_image(render, scene.image(view))))
+    assert len(np.unique(error.reshape(-1, 3), axis=0)) > 8  # the error varies over the image
+
+
 @pytest.mark.parametrize(
     ("args", "message"),
     [
@@ -92,6 +116,7 @@ def test_render_defaults_to_a_folder_named_after_the_model(
         (["--path", "0"], "render path: expected at least 1 view, got 0"),
         (["--path", "2", "--path-frame", "8"], "render path frame 8 is not in "),
         (["--path", "2", "--truth"], "--truth: a camera path (--path) has no ground truth"),
+        (["--path", "2", "--error"], "--error: a camera path (--path) has no ground truth"),
         (["--path", "2", "--frame-stride", "2"], "--frame-stride: a camera path (--path) has"),
         (["--path-frame", "1"], "--path-frame needs --path N"),
         (["--path", "2", "--camera", "99"], "camera 99 is not in "),

@@ -1,5 +1,6 @@
 """A stored model's renders over time, to look at what a run reconstructed: one PNG per frame
-and one MP4 per camera, optionally with the ground truth beside each render, or a video along
+and one MP4 per camera, optionally with the ground truth and an error image beside each
+render, or a video along
 an orbit that the scene's cameras place around its centre (views between the captured ones).
 
 `python -m relaygs.artifacts render KEY --scene DIR` is the command line; every stage's output
@@ -21,8 +22,9 @@ import torch
 from torch import Tensor
 
 from relaygs.camera_path import path_cameras
-from relaygs.data import Scene
+from relaygs.data import Scene, View
 from relaygs.data.scene import frame_time
+from relaygs.error_map import error_image
 from relaygs.errors import InputError, RelayGSError
 from relaygs.progress import progress_bar
 from relaygs.stages.evaluate import require_its_scene
@@ -37,12 +39,14 @@ FRAME_GLOB = "[0-9]" * 6 + ".png"  # the frames a render writes: <frame or view>
 @dataclass(frozen=True)
 class RenderSettings:
     """Which cameras (None: the test cameras), every `frame_stride`-th frame, the ground truth
-    beside each render or not, and the videos' frame rate (None: no video)."""
+    beside each render or not, the videos' frame rate (None: no video) and the error image
+    (`relaygs.error_map`) beside or not."""
 
     camera_ids: tuple[int, ...] | None = None
     frame_stride: int = 1
     with_truth: bool = False
     fps: float | None = 15.0
+    with_error: bool = False
 
     def __post_init__(self) -> None:
         """Refuse a stride below 1 and a frame rate that is not a positive number."""
@@ -127,11 +131,20 @@ def write_renders(
                 continue
             images = renderer.render([view.camera for view in views], views[0].time)
             for view, image in zip(views, images, strict=True):
-                picture = image.cpu()
-                if settings.with_truth:
-                    picture = torch.cat([picture, scene.image(view)], dim=1)
+                picture = _picture(image.cpu(), view, scene, settings)
                 sinks[view.camera.camera_id].add(frame, picture)
     return [sink.result() for sink in sinks.values()]
+
+
+def _picture(render: Tensor, view: View, scene: Scene, settings: RenderSettings) -> Tensor:
+    """The render, then the ground truth and the error image where the settings ask for them,
+    side by side."""
+    parts = [render]
+    if settings.with_truth:
+        parts.append(scene.image(view))
+    if settings.with_error:
+        parts.append(error_image(render, scene.image(view)))
+    return torch.cat(parts, dim=1)
 
 
 def write_path_render(

@@ -110,6 +110,11 @@ def _parser() -> argparse.ArgumentParser:
     )
     render.add_argument("--truth", action="store_true", help="put the ground truth beside")
     render.add_argument(
+        "--error",
+        action="store_true",
+        help="put the error beside: |render - truth| per pixel, black none, brightest >= 0.25",
+    )
+    render.add_argument(
         "--path",
         type=int,
         metavar="N",
@@ -258,9 +263,10 @@ def _render_settings(args: argparse.Namespace) -> RenderSettings | PathSettings:
     if args.path is None:
         if args.path_frame is not None:
             raise RelayGSError("--path-frame needs --path N (a camera path of N views)")
-        return RenderSettings(cameras, args.frame_stride, args.truth, fps)
-    if args.truth:
-        raise RelayGSError("--truth: a camera path (--path) has no ground truth to show")
+        return RenderSettings(cameras, args.frame_stride, args.truth, fps, args.error)
+    for flag, given in (("--truth", args.truth), ("--error", args.error)):
+        if given:
+            raise RelayGSError(f"{flag}: a camera path (--path) has no ground truth to show")
     if args.frame_stride != 1:
         raise RelayGSError("--frame-stride: a camera path (--path) has N views, not frames")
     return PathSettings(args.path, cameras, args.path_frame, fps)

@@ -1,0 +1,33 @@
+"""Per-pixel error images for looking at where a render misses its ground truth: the mean
+absolute error over the colour channels, through a perceptual colour map (matplotlib's
+inferno), black for no error and brightest at ERROR_FULL_SCALE or more."""
+
+from __future__ import annotations
+
+import functools
+
+import torch
+from matplotlib import colormaps
+
+ERROR_FULL_SCALE = 0.25
+"""Mean absolute error (images in [0,1]) that maps to the colour map's brightest end; larger
+errors saturate there, so small misses stay visible beside gross ones."""
+COLOUR_MAP = "inferno"
+LEVELS = 256
+
+
+def error_image(render: torch.Tensor, truth: torch.Tensor) -> torch.Tensor:
+    """[H,W,3] float32 in [0,1]: |render − truth| averaged over channels, scaled by
+    ERROR_FULL_SCALE and coloured with COLOUR_MAP (renders and truths [H,W,3] in [0,1])."""
+    if render.shape != truth.shape:
+        raise ValueError(f"render {list(render.shape)} and truth {list(truth.shape)} differ")
+    error = (render.float() - truth.float()).abs().mean(dim=-1)
+    level = (error / ERROR_FULL_SCALE).clamp(0.0, 1.0) * (LEVELS - 1)
+    return colour_table()[level.round().long()]
+
+
+@functools.cache
+def colour_table() -> torch.Tensor:
+    """COLOUR_MAP sampled at LEVELS levels, [LEVELS,3] float32 RGB (made once; read only)."""
+    samples = colormaps[COLOUR_MAP].resampled(LEVELS)(range(LEVELS))
+    return torch.tensor(samples[:, :3], dtype=torch.float32)

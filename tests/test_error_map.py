@@ -1,0 +1,45 @@
+"""Error images: the mean absolute error over channels through the colour map, saturating at
+the full scale."""
+
+import pytest
+import torch
+from matplotlib import colormaps
+
+from relaygs.error_map import COLOUR_MAP, ERROR_FULL_SCALE, error_image
+
+
+def _colour(fraction: float) -> torch.Tensor:
+    """The colour map's colour at `fraction` of its range, sampled independently of the module."""
+    rgba = colormaps[COLOUR_MAP](round(fraction * 255) / 255)
+    return torch.tensor(rgba[:3], dtype=torch.float32)
+
+
+def test_no_error_is_the_maps_darkest_colour_and_full_scale_its_brightest():
+    render = torch.rand(4, 5, 3, generator=torch.Generator().manual_seed(0))
+    assert torch.allclose(error_image(render, render), _colour(0.0).expand(4, 5, 3), atol=1e-6)
+    brighter = (render + ERROR_FULL_SCALE).clamp(max=2.0)
+    assert torch.allclose(error_image(render, brighter), _colour(1.0).expand(4, 5, 3), atol=1e-6)
+
+
+def test_the_error_is_averaged_over_channels_and_saturates_beyond_the_scale():
+    truth = torch.zeros(1, 4, 3)
+    render = torch.zeros(1, 4, 3)
+    render[0, 0] = torch.tensor([ERROR_FULL_SCALE * 1.5, 0.0, 0.0])  # mean: half the scale
+    render[0, 1] = ERROR_FULL_SCALE / 4  # a quarter of the scale in every channel
+    render[0, 2] = -ERROR_FULL_SCALE / 4  # the sign does not matter
+    render[0, 3] = 1.0  # far beyond the scale
+    image = error_image(render, truth)
+    for pixel, fraction in ((0, 0.5), (1, 0.25), (2, 0.25), (3, 1.0)):
+        assert torch.allclose(image[0, pixel], _colour(fraction), atol=1e-6), pixel
+
+
+def test_brightness_grows_with_the_error():
+    truth = torch.zeros(1, 11, 3)
+    render = torch.linspace(0, ERROR_FULL_SCALE, 11).view(1, 11, 1).expand(1, 11, 3)
+    luminance = error_image(render, truth)[0] @ torch.tensor([0.2126, 0.7152, 0.0722])
+    assert bool((luminance.diff() > 0).all())
+
+
+def test_images_of_other_shapes_are_refused():
+    with pytest.raises(ValueError, match=r"render \[2, 2, 3\] and truth \[2, 3, 3\] differ"):
+        error_image(torch.zeros(2, 2, 3), torch.zeros(2, 3, 3))
