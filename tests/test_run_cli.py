@@ -20,6 +20,7 @@ from fake_stages import TINY_SCENE, FakeStages
 from relaygs.app import prelaunch
 from relaygs.app.task import run_task
 from relaygs.commands import run as run_module
+from relaygs.commands.artifacts import _parser as artifacts_parser
 from relaygs.errors import RERUN_RUN, Interrupted
 from relaygs.paths import config_dir
 
@@ -227,6 +228,8 @@ def test_help_lists_examples_and_experiments_and_does_no_work(fakes, tmp_path, c
     assert shown.startswith("python -m relaygs.run: train and evaluate RelayGS")
     assert "python -m relaygs.run +experiment=ablation_k" in shown
     assert "experiment: ablation_components, ablation_k, baseline, budget, smoke" in shown
+    commands = next(a for a in artifacts_parser()._actions if a.dest == "command").choices
+    assert f"python -m relaygs.artifacts {' | '.join(commands)}\n" in shown  # every command
     assert not (tmp_path / "outputs").exists()
 
 
