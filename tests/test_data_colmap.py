@@ -433,7 +433,8 @@ def test_test_cameras_beyond_the_camera_folders_are_refused(multiview_root: Path
 
 PYCOLMAP_FIXTURE = Path(__file__).parent / "data" / "pycolmap"
 """A model written by COLMAP's own code (pycolmap 4.2.1, `tools/make_pycolmap_fixture.py`):
-rigs and frames files, tracks and keypoints included; expected.json is what pycolmap reads."""
+rigs and frames files (cam00 and cam01 on one rig), tracks and keypoints included;
+expected.json is what pycolmap reads in it."""
 
 
 def _pycolmap_expected() -> dict:
@@ -485,5 +486,6 @@ def test_a_capture_posed_by_a_model_colmap_wrote_loads_with_its_poses(tmp_path):
         np.testing.assert_allclose(camera.w2c[:3, :3].numpy(), want["rotation"], atol=1e-6)
         np.testing.assert_allclose(camera.w2c[:3, 3].numpy(), want["tvec"], atol=1e-6)
         assert (camera.width, camera.height) == (width, height)
-    xyz, _ = _sorted_points(scene.points.xyz.double().numpy(), scene.points.rgb.numpy())
+    xyz, rgb = _sorted_points(scene.points.xyz.double().numpy(), scene.points.rgb.numpy())
     np.testing.assert_allclose(xyz, expected["xyz"], atol=1e-6)
+    np.testing.assert_allclose(rgb, np.asarray(expected["rgb"]) / 255.0, atol=1e-6)

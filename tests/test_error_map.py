@@ -40,6 +40,16 @@ def test_brightness_grows_with_the_error():
     assert bool((luminance.diff() > 0).all())
 
 
+def test_a_pixel_that_is_not_a_number_shows_as_the_largest_error():
+    render = torch.zeros(1, 3, 3)
+    render[0, 1, 0] = float("nan")
+    render[0, 2] = float("inf")
+    image = error_image(render, torch.zeros(1, 3, 3))
+    assert torch.allclose(image[0, 0], _colour(0.0), atol=1e-6)
+    assert torch.allclose(image[0, 1], _colour(1.0), atol=1e-6)
+    assert torch.allclose(image[0, 2], _colour(1.0), atol=1e-6)
+
+
 def test_images_of_other_shapes_are_refused():
     with pytest.raises(ValueError, match=r"render \[2, 2, 3\] and truth \[2, 3, 3\] differ"):
         error_image(torch.zeros(2, 2, 3), torch.zeros(2, 3, 3))

@@ -426,7 +426,13 @@ def test_whole_number_columns_with_missing_rows_are_written_without_a_decimal_po
     assert lines[1].split(",")[header.index("psnr")] == "25.0"
 
 
-def test_the_title_names_the_experiment_only_when_every_job_ran_it(sweep):
-    _job(sweep, 4, "k128", 20.0, 5.0, experiment=None)  # a single run copied in beside them
+def test_the_title_names_the_experiment_only_when_every_job_ran_it(sweep, tmp_path):
+    single = {"experiment": None, "job": None}  # what a single run's result.json holds
+    _job(sweep, 4, "k128", 20.0, 5.0, **single)  # copied in beside the sweep's jobs
     report.write_reports(sweep)
     assert (sweep / "summary.md").read_text().startswith(f"# {sweep.name} on juggle")
+    runs = tmp_path / "runs"
+    for number, variant in enumerate(("k8", "k16")):
+        _job(runs, number, variant, 20.0, 5.0, **single)
+    report.write_reports(runs)
+    assert (runs / "summary.md").read_text().startswith("# runs on juggle")

@@ -1,6 +1,7 @@
 """Write tests/data/pycolmap: a sparse model written by COLMAP's own code (pycolmap), binary and
 text, and expected.json with what pycolmap reads in it, so the tests check relaygs's COLMAP
-reader against an independent writer of the current format (rigs, frames, tracks included).
+reader against an independent writer of the current format (a two-camera rig, frames, tracks
+included).
 
 pycolmap is not a relaygs dependency; run this in a virtualenv of its own:
     python3 -m venv /tmp/pycolmap && /tmp/pycolmap/bin/pip install pycolmap==4.2.1 numpy
@@ -27,26 +28,41 @@ POINTS = 6
 
 
 def build() -> pycolmap.Reconstruction:
-    """Three posed cameras (one image each, frame 0), points with two-view tracks."""
+    """Three posed cameras, one image each at frame 0: cam00 and cam01 on one rig (cam01's pose
+    is its sensor_from_rig composed with the frame's rig_from_world), cam02 alone; points with
+    two-view tracks."""
     rng = np.random.default_rng(7)
     reconstruction = pycolmap.Reconstruction()
-    for index, (camera_id, model, params) in enumerate(CAMERAS):
-        camera = pycolmap.Camera(
-            model=model, width=WIDTH, height=HEIGHT, params=params, camera_id=camera_id
-        )
-        reconstruction.add_camera_with_trivial_rig(camera)
-        wxyz = rng.normal(size=4)
-        wxyz /= np.linalg.norm(wxyz)
-        rotation = pycolmap.Rotation3d(np.array([*wxyz[1:], wxyz[0]]))  # Eigen order: x y z w
-        pose = pycolmap.Rigid3d(rotation, rng.normal(size=3))
-        keypoints = [pycolmap.Point2D(rng.uniform(0, WIDTH, size=2)) for _ in range(POINTS)]
-        image = pycolmap.Image(
+    cameras = [
+        pycolmap.Camera(model=model, width=WIDTH, height=HEIGHT, params=params, camera_id=camera_id)
+        for camera_id, model, params in CAMERAS
+    ]
+    images = [
+        pycolmap.Image(
             name=f"cam{index:02d}/frame_00000.png",
-            camera_id=camera_id,
+            camera_id=camera.camera_id,
             image_id=20 + index,
-            points2D=keypoints,
+            points2D=[pycolmap.Point2D(_keypoint(rng)) for _ in range(POINTS)],
         )
-        reconstruction.add_image_with_trivial_frame(image, pose)
+        for index, camera in enumerate(cameras)
+    ]
+    rig = pycolmap.Rig(rig_id=1)
+    rig.add_ref_sensor(cameras[0].sensor_id)
+    rig.add_sensor(cameras[1].sensor_id, _pose(rng))
+    for camera in cameras[:2]:
+        reconstruction.add_camera(camera)
+    reconstruction.add_rig(rig)
+    frame = pycolmap.Frame(frame_id=1, rig_id=rig.rig_id)
+    frame.rig_from_world = _pose(rng)
+    for image in images[:2]:
+        image.frame_id = frame.frame_id
+        frame.add_data_id(image.data_id)
+    reconstruction.add_frame(frame)
+    for image in images[:2]:
+        reconstruction.add_image(image)
+    reconstruction.register_frame(frame.frame_id)
+    reconstruction.add_camera_with_trivial_rig(cameras[2])
+    reconstruction.add_image_with_trivial_frame(images[2], _pose(rng))
     for point in range(POINTS):
         track = pycolmap.Track()
         track.add_element(20 + point % 3, point)
@@ -54,6 +70,19 @@ def build() -> pycolmap.Reconstruction:
         color = np.array([40 * point, 255 - point, 7], dtype=np.uint8)
         reconstruction.add_point3D(rng.normal(size=3), track, color)
     return reconstruction
+
+
+def _pose(rng: np.random.Generator) -> pycolmap.Rigid3d:
+    """A random rigid transform."""
+    wxyz = rng.normal(size=4)
+    wxyz /= np.linalg.norm(wxyz)
+    rotation = pycolmap.Rotation3d(np.array([*wxyz[1:], wxyz[0]]))  # Eigen order: x y z w
+    return pycolmap.Rigid3d(rotation, rng.normal(size=3))
+
+
+def _keypoint(rng: np.random.Generator) -> np.ndarray:
+    """A random pixel position inside the image."""
+    return rng.uniform((0, 0), (WIDTH, HEIGHT))
 
 
 def expected(reconstruction: pycolmap.Reconstruction) -> dict:

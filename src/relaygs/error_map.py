@@ -17,13 +17,15 @@ LEVELS = 256
 
 
 def error_image(render: torch.Tensor, truth: torch.Tensor) -> torch.Tensor:
-    """[H,W,3] float32 in [0,1]: |render − truth| averaged over channels, scaled by
-    ERROR_FULL_SCALE and coloured with COLOUR_MAP (renders and truths [H,W,3] in [0,1])."""
+    """[H,W,3] float32 in [0,1] on the render's device: |render − truth| averaged over
+    channels, scaled by ERROR_FULL_SCALE and coloured with COLOUR_MAP (renders and truths
+    [H,W,3] in [0,1]); a pixel that is not a number shows as the largest error."""
     if render.shape != truth.shape:
         raise ValueError(f"render {list(render.shape)} and truth {list(truth.shape)} differ")
-    error = (render.float() - truth.float()).abs().mean(dim=-1)
+    error = (render.float() - truth.float().to(render.device)).abs().mean(dim=-1)
+    error = torch.nan_to_num(error, nan=ERROR_FULL_SCALE)
     level = (error / ERROR_FULL_SCALE).clamp(0.0, 1.0) * (LEVELS - 1)
-    return colour_table()[level.round().long()]
+    return colour_table().to(level.device)[level.round().long()]
 
 
 @functools.cache

@@ -139,11 +139,12 @@ def write_renders(
 def _picture(render: Tensor, view: View, scene: Scene, settings: RenderSettings) -> Tensor:
     """The render, then the ground truth and the error image where the settings ask for them,
     side by side."""
-    parts = [render]
-    if settings.with_truth:
-        parts.append(scene.image(view))
+    if not (settings.with_truth or settings.with_error):
+        return render
+    truth = scene.image(view)
+    parts = [render, truth] if settings.with_truth else [render]
     if settings.with_error:
-        parts.append(error_image(render, scene.image(view)))
+        parts.append(error_image(render, truth))
     return torch.cat(parts, dim=1)
 
 
