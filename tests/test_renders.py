@@ -56,6 +56,9 @@ def test_render_writes_each_frame_beside_the_truth_and_a_video_per_camera(
         video = cv2.VideoCapture(str(out / f"cam{camera_id:02d}.mp4"))
         assert int(video.get(cv2.CAP_PROP_FRAME_COUNT)) == 3
         assert int(video.get(cv2.CAP_PROP_FRAME_WIDTH)) == 2 * scene.test_cameras[0].width
+        height = scene.test_cameras[0].height
+        assert height % 2 == 1  # odd: the video repeats the last row rather than dropping it
+        assert int(video.get(cv2.CAP_PROP_FRAME_HEIGHT)) == height + 1
     assert not list(out.glob(".*partial*"))
 
 

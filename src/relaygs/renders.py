@@ -199,6 +199,16 @@ def _written_whole(out: Path, sinks: list[_CameraSink]) -> Iterator[None]:
             sink.abandon()
 
 
+def _even_sized(pixels: np.ndarray) -> np.ndarray:
+    """The frame with its last row and column repeated where its height or width is odd: the
+    MPEG-4 encoder works on even sizes and would drop them instead."""
+    height, width = pixels.shape[:2]
+    bottom, right = height % 2, width % 2
+    if not (bottom or right):
+        return pixels
+    return cv2.copyMakeBorder(pixels, 0, bottom, 0, right, cv2.BORDER_REPLICATE)
+
+
 class _CameraSink:
     """PNG frames and an MP4 of one camera (or camera path) named `name`, the video built
     under a temporary name."""
@@ -226,7 +236,8 @@ class _CameraSink:
         if not cv2.imwrite(str(path), pixels):
             raise RelayGSError(f"cannot write {path}")
         if self.fps is not None:
-            self._video_writer(pixels).write(pixels)
+            even = _even_sized(pixels)
+            self._video_writer(even).write(even)
         self.frames.append(frame)
 
     def finish(self) -> None:
