@@ -6,6 +6,7 @@ import itertools
 import cv2
 import numpy as np
 import pytest
+import torch
 
 from relaygs.camera_path import path_cameras
 from relaygs.commands.artifacts import main
@@ -13,6 +14,7 @@ from relaygs.data import load_scene
 from relaygs.data.scene import frame_time
 from relaygs.error_map import error_image
 from relaygs.errors import InputError
+from relaygs.pipeline.keys import artifact_key
 from relaygs.renders import RenderSettings, write_renders
 from relaygs.stages.model_render import ModelRenderer
 from relaygs.stages.scene_model import SceneModel
@@ -109,10 +111,51 @@ def test_render_puts_the_error_image_last(
     assert len(np.unique(error.reshape(-1, 3), axis=0)) > 8  # the error varies over the image
 
 
+def test_render_puts_other_models_beside_with_their_error_images(
+    stored_deform, stage_scene_path, stage_deformed, stage_decoupled, tmp_path, capsys
+):
+    store, key = stored_deform
+    other = artifact_key("decouple", 1, {"steps": 2}, "juggle", [])
+    store.get_or_build("decouple", other, lambda: stage_decoupled, config={}, lineage=[])
+    out = tmp_path / "renders"
+    args = ["--beside", other[:8], "--camera", "10", "--frame-stride", "5", "--truth", "--error"]
+    code, printed, _ = _render_cli(
+        capsys, store, key, stage_scene_path, *args, "--no-video", "--out", str(out)
+    )
+    assert code == 0
+    assert f"deform {key[:16]}, decouple {other[:16]} rendered side by side into {out}" in printed
+    scene = load_scene(stage_scene_path)
+    view = next(v for v in scene.views_at(5, "all") if v.camera.camera_id == 10)
+    truth = scene.image(view)
+    renders = [
+        ModelRenderer(SceneModel.from_artifact(a)).render([view.camera], view.time)[0]
+        for a in (stage_deformed, stage_decoupled)
+    ]
+    panels = [*renders, truth, *(error_image(render, truth) for render in renders)]
+    written = cv2.imread(str(out / "cam10" / "000005.png"))
+    np.testing.assert_array_equal(written, _bgr(torch.cat(panels, dim=1)))
+    assert not np.array_equal(_bgr(renders[0]), _bgr(renders[1]))  # two models, two renders
+
+
+def test_render_path_puts_other_models_beside(
+    stored_deform, stage_scene_path, stage_deformed, tmp_path, capsys
+):
+    store, key = stored_deform
+    again = artifact_key("deform", 1, {"steps": 21}, "juggle", [])  # the same model again
+    store.get_or_build("deform", again, lambda: stage_deformed, config={}, lineage=[])
+    out = tmp_path / "renders"
+    args = ["--path", "2", "--beside", again[:8], "--no-video", "--out", str(out)]
+    assert _render_cli(capsys, store, key, stage_scene_path, *args)[0] == 0
+    view = cv2.imread(str(out / "path" / "000001.png"))
+    width = view.shape[1] // 2
+    np.testing.assert_array_equal(view[:, :width], view[:, width:])
+
+
 @pytest.mark.parametrize(
     ("args", "message"),
     [
         (["--camera", "99"], "camera 99 is not in "),
+        (["--beside", "ffff"], "no artifact with key starting 'ffff'"),
         (["--fps", "0"], "render fps: expected a positive number, got 0.0"),
         (["--frame-stride", "0"], "render frame_stride: expected an int >= 1, got 0"),
         (["--device", "mps"], "--device: expected 'cpu', 'cuda' or 'cuda:N', got 'mps'"),

@@ -110,14 +110,14 @@ def write_renders(
     out: Path,
     settings: RenderSettings,
     progress: bool = True,
+    beside: Sequence[SceneModel] = (),
 ) -> list[CameraRenders]:
-    """Render `model` from the chosen cameras at every `frame_stride`-th frame into
-    `out`/cam<ID>/<frame>.png and, with a frame rate, `out`/cam<ID>.mp4 (written beside and
-    moved in when complete, so an interrupted run leaves no truncated video); a path that
-    cannot be written is one line naming it."""
-    require_its_scene(model, scene)
+    """Render `model` (and the models `beside` it, to its right) from the chosen cameras at
+    every `frame_stride`-th frame into `out`/cam<ID>/<frame>.png and, with a frame rate,
+    `out`/cam<ID>.mp4 (written beside and moved in when complete, so an interrupted run leaves
+    no truncated video); a path that cannot be written is one line naming it."""
+    renderers = _renderers(scene, [model, *beside])
     cameras = chosen_cameras(scene, settings.camera_ids)
-    renderer = ModelRenderer(model)
     sinks = {
         camera: _CameraSink(out, f"cam{camera:02d}", settings.fps, camera) for camera in cameras
     }
@@ -129,22 +129,29 @@ def write_renders(
             views = [v for v in scene.views_at(frame, "all") if v.camera.camera_id in sinks]
             if not views:
                 continue
-            images = renderer.render([view.camera for view in views], views[0].time)
-            for view, image in zip(views, images, strict=True):
-                picture = _picture(image.cpu(), view, scene, settings)
-                sinks[view.camera.camera_id].add(frame, picture)
+            cameras_now = [view.camera for view in views]
+            per_model = [r.render(cameras_now, views[0].time) for r in renderers]
+            for index, view in enumerate(views):
+                renders = [images[index].cpu() for images in per_model]
+                sinks[view.camera.camera_id].add(frame, _picture(renders, view, scene, settings))
     return [sink.result() for sink in sinks.values()]
 
 
-def _picture(render: Tensor, view: View, scene: Scene, settings: RenderSettings) -> Tensor:
-    """The render, then the ground truth and the error image where the settings ask for them,
-    side by side."""
-    if not (settings.with_truth or settings.with_error):
-        return render
-    truth = scene.image(view)
-    parts = [render, truth] if settings.with_truth else [render]
-    if settings.with_error:
-        parts.append(error_image(render, truth))
+def _renderers(scene: Scene, models: Sequence[SceneModel]) -> list[ModelRenderer]:
+    """A renderer per model, each checked against the scene (`require_its_scene`)."""
+    for model in models:
+        require_its_scene(model, scene)
+    return [ModelRenderer(model) for model in models]
+
+
+def _picture(renders: list[Tensor], view: View, scene: Scene, settings: RenderSettings) -> Tensor:
+    """The models' renders, then the ground truth and each render's error image where the
+    settings ask for them, side by side."""
+    parts = list(renders)
+    if settings.with_truth or settings.with_error:
+        truth = scene.image(view)
+        parts += [truth] if settings.with_truth else []
+        parts += [error_image(render, truth) for render in renders] if settings.with_error else []
     return torch.cat(parts, dim=1)
 
 
@@ -154,10 +161,12 @@ def write_path_render(
     out: Path,
     settings: PathSettings,
     progress: bool = True,
+    beside: Sequence[SceneModel] = (),
 ) -> CameraRenders:
-    """Render `model` along the orbit that the chosen cameras place around the scene's centre
-    into `out`/path/<view>.png and, with a frame rate, `out`/path.mp4."""
-    require_its_scene(model, scene)
+    """Render `model` (and the models `beside` it, to its right) along the orbit that the
+    chosen cameras place around the scene's centre into `out`/path/<view>.png and, with a frame
+    rate, `out`/path.mp4."""
+    renderers = _renderers(scene, [model, *beside])
     if settings.frame is not None and not 0 <= settings.frame < scene.num_frames:
         raise InputError(
             f"render path frame {settings.frame} is not in {scene.root}: its frames are "
@@ -172,14 +181,14 @@ def write_path_render(
         times = [frame_time(settings.frame, scene.num_frames)] * settings.views
     else:
         times = [view / max(settings.views - 1, 1) for view in range(settings.views)]
-    renderer = ModelRenderer(model)
     sink = _CameraSink(out, PATH_NAME, settings.fps)
     with _written_whole(out, [sink]):
         bar = progress_bar(
             range(settings.views), desc="path", unit="view", disable=not progress, leave=False
         )
         for view in bar:
-            sink.add(view, renderer.render([path[view]], times[view])[0].cpu())
+            renders = [r.render([path[view]], times[view])[0].cpu() for r in renderers]
+            sink.add(view, torch.cat(renders, dim=1))
     return sink.result()
 
 

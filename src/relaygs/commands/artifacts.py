@@ -108,6 +108,13 @@ def _parser() -> argparse.ArgumentParser:
     render.add_argument(
         "--downscale", type=int, default=1, help="the run's scene.loader.downscale (default 1)"
     )
+    render.add_argument(
+        "--beside",
+        action="append",
+        metavar="KEY",
+        help="also render this model (trained on the same scene) to the right, e.g. a baseline "
+        "or an earlier stage; repeat for more",
+    )
     render.add_argument("--truth", action="store_true", help="put the ground truth beside")
     render.add_argument(
         "--error",
@@ -240,14 +247,18 @@ def _render(store: ArtifactStore, args: argparse.Namespace) -> int:
     settings = _render_settings(args)
     device = usable_device(args.device, "--device")
     item, artifact = _model_artifact(store, args.key)
+    others = [_model_artifact(store, key) for key in args.beside or []]
     out = _output_folder(args.out, DEFAULT_RENDERS, item)
     scene = load_scene(args.scene, downscale=args.downscale)
     model = SceneModel.from_artifact(artifact).to(device)
+    beside = [SceneModel.from_artifact(other).to(device) for _, other in others]
     if isinstance(settings, PathSettings):
-        written = [write_path_render(scene, model, out, settings)]
+        written = [write_path_render(scene, model, out, settings, beside=beside)]
     else:
-        written = write_renders(scene, model, out, settings)
-    print(f"{item.stage} {item.key[:KEY_COLUMN_WIDTH]} rendered into {out}")
+        written = write_renders(scene, model, out, settings, beside=beside)
+    entries = [item, *(entry for entry, _ in others)]
+    names = ", ".join(f"{entry.stage} {entry.key[:KEY_COLUMN_WIDTH]}" for entry in entries)
+    print(f"{names} rendered {'side by side ' if others else ''}into {out}")
     for renders in written:
         video = f", video {renders.video}" if renders.video is not None else ""
         what = "path" if renders.camera_id is None else f"camera {renders.camera_id}"
