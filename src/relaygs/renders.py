@@ -1,7 +1,7 @@
 """A stored model's renders over time, to look at what a run reconstructed: one PNG per frame
-and one MP4 per camera, optionally with the ground truth and an error image beside each
-render, or a video along
-an orbit that the scene's cameras place around its centre (views between the captured ones).
+and one MP4 per camera, optionally with other models, the ground truth and error images beside
+each render, or a video along an orbit that the scene's cameras place around its centre (views
+between the captured ones).
 
 `python -m relaygs.artifacts render KEY --scene DIR` is the command line; every stage's output
 renders (decouple and relay show their copies, deform its motion field).
@@ -39,8 +39,8 @@ FRAME_GLOB = "[0-9]" * 6 + ".png"  # the frames a render writes: <frame or view>
 @dataclass(frozen=True)
 class RenderSettings:
     """Which cameras (None: the test cameras), every `frame_stride`-th frame, the ground truth
-    beside each render or not, the videos' frame rate (None: no video) and the error image
-    (`relaygs.error_map`) beside or not."""
+    beside the renders or not, the videos' frame rate (None: no video) and each render's error
+    image (`relaygs.error_map`) beside them or not."""
 
     camera_ids: tuple[int, ...] | None = None
     frame_stride: int = 1
