@@ -229,6 +229,8 @@ def test_tensorboard_gets_stage_scalars_previews_and_hparams(base_config, tmp_pa
     tags = events.Tags()
     assert {"decouple/loss", "relay/loss", "deform/loss", "result/psnr"} <= set(tags["scalars"])
     assert "eval/render_vs_truth" in tags["images"]
+    (preview, *_) = events.Images("eval/render_vs_truth")
+    assert (preview.width, preview.height) == (3 * 16, 9)  # render, truth, error of 16×9 views
     assert "deform/render" in tags["images"]
     plugins = events.PluginTagToContent("hparams")
     assert "_hparams_/experiment" in plugins and "_hparams_/session_start_info" in plugins

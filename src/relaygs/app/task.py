@@ -214,7 +214,8 @@ def _log_previews(
     log: TensorBoardLog, suite: StageSuite, scene: Any, model: Artifact, count: int
 ) -> None:
     """Render the first test camera at `count` frames spread over the sequence, each beside
-    its ground-truth image (TensorBoard tag `eval/render_vs_truth`, step = frame)."""
+    its ground-truth image and error image (TensorBoard tag `eval/render_vs_truth`, step =
+    frame)."""
     first_views = scene.views_at(0, "test")
     if count <= 0 or not first_views:
         return

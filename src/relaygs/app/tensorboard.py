@@ -18,6 +18,7 @@ import torch
 from torch.utils.tensorboard import SummaryWriter
 from torch.utils.tensorboard.summary import hparams
 
+from relaygs.error_map import error_image
 from relaygs.errors import RERUN_RUN, ResourceError
 
 HParamValue = bool | int | float | str
@@ -77,8 +78,10 @@ class TensorBoardLog:
     def add_comparison(
         self, tag: str, render: torch.Tensor, truth: torch.Tensor, step: int
     ) -> None:
-        """Log a render and its ground truth side by side (render left)."""
-        self.add_image(tag, torch.cat([render.detach().cpu(), truth.detach().cpu()], dim=1), step)
+        """Log a render, its ground truth and the render's error image (`error_image`) side by
+        side, in that order."""
+        render, truth = render.detach().float().cpu(), truth.detach().float().cpu()
+        self.add_image(tag, torch.cat([render, truth, error_image(render, truth)], dim=1), step)
 
     def add_hparams(
         self, params: Mapping[str, HParamValue], metrics: Mapping[str, float | None]
