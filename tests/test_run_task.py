@@ -281,7 +281,7 @@ def test_the_suites_upstream_types_are_checked_before_any_stage_runs(base_config
 def test_the_printed_render_command_keeps_the_scenes_downscale(base_config, tmp_path, capsys):
     _run(_with(base_config, scene__loader__downscale=2), tmp_path / "run", FakeStages())
     videos = next(line for line in capsys.readouterr().out.splitlines() if "videos" in line)
-    assert videos.endswith(" --downscale 2 --truth")
+    assert videos.endswith(" --downscale 2 --truth --error")
 
 
 def test_bad_values_fail_before_any_stage_runs(base_config, tmp_path):

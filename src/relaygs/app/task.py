@@ -250,6 +250,6 @@ def _where(plan: RunPlan, outcome: _Outcome, result_path: Path) -> str:
         f"  store        {plan.artifacts_root}  (python -m relaygs.artifacts --root ... ls)",
         f"  ply          python -m relaygs.artifacts --root {root} ply {output.key[:16]}",
         f"  videos       python -m relaygs.artifacts --root {root} render "
-        f"{output.key[:16]} --scene {scene_dir}{downscale} --truth",
+        f"{output.key[:16]} --scene {scene_dir}{downscale} --truth --error",
     ]
     return "\n".join(lines)
