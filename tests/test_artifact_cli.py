@@ -365,6 +365,51 @@ def test_eval_refuses_a_scene_with_other_train_cameras(
     assert f"the model was trained on 3 train cameras but {stage_scene_path} has 27" in err
 
 
+def _model_held_out(stage_decoupled, held_out):
+    """The decouple model as deform would store it after training on every camera of the
+    stage scene but `held_out` (its colour affine is fit to those train cameras)."""
+    from relaygs.field import ColorAffine
+    from relaygs.stages.scene_model import SceneModel
+
+    model = SceneModel.from_artifact(stage_decoupled)
+    model.affine_cameras = [camera for camera in range(31) if camera not in held_out]
+    model.affine = ColorAffine(len(model.affine_cameras))
+    return model.to_artifact({})
+
+
+def test_eval_and_render_take_the_runs_test_cameras(
+    stage_decoupled, stage_scene_path, tmp_path, capsys
+):
+    from relaygs.data import load_scene
+    from relaygs.stages import evaluate
+
+    artifact = _model_held_out(stage_decoupled, [1, 5])
+    store, key = _store_model(tmp_path, artifact)
+    scene = ("--scene", str(stage_scene_path))
+    code, out, err = _cli(capsys, store.root, "eval", key[:8], *scene)
+    assert code == 1 and out == "" and err.count("\n") == 1
+    assert "it held out cameras [1, 5]" in err and "--test-cameras 1,5)" in err
+    code, out, err = _cli(capsys, store.root, "eval", key[:8], *scene, "--test-cameras", "1,5")
+    assert code == 0, err
+    assert f"on {stage_scene_path} (test cameras 1, 5)" in out.splitlines()[0]
+    expected = evaluate(load_scene(stage_scene_path, test_cameras=[1, 5]), artifact, {})
+    assert f"psnr            {expected['psnr']:.4f}" in out
+    out_dir = tmp_path / "renders"
+    render = ("render", key[:8], *scene, "--frame-stride", "8", "--no-video", "--out")
+    code, out, err = _cli(capsys, store.root, *render, str(out_dir), "--test-cameras", "[1, 5]")
+    assert code == 0, err
+    assert sorted(path.name for path in out_dir.iterdir()) == ["cam01", "cam05"]
+
+
+@pytest.mark.parametrize("given", ["1,x", "-1", "1;5", "1,,5", "²"])
+def test_test_cameras_that_are_not_ids_are_a_usage_error(capsys, given, tmp_path):
+    with pytest.raises(SystemExit) as caught:
+        main(["eval", KEY_A[:8], "--scene", str(tmp_path), "--test-cameras", given])
+    out, err = capsys.readouterr()
+    assert caught.value.code == 2 and out == "" and err.count("\n") == 1
+    assert "argument --test-cameras: expected camera ids separated by commas" in err
+
+
 @pytest.mark.parametrize(
     ("error", "message"),
     [

@@ -284,6 +284,15 @@ def test_the_printed_render_command_keeps_the_scenes_downscale(base_config, tmp_
     assert videos.endswith(" --downscale 2 --truth --error")
 
 
+@pytest.mark.parametrize(("held_out", "printed"), [([4, 1], "1,4"), ([], "'[]'")])
+def test_the_printed_render_command_keeps_the_runs_test_cameras(
+    base_config, tmp_path, capsys, held_out, printed
+):
+    _run(_with(base_config, scene__loader__test_cameras=held_out), tmp_path / "run", FakeStages())
+    videos = next(line for line in capsys.readouterr().out.splitlines() if "videos" in line)
+    assert videos.endswith(f" --test-cameras {printed} --truth --error")
+
+
 def test_bad_values_fail_before_any_stage_runs(base_config, tmp_path):
     fakes = FakeStages()
     for config, fragment in [

@@ -69,6 +69,20 @@ def int_at_least(minimum: int) -> Callable[[str], int]:
     return parse
 
 
+def camera_ids(text: str) -> tuple[int, ...]:
+    """argparse type of a list of camera ids, `1,5` (a pasted Hydra list `[1,5]` too; `[]` for
+    none), as the `scene.loader.test_cameras` a run was given."""
+    inner = text.strip().removeprefix("[").removesuffix("]").strip()
+    if not inner:
+        return ()
+    items = [item.strip() for item in inner.split(",")]
+    if not all(item.isascii() and item.isdecimal() for item in items):
+        raise argparse.ArgumentTypeError(
+            f"expected camera ids separated by commas, e.g. 0,10, got {text!r}"
+        )
+    return tuple(int(item) for item in items)
+
+
 def writable_file(value: str) -> Path:
     """argparse type of an output file option: a path that can be written once the command's
     work is done, checked before it starts (so minutes of work are not lost to a bad path)."""

@@ -239,7 +239,10 @@ def _where(plan: RunPlan, outcome: _Outcome, result_path: Path) -> str:
     pastes as one argument)."""
     output = outcome.run.reports[-1]
     scene = outcome.scene
-    downscale = f" --downscale {scene.downscale}" if scene.downscale != 1 else ""
+    loader = f" --downscale {scene.downscale}" if scene.downscale != 1 else ""
+    if plan.scene.loader.get("test_cameras") is not None:
+        ids = ",".join(str(camera.camera_id) for camera in scene.test_cameras) or "[]"
+        loader += f" --test-cameras {shlex.quote(ids)}"
     root, scene_dir = shlex.quote(str(plan.artifacts_root)), shlex.quote(str(scene.root))
     lines = [
         "outputs:",
@@ -250,6 +253,6 @@ def _where(plan: RunPlan, outcome: _Outcome, result_path: Path) -> str:
         f"  store        {plan.artifacts_root}  (python -m relaygs.artifacts --root ... ls)",
         f"  ply          python -m relaygs.artifacts --root {root} ply {output.key[:16]}",
         f"  videos       python -m relaygs.artifacts --root {root} render "
-        f"{output.key[:16]} --scene {scene_dir}{downscale} --truth --error",
+        f"{output.key[:16]} --scene {scene_dir}{loader} --truth --error",
     ]
     return "\n".join(lines)

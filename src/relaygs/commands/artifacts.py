@@ -14,8 +14,8 @@ from pathlib import Path
 from safetensors import SafetensorError, safe_open
 
 from relaygs.app.evaluation import EVAL_STAGE
-from relaygs.cli import OneLineErrorParser, writable_file
-from relaygs.data import load_scene
+from relaygs.cli import OneLineErrorParser, camera_ids, writable_file
+from relaygs.data import Scene, load_scene
 from relaygs.device import usable_device
 from relaygs.errors import RERUN_COMMAND, RelayGSError, resource_error
 from relaygs.paths import require_creatable_folder
@@ -71,14 +71,9 @@ def _parser() -> argparse.ArgumentParser:
         "eval", help="score one artifact's model on a scene's test views (any stage's output)"
     )
     score.add_argument("key", help="full key or a unique prefix (at least 4 hex digits)")
-    score.add_argument(
-        "--scene", type=Path, required=True, help="the scene folder it was trained on"
-    )
+    _add_scene_arguments(score)
     score.add_argument(
         "--frame-stride", type=int, default=1, metavar="N", help="score every N-th frame"
-    )
-    score.add_argument(
-        "--downscale", type=int, default=1, help="the run's scene.loader.downscale (default 1)"
     )
     score.add_argument(
         "--per-view",
@@ -92,9 +87,7 @@ def _parser() -> argparse.ArgumentParser:
         help="render one artifact's model over time: a PNG per frame and an MP4 per camera",
     )
     render.add_argument("key", help="full key or a unique prefix (at least 4 hex digits)")
-    render.add_argument(
-        "--scene", type=Path, required=True, help="the scene folder it was trained on"
-    )
+    _add_scene_arguments(render)
     render.add_argument(
         "--camera",
         type=int,
@@ -104,9 +97,6 @@ def _parser() -> argparse.ArgumentParser:
     )
     render.add_argument(
         "--frame-stride", type=int, default=1, metavar="N", help="render every N-th frame"
-    )
-    render.add_argument(
-        "--downscale", type=int, default=1, help="the run's scene.loader.downscale (default 1)"
     )
     render.add_argument(
         "--beside",
@@ -171,6 +161,27 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _add_scene_arguments(parser: argparse.ArgumentParser) -> None:
+    """`--scene` and the loader options that decide its views as the run loaded them."""
+    parser.add_argument(
+        "--scene", type=Path, required=True, help="the scene folder it was trained on"
+    )
+    parser.add_argument(
+        "--downscale", type=int, default=1, help="the run's scene.loader.downscale (default 1)"
+    )
+    parser.add_argument(
+        "--test-cameras",
+        type=camera_ids,
+        metavar="IDS",
+        help="the run's scene.loader.test_cameras, e.g. 1,5 (default: the scene's own)",
+    )
+
+
+def _load_scene(args: argparse.Namespace) -> Scene:
+    """The `--scene` folder loaded with the run's loader options (`_add_scene_arguments`)."""
+    return load_scene(args.scene, downscale=args.downscale, test_cameras=args.test_cameras)
+
+
 def _ls(store: ArtifactStore, args: argparse.Namespace) -> int:
     """One line per finished artifact: stage, key, size, build seconds, created, upstream."""
     items = store.list()
@@ -226,10 +237,11 @@ def _eval(store: ArtifactStore, args: argparse.Namespace) -> int:
     to see what each stage of a lineage contributes."""
     _require_stride(args.frame_stride)
     item, artifact = _model_artifact(store, args.key)
-    scene = load_scene(args.scene, downscale=args.downscale)
+    scene = _load_scene(args)
     metrics = evaluate(scene, artifact, {"eval": {"frame_stride": args.frame_stride}})
     metrics["storage_mb"] = item.manifest.size_mb  # as a run's result.json reports it
-    print(f"{item.stage} {item.key[:KEY_COLUMN_WIDTH]} on {args.scene}")
+    tests = ", ".join(str(camera.camera_id) for camera in scene.test_cameras) or "none"
+    print(f"{item.stage} {item.key[:KEY_COLUMN_WIDTH]} on {args.scene} (test cameras {tests})")
     for name, value in metrics.items():
         if isinstance(value, float):
             print(f"  {name:<16}{value:.4f}")
@@ -249,7 +261,7 @@ def _render(store: ArtifactStore, args: argparse.Namespace) -> int:
     item, artifact = _model_artifact(store, args.key)
     others = [_model_artifact(store, key) for key in args.beside or []]
     out = _output_folder(args.out, DEFAULT_RENDERS, item)
-    scene = load_scene(args.scene, downscale=args.downscale)
+    scene = _load_scene(args)
     model = SceneModel.from_artifact(artifact).to(device)
     beside = [SceneModel.from_artifact(other).to(device) for _, other in others]
     if isinstance(settings, PathSettings):

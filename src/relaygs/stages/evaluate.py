@@ -111,8 +111,22 @@ def require_its_scene(model: SceneModel, scene: Scene) -> None:
         which = " different ones" if len(trained) == len(train_cameras) else ""
         raise InputError(
             f"the model was trained on {len(trained)} train cameras but {scene.root} has "
-            f"{len(train_cameras)}{which}: use the scene it was trained on"
+            f"{len(train_cameras)}{which}: {_held_out_hint(trained, scene)}"
         )
+
+
+def _held_out_hint(trained: list[int], scene: Scene) -> str:
+    """What to load instead: the scene with the cameras the model did not train on as its test
+    cameras, when it has every camera the model trained on."""
+    cameras = {view.camera.camera_id for view in scene.train_views + scene.test_views}
+    if not set(trained) <= cameras:
+        return "use the scene it was trained on"
+    held_out = sorted(cameras - set(trained))
+    ids = ",".join(map(str, held_out)) or "[]"
+    return (
+        f"it held out cameras {held_out}, so load the scene with those as its test cameras "
+        f"(the run's scene.loader.test_cameras; --test-cameras {ids})"
+    )
 
 
 def _mean(records: list[ViewRecord], name: str) -> float | None:
