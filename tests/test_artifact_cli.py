@@ -401,6 +401,33 @@ def test_eval_and_render_take_the_runs_test_cameras(
     assert sorted(path.name for path in out_dir.iterdir()) == ["cam01", "cam05"]
 
 
+def test_eval_and_render_note_a_scene_loaded_otherwise_than_for_training(
+    stage_decoupled, stage_scene_path, tmp_path, capsys
+):
+    from relaygs.data import load_scene
+
+    store = ArtifactStore(tmp_path / "store")
+    key = artifact_key("decouple", 1, {"steps": 2}, "juggle", [])
+    trained_on = load_scene(stage_scene_path, test_cameras=[1, 5]).fingerprint
+    store.get_or_build(
+        "decouple",
+        key,
+        lambda: stage_decoupled,
+        config={},
+        lineage=[],
+        provenance={"scene": trained_on},
+    )
+    scene = ("--scene", str(stage_scene_path), "--frame-stride", "8")
+    code, _, err = _cli(capsys, store.root, "eval", key[:8], *scene, "--test-cameras", "1,5")
+    assert code == 0 and err == ""
+    code, _, err = _cli(capsys, store.root, "eval", key[:8], *scene)
+    assert code == 0 and err.count("\n") == 1
+    assert err.startswith(f"note: decouple {key[:16]} was not trained on {stage_scene_path} as")
+    render = ("render", key[:8], *scene, "--no-video", "--camera", "3")
+    code, _, err = _cli(capsys, store.root, *render, "--out", str(tmp_path / "r"))
+    assert code == 0 and err.rsplit("\r", 1)[-1].startswith(f"note: decouple {key[:16]} was")
+
+
 @pytest.mark.parametrize("given", ["1,x", "-1", "1;5", "1,,5", "²"])
 def test_test_cameras_that_are_not_ids_are_a_usage_error(capsys, given, tmp_path):
     with pytest.raises(SystemExit) as caught:

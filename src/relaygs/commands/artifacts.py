@@ -250,6 +250,7 @@ def _eval(store: ArtifactStore, args: argparse.Namespace) -> int:
     if args.per_view is not None:
         written = write_per_view(args.per_view, metrics[PER_VIEW])
         print(f"  per-view metrics of {len(metrics[PER_VIEW])} image(s) in {written}")
+    _note_other_scene([item], scene)
     return 0
 
 
@@ -275,7 +276,23 @@ def _render(store: ArtifactStore, args: argparse.Namespace) -> int:
         video = f", video {renders.video}" if renders.video is not None else ""
         what = "path" if renders.camera_id is None else f"camera {renders.camera_id}"
         print(f"  {what}: {len(renders.frames)} frame(s) in {renders.folder}{video}")
+    _note_other_scene(entries, scene)
     return 0
+
+
+def _note_other_scene(items: Sequence[StoredArtifact], scene: Scene) -> None:
+    """A stderr note for each model whose lineage trained on this scene loaded otherwise (its
+    fingerprint differs): then the test views may include views the model trained on."""
+    for item in items:
+        trained_on = item.manifest.provenance.get("scene")
+        if trained_on is not None and trained_on != scene.fingerprint:
+            print(
+                f"note: {item.stage} {item.key[:KEY_COLUMN_WIDTH]} was not trained on "
+                f"{scene.root} as loaded here (its files or loader options differ: --downscale, "
+                "--test-cameras, or the run's max_points or effects), so the test views may "
+                "include views it trained on",
+                file=sys.stderr,
+            )
 
 
 def _render_settings(args: argparse.Namespace) -> RenderSettings | PathSettings:
