@@ -85,8 +85,21 @@ def test_when_no_job_is_the_reference_the_report_says_why_delta_is_missing(tmp_p
     _job(tmp_path, 1, "k32", 24.0, 30.0)
     assert report.main([str(tmp_path)]) == 0
     line = "Δ PSNR is n/a against the reference variant 'k16' (report.reference): no job is"
-    assert f"{line} that variant; this sweep's variants are k8, k32" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert f"{line} that variant; this sweep's variants are k8, k32" in out
+    assert out.count(line) == 1  # printed with the table, not again below it
     assert line in (tmp_path / "summary.md").read_text()
+
+
+def test_the_cli_prints_the_table_then_where_the_files_are(sweep, capsys):
+    assert report.main([str(sweep)]) == 0
+    out = capsys.readouterr().out
+    table, files = out.split("\nsummary of 4 job(s):\n")
+    assert table.rstrip("\n") == (sweep / "summary.md").read_text().rstrip("\n")
+    assert "| k32 | 24.50 | -1.50 | n/a | 0.8000 |" in table
+    assert files.split() == [
+        str(sweep / name) for name in ("summary.md", "summary.csv", "pareto.png")
+    ]
 
 
 def test_no_absent_reference_line_when_the_reference_ran(sweep, capsys):

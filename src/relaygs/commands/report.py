@@ -19,7 +19,6 @@ from relaygs.app.pareto import plot_pareto
 from relaygs.app.result import RESULT_FILE
 from relaygs.app.summary import (
     FailedJob,
-    absent_reference_line,
     collect_results,
     failed_jobs,
     is_number,
@@ -46,8 +45,7 @@ class ReportFiles:
     """The files a report wrote (`pareto` is None when no job has both PSNR and a time,
     `frames` when no job has per-view metrics) and the failed jobs (each with its
     `job <n> (<variant>): <error>` line); `mean` and `budget` are written only for sweeps that
-    repeat seeds or vary the step multiplier; `absent_reference` says why Δ PSNR is n/a when no
-    job is the reference variant."""
+    repeat seeds or vary the step multiplier."""
 
     csv: Path
     markdown: Path
@@ -56,7 +54,6 @@ class ReportFiles:
     failed: tuple[FailedJob, ...]
     mean: Path | None = None
     budget: Path | None = None
-    absent_reference: str | None = None
     frames: Path | None = None
 
 
@@ -110,10 +107,7 @@ def _write_files(table: pd.DataFrame, sweep_dir: Path) -> ReportFiles:
     mean = _write_mean(table, sweep_dir, title)
     budget = _write_budget(table, sweep_dir, title)
     failed = tuple(failed_jobs(table))
-    absent = absent_reference_line(table)
-    return ReportFiles(
-        csv_path, markdown_path, pareto, len(table), failed, mean, budget, absent, frames
-    )
+    return ReportFiles(csv_path, markdown_path, pareto, len(table), failed, mean, budget, frames)
 
 
 def _write_mean(table: pd.DataFrame, sweep_dir: Path, title: str) -> Path | None:
@@ -160,14 +154,13 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def describe(files: ReportFiles) -> str:
-    """Where a report's files are, one per line, then why Δ PSNR is n/a (if it is) and the
-    failed jobs."""
-    lines = [f"summary of {files.jobs} job(s):", f"  {files.markdown}", f"  {files.csv}"]
+    """The summary table as written to `summary.md` (with its sharing line and why Δ PSNR is
+    n/a, if it is), where the report's files are, one per line, and the failed jobs."""
+    table = files.markdown.read_text(encoding="utf-8").rstrip("\n")
+    lines = [table, "", f"summary of {files.jobs} job(s):", f"  {files.markdown}", f"  {files.csv}"]
     for extra in (files.pareto, files.frames, files.mean, files.budget):
         if extra is not None:
             lines.append(f"  {extra}")
-    if files.absent_reference:
-        lines.append(files.absent_reference)
     if files.failed:
         lines.append(f"{len(files.failed)} of {files.jobs} job(s) failed:")
         lines += [f"  {job.line}" for job in files.failed]
