@@ -8,6 +8,7 @@ COMMANDS = (
     ("report", "rebuild a sweep's summary tables and Pareto plot from its result.json files"),
     ("artifacts", "inspect, score, render, export, verify and clean the artifact store"),
     ("synth", "write a synthetic multi-view video scene"),
+    ("frames", "turn one video per camera into a multi-view scene's frame folders"),
     ("bench", "splatting, training-step and sweep benchmarks"),
 )
 

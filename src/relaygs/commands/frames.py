@@ -1,0 +1,104 @@
+"""`python -m relaygs.frames VIDEOS_DIR OUT_DIR`: turn one video per camera into the multi-view
+layout's camXX/frame_XXXXX images, ready for COLMAP and `relaygs.run scene.path=OUT_DIR`."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import shlex
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+from relaygs.cli import OneLineErrorParser, int_at_least
+from relaygs.data.video_frames import (
+    COLMAP_LIST,
+    FRAME_FORMATS,
+    ExtractedScene,
+    FrameSelection,
+    camera_videos,
+    extract_frames,
+)
+from relaygs.errors import RERUN_COMMAND, RelayGSError, resource_error
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of the frames command."""
+    parser = OneLineErrorParser(prog="python -m relaygs.frames", description=__doc__)
+    parser.add_argument("videos_dir", type=Path, help="folder holding one video per camera")
+    parser.add_argument("out_dir", type=Path, help="new (or empty) scene folder to write")
+    parser.add_argument(
+        "--start", type=int_at_least(0), default=0, help="first source frame (default 0)"
+    )
+    parser.add_argument(
+        "--stride", type=int_at_least(1), default=1, help="keep every N-th frame (default 1)"
+    )
+    parser.add_argument(
+        "--frames", type=int_at_least(1), help="keep at most T frames (default: all)"
+    )
+    parser.add_argument(
+        "--format", choices=FRAME_FORMATS, default="jpg", help="image format (default jpg)"
+    )
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command; 0 on success, 1 with one line on stderr on bad input or a full disk."""
+    args = build_parser().parse_args(argv)
+    # FFmpeg's own log lines ("moov atom not found") would come before ours, which names the file
+    os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
+    started = time.perf_counter()
+    try:
+        videos = camera_videos(args.videos_dir)
+        selection = FrameSelection(args.start, args.stride, args.frames)
+        scene = extract_frames(videos, args.out_dir, selection, args.format)
+    except RelayGSError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 1
+    except OSError as error:  # a full or read-only disk: one line; other OSErrors are bugs
+        failure = resource_error(error, rerun=RERUN_COMMAND)
+        if failure is None:
+            raise
+        print(f"error: {failure}", file=sys.stderr)
+        return 1
+    print(describe(scene, time.perf_counter() - started))
+    return 0
+
+
+def describe(scene: ExtractedScene, seconds: float) -> str:
+    """What was written, where each camera came from, and the commands that pose and train it."""
+    rate = f" at {scene.fps:.4g} fps" if scene.fps is not None else ""
+    lines = [
+        f"wrote {scene.frames} frame(s){rate} of {len(scene.sources)} camera(s) into "
+        f"{scene.folder} in {seconds:.1f} s"
+    ]
+    lines += [f"  {name}  {video}" for name, video in scene.sources.items()]
+    longer = [name for name, count in scene.selected.items() if count > scene.frames]
+    if longer:
+        lines.append(
+            f"note: {', '.join(longer)} had more frames; every camera keeps the shortest "
+            f"video's {scene.frames}"
+        )
+    out = shlex.quote(str(scene.folder))
+    lines += [
+        f"next, pose the cameras with COLMAP from their first frames ({COLMAP_LIST}):",
+        f"  colmap feature_extractor --database_path {out}/colmap.db --image_path {out} "
+        f"--image_list_path {out}/{COLMAP_LIST} --ImageReader.camera_model PINHOLE",
+        f"  colmap exhaustive_matcher --database_path {out}/colmap.db",
+        f"  mkdir -p {out}/sparse && colmap mapper --database_path {out}/colmap.db "
+        f"--image_path {out} --output_path {out}/sparse",
+        f"then train: python -m relaygs.run {scene_override(scene.folder)}",
+    ]
+    return "\n".join(lines)
+
+
+def scene_override(folder: Path) -> str:
+    """`scene.path=FOLDER` as one shell word that Hydra reads back: a path with characters
+    beyond letters, digits and `_/.-` goes inside Hydra's double quotes (a `"` in it as `\\"`)."""
+    text = str(folder)
+    if re.fullmatch(r"[A-Za-z0-9_/.\-]+", text):
+        return f"scene.path={text}"
+    escaped = text.replace('"', '\\"')
+    return shlex.quote(f'scene.path="{escaped}"')

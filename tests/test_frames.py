@@ -1,0 +1,170 @@
+"""`python -m relaygs.frames`: one video per camera → the multi-view layout's frame folders."""
+
+import json
+import shlex
+import shutil
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from hydra.core.override_parser.overrides_parser import OverridesParser
+
+from relaygs.commands import frames as frames_command
+from relaygs.data import load_scene
+from relaygs.data import video_frames as video_frames_module
+from relaygs.data.export import export_multiview
+from relaygs.data.synthetic import generate
+from relaygs.data.video_frames import FrameSelection
+
+
+def _video(path: Path, images: list[np.ndarray], fps: float = 30.0) -> Path:
+    height, width = images[0].shape[:2]
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, (width, height))
+    for image in images:
+        writer.write(image)
+    writer.release()
+    return path
+
+
+def _grey_video(path: Path, count: int) -> Path:
+    """A 32×18 video whose frame i is flat grey 20·i (told apart after lossy coding)."""
+    return _video(path, [np.full((18, 32, 3), 20 * i, np.uint8) for i in range(count)])
+
+
+def _decoded(path: Path) -> list[np.ndarray]:
+    capture = cv2.VideoCapture(str(path))
+    frames = []
+    while True:
+        ok, image = capture.read()
+        if not ok:
+            return frames
+        frames.append(image)
+
+
+def _main(capsys, *argv):
+    code = frames_command.main([str(arg) for arg in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.fixture
+def videos(tmp_path):
+    folder = tmp_path / "videos"
+    folder.mkdir()
+    for name, count in (("side_2.mp4", 9), ("side_10.mp4", 8), ("side_1.MP4", 10)):
+        _grey_video(folder / name, count)
+    (folder / "notes.txt").write_text("not a video")
+    return folder
+
+
+def test_frames_are_written_in_natural_order_cut_to_the_shortest_video(videos, tmp_path, capsys):
+    out = tmp_path / "scene"
+    code, printed, err = _main(capsys, videos, out, "--start", 1, "--stride", 2, "--format", "png")
+    assert code == 0, err
+    sources = {"cam00": "side_1.MP4", "cam01": "side_2.mp4", "cam02": "side_10.mp4"}
+    # source frames 1, 3, 5, 7 exist in every video (the shortest has 8), 9 only in side_1
+    for camera, source in sources.items():
+        written = sorted(path.name for path in (out / camera).iterdir())
+        assert written == [f"frame_{n:05d}.png" for n in range(4)]
+        expected = _decoded(videos / source)[1::2][:4]
+        for number, image in enumerate(expected):
+            assert np.array_equal(cv2.imread(str(out / camera / f"frame_{number:05d}.png")), image)
+    listing = json.loads((out / "frames.json").read_text())
+    assert listing["sources"] == {name: str(videos / video) for name, video in sources.items()}
+    assert (listing["frames"], listing["start"], listing["stride"], listing["fps"]) == (4, 1, 2, 15)
+    first = (out / "colmap_images.txt").read_text().split()
+    assert first == [f"{camera}/frame_00000.png" for camera in sources]
+    assert printed.startswith(f"wrote 4 frame(s) at 15 fps of 3 camera(s) into {out}")
+    assert "note: cam00 had more frames; every camera keeps the shortest video's 4" in (printed)
+    assert f"then train: python -m relaygs.run scene.path={out}\n" in printed + "\n"
+
+
+def test_frames_stop_at_the_count_asked_for(videos, tmp_path, capsys):
+    out = tmp_path / "scene"
+    assert _main(capsys, videos, out, "--frames", 3)[0] == 0
+    assert sorted(path.name for path in (out / "cam02").iterdir()) == [
+        f"frame_{n:05d}.jpg" for n in range(3)
+    ]
+    assert "had more frames" not in capsys.readouterr().out
+
+
+def test_the_written_folder_loads_as_a_multiview_scene_once_posed(tmp_path, capsys):
+    synthetic = load_scene(generate("juggle", tmp_path / "synth", frames=3, width=32, height=18))
+    exported = export_multiview(synthetic, tmp_path / "exported")
+    videos = tmp_path / "videos"
+    videos.mkdir()
+    for camera in sorted(exported.glob("cam*")):
+        frames = [cv2.imread(str(path)) for path in sorted(camera.iterdir())]
+        _video(videos / f"{camera.name}.mp4", frames)
+    out = tmp_path / "from_videos"
+    assert _main(capsys, videos, out, "--format", "png")[0] == 0
+    shutil.copytree(exported / "sparse", out / "sparse")  # the pose COLMAP would find
+    scene = load_scene(out)
+    assert scene.num_frames == 3
+    assert len(scene.train_views) + len(scene.test_views) == 3 * 31
+    view = scene.test_views[0]
+    truth = synthetic.image(next(v for v in synthetic.test_views if v.frame == view.frame))
+    assert float((scene.image(view) - truth).abs().mean()) < 0.05  # the video codec's loss only
+
+
+@pytest.mark.parametrize(
+    ("prepare", "message"),
+    [
+        (lambda videos, out: shutil.rmtree(videos) or videos.mkdir(), "no videos (.mp4"),
+        (lambda videos, out: (videos / "cam_3.mp4").write_bytes(b"\0" * 64), "cam_3.mp4: cannot"),
+        (lambda videos, out: out.mkdir() or (out / "keep.txt").write_text("x"), "not empty"),
+    ],
+    ids=["no-videos", "not-a-video", "out-not-empty"],
+)
+def test_bad_input_is_one_line_and_leaves_nothing_behind(
+    videos, tmp_path, capsys, prepare, message
+):
+    out = tmp_path / "scene"
+    prepare(videos, out)
+    code, printed, err = _main(capsys, videos, out)
+    assert code == 1 and printed == ""
+    assert err.rsplit("\r", 1)[-1].startswith("error: ") and message in err
+    assert sorted(path.name for path in tmp_path.iterdir()) == sorted(
+        ["videos", *(["scene"] if message == "not empty" else [])]
+    )
+
+
+def test_an_interrupted_extraction_leaves_no_partial_scene(videos, tmp_path, monkeypatch):
+    written = []
+
+    def write_then_stop(path, image):
+        written.append(path)
+        if len(written) == 5:
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(video_frames_module, "_write_image", write_then_stop)
+    with pytest.raises(KeyboardInterrupt):
+        frames_command.main([str(videos), str(tmp_path / "scene")])
+    assert sorted(path.name for path in tmp_path.iterdir()) == ["videos"]
+
+
+@pytest.mark.parametrize("argv", [["--stride", "0"], ["--start", "-1"], ["--format", "gif"]])
+def test_bad_options_are_usage_errors(videos, tmp_path, capsys, argv):
+    with pytest.raises(SystemExit) as stopped:
+        frames_command.main([str(videos), str(tmp_path / "scene"), *argv])
+    err = capsys.readouterr().err
+    assert stopped.value.code == 2 and err.startswith("error: ") and err.count("\n") == 1
+
+
+def test_a_selection_past_every_frame_names_the_video(videos, tmp_path, capsys):
+    code, _, err = _main(capsys, videos, tmp_path / "scene", "--start", 50)
+    assert code == 1 and "side_1.MP4: no frame to write (decoded none at or after frame 50)" in err
+
+
+def test_frame_selection_refuses_impossible_values():
+    with pytest.raises(ValueError, match="stride 0"):
+        FrameSelection(stride=0)
+
+
+@pytest.mark.parametrize("name", ["scene", "my scene", "scène", 'odd"name'])
+def test_the_printed_run_override_reads_back_as_the_folder(tmp_path, name):
+    folder = tmp_path / name
+    (word,) = shlex.split(frames_command.scene_override(folder))
+    override = OverridesParser.create().parse_override(word)
+    assert override.key_or_group == "scene.path" and override.value() == str(folder)
