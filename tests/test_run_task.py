@@ -284,6 +284,12 @@ def test_the_printed_render_command_keeps_the_scenes_downscale(base_config, tmp_
     assert videos.endswith(" --downscale 2 --truth --error")
 
 
+def test_the_printed_render_command_renders_where_the_run_trained(base_config, tmp_path, capsys):
+    _run(_with(base_config, train__device="cuda:1"), tmp_path / "run", FakeStages())
+    videos = next(line for line in capsys.readouterr().out.splitlines() if "videos" in line)
+    assert videos.endswith(" --truth --error --device cuda:1")
+
+
 @pytest.mark.parametrize(("held_out", "printed"), [([4, 1], "1,4"), ([], "'[]'")])
 def test_the_printed_render_command_keeps_the_runs_test_cameras(
     base_config, tmp_path, capsys, held_out, printed

@@ -243,6 +243,7 @@ def _where(plan: RunPlan, outcome: _Outcome, result_path: Path) -> str:
     if plan.scene.loader.get("test_cameras") is not None:
         ids = ",".join(str(camera.camera_id) for camera in scene.test_cameras) or "[]"
         loader += f" --test-cameras {shlex.quote(ids)}"
+    device = f" --device {shlex.quote(plan.device)}" if plan.device != "cpu" else ""
     root, scene_dir = shlex.quote(str(plan.artifacts_root)), shlex.quote(str(scene.root))
     lines = [
         "outputs:",
@@ -253,6 +254,6 @@ def _where(plan: RunPlan, outcome: _Outcome, result_path: Path) -> str:
         f"  store        {plan.artifacts_root}  (python -m relaygs.artifacts --root ... ls)",
         f"  ply          python -m relaygs.artifacts --root {root} ply {output.key[:16]}",
         f"  videos       python -m relaygs.artifacts --root {root} render "
-        f"{output.key[:16]} --scene {scene_dir}{loader} --truth --error",
+        f"{output.key[:16]} --scene {scene_dir}{loader} --truth --error{device}",
     ]
     return "\n".join(lines)
