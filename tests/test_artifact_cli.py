@@ -2,6 +2,7 @@
 
 import errno
 import json
+import shutil
 import subprocess
 import sys
 
@@ -363,6 +364,77 @@ def test_eval_refuses_a_scene_with_other_train_cameras(
     code, out, err = _cli(capsys, store.root, "eval", key[:8], "--scene", str(stage_scene_path))
     assert code == 1 and out == "" and err.count("\n") == 1
     assert f"the model was trained on 3 train cameras but {stage_scene_path} has 27" in err
+
+
+@pytest.fixture
+def stored_lineage(stage_decoupled, stage_relayed, stage_deformed, tmp_path):
+    """The stage fixtures' decouple → relay → deform chain in a store, with its lineage."""
+    store = ArtifactStore(tmp_path / "store")
+    keys, upstream = {}, []
+    for stage, artifact in (
+        ("decouple", stage_decoupled),
+        ("relay", stage_relayed),
+        ("deform", stage_deformed),
+    ):
+        keys[stage] = artifact_key(stage, 1, {}, "juggle", [entry.key for entry in upstream])
+        store.get_or_build(stage, keys[stage], lambda a=artifact: a, config={}, lineage=upstream)
+        upstream = [LineageEntry(stage, stage, keys[stage])]
+    return store, keys
+
+
+def test_eval_lineage_scores_every_stage_of_a_model_upstream_first(
+    stored_lineage, stage_scene_path, stage_decoupled, stage_relayed, stage_deformed, capsys
+):
+    from relaygs.data import load_scene
+    from relaygs.stages import evaluate
+
+    store, keys = stored_lineage
+    argv = ("eval", keys["deform"][:8], "--scene", str(stage_scene_path), "--frame-stride", "4")
+    code, out, err = _cli(capsys, store.root, *argv, "--lineage")
+    assert code == 0, err
+    lines = out.splitlines()
+    assert lines[0] == (
+        f"deform {keys['deform'][:16]} and its lineage on {stage_scene_path} "
+        "(test cameras 0, 10, 15, 30)"
+    )
+    assert lines[1].split() == [
+        "stage",
+        "key",
+        "psnr",
+        "ssim",
+        "fg_psnr",
+        "num_gaussians",
+        "storage_mb",
+    ]
+    scene = load_scene(stage_scene_path)
+    artifacts = {"decouple": stage_decoupled, "relay": stage_relayed, "deform": stage_deformed}
+    for line, stage in zip(lines[2:], artifacts, strict=True):
+        metrics = evaluate(scene, artifacts[stage], {"eval": {"frame_stride": 4}})
+        assert line.split()[:4] == [
+            stage,
+            keys[stage][:16],
+            f"{metrics['psnr']:.4f}",
+            f"{metrics['ssim']:.4f}",
+        ]
+    assert len(lines) == 5
+
+
+def test_eval_lineage_names_an_upstream_artifact_gc_removed(
+    stored_lineage, stage_scene_path, capsys
+):
+    store, keys = stored_lineage
+    shutil.rmtree(store.path("decouple", keys["decouple"]))
+    argv = ("eval", keys["deform"][:8], "--scene", str(stage_scene_path), "--lineage")
+    code, out, err = _cli(capsys, store.root, *argv)
+    assert code == 1 and out == "" and err.count("\n") == 1
+    assert f"needs decouple {keys['decouple'][:16]}, which is no longer in {store.root}" in err
+
+
+def test_eval_lineage_and_per_view_are_a_usage_error(capsys, tmp_path):
+    with pytest.raises(SystemExit) as caught:
+        main(["eval", KEY_A[:8], "--scene", str(tmp_path), "--lineage", "--per-view", "v.csv"])
+    err = capsys.readouterr().err
+    assert caught.value.code == 2 and "not allowed with argument" in err and err.count("\n") == 1
 
 
 def _model_held_out(stage_decoupled, held_out):

@@ -10,6 +10,7 @@ import sys
 from collections.abc import Sequence
 from dataclasses import asdict
 from pathlib import Path
+from typing import Any
 
 from safetensors import SafetensorError, safe_open
 
@@ -37,6 +38,7 @@ DEFAULT_ROOT = "outputs/artifacts"
 DEFAULT_RENDERS = "outputs/renders"
 DEFAULT_PLY = "outputs/ply"
 KEY_COLUMN_WIDTH = 16
+LINEAGE_COLUMNS = ("psnr", "ssim", "fg_psnr", "num_gaussians", "storage_mb")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -75,11 +77,17 @@ def _parser() -> argparse.ArgumentParser:
     score.add_argument(
         "--frame-stride", type=int, default=1, metavar="N", help="score every N-th frame"
     )
-    score.add_argument(
+    outputs = score.add_mutually_exclusive_group()
+    outputs.add_argument(
         "--per-view",
         type=writable_file,
         metavar="CSV",
         help="also write each test image's metrics (frame, camera, PSNR, SSIM, fg-PSNR) here",
+    )
+    outputs.add_argument(
+        "--lineage",
+        action="store_true",
+        help="score every stage's model in its lineage too, one row each (what each stage adds)",
     )
     score.set_defaults(command_fn=_eval)
     render = commands.add_parser(
@@ -233,15 +241,25 @@ def _tensor_lines(item: StoredArtifact) -> list[str]:
 
 
 def _eval(store: ArtifactStore, args: argparse.Namespace) -> int:
-    """Render the artifact's model at the scene's test views and print the test metrics, e.g.
-    to see what each stage of a lineage contributes."""
+    """Render the artifact's model (with `--lineage`, each model of its lineage too) at the
+    scene's test views and print the test metrics, e.g. to see what each stage contributes."""
     _require_stride(args.frame_stride)
     item, artifact = _model_artifact(store, args.key)
     scene = _load_scene(args)
-    metrics = evaluate(scene, artifact, {"eval": {"frame_stride": args.frame_stride}})
-    metrics["storage_mb"] = item.manifest.size_mb  # as a run's result.json reports it
+    settings = {"eval": {"frame_stride": args.frame_stride}}
     tests = ", ".join(str(camera.camera_id) for camera in scene.test_cameras) or "none"
-    print(f"{item.stage} {item.key[:KEY_COLUMN_WIDTH]} on {args.scene} (test cameras {tests})")
+    where = f"on {args.scene} (test cameras {tests})"
+    if args.lineage:
+        entries = _lineage(store, item)
+        print(f"{item.stage} {item.key[:KEY_COLUMN_WIDTH]} and its lineage {where}")
+        rows = [
+            _scores(entry, store.load(entry.stage, entry.key), scene, settings) for entry in entries
+        ]
+        print(_lineage_table(entries, rows))
+        _note_other_scene(entries, scene)
+        return 0
+    metrics = _scores(item, artifact, scene, settings)
+    print(f"{item.stage} {item.key[:KEY_COLUMN_WIDTH]} {where}")
     for name, value in metrics.items():
         if isinstance(value, float):
             print(f"  {name:<16}{value:.4f}")
@@ -252,6 +270,63 @@ def _eval(store: ArtifactStore, args: argparse.Namespace) -> int:
         print(f"  per-view metrics of {len(metrics[PER_VIEW])} image(s) in {written}")
     _note_other_scene([item], scene)
     return 0
+
+
+def _scores(
+    item: StoredArtifact, artifact: Artifact, scene: Scene, settings: dict
+) -> dict[str, Any]:
+    """The evaluator's metrics of one stored model, with its storage as result.json has it."""
+    metrics = evaluate(scene, artifact, settings)
+    metrics["storage_mb"] = item.manifest.size_mb
+    return metrics
+
+
+def _lineage(store: ArtifactStore, item: StoredArtifact) -> list[StoredArtifact]:
+    """`item` and every artifact upstream of it, each once, upstream ones first."""
+    ordered: dict[str, StoredArtifact] = {}
+
+    def visit(entry: StoredArtifact) -> None:
+        for parent in entry.manifest.lineage:
+            if parent.key in ordered:
+                continue
+            if not store.has(parent.stage, parent.key):
+                raise MissingArtifactError(
+                    f"the lineage of {entry.stage} {entry.key[:KEY_COLUMN_WIDTH]} needs "
+                    f"{parent.stage} {parent.key[:KEY_COLUMN_WIDTH]}, which is no longer in "
+                    f"{store.root}: score the artifacts still there one by one"
+                )
+            manifest = store.manifest(parent.stage, parent.key)
+            visit(StoredArtifact(store.path(parent.stage, parent.key), manifest))
+        ordered[entry.key] = entry
+
+    visit(item)
+    return list(ordered.values())
+
+
+def _lineage_table(entries: list[StoredArtifact], rows: list[dict[str, Any]]) -> str:
+    """One line per artifact: stage, key prefix and its LINEAGE_COLUMNS (n/a where missing)."""
+    header = ["stage", "key", *LINEAGE_COLUMNS]
+    cells = [
+        [
+            entry.stage,
+            entry.key[:KEY_COLUMN_WIDTH],
+            *(_cell(row.get(name)) for name in LINEAGE_COLUMNS),
+        ]
+        for entry, row in zip(entries, rows, strict=True)
+    ]
+    widths = [max(len(line[column]) for line in [header, *cells]) for column in range(len(header))]
+    return "\n".join(
+        "  "
+        + "  ".join(text.ljust(width) for text, width in zip(line, widths, strict=True)).rstrip()
+        for line in [header, *cells]
+    )
+
+
+def _cell(value: Any) -> str:
+    """A metric as `eval` prints it: floats to 4 decimals, None as n/a."""
+    if value is None:
+        return "n/a"
+    return f"{value:.4f}" if isinstance(value, float) else str(value)
 
 
 def _render(store: ArtifactStore, args: argparse.Namespace) -> int:
