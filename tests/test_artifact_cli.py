@@ -500,7 +500,25 @@ def test_eval_and_render_note_a_scene_loaded_otherwise_than_for_training(
     assert code == 0 and err.rsplit("\r", 1)[-1].startswith(f"note: decouple {key[:16]} was")
 
 
-@pytest.mark.parametrize("given", ["1,x", "-1", "1;5", "1,,5", "²"])
+def test_a_model_trained_on_every_camera_is_told_to_load_none_as_test_cameras(
+    stage_decoupled, stage_scene_path, tmp_path, capsys
+):
+    store, key = _store_model(tmp_path, _model_held_out(stage_decoupled, []))
+    argv = ("eval", key[:8], "--scene", str(stage_scene_path), "--frame-stride", "8")
+    code, _, err = _cli(capsys, store.root, *argv)
+    assert code == 1 and "it trained on every camera: load the scene with no test cameras" in err
+    code, out, err = _cli(capsys, store.root, *argv, "--test-cameras", "[ ]")
+    assert code == 0 and "(test cameras none)" in out and "num_test_images 0" in out
+
+
+def test_a_model_without_a_recorded_scene_gets_no_note(stored_deform, stage_scene_path, capsys):
+    store, key = stored_deform  # stored without provenance, as by older versions
+    argv = ("eval", key[:8], "--scene", str(stage_scene_path), "--frame-stride", "8")
+    code, _, err = _cli(capsys, store.root, *argv, "--downscale", "2")  # another fingerprint
+    assert code == 0 and err == ""
+
+
+@pytest.mark.parametrize("given", ["1,x", "-1", "1;5", "1,,5", "²", "\u0661", "", " "])
 def test_test_cameras_that_are_not_ids_are_a_usage_error(capsys, given, tmp_path):
     with pytest.raises(SystemExit) as caught:
         main(["eval", KEY_A[:8], "--scene", str(tmp_path), "--test-cameras", given])

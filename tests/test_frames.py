@@ -76,7 +76,7 @@ def test_frames_are_written_in_natural_order_cut_to_the_shortest_video(videos, t
     first = (out / "colmap_images.txt").read_text().split()
     assert first == [f"{camera}/frame_00000.png" for camera in sources]
     assert printed.startswith(f"wrote 4 frame(s) at 15 fps of 3 camera(s) into {out}")
-    assert "note: cam00 had more frames; every camera keeps the shortest video's 4" in (printed)
+    assert "note: every camera keeps 4 frame(s), all that cam02 gave\n" in printed
     assert f"then train: python -m relaygs.run scene.path={out}\n" in printed + "\n"
 
 
@@ -86,7 +86,7 @@ def test_frames_stop_at_the_count_asked_for(videos, tmp_path, capsys):
     assert sorted(path.name for path in (out / "cam02").iterdir()) == [
         f"frame_{n:05d}.jpg" for n in range(3)
     ]
-    assert "had more frames" not in capsys.readouterr().out
+    assert "note:" not in capsys.readouterr().out
 
 
 def test_the_written_folder_loads_as_a_multiview_scene_once_posed(tmp_path, capsys):
@@ -111,7 +111,7 @@ def test_the_written_folder_loads_as_a_multiview_scene_once_posed(tmp_path, caps
 @pytest.mark.parametrize(
     ("prepare", "message"),
     [
-        (lambda videos, out: shutil.rmtree(videos) or videos.mkdir(), "no videos (.mp4"),
+        (lambda videos, out: shutil.rmtree(videos) or videos.mkdir(), "at least 2, found 0"),
         (lambda videos, out: (videos / "cam_3.mp4").write_bytes(b"\0" * 64), "cam_3.mp4: cannot"),
         (lambda videos, out: out.mkdir() or (out / "keep.txt").write_text("x"), "not empty"),
     ],
@@ -124,7 +124,8 @@ def test_bad_input_is_one_line_and_leaves_nothing_behind(
     prepare(videos, out)
     code, printed, err = _main(capsys, videos, out)
     assert code == 1 and printed == ""
-    assert err.rsplit("\r", 1)[-1].startswith("error: ") and message in err
+    last = err.rsplit("\r", 1)[-1]
+    assert last.startswith("error: ") and last.count("\n") == 1 and message in last
     assert sorted(path.name for path in tmp_path.iterdir()) == sorted(
         ["videos", *(["scene"] if message == "not empty" else [])]
     )
@@ -154,7 +155,8 @@ def test_bad_options_are_usage_errors(videos, tmp_path, capsys, argv):
 
 def test_a_selection_past_every_frame_names_the_video(videos, tmp_path, capsys):
     code, _, err = _main(capsys, videos, tmp_path / "scene", "--start", 50)
-    assert code == 1 and "side_1.MP4: no frame to write (decoded none at or after frame 50)" in err
+    assert code == 1  # the shortest video is decoded first
+    assert "side_10.mp4: no frame to write (decoded 8, none at or after frame 50)" in err
 
 
 def test_frame_selection_refuses_impossible_values():
@@ -162,9 +164,58 @@ def test_frame_selection_refuses_impossible_values():
         FrameSelection(stride=0)
 
 
-@pytest.mark.parametrize("name", ["scene", "my scene", "scène", 'odd"name'])
+@pytest.mark.parametrize("name", ["scene", "my scene", "scène", 'odd"name', 'a\\"b', "ends\\"])
 def test_the_printed_run_override_reads_back_as_the_folder(tmp_path, name):
     folder = tmp_path / name
     (word,) = shlex.split(frames_command.scene_override(folder))
     override = OverridesParser.create().parse_override(word)
     assert override.key_or_group == "scene.path" and override.value() == str(folder)
+
+
+def test_one_video_is_refused_and_a_file_is_no_output_folder(videos, tmp_path, capsys):
+    single = tmp_path / "single"
+    single.mkdir()
+    shutil.copy(videos / "side_2.mp4", single)
+    code, _, err = _main(capsys, single, tmp_path / "scene")
+    assert code == 1 and "expected a video per camera" in err and "found 1" in err
+    code, _, err = _main(capsys, videos, videos / "side_2.mp4")
+    assert code == 1 and "side_2.mp4 is a file: expected a new or empty folder" in err
+
+
+def test_an_output_folder_given_as_a_link_fills_its_target(videos, tmp_path, capsys):
+    target = tmp_path / "target"
+    target.mkdir()
+    (tmp_path / "link").symlink_to(target)
+    assert _main(capsys, videos, tmp_path / "link")[0] == 0
+    assert (tmp_path / "link").is_symlink() and (target / "cam00" / "frame_00000.jpg").is_file()
+
+
+def test_videos_at_different_rates_are_noted(tmp_path, capsys):
+    folder = tmp_path / "videos"
+    folder.mkdir()
+    for name, fps in (("a.mp4", 30.0), ("b.mp4", 25.0)):
+        _video(folder / name, [np.full((18, 32, 3), 40 * i, np.uint8) for i in range(3)], fps)
+    code, printed, _ = _main(capsys, folder, tmp_path / "scene")
+    assert code == 0 and " fps " not in printed.splitlines()[0]
+    assert "note: the videos' frame rates differ (cam00 30, cam01 25 fps)" in printed
+    assert json.loads((tmp_path / "scene" / "frames.json").read_text())["fps"] is None
+
+
+def test_a_video_cut_short_is_named(tmp_path, capsys):
+    folder = tmp_path / "videos"
+    folder.mkdir()
+    noise = np.random.default_rng(0).integers(0, 256, (40, 18, 32, 3), dtype=np.uint8)
+    for name in ("a.avi", "b.avi"):
+        path = folder / name
+        writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 30.0, (32, 18))
+        for image in noise:  # frames that do not compress away, so a cut falls among them
+            writer.write(image)
+        writer.release()
+    data = (folder / "b.avi").read_bytes()
+    (folder / "b.avi").write_bytes(data[: len(data) // 2])  # its header still states 40
+    code, printed, _ = _main(capsys, folder, tmp_path / "scene")
+    assert code == 0
+    frames = int(printed.split()[1])
+    assert 0 < frames < 40
+    assert f"note: every camera keeps {frames} frame(s), all that cam01 gave" in printed
+    assert f"note: cam01's b.avi decoded {frames} of the 40 frames it states" in printed

@@ -71,11 +71,11 @@ def int_at_least(minimum: int) -> Callable[[str], int]:
 
 def camera_ids(text: str) -> tuple[int, ...]:
     """argparse type of a list of camera ids, `1,5` (a pasted Hydra list `[1,5]` too; `[]` for
-    none), as the `scene.loader.test_cameras` a run was given."""
-    inner = text.strip().removeprefix("[").removesuffix("]").strip()
-    if not inner:
+    none), as the `scene.loader.test_cameras` a run was given; an empty value is refused (an
+    unset shell variable must not mean "no test cameras")."""
+    if text.replace(" ", "") == "[]":
         return ()
-    items = [item.strip() for item in inner.split(",")]
+    items = [item.strip() for item in text.strip().removeprefix("[").removesuffix("]").split(",")]
     if not all(item.isascii() and item.isdecimal() for item in items):
         raise argparse.ArgumentTypeError(
             f"expected camera ids separated by commas, e.g. 0,10, got {text!r}"

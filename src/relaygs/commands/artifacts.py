@@ -356,16 +356,17 @@ def _render(store: ArtifactStore, args: argparse.Namespace) -> int:
 
 
 def _note_other_scene(items: Sequence[StoredArtifact], scene: Scene) -> None:
-    """A stderr note for each model whose lineage trained on this scene loaded otherwise (its
-    fingerprint differs): then the test views may include views the model trained on."""
+    """A stderr note for each model that was not trained on this scene as loaded here (the
+    fingerprint in its manifest differs): its test views, and so its scores, may not be the
+    run's."""
     for item in items:
         trained_on = item.manifest.provenance.get("scene")
         if trained_on is not None and trained_on != scene.fingerprint:
             print(
                 f"note: {item.stage} {item.key[:KEY_COLUMN_WIDTH]} was not trained on "
-                f"{scene.root} as loaded here (its files or loader options differ: --downscale, "
-                "--test-cameras, or the run's max_points or effects), so the test views may "
-                "include views it trained on",
+                f"{scene.root} as loaded here (its files or loader options differ), so its test "
+                "views may not be the run's: pass the run's --downscale and --test-cameras "
+                "(its max_points and effects also count)",
                 file=sys.stderr,
             )
 

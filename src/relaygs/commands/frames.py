@@ -20,6 +20,7 @@ from relaygs.data.video_frames import (
     FrameSelection,
     camera_videos,
     extract_frames,
+    rates_agree,
 )
 from relaygs.errors import RERUN_COMMAND, RelayGSError, resource_error
 
@@ -30,13 +31,21 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("videos_dir", type=Path, help="folder holding one video per camera")
     parser.add_argument("out_dir", type=Path, help="new (or empty) scene folder to write")
     parser.add_argument(
-        "--start", type=int_at_least(0), default=0, help="first source frame (default 0)"
+        "--start",
+        type=int_at_least(0),
+        default=0,
+        metavar="F",
+        help="first source frame (default 0)",
     )
     parser.add_argument(
-        "--stride", type=int_at_least(1), default=1, help="keep every N-th frame (default 1)"
+        "--stride",
+        type=int_at_least(1),
+        default=1,
+        metavar="N",
+        help="keep every N-th frame (default 1)",
     )
     parser.add_argument(
-        "--frames", type=int_at_least(1), help="keep at most T frames (default: all)"
+        "--frames", type=int_at_least(1), metavar="T", help="keep at most T frames (default: all)"
     )
     parser.add_argument(
         "--format", choices=FRAME_FORMATS, default="jpg", help="image format (default jpg)"
@@ -58,7 +67,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"error: {error}", file=sys.stderr)
         return 1
     except OSError as error:  # a full or read-only disk: one line; other OSErrors are bugs
-        failure = resource_error(error, rerun=RERUN_COMMAND)
+        failure = resource_error(error, f"frames into {args.out_dir}", rerun=RERUN_COMMAND)
         if failure is None:
             raise
         print(f"error: {failure}", file=sys.stderr)
@@ -68,19 +77,15 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def describe(scene: ExtractedScene, seconds: float) -> str:
-    """What was written, where each camera came from, and the commands that pose and train it."""
+    """What was written, where each camera came from, notes on what may be wrong with the
+    videos, and the commands that pose and train the scene."""
     rate = f" at {scene.fps:.4g} fps" if scene.fps is not None else ""
     lines = [
-        f"wrote {scene.frames} frame(s){rate} of {len(scene.sources)} camera(s) into "
+        f"wrote {scene.frames} frame(s){rate} of {len(scene.cameras)} camera(s) into "
         f"{scene.folder} in {seconds:.1f} s"
     ]
-    lines += [f"  {name}  {video}" for name, video in scene.sources.items()]
-    longer = [name for name, count in scene.selected.items() if count > scene.frames]
-    if longer:
-        lines.append(
-            f"note: {', '.join(longer)} had more frames; every camera keeps the shortest "
-            f"video's {scene.frames}"
-        )
+    lines += [f"  {name}  {camera.video}" for name, camera in scene.cameras.items()]
+    lines += _notes(scene)
     out = shlex.quote(str(scene.folder))
     lines += [
         f"next, pose the cameras with COLMAP from their first frames ({COLMAP_LIST}):",
@@ -94,11 +99,39 @@ def describe(scene: ExtractedScene, seconds: float) -> str:
     return "\n".join(lines)
 
 
+def _notes(scene: ExtractedScene) -> list[str]:
+    """Which cameras' videos ended first, which decoded fewer frames than they state, and
+    frame rates that differ (frame n of each camera would not show one moment)."""
+    cameras = scene.cameras.items()
+    notes = []
+    short = [name for name, camera in cameras if camera.ran_out and camera.written == scene.frames]
+    if len(short) < len(scene.cameras):
+        notes.append(
+            f"note: every camera keeps {scene.frames} frame(s), all that {', '.join(short)} gave"
+        )
+    for name, camera in cameras:
+        if camera.ran_out and camera.stated is not None and camera.decoded < camera.stated:
+            notes.append(
+                f"note: {name}'s {camera.video.name} decoded {camera.decoded} of the "
+                f"{camera.stated} frames it states: is it damaged or cut short?"
+            )
+    rates = [camera.rate for _, camera in cameras]
+    if all(rate is not None for rate in rates) and not rates_agree(rates):
+        listed = ", ".join(f"{name} {camera.rate:.4g}" for name, camera in cameras)
+        notes.append(
+            f"note: the videos' frame rates differ ({listed} fps), so frame n of each camera "
+            "may not show one moment: convert them to one rate first"
+        )
+    return notes
+
+
 def scene_override(folder: Path) -> str:
     """`scene.path=FOLDER` as one shell word that Hydra reads back: a path with characters
     beyond letters, digits and `_/.-` goes inside Hydra's double quotes (a `"` in it as `\\"`)."""
     text = str(folder)
     if re.fullmatch(r"[A-Za-z0-9_/.\-]+", text):
         return f"scene.path={text}"
-    escaped = text.replace('"', '\\"')
+    # Hydra halves a run of backslashes before a quote, and a lone one escapes the quote
+    escaped = re.sub(r'(\\*)"', lambda run: run[1] * 2 + '\\"', text)
+    escaped = re.sub(r"(\\+)$", lambda run: run[1] * 2, escaped)
     return shlex.quote(f'scene.path="{escaped}"')

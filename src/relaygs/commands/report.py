@@ -43,12 +43,13 @@ BUDGET_MD = "summary_budget.md"
 @dataclass(frozen=True)
 class ReportFiles:
     """The files a report wrote (`pareto` is None when no job has both PSNR and a time,
-    `frames` when no job has per-view metrics) and the failed jobs (each with its
-    `job <n> (<variant>): <error>` line); `mean` and `budget` are written only for sweeps that
-    repeat seeds or vary the step multiplier."""
+    `frames` when no job has per-view metrics), `summary.md`'s text as `table`, and the failed
+    jobs (each with its `job <n> (<variant>): <error>` line); `mean` and `budget` are written
+    only for sweeps that repeat seeds or vary the step multiplier."""
 
     csv: Path
     markdown: Path
+    table: str
     pareto: Path | None
     jobs: int
     failed: tuple[FailedJob, ...]
@@ -91,7 +92,8 @@ def _write_files(table: pd.DataFrame, sweep_dir: Path) -> ReportFiles:
     csv_path = sweep_dir / SUMMARY_CSV
     _write_csv(table, csv_path)
     markdown_path = sweep_dir / SUMMARY_MD
-    publish_text(markdown_path, markdown_table(table, title))
+    markdown = markdown_table(table, title)
+    publish_text(markdown_path, markdown)
     plottable = zip(table.psnr, table.train_s_total, strict=True)
     plotted = table[[is_number(psnr) and is_number(time) for psnr, time in plottable]]
     pareto = None
@@ -107,7 +109,9 @@ def _write_files(table: pd.DataFrame, sweep_dir: Path) -> ReportFiles:
     mean = _write_mean(table, sweep_dir, title)
     budget = _write_budget(table, sweep_dir, title)
     failed = tuple(failed_jobs(table))
-    return ReportFiles(csv_path, markdown_path, pareto, len(table), failed, mean, budget, frames)
+    return ReportFiles(
+        csv_path, markdown_path, markdown, pareto, len(table), failed, mean, budget, frames
+    )
 
 
 def _write_mean(table: pd.DataFrame, sweep_dir: Path, title: str) -> Path | None:
@@ -154,16 +158,13 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def describe(files: ReportFiles) -> str:
-    """The summary table as written to `summary.md` (with its sharing line and why Δ PSNR is
-    n/a, if it is), where the report's files are, one per line, and the failed jobs."""
-    table = files.markdown.read_text(encoding="utf-8").rstrip("\n")
-    lines = [table, "", f"summary of {files.jobs} job(s):", f"  {files.markdown}", f"  {files.csv}"]
+    """The summary table as written to `summary.md` (with its sharing line, why Δ PSNR is n/a
+    and the failed jobs, where they apply), then where the report's files are, one per line."""
+    lines = [files.table.rstrip("\n"), "", f"summary of {files.jobs} job(s):"]
+    lines += [f"  {files.markdown}", f"  {files.csv}"]
     for extra in (files.pareto, files.frames, files.mean, files.budget):
         if extra is not None:
             lines.append(f"  {extra}")
-    if files.failed:
-        lines.append(f"{len(files.failed)} of {files.jobs} job(s) failed:")
-        lines += [f"  {job.line}" for job in files.failed]
     return "\n".join(lines)
 
 

@@ -13,7 +13,7 @@ import os
 import re
 import shutil
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
@@ -29,6 +29,8 @@ FRAME_FORMATS = ("jpg", "png")
 JPEG_QUALITY = 95
 COLMAP_LIST = "colmap_images.txt"
 SOURCES_JSON = "frames.json"
+MIN_CAMERAS = 2  # one view cannot be posed by COLMAP nor split into train and test cameras
+RATE_TOLERANCE = 1e-3  # frame rates this close (relative) are one rate (29.97 vs 30 are not)
 
 
 @dataclass(frozen=True)
@@ -57,27 +59,45 @@ class FrameSelection:
 
 
 @dataclass(frozen=True)
+class CameraFrames:
+    """What one camera's video gave: the frames written, the frames decoded, the count its
+    container states (None when it states none), its frame rate (None likewise), and whether
+    the decoder ran out rather than the selection being complete."""
+
+    video: Path
+    written: int
+    decoded: int
+    stated: int | None
+    rate: float | None
+    ran_out: bool
+
+
+@dataclass(frozen=True)
 class ExtractedScene:
-    """What `extract_frames` wrote: the folder, the camera folders' sources, the common frame
-    count, each video's number of selected frames, and the frame rate the frames keep."""
+    """What `extract_frames` wrote: the folder, each camera folder's video and frames, the
+    frame count every camera keeps, and the frame rate they keep (None when the videos do not
+    state one and the same)."""
 
     folder: Path
-    sources: dict[str, Path]
+    cameras: dict[str, CameraFrames]
     frames: int
-    selected: dict[str, int]
     fps: float | None
 
 
 def camera_videos(folder: Path) -> list[Path]:
     """The video files directly in `folder`, in natural name order (cam2 before cam10)."""
     folder = require_folder(Path(folder).expanduser().absolute(), "video folder")
-    videos = [
-        path
-        for path in folder.iterdir()
-        if path.is_file() and path.suffix.lower() in VIDEO_SUFFIXES
-    ]
-    if not videos:
-        raise InputError(f"{folder}: no videos ({', '.join(VIDEO_SUFFIXES)}) in it")
+    try:
+        entries = list(folder.iterdir())
+    except OSError as error:
+        raise InputError(f"{folder}: cannot list it ({error.strerror})") from None
+    videos = [path for path in entries if path.suffix.lower() in VIDEO_SUFFIXES]
+    videos = [path for path in videos if path.is_file()]
+    if len(videos) < MIN_CAMERAS:
+        raise InputError(
+            f"{folder}: expected a video per camera ({', '.join(VIDEO_SUFFIXES)}), at least "
+            f"{MIN_CAMERAS}, found {len(videos)}"
+        )
     return sorted(videos, key=_natural_key)
 
 
@@ -89,64 +109,105 @@ def extract_frames(
     progress: bool = True,
 ) -> ExtractedScene:
     """Write `videos[i]`'s selected frames as `out_dir`/cam<i>/frame_<n>.<format>, n from 0,
-    each camera cut to the shortest one's count. `out_dir` must be new or empty; the frames go
-    into a sibling folder that is renamed in at the end, so a failure leaves nothing behind."""
+    every camera cut to the count the shortest gives. `out_dir` must be new or empty; the
+    frames go into a hidden sibling folder that is renamed in at the end, so a failure leaves
+    no partial scene."""
+    if len(videos) < MIN_CAMERAS:
+        raise InputError(
+            f"expected at least {MIN_CAMERAS} videos, one per camera, got {len(videos)}"
+        )
     if image_format not in FRAME_FORMATS:
         raise InputError(f"frame format: expected one of {FRAME_FORMATS}, got {image_format!r}")
-    out = _empty_target(Path(out_dir).expanduser().absolute())
+    out = _empty_target(Path(out_dir).expanduser().resolve())
+    sources = {f"cam{index:02d}": video for index, video in enumerate(videos)}
+    stated = {name: _stated_count(video) for name, video in sources.items()}
     staging = out.parent / f".{out.name}.partial-{os.getpid()}"
     shutil.rmtree(staging, ignore_errors=True)
     staging.mkdir(parents=True)
     try:
-        sources = {f"cam{index:02d}": video for index, video in enumerate(videos)}
-        selected, rates = {}, []
-        total = None if selection.count is None else selection.count * len(videos)
-        bar = progress_bar(
-            total=total, desc="frames", unit="frame", disable=not progress, leave=False
-        )
-        with bar:
-            for name, video in sources.items():
-                written, rate = _write_camera(video, staging / name, selection, image_format, bar)
-                selected[name] = written
-                rates.append(rate)
-        frames = min(selected.values())
-        for name in sources:
+        cameras = _write_cameras(sources, stated, staging, selection, image_format, progress)
+        frames = min(camera.written for camera in cameras.values())
+        for name in cameras:
             _drop_frames_from(staging / name, frames)
-        fps = _kept_rate(rates, selection.stride)
+        fps = _kept_rate([camera.rate for camera in cameras.values()], selection.stride)
         _write_listing(staging, sources, frames, selection, fps, image_format)
-        if out.exists():
-            out.rmdir()  # empty, checked above
-        os.replace(staging, out)
-    finally:
+    except BaseException:  # a failure or Ctrl-C: no partial scene stays
         shutil.rmtree(staging, ignore_errors=True)
-    return ExtractedScene(out, sources, frames, selected, fps)
+        raise
+    _publish(staging, out)
+    return ExtractedScene(out, cameras, frames, fps)
 
 
 def _natural_key(path: Path) -> list[object]:
-    """Sort key that orders the digit runs of a name by value."""
-    return [int(part) if part.isdigit() else part.lower() for part in re.split(r"(\d+)", path.name)]
+    """Sort key that orders the digit runs of a name by value (odd positions of the split)."""
+    parts = re.split(r"(\d+)", path.name)
+    return [int(part) if index % 2 else part.lower() for index, part in enumerate(parts)]
 
 
 def _empty_target(out: Path) -> Path:
     """`out` if it is a new or empty folder that can be made and written; else one line."""
-    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+    if out.is_file():
+        raise InputError(f"{out} is a file: expected a new or empty folder for the frames")
+    if out.is_dir() and any(out.iterdir()):
         raise InputError(f"refusing to write frames into {out}: it exists and is not empty")
     return require_creatable_folder(out, "frames folder")
 
 
-def _write_camera(
-    video: Path, folder: Path, selection: FrameSelection, image_format: str, bar: tqdm
-) -> tuple[int, float | None]:
-    """Decode `video` and write its selected frames into `folder`, counting them on `bar`;
-    (frames written, the video's frame rate or None)."""
-    folder.mkdir()
+def _stated_count(video: Path) -> int | None:
+    """The frame count `video`'s container states (None when none); a file that does not open
+    as a video is refused here, before any other video is decoded."""
     capture = cv2.VideoCapture(str(video))
     try:
         if not capture.isOpened():
             raise InputError(f"{video}: cannot open it as a video")
+        count = capture.get(cv2.CAP_PROP_FRAME_COUNT)
+    finally:
+        capture.release()
+    return int(count) if count > 0 else None
+
+
+def _write_cameras(
+    sources: dict[str, Path],
+    stated: dict[str, int | None],
+    staging: Path,
+    selection: FrameSelection,
+    image_format: str,
+    progress: bool,
+) -> dict[str, CameraFrames]:
+    """Write every camera's frames, shortest stated video first, each stopping at the fewest
+    frames a camera before it gave (the rest would be dropped); by camera name."""
+    order = sorted(sources, key=lambda name: (stated[name] is None, stated[name] or 0, name))
+    total = None if selection.count is None else selection.count * len(sources)
+    bar = progress_bar(total=total, desc="frames", unit="frame", disable=not progress, leave=False)
+    cameras: dict[str, CameraFrames] = {}
+    with bar:
+        for name in order:
+            fewest = min((camera.written for camera in cameras.values()), default=None)
+            limit = selection if fewest is None else replace(selection, count=fewest)
+            cameras[name] = _write_camera(
+                sources[name], staging / name, limit, image_format, bar, stated[name]
+            )
+    return {name: cameras[name] for name in sources}
+
+
+def _write_camera(
+    video: Path,
+    folder: Path,
+    selection: FrameSelection,
+    image_format: str,
+    bar: tqdm,
+    stated: int | None,
+) -> CameraFrames:
+    """Decode `video` and write its selected frames into `folder`, counting them on `bar`."""
+    folder.mkdir()
+    capture = cv2.VideoCapture(str(video))
+    written = decoded = 0
+    try:
+        if not capture.isOpened():
+            raise InputError(f"{video}: cannot open it as a video")
         rate = capture.get(cv2.CAP_PROP_FPS)
-        written = 0
         for index, image in enumerate(_decoded(capture)):
+            decoded = index + 1
             if selection.keeps(index):
                 _write_image(folder / f"frame_{written:05d}.{image_format}", image)
                 written += 1
@@ -157,9 +218,11 @@ def _write_camera(
         capture.release()
     if written == 0:
         raise InputError(
-            f"{video}: no frame to write (decoded none at or after frame {selection.start})"
+            f"{video}: no frame to write (decoded {decoded}, none at or after frame "
+            f"{selection.start})"
         )
-    return written, rate if rate > 0 else None
+    ran_out = not selection.done(written)
+    return CameraFrames(video, written, decoded, stated, rate if rate > 0 else None, ran_out)
 
 
 def _decoded(capture: cv2.VideoCapture) -> Iterator[np.ndarray]:
@@ -190,9 +253,28 @@ def _drop_frames_from(folder: Path, count: int) -> None:
 def _kept_rate(rates: list[float | None], stride: int) -> float | None:
     """The frame rate the written frames keep (the videos' rate over the stride), or None when
     the videos do not all state one and the same."""
-    if any(rate is None for rate in rates) or max(rates) - min(rates) > 1e-3 * max(rates):
+    known = [rate for rate in rates if rate is not None]
+    if len(known) < len(rates) or not rates_agree(known):
         return None
-    return rates[0] / stride
+    return known[0] / stride
+
+
+def rates_agree(rates: list[float]) -> bool:
+    """Whether frame rates are one rate, within a relative RATE_TOLERANCE."""
+    return max(rates) - min(rates) <= RATE_TOLERANCE * max(rates)
+
+
+def _publish(staging: Path, out: Path) -> None:
+    """Rename the finished staging folder to `out` (an empty folder there is replaced); when
+    that fails, the frames stay in the staging folder, which the error names."""
+    try:
+        if out.exists():
+            out.rmdir()
+        os.replace(staging, out)
+    except OSError as error:
+        raise InputError(
+            f"cannot move the frames into {out} ({error.strerror}); they are in {staging}"
+        ) from None
 
 
 def _write_listing(

@@ -122,7 +122,12 @@ def _held_out_hint(trained: list[int], scene: Scene) -> str:
     if not set(trained) <= cameras:
         return "use the scene it was trained on"
     held_out = sorted(cameras - set(trained))
-    ids = ",".join(map(str, held_out)) or "[]"
+    if not held_out:
+        return (
+            "it trained on every camera: load the scene with no test cameras "
+            "(--test-cameras '[]'), which leaves no held-out view to score"
+        )
+    ids = ",".join(map(str, held_out))
     return (
         f"it held out cameras {held_out}, so load the scene with those as its test cameras "
         f"(the run's scene.loader.test_cameras; --test-cameras {ids})"
