@@ -55,6 +55,7 @@ def videos(tmp_path):
     for name, count in (("side_2.mp4", 9), ("side_10.mp4", 8), ("side_1.MP4", 10)):
         _grey_video(folder / name, count)
     (folder / "notes.txt").write_text("not a video")
+    (folder / "clips.mp4").mkdir()  # a folder, whatever its name
     return folder
 
 
