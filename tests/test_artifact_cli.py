@@ -539,7 +539,7 @@ def test_a_render_out_of_disk_or_memory_is_one_line(store, capsys, monkeypatch, 
     def failing(*args, **kwargs):
         raise error
 
-    monkeypatch.setattr(artifacts_module, "_model_artifact", failing)
+    monkeypatch.setattr(artifacts_module, "model_artifact", failing)
     code, _, err = _cli(capsys, store.root, "render", KEY_A[:8], "--scene", "s", "--out", "o")
     assert code == 1 and err.startswith(f"error: {message}") and err.count("\n") == 1
     assert err.rstrip().endswith("then rerun the command")

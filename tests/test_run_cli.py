@@ -263,7 +263,7 @@ def test_printed_commands_paste_as_is_when_paths_hold_spaces_and_accents(fakes, 
     "loader", [[], ["scene.loader.test_cameras=[2,0]", "scene.loader.downscale=2"]]
 )
 def test_the_printed_render_command_loads_the_scene_as_the_run_did(fakes, tmp_path, capsys, loader):
-    from relaygs.commands.artifacts import _load_scene
+    from relaygs.commands.artifact_models import load_run_scene
     from relaygs.pipeline import ArtifactStore
 
     assert _main(["budget=smoke", *TINY_SCENE, *loader]) == 0
@@ -271,7 +271,7 @@ def test_the_printed_render_command_loads_the_scene_as_the_run_did(fakes, tmp_pa
     videos = shlex.split(next(line for line in lines if line.startswith("videos ")))
     args = artifacts_parser().parse_args(videos[videos.index("relaygs.artifacts") + 1 :])
     trained = ArtifactStore(args.root).find(args.key).manifest.provenance["scene"]
-    assert _load_scene(args).fingerprint == trained  # so `eval` and `render` add no note
+    assert load_run_scene(args).fingerprint == trained  # so `eval` and `render` add no note
 
 
 class _FlushLog(io.StringIO):

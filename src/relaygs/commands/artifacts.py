@@ -10,18 +10,23 @@ import sys
 from collections.abc import Sequence
 from dataclasses import asdict
 from pathlib import Path
-from typing import Any
 
 from safetensors import SafetensorError, safe_open
 
 from relaygs.app.evaluation import EVAL_STAGE
-from relaygs.cli import OneLineErrorParser, camera_ids, writable_file
-from relaygs.data import Scene, load_scene
+from relaygs.cli import OneLineErrorParser, writable_file
+from relaygs.commands.artifact_models import (
+    KEY_COLUMN_WIDTH,
+    add_scene_arguments,
+    load_run_scene,
+    model_artifact,
+    note_other_scene,
+    require_stride,
+)
+from relaygs.commands.artifacts_eval import run_eval
 from relaygs.device import usable_device
 from relaygs.errors import RERUN_COMMAND, RelayGSError, resource_error
 from relaygs.paths import require_creatable_folder
-from relaygs.per_view import PER_VIEW, write_per_view
-from relaygs.pipeline.artifact import Artifact
 from relaygs.pipeline.layout import TENSORS_FILE
 from relaygs.pipeline.store import (
     VERIFY_HINT,
@@ -31,14 +36,11 @@ from relaygs.pipeline.store import (
 )
 from relaygs.ply import write_frame_plys
 from relaygs.renders import PathSettings, RenderSettings, write_path_render, write_renders
-from relaygs.stages import evaluate
 from relaygs.stages.scene_model import SceneModel
 
 DEFAULT_ROOT = "outputs/artifacts"
 DEFAULT_RENDERS = "outputs/renders"
 DEFAULT_PLY = "outputs/ply"
-KEY_COLUMN_WIDTH = 16
-LINEAGE_COLUMNS = ("psnr", "ssim", "fg_psnr", "num_gaussians", "storage_mb")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -73,7 +75,7 @@ def _parser() -> argparse.ArgumentParser:
         "eval", help="score one artifact's model on a scene's test views (any stage's output)"
     )
     score.add_argument("key", help="full key or a unique prefix (at least 4 hex digits)")
-    _add_scene_arguments(score)
+    add_scene_arguments(score)
     score.add_argument(
         "--frame-stride", type=int, default=1, metavar="N", help="score every N-th frame"
     )
@@ -89,13 +91,13 @@ def _parser() -> argparse.ArgumentParser:
         action="store_true",
         help="score every stage's model in its lineage too, one row each (what each stage adds)",
     )
-    score.set_defaults(command_fn=_eval)
+    score.set_defaults(command_fn=run_eval)
     render = commands.add_parser(
         "render",
         help="render one artifact's model over time: a PNG per frame and an MP4 per camera",
     )
     render.add_argument("key", help="full key or a unique prefix (at least 4 hex digits)")
-    _add_scene_arguments(render)
+    add_scene_arguments(render)
     render.add_argument(
         "--camera",
         type=int,
@@ -169,27 +171,6 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _add_scene_arguments(parser: argparse.ArgumentParser) -> None:
-    """`--scene` and the loader options that decide its views as the run loaded them."""
-    parser.add_argument(
-        "--scene", type=Path, required=True, help="the scene folder it was trained on"
-    )
-    parser.add_argument(
-        "--downscale", type=int, default=1, help="the run's scene.loader.downscale (default 1)"
-    )
-    parser.add_argument(
-        "--test-cameras",
-        type=camera_ids,
-        metavar="IDS",
-        help="the run's scene.loader.test_cameras, e.g. 1,5 (default: the scene's own)",
-    )
-
-
-def _load_scene(args: argparse.Namespace) -> Scene:
-    """The `--scene` folder loaded with the run's loader options (`_add_scene_arguments`)."""
-    return load_scene(args.scene, downscale=args.downscale, test_cameras=args.test_cameras)
-
-
 def _ls(store: ArtifactStore, args: argparse.Namespace) -> int:
     """One line per finished artifact: stage, key, size, build seconds, created, upstream."""
     items = store.list()
@@ -240,104 +221,15 @@ def _tensor_lines(item: StoredArtifact) -> list[str]:
         raise RelayGSError(message) from error
 
 
-def _eval(store: ArtifactStore, args: argparse.Namespace) -> int:
-    """Render the artifact's model (with `--lineage`, each model of its lineage too) at the
-    scene's test views and print the test metrics, e.g. to see what each stage contributes."""
-    _require_stride(args.frame_stride)
-    item, artifact = _model_artifact(store, args.key)
-    scene = _load_scene(args)
-    settings = {"eval": {"frame_stride": args.frame_stride}}
-    tests = ", ".join(str(camera.camera_id) for camera in scene.test_cameras) or "none"
-    where = f"on {args.scene} (test cameras {tests})"
-    if args.lineage:
-        entries = _lineage(store, item)
-        print(f"{item.stage} {item.key[:KEY_COLUMN_WIDTH]} and its lineage {where}")
-        rows = [
-            _scores(entry, store.load(entry.stage, entry.key), scene, settings) for entry in entries
-        ]
-        print(_lineage_table(entries, rows))
-        _note_other_scene(entries, scene)
-        return 0
-    metrics = _scores(item, artifact, scene, settings)
-    print(f"{item.stage} {item.key[:KEY_COLUMN_WIDTH]} {where}")
-    for name, value in metrics.items():
-        if isinstance(value, float):
-            print(f"  {name:<16}{value:.4f}")
-        elif isinstance(value, int) or value is None:
-            print(f"  {name:<16}{'n/a' if value is None else value}")
-    if args.per_view is not None:
-        written = write_per_view(args.per_view, metrics[PER_VIEW])
-        print(f"  per-view metrics of {len(metrics[PER_VIEW])} image(s) in {written}")
-    _note_other_scene([item], scene)
-    return 0
-
-
-def _scores(
-    item: StoredArtifact, artifact: Artifact, scene: Scene, settings: dict
-) -> dict[str, Any]:
-    """The evaluator's metrics of one stored model, with its storage as result.json has it."""
-    metrics = evaluate(scene, artifact, settings)
-    metrics["storage_mb"] = item.manifest.size_mb
-    return metrics
-
-
-def _lineage(store: ArtifactStore, item: StoredArtifact) -> list[StoredArtifact]:
-    """`item` and every artifact upstream of it, each once, upstream ones first."""
-    ordered: dict[str, StoredArtifact] = {}
-
-    def visit(entry: StoredArtifact) -> None:
-        for parent in entry.manifest.lineage:
-            if parent.key in ordered:
-                continue
-            if not store.has(parent.stage, parent.key):
-                raise MissingArtifactError(
-                    f"the lineage of {entry.stage} {entry.key[:KEY_COLUMN_WIDTH]} needs "
-                    f"{parent.stage} {parent.key[:KEY_COLUMN_WIDTH]}, which is no longer in "
-                    f"{store.root}: score the artifacts still there one by one"
-                )
-            manifest = store.manifest(parent.stage, parent.key)
-            visit(StoredArtifact(store.path(parent.stage, parent.key), manifest))
-        ordered[entry.key] = entry
-
-    visit(item)
-    return list(ordered.values())
-
-
-def _lineage_table(entries: list[StoredArtifact], rows: list[dict[str, Any]]) -> str:
-    """One line per artifact: stage, key prefix and its LINEAGE_COLUMNS (n/a where missing)."""
-    header = ["stage", "key", *LINEAGE_COLUMNS]
-    cells = [
-        [
-            entry.stage,
-            entry.key[:KEY_COLUMN_WIDTH],
-            *(_cell(row.get(name)) for name in LINEAGE_COLUMNS),
-        ]
-        for entry, row in zip(entries, rows, strict=True)
-    ]
-    widths = [max(len(line[column]) for line in [header, *cells]) for column in range(len(header))]
-    return "\n".join(
-        "  "
-        + "  ".join(text.ljust(width) for text, width in zip(line, widths, strict=True)).rstrip()
-        for line in [header, *cells]
-    )
-
-
-def _cell(value: Any) -> str:
-    """A metric as `eval` prints it: floats to 4 decimals, None as n/a."""
-    if value is None:
-        return "n/a"
-    return f"{value:.4f}" if isinstance(value, float) else str(value)
-
-
 def _render(store: ArtifactStore, args: argparse.Namespace) -> int:
     """Write the artifact's renders of the chosen cameras over time, or along a camera path,
     and say where they are."""
     settings = _render_settings(args)
     device = usable_device(args.device, "--device")
-    item, artifact = _model_artifact(store, args.key)
-    others = [_model_artifact(store, key) for key in args.beside or []]
+    item, artifact = model_artifact(store, args.key)
+    others = [model_artifact(store, key) for key in args.beside or []]
     out = _output_folder(args.out, DEFAULT_RENDERS, item)
-    scene = _load_scene(args)
+    scene = load_run_scene(args)
     model = SceneModel.from_artifact(artifact).to(device)
     beside = [SceneModel.from_artifact(other).to(device) for _, other in others]
     if isinstance(settings, PathSettings):
@@ -351,24 +243,8 @@ def _render(store: ArtifactStore, args: argparse.Namespace) -> int:
         video = f", video {renders.video}" if renders.video is not None else ""
         what = "path" if renders.camera_id is None else f"camera {renders.camera_id}"
         print(f"  {what}: {len(renders.frames)} frame(s) in {renders.folder}{video}")
-    _note_other_scene(entries, scene)
+    note_other_scene(entries, scene)
     return 0
-
-
-def _note_other_scene(items: Sequence[StoredArtifact], scene: Scene) -> None:
-    """A stderr note for each model that was not trained on this scene as loaded here (the
-    fingerprint in its manifest differs): its test views, and so its scores, may not be the
-    run's."""
-    for item in items:
-        trained_on = item.manifest.provenance.get("scene")
-        if trained_on is not None and trained_on != scene.fingerprint:
-            print(
-                f"note: {item.stage} {item.key[:KEY_COLUMN_WIDTH]} was not trained on "
-                f"{scene.root} as loaded here (its files or loader options differ), so its test "
-                "views may not be the run's: pass the run's --downscale and --test-cameras "
-                "(its max_points and effects also count)",
-                file=sys.stderr,
-            )
 
 
 def _render_settings(args: argparse.Namespace) -> RenderSettings | PathSettings:
@@ -390,10 +266,10 @@ def _render_settings(args: argparse.Namespace) -> RenderSettings | PathSettings:
 
 def _ply(store: ArtifactStore, args: argparse.Namespace) -> int:
     """Write the artifact's model at the chosen frames as PLY files and say where they are."""
-    _require_stride(args.frame_stride)
+    require_stride(args.frame_stride)
     if args.frame and args.frame_stride != 1:
         raise RelayGSError("--frame-stride: --frame names the frames to export; give one of them")
-    item, artifact = _model_artifact(store, args.key)
+    item, artifact = model_artifact(store, args.key)
     out = _output_folder(args.out, DEFAULT_PLY, item)
     model = SceneModel.from_artifact(artifact)
     frames = args.frame or range(0, model.num_frames, args.frame_stride)
@@ -402,28 +278,11 @@ def _ply(store: ArtifactStore, args: argparse.Namespace) -> int:
     return 0
 
 
-def _require_stride(stride: int) -> None:
-    """One line unless `--frame-stride` is at least 1."""
-    if stride < 1:
-        raise RelayGSError(f"--frame-stride must be >= 1, got {stride}")
-
-
 def _output_folder(given: Path | None, default_root: str, item: StoredArtifact) -> Path:
     """`--out` as an absolute folder that can be written, by default
     `default_root`/<stage>-<key prefix> under the current directory."""
     name = f"{item.stage}-{item.key[:KEY_COLUMN_WIDTH]}"
     return require_creatable_folder((given or Path(default_root) / name).absolute(), "--out")
-
-
-def _model_artifact(store: ArtifactStore, key_prefix: str) -> tuple[StoredArtifact, Artifact]:
-    """The stored model of `key_prefix`, refusing a stored evaluation (it holds no model)."""
-    item = store.find(key_prefix)
-    if item.stage == EVAL_STAGE:
-        raise RelayGSError(
-            f"{item.key[:KEY_COLUMN_WIDTH]} is a stored evaluation, not a model: "
-            f"`show {key_prefix}` prints its metrics"
-        )
-    return item, store.load(item.stage, item.key)
 
 
 def _verify(store: ArtifactStore, args: argparse.Namespace) -> int:

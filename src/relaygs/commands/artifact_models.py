@@ -1,0 +1,73 @@
+"""What the store's model commands (`artifacts eval`, `render`, `ply`) share: the stored model a
+key names, the scene it was trained on loaded as the run loaded it (with a note when it was
+not), and the frame-stride check."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from relaygs.app.evaluation import EVAL_STAGE
+from relaygs.cli import camera_ids
+from relaygs.data import Scene, load_scene
+from relaygs.errors import RelayGSError
+from relaygs.pipeline.artifact import Artifact
+from relaygs.pipeline.store import ArtifactStore, StoredArtifact
+
+KEY_COLUMN_WIDTH = 16
+
+
+def add_scene_arguments(parser: argparse.ArgumentParser) -> None:
+    """`--scene` and the loader options that decide its views as the run loaded them."""
+    parser.add_argument(
+        "--scene", type=Path, required=True, help="the scene folder it was trained on"
+    )
+    parser.add_argument(
+        "--downscale", type=int, default=1, help="the run's scene.loader.downscale (default 1)"
+    )
+    parser.add_argument(
+        "--test-cameras",
+        type=camera_ids,
+        metavar="IDS",
+        help="the run's scene.loader.test_cameras, e.g. 1,5 (default: the scene's own)",
+    )
+
+
+def load_run_scene(args: argparse.Namespace) -> Scene:
+    """The `--scene` folder loaded with the run's loader options (`add_scene_arguments`)."""
+    return load_scene(args.scene, downscale=args.downscale, test_cameras=args.test_cameras)
+
+
+def model_artifact(store: ArtifactStore, key_prefix: str) -> tuple[StoredArtifact, Artifact]:
+    """The stored model of `key_prefix`, refusing a stored evaluation (it holds no model)."""
+    item = store.find(key_prefix)
+    if item.stage == EVAL_STAGE:
+        raise RelayGSError(
+            f"{item.key[:KEY_COLUMN_WIDTH]} is a stored evaluation, not a model: "
+            f"`show {key_prefix}` prints its metrics"
+        )
+    return item, store.load(item.stage, item.key)
+
+
+def note_other_scene(items: Sequence[StoredArtifact], scene: Scene) -> None:
+    """A stderr note for each model that was not trained on this scene as loaded here (the
+    fingerprint in its manifest differs): its test views, and so its scores, may not be the
+    run's."""
+    for item in items:
+        trained_on = item.manifest.provenance.get("scene")
+        if trained_on is not None and trained_on != scene.fingerprint:
+            print(
+                f"note: {item.stage} {item.key[:KEY_COLUMN_WIDTH]} was not trained on "
+                f"{scene.root} as loaded here (its files or loader options differ), so its test "
+                "views may not be the run's: pass the run's --downscale and --test-cameras "
+                "(its max_points and effects also count)",
+                file=sys.stderr,
+            )
+
+
+def require_stride(stride: int) -> None:
+    """One line unless `--frame-stride` is at least 1."""
+    if stride < 1:
+        raise RelayGSError(f"--frame-stride must be >= 1, got {stride}")

@@ -1,0 +1,111 @@
+"""`python -m relaygs.artifacts eval KEY --scene DIR [--lineage]`: score a stored model (and,
+with `--lineage`, every model upstream of it) on the scene's test views."""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from relaygs.commands.artifact_models import (
+    KEY_COLUMN_WIDTH,
+    load_run_scene,
+    model_artifact,
+    note_other_scene,
+    require_stride,
+)
+from relaygs.data import Scene
+from relaygs.per_view import PER_VIEW, write_per_view
+from relaygs.pipeline.artifact import Artifact
+from relaygs.pipeline.store import ArtifactStore, MissingArtifactError, StoredArtifact
+from relaygs.stages import evaluate
+
+LINEAGE_COLUMNS = ("psnr", "ssim", "fg_psnr", "num_gaussians", "storage_mb")
+
+
+def run_eval(store: ArtifactStore, args: argparse.Namespace) -> int:
+    """Render the artifact's model (with `--lineage`, each model of its lineage too) at the
+    scene's test views and print the test metrics, e.g. to see what each stage contributes."""
+    require_stride(args.frame_stride)
+    item, artifact = model_artifact(store, args.key)
+    scene = load_run_scene(args)
+    settings = {"eval": {"frame_stride": args.frame_stride}}
+    tests = ", ".join(str(camera.camera_id) for camera in scene.test_cameras) or "none"
+    where = f"on {args.scene} (test cameras {tests})"
+    if args.lineage:
+        entries = _lineage(store, item)
+        print(f"{item.stage} {item.key[:KEY_COLUMN_WIDTH]} and its lineage {where}")
+        rows = [
+            _scores(entry, store.load(entry.stage, entry.key), scene, settings) for entry in entries
+        ]
+        print(_lineage_table(entries, rows))
+        note_other_scene(entries, scene)
+        return 0
+    metrics = _scores(item, artifact, scene, settings)
+    print(f"{item.stage} {item.key[:KEY_COLUMN_WIDTH]} {where}")
+    for name, value in metrics.items():
+        if isinstance(value, float):
+            print(f"  {name:<16}{value:.4f}")
+        elif isinstance(value, int) or value is None:
+            print(f"  {name:<16}{'n/a' if value is None else value}")
+    if args.per_view is not None:
+        written = write_per_view(args.per_view, metrics[PER_VIEW])
+        print(f"  per-view metrics of {len(metrics[PER_VIEW])} image(s) in {written}")
+    note_other_scene([item], scene)
+    return 0
+
+
+def _scores(
+    item: StoredArtifact, artifact: Artifact, scene: Scene, settings: dict
+) -> dict[str, Any]:
+    """The evaluator's metrics of one stored model, with its storage as result.json has it."""
+    metrics = evaluate(scene, artifact, settings)
+    metrics["storage_mb"] = item.manifest.size_mb
+    return metrics
+
+
+def _lineage(store: ArtifactStore, item: StoredArtifact) -> list[StoredArtifact]:
+    """`item` and every artifact upstream of it, each once, upstream ones first."""
+    ordered: dict[str, StoredArtifact] = {}
+
+    def visit(entry: StoredArtifact) -> None:
+        for parent in entry.manifest.lineage:
+            if parent.key in ordered:
+                continue
+            if not store.has(parent.stage, parent.key):
+                raise MissingArtifactError(
+                    f"the lineage of {entry.stage} {entry.key[:KEY_COLUMN_WIDTH]} needs "
+                    f"{parent.stage} {parent.key[:KEY_COLUMN_WIDTH]}, which is no longer in "
+                    f"{store.root}: score the artifacts still there one by one"
+                )
+            manifest = store.manifest(parent.stage, parent.key)
+            visit(StoredArtifact(store.path(parent.stage, parent.key), manifest))
+        ordered[entry.key] = entry
+
+    visit(item)
+    return list(ordered.values())
+
+
+def _lineage_table(entries: list[StoredArtifact], rows: list[dict[str, Any]]) -> str:
+    """One line per artifact: stage, key prefix and its LINEAGE_COLUMNS (n/a where missing)."""
+    header = ["stage", "key", *LINEAGE_COLUMNS]
+    cells = [
+        [
+            entry.stage,
+            entry.key[:KEY_COLUMN_WIDTH],
+            *(_cell(row.get(name)) for name in LINEAGE_COLUMNS),
+        ]
+        for entry, row in zip(entries, rows, strict=True)
+    ]
+    widths = [max(len(line[column]) for line in [header, *cells]) for column in range(len(header))]
+    return "\n".join(
+        "  "
+        + "  ".join(text.ljust(width) for text, width in zip(line, widths, strict=True)).rstrip()
+        for line in [header, *cells]
+    )
+
+
+def _cell(value: Any) -> str:
+    """A metric as `eval` prints it: floats to 4 decimals, None as n/a."""
+    if value is None:
+        return "n/a"
+    return f"{value:.4f}" if isinstance(value, float) else str(value)
