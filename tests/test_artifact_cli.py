@@ -511,6 +511,27 @@ def test_a_model_trained_on_every_camera_is_told_to_load_none_as_test_cameras(
     assert code == 0 and "(test cameras none)" in out and "num_test_images 0" in out
 
 
+def test_eval_and_render_load_the_test_cameras_the_run_chose(
+    stage_decoupled, stage_scene_path, tmp_path, capsys
+):
+    from relaygs.data import load_scene
+
+    store = ArtifactStore(tmp_path / "store")
+    key = artifact_key("decouple", 1, {"steps": 2}, "juggle", [])
+    chosen = load_scene(stage_scene_path, test_cameras=[1, 5])
+    provenance = {"scene": chosen.fingerprint, "test_cameras": [1, 5]}  # as a run records it
+    store.get_or_build(
+        "decouple", key, lambda: stage_decoupled, config={}, lineage=[], provenance=provenance
+    )
+    argv = ("eval", key[:8], "--scene", str(stage_scene_path), "--frame-stride", "8")
+    code, out, err = _cli(capsys, store.root, *argv)
+    assert code == 0 and err == "" and "(test cameras 1, 5)" in out.splitlines()[0]
+    render = ("render", key[:8], "--scene", str(stage_scene_path), "--frame-stride", "8")
+    code, _, err = _cli(capsys, store.root, *render, "--no-video", "--out", str(tmp_path / "r"))
+    assert code == 0 and "note:" not in err
+    assert sorted(path.name for path in (tmp_path / "r").iterdir()) == ["cam01", "cam05"]
+
+
 def test_a_model_without_a_recorded_scene_gets_no_note(stored_deform, stage_scene_path, capsys):
     store, key = stored_deform  # stored without provenance, as by older versions
     argv = ("eval", key[:8], "--scene", str(stage_scene_path), "--frame-stride", "8")

@@ -206,6 +206,23 @@ def test_lineage_is_recorded_and_seconds_add_up(tmp_path):
     assert run.train_seconds_total == pytest.approx(deform.lineage_seconds)
 
 
+def test_given_provenance_is_recorded_beside_the_runners_own_entries(tmp_path):
+    store = ArtifactStore(tmp_path)
+    extra = {"test_cameras": [1, 5], "node": "not this"}
+    run = run_pipeline(
+        load_pipeline("relaygs"),
+        FakeStages().table(),
+        FakeScene("scene-a"),
+        lambda node: BASE[node.stage],
+        store,
+        provenance=extra,
+    )
+    for report in run.reports:
+        provenance = store.manifest(report.stage, report.key).provenance
+        assert provenance["test_cameras"] == [1, 5]
+        assert provenance["node"] == report.node and provenance["scene"] == "scene-a"
+
+
 def test_changing_a_downstream_config_rebuilds_only_downstream(tmp_path):
     store, stages = ArtifactStore(tmp_path), FakeStages()
     first = _run(store, stages, BASE)

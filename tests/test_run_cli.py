@@ -270,8 +270,11 @@ def test_the_printed_render_command_loads_the_scene_as_the_run_did(fakes, tmp_pa
     lines = [line.strip() for line in capsys.readouterr().out.splitlines()]
     videos = shlex.split(next(line for line in lines if line.startswith("videos ")))
     args = artifacts_parser().parse_args(videos[videos.index("relaygs.artifacts") + 1 :])
-    trained = ArtifactStore(args.root).find(args.key).manifest.provenance["scene"]
-    assert load_run_scene(args).fingerprint == trained  # so `eval` and `render` add no note
+    item = ArtifactStore(args.root).find(args.key)
+    trained = item.manifest.provenance["scene"]
+    assert load_run_scene(args, item).fingerprint == trained  # so `eval` and `render` add no note
+    args.test_cameras = None  # as typed without it: the manifest's record of the run's choice
+    assert load_run_scene(args, item).fingerprint == trained
 
 
 class _FlushLog(io.StringIO):

@@ -26,6 +26,9 @@ SCENE_FIELDS = frozenset(
 LOADER_OPTIONS = ("downscale", "max_points", "cache_mb", "test_cameras")
 GENERATED_MARKER = "scene.json"
 HASH_LENGTH = 12
+TEST_CAMERAS = "test_cameras"
+"""Manifest provenance key of the test camera ids a run chose, so the artifacts commands load
+the scene with the same test cameras later (`scene_provenance`)."""
 
 
 @dataclass(frozen=True)
@@ -154,3 +157,11 @@ def _count(section: Mapping[str, Any], name: str, minimum: int) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
         raise InputError(f"scene.{name} must be an integer >= {minimum}, got {value!r}")
     return value
+
+
+def scene_provenance(spec: SceneSpec) -> dict[str, Any]:
+    """What every artifact of a run records about how its scene was loaded, beyond the
+    fingerprint: the test camera ids, when the run chose them (`scene.loader.test_cameras`;
+    without them the loader's default applies again)."""
+    chosen = make_options(**spec.loader).test_cameras
+    return {} if chosen is None else {TEST_CAMERAS: list(chosen)}

@@ -29,7 +29,7 @@ from relaygs.app.result import (
     format_summary,
     write_result,
 )
-from relaygs.app.scenes import prepare_scene
+from relaygs.app.scenes import prepare_scene, scene_provenance
 from relaygs.app.suite import StageSuite, load_stage_suite
 from relaygs.app.tensorboard import TensorBoardLog, flatten_config
 from relaygs.data import Scene
@@ -129,6 +129,7 @@ def _execute(
             on_corrupt=plan.on_corrupt,
             on_node_done=_announce,
             canonical=suite.canonical,
+            provenance=scene_provenance(plan.scene),
         )
         _log_reused_stages(log, suite, run)
         evaluation = evaluate_through_store(

@@ -10,6 +10,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from relaygs.app.evaluation import EVAL_STAGE
+from relaygs.app.scenes import TEST_CAMERAS
 from relaygs.cli import camera_ids
 from relaygs.data import Scene, load_scene
 from relaygs.errors import RelayGSError
@@ -31,13 +32,18 @@ def add_scene_arguments(parser: argparse.ArgumentParser) -> None:
         "--test-cameras",
         type=camera_ids,
         metavar="IDS",
-        help="the run's scene.loader.test_cameras, e.g. 1,5 (default: the scene's own)",
+        help="test camera ids, e.g. 1,5 (default: those the model's run chose, when its "
+        "manifest records them, else the scene's own)",
     )
 
 
-def load_run_scene(args: argparse.Namespace) -> Scene:
-    """The `--scene` folder loaded with the run's loader options (`add_scene_arguments`)."""
-    return load_scene(args.scene, downscale=args.downscale, test_cameras=args.test_cameras)
+def load_run_scene(args: argparse.Namespace, item: StoredArtifact) -> Scene:
+    """The `--scene` folder loaded with the run's loader options (`add_scene_arguments`); the
+    test cameras default to those `item`'s run chose, when its manifest records them."""
+    test_cameras = args.test_cameras
+    if test_cameras is None:
+        test_cameras = item.manifest.provenance.get(TEST_CAMERAS)
+    return load_scene(args.scene, downscale=args.downscale, test_cameras=test_cameras)
 
 
 def model_artifact(store: ArtifactStore, key_prefix: str) -> tuple[StoredArtifact, Artifact]:

@@ -77,7 +77,11 @@ def _parser() -> argparse.ArgumentParser:
     score.add_argument("key", help="full key or a unique prefix (at least 4 hex digits)")
     add_scene_arguments(score)
     score.add_argument(
-        "--frame-stride", type=int, default=1, metavar="N", help="score every N-th frame"
+        "--frame-stride",
+        type=int,
+        default=1,
+        metavar="N",
+        help="score every N-th frame (default 1; a run scores every eval.frame_stride-th)",
     )
     outputs = score.add_mutually_exclusive_group()
     outputs.add_argument(
@@ -229,7 +233,7 @@ def _render(store: ArtifactStore, args: argparse.Namespace) -> int:
     item, artifact = model_artifact(store, args.key)
     others = [model_artifact(store, key) for key in args.beside or []]
     out = _output_folder(args.out, DEFAULT_RENDERS, item)
-    scene = load_run_scene(args)
+    scene = load_run_scene(args, item)
     model = SceneModel.from_artifact(artifact).to(device)
     beside = [SceneModel.from_artifact(other).to(device) for _, other in others]
     if isinstance(settings, PathSettings):

@@ -27,7 +27,7 @@ def run_eval(store: ArtifactStore, args: argparse.Namespace) -> int:
     scene's test views and print the test metrics, e.g. to see what each stage contributes."""
     require_stride(args.frame_stride)
     item, artifact = model_artifact(store, args.key)
-    scene = load_run_scene(args)
+    scene = load_run_scene(args, item)
     settings = {"eval": {"frame_stride": args.frame_stride}}
     tests = ", ".join(str(camera.camera_id) for camera in scene.test_cameras) or "none"
     where = f"on {args.scene} (test cameras {tests})"

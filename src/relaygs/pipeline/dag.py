@@ -104,6 +104,7 @@ def run_pipeline(
     on_corrupt: OnCorrupt = "rebuild",
     on_node_done: Callable[[NodeReport], None] | None = None,
     canonical: CanonicalFn | None = None,
+    provenance: Mapping[str, Any] | None = None,
 ) -> PipelineRun:
     """Walk the nodes in topological order, loading each artifact from `store` or building it.
 
@@ -112,7 +113,8 @@ def run_pipeline(
     stage function gets it whole), the scene fingerprint and its upstream keys in listed
     order. `canonical`, when given, first maps each node's config to its canonical form (what
     is keyed and what the stage gets). `on_node_done` sees each node's report as soon as it
-    is done.
+    is done. `provenance` entries (JSON values, e.g. the scene's test cameras) go into the
+    manifest of every artifact built, beside the node, schema version and scene fingerprint.
     """
     missing = sorted(pipeline.stage_types - set(stage_fns))
     if missing:
@@ -138,7 +140,12 @@ def run_pipeline(
                 partial(stage_fns[node.stage], scene, upstream, cfg),
                 config=keyed_cfg,
                 lineage=lineage,
-                provenance={"node": node.name, "schema_version": version, "scene": fingerprint},
+                provenance={
+                    **(provenance or {}),
+                    "node": node.name,
+                    "schema_version": version,
+                    "scene": fingerprint,
+                },
                 on_corrupt=on_corrupt,
             )
         except (OSError, MemoryError, RuntimeError) as error:
