@@ -2,6 +2,7 @@
 whose reader went away."""
 
 import os
+import shlex
 import subprocess
 import sys
 from pathlib import Path
@@ -10,7 +11,7 @@ import pytest
 
 import relaygs
 from relaygs.__main__ import COMMANDS
-from relaygs.cli import BROKEN_PIPE_EXIT, INTERRUPTED_EXIT, start_tool
+from relaygs.cli import BROKEN_PIPE_EXIT, INTERRUPTED_EXIT, python_command, start_tool
 
 LONG_OUTPUT = (
     "import sys; from relaygs.cli import run_tool; sys.exit(run_tool(lambda: print('x' * 99)))"
@@ -136,3 +137,12 @@ def test_a_tools_output_its_terminal_cannot_encode_is_escaped_not_a_traceback(tm
         capture_output=True,
     )
     assert (started.returncode, started.stdout) == (0, b"\\u0394 PSNR \\u2191\n"), started.stderr
+
+
+def test_printed_commands_start_python_as_this_shell_would_find_it(tmp_path, monkeypatch):
+    here = Path(sys.executable).absolute()
+    monkeypatch.setenv("PATH", f"{here.parent}{os.pathsep}/usr/bin")
+    if (here.parent / "python").exists():
+        assert python_command() == "python"  # an activated venv: `python` is this one
+    monkeypatch.setenv("PATH", str(tmp_path))  # `python` finds another or none
+    assert shlex.split(python_command()) == [str(here)]

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from hydra.core.override_parser.overrides_parser import OverridesParser
 
+from relaygs.cli import python_command
 from relaygs.commands import frames as frames_command
 from relaygs.data import load_scene
 from relaygs.data import video_frames as video_frames_module
@@ -77,17 +78,28 @@ def test_frames_are_written_in_natural_order_cut_to_the_shortest_video(videos, t
     first = (out / "colmap_images.txt").read_text().split()
     assert first == [f"{camera}/frame_00000.png" for camera in sources]
     assert printed.startswith(f"wrote 4 frame(s) at 15 fps of 3 camera(s) into {out}")
-    assert "note: every camera keeps 4 frame(s), all that cam02 gave\n" in printed
-    assert f"then train: python -m relaygs.run scene.path={out}\n" in printed + "\n"
+    assert "note: every camera keeps 4 frame(s), all that cam02 gave; cam00, cam01 had more\n" in (
+        printed
+    )
+    assert f"then train: {python_command()} -m relaygs.run scene.path={out}\n" in printed + "\n"
 
 
 def test_frames_stop_at_the_count_asked_for(videos, tmp_path, capsys):
     out = tmp_path / "scene"
-    assert _main(capsys, videos, out, "--frames", 3)[0] == 0
+    code, printed, _ = _main(capsys, videos, out, "--frames", 3)
+    assert code == 0 and "note:" not in printed  # the count asked for, not a short video
     assert sorted(path.name for path in (out / "cam02").iterdir()) == [
         f"frame_{n:05d}.jpg" for n in range(3)
     ]
-    assert "note:" not in capsys.readouterr().out
+
+
+def test_videos_of_one_length_get_no_note(tmp_path, capsys):
+    folder = tmp_path / "videos"
+    folder.mkdir()
+    for name in ("a.mp4", "b.mp4", "c.mp4"):
+        _grey_video(folder / name, 5)
+    code, printed, _ = _main(capsys, folder, tmp_path / "scene")
+    assert code == 0 and printed.startswith("wrote 5 frame(s)") and "note:" not in printed
 
 
 def test_the_written_folder_loads_as_a_multiview_scene_once_posed(tmp_path, capsys):

@@ -8,6 +8,7 @@ from relaygs.commands.artifacts import main
 from relaygs.data.scene import frame_time
 from relaygs.errors import InputError, RelayGSError
 from relaygs.model import MAX_LOG_SCALE
+from relaygs.pipeline import ArtifactStore, artifact_key
 from relaygs.ply import ply_columns, write_frame_plys
 from relaygs.stages.model_render import ModelRenderer
 from relaygs.stages.render import Part, splat
@@ -141,6 +142,20 @@ def _ply_cli(capsys, store, key, *args):
     code = main(["--root", str(store.root), "ply", key[:8], *args])
     out, err = capsys.readouterr()
     return code, out, err
+
+
+def test_a_runs_store_exports_beside_its_artifacts_folder(
+    stage_deformed, tmp_path, capsys, monkeypatch
+):
+    store = ArtifactStore(tmp_path / "run outputs" / "artifacts")  # <paths.outputs>/artifacts
+    key = artifact_key("deform", 1, {"steps": 20}, "juggle", [])
+    store.get_or_build("deform", key, lambda: stage_deformed, config={}, lineage=[])
+    (tmp_path / "elsewhere").mkdir()
+    monkeypatch.chdir(tmp_path / "elsewhere")
+    code, printed, _ = _ply_cli(capsys, store, key, "--frame", "0")
+    out = tmp_path / "run outputs" / "ply" / f"deform-{key[:16]}"
+    assert (code, printed) == (0, f"deform {key[:16]}: 1 PLY file(s) in {out}\n")
+    assert not (tmp_path / "elsewhere" / "outputs").exists()
 
 
 def test_the_command_writes_the_chosen_frames_into_a_folder_named_after_the_model(

@@ -8,6 +8,8 @@ import argparse
 import importlib
 import io
 import os
+import shlex
+import shutil
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -67,6 +69,19 @@ def int_at_least(minimum: int) -> Callable[[str], int]:
         return value
 
     return parse
+
+
+def python_command() -> str:
+    """How a printed command should start Python so that it pastes as is: `python` when that
+    name finds this interpreter's folder first (an activated venv), else this interpreter's
+    path, shell-quoted (`.venv/bin/python` run without activating the venv)."""
+    if not sys.executable:
+        return "python"
+    found = shutil.which("python")
+    here = Path(sys.executable).absolute()
+    if found is not None and Path(found).absolute().parent == here.parent:
+        return "python"
+    return shlex.quote(str(here))
 
 
 def camera_ids(text: str) -> tuple[int, ...]:

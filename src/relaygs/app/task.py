@@ -32,6 +32,7 @@ from relaygs.app.result import (
 from relaygs.app.scenes import prepare_scene, scene_provenance
 from relaygs.app.suite import StageSuite, load_stage_suite
 from relaygs.app.tensorboard import TensorBoardLog, flatten_config
+from relaygs.cli import python_command
 from relaygs.data import Scene
 from relaygs.errors import resource_error
 from relaygs.per_view import METRIC_COLUMNS, PER_VIEW, PER_VIEW_FILE, frame_means, write_per_view
@@ -246,6 +247,7 @@ def _where(plan: RunPlan, outcome: _Outcome, result_path: Path) -> str:
         loader += f" --test-cameras {shlex.quote(ids)}"
     device = f" --device {shlex.quote(plan.device)}" if plan.device != "cpu" else ""
     root, scene_dir = shlex.quote(str(plan.artifacts_root)), shlex.quote(str(scene.root))
+    artifacts = f"{python_command()} -m relaygs.artifacts --root {root}"
     lines = [
         "outputs:",
         f"  result       {result_path}",
@@ -253,8 +255,8 @@ def _where(plan: RunPlan, outcome: _Outcome, result_path: Path) -> str:
         f"  tensorboard  tensorboard --logdir {shlex.quote(str(outcome.log_dir))}",
         f"  model        {output.path}",
         f"  store        {plan.artifacts_root}  (python -m relaygs.artifacts --root ... ls)",
-        f"  ply          python -m relaygs.artifacts --root {root} ply {output.key[:16]}",
-        f"  videos       python -m relaygs.artifacts --root {root} render "
-        f"{output.key[:16]} --scene {scene_dir}{loader} --truth --error{device}",
+        f"  ply          {artifacts} ply {output.key[:16]}",
+        f"  videos       {artifacts} render {output.key[:16]} --scene {scene_dir}{loader} "
+        f"--truth --error{device}",
     ]
     return "\n".join(lines)

@@ -39,8 +39,9 @@ from relaygs.renders import PathSettings, RenderSettings, write_path_render, wri
 from relaygs.stages.scene_model import SceneModel
 
 DEFAULT_ROOT = "outputs/artifacts"
-DEFAULT_RENDERS = "outputs/renders"
-DEFAULT_PLY = "outputs/ply"
+RENDERS_FOLDER = "renders"
+PLY_FOLDER = "ply"
+STORE_FOLDER = "artifacts"  # a run's store: <paths.outputs>/artifacts
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -139,7 +140,10 @@ def _parser() -> argparse.ArgumentParser:
     render.add_argument("--no-video", action="store_true", help="write PNG frames only")
     render.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N (default cpu)")
     render.add_argument(
-        "--out", type=Path, help=f"output folder (default {DEFAULT_RENDERS}/<stage>-<key>)"
+        "--out",
+        type=Path,
+        help=f"output folder (default {RENDERS_FOLDER}/<stage>-<key> beside the store's folder, "
+        f"e.g. outputs/{RENDERS_FOLDER}/...)",
     )
     render.set_defaults(command_fn=_render)
     ply = commands.add_parser(
@@ -157,7 +161,10 @@ def _parser() -> argparse.ArgumentParser:
         "--frame-stride", type=int, default=1, metavar="N", help="export every N-th frame"
     )
     ply.add_argument(
-        "--out", type=Path, help=f"output folder (default {DEFAULT_PLY}/<stage>-<key>)"
+        "--out",
+        type=Path,
+        help=f"output folder (default {PLY_FOLDER}/<stage>-<key> beside the store's folder, "
+        f"e.g. outputs/{PLY_FOLDER}/...)",
     )
     ply.set_defaults(command_fn=_ply)
     verify = commands.add_parser("verify", help="check every artifact's hashes (exit 1 if bad)")
@@ -232,7 +239,7 @@ def _render(store: ArtifactStore, args: argparse.Namespace) -> int:
     device = usable_device(args.device, "--device")
     item, artifact = model_artifact(store, args.key)
     others = [model_artifact(store, key) for key in args.beside or []]
-    out = _output_folder(args.out, DEFAULT_RENDERS, item)
+    out = _output_folder(args.out, RENDERS_FOLDER, item, store)
     scene = load_run_scene(args, item)
     model = SceneModel.from_artifact(artifact).to(device)
     beside = [SceneModel.from_artifact(other).to(device) for _, other in others]
@@ -274,7 +281,7 @@ def _ply(store: ArtifactStore, args: argparse.Namespace) -> int:
     if args.frame and args.frame_stride != 1:
         raise RelayGSError("--frame-stride: --frame names the frames to export; give one of them")
     item, artifact = model_artifact(store, args.key)
-    out = _output_folder(args.out, DEFAULT_PLY, item)
+    out = _output_folder(args.out, PLY_FOLDER, item, store)
     model = SceneModel.from_artifact(artifact)
     frames = args.frame or range(0, model.num_frames, args.frame_stride)
     written = write_frame_plys(model, out, list(dict.fromkeys(frames)))
@@ -282,11 +289,16 @@ def _ply(store: ArtifactStore, args: argparse.Namespace) -> int:
     return 0
 
 
-def _output_folder(given: Path | None, default_root: str, item: StoredArtifact) -> Path:
+def _output_folder(
+    given: Path | None, kind: str, item: StoredArtifact, store: ArtifactStore
+) -> Path:
     """`--out` as an absolute folder that can be written, by default
-    `default_root`/<stage>-<key prefix> under the current directory."""
-    name = f"{item.stage}-{item.key[:KEY_COLUMN_WIDTH]}"
-    return require_creatable_folder((given or Path(default_root) / name).absolute(), "--out")
+    <outputs>/`kind`/<stage>-<key prefix>: <outputs> is the folder holding the store when the
+    store is a run's `artifacts` folder (so exports land beside the run's other outputs), else
+    ./outputs."""
+    outputs = store.root.parent if store.root.name == STORE_FOLDER else Path("outputs")
+    default = outputs / kind / f"{item.stage}-{item.key[:KEY_COLUMN_WIDTH]}"
+    return require_creatable_folder((given or default).absolute(), "--out")
 
 
 def _verify(store: ArtifactStore, args: argparse.Namespace) -> int:

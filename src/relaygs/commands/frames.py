@@ -12,7 +12,7 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from relaygs.cli import OneLineErrorParser, int_at_least
+from relaygs.cli import OneLineErrorParser, int_at_least, python_command
 from relaygs.data.video_frames import (
     COLMAP_LIST,
     FRAME_FORMATS,
@@ -94,7 +94,7 @@ def describe(scene: ExtractedScene, seconds: float) -> str:
         f"  colmap exhaustive_matcher --database_path {out}/colmap.db",
         f"  mkdir -p {out}/sparse && colmap mapper --database_path {out}/colmap.db "
         f"--image_path {out} --output_path {out}/sparse",
-        f"then train: python -m relaygs.run {scene_override(scene.folder)}",
+        f"then train: {python_command()} -m relaygs.run {scene_override(scene.folder)}",
     ]
     return "\n".join(lines)
 
@@ -105,10 +105,19 @@ def _notes(scene: ExtractedScene) -> list[str]:
     cameras = scene.cameras.items()
     notes = []
     short = [name for name, camera in cameras if camera.ran_out and camera.written == scene.frames]
-    if len(short) < len(scene.cameras):
-        notes.append(
-            f"note: every camera keeps {scene.frames} frame(s), all that {', '.join(short)} gave"
-        )
+    if short:
+        decoded = max(scene.cameras[name].decoded for name in short)
+        longer = [
+            name
+            for name, camera in cameras
+            if name not in short
+            and (camera.written > scene.frames or (camera.stated or 0) > decoded)
+        ]
+        if longer:
+            notes.append(
+                f"note: every camera keeps {scene.frames} frame(s), all that {', '.join(short)} "
+                f"gave; {', '.join(longer)} had more"
+            )
     for name, camera in cameras:
         if camera.ran_out and camera.stated is not None and camera.decoded < camera.stated:
             notes.append(
