@@ -91,7 +91,7 @@ def test_binary_and_text_models_round_trip(tmp_path: Path):
     for binary in (True, False):
         folder = tmp_path / str(binary)
         write_model(folder, model, binary=binary)
-        loaded = read_model(folder)
+        loaded = read_model(str(folder))  # a path given as text, as load_scene takes it
         assert loaded.cameras == model.cameras
         assert loaded.images == model.images
         assert np.array_equal(loaded.xyz, model.xyz) and np.array_equal(loaded.rgb, model.rgb)

@@ -17,6 +17,7 @@ from relaygs.data import video_frames as video_frames_module
 from relaygs.data.export import export_multiview
 from relaygs.data.synthetic import generate
 from relaygs.data.video_frames import FrameSelection
+from relaygs.errors import InputError
 
 
 def _video(path: Path, images: list[np.ndarray], fps: float = 30.0) -> Path:
@@ -57,6 +58,8 @@ def videos(tmp_path):
         _grey_video(folder / name, count)
     (folder / "notes.txt").write_text("not a video")
     (folder / "clips.mp4").mkdir()  # a folder, whatever its name
+    _grey_video(folder / ".hidden.mp4", 9)  # hidden files are no cameras,
+    (folder / "._side_2.mp4").write_bytes(b"\0" * 64)  # nor macOS's resource forks
     return folder
 
 
@@ -232,3 +235,17 @@ def test_a_video_cut_short_is_named(tmp_path, capsys):
     assert 0 < frames < 40
     assert f"note: every camera keeps {frames} frame(s), all that cam01 gave" in printed
     assert f"note: cam01's b.avi decoded {frames} of the 40 frames it states" in printed
+
+
+def test_a_scene_folder_or_a_videos_folder_given_to_the_wrong_command_says_which_to_use(
+    videos, tmp_path, capsys
+):
+    scene = tmp_path / "scene"
+    assert _main(capsys, videos, scene)[0] == 0
+    code, _, err = _main(capsys, scene, tmp_path / "again")
+    assert (
+        code == 1
+        and f"its camXX folders make it a scene: python -m relaygs.run scene.path={scene}" in err
+    )
+    with pytest.raises(InputError, match=r"for one video per camera, run python -m relaygs.frames"):
+        load_scene(videos)

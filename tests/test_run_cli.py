@@ -64,7 +64,10 @@ def _main(args):
         (["relay.kk=3"], "relay.kk"),
         (["hydra/launcher=nope"], "Could not find 'hydra/launcher/nope'"),
         (["relay.k=[1,"], "cannot parse overrides"),
-        (["paths.outputs=/tmp/scène"], """need quotes around the value: 'scene.path="/data/"""),
+        (["paths.outputs=/tmp/scène"], """non-ASCII characters Hydra's quotes too: 'scene.path="""),
+        (["scene.path=/data/my", "scene"], "'<EOF>'; a value with spaces needs shell quotes"),
+        (["scene.test_cameras=[1,2]"], "did you mean scene.loader.test_cameras?"),
+        (["+scene.downscale=2"], "(did you mean scene.loader.downscale?)"),
         (["train=nope"], "train: expected a config section (a mapping), got 'nope'"),
         (["relay.k=${nope}"], "cannot resolve the config: Interpolation key 'nope' not found"),
         (["scene.loader=abc"], "scene.loader must be a mapping of loader options"),
@@ -117,7 +120,7 @@ def test_only_an_override_line_with_non_ascii_characters_gets_the_quoting_hint(f
     assert _main(["relay.k=[1,"]) == 1
     assert "need quotes" not in capsys.readouterr().err
     assert _main(["relay.k=8", "paths.outputs=/tmp/scène"]) == 1
-    assert "need quotes around the value" in capsys.readouterr().err
+    assert "Hydra's quotes too" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize(

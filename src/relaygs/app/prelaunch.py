@@ -10,6 +10,7 @@ is one line before any work starts.
 from __future__ import annotations
 
 import importlib.util
+import re
 import shutil
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -24,6 +25,7 @@ from hydra.types import RunMode
 from omegaconf import DictConfig
 from omegaconf.errors import OmegaConfBaseException
 
+from relaygs.app.scenes import LOADER_OPTIONS
 from relaygs.errors import InputError, one_line
 from relaygs.paths import require_creatable_folder
 
@@ -58,8 +60,12 @@ REMOTE_LAUNCHERS = {
 the commands they submit through, which must be on this machine's PATH."""
 GROUP_HINTS = {"scene": "; or set scene.path=DIR for a capture"}
 CONFIG_NAME = "config"
-QUOTE_HINT = """; non-ASCII characters need quotes around the value: 'scene.path="/data/scène"'"""
-"""Added to a parse error when an override holds characters Hydra reads only when quoted."""
+QUOTE_HINT = (
+    "; a value with spaces needs shell quotes around the override ('scene.path=/data/my "
+    """scene'), one with non-ASCII characters Hydra's quotes too: 'scene.path="/data/scène"'"""
+)
+"""Added to a parse error when an override holds characters Hydra reads only when quoted, or
+is a bare word (a path with a space the shell split in two)."""
 
 JobValidator = Callable[[DictConfig, bool], None]
 """Raises InputError when a composed job config is bad; the flag says whether the job runs on
@@ -261,7 +267,8 @@ def _parse(args: Sequence[str]) -> list[Override]:
     try:
         return OverridesParser.create().parse_overrides(list(args))
     except HydraException as error:
-        hint = "" if all(arg.isascii() for arg in args) else QUOTE_HINT
+        plain = all(arg.isascii() and " " not in arg and "=" in arg for arg in args)
+        hint = "" if plain else QUOTE_HINT
         raise InputError(f"cannot parse overrides: {one_line(error)}{hint}") from error
 
 
@@ -270,4 +277,13 @@ def _compose(overrides: Sequence[str], with_hydra: bool = False) -> DictConfig:
     try:
         return compose(CONFIG_NAME, overrides=list(overrides), return_hydra_config=with_hydra)
     except (HydraException, OmegaConfBaseException) as error:
-        raise InputError(one_line(error)) from error
+        raise InputError(one_line(error) + _loader_hint(str(error))) from error
+
+
+def _loader_hint(message: str) -> str:
+    """`; did you mean scene.loader.X?` when a failed override sets a loader option on the
+    scene itself (`scene.test_cameras=[1,2]`)."""
+    found = re.search(r"override '\+?scene\.(\w+)'", message)
+    if found is None or found[1] not in LOADER_OPTIONS:
+        return ""
+    return f"; did you mean scene.loader.{found[1]}?"

@@ -59,7 +59,11 @@ def scene_spec(section: Mapping[str, Any]) -> SceneSpec:
     """
     unknown = sorted(set(section) - SCENE_FIELDS)
     if unknown:
-        raise InputError(f"scene: unknown field(s) {unknown}; expected {sorted(SCENE_FIELDS)}")
+        loader = [f"scene.loader.{name}" for name in unknown if name in LOADER_OPTIONS]
+        hint = f" (did you mean {', '.join(loader)}?)" if loader else ""
+        raise InputError(
+            f"scene: unknown field(s) {unknown}; expected {sorted(SCENE_FIELDS)}{hint}"
+        )
     effects = section.get("effects")
     if effects is not None:
         effects = tuple(sorted(parse_effects(effects, source="scene.effects")))

@@ -9,6 +9,7 @@ from relaygs.data.multiview import camera_folders, load_multiview
 from relaygs.data.options import DEFAULT_CACHE_MB, DEFAULT_MAX_POINTS, make_options
 from relaygs.data.panoptic import TRAIN_META, load_panoptic
 from relaygs.data.scene import Scene
+from relaygs.data.video_frames import VIDEO_SUFFIXES
 from relaygs.errors import InputError
 from relaygs.paths import require_folder
 
@@ -20,9 +21,12 @@ def detect_format(root: Path) -> str:
         return "panoptic"
     if camera_folders(root):
         return "multiview"
+    hint = ""
+    if any(path.suffix.lower() in VIDEO_SUFFIXES for path in root.iterdir()):
+        hint = f"; for one video per camera, run python -m relaygs.frames {root} SCENE_DIR"
     raise InputError(
         f"{root}: unknown scene layout; expected {TRAIN_META} (PanopticSports layout) or "
-        "camXX/ frame folders with a COLMAP model (multi-view layout)"
+        f"camXX/ frame folders with a COLMAP model (multi-view layout){hint}"
     )
 
 

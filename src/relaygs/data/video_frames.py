@@ -20,6 +20,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from relaygs.data.multiview import CAMERA_FOLDER
 from relaygs.errors import InputError
 from relaygs.paths import require_creatable_folder, require_folder
 from relaygs.progress import progress_bar
@@ -85,18 +86,21 @@ class ExtractedScene:
 
 
 def camera_videos(folder: Path) -> list[Path]:
-    """The video files directly in `folder`, in natural name order (cam2 before cam10)."""
+    """The video files directly in `folder`, in natural name order (cam2 before cam10); hidden
+    files (`.name`, macOS's `._name` resource forks) are not videos."""
     folder = require_folder(Path(folder).expanduser().absolute(), "video folder")
     try:
         entries = list(folder.iterdir())
     except OSError as error:
         raise InputError(f"{folder}: cannot list it ({error.strerror})") from None
     videos = [path for path in entries if path.suffix.lower() in VIDEO_SUFFIXES]
-    videos = [path for path in videos if path.is_file()]
+    videos = [path for path in videos if path.is_file() and not path.name.startswith(".")]
     if len(videos) < MIN_CAMERAS:
+        scene = any(CAMERA_FOLDER.match(path.name) and path.is_dir() for path in entries)
+        hint = f"; its camXX folders make it a scene: python -m relaygs.run scene.path={folder}"
         raise InputError(
             f"{folder}: expected a video per camera ({', '.join(VIDEO_SUFFIXES)}), at least "
-            f"{MIN_CAMERAS}, found {len(videos)}"
+            f"{MIN_CAMERAS}, found {len(videos)}{hint if scene else ''}"
         )
     return sorted(videos, key=_natural_key)
 

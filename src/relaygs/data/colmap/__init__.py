@@ -36,8 +36,9 @@ def is_model_folder(folder: Path) -> bool:
     return model_suffix(folder) is not None
 
 
-def read_model(folder: Path) -> ColmapModel:
+def read_model(folder: str | Path) -> ColmapModel:
     """Read the model in `folder`, preferring the binary files when both forms exist."""
+    folder = Path(folder)
     suffix = model_suffix(folder)
     if suffix is None:
         raise InputError(
