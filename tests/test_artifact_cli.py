@@ -532,6 +532,21 @@ def test_eval_and_render_load_the_test_cameras_the_run_chose(
     assert sorted(path.name for path in (tmp_path / "r").iterdir()) == ["cam01", "cam05"]
 
 
+def test_recorded_test_cameras_the_scene_lacks_are_named_with_the_manifest(
+    stage_decoupled, stage_scene_path, tmp_path, capsys
+):
+    store = ArtifactStore(tmp_path / "store")
+    key = artifact_key("decouple", 1, {"steps": 2}, "juggle", [])
+    provenance = {"scene": "another", "test_cameras": [99]}
+    store.get_or_build(
+        "decouple", key, lambda: stage_decoupled, config={}, lineage=[], provenance=provenance
+    )
+    code, out, err = _cli(capsys, store.root, "eval", key[:8], "--scene", str(stage_scene_path))
+    assert code == 1 and out == "" and err.count("\n") == 1
+    assert "cameras [99] are not in the scene" in err
+    assert f"(the test cameras decouple {key[:16]}'s manifest records for its run; pass" in err
+
+
 def test_a_model_without_a_recorded_scene_gets_no_note(stored_deform, stage_scene_path, capsys):
     store, key = stored_deform  # stored without provenance, as by older versions
     argv = ("eval", key[:8], "--scene", str(stage_scene_path), "--frame-stride", "8")

@@ -146,3 +146,15 @@ def test_printed_commands_start_python_as_this_shell_would_find_it(tmp_path, mon
         assert python_command() == "python"  # an activated venv: `python` is this one
     monkeypatch.setenv("PATH", str(tmp_path))  # `python` finds another or none
     assert shlex.split(python_command()) == [str(here)]
+
+
+def test_a_python_of_another_kind_in_the_same_folder_is_not_taken_for_this_one(
+    tmp_path, monkeypatch
+):
+    other = tmp_path / "python"  # e.g. /usr/bin/python → python2 beside /usr/bin/python3
+    other.write_text("#!/bin/sh\necho python2\n")
+    other.chmod(0o755)
+    (tmp_path / "python3").symlink_to(Path(sys.executable).resolve())
+    monkeypatch.setattr(sys, "executable", str(tmp_path / "python3"))
+    monkeypatch.setenv("PATH", str(tmp_path))
+    assert python_command() == shlex.quote(str(tmp_path / "python3"))

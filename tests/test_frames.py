@@ -81,9 +81,7 @@ def test_frames_are_written_in_natural_order_cut_to_the_shortest_video(videos, t
     first = (out / "colmap_images.txt").read_text().split()
     assert first == [f"{camera}/frame_00000.png" for camera in sources]
     assert printed.startswith(f"wrote 4 frame(s) at 15 fps of 3 camera(s) into {out}")
-    assert "note: every camera keeps 4 frame(s), all that cam02 gave; cam00, cam01 had more\n" in (
-        printed
-    )
+    assert "note: every camera keeps 4 frame(s), all that cam02 gave; cam00 had more\n" in (printed)
     assert f"then train: {python_command()} -m relaygs.run scene.path={out}\n" in printed + "\n"
 
 
@@ -233,7 +231,9 @@ def test_a_video_cut_short_is_named(tmp_path, capsys):
     assert code == 0
     frames = int(printed.split()[1])
     assert 0 < frames < 40
-    assert f"note: every camera keeps {frames} frame(s), all that cam01 gave" in printed
+    assert f"note: every camera keeps {frames} frame(s), all that cam01 gave; cam00 had more\n" in (
+        printed
+    )
     assert f"note: cam01's b.avi decoded {frames} of the 40 frames it states" in printed
 
 
@@ -243,9 +243,43 @@ def test_a_scene_folder_or_a_videos_folder_given_to_the_wrong_command_says_which
     scene = tmp_path / "scene"
     assert _main(capsys, videos, scene)[0] == 0
     code, _, err = _main(capsys, scene, tmp_path / "again")
-    assert (
-        code == 1
-        and f"its camXX folders make it a scene: python -m relaygs.run scene.path={scene}" in err
-    )
-    with pytest.raises(InputError, match=r"for one video per camera, run python -m relaygs.frames"):
+    run = f"{python_command()} -m relaygs.run scene.path={scene}"
+    assert code == 1 and f"its camXX folders make it a scene: {run}" in err
+    with pytest.raises(InputError) as caught:
         load_scene(videos)
+    frames = f"{python_command()} -m relaygs.frames {videos} SCENE_DIR"
+    assert str(caught.value).endswith(f"for one video per camera, run {frames}")
+
+
+def test_a_stride_that_keeps_as_many_of_each_video_gets_no_note(tmp_path, capsys):
+    folder = tmp_path / "videos"
+    folder.mkdir()
+    _grey_video(folder / "a.mp4", 10)
+    _grey_video(folder / "b.mp4", 9)  # frames 0, 2, 4, 6, 8 of both: five each
+    code, printed, _ = _main(capsys, folder, tmp_path / "scene", "--stride", 2)
+    assert code == 0 and printed.startswith("wrote 5 frame(s)") and "note:" not in printed
+
+
+def test_a_video_that_does_not_open_is_refused_before_any_is_decoded(videos, tmp_path, monkeypatch):
+    (videos / "side_99.mp4").write_bytes(b"\0" * 64)  # sorts last
+    decoded = []
+    monkeypatch.setattr(video_frames_module, "_write_camera", lambda *args: decoded.append(args))
+    with pytest.raises(InputError, match=r"side_99\.mp4: cannot open it as a video"):
+        video_frames_module.extract_frames(
+            video_frames_module.camera_videos(videos), tmp_path / "scene", progress=False
+        )
+    assert decoded == [] and sorted(path.name for path in tmp_path.iterdir()) == ["videos"]
+
+
+def test_a_failed_final_move_keeps_the_frames_and_names_where(videos, tmp_path, monkeypatch):
+    def refuse(source, target):
+        raise OSError(18, "Invalid cross-device link")
+
+    monkeypatch.setattr(video_frames_module.os, "replace", refuse)
+    with pytest.raises(InputError) as caught:
+        video_frames_module.extract_frames(
+            video_frames_module.camera_videos(videos), tmp_path / "scene", progress=False
+        )
+    (staging,) = tmp_path.glob(".scene.partial-*")
+    assert str(staging) in str(caught.value) and "Invalid cross-device link" in str(caught.value)
+    assert (staging / "cam02" / "frame_00000.jpg").is_file() and not (tmp_path / "scene").exists()

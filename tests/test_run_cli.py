@@ -19,6 +19,7 @@ import yaml
 from fake_stages import TINY_SCENE, FakeStages
 from relaygs.app import prelaunch
 from relaygs.app.task import run_task
+from relaygs.cli import script_command
 from relaygs.commands import run as run_module
 from relaygs.commands.artifacts import _parser as artifacts_parser
 from relaygs.errors import RERUN_RUN, Interrupted
@@ -253,8 +254,8 @@ def test_printed_commands_paste_as_is_when_paths_hold_spaces_and_accents(fakes, 
     lines = [line.strip() for line in capsys.readouterr().out.splitlines()]
     (run_dir,) = outputs.glob("runs/*")
     (scene_dir,) = outputs.glob("scenes/juggle-*")
-    tensorboard = next(line for line in lines if line.startswith("tensorboard "))
-    assert shlex.split(tensorboard)[1:] == ["tensorboard", "--logdir", str(run_dir / "tb")]
+    tensorboard = shlex.split(next(line for line in lines if line.startswith("tensorboard ")))
+    assert tensorboard[1:] == [script_command("tensorboard"), "--logdir", str(run_dir / "tb")]
     videos = shlex.split(next(line for line in lines if line.startswith("videos ")))
     assert videos[videos.index("--root") + 1] == str(outputs / "artifacts")
     assert videos[videos.index("--scene") + 1] == str(scene_dir)
@@ -289,6 +290,12 @@ class _FlushLog(io.StringIO):
 
     def flush(self) -> None:
         self.flushed.append(self.getvalue())
+
+
+def test_a_delete_override_is_no_reason_for_the_quoting_hint(fakes, capsys):
+    assert _main(["~relay.k", "relay.k=[1,"]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("error: cannot parse overrides") and "quotes" not in err
 
 
 @pytest.mark.parametrize(

@@ -267,7 +267,9 @@ def _parse(args: Sequence[str]) -> list[Override]:
     try:
         return OverridesParser.create().parse_overrides(list(args))
     except HydraException as error:
-        plain = all(arg.isascii() and " " not in arg and "=" in arg for arg in args)
+        plain = all(
+            arg.isascii() and " " not in arg and ("=" in arg or arg.startswith("~")) for arg in args
+        )
         hint = "" if plain else QUOTE_HINT
         raise InputError(f"cannot parse overrides: {one_line(error)}{hint}") from error
 

@@ -32,7 +32,7 @@ from relaygs.app.result import (
 from relaygs.app.scenes import prepare_scene, scene_provenance
 from relaygs.app.suite import StageSuite, load_stage_suite
 from relaygs.app.tensorboard import TensorBoardLog, flatten_config
-from relaygs.cli import python_command
+from relaygs.cli import python_command, script_command
 from relaygs.data import Scene
 from relaygs.errors import resource_error
 from relaygs.per_view import METRIC_COLUMNS, PER_VIEW, PER_VIEW_FILE, frame_means, write_per_view
@@ -252,9 +252,10 @@ def _where(plan: RunPlan, outcome: _Outcome, result_path: Path) -> str:
         "outputs:",
         f"  result       {result_path}",
         *([f"  per view     {outcome.per_view}"] if outcome.per_view else []),
-        f"  tensorboard  tensorboard --logdir {shlex.quote(str(outcome.log_dir))}",
+        f"  tensorboard  {script_command('tensorboard')} --logdir "
+        f"{shlex.quote(str(outcome.log_dir))}",
         f"  model        {output.path}",
-        f"  store        {plan.artifacts_root}  (python -m relaygs.artifacts --root ... ls)",
+        f"  store        {plan.artifacts_root}  ({artifacts} ls)",
         f"  ply          {artifacts} ply {output.key[:16]}",
         f"  videos       {artifacts} render {output.key[:16]} --scene {scene_dir}{loader} "
         f"--truth --error{device}",

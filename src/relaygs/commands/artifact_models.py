@@ -13,7 +13,7 @@ from relaygs.app.evaluation import EVAL_STAGE
 from relaygs.app.scenes import TEST_CAMERAS
 from relaygs.cli import camera_ids
 from relaygs.data import Scene, load_scene
-from relaygs.errors import RelayGSError
+from relaygs.errors import InputError, RelayGSError
 from relaygs.pipeline.artifact import Artifact
 from relaygs.pipeline.store import ArtifactStore, StoredArtifact
 
@@ -40,10 +40,16 @@ def add_scene_arguments(parser: argparse.ArgumentParser) -> None:
 def load_run_scene(args: argparse.Namespace, item: StoredArtifact) -> Scene:
     """The `--scene` folder loaded with the run's loader options (`add_scene_arguments`); the
     test cameras default to those `item`'s run chose, when its manifest records them."""
-    test_cameras = args.test_cameras
-    if test_cameras is None:
-        test_cameras = item.manifest.provenance.get(TEST_CAMERAS)
-    return load_scene(args.scene, downscale=args.downscale, test_cameras=test_cameras)
+    if args.test_cameras is not None or TEST_CAMERAS not in item.manifest.provenance:
+        return load_scene(args.scene, downscale=args.downscale, test_cameras=args.test_cameras)
+    recorded = item.manifest.provenance[TEST_CAMERAS]
+    try:
+        return load_scene(args.scene, downscale=args.downscale, test_cameras=recorded)
+    except InputError as error:
+        raise InputError(
+            f"{error} (the test cameras {item.stage} {item.key[:KEY_COLUMN_WIDTH]}'s manifest "
+            "records for its run; pass --test-cameras to choose others)"
+        ) from None
 
 
 def model_artifact(store: ArtifactStore, key_prefix: str) -> tuple[StoredArtifact, Artifact]:

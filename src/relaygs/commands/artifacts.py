@@ -142,8 +142,8 @@ def _parser() -> argparse.ArgumentParser:
     render.add_argument(
         "--out",
         type=Path,
-        help=f"output folder (default {RENDERS_FOLDER}/<stage>-<key> beside the store's folder, "
-        f"e.g. outputs/{RENDERS_FOLDER}/...)",
+        help=f"output folder (default <outputs>/{RENDERS_FOLDER}/<stage>-<key>: beside a run's "
+        "artifacts folder, else ./outputs)",
     )
     render.set_defaults(command_fn=_render)
     ply = commands.add_parser(
@@ -163,8 +163,8 @@ def _parser() -> argparse.ArgumentParser:
     ply.add_argument(
         "--out",
         type=Path,
-        help=f"output folder (default {PLY_FOLDER}/<stage>-<key> beside the store's folder, "
-        f"e.g. outputs/{PLY_FOLDER}/...)",
+        help=f"output folder (default <outputs>/{PLY_FOLDER}/<stage>-<key>: beside a run's "
+        "artifacts folder, else ./outputs)",
     )
     ply.set_defaults(command_fn=_ply)
     verify = commands.add_parser("verify", help="check every artifact's hashes (exit 1 if bad)")

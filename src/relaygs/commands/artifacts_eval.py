@@ -4,6 +4,7 @@ with `--lineage`, every model upstream of it) on the scene's test views."""
 from __future__ import annotations
 
 import argparse
+from collections.abc import Mapping
 from typing import Any
 
 from relaygs.commands.artifact_models import (
@@ -43,10 +44,8 @@ def run_eval(store: ArtifactStore, args: argparse.Namespace) -> int:
     metrics = _scores(item, artifact, scene, settings)
     print(f"{item.stage} {item.key[:KEY_COLUMN_WIDTH]} {where}")
     for name, value in metrics.items():
-        if isinstance(value, float):
-            print(f"  {name:<16}{value:.4f}")
-        elif isinstance(value, int) or value is None:
-            print(f"  {name:<16}{'n/a' if value is None else value}")
+        if isinstance(value, float | int) or value is None:
+            print(f"  {name:<16}{_cell(value)}")
     if args.per_view is not None:
         written = write_per_view(args.per_view, metrics[PER_VIEW])
         print(f"  per-view metrics of {len(metrics[PER_VIEW])} image(s) in {written}")
@@ -55,7 +54,7 @@ def run_eval(store: ArtifactStore, args: argparse.Namespace) -> int:
 
 
 def _scores(
-    item: StoredArtifact, artifact: Artifact, scene: Scene, settings: dict
+    item: StoredArtifact, artifact: Artifact, scene: Scene, settings: Mapping[str, Any]
 ) -> dict[str, Any]:
     """The evaluator's metrics of one stored model, with its storage as result.json has it."""
     metrics = evaluate(scene, artifact, settings)

@@ -5,14 +5,13 @@ from __future__ import annotations
 
 import argparse
 import os
-import re
 import shlex
 import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from relaygs.cli import OneLineErrorParser, int_at_least, python_command
+from relaygs.cli import OneLineErrorParser, int_at_least, python_command, scene_override
 from relaygs.data.video_frames import (
     COLMAP_LIST,
     FRAME_FORMATS,
@@ -106,12 +105,11 @@ def _notes(scene: ExtractedScene) -> list[str]:
     notes = []
     short = [name for name, camera in cameras if camera.ran_out and camera.written == scene.frames]
     if short:
-        decoded = max(scene.cameras[name].decoded for name in short)
         longer = [
             name
             for name, camera in cameras
             if name not in short
-            and (camera.written > scene.frames or (camera.stated or 0) > decoded)
+            and (camera.written > scene.frames or (camera.available or 0) > scene.frames)
         ]
         if longer:
             notes.append(
@@ -132,15 +130,3 @@ def _notes(scene: ExtractedScene) -> list[str]:
             "may not show one moment: convert them to one rate first"
         )
     return notes
-
-
-def scene_override(folder: Path) -> str:
-    """`scene.path=FOLDER` as one shell word that Hydra reads back: a path with characters
-    beyond letters, digits and `_/.-` goes inside Hydra's double quotes (a `"` in it as `\\"`)."""
-    text = str(folder)
-    if re.fullmatch(r"[A-Za-z0-9_/.\-]+", text):
-        return f"scene.path={text}"
-    # Hydra halves a run of backslashes before a quote, and a lone one escapes the quote
-    escaped = re.sub(r'(\\*)"', lambda run: run[1] * 2 + '\\"', text)
-    escaped = re.sub(r"(\\+)$", lambda run: run[1] * 2, escaped)
-    return shlex.quote(f'scene.path="{escaped}"')

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import shlex
 from collections.abc import Iterable
 from pathlib import Path
 
+from relaygs.cli import python_command
 from relaygs.data.multiview import camera_folders, load_multiview
 from relaygs.data.options import DEFAULT_CACHE_MB, DEFAULT_MAX_POINTS, make_options
 from relaygs.data.panoptic import TRAIN_META, load_panoptic
@@ -23,7 +25,8 @@ def detect_format(root: Path) -> str:
         return "multiview"
     hint = ""
     if any(path.suffix.lower() in VIDEO_SUFFIXES for path in root.iterdir()):
-        hint = f"; for one video per camera, run python -m relaygs.frames {root} SCENE_DIR"
+        frames = f"{python_command()} -m relaygs.frames {shlex.quote(str(root))} SCENE_DIR"
+        hint = f"; for one video per camera, run {frames}"
     raise InputError(
         f"{root}: unknown scene layout; expected {TRAIN_META} (PanopticSports layout) or "
         f"camXX/ frame folders with a COLMAP model (multi-view layout){hint}"

@@ -20,6 +20,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from relaygs.cli import python_command, scene_override
 from relaygs.data.multiview import CAMERA_FOLDER
 from relaygs.errors import InputError
 from relaygs.paths import require_creatable_folder, require_folder
@@ -58,12 +59,18 @@ class FrameSelection:
         """Whether `written` frames are all that was asked for."""
         return self.count is not None and written >= self.count
 
+    def kept_of(self, frames: int) -> int:
+        """How many frames the selection keeps of a video of `frames` frames."""
+        kept = max(0, -(-(frames - self.start) // self.stride))
+        return kept if self.count is None else min(kept, self.count)
+
 
 @dataclass(frozen=True)
 class CameraFrames:
     """What one camera's video gave: the frames written, the frames decoded, the count its
-    container states (None when it states none), its frame rate (None likewise), and whether
-    the decoder ran out rather than the selection being complete."""
+    container states (None when it states none), its frame rate (None likewise), whether the
+    decoder ran out rather than the selection being complete, and how many frames the
+    selection keeps of the stated count (None without one)."""
 
     video: Path
     written: int
@@ -71,6 +78,7 @@ class CameraFrames:
     stated: int | None
     rate: float | None
     ran_out: bool
+    available: int | None = None
 
 
 @dataclass(frozen=True)
@@ -97,7 +105,10 @@ def camera_videos(folder: Path) -> list[Path]:
     videos = [path for path in videos if path.is_file() and not path.name.startswith(".")]
     if len(videos) < MIN_CAMERAS:
         scene = any(CAMERA_FOLDER.match(path.name) and path.is_dir() for path in entries)
-        hint = f"; its camXX folders make it a scene: python -m relaygs.run scene.path={folder}"
+        hint = (
+            f"; its camXX folders make it a scene: {python_command()} -m relaygs.run "
+            f"{scene_override(folder)}"
+        )
         raise InputError(
             f"{folder}: expected a video per camera ({', '.join(VIDEO_SUFFIXES)}), at least "
             f"{MIN_CAMERAS}, found {len(videos)}{hint if scene else ''}"
@@ -188,9 +199,12 @@ def _write_cameras(
         for name in order:
             fewest = min((camera.written for camera in cameras.values()), default=None)
             limit = selection if fewest is None else replace(selection, count=fewest)
-            cameras[name] = _write_camera(
+            camera = _write_camera(
                 sources[name], staging / name, limit, image_format, bar, stated[name]
             )
+            count = stated[name]
+            available = None if count is None else selection.kept_of(count)
+            cameras[name] = replace(camera, available=available)
     return {name: cameras[name] for name in sources}
 
 
