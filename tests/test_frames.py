@@ -3,6 +3,8 @@
 import json
 import shlex
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import cv2
@@ -157,6 +159,29 @@ def test_an_interrupted_extraction_leaves_no_partial_scene(videos, tmp_path, mon
     with pytest.raises(KeyboardInterrupt):
         frames_command.main([str(videos), str(tmp_path / "scene")])
     assert sorted(path.name for path in tmp_path.iterdir()) == ["videos"]
+
+
+def test_a_killed_runs_unfinished_staging_folder_is_removed_and_noted(videos, tmp_path, capsys):
+    finished = subprocess.run(
+        [sys.executable, "-c", "import os; print(os.getpid())"],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    dead = int(finished.stdout)  # that process has exited
+    killed = tmp_path / f".scene.partial-{dead}"
+    (killed / "cam00").mkdir(parents=True)
+    renamed_failed = tmp_path / ".scene.partial-999999999"  # a dead pid, but its frames finished
+    renamed_failed.mkdir()
+    (renamed_failed / "frames.json").write_text("{}")
+    running = tmp_path / ".scene.partial-1"  # pid 1 is always there
+    other = tmp_path / ".scene.partial-old"
+    for folder in (running, other):
+        folder.mkdir()
+    code, out, _ = _main(capsys, videos, tmp_path / "scene")
+    assert code == 0 and not killed.exists()
+    assert renamed_failed.is_dir() and running.is_dir() and other.is_dir()
+    assert f"note: removed {killed}, left unfinished by a run that was killed" in out
 
 
 @pytest.mark.parametrize("argv", [["--stride", "0"], ["--start", "-1"], ["--format", "gif"]])

@@ -99,10 +99,14 @@ def describe(scene: ExtractedScene, seconds: float) -> str:
 
 
 def _notes(scene: ExtractedScene) -> list[str]:
-    """Which cameras' videos ended first, which decoded fewer frames than they state, and
-    frame rates that differ (frame n of each camera would not show one moment)."""
+    """Killed runs' staging folders removed, which cameras' videos ended first, which decoded
+    fewer frames than they state, and frame rates that differ (frame n of each camera would
+    not show one moment)."""
     cameras = scene.cameras.items()
-    notes = []
+    notes = [
+        f"note: removed {folder}, left unfinished by a run that was killed"
+        for folder in scene.cleared
+    ]
     short = [name for name, camera in cameras if camera.ran_out and camera.written == scene.frames]
     if short:
         longer = [

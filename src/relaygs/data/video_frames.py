@@ -8,6 +8,7 @@ cam01, …; every camera gets the same frame numbers (the shortest video decides
 
 from __future__ import annotations
 
+import glob
 import json
 import os
 import re
@@ -84,13 +85,14 @@ class CameraFrames:
 @dataclass(frozen=True)
 class ExtractedScene:
     """What `extract_frames` wrote: the folder, each camera folder's video and frames, the
-    frame count every camera keeps, and the frame rate they keep (None when the videos do not
-    state one and the same)."""
+    frame count every camera keeps, the frame rate they keep (None when the videos do not
+    state one and the same), and the unfinished staging folders of killed runs it removed."""
 
     folder: Path
     cameras: dict[str, CameraFrames]
     frames: int
     fps: float | None
+    cleared: tuple[Path, ...] = ()
 
 
 def camera_videos(folder: Path) -> list[Path]:
@@ -136,7 +138,8 @@ def extract_frames(
     out = _empty_target(Path(out_dir).expanduser().resolve())
     sources = {f"cam{index:02d}": video for index, video in enumerate(videos)}
     stated = {name: _stated_count(video) for name, video in sources.items()}
-    staging = out.parent / f".{out.name}.partial-{os.getpid()}"
+    cleared = _clear_killed_staging(out)
+    staging = out.parent / f"{_staging_prefix(out)}{os.getpid()}"
     shutil.rmtree(staging, ignore_errors=True)
     staging.mkdir(parents=True)
     try:
@@ -150,7 +153,38 @@ def extract_frames(
         shutil.rmtree(staging, ignore_errors=True)
         raise
     _publish(staging, out)
-    return ExtractedScene(out, cameras, frames, fps)
+    return ExtractedScene(out, cameras, frames, fps, cleared)
+
+
+def _staging_prefix(out: Path) -> str:
+    """Name of `out`'s staging folders up to the pid of the process writing one."""
+    return f".{out.name}.partial-"
+
+
+def _clear_killed_staging(out: Path) -> tuple[Path, ...]:
+    """Remove the staging folders for `out` that killed runs left unfinished: their process
+    is gone and they hold no listing. A finished one (its rename failed) is kept: its
+    frames are the ones an earlier error named."""
+    prefix = _staging_prefix(out)
+    cleared = []
+    for folder in sorted(out.parent.glob(f"{glob.escape(prefix)}*")):
+        pid = folder.name.removeprefix(prefix)
+        if not pid.isdigit() or _process_alive(int(pid)) or (folder / SOURCES_JSON).exists():
+            continue
+        shutil.rmtree(folder, ignore_errors=True)
+        cleared.append(folder)
+    return tuple(cleared)
+
+
+def _process_alive(pid: int) -> bool:
+    """Whether process `pid` exists (one of another user's counts; so does an unknown answer)."""
+    try:
+        os.kill(pid, 0)
+    except (ProcessLookupError, OverflowError):  # no such process (or no such pid)
+        return False
+    except OSError:
+        return True
+    return True
 
 
 def _natural_key(path: Path) -> list[object]:
