@@ -264,7 +264,15 @@ def test_printed_commands_paste_as_is_when_paths_hold_spaces_and_accents(fakes, 
 
 
 @pytest.mark.parametrize(
-    "loader", [[], ["scene.loader.test_cameras=[2,0]", "scene.loader.downscale=2"]]
+    "loader",
+    [
+        [],
+        [
+            "scene.loader.test_cameras=[2,0]",
+            "scene.loader.downscale=2",
+            "scene.loader.max_points=300",
+        ],
+    ],
 )
 def test_the_printed_render_command_loads_the_scene_as_the_run_did(fakes, tmp_path, capsys, loader):
     from relaygs.commands.artifact_models import load_run_scene
@@ -277,7 +285,7 @@ def test_the_printed_render_command_loads_the_scene_as_the_run_did(fakes, tmp_pa
     item = ArtifactStore(args.root).find(args.key)
     trained = item.manifest.provenance["scene"]
     assert load_run_scene(args, item).fingerprint == trained  # so `eval` and `render` add no note
-    args.test_cameras = None  # as typed without it: the manifest's record of the run's choice
+    args.test_cameras = args.downscale = None  # as typed without them: the manifest's record
     assert load_run_scene(args, item).fingerprint == trained
 
 

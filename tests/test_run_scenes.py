@@ -9,7 +9,8 @@ from omegaconf import OmegaConf
 
 from fake_stages import compose_config
 from relaygs.app import scenes
-from relaygs.app.scenes import prepare_scene, scene_spec, synthetic_folder
+from relaygs.app.scenes import prepare_scene, scene_provenance, scene_spec, synthetic_folder
+from relaygs.data import load_scene
 from relaygs.errors import InputError
 
 TINY = {
@@ -68,6 +69,25 @@ def test_a_capture_path_is_loaded_in_place(tiny_synth_scene):
     scene = prepare_scene(spec, tiny_synth_scene.parent / "unused")
     assert scene.root == tiny_synth_scene
     assert not (tiny_synth_scene.parent / "unused").exists()
+
+
+def test_the_loading_a_run_records_loads_its_scene_again_as_the_run_did(tiny_synth_scene, tmp_path):
+    loader = {"downscale": 2, "max_points": 50, "test_cameras": [3, 1], "cache_mb": 8}
+    section = {**TINY, "path": str(tiny_synth_scene), "effects": ["sensor_noise"]}
+    capture = scene_spec({**section, "loader": loader})
+    recorded = scene_provenance(capture)
+    assert recorded == {
+        "downscale": 2,
+        "max_points": 50,
+        "test_cameras": [1, 3],
+        "effects": ["sensor_noise"],
+    }
+    as_run = prepare_scene(capture, tmp_path).fingerprint
+    assert load_scene(tiny_synth_scene, **recorded).fingerprint == as_run
+    assert load_scene(tiny_synth_scene, downscale=2, test_cameras=[1, 3]).fingerprint != as_run
+    assert scene_provenance(scene_spec({**section, "loader": {}})) == {"effects": ["sensor_noise"]}
+    # a generated scene's effects are in its files: loading it does not pass them again
+    assert scene_provenance(scene_spec({**TINY, "effects": ["sensor_noise"]})) == {}
 
 
 def test_capture_paths_must_exist_and_have_a_known_layout(tmp_path):

@@ -26,9 +26,9 @@ SCENE_FIELDS = frozenset(
 LOADER_OPTIONS = ("downscale", "max_points", "cache_mb", "test_cameras")
 GENERATED_MARKER = "scene.json"
 HASH_LENGTH = 12
-TEST_CAMERAS = "test_cameras"
-"""Manifest provenance key of the test camera ids a run chose, so the artifacts commands load
-the scene with the same test cameras later (`scene_provenance`)."""
+RECORDED_LOADING = ("downscale", "max_points", "test_cameras", "effects")
+"""The `load_scene` options a run's artifacts record in their manifest's provenance when the
+run set them (`scene_provenance`), so the artifacts commands load the scene as it did."""
 
 
 @dataclass(frozen=True)
@@ -119,7 +119,7 @@ def prepare_scene(spec: SceneSpec, scenes_dir: Path, progress: bool = True) -> S
     """Load the scene, generating a synthetic one first if its cache folder is missing
     (`progress`: with a bar over the rendered views)."""
     if not spec.is_synthetic:
-        return load_scene(spec.path, **spec.loader, effects=spec.effects)
+        return load_scene(spec.path, **loader_arguments(spec))
     folder = synthetic_folder(spec, scenes_dir)
     lock = scenes_dir / ".locks" / f"{folder.name}.lock"
     lock.parent.mkdir(parents=True, exist_ok=True)
@@ -136,7 +136,16 @@ def prepare_scene(spec: SceneSpec, scenes_dir: Path, progress: bool = True) -> S
                 effects=spec.effects,
                 progress=progress,
             )
-    return load_scene(folder, **spec.loader)
+    return load_scene(folder, **loader_arguments(spec))
+
+
+def loader_arguments(spec: SceneSpec) -> dict[str, Any]:
+    """The `load_scene` options a run loads its scene with: `scene.loader`'s, and a capture's
+    `scene.effects` (a generated scene has its effects built into its files)."""
+    arguments = dict(spec.loader)
+    if not spec.is_synthetic and spec.effects is not None:
+        arguments["effects"] = spec.effects
+    return arguments
 
 
 def _check_held_out(
@@ -165,7 +174,19 @@ def _count(section: Mapping[str, Any], name: str, minimum: int) -> int:
 
 def scene_provenance(spec: SceneSpec) -> dict[str, Any]:
     """What every artifact of a run records about how its scene was loaded, beyond the
-    fingerprint: the test camera ids, when the run chose them (`scene.loader.test_cameras`;
-    without them the loader's default applies again)."""
-    chosen = make_options(**spec.loader).test_cameras
-    return {} if chosen is None else {TEST_CAMERAS: list(chosen)}
+    fingerprint: the RECORDED_LOADING options the run set, as JSON values (the loader's
+    defaults apply again to those it did not set)."""
+    arguments = loader_arguments(spec)
+    options = make_options(**arguments)
+    recorded = {}
+    for name in RECORDED_LOADING:
+        if arguments.get(name) is not None:
+            value = getattr(options, name)
+            recorded[name] = sorted(value) if isinstance(value, tuple | frozenset) else value
+    return recorded
+
+
+def recorded_loading(provenance: Mapping[str, Any]) -> dict[str, Any]:
+    """The `load_scene` options an artifact's manifest `provenance` records for its run (those
+    the run set; see `scene_provenance`)."""
+    return {name: provenance[name] for name in RECORDED_LOADING if name in provenance}

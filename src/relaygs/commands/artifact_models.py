@@ -10,7 +10,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from relaygs.app.evaluation import EVAL_STAGE
-from relaygs.app.scenes import TEST_CAMERAS
+from relaygs.app.scenes import recorded_loading
 from relaygs.cli import camera_ids
 from relaygs.data import Scene, load_scene
 from relaygs.errors import InputError, RelayGSError
@@ -26,7 +26,10 @@ def add_scene_arguments(parser: argparse.ArgumentParser) -> None:
         "--scene", type=Path, required=True, help="the scene folder it was trained on"
     )
     parser.add_argument(
-        "--downscale", type=int, default=1, help="the run's scene.loader.downscale (default 1)"
+        "--downscale",
+        type=int,
+        help="the run's scene.loader.downscale (default: the one the model's manifest records, "
+        "else 1)",
     )
     parser.add_argument(
         "--test-cameras",
@@ -38,17 +41,21 @@ def add_scene_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def load_run_scene(args: argparse.Namespace, item: StoredArtifact) -> Scene:
-    """The `--scene` folder loaded with the run's loader options (`add_scene_arguments`); the
-    test cameras default to those `item`'s run chose, when its manifest records them."""
-    if args.test_cameras is not None or TEST_CAMERAS not in item.manifest.provenance:
-        return load_scene(args.scene, downscale=args.downscale, test_cameras=args.test_cameras)
-    recorded = item.manifest.provenance[TEST_CAMERAS]
+    """The `--scene` folder loaded as `item`'s run loaded it: with the loader options its
+    manifest records, those given on the command line taking their place."""
+    recorded = recorded_loading(item.manifest.provenance)
+    given = {"downscale": args.downscale, "test_cameras": args.test_cameras}
+    given = {name: value for name, value in given.items() if value is not None}
+    used = sorted(recorded.keys() - given.keys())
     try:
-        return load_scene(args.scene, downscale=args.downscale, test_cameras=recorded)
+        return load_scene(args.scene, **(recorded | given))
     except InputError as error:
+        if not used:
+            raise
         raise InputError(
-            f"{error} (the test cameras {item.stage} {item.key[:KEY_COLUMN_WIDTH]}'s manifest "
-            "records for its run; pass --test-cameras to choose others)"
+            f"{error} (loaded with the {', '.join(used)} that {item.stage} "
+            f"{item.key[:KEY_COLUMN_WIDTH]}'s manifest records for its run; pass --downscale "
+            "or --test-cameras to choose others)"
         ) from None
 
 
@@ -73,8 +80,7 @@ def note_other_scene(items: Sequence[StoredArtifact], scene: Scene) -> None:
             print(
                 f"note: {item.stage} {item.key[:KEY_COLUMN_WIDTH]} was not trained on "
                 f"{scene.root} as loaded here (its files or loader options differ), so its test "
-                "views may not be the run's: pass the run's --downscale and --test-cameras "
-                "(its max_points and effects also count)",
+                "views may not be the run's: pass the run's --downscale and --test-cameras",
                 file=sys.stderr,
             )
 
