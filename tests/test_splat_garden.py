@@ -7,7 +7,7 @@ import torch
 
 from relaygs.commands.bench import GARDEN_PATH, garden_case
 from relaygs.splat import rasterization
-from relaygs.splat.projection import covariance_3d, project_gaussians
+from relaygs.splat.projection import covariance_factor, project_gaussians
 from relaygs.splat.reference import rasterization_reference
 
 pytestmark = pytest.mark.skipif(
@@ -40,7 +40,7 @@ def test_garden_crop_matches_reference(garden):
     with torch.no_grad():
         proj = project_gaussians(
             crop["means"],
-            covariance_3d(crop["quats"], crop["scales"]),
+            covariance_factor(crop["quats"], crop["scales"]),
             crop["opacities"],
             crop["viewmats"],
             Ks,

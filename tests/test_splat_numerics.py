@@ -131,6 +131,54 @@ def test_hard_but_visible_gaussian_is_finite_and_matches_reference(hard):
         torch.testing.assert_close(grads[key], ref_grads[key], rtol=1e-6, atol=1e-9 * scale)
 
 
+def _needle(length: float, degrees: float, dtype) -> dict:
+    """One needle Gaussian (scales [length, 1e-3, 1e-3]) turned `degrees` about the view axis,
+    3 units in front of a 64×64 camera of focal 500: its image is long, thin and diagonal."""
+    half = math.radians(degrees) / 2
+    return {
+        "means": torch.tensor([[0.0, 0.0, 3.0]], dtype=dtype),
+        "quats": torch.tensor([[math.cos(half), 0.0, 0.0, math.sin(half)]], dtype=dtype),
+        "scales": torch.tensor([[length, 1e-3, 1e-3]], dtype=dtype),
+        "opacities": torch.tensor([0.8], dtype=dtype),
+        "colors": torch.tensor([[1.0, 0.5, 0.2]], dtype=dtype),
+        "viewmats": torch.eye(4, dtype=dtype)[None],
+        "Ks": torch.tensor([[[500.0, 0, 32], [0, 500.0, 32], [0, 0, 1]]], dtype=dtype),
+        "width": 64,
+        "height": 64,
+    }
+
+
+def _needle_image_and_thin_gradient(length: float, degrees: float, dtype):
+    """The needle's image, whether it was drawn, and the gradient of a fixed weighting of the
+    image (the same numbers in either dtype) on its thin scale, all in float64."""
+    scene = with_grad(_needle(length, degrees, dtype))
+    colors, _, meta = rasterization(**scene)
+    weights = torch.randn(colors.shape, generator=torch.Generator().manual_seed(0), dtype=float)
+    (grad,) = torch.autograd.grad((colors * weights.to(dtype)).sum(), [scene["scales"]])
+    return colors.detach().double(), bool(meta["visible"].all()), grad[0, 1].double()
+
+
+@pytest.mark.parametrize(("length", "degrees"), [(3.0, 45.0), (10.0, 30.0), (30.0, 30.0)])
+def test_a_long_thin_gaussian_at_an_angle_renders_in_float32_as_in_float64(length, degrees):
+    """a·c − b² cancels in float32 for such a Gaussian (σ 500–5000 px by 0.17 px): it was
+    misshaped (0.007–0.04 off, gradients 2–7 % off) or culled."""
+    image, drawn, grad = _needle_image_and_thin_gradient(length, degrees, torch.float32)
+    exact_image, _, exact_grad = _needle_image_and_thin_gradient(length, degrees, torch.float64)
+    assert drawn
+    torch.testing.assert_close(image, exact_image, rtol=0, atol=1e-3)
+    torch.testing.assert_close(grad, exact_grad, rtol=2e-3, atol=0)
+
+
+@pytest.mark.parametrize("scales", [[1e-8] * 3, [0.5, 1e-12, 1e-12]], ids=["speck", "needle"])
+def test_without_the_2d_blur_a_vanishing_gaussian_keeps_finite_gradients(scales):
+    """With eps2d = 0 the 2D determinant of a tiny Gaussian underflows in the backward's
+    det²: such a Gaussian is culled (zero gradient) rather than given NaN."""
+    scene = with_grad(_base_scene({"scales": scales}))
+    scene["Ks"] = torch.tensor([[[20.0, 0, W / 2], [0, 20.0, H / 2], [0, 0, 1]]])
+    colors, alphas, _, grads = render_and_grads(rasterization, scene, eps2d=0.0)
+    _assert_all_finite(colors, alphas, grads)
+
+
 @pytest.mark.parametrize("quat", [[1e-30, 2e-30, 0.0, -1e-30], [1e30, 2e30, 0.0, -1e30]])
 def test_quaternion_norm_does_not_change_the_image(quat):
     q = torch.tensor(quat, dtype=torch.float64)

@@ -18,7 +18,7 @@ MAX_SIGMA_MULT = 3.33
 FRUSTUM_MARGIN = 0.3
 # Scales above this are clamped (zero gradient): keeps J·Σ·Jᵀ finite in float32.
 MAX_SCALE = 1e12
-# 2D variances (px²) above this are culled: keeps det = a·c − b² finite in float32.
+# 2D variances (px²) above this are culled: keeps det and its square root finite in float32.
 MAX_VAR_PX = 1e14
 
 
@@ -69,11 +69,11 @@ def quat_to_rotmat(quats: torch.Tensor) -> torch.Tensor:
     ).reshape(*quats.shape[:-1], 3, 3)
 
 
-def covariance_3d(quats: torch.Tensor, scales: torch.Tensor) -> torch.Tensor:
-    """World-space covariances R·S·Sᵀ·Rᵀ [N,3,3] from quaternions and activated scales."""
-    rot = quat_to_rotmat(quats)
-    m = rot * scales.clamp(max=MAX_SCALE).unsqueeze(-2)
-    return m @ m.transpose(-1, -2)
+def covariance_factor(quats: torch.Tensor, scales: torch.Tensor) -> torch.Tensor:
+    """R·S [N,3,3] from quaternions and activated scales: the world-space covariance is its
+    product with its transpose, which the projection never forms (a thin Gaussian's
+    covariance loses its thin axis in float32)."""
+    return quat_to_rotmat(quats) * scales.clamp(max=MAX_SCALE).unsqueeze(-2)
 
 
 def opacity_sigma_multiplier(opacities: torch.Tensor) -> torch.Tensor:
@@ -88,7 +88,7 @@ def opacity_sigma_multiplier(opacities: torch.Tensor) -> torch.Tensor:
 
 def project_gaussians(
     means: torch.Tensor,
-    covars: torch.Tensor,
+    factors: torch.Tensor,
     opacities: torch.Tensor,
     viewmats: torch.Tensor,
     Ks: torch.Tensor,
@@ -98,7 +98,8 @@ def project_gaussians(
     far_plane: float = 1e10,
     eps2d: float = 0.3,
 ) -> Projection:
-    """Project N Gaussians into C cameras (OpenCV axes, world→camera viewmats)."""
+    """Project N Gaussians, covariances given as `factors` [N,3,3] (`covariance_factor`),
+    into C cameras (OpenCV axes, world→camera viewmats)."""
     rot = viewmats[:, :3, :3]
     trans = viewmats[:, :3, 3]
     p_cam = torch.einsum("cij,nj->cni", rot, means) + trans[:, None, :]
@@ -120,18 +121,22 @@ def project_gaussians(
     jac = torch.stack(
         [fx / z_safe, zero, -fx * u / z_safe, zero, fy / z_safe, -fy * v / z_safe], dim=-1
     ).reshape(*z.shape, 2, 3)
-    jr = jac @ rot[:, None]  # [C,N,2,3]
-    cov2d = jr @ covars[None] @ jr.transpose(-1, -2)
-    a = cov2d[..., 0, 0] + eps2d
-    b = cov2d[..., 0, 1]
-    c = cov2d[..., 1, 1] + eps2d
-
+    # the 2D covariance is M·Mᵀ with rows m0, m1 of M = J·W·R·S [C,N,2,3]
+    m0, m1 = (jac @ rot[:, None] @ factors[None]).unbind(-2)
+    a0, b, c0 = (m0 * m0).sum(-1), (m0 * m1).sum(-1), (m1 * m1).sum(-1)
+    a, c = a0 + eps2d, c0 + eps2d
     bounded = in_depth & (a < MAX_VAR_PX) & (c < MAX_VAR_PX) & (b.abs() < MAX_VAR_PX)
     a_s = torch.where(bounded, a, torch.ones_like(a))
     b_s = torch.where(bounded, b, torch.zeros_like(b))
     c_s = torch.where(bounded, c, torch.ones_like(c))
-    det = a_s * c_s - b_s * b_s
-    ok = bounded & (det > 0)
+    m0_s = torch.where(bounded[..., None], m0, torch.zeros_like(m0))
+    m1_s = torch.where(bounded[..., None], m1, torch.zeros_like(m1))
+    # det = a·c − b² as |m0 × m1|² + eps2d·(a0 + c0) + eps2d² (Lagrange's identity): no
+    # cancellation between a·c and b², which culls or misshapes long thin Gaussians in float32
+    thin = torch.linalg.cross(m0_s, m1_s).square().sum(-1)
+    det = thin + eps2d * (a_s + c_s) - eps2d * eps2d
+    # the backward of x/det takes det², which must not underflow
+    ok = bounded & (det > torch.finfo(det.dtype).tiny ** 0.5)
     det_s = torch.where(ok, det, torch.ones_like(det))
     conics = torch.stack([c_s / det_s, -b_s / det_s, a_s / det_s], dim=-1)
 

@@ -12,7 +12,12 @@ import torch
 
 from relaygs.errors import InputError
 from relaygs.splat.composite import CompositeGaussians, FixedLayer
-from relaygs.splat.projection import ALPHA_MIN, Projection, covariance_3d, project_gaussians
+from relaygs.splat.projection import (
+    ALPHA_MIN,
+    Projection,
+    covariance_factor,
+    project_gaussians,
+)
 from relaygs.splat.sh import eval_sh, num_sh_bases
 from relaygs.splat.tiles import (
     DEFAULT_TILE_SIZE,
@@ -196,9 +201,17 @@ def _project_and_shade(
     eps2d: float,
 ) -> tuple[Projection, torch.Tensor]:
     """The projection and the features [C,N,D'] of the mode (colours, then depth)."""
-    covars = covariance_3d(quats, scales)
     proj = project_gaussians(
-        means, covars, opacities, viewmats, Ks, width, height, near_plane, far_plane, eps2d
+        means,
+        covariance_factor(quats, scales),
+        opacities,
+        viewmats,
+        Ks,
+        width,
+        height,
+        near_plane,
+        far_plane,
+        eps2d,
     )
     features = []
     if render_mode != "D":
