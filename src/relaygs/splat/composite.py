@@ -20,7 +20,7 @@ import torch
 import torch.nn.functional as F
 
 from relaygs.splat.projection import ALPHA_MIN, Projection
-from relaygs.splat.tiles import TileBins
+from relaygs.splat.tiles import TileBins, TileGroup
 
 ALPHA_MAX = 0.99
 T_MIN = 1e-4
@@ -83,11 +83,12 @@ def _gather_rows(table: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
     return table.index_select(0, index.reshape(-1)).view(*index.shape, *table.shape[1:])
 
 
-def _rows(bins: TileBins, tiles: torch.Tensor, table: torch.Tensor) -> _Rows:
+def _rows(bins: TileBins, group: TileGroup, table: torch.Tensor) -> _Rows:
     """Gather the group's Gaussians and their offsets to the tile's pixel centres."""
     s = bins.tile_size
+    tiles = group.tiles
     counts = bins.tile_count[tiles]
-    steps = torch.arange(int(counts.max()), device=tiles.device)
+    steps = torch.arange(group.longest, device=tiles.device)
     valid = steps[None] < counts[:, None]
     rows = (bins.tile_start[tiles][:, None] + steps[None]).clamp(max=bins.pair_gaussian.numel() - 1)
     gid = bins.pair_gaussian.index_select(0, rows.reshape(-1)).view_as(rows)
@@ -243,7 +244,7 @@ def _pack(
 
 def _candidates(bins: TileBins) -> int:
     """Padded pixel–Gaussian candidates over all groups."""
-    return sum(int(bins.tile_count[g[0]]) * g.numel() for g in bins.groups) * bins.tile_size**2
+    return sum(group.longest * group.tiles.numel() for group in bins.groups) * bins.tile_size**2
 
 
 @dataclass
@@ -301,8 +302,9 @@ class CompositeGaussians(torch.autograd.Function):
         else:
             color_tiles = _to_tiles(fixed.colors.detach(), bins)
             coverage = _to_tiles(fixed.alphas.detach(), bins)[..., 0]
-        for tiles in bins.groups:
-            rows = _rows(bins, tiles, table)
+        for group in bins.groups:
+            tiles = group.tiles
+            rows = _rows(bins, group, table)
             pairs, alpha = _pairs(rows, scratch, keep_pairs)
             weight = alpha.mul_(pairs.trans).view(tiles.numel(), p, -1)
             color_tiles[tiles] = torch.bmm(weight, _gather_rows(flat_colors, rows.gid))
@@ -348,8 +350,9 @@ class CompositeGaussians(torch.autograd.Function):
         grad_table = table.new_zeros(c * n, 6)
         grad_cols = torch.zeros_like(flat_colors)
         scratch = _Scratch(table)
-        for index, tiles in enumerate(bins.groups):
-            rows = _rows(bins, tiles, table)
+        for index, group in enumerate(bins.groups):
+            tiles = group.tiles
+            rows = _rows(bins, group, table)
             pairs = ctx.saved_pairs[index] if ctx.saved_pairs else _pairs(rows, scratch, False)[0]
             grads, d_cols = _group_gradients(
                 rows,

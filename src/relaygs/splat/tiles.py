@@ -19,6 +19,15 @@ DEFAULT_GROUP_BUDGET = 1 << 19
 GROUP_FILL = 0.75
 
 
+@dataclass(frozen=True)
+class TileGroup:
+    """Tiles composited together, and the longest of their lists: known on the host, so
+    sizing the group's padded block does not wait for the device."""
+
+    tiles: torch.Tensor  # tile ids
+    longest: int
+
+
 @dataclass
 class TileBins:
     """Depth-sorted Gaussian lists per tile, over all cameras, plus processing groups."""
@@ -30,7 +39,7 @@ class TileBins:
     pair_gaussian: torch.Tensor  # [M] flat index c*N + n, grouped by tile, front to back
     tile_start: torch.Tensor  # [num_tiles] offset of each tile's list in pair_gaussian
     tile_count: torch.Tensor  # [num_tiles] list length
-    groups: list[torch.Tensor]  # tile ids processed together, lists of similar length
+    groups: list[TileGroup]  # tiles processed together, lists of similar length
 
     @property
     def num_tiles(self) -> int:
@@ -111,7 +120,7 @@ def only_tiles(
     return replace(bins, groups=_group_tiles(counts, bins.tile_size**2, group_budget))
 
 
-def _group_tiles(tile_count: torch.Tensor, pixels: int, budget: int) -> list[torch.Tensor]:
+def _group_tiles(tile_count: torch.Tensor, pixels: int, budget: int) -> list[TileGroup]:
     """Split non-empty tiles, longest lists first, into groups of bounded padded size."""
     by_length = torch.argsort(tile_count, descending=True, stable=True)
     lengths = tile_count[by_length].tolist()
@@ -131,6 +140,6 @@ def _group_tiles(tile_count: torch.Tensor, pixels: int, budget: int) -> list[tor
                 cut = mid + 1
             else:
                 hi = mid
-        groups.append(by_length[start:cut])
+        groups.append(TileGroup(by_length[start:cut], longest))
         start = cut
     return groups
