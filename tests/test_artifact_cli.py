@@ -547,6 +547,27 @@ def test_recorded_test_cameras_the_scene_lacks_are_named_with_the_manifest(
     assert f"(loaded with the test_cameras that decouple {key[:16]}'s manifest records" in err
 
 
+def test_eval_renders_on_the_device_given_and_refuses_an_unusable_one(
+    stored_deform, stage_scene_path, capsys, monkeypatch
+):
+    from relaygs.commands import artifacts_eval
+
+    store, key = stored_deform
+    argv = ("eval", key[:8], "--scene", str(stage_scene_path), "--frame-stride", "8")
+    unusable = f"cuda:{torch.cuda.device_count()}" if torch.cuda.is_available() else "cuda"
+    code, out, err = _cli(capsys, store.root, *argv, "--device", unusable)
+    assert code == 1 and out == "" and err.count("\n") == 1
+    assert err.startswith(f"error: --device: cannot use '{unusable}' here (")
+    given = []
+    real = artifacts_eval.evaluate
+    monkeypatch.setattr(
+        artifacts_eval, "evaluate", lambda *args: given.append(args[2]) or real(*args)
+    )
+    code, _, err = _cli(capsys, store.root, *argv, "--device", "cpu")
+    assert code == 0, err
+    assert given == [{"eval": {"frame_stride": 8}, "train": {"device": "cpu"}}]
+
+
 def test_a_model_without_a_recorded_scene_gets_no_note(stored_deform, stage_scene_path, capsys):
     store, key = stored_deform  # stored without provenance, as by older versions
     argv = ("eval", key[:8], "--scene", str(stage_scene_path), "--frame-stride", "8")

@@ -40,6 +40,11 @@ def add_scene_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def add_device_argument(parser: argparse.ArgumentParser) -> None:
+    """`--device`, where the model renders (checked with `usable_device` before any work)."""
+    parser.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N (default cpu)")
+
+
 def load_run_scene(args: argparse.Namespace, item: StoredArtifact) -> Scene:
     """The `--scene` folder loaded as `item`'s run loaded it: with the loader options its
     manifest records, those given on the command line taking their place."""

@@ -17,6 +17,7 @@ from relaygs.app.evaluation import EVAL_STAGE
 from relaygs.cli import OneLineErrorParser, writable_file
 from relaygs.commands.artifact_models import (
     KEY_COLUMN_WIDTH,
+    add_device_argument,
     add_scene_arguments,
     load_run_scene,
     model_artifact,
@@ -77,6 +78,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     score.add_argument("key", help="full key or a unique prefix (at least 4 hex digits)")
     add_scene_arguments(score)
+    add_device_argument(score)
     score.add_argument(
         "--frame-stride",
         type=int,
@@ -138,7 +140,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     render.add_argument("--fps", type=float, default=15.0, help="video frame rate (default 15)")
     render.add_argument("--no-video", action="store_true", help="write PNG frames only")
-    render.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N (default cpu)")
+    add_device_argument(render)
     render.add_argument(
         "--out",
         type=Path,

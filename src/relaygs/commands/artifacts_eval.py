@@ -15,6 +15,7 @@ from relaygs.commands.artifact_models import (
     require_stride,
 )
 from relaygs.data import Scene
+from relaygs.device import usable_device
 from relaygs.per_view import PER_VIEW, write_per_view
 from relaygs.pipeline.artifact import Artifact
 from relaygs.pipeline.store import ArtifactStore, MissingArtifactError, StoredArtifact
@@ -27,9 +28,10 @@ def run_eval(store: ArtifactStore, args: argparse.Namespace) -> int:
     """Render the artifact's model (with `--lineage`, each model of its lineage too) at the
     scene's test views and print the test metrics, e.g. to see what each stage contributes."""
     require_stride(args.frame_stride)
+    device = usable_device(args.device, "--device")
     item, artifact = model_artifact(store, args.key)
     scene = load_run_scene(args, item)
-    settings = {"eval": {"frame_stride": args.frame_stride}}
+    settings = {"eval": {"frame_stride": args.frame_stride}, "train": {"device": str(device)}}
     tests = ", ".join(str(camera.camera_id) for camera in scene.test_cameras) or "none"
     where = f"on {args.scene} (test cameras {tests})"
     if args.lineage:
