@@ -54,5 +54,6 @@ def test_host_reads_do_not_grow_with_the_tile_groups(host_reads, groups_composit
         reads.append((forward, list(host_reads), len(groups_composited)))
     (_, _, few), (small_forward, small_backward, _), (forward, backward, many) = reads
     assert many > 4 * few  # forward and backward each gather every group
-    assert forward == small_forward and len(forward) <= 2  # binning sizes its pairs once
+    # one read checks the intrinsics, two size the binning's pairs and groups
+    assert forward == small_forward and len(forward) <= 3
     assert small_backward == backward == []

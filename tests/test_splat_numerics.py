@@ -179,6 +179,21 @@ def test_without_the_2d_blur_a_vanishing_gaussian_keeps_finite_gradients(scales)
     _assert_all_finite(colors, alphas, grads)
 
 
+@pytest.mark.parametrize(
+    ("means", "near_plane"),
+    [([1e35, 0.0, 3.0], 0.01), ([0.0, -1e35, 3.0], 0.01), ([1e-3, 0.0, 1e-9], 1e-9)],
+    ids=["far to the side", "far below", "nearly on the camera"],
+)
+def test_extreme_positions_under_a_long_lens_are_culled_with_zero_gradient(means, near_plane):
+    """fx·x/z overflows for such a centre: it is culled before its pixel position is formed."""
+    scene = with_grad(_base_scene({"means": means}))
+    scene["Ks"] = torch.tensor([[[1e5, 0, W / 2], [0, 1e5, H / 2], [0, 0, 1]]])
+    colors, alphas, meta, grads = render_and_grads(rasterization, scene, near_plane=near_plane)
+    _assert_all_finite(colors, alphas, grads)
+    assert not bool(meta["visible"][0, 2])
+    assert grads["means"][2].abs().sum() == 0
+
+
 @pytest.mark.parametrize("quat", [[1e-30, 2e-30, 0.0, -1e-30], [1e30, 2e30, 0.0, -1e30]])
 def test_quaternion_norm_does_not_change_the_image(quat):
     q = torch.tensor(quat, dtype=torch.float64)
@@ -359,10 +374,14 @@ def test_means2d_carries_the_screen_space_gradient():
         ({"render_mode": "RGBD"}, "render_mode must be one of"),
         ({"sh_degree": 4, "colors": torch.zeros(3, 25, 3)}, "sh_degree must be 0..3"),
         ({"backgrounds": torch.zeros(1, 4)}, "backgrounds must be [1,3]"),
+        ({"Ks": torch.tensor([[[0.0, 0, 12], [0, 24.0, 10], [0, 0, 1]]])}, "fx, fy > 0, got"),
+        ({"Ks": torch.tensor([[[24.0, 0, 12], [0, -24.0, 10], [0, 0, 1]]])}, "fx, fy > 0, got"),
+        ({"Ks": torch.tensor([[[24.0, 0, 12], [0, 24.0, math.inf], [0, 0, 1]]])}, "finite"),
         # a depth of 0 inside [near, far] would divide by zero in the projection
-        ({"near_plane": 0.0}, "0 < near_plane < far_plane"),
-        ({"near_plane": float("nan")}, "0 < near_plane < far_plane"),
-        ({"near_plane": 2.0, "far_plane": 1.0}, "0 < near_plane < far_plane"),
+        ({"near_plane": 0.0}, "1e-09 <= near_plane < far_plane"),
+        ({"near_plane": 1e-30}, "1e-09 <= near_plane < far_plane, got 1e-30 and"),
+        ({"near_plane": float("nan")}, "1e-09 <= near_plane < far_plane"),
+        ({"near_plane": 2.0, "far_plane": 1.0}, "1e-09 <= near_plane < far_plane"),
         ({"eps2d": -0.3}, "eps2d must be finite and >= 0"),
         ({"eps2d": float("inf")}, "eps2d must be finite and >= 0"),
     ],

@@ -111,10 +111,11 @@ def project_gaussians(
     cx, cy = Ks[:, 0, 2, None], Ks[:, 1, 2, None]
     tan_fovx = 0.5 * width / fx
     tan_fovy = 0.5 * height / fy
-    u = (x / z_safe).clamp(
+    ratio_x, ratio_y = x / z_safe, y / z_safe
+    u = ratio_x.clamp(
         -(cx / fx + FRUSTUM_MARGIN * tan_fovx), (width - cx) / fx + FRUSTUM_MARGIN * tan_fovx
     )
-    v = (y / z_safe).clamp(
+    v = ratio_y.clamp(
         -(cy / fy + FRUSTUM_MARGIN * tan_fovy), (height - cy) / fy + FRUSTUM_MARGIN * tan_fovy
     )
     zero = torch.zeros_like(z)
@@ -140,8 +141,10 @@ def project_gaussians(
     det_s = torch.where(ok, det, torch.ones_like(det))
     conics = torch.stack([c_s / det_s, -b_s / det_s, a_s / det_s], dim=-1)
 
-    mx = fx * x / z_safe + cx
-    my = fy * y / z_safe + cy
+    # x/z first: fx·x may overflow where x/z does not, and the division's backward would
+    # then multiply a culled row's zero gradient by inf (NaN); fx·(x/z) = inf is culled below
+    mx = fx * ratio_x + cx
+    my = fy * ratio_y + cy
     mult = opacity_sigma_multiplier(opacities.detach())[None].expand_as(a)
     with torch.no_grad():
         rx = torch.ceil(mult * torch.sqrt(a_s))

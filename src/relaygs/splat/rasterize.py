@@ -28,6 +28,9 @@ from relaygs.splat.tiles import (
 )
 
 RENDER_MODES = ("RGB", "D", "RGB+D")
+MIN_NEAR_PLANE = 1e-9
+"""Smallest near plane: the projection's backward divides by depth², and fx/depth² stays a
+finite float32 for any focal length below 1e20 (scenes' near planes are >= 1.1e-8)."""
 
 
 def _check(cond: bool, message: str) -> None:
@@ -63,6 +66,9 @@ def validate_inputs(
     )
     c = viewmats.shape[0]
     _check(Ks.shape == (c, 3, 3), f"Ks must be [{c},3,3], got {list(Ks.shape)}")
+    focal = Ks[:, [0, 1], [0, 1]]
+    if not bool(torch.isfinite(Ks).all() & (focal > 0).all()):  # one read from the device
+        raise InputError(f"Ks must be finite with focal lengths fx, fy > 0, got {Ks.tolist()}")
     _check(width > 0 and height > 0, f"width and height must be positive, got {width}x{height}")
     _check(
         render_mode in RENDER_MODES,
@@ -94,11 +100,11 @@ def validate_inputs(
 
 
 def validate_planes(near_plane: float, far_plane: float, eps2d: float) -> None:
-    """Raise InputError unless 0 < near_plane < far_plane and eps2d is finite and >= 0 (the
-    projection divides by depths >= near_plane: a depth of 0 would give NaN gradients)."""
+    """Raise InputError unless MIN_NEAR_PLANE <= near_plane < far_plane and eps2d is finite
+    and >= 0 (the projection's backward divides by depth², which must not underflow)."""
     _check(
-        0.0 < near_plane < far_plane,
-        f"near_plane and far_plane must satisfy 0 < near_plane < far_plane, "
+        MIN_NEAR_PLANE <= near_plane < far_plane,
+        f"near_plane and far_plane must satisfy {MIN_NEAR_PLANE:.2g} <= near_plane < far_plane, "
         f"got {near_plane} and {far_plane}",
     )
     _check(0.0 <= eps2d < math.inf, f"eps2d must be finite and >= 0, got {eps2d}")
