@@ -34,7 +34,7 @@ def psnr(pred: torch.Tensor, gt: torch.Tensor, mask: torch.Tensor | None = None)
     count = weights.sum(dim=(1, 2)) * pred.shape[-1]
     valid = count > 0
     if not bool(valid.any()):
-        return torch.tensor(float("nan"), dtype=pred.dtype)
+        return pred.new_tensor(float("nan"))
     sums = (squared * weights[..., None]).sum(dim=(1, 2, 3))
     mse = sums / torch.where(valid, count, torch.ones_like(count))
     return _to_db(mse)[valid].mean()
@@ -107,4 +107,4 @@ def _batched_mask(mask: torch.Tensor, images: torch.Tensor) -> torch.Tensor:
         raise ValueError(
             f"mask shape {list(mask.shape)} does not match images {list(images.shape)}"
         )
-    return mask.to(torch.bool).expand(images.shape[:3])
+    return mask.to(device=images.device, dtype=torch.bool).expand(images.shape[:3])
