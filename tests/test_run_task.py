@@ -315,7 +315,7 @@ def test_bad_values_fail_before_any_stage_runs(base_config, tmp_path):
     assert not (tmp_path / "run").exists()
 
 
-def test_a_corrupted_artifact_is_rebuilt_or_refused(base_config, tmp_path):
+def test_a_corrupted_artifact_is_rebuilt_or_refused(base_config, tmp_path, capsys):
     fakes = FakeStages()
     _run(base_config, tmp_path / "a", fakes)
     (tensors,) = (tmp_path / "artifacts" / "decouple").glob("*/tensors.safetensors")
@@ -327,8 +327,13 @@ def test_a_corrupted_artifact_is_rebuilt_or_refused(base_config, tmp_path):
         _run(refusing, tmp_path / "b", fakes)
     assert "\n" not in str(caught.value)
     assert fakes.ran("decouple") == 1
+    capsys.readouterr()
     result = _run(base_config, tmp_path / "c", fakes)
     assert fakes.ran("decouple") == 2 and result["cache_hits"] == 2
+    (line,) = [line for line in capsys.readouterr().out.splitlines() if "failed" in line]
+    assert line.startswith("[decouple] built decouple artifact ")
+    reason = f"{tensors}: sha256 mismatch (recorded "
+    assert f", replacing the stored one, which failed its check: {reason}" in line
 
 
 def test_a_gc_removing_the_model_while_it_is_evaluated_does_not_fail_the_run(

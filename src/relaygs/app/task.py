@@ -191,14 +191,17 @@ def _note_earlier_run(run_dir: Path) -> None:
 
 
 def _announce(report: NodeReport) -> None:
-    """Say whether a node's artifact was reused from the store or built now (flushed at once,
-    so a log file shows each stage as it ends, in order with the progress bars on stderr)."""
+    """Say whether a node's artifact was reused from the store or built now, and what was wrong
+    with a corrupt one it replaced (flushed at once, so a log file shows each stage as it
+    ends, in order with the progress bars on stderr)."""
     key, seconds = report.key[:12], report.wall_seconds
     if report.cache_hit:
         line = f"reused {report.stage} artifact {key} from the store "
         line += f"(built earlier in {seconds:.1f} s)"
     else:
         line = f"built {report.stage} artifact {key} in {seconds:.1f} s"
+    if report.replaced_corrupt is not None:
+        line += f", replacing the stored one, which failed its check: {report.replaced_corrupt}"
     print(f"[{report.node}] {line}", flush=True)
 
 

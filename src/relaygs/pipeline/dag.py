@@ -67,6 +67,7 @@ class NodeReport:
     lineage_seconds: float
     path: Path
     size_mb: float
+    replaced_corrupt: str | None = None  # what was wrong with the stored artifact it rebuilt
 
 
 @dataclass(frozen=True)
@@ -164,6 +165,7 @@ def run_pipeline(
             lineage_seconds=info.wall_seconds + sum(reports[a].wall_seconds for a in ancestors),
             path=info.path,
             size_mb=info.size_mb,
+            replaced_corrupt=info.replaced_corrupt,
         )
         artifacts[node.name] = artifact
         reports[node.name] = report

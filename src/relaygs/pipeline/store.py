@@ -77,7 +77,7 @@ class BuildInfo:
     wall_seconds: float
     path: Path
     size_mb: float
-    replaced_corrupt: bool = False
+    replaced_corrupt: str | None = None  # why the stored artifact it replaced failed its check
 
 
 @dataclass(frozen=True)
@@ -155,18 +155,17 @@ class ArtifactStore:
             "lineage": list(lineage),
             "provenance": json.loads(canonical_json(provenance or {}, f"{stage} provenance")),
         }
-        hit = self._try_load(stage, key, on_corrupt)
+        hit, _ = self._try_load(stage, key, on_corrupt)
         lock_file = lock_path(self.root, stage, key)
         if hit is not None:
             self._clear_stale_checkpoints(stage, key, lock_file)
             return hit
         lock_file.parent.mkdir(parents=True, exist_ok=True)
         with FileLock(str(lock_file)):
-            hit = self._try_load(stage, key, on_corrupt)
+            hit, replaced_corrupt = self._try_load(stage, key, on_corrupt)
             if hit is not None:
                 remove_tree(checkpoint_dir(self.root, stage, key))
                 return hit
-            replaced_corrupt = self.has(stage, key)
             self._remove_own_temps(stage, key)
             with building(BuildContext(self.root, stage, key)):
                 started = time.perf_counter()
@@ -254,23 +253,25 @@ class ArtifactStore:
 
     def _try_load(
         self, stage: str, key: str, on_corrupt: OnCorrupt
-    ) -> tuple[Artifact, BuildInfo] | None:
-        """A verified cache hit, or None when the artifact is missing, (rebuildably) corrupt,
-        or was removed or replaced by another process while it was read (the caller then asks
-        again under the key's lock, which every removal and replacement holds)."""
+    ) -> tuple[tuple[Artifact, BuildInfo] | None, str | None]:
+        """(a verified cache hit, None); or (None, what is wrong) when the artifact is
+        (rebuildably) corrupt; or (None, None) when it is missing or was removed or replaced by
+        another process while it was read (the caller then asks again under the key's lock,
+        which every removal and replacement holds)."""
         try:
             artifact, manifest = self._load_unchanged(stage, key, verify=True)
         except MissingArtifactError:  # ArtifactChangedError included
-            return None
+            return None, None
         except CorruptArtifactError as error:
             if on_corrupt == "error":
                 raise CorruptArtifactError(
                     f"{error} (artifacts.on_corrupt=error: delete it or rerun with "
                     "artifacts.on_corrupt=rebuild)"
                 ) from error
-            return None
+            return None, str(error)
         path = self.path(stage, key)
-        return artifact, BuildInfo(stage, key, True, manifest.wall_seconds, path, manifest.size_mb)
+        info = BuildInfo(stage, key, True, manifest.wall_seconds, path, manifest.size_mb)
+        return (artifact, info), None
 
     def _load_unchanged(self, stage: str, key: str, verify: bool) -> tuple[Artifact, Manifest]:
         """`_load_with_manifest`, whose failure becomes ArtifactChangedError when the folder was
