@@ -75,6 +75,12 @@ def test_verify_exits_1_on_a_corrupt_artifact(store, capsys):
     victim.write_bytes(bytes(data))
     code, out, _ = _cli(capsys, store.root, "verify")
     assert code == 1 and "CORRUPT" in out and "tensors.safetensors" in out and KEY_B not in out
+    assert out.splitlines()[-1] == artifacts_module.REPAIR_HINT
+    code, _, err = _cli(capsys, store.root, "show", KEY_A[:8])  # reads only the manifest
+    assert code == 0
+    code, out, err = _cli(capsys, store.root, "ply", KEY_A[:8], "--out", str(store.root / "p"))
+    assert code == 1 and out == "" and err.count("\n") == 1
+    assert err.startswith(f"error: {victim}: sha256 mismatch") and "or delete its folder" in err
 
 
 def test_gc_removes_leftovers_and_unkept_artifacts(store, capsys):
@@ -85,6 +91,9 @@ def test_gc_removes_leftovers_and_unkept_artifacts(store, capsys):
     code, out, _ = _cli(capsys, store.root, "gc", "--keep", KEY_A)
     assert code == 0 and not leftover.exists()
     assert store.has("decouple", KEY_A) and not store.has("relay", KEY_B)
+    locks = store.root / ".locks"
+    assert not any(locks.iterdir()) and ".lock\n" not in out  # two lock files, one line
+    assert f"removed 2 free lock file(s) in {locks}\n" in out
 
 
 def test_gc_keep_takes_prefixes_and_refuses_a_key_it_cannot_find(store, capsys):

@@ -28,7 +28,8 @@ from relaygs.commands.artifacts_eval import run_eval
 from relaygs.device import usable_device
 from relaygs.errors import RERUN_COMMAND, RelayGSError, resource_error
 from relaygs.paths import require_creatable_folder
-from relaygs.pipeline.layout import TENSORS_FILE
+from relaygs.pipeline.integrity import CorruptArtifactError
+from relaygs.pipeline.layout import LOCKS_DIR, TENSORS_FILE
 from relaygs.pipeline.store import (
     VERIFY_HINT,
     ArtifactStore,
@@ -53,6 +54,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         if not store.root.is_dir():
             raise RelayGSError(f"no artifact store at {store.root} (pass --root DIR)")
         return args.command_fn(store, args)
+    except CorruptArtifactError as error:
+        print(f"error: {error}; {REPAIR_HINT}", file=sys.stderr)
+        return 1
     except RelayGSError as error:
         print(f"error: {error}", file=sys.stderr)
         return 1
@@ -62,6 +66,12 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise
         print(f"error: {failure}", file=sys.stderr)
         return 1
+
+
+REPAIR_HINT = (
+    "a run that needs a damaged artifact rebuilds it (artifacts.on_corrupt=rebuild, the "
+    "default), or delete its folder"
+)
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -310,6 +320,8 @@ def _verify(store: ArtifactStore, args: argparse.Namespace) -> int:
         print(f"CORRUPT {problem.path}: {problem.message}")
     total = len(store.list())
     print(f"{total} readable artifact(s), {len(problems)} problem(s) in {store.root}")
+    if problems:
+        print(REPAIR_HINT)
     return 1 if problems else 0
 
 
@@ -318,8 +330,12 @@ def _gc(store: ArtifactStore, args: argparse.Namespace) -> int:
     keep = None if args.keep is None else [store.find(prefix).key for prefix in args.keep]
     report = store.gc(keep=keep, dry_run=args.dry_run, annotations=(EVAL_STAGE,))
     verb = "would remove" if args.dry_run else "removed"
+    locks = [path for path in report.removed if path.parent.name == LOCKS_DIR]
     for path in report.removed:
-        print(f"{verb} {path}")
+        if path.parent.name != LOCKS_DIR:
+            print(f"{verb} {path}")
+    if locks:
+        print(f"{verb} {len(locks)} free lock file(s) in {store.root / LOCKS_DIR}")
     for path in report.busy:
         print(f"in use, kept {path}")
     print(f"{verb} {len(report.removed)} path(s), {len(report.busy)} in use")
