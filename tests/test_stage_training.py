@@ -250,7 +250,9 @@ def test_an_artifact_stored_before_scalars_were_kept_has_none() -> None:
     assert logged_scalars(Artifact("decouple", {}, {"metrics": {}})) == []
 
 
-def test_resumed_run_counts_the_seconds_before_the_kill(stage_scene: Scene, tmp_path: Path) -> None:
+def test_resumed_run_counts_the_seconds_before_the_kill(
+    stage_scene: Scene, tmp_path: Path, capsys
+) -> None:
     cfg = stage_smoke_cfg(train={"checkpoint_every": 2, "log_every": 1}, decouple={"steps": 6})
     with pytest.raises(KilledError):
         _run("decouple", stage_scene, {}, cfg, tmp_path, kill_at=3)
@@ -258,7 +260,15 @@ def test_resumed_run_counts_the_seconds_before_the_kill(stage_scene: Scene, tmp_
     assert state is not None and state.step == 2
     before_kill = float(state.extras["seconds"])
     assert before_kill > 0.0
-    metrics = _run("decouple", stage_scene, {}, cfg, tmp_path).meta["metrics"]
+    capsys.readouterr()
+    context = BuildContext(tmp_path, "decouple", KEY)
+    with building(context):
+        metrics = STAGES["decouple"](stage_scene, {}, cfg).meta["metrics"]
+    assert context.earlier_seconds == before_kill  # the store adds them to the build's time
+    assert capsys.readouterr().out == (
+        f"[decouple] resuming from the checkpoint of step 2 of 6 ({before_kill:.1f} s of "
+        "training before it)\n"
+    )
     assert metrics["resumed_from"] == 2
     # steps_per_second covers only this run's steps, so it gives this run's seconds back.
     this_run = (metrics["steps"] - 2) / metrics["steps_per_second"]

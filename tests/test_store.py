@@ -356,3 +356,16 @@ def test_a_marker_without_a_hash_table_is_damaged(tmp_path):
     with pytest.raises(CorruptArtifactError, match="completion marker holds no file hashes"):
         store.load("decouple", KEY)
     assert [problem.path.name for problem in store.verify()] == [KEY]
+
+
+def test_a_resumed_build_costs_the_seconds_before_its_checkpoint_too(tmp_path):
+    store = ArtifactStore(tmp_path / "store")
+    fake = CountingStage()
+
+    def resumed_build():
+        current_build().earlier_seconds = 1000.0  # as the training loop sets on resuming
+        return fake()
+
+    _, info = store.get_or_build("decouple", KEY, resumed_build, config={}, lineage=[])
+    assert 1000.0 <= info.wall_seconds < 1060.0
+    assert store.manifest("decouple", KEY).wall_seconds == info.wall_seconds

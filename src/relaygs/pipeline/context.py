@@ -15,13 +15,16 @@ from pathlib import Path
 from relaygs.pipeline.checkpoint import StageCheckpointer
 
 
-@dataclass(frozen=True)
+@dataclass
 class BuildContext:
-    """Which artifact is being built, and in which store."""
+    """Which artifact is being built, and in which store; `earlier_seconds` is the work done
+    before the checkpoint the build resumed from (0 for a fresh build), which the artifact's
+    build time includes."""
 
     store_root: Path
     stage: str
     key: str
+    earlier_seconds: float = 0.0
 
     def checkpointer(self, every_n_steps: int) -> StageCheckpointer:
         """In-stage checkpointer for this build, saving every `every_n_steps` steps."""

@@ -167,10 +167,11 @@ class ArtifactStore:
                 remove_tree(checkpoint_dir(self.root, stage, key))
                 return hit
             self._remove_own_temps(stage, key)
-            with building(BuildContext(self.root, stage, key)):
+            context = BuildContext(self.root, stage, key)
+            with building(context):
                 started = time.perf_counter()
                 artifact = build()
-                wall_seconds = time.perf_counter() - started
+                wall_seconds = time.perf_counter() - started + context.earlier_seconds
             if not isinstance(artifact, Artifact):
                 raise InputError(
                     f"stage {stage!r} returned a {type(artifact).__name__}, expected an Artifact "

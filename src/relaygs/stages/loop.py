@@ -142,8 +142,14 @@ def run_training(
         tracker.load_state(state.extras["losses"])
         history.load_state(state.extras.get("history", []))  # older checkpoints have none
         previous_seconds = float(state.extras["seconds"])
+        build.earlier_seconds = previous_seconds  # a checkpoint was found: `build` is set
         for step, scalars in history.records:  # this run's sinks see the steps before the kill
             log.emit(stage, step, scalars)
+        print(
+            f"[{stage}] resuming from the checkpoint of step {start} of {steps} "
+            f"({previous_seconds:.1f} s of training before it)",
+            flush=True,
+        )
     began = time.perf_counter()
     bar = progress_bar(
         total=steps, initial=start, desc=stage, disable=not train.progress, leave=False
