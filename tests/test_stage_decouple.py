@@ -72,6 +72,17 @@ def test_movers_are_foreground_and_static_parts_background(
     assert (~marked_fg[~on_mover]).float().mean() >= STATIC_MARKED_BG
 
 
+@pytest.mark.parametrize(("mask_init", "noted"), [(30.0, True), (-30.0, False)])
+def test_a_decouple_that_marks_no_foreground_says_so(
+    stage_scene: Scene, capsys, mask_init: float, noted: bool
+) -> None:
+    cfg = stage_smoke_cfg(decouple={"steps": 2, "mask_init": mask_init})
+    artifact = STAGES["decouple"](stage_scene, {}, cfg)
+    assert (artifact.meta["metrics"]["num_fg"] == 0) == noted
+    note = decouple_module.NO_FOREGROUND_NOTE.format(steps=2) + "\n"
+    assert capsys.readouterr().err == (note if noted else "")
+
+
 def test_warmup_is_all_background(stage_scene: Scene) -> None:
     artifact = STAGES["warmup"](stage_scene, {}, stage_smoke_cfg())
     assert artifact.stage == "warmup"

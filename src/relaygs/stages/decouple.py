@@ -10,6 +10,7 @@ Output: background (M = 1) and foreground (M = 0) sets.
 from __future__ import annotations
 
 import math
+import sys
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -164,6 +165,8 @@ def decouple(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, A
         segment_length=scene.num_frames,
     )
     n_fg = int(is_fg.sum())
+    if n_fg == 0:
+        print(NO_FOREGROUND_NOTE.format(steps=section.steps), file=sys.stderr, flush=True)
     metrics = {
         "num_gaussians": len(final),
         "num_bg": len(final) - n_fg,
@@ -172,6 +175,13 @@ def decouple(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, A
     }
     meta = stage_meta(SCHEMA_VERSION, section, train, report, metrics, downscale=training.downscale)
     return model.to("cpu").to_artifact(meta)
+
+
+NO_FOREGROUND_NOTE = (
+    "note: decouple marked no Gaussian as foreground in its {steps} steps (too few, or nothing "
+    "in the scene moves): what follows gets no foreground from it, and a pipeline without "
+    "relay copies (no_copies, no_stage2) treats no part of the scene apart"
+)
 
 
 def _foreground_flags(gaussians: GaussianSet, threshold: float) -> Tensor:
