@@ -16,6 +16,7 @@ import torch
 
 from relaygs.data import Camera, Scene, View, detect_format, load_scene
 from relaygs.data.effects import COLOR_INCONSISTENCY, SENSOR_NOISE
+from relaygs.errors import InputError
 from relaygs.model import GaussianSet
 from relaygs.stages.render import part_of, splat
 
@@ -172,6 +173,16 @@ def test_points_and_effects_come_from_the_scene_files(scene: Scene, tiny_synth_s
     overridden = load_scene(tiny_synth_scene, effects=[SENSOR_NOISE])
     assert overridden.effects == {SENSOR_NOISE}
     assert COLOR_INCONSISTENCY in scene.effects
+
+
+def test_a_downscale_that_leaves_no_image_is_refused(tiny_synth_scene: Path):
+    assert load_scene(tiny_synth_scene, downscale=5).train_views[0].camera.height == 4
+    with pytest.raises(InputError) as caught:
+        load_scene(tiny_synth_scene, downscale=9)
+    assert str(caught.value) == (
+        f"{tiny_synth_scene}: downscale 9 turns its 32x18 images into 4x2; expected at least 4 "
+        "pixels a side (a smaller scene.loader.downscale)"
+    )
 
 
 def test_downscale_halves_cameras_and_area_resizes_images(scene: Scene, tiny_synth_scene: Path):

@@ -19,6 +19,8 @@ from relaygs.errors import InputError
 
 SAME_POSITION = 1e-6
 """Cameras whose centres spread less than this fraction of the point cloud share one position."""
+MIN_IMAGE_SIDE = 4
+"""Fewest pixels a side a loaded view may have: a smaller image shows no scene to fit."""
 
 
 @dataclass(frozen=True)
@@ -129,6 +131,18 @@ def map_cameras(views: list[View], change: Callable[[Camera], Camera]) -> list[V
     return result
 
 
+def _require_visible_size(root: Path, views: list[View], downscale: int) -> None:
+    """One line when `downscale` leaves a view's image under MIN_IMAGE_SIDE pixels a side."""
+    camera = min((view.camera for view in views), key=lambda cam: min(cam.width, cam.height))
+    scaled = camera.scaled(downscale)
+    if min(scaled.width, scaled.height) < MIN_IMAGE_SIDE:
+        raise InputError(
+            f"{root}: downscale {downscale} turns its {camera.width}x{camera.height} images into "
+            f"{scaled.width}x{scaled.height}; expected at least {MIN_IMAGE_SIDE} pixels a side "
+            "(a smaller scene.loader.downscale)"
+        )
+
+
 def scale_views(views: list[View], downscale: int) -> list[View]:
     """Views with cameras downscaled by `downscale`."""
     return map_cameras(views, lambda camera: camera.scaled(downscale))
@@ -182,6 +196,7 @@ def assemble_scene(
 ) -> Scene:
     """Build a Scene from full-resolution views: extent from the train cameras (or the points,
     `scene_extent`), every camera's near plane from the extent, views scaled."""
+    _require_visible_size(root, [*train_views, *test_views], downscale)
     train_cameras = {id(view.camera): view.camera for view in train_views}
     extent = scene_extent(list(train_cameras.values()), points)
     near = near_plane_for(extent)
