@@ -24,6 +24,8 @@ from relaygs.data.colmap import (
     write_model,
 )
 from relaygs.data.export import export_multiview
+from relaygs.data.fingerprint import digest, file_record
+from relaygs.data.options import make_options
 from relaygs.errors import InputError
 
 JUGGLE_TEST_CAMERAS = [0, 10, 15, 30]
@@ -49,7 +51,7 @@ def test_layout_files(multiview_root: Path):
 
 
 def test_both_loaders_agree_on_cameras_images_and_points(panoptic: Scene, multiview_root: Path):
-    multiview = load_scene(multiview_root, test_cameras=JUGGLE_TEST_CAMERAS)
+    multiview = load_scene(multiview_root)  # the export's scene.json keeps juggle's test cameras
     assert multiview.format == "multiview" and multiview.num_frames == panoptic.num_frames
     for split in ("train_views", "test_views"):
         expected, actual = getattr(panoptic, split), getattr(multiview, split)
@@ -69,9 +71,86 @@ def test_both_loaders_agree_on_cameras_images_and_points(panoptic: Scene, multiv
     assert multiview.effects == panoptic.effects
 
 
-def test_default_test_cameras_are_0_10_20_30(multiview_root: Path):
+def test_an_exported_scene_holds_out_its_source_test_cameras(multiview_root: Path):
+    assert json.loads((multiview_root / "scene.json").read_text())["test_cameras"] == [
+        0,
+        10,
+        15,
+        30,
+    ]
     scene = load_scene(multiview_root)
+    assert [camera.camera_id for camera in scene.test_cameras] == JUGGLE_TEST_CAMERAS
+
+
+def test_export_renumbers_the_test_cameras_as_the_multiview_loader_numbers_folders(
+    tiny_synth_copy: Path, tmp_path: Path
+):
+    # Panoptic camera ids 5, 7, 9, ... become cam00, cam01, cam02, ...: ids 0..30 once exported
+    for name in ("train_meta.json", "test_meta.json"):
+        meta = json.loads((tiny_synth_copy / name).read_text())
+        meta["cam_id"] = [[5 + 2 * camera_id for camera_id in row] for row in meta["cam_id"]]
+        (tiny_synth_copy / name).write_text(json.dumps(meta))
+    _declare(tiny_synth_copy, test_cameras=[5, 25, 35, 65])
+    source = load_scene(tiny_synth_copy)
+    assert [camera.camera_id for camera in source.test_cameras] == [5, 25, 35, 65]
+    exported = load_scene(export_multiview(source, tmp_path / "multiview"))
+    assert [camera.camera_id for camera in exported.test_cameras] == JUGGLE_TEST_CAMERAS
+
+
+def test_without_declared_test_cameras_the_defaults_0_10_20_30_are_held_out(
+    multiview_copy: Path,
+):
+    _declare(multiview_copy, test_cameras=None)
+    scene = load_scene(multiview_copy)
     assert [camera.camera_id for camera in scene.test_cameras] == [0, 10, 20, 30]
+
+
+def test_the_test_cameras_option_overrides_the_declared_ones(multiview_root: Path):
+    scene = load_scene(multiview_root, test_cameras=[3])
+    assert [camera.camera_id for camera in scene.test_cameras] == [3]
+
+
+def _declare(root: Path, test_cameras: object) -> None:
+    """Set (None: remove) the `test_cameras` field of root/scene.json."""
+    path = root / "scene.json"
+    declaration = json.loads(path.read_text())
+    declaration.pop("test_cameras")
+    if test_cameras is not None:
+        declaration["test_cameras"] = test_cameras
+    path.write_text(json.dumps(declaration))
+
+
+def _legacy_fingerprint(root: Path) -> str:
+    """The fingerprint relaygs gave a multi-view folder before scene.json could set its split."""
+    names = [f"sparse/0/{path.name}" for path in sorted((root / "sparse" / "0").iterdir())]
+    names += [path.relative_to(root).as_posix() for path in root.glob("cam*/*.png")]
+    names += [path.relative_to(root).as_posix() for path in root.glob("seg/cam*/*.png")]
+    files = {name: file_record(root / name).sha256 for name in [*names, "scene.json"]}
+    content = digest(
+        {"format": "multiview", "options": make_options().content_options(), "files": files}
+    )
+    return digest({"content": content, "downscale": 1})
+
+
+def test_a_declared_split_changes_the_fingerprint_and_only_then(multiview_copy: Path):
+    # artifacts built when relaygs ignored scene.json's split (same files) must not be reused
+    assert load_scene(multiview_copy).fingerprint != _legacy_fingerprint(multiview_copy)
+    _declare(multiview_copy, test_cameras=None)
+    assert load_scene(multiview_copy).fingerprint == _legacy_fingerprint(multiview_copy)
+
+
+@pytest.mark.parametrize(
+    ("declared", "message"),
+    [
+        ([0, 99], r"scene\.json field 'test_cameras': cameras \[99\] are not in .* 0\.\.30"),
+        ("0,10", r"scene\.json: field 'test_cameras' must be a list of camera ids"),
+        ([0, -1], r"scene\.json: field 'test_cameras' must be a list of camera ids"),
+    ],
+)
+def test_bad_declared_test_cameras_are_refused(multiview_copy: Path, declared, message):
+    _declare(multiview_copy, test_cameras=declared)
+    with pytest.raises(InputError, match=message):
+        load_scene(multiview_copy)
 
 
 def test_binary_and_text_models_round_trip(tmp_path: Path):

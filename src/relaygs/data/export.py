@@ -3,6 +3,7 @@ synthetic scene through the COLMAP loader or to hand it to tools that expect tha
 
 from __future__ import annotations
 
+import json
 import shutil
 from pathlib import Path
 
@@ -16,7 +17,7 @@ from relaygs.data.colmap import (
     rotation_to_qvec,
     write_model,
 )
-from relaygs.data.metafiles import SCENE_JSON
+from relaygs.data.metafiles import SCENE_JSON, read_json
 from relaygs.data.multiview import MASK_FOLDER
 from relaygs.data.scene import Scene
 from relaygs.errors import InputError
@@ -61,9 +62,22 @@ def export_multiview(scene: Scene, out_dir: str | Path, *, binary: bool = True) 
     rgb = np.round(scene.points.rgb.double().numpy() * 255.0).astype(np.uint8)
     model = ColmapModel(colmap_cameras, images, scene.points.xyz.double().numpy(), rgb)
     write_model(out / "sparse" / "0", model, binary=binary)
-    if (scene.root / SCENE_JSON).exists():
-        shutil.copyfile(scene.root / SCENE_JSON, out / SCENE_JSON)
+    index_of = {camera.camera_id: index for index, camera in enumerate(cameras)}
+    test_ids = sorted({index_of[view.camera.camera_id] for view in scene.full_test_views})
+    _write_declaration(scene, test_ids, out)
     return out
+
+
+def _write_declaration(scene: Scene, test_ids: list[int], out: Path) -> None:
+    """out/scene.json: the source's (if any) with `test_cameras` set to `test_ids` (the test
+    cameras' multi-view ids), so the exported folder loads with its source's held-out cameras."""
+    source = scene.root / SCENE_JSON
+    declaration = read_json(source) if source.exists() else {}
+    if not isinstance(declaration, dict):
+        raise InputError(f"{source}: expected a JSON object")
+    declaration["test_cameras"] = test_ids
+    text = json.dumps(declaration, indent=1) + "\n"
+    (out / SCENE_JSON).write_text(text, encoding="utf-8")
 
 
 def _fixed_rig(scene: Scene, views: list) -> list[Camera]:

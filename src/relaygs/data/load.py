@@ -46,7 +46,8 @@ def load_scene(
 
     downscale: integer factor for half/quarter resolution; max_points: voxel-downsampling budget
     of the initial cloud; cache_mb: in-memory image cache budget; test_cameras: held-out camera
-    ids (default: test_meta.json, or 0/10/20/30 for multi-view); effects: override scene.json.
+    ids (default: test_meta.json; multi-view: scene.json's, else 0/10/20/30); effects: override
+    scene.json.
     """
     root = require_folder(Path(path).expanduser().absolute(), "scene folder")
     options = make_options(

@@ -51,3 +51,25 @@ def declared_effects(root: Path) -> frozenset[str]:
     if not isinstance(effects, list):
         raise InputError(f"{path}: field 'effects' must be a list of effect names")
     return parse_effects(effects, source=f"{path} field 'effects'")
+
+
+def declared_test_cameras(root: Path) -> tuple[int, ...] | None:
+    """Held-out camera ids a scene folder's scene.json lists in 'test_cameras' (None when the
+    file or the field is absent), so an exported scene keeps its source's split."""
+    path = root / SCENE_JSON
+    if not path.exists():
+        return None
+    declaration = read_json(path)
+    if not isinstance(declaration, dict) or "test_cameras" not in declaration:
+        return None
+    ids = declaration["test_cameras"]
+    valid = isinstance(ids, list) and all(
+        isinstance(camera_id, int) and not isinstance(camera_id, bool) and camera_id >= 0
+        for camera_id in ids
+    )
+    if not valid:
+        raise InputError(
+            f"{path}: field 'test_cameras' must be a list of camera ids (integers >= 0), "
+            f"got {ids!r}"
+        )
+    return tuple(sorted(set(ids)))

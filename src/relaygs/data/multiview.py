@@ -19,7 +19,7 @@ from relaygs.data.colmap import (
     read_model,
 )
 from relaygs.data.fingerprint import digest, file_record
-from relaygs.data.metafiles import SCENE_JSON, declared_effects
+from relaygs.data.metafiles import SCENE_JSON, declared_effects, declared_test_cameras
 from relaygs.data.options import LoaderOptions
 from relaygs.data.points import point_cloud_from_arrays
 from relaygs.data.scene import Scene, View, assemble_scene, frame_time, split_views
@@ -63,9 +63,10 @@ def load_multiview(root: Path, options: LoaderOptions) -> Scene:
     }
     if (root / SCENE_JSON).exists():
         files[SCENE_JSON] = file_record(root / SCENE_JSON).sha256
+    declared = declared_test_cameras(root)
     cameras = _cameras(folders, model, model_folder)
     views = _views(root, folders, frames, cameras, files)
-    train_views, test_views = _split(views, len(folders), options.test_cameras, root)
+    train_views, test_views = _split(views, len(folders), options.test_cameras, declared, root)
     points = point_cloud_from_arrays(
         model.xyz,
         model.rgb.astype(np.float64) / 255.0,
@@ -74,7 +75,11 @@ def load_multiview(root: Path, options: LoaderOptions) -> Scene:
         max_points=options.max_points,
     )
     effects = declared_effects(root) if options.effects is None else options.effects
-    content = digest({"format": "multiview", "options": options.content_options(), "files": files})
+    record = {"format": "multiview", "options": options.content_options(), "files": files}
+    if declared is not None and options.test_cameras is None:
+        # scene.json's split enters the key: older relaygs read the same file as the default split
+        record["declared_test_cameras"] = list(declared)
+    content = digest(record)
     return assemble_scene(
         root=root,
         format="multiview",
@@ -229,16 +234,25 @@ def _check_size(path: Path, camera: Camera, files: dict[str, str], root: Path, w
 
 
 def _split(
-    views: list[View], num_cameras: int, test_cameras: tuple[int, ...] | None, root: Path
+    views: list[View],
+    num_cameras: int,
+    test_cameras: tuple[int, ...] | None,
+    declared: tuple[int, ...] | None,
+    root: Path,
 ) -> tuple[list[View], list[View]]:
-    if test_cameras is None:
-        test_ids = {camera_id for camera_id in DEFAULT_TEST_CAMERAS if camera_id < num_cameras}
+    """Hold out the `test_cameras` option's ids, else scene.json's `declared` ones, else the
+    DEFAULT_TEST_CAMERAS that exist; explicit or declared ids must all exist."""
+    if test_cameras is not None:
+        ids, source = test_cameras, "loader option test_cameras"
+    elif declared is not None:
+        ids, source = declared, f"{root / SCENE_JSON} field 'test_cameras'"
     else:
-        missing = [camera_id for camera_id in test_cameras if camera_id >= num_cameras]
-        if missing:
-            raise InputError(
-                f"loader option test_cameras: cameras {missing} are not in {root} "
-                f"(camera ids 0..{num_cameras - 1}, one per camXX folder)"
-            )
-        test_ids = set(test_cameras)
-    return split_views(views, test_ids, root)
+        defaults = {camera_id for camera_id in DEFAULT_TEST_CAMERAS if camera_id < num_cameras}
+        return split_views(views, defaults, root)
+    missing = [camera_id for camera_id in ids if camera_id >= num_cameras]
+    if missing:
+        raise InputError(
+            f"{source}: cameras {missing} are not in {root} "
+            f"(camera ids 0..{num_cameras - 1}, one per camXX folder)"
+        )
+    return split_views(views, set(ids), root)
