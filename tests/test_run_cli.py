@@ -1,6 +1,7 @@
 """`python -m relaygs.run`: one-line errors before any work, and the Hydra wiring (run dirs,
 multirun, the sweep-summary callback) driven in-process on fake stages."""
 
+import dataclasses
 import functools
 import io
 import json
@@ -22,6 +23,7 @@ from relaygs.app.task import run_task
 from relaygs.cli import script_command
 from relaygs.commands import run as run_module
 from relaygs.commands.artifacts import _parser as artifacts_parser
+from relaygs.data.synthetic import PRESETS
 from relaygs.errors import RERUN_RUN, Interrupted
 from relaygs.paths import config_dir
 
@@ -115,6 +117,21 @@ def test_bad_input_is_one_line_before_any_work(fakes, tmp_path, capsys, args, fr
     assert lines[0].startswith("error: ") and fragment in lines[0]
     assert fakes.calls == []
     assert list(tmp_path.iterdir()) == []  # no run dir, no store, no scene
+
+
+def test_a_preset_edited_to_test_cameras_beyond_its_rig_is_one_line_before_any_work(
+    fakes, tmp_path, capsys, monkeypatch
+):
+    # as `relaygs.synth` refuses it; before, `run` took it
+    edited = dataclasses.replace(PRESETS["juggle"], test_cameras=(0, 99))
+    monkeypatch.setitem(PRESETS, "juggle", edited)
+    assert _main([*TINY_SCENE]) == 1
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert lines == [
+        "error: PRESETS['juggle'].test_cameras (relaygs/data/synthetic/presets.py) [0, 99] must "
+        "be distinct indices into its rig of 31 cameras (0..30), leaving some to train on"
+    ]
+    assert fakes.calls == [] and list(tmp_path.iterdir()) == []
 
 
 def test_only_an_override_line_with_non_ascii_characters_gets_the_quoting_hint(fakes, capsys):

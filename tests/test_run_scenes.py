@@ -1,8 +1,11 @@
 """Scene resolution: synthetic scenes are generated once into a parameter-hashed cache folder
 (parallel jobs included); capture folders are checked before any work."""
 
+import dataclasses
+import re
 import threading
 import time
+from pathlib import Path
 
 import pytest
 from omegaconf import OmegaConf
@@ -11,6 +14,10 @@ from fake_stages import compose_config
 from relaygs.app import scenes
 from relaygs.app.scenes import prepare_scene, scene_provenance, scene_spec, synthetic_folder
 from relaygs.data import load_scene
+from relaygs.data.effects import SENSOR_NOISE
+from relaygs.data.synthetic import PRESETS
+from relaygs.data.synthetic.presets import build_static
+from relaygs.data.synthetic.rig import ring_rig
 from relaygs.errors import InputError
 
 TINY = {
@@ -34,6 +41,48 @@ def test_cache_folder_depends_on_every_generation_parameter(tmp_path):
         assert synthetic_folder(scene_spec({**TINY, **change}), tmp_path) != base
     renamed = synthetic_folder(scene_spec({**TINY, "name": "label"}), tmp_path)
     assert renamed == base  # the label is not a generation parameter
+
+
+@pytest.mark.parametrize(
+    "edit",
+    [
+        {"test_cameras": (0, 10)},
+        {"default_effects": frozenset({SENSOR_NOISE})},
+        {"supported_effects": PRESETS["juggle"].supported_effects - {SENSOR_NOISE}},
+        {"rig": ring_rig},
+        {"build": build_static},
+        {"description": "edited"},
+    ],
+)
+def test_cache_folder_depends_on_the_preset_definition(tmp_path, monkeypatch, edit):
+    base = synthetic_folder(scene_spec(TINY), tmp_path)
+    monkeypatch.setitem(PRESETS, "juggle", dataclasses.replace(PRESETS["juggle"]))
+    assert synthetic_folder(scene_spec(TINY), tmp_path) == base  # an equal copy: same folder
+    monkeypatch.setitem(PRESETS, "juggle", dataclasses.replace(PRESETS["juggle"], **edit))
+    assert synthetic_folder(scene_spec(TINY), tmp_path) != base
+
+
+def test_the_docs_quote_the_cache_folder_of_the_default_juggle_scene(tmp_path):
+    # the same in every process (no object addresses in the hash), as the docs show it
+    default = OmegaConf.to_container(compose_config([], tmp_path).scene, resolve=True)
+    folder = synthetic_folder(scene_spec(default), Path("outputs/scenes")).as_posix()
+    root = Path(__file__).resolve().parents[1]
+    pages = [root / "README.md", *sorted((root / "docs").glob("*.md"))]
+    quoted = {
+        match
+        for page in pages
+        for match in re.findall(r"outputs/scenes/juggle-\w+", page.read_text(encoding="utf-8"))
+    }
+    assert quoted == {folder}
+
+
+def test_preset_test_cameras_beyond_its_rig_are_refused_before_generation(monkeypatch):
+    # before: `run` took the edited preset (its cached scene, or a failure after other work)
+    monkeypatch.setitem(
+        PRESETS, "juggle", dataclasses.replace(PRESETS["juggle"], test_cameras=(0, 99))
+    )
+    with pytest.raises(InputError, match=r"PRESETS\['juggle'\]\.test_cameras .* \[0, 99\] must be"):
+        scene_spec(TINY)
 
 
 def test_a_synthetic_scene_is_generated_once_and_then_loaded(tmp_path, monkeypatch):

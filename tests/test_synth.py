@@ -295,10 +295,11 @@ def test_bad_generator_input_is_rejected(tmp_path: Path, preset: str, kwargs: di
         # before: IndexError (list index out of range) while writing the metadata
         (
             {"test_cameras": (0, 31)},
-            r"test_cameras \[0, 31\] must be distinct indices into its rig",
+            r"PRESETS\['mine'\]\.test_cameras \(relaygs/data/synthetic/presets\.py\) \[0, 31\] "
+            "must be distinct indices into its rig",
         ),
         ({"test_cameras": (0, 0)}, "must be distinct"),
-        ({"test_cameras": (-1,)}, r"test_cameras \[-1\] must be distinct indices into its rig"),
+        ({"test_cameras": (-1,)}, r"presets\.py\) \[-1\] must be distinct indices into its rig"),
         ({"test_cameras": tuple(range(31))}, "leaving some to train on"),
         # before: written without a word, scene.json declaring an effect the world lacks
         ({"default_effects": frozenset({DYNAMIC_PANELS})}, r"PRESETS\['mine'\].default_effects"),

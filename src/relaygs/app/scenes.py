@@ -15,7 +15,13 @@ from filelock import FileLock
 from relaygs.data import Scene, detect_format, load_scene
 from relaygs.data.effects import parse_effects
 from relaygs.data.options import make_options
-from relaygs.data.synthetic import GENERATOR_VERSION, PRESETS, declared_effects, generate
+from relaygs.data.synthetic import (
+    GENERATOR_VERSION,
+    PRESETS,
+    declared_effects,
+    generate,
+    rig_cameras,
+)
 from relaygs.errors import InputError
 from relaygs.paths import require_folder
 from relaygs.pipeline.keys import canonical_json
@@ -95,15 +101,18 @@ def scene_spec(section: Mapping[str, Any]) -> SceneSpec:
             f"{', '.join(sorted(PRESETS))}); or set scene.path=DIR for a capture"
         )
     declared_effects(PRESETS[preset], effects, source="scene.effects")
-    _check_held_out(preset, options.test_cameras, counts["width"], counts["height"])
+    rig = rig_cameras(PRESETS[preset], counts["width"], counts["height"])
+    _check_held_out(preset, options.test_cameras, len(rig))
     name = str(section.get("name") or preset)
     return SceneSpec(name, preset, None, **counts, seed=seed, effects=effects, loader=loader)
 
 
 def synthetic_folder(spec: SceneSpec, scenes_dir: Path) -> Path:
-    """Cache folder of a synthetic scene: `<scenes_dir>/<preset>-<hash of its parameters>`."""
+    """Cache folder of a synthetic scene: `<scenes_dir>/<preset>-<hash of its parameters>`,
+    the preset's own definition among them (an edited preset is generated anew)."""
     params = {
         "preset": spec.preset,
+        "definition": PRESETS[spec.preset].definition(),
         "frames": spec.frames,
         "width": spec.width,
         "height": spec.height,
@@ -148,14 +157,11 @@ def loader_arguments(spec: SceneSpec) -> dict[str, Any]:
     return arguments
 
 
-def _check_held_out(
-    preset: str, test_cameras: tuple[int, ...] | None, width: int, height: int
-) -> None:
-    """Refuse held-out camera ids the preset's rig lacks, or that leave it no train camera,
-    before the scene is generated (its loader would refuse them only after)."""
+def _check_held_out(preset: str, test_cameras: tuple[int, ...] | None, count: int) -> None:
+    """Refuse held-out camera ids the preset's rig of `count` cameras lacks, or that leave it
+    no train camera, before the scene is generated (its loader would refuse them only after)."""
     if test_cameras is None:
         return
-    count = len(PRESETS[preset].rig(width, height))
     missing = [camera_id for camera_id in test_cameras if camera_id >= count]
     if missing or len(test_cameras) == count:
         problem = f"cameras {missing} are not in" if missing else "it holds out every camera of"

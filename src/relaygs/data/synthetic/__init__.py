@@ -2,7 +2,19 @@
 effects they declare (see `relaygs.data.effects`); `generate` writes the Panoptic layout."""
 
 from relaygs.data.effects import ALL_EFFECTS
-from relaygs.data.synthetic.generate import GENERATOR_VERSION, declared_effects, generate
+from relaygs.data.synthetic.generate import (
+    GENERATOR_VERSION,
+    declared_effects,
+    generate,
+    rig_cameras,
+)
 from relaygs.data.synthetic.presets import PRESETS
 
-__all__ = ["ALL_EFFECTS", "GENERATOR_VERSION", "PRESETS", "declared_effects", "generate"]
+__all__ = [
+    "ALL_EFFECTS",
+    "GENERATOR_VERSION",
+    "PRESETS",
+    "declared_effects",
+    "generate",
+    "rig_cameras",
+]

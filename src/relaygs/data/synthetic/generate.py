@@ -71,7 +71,7 @@ def generate(
     declared = declared_effects(recipe, effects)
     times = np.linspace(0.0, DURATION_S, frames) if frames > 1 else np.zeros(1)
     world = World(
-        cameras=_rig_cameras(recipe, width, height),
+        cameras=rig_cameras(recipe, width, height),
         test_cameras=recipe.test_cameras,
         primitives=recipe.build(times, declared, seed),
         times_s=times,
@@ -96,7 +96,7 @@ def generate(
     return out
 
 
-def _rig_cameras(recipe: Preset, width: int, height: int) -> list[RigCamera]:
+def rig_cameras(recipe: Preset, width: int, height: int) -> list[RigCamera]:
     """The preset's rig, whose cameras must include each of its test cameras (indices into the
     rig) and leave at least one to train on."""
     cameras = recipe.rig(width, height)
@@ -104,8 +104,9 @@ def _rig_cameras(recipe: Preset, width: int, height: int) -> list[RigCamera]:
     fits = len(set(test)) == len(test) < count
     if not fits or any(not 0 <= index < count for index in test):
         raise InputError(
-            f"preset {recipe.name!r}: test_cameras {list(recipe.test_cameras)} must be distinct "
-            f"indices into its rig of {count} cameras (0..{count - 1}), leaving some to train on"
+            f"PRESETS[{recipe.name!r}].test_cameras (relaygs/data/synthetic/presets.py) "
+            f"{list(test)} must be distinct indices into its rig of {count} cameras "
+            f"(0..{count - 1}), leaving some to train on"
         )
     return cameras
 

@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
+from typing import Any
 
 import numpy as np
 
@@ -52,6 +53,22 @@ class Preset:
     default_effects: frozenset[str]
     supported_effects: frozenset[str]
     build: WorldBuilder
+
+    def definition(self) -> dict[str, Any]:
+        """Every field as a JSON value the same in every process (callables by qualified name):
+        the scene cache hashes it, so an edited preset is generated anew."""
+        return {field.name: _describe(getattr(self, field.name)) for field in fields(self)}
+
+
+def _describe(value: object) -> object:
+    """A preset field as JSON: sets sorted, tuples as lists, a callable as `module.qualname`."""
+    if isinstance(value, frozenset):
+        return sorted(value)
+    if isinstance(value, tuple):
+        return list(value)
+    if callable(value):
+        return f"{value.__module__}.{value.__qualname__}"
+    return value
 
 
 def _outfit(rng: np.random.Generator, shirt: Color, stripe: Color) -> Outfit:
