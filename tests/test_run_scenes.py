@@ -85,6 +85,19 @@ def test_preset_test_cameras_beyond_its_rig_are_refused_before_generation(monkey
         scene_spec(TINY)
 
 
+@pytest.mark.parametrize("none", ["none", ["none"]])
+def test_effects_none_is_no_effects_as_in_synth(tmp_path, none):
+    spec = scene_spec({**TINY, "effects": none})
+    empty = scene_spec({**TINY, "effects": []})
+    assert spec.effects == () == empty.effects
+    assert synthetic_folder(spec, tmp_path) == synthetic_folder(empty, tmp_path)
+
+
+def test_none_among_effect_names_is_refused():
+    with pytest.raises(InputError, match=r"scene\.effects: unknown effect 'none'.*'none' alone"):
+        scene_spec({**TINY, "effects": ["none", "nonrigid"]})
+
+
 def test_a_synthetic_scene_is_generated_once_and_then_loaded(tmp_path, monkeypatch):
     calls = []
     real_generate = scenes.generate

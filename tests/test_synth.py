@@ -222,6 +222,11 @@ def test_a_single_effect_name_is_one_effect_not_its_letters():
     assert parse_effects([SENSOR_NOISE, NONRIGID], source="x") == {SENSOR_NOISE, NONRIGID}
 
 
+@pytest.mark.parametrize("none", ["none", ["none"], []])
+def test_none_alone_declares_no_effects(none):
+    assert parse_effects(none, source="x") == frozenset()
+
+
 def test_fast_objects_exist_only_when_declared_and_move_fast():
     for preset in ("juggle", "court"):
         without = _foreground(preset, {LARGE_MOTION, NONRIGID})

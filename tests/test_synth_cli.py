@@ -25,9 +25,16 @@ def test_cli_writes_a_scene_with_the_requested_effects(tmp_path: Path, capsys):
 
 def test_effect_list_parsing():
     assert parse_effect_list(None) is None
-    assert parse_effect_list(["none"]) == []
     assert parse_effect_list([]) == []
     assert parse_effect_list(["a,b", "c"]) == ["a", "b", "c"]
+
+
+@pytest.mark.parametrize("effects", [["none"], []])
+def test_cli_effects_none_or_nothing_writes_a_scene_without_effects(tmp_path: Path, effects):
+    out = tmp_path / "juggle"
+    args = ["juggle", str(out), "--frames", "1", "--width", "8", "--height", "6"]
+    assert main([*args, "--effects", *effects]) == 0
+    assert json.loads((out / "scene.json").read_text())["effects"] == []
 
 
 @pytest.mark.parametrize(
@@ -37,6 +44,7 @@ def test_effect_list_parsing():
         (["juggle", "--frames", "0"], "frames must be an integer >= 1"),
         (["juggle", "--width", "-3"], "width must be an integer >= 1"),
         (["juggle", "--effects", "wobble"], "unknown effect 'wobble'"),
+        (["juggle", "--effects", "none,nonrigid"], "unknown effect 'none'; expected one of"),
         (["static", "--effects", "fast_objects"], "cannot simulate fast_objects"),
     ],
 )

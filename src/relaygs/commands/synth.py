@@ -42,11 +42,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def parse_effect_list(values: list[str] | None) -> list[str] | None:
-    """Flatten space/comma separated effect names; 'none' (or nothing) means no effects."""
+    """Flatten space/comma separated effect names (`generate` reads 'none' alone, or nothing,
+    as no effects)."""
     if values is None:
         return None
-    names = [name.strip() for value in values for name in value.split(",") if name.strip()]
-    return [] if names == ["none"] else names
+    return [name.strip() for value in values for name in value.split(",") if name.strip()]
 
 
 def main(argv: list[str] | None = None) -> int:

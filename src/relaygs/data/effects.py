@@ -36,19 +36,28 @@ ALL_EFFECTS: frozenset[str] = frozenset(
         SENSOR_NOISE,
     }
 )
+NO_EFFECTS = "none"
+"""Given alone instead of effect names, it declares no effects (`--effects none`,
+`scene.effects=none`), as an empty list does."""
 
 
 def parse_effects(names: Iterable[str], *, source: str) -> frozenset[str]:
-    """Validate effect names (one name, or a list of them); `source` names where they came
-    from for the error message."""
+    """Validate effect names (one name, or a list of them; NO_EFFECTS alone for none); `source`
+    names where they came from for the error message."""
     if isinstance(names, str):
         names = [names]
     if isinstance(names, Mapping) or not isinstance(names, Iterable):  # e.g. `effects=3`
         raise InputError(f"{source}: expected an effect name or a list of them, got {names!r}")
+    names = list(names)
+    if names == [NO_EFFECTS]:
+        return frozenset()
     parsed = []
     for name in names:
         if not isinstance(name, str) or name not in ALL_EFFECTS:
             known = ", ".join(sorted(ALL_EFFECTS))
-            raise InputError(f"{source}: unknown effect {name!r}; expected one of: {known}")
+            raise InputError(
+                f"{source}: unknown effect {name!r}; expected one of: {known} "
+                f"(or '{NO_EFFECTS}' alone for no effects)"
+            )
         parsed.append(name)
     return frozenset(parsed)
