@@ -101,6 +101,24 @@ def test_cli_usage_errors_are_one_line(capsys):
     assert len(lines) == 1 and "--frames" in lines[0]
 
 
+@pytest.mark.parametrize(
+    ("out", "message"),
+    [
+        ("/proc/relaygs-synth", "synthetic scene folder: cannot write in /proc ("),
+        ("{tmp}/file/out", "synthetic scene folder: {tmp}/file is not a folder"),
+    ],
+)
+def test_cli_an_output_folder_that_cannot_be_written_is_bad_input_exit_2(
+    tmp_path: Path, capsys, out, message
+):
+    # checked before rendering, like the other output-path problems (docs/scenes.md)
+    (tmp_path / "file").write_text("mine")
+    out, message = out.format(tmp=tmp_path), message.format(tmp=tmp_path)
+    assert main(["static", out, "--frames", "1", "--width", "8", "--height", "6"]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"error: {message}"), lines
+
+
 def test_cli_full_disk_is_one_line_and_leaves_no_folder(tmp_path: Path, capsys, monkeypatch):
     def disk_full(*args, **kwargs):
         raise OSError(errno.ENOSPC, "No space left on device")  # a write's close names no file
