@@ -413,6 +413,28 @@ def test_a_pipe_in_a_variant_label_does_not_split_the_markdown_row(tmp_path):
     assert row.startswith("| k16\\|fast | 26.00 |")
 
 
+def test_pareto_labels_of_close_jobs_do_not_overprint_nor_leave_the_plot(tmp_path, monkeypatch):
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    figures = []
+
+    class RecordingFigure(pareto.Figure):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            figures.append(self)
+
+    monkeypatch.setattr(pareto, "Figure", RecordingFigure)
+    times, scores = [30.0, 30.5, 31.0, 60.0, 90.0], [9.51, 9.51, 9.512, 9.50, 9.49]
+    labels = ["full", "no_copies", "no_stage2", "no_pseudo_views", "no_gamma_far_right"]
+    pareto.plot_pareto(times, scores, labels, tmp_path / "p.png", "t")
+    (axes,) = figures[0].axes
+    renderer = FigureCanvasAgg(figures[0]).get_renderer()
+    boxes = [text.get_window_extent(renderer) for text in axes.texts]
+    assert len(boxes) == 5
+    assert not any(a.overlaps(b) for i, a in enumerate(boxes) for b in boxes[i + 1 :])
+    assert all(box.x1 <= axes.get_window_extent(renderer).x1 for box in boxes)
+
+
 @pytest.mark.parametrize(("slowest", "scale"), [(30.0, "log"), (15.0, "linear")])
 def test_pareto_time_axis_is_logarithmic_only_for_a_wide_time_range(
     tmp_path, monkeypatch, slowest, scale

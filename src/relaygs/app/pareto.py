@@ -7,12 +7,19 @@ import math
 from collections.abc import Sequence
 from pathlib import Path
 
+from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+from matplotlib.text import Annotation
+from matplotlib.transforms import Bbox
 
 from relaygs.app.figures import save_png
 
 LOG_SCALE_RATIO = 20.0
 """Use a log time axis when the slowest job takes more than this many times the fastest."""
+LABEL_STEP_PT = 9.0
+"""How far (points) a label that would overprint another is lifted at a time."""
+MAX_LABEL_STEPS = 12
+"""At most this many lifts per label: a crowd of jobs still gets every label on the plot."""
 
 
 def pareto_front(times: Sequence[float], scores: Sequence[float]) -> list[int]:
@@ -67,8 +74,10 @@ def plot_pareto(
             s=140,
             zorder=3,
         )
-    for (x, y), label in point_labels(times, scores, labels).items():
+    notes = [
         axes.annotate(label, (x, y), textcoords="offset points", xytext=(5, 5), fontsize=8)
+        for (x, y), label in point_labels(times, scores, labels).items()
+    ]
     positive = [t for t in times if t > 0]
     if positive and max(positive) > LOG_SCALE_RATIO * min(positive):
         axes.set_xscale("log")
@@ -76,5 +85,27 @@ def plot_pareto(
     axes.set_ylabel("PSNR (dB)")
     axes.set_title(title)
     axes.grid(True, alpha=0.3)
-    axes.legend(loc="lower right")
+    axes.legend(loc="best")
+    spread_labels(figure, notes)
     return save_png(figure, path)
+
+
+def spread_labels(figure: Figure, notes: Sequence[Annotation]) -> None:
+    """Put labels that would run off the plot on their point's left, then lift them, lowest
+    point first, in LABEL_STEP_PT steps until each clears the labels placed before it: jobs
+    close together (e.g. variants of one cost) stay readable."""
+    renderer = FigureCanvasAgg(figure).get_renderer()
+    figure.draw_without_rendering()  # the constrained layout places the axes first
+    placed: list[Bbox] = []
+    for note in sorted(notes, key=lambda each: each.xy[1]):
+        right_edge = note.axes.get_window_extent(renderer).x1
+        if note.get_window_extent(renderer).x1 > right_edge:  # to the point's left instead
+            note.set_horizontalalignment("right")
+            note.xyann = (-note.xyann[0], note.xyann[1])
+        for _ in range(MAX_LABEL_STEPS):
+            box = note.get_window_extent(renderer)
+            if not any(box.overlaps(other) for other in placed):
+                break
+            x, y = note.xyann
+            note.xyann = (x, y + LABEL_STEP_PT)
+        placed.append(note.get_window_extent(renderer))
