@@ -609,3 +609,39 @@ def test_a_render_out_of_disk_or_memory_is_one_line(store, capsys, monkeypatch, 
     code, _, err = _cli(capsys, store.root, "render", KEY_A[:8], "--scene", "s", "--out", "o")
     assert code == 1 and err.startswith(f"error: {message}") and err.count("\n") == 1
     assert err.rstrip().endswith("then rerun the command")
+
+
+@pytest.fixture
+def torch_threads():
+    """torch's CPU thread count, restored after the test (a command under test sets it)."""
+    before = torch.get_num_threads()
+    yield before
+    torch.set_num_threads(before)
+
+
+@pytest.mark.parametrize("command", ["eval", "render", "ply"])
+def test_threads_is_set_before_the_model_loads(store, capsys, monkeypatch, torch_threads, command):
+    from relaygs.commands import artifacts_eval
+    from relaygs.errors import RelayGSError
+
+    seen = []
+
+    def loading(*args):  # the first of the work: record torch's threads, then stop
+        seen.append(torch.get_num_threads())
+        raise RelayGSError("stopped")
+
+    for module in (artifacts_module, artifacts_eval):
+        monkeypatch.setattr(module, "model_artifact", loading)
+    wanted = 1 if torch_threads > 1 else 2
+    scene = [] if command == "ply" else ["--scene", "s"]
+    code, _, err = _cli(capsys, store.root, command, KEY_A[:8], *scene, "--threads", str(wanted))
+    assert (code, err, seen) == (1, "error: stopped\n", [wanted])
+
+
+@pytest.mark.parametrize("given", ["0", "-2", "x", "1.5", "1025"])
+def test_threads_outside_1_to_1024_is_a_one_line_usage_error(capsys, given):
+    with pytest.raises(SystemExit) as caught:
+        main(["eval", KEY_A[:8], "--scene", "s", "--threads", given])
+    out, err = capsys.readouterr()
+    assert caught.value.code == 2 and out == "" and err.count("\n") == 1
+    assert f"argument --threads: expected an integer in [1, 1024], got '{given}'" in err

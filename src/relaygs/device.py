@@ -1,4 +1,5 @@
-"""Which torch device a run may use: the CPU or a CUDA device this torch can allocate on."""
+"""Which torch device a run may use (the CPU or a CUDA device this torch can allocate on), and
+how many CPU threads torch takes."""
 
 from __future__ import annotations
 
@@ -32,6 +33,13 @@ def usable_device(name: str, what: str) -> torch.device:
         reason = text.splitlines()[0] if text else type(error).__name__
         raise InputError(f"{what}: cannot use {name!r} here ({reason})") from None
     return device
+
+
+def set_threads(threads: int | None) -> None:
+    """Set torch's CPU thread count to `threads` (None keeps torch's default) before any work: a
+    run's `threads` and the commands' `--threads` (one thread is fastest on a busy machine)."""
+    if threads is not None:
+        torch.set_num_threads(threads)
 
 
 def synchronize(device: torch.device) -> None:

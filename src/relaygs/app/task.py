@@ -34,6 +34,7 @@ from relaygs.app.suite import StageSuite, load_stage_suite
 from relaygs.app.tensorboard import TensorBoardLog, flatten_config
 from relaygs.cli import python_command, script_command
 from relaygs.data import Scene
+from relaygs.device import set_threads
 from relaygs.errors import resource_error
 from relaygs.per_view import METRIC_COLUMNS, PER_VIEW, PER_VIEW_FILE, frame_means, write_per_view
 from relaygs.pipeline import Artifact, ArtifactStore, NodeReport, PipelineRun, run_pipeline
@@ -112,8 +113,7 @@ def _execute(
     job: int | None,
 ) -> _Outcome:
     """Prepare the scene, run the stages, evaluate and log."""
-    if plan.threads is not None:
-        torch.set_num_threads(plan.threads)
+    set_threads(plan.threads)
     scene = prepare_scene(plan.scene, plan.scenes_dir, progress=plan.progress)
     store = ArtifactStore(plan.artifacts_root)
     _note_earlier_run(Path(run_dir))

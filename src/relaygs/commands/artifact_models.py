@@ -1,6 +1,6 @@
 """What the store's model commands (`artifacts eval`, `render`, `ply`) share: the stored model a
 key names, the scene it was trained on loaded as the run loaded it (with a note when it was
-not), and the frame-stride check."""
+not), the frame-stride check and the `--threads` option."""
 
 from __future__ import annotations
 
@@ -10,8 +10,9 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from relaygs.app.evaluation import EVAL_STAGE
+from relaygs.app.plan import MAX_THREADS
 from relaygs.app.scenes import recorded_loading
-from relaygs.cli import camera_ids
+from relaygs.cli import camera_ids, int_at_least
 from relaygs.data import Scene, load_scene
 from relaygs.errors import InputError, RelayGSError
 from relaygs.pipeline.artifact import Artifact
@@ -43,6 +44,17 @@ def add_scene_arguments(parser: argparse.ArgumentParser) -> None:
 def add_device_argument(parser: argparse.ArgumentParser) -> None:
     """`--device`, where the model renders (checked with `usable_device` before any work)."""
     parser.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N (default cpu)")
+
+
+def add_threads_argument(parser: argparse.ArgumentParser) -> None:
+    """`--threads N`, torch's CPU thread count for the command (a run's `threads`), set with
+    `set_threads` before any work."""
+    parser.add_argument(
+        "--threads",
+        type=int_at_least(1, MAX_THREADS),
+        metavar="N",
+        help="torch CPU threads (default: torch's default; 1 is fastest on a busy machine)",
+    )
 
 
 def load_run_scene(args: argparse.Namespace, item: StoredArtifact) -> Scene:

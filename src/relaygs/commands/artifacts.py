@@ -19,13 +19,14 @@ from relaygs.commands.artifact_models import (
     KEY_COLUMN_WIDTH,
     add_device_argument,
     add_scene_arguments,
+    add_threads_argument,
     load_run_scene,
     model_artifact,
     note_other_scene,
     require_stride,
 )
 from relaygs.commands.artifacts_eval import run_eval
-from relaygs.device import usable_device
+from relaygs.device import set_threads, usable_device
 from relaygs.errors import RERUN_COMMAND, RelayGSError, resource_error
 from relaygs.paths import require_creatable_folder
 from relaygs.pipeline.integrity import CorruptArtifactError
@@ -89,6 +90,7 @@ def _parser() -> argparse.ArgumentParser:
     score.add_argument("key", help="full key or a unique prefix (at least 4 hex digits)")
     add_scene_arguments(score)
     add_device_argument(score)
+    add_threads_argument(score)
     score.add_argument(
         "--frame-stride",
         type=int,
@@ -151,6 +153,7 @@ def _parser() -> argparse.ArgumentParser:
     render.add_argument("--fps", type=float, default=15.0, help="video frame rate (default 15)")
     render.add_argument("--no-video", action="store_true", help="write PNG frames only")
     add_device_argument(render)
+    add_threads_argument(render)
     render.add_argument(
         "--out",
         type=Path,
@@ -172,6 +175,7 @@ def _parser() -> argparse.ArgumentParser:
     ply.add_argument(
         "--frame-stride", type=int, default=1, metavar="N", help="export every N-th frame"
     )
+    add_threads_argument(ply)
     ply.add_argument(
         "--out",
         type=Path,
@@ -249,6 +253,7 @@ def _render(store: ArtifactStore, args: argparse.Namespace) -> int:
     and say where they are."""
     settings = _render_settings(args)
     device = usable_device(args.device, "--device")
+    set_threads(args.threads)
     item, artifact = model_artifact(store, args.key)
     others = [model_artifact(store, key) for key in args.beside or []]
     out = _output_folder(args.out, RENDERS_FOLDER, item, store)
@@ -292,6 +297,7 @@ def _ply(store: ArtifactStore, args: argparse.Namespace) -> int:
     require_stride(args.frame_stride)
     if args.frame and args.frame_stride != 1:
         raise RelayGSError("--frame-stride: --frame names the frames to export; give one of them")
+    set_threads(args.threads)
     item, artifact = model_artifact(store, args.key)
     out = _output_folder(args.out, PLY_FOLDER, item, store)
     model = SceneModel.from_artifact(artifact)

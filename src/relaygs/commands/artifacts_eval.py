@@ -15,7 +15,7 @@ from relaygs.commands.artifact_models import (
     require_stride,
 )
 from relaygs.data import Scene
-from relaygs.device import usable_device
+from relaygs.device import set_threads, usable_device
 from relaygs.per_view import PER_VIEW, write_per_view
 from relaygs.pipeline.artifact import Artifact
 from relaygs.pipeline.store import ArtifactStore, MissingArtifactError, StoredArtifact
@@ -29,6 +29,7 @@ def run_eval(store: ArtifactStore, args: argparse.Namespace) -> int:
     scene's test views and print the test metrics, e.g. to see what each stage contributes."""
     require_stride(args.frame_stride)
     device = usable_device(args.device, "--device")
+    set_threads(args.threads)
     item, artifact = model_artifact(store, args.key)
     scene = load_run_scene(args, item)
     settings = {"eval": {"frame_stride": args.frame_stride}, "train": {"device": str(device)}}

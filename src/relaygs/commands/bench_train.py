@@ -29,6 +29,7 @@ from relaygs.cli import int_at_least, writable_file
 from relaygs.commands.bench_output import save_json
 from relaygs.data import Scene, load_scene
 from relaygs.data.synthetic import generate
+from relaygs.device import set_threads
 from relaygs.errors import RelayGSError
 from relaygs.model import GaussianSet
 from relaygs.pipeline.artifact import Artifact
@@ -56,8 +57,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run the measurements, print a table, optionally write JSON; returns the exit code."""
-    if args.threads is not None:
-        torch.set_num_threads(args.threads)
+    set_threads(args.threads)
     try:
         report = measure(args)
     except RelayGSError as error:
