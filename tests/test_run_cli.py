@@ -65,6 +65,7 @@ def _main(args):
         (["+experiment=budget", "budget.multiplier=0.5,-1"], "budget.multiplier"),
         (["relay.k=8,16"], "add --multirun"),
         (["relay.kk=3"], "relay.kk"),
+        (["-m", "relay.kk=1,2"], "job relay.kk=1: relay.kk: relay has no setting 'kk'; did you"),
         (["hydra/launcher=nope"], "Could not find 'hydra/launcher/nope'"),
         (["relay.k=[1,"], "cannot parse overrides"),
         (["paths.outputs=/tmp/scène"], """non-ASCII characters Hydra's quotes too: 'scene.path="""),
@@ -132,6 +133,47 @@ def test_a_preset_edited_to_test_cameras_beyond_its_rig_is_one_line_before_any_w
         "be distinct indices into its rig of 31 cameras (0..30), leaving some to train on"
     ]
     assert fakes.calls == [] and list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize(
+    ("override", "line"),
+    [
+        (
+            "scene.loader.downscal=2",
+            "scene.loader.downscal: scene.loader has no setting 'downscal'; "
+            "did you mean scene.loader.downscale?",
+        ),
+        ("relay.kk=8", "relay.kk: relay has no setting 'kk'; did you mean relay.k?"),
+        (
+            "train.devcie=cpu",
+            "train.devcie: train has no setting 'devcie'; did you mean train.device?",
+        ),
+        (
+            "scene.loadr.downscale=2",
+            "scene.loadr.downscale: scene has no setting 'loadr'; "
+            "did you mean scene.loader.downscale?",
+        ),
+        ("device=cuda", "device: the config has no setting 'device'; did you mean train.device?"),
+        (
+            "train.zzzz=1",
+            "train.zzzz: train has no setting 'zzzz' (it has batch_views, checkpoint_every, "
+            "device, downscale, half_res_width, image_every, log_every, progress, ssim_weight)",
+        ),
+        (
+            "hydra.job.chdri=true",
+            "hydra.job.chdri: hydra.job has no setting 'chdri'; did you mean hydra.job.chdir?",
+        ),
+        # appending is what a new key of an open Hydra mapping needs
+        (
+            "hydra.job.env_set.X=1",
+            "Could not override 'hydra.job.env_set.X'. "
+            "To append to your config use +hydra.job.env_set.X=1",
+        ),
+    ],
+)
+def test_a_key_the_config_lacks_is_named_with_the_nearest_one(fakes, capsys, override, line):
+    assert _main(["seed=1", override]) == 1
+    assert capsys.readouterr().err == f"error: {line}\n"
 
 
 def test_only_an_override_line_with_non_ascii_characters_gets_the_quoting_hint(fakes, capsys):
@@ -327,7 +369,7 @@ def test_a_delete_override_is_no_reason_for_the_quoting_hint(fakes, capsys):
     ("args", "fragment"),
     [
         (["--cfg", "job", "scene=mars"], "unknown scene 'mars'"),
-        (["--cfg", "job", "nosuch=1"], "Could not override 'nosuch'"),
+        (["--cfg", "job", "nosuch=1"], "nosuch: the config has no setting 'nosuch' (it has "),
         (["--info", "defaults", "relay.k=[1,"], "cannot parse overrides"),
         (["-m", "relay.k=8,16", "--cfg", "job"], "--cfg and --multirun cannot be combined"),
         (["-r", "-c", "job"], "--cfg and --run cannot be combined: Hydra takes one of --run,"),

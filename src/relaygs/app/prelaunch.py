@@ -9,11 +9,13 @@ is one line before any work starts.
 
 from __future__ import annotations
 
+import difflib
 import importlib.util
 import re
 import shutil
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import yaml
 from hydra import compose, initialize_config_dir
@@ -22,10 +24,9 @@ from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.core.override_parser.types import Override
 from hydra.errors import HydraException
 from hydra.types import RunMode
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
-from relaygs.app.scenes import LOADER_OPTIONS
 from relaygs.errors import InputError, one_line
 from relaygs.paths import require_creatable_folder
 
@@ -279,13 +280,59 @@ def _compose(overrides: Sequence[str], with_hydra: bool = False) -> DictConfig:
     try:
         return compose(CONFIG_NAME, overrides=list(overrides), return_hydra_config=with_hydra)
     except (HydraException, OmegaConfBaseException) as error:
-        raise InputError(one_line(error) + _loader_hint(str(error))) from error
+        raise InputError(_composition_error(error, overrides)) from error
 
 
-def _loader_hint(message: str) -> str:
-    """`; did you mean scene.loader.X?` when a failed override sets a loader option on the
-    scene itself (`scene.test_cameras=[1,2]`)."""
-    found = re.search(r"override '\+?scene\.(\w+)'", message)
-    if found is None or found[1] not in LOADER_OPTIONS:
-        return ""
-    return f"; did you mean scene.loader.{found[1]}?"
+def _composition_error(error: Exception, overrides: Sequence[str]) -> str:
+    """The one line for a failed composition. Hydra answers an override of a key the config
+    lacks (`relay.kk=8`) with advice to append it (`+relay.kk=8`), which every section but
+    `hydra` then refuses: such a key gets `_unknown_setting`'s line instead, composed without it."""
+    found = re.match(r"Could not override '([^']+)'", str(error))
+    if found is None:
+        return one_line(error)
+    others = [o.input_line for o in _parse(overrides) if o.key_or_group != found[1]]
+    try:
+        config = compose(CONFIG_NAME, overrides=others, return_hydra_config=True)
+    except (HydraException, OmegaConfBaseException):
+        return one_line(error)
+    return _unknown_setting(OmegaConf.to_container(config), found[1]) or one_line(error)
+
+
+def _unknown_setting(config: Mapping[str, Any], key: str) -> str | None:
+    """What is wrong with setting the dotted `key` that `config` lacks: the section that has no
+    such part, and the nearest keys (`did you mean relay.k?`; one level down too, so
+    `scene.test_cameras` finds `scene.loader.test_cameras`), else the section's keys. None
+    where appending may be meant (a `hydra.*` key that is no typo) or the way is no section."""
+    parts = key.split(".")
+    node: Any = config
+    depth = 0
+    while depth < len(parts) and isinstance(node, Mapping) and parts[depth] in node:
+        node, depth = node[parts[depth]], depth + 1
+    if not isinstance(node, Mapping) or depth == len(parts):
+        return None
+    section, missing = ".".join(parts[:depth]), parts[depth]
+    lacks = f"{key}: {section or 'the config'} has no setting '{missing}'"
+    nearest = _nearest_keys(node, missing)
+    if nearest:
+        tail = "".join(f".{part}" for part in parts[depth + 1 :])
+        guesses = " or ".join(".".join(filter(None, (section, near))) + tail for near in nearest)
+        return f"{lacks}; did you mean {guesses}?"
+    if parts[0] == "hydra":
+        return None
+    return f"{lacks} (it has {', '.join(sorted(map(str, node)))})"
+
+
+def _nearest_keys(section: Mapping[str, Any], name: str) -> list[str]:
+    """The key of `section` closest to `name` (difflib), else the `child.key` paths one level
+    down whose key is closest; empty when nothing is close."""
+    close = difflib.get_close_matches(name, [str(key) for key in section], n=1)
+    if close:
+        return close
+    below = {
+        f"{child}.{key}": str(key)
+        for child, value in section.items()
+        if isinstance(value, Mapping)
+        for key in value
+    }
+    close = difflib.get_close_matches(name, set(below.values()), n=1)
+    return [path for path, key in below.items() if close and key == close[0]]
