@@ -7,6 +7,7 @@ import io
 import json
 import os
 import shlex
+import shutil
 import signal
 import subprocess
 import sys
@@ -24,7 +25,7 @@ from relaygs.cli import script_command
 from relaygs.commands import run as run_module
 from relaygs.commands.artifacts import _parser as artifacts_parser
 from relaygs.data.synthetic import PRESETS
-from relaygs.errors import RERUN_RUN, Interrupted
+from relaygs.errors import RERUN_RUN, InputError, Interrupted
 from relaygs.paths import config_dir
 
 UNUSABLE_GPU = f"cuda:{torch.cuda.device_count()}"
@@ -215,6 +216,27 @@ def test_the_device_is_checked_here_unless_the_launcher_sends_jobs_elsewhere(
         args, config_dir(), lambda cfg, here: seen.append((cfg.relay.k, here))
     )
     assert seen == [(8, runs_here), (16, runs_here)]
+
+
+@pytest.mark.parametrize(("group", "value"), [("pipeline", "4dgs"), ("budget", "smoke")])
+def test_an_experiment_setting_a_group_to_a_value_is_told_to_override_it(tmp_path, group, value):
+    conf = shutil.copytree(config_dir(), tmp_path / "conf")
+    experiment = conf / "experiment" / "plain.yaml"
+    experiment.write_text(f"# @package _global_\n{group}: {value}\n")
+    seen = []
+    with pytest.raises(InputError) as caught:
+        prelaunch.check_command_line(["+experiment=plain"], conf, lambda cfg, here: seen.append(1))
+    assert str(caught.value) == (
+        f"{group}: expected a config section (a mapping), got '{value}': {group} is a config "
+        f"group, choose its file with {group}={value} on the command line, or in an experiment "
+        f"file with `defaults: [override /{group}: {value}]`"
+    )
+    assert seen == []
+    experiment.write_text(f"# @package _global_\ndefaults: [override /{group}: {value}]\n")
+    prelaunch.check_command_line(
+        ["+experiment=plain"], conf, lambda cfg, here: seen.append(cfg[group].name)
+    )
+    assert seen == [value]  # the form the message gives chooses the group's file
 
 
 def test_a_slurm_sweep_off_a_cluster_is_one_line_before_any_work(fakes, tmp_path, capsys):

@@ -30,13 +30,6 @@ SECTION_KEYS = {
 }
 """The settings of the config sections that are not a stage's (stage sections, `train`,
 `eval` and `scene` are checked by their own parsers): a `+budget.multipler=2` is refused."""
-SECTION_HINTS = {
-    "pipeline": (
-        "; choose a pipeline with pipeline=NAME, or in an experiment file with "
-        "`defaults: [override /pipeline: NAME]`"
-    ),
-}
-"""What to do when one of these sections is a value, not a config group's choice."""
 TOP_LEVEL_KEYS = frozenset(
     {"seed", "variant", "experiment_name", "threads", "train", "eval", "scene", *SECTION_KEYS}
 )
@@ -196,9 +189,21 @@ def _section(cfg: Mapping[str, Any], name: str) -> dict[str, Any]:
     """A copy of the config section `name`, which must be a mapping."""
     section = cfg.get(name)
     if not isinstance(section, Mapping):
-        hint = SECTION_HINTS.get(name, "")
-        raise InputError(f"{name}: expected a config section (a mapping), got {section!r}{hint}")
+        if name == "pipeline":  # the group that a run's config reaches here without prelaunch
+            raise InputError(group_value_error(name, section))
+        raise InputError(f"{name}: expected a config section (a mapping), got {section!r}")
     return dict(section)
+
+
+def group_value_error(group: str, value: Any) -> str:
+    """The line for a config group that holds a value, not a section: `pipeline: 4dgs` in an
+    experiment file replaces the group's settings with that text instead of choosing its file."""
+    name = value if isinstance(value, str) and value else "NAME"
+    return (
+        f"{group}: expected a config section (a mapping), got {value!r}: {group} is a config "
+        f"group, choose its file with {group}={name} on the command line, or in an experiment "
+        f"file with `defaults: [override /{group}: {name}]`"
+    )
 
 
 def _pipeline_name(cfg: Mapping[str, Any]) -> str:

@@ -27,6 +27,7 @@ from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
+from relaygs.app.plan import group_value_error
 from relaygs.errors import InputError, one_line
 from relaygs.paths import require_creatable_folder
 
@@ -118,6 +119,7 @@ def _check_launching_command(
     launcher's submit commands exist, and the run (sweep) folder can be written."""
     overrides = _parse(args)
     check_group_choices(overrides, conf_dir)
+    groups = [group for group in primary_groups(conf_dir) if "/" not in group]
     with initialize_config_dir(config_dir=str(conf_dir), version_base="1.3", job_name="run"):
         plain = [o.input_line for o in overrides if not o.is_sweep_override()]
         hydra_cfg = _compose(plain, with_hydra=True).hydra
@@ -129,7 +131,9 @@ def _check_launching_command(
             _check_submit_commands(launcher)
         for job in planned_jobs(args, overrides, hydra_cfg, multirun):
             try:
-                validate(_compose(job), runs_here)
+                config = _compose(job)
+                check_group_sections(config, groups)
+                validate(config, runs_here)
             except InputError as error:
                 where = f"job {' '.join(job)}: " if job != args else ""
                 raise InputError(f"{where}{error}") from error
@@ -176,6 +180,16 @@ def check_group_choices(overrides: Sequence[Override], conf_dir: Path) -> None:
                 f"{group} is not chosen by default: write +{group}={override.value()} "
                 f"(with a leading +)"
             )
+
+
+def check_group_sections(config: DictConfig, groups: Sequence[str]) -> None:
+    """Each config group of `groups` holds a section: an experiment file that sets one to a
+    value (`pipeline: 4dgs`) is refused in one line naming the group and the `override` that
+    chooses its file, before the value breaks an interpolation (`${pipeline.name}`)."""
+    values = OmegaConf.to_container(config, resolve=False)
+    for group in sorted(groups):
+        if not isinstance(values.get(group), Mapping):
+            raise InputError(group_value_error(group, values.get(group)))
 
 
 def check_output_folder(hydra_cfg: DictConfig, multirun: bool) -> None:
