@@ -432,6 +432,19 @@ def test_the_summary_says_why_a_run_without_test_views_has_no_metrics():
     assert NO_TEST_VIEWS not in format_summary({"psnr": 20.0, "num_test_images": 4})
 
 
+@pytest.mark.parametrize(
+    ("variant", "title"),
+    [
+        ("relaygs", "relaygs on juggle (seed 0)"),
+        ("no_gamma", "no_gamma (relaygs) on juggle (seed 0)"),
+        (None, "relaygs on juggle (seed 0)"),
+    ],
+)
+def test_the_summary_title_names_the_variant_beside_its_pipeline(variant, title):
+    result = {"variant": variant, "pipeline": "relaygs", "scene": "juggle", "seed": 0}
+    assert format_summary(result).splitlines()[0] == title
+
+
 def _disk_full(*args, **kwargs):
     raise OSError(errno.ENOSPC, "No space left on device", "/runs/x/.result.json.partial")
 

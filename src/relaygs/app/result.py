@@ -141,12 +141,21 @@ def format_summary(result: Mapping[str, Scalar]) -> str:
         ("Gaussians", _fmt(result.get("num_gaussians"), ",.0f")),
         ("cached stages", f"{result.get('cache_hits')} of {result.get('stages')}"),
     ]
-    title = f"{result.get('pipeline')} on {result.get('scene')} (seed {result.get('seed')})"
+    title = f"{_run_label(result)} on {result.get('scene')} (seed {result.get('seed')})"
     width = max(len(label) for label, _ in rows)
     lines = [title, *(f"  {label:<{width}}  {value}" for label, value in rows)]
     if result.get("num_test_images") == 0:
         lines.append(f"  {NO_TEST_VIEWS}")
     return "\n".join(lines)
+
+
+def _run_label(result: Mapping[str, Scalar]) -> str:
+    """The run's variant and, where it is not the pipeline's name, its pipeline:
+    `no_gamma (relaygs)`, so each job of a sweep names what it ran."""
+    variant, pipeline = result.get("variant"), result.get("pipeline")
+    if variant is None or variant == pipeline:
+        return str(pipeline)
+    return f"{variant} ({pipeline})"
 
 
 def _identity(cfg: Mapping[str, Any], plan: RunPlan, job: int | None) -> dict[str, Scalar]:
