@@ -461,6 +461,17 @@ def test_whole_number_columns_with_missing_rows_are_written_without_a_decimal_po
     assert lines[1].split(",")[header.index("psnr")] == "25.0"
 
 
+def test_whole_number_settings_some_jobs_lack_read_as_integers_in_the_table(tmp_path):
+    settings = [(2, 0.2), (100, 0.5), (None, None)]  # a run of a synthetic scene: no downscale
+    for number, (downscale, weight) in enumerate(settings):
+        extra = {"scene.loader.downscale": downscale, "train.ssim_weight": weight}
+        _job(tmp_path, number, "k8", 25.0, 10.0, reference_variant=None, **extra)
+    lines = report.write_reports(tmp_path).table.splitlines()
+    assert lines[2].startswith("| Variant | scene.loader.downscale | train.ssim_weight | PSNR")
+    rows = [line.split(" | ")[:3] for line in lines if line.startswith("| k8 |")]
+    assert rows == [["| k8", "2", "0.2"], ["| k8", "100", "0.5"], ["| k8", "n/a", "n/a"]]
+
+
 def test_the_title_names_the_experiment_only_when_every_job_ran_it(sweep, tmp_path):
     single = {"experiment": None, "job": None}  # what a single run's result.json holds
     _job(sweep, 4, "k128", 20.0, 5.0, **single)  # copied in beside the sweep's jobs

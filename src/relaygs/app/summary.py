@@ -126,7 +126,9 @@ def markdown_table(table: pd.DataFrame, title: str) -> str:
     header = "| " + " | ".join(label for label, _, _ in columns) + " |"
     rule = "|" + "|".join(":---" if i <= len(extra) else "---:" for i in range(len(columns))) + "|"
     lines = [f"# {title}", "", header, rule]
-    for _, row in table.iterrows():
+    # each column in its narrowest type, as in the CSV: a whole-number setting that some jobs
+    # lack (`scene.loader.downscale`) reads 2, not 2.0
+    for _, row in table.convert_dtypes().iterrows():
         cells = [_cell(row.get(column), spec) for _, column, spec in columns]
         if row.get("status") == STATUS_FAILED:
             cells[0] += " (failed)"
@@ -264,8 +266,9 @@ def is_number(value: Any) -> bool:
 
 
 def _cell(value: Any, spec: str) -> str:
-    """One Markdown cell: numbers formatted with `spec`, missing values as MISSING."""
-    if value is None or (isinstance(value, float) and math.isnan(value)):
+    """One Markdown cell: numbers formatted with `spec`, missing values (None, NaN, pandas'
+    NA) as MISSING."""
+    if value is None or value is pd.NA or (isinstance(value, float) and math.isnan(value)):
         return MISSING
     if spec == "{}":
         return str(value).replace("|", "\\|")
