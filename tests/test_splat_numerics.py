@@ -181,11 +181,26 @@ def test_without_the_2d_blur_a_vanishing_gaussian_keeps_finite_gradients(scales)
 
 @pytest.mark.parametrize(
     ("means", "near_plane"),
-    [([1e35, 0.0, 3.0], 0.01), ([0.0, -1e35, 3.0], 0.01), ([1e-3, 0.0, 1e-9], 1e-9)],
-    ids=["far to the side", "far below", "nearly on the camera"],
+    [
+        ([1e35, 0.0, 3.0], 0.01),
+        ([0.0, -1e35, 3.0], 0.01),
+        ([1e-3, 0.0, 1e-9], 1e-9),
+        ([3e37, 0.0, 0.05], 0.01),
+        ([0.0, 3e37, 0.05], 0.01),
+        ([1e31, 0.0, 1e-8], 1e-9),
+    ],
+    ids=[
+        "far to the side",
+        "far below",
+        "nearly on the camera",
+        "x/z overflows",
+        "y/z overflows",
+        "x/z overflows near the camera",
+    ],
 )
 def test_extreme_positions_under_a_long_lens_are_culled_with_zero_gradient(means, near_plane):
-    """fx·x/z overflows for such a centre: it is culled before its pixel position is formed."""
+    """fx·x/z (or x/z itself) overflows for such a centre: it is culled, its offsets zeroed
+    before the division."""
     scene = with_grad(_base_scene({"means": means}))
     scene["Ks"] = torch.tensor([[[1e5, 0, W / 2], [0, 1e5, H / 2], [0, 0, 1]]])
     colors, alphas, meta, grads = render_and_grads(rasterization, scene, near_plane=near_plane)

@@ -18,6 +18,8 @@ MAX_SIGMA_MULT = 3.33
 FRUSTUM_MARGIN = 0.3
 # Scales above this are clamped (zero gradient): keeps J·Σ·Jᵀ finite in float32.
 MAX_SCALE = 1e12
+# Centres with |x/z| or |y/z| above this are culled before the division (no float32 overflow).
+MAX_RATIO = 1e30
 # 2D variances (px²) above this are culled: keeps det and its square root finite in float32.
 MAX_VAR_PX = 1e14
 
@@ -111,14 +113,18 @@ def project_gaussians(
     cx, cy = Ks[:, 0, 2, None], Ks[:, 1, 2, None]
     tan_fovx = 0.5 * width / fx
     tan_fovy = 0.5 * height / fy
-    ratio_x, ratio_y = x / z_safe, y / z_safe
+    # a centre whose x/z or y/z would overflow is far outside every image: culled, and its
+    # offsets zeroed first, since the division's backward would take 0·inf (NaN) for it
+    ratio_finite = (x.abs() < z_safe * MAX_RATIO) & (y.abs() < z_safe * MAX_RATIO)
+    zero = torch.zeros_like(z)
+    ratio_x = torch.where(ratio_finite, x, zero) / z_safe
+    ratio_y = torch.where(ratio_finite, y, zero) / z_safe
     u = ratio_x.clamp(
         -(cx / fx + FRUSTUM_MARGIN * tan_fovx), (width - cx) / fx + FRUSTUM_MARGIN * tan_fovx
     )
     v = ratio_y.clamp(
         -(cy / fy + FRUSTUM_MARGIN * tan_fovy), (height - cy) / fy + FRUSTUM_MARGIN * tan_fovy
     )
-    zero = torch.zeros_like(z)
     jac = torch.stack(
         [fx / z_safe, zero, -fx * u / z_safe, zero, fy / z_safe, -fy * v / z_safe], dim=-1
     ).reshape(*z.shape, 2, 3)
@@ -126,7 +132,7 @@ def project_gaussians(
     m0, m1 = (jac @ rot[:, None] @ factors[None]).unbind(-2)
     a0, b, c0 = (m0 * m0).sum(-1), (m0 * m1).sum(-1), (m1 * m1).sum(-1)
     a, c = a0 + eps2d, c0 + eps2d
-    bounded = in_depth & (a < MAX_VAR_PX) & (c < MAX_VAR_PX) & (b.abs() < MAX_VAR_PX)
+    bounded = in_depth & ratio_finite & (a < MAX_VAR_PX) & (c < MAX_VAR_PX) & (b.abs() < MAX_VAR_PX)
     a_s = torch.where(bounded, a, torch.ones_like(a))
     b_s = torch.where(bounded, b, torch.zeros_like(b))
     c_s = torch.where(bounded, c, torch.ones_like(c))

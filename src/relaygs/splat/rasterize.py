@@ -66,9 +66,13 @@ def validate_inputs(
     )
     c = viewmats.shape[0]
     _check(Ks.shape == (c, 3, 3), f"Ks must be [{c},3,3], got {list(Ks.shape)}")
-    focal = Ks[:, [0, 1], [0, 1]]
-    if not bool(torch.isfinite(Ks).all() & (focal > 0).all()):  # one read from the device
-        raise InputError(f"Ks must be finite with focal lengths fx, fy > 0, got {Ks.tolist()}")
+    good = torch.isfinite(Ks).flatten(1).all(1) & (Ks[:, [0, 1], [0, 1]] > 0).all(1)
+    if not bool(good.all()):  # one read from the device
+        bad = int((~good).nonzero()[0, 0])
+        raise InputError(
+            f"Ks must be finite with focal lengths fx, fy > 0, got camera {bad}'s "
+            f"{Ks[bad].tolist()}"
+        )
     _check(width > 0 and height > 0, f"width and height must be positive, got {width}x{height}")
     _check(
         render_mode in RENDER_MODES,
