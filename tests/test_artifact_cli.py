@@ -554,6 +554,28 @@ def test_recorded_test_cameras_the_scene_lacks_are_named_with_the_manifest(
     assert code == 1 and out == "" and err.count("\n") == 1
     assert "cameras [99] are not in the scene" in err
     assert f"(loaded with the test_cameras that decouple {key[:16]}'s manifest records" in err
+    assert err.endswith("for its run; pass --test-cameras to choose others)\n")
+
+
+def test_a_scene_error_the_recorded_loading_does_not_cause_is_not_blamed_on_it(
+    stage_decoupled, stage_scene_path, tmp_path, capsys
+):
+    store = ArtifactStore(tmp_path / "store")
+    key = artifact_key("decouple", 1, {"steps": 2}, "juggle", [])
+    provenance = {"scene": "another", "max_points": 0}  # recorded, but no flag can replace it
+    store.get_or_build(
+        "decouple", key, lambda: stage_decoupled, config={}, lineage=[], provenance=provenance
+    )
+    missing = tmp_path / "no-such-scene"
+    code, _, err = _cli(capsys, store.root, "eval", key[:8], "--scene", str(missing))
+    assert code == 1 and err.count("\n") == 1
+    assert "does not exist" in err and "manifest" not in err
+    code, _, err = _cli(capsys, store.root, "eval", key[:8], "--scene", str(stage_scene_path))
+    assert code == 1 and err.count("\n") == 1
+    assert "max_points must be an integer >= 1, got 0" in err
+    assert err.endswith(
+        f"(loaded with the max_points that decouple {key[:16]}'s manifest records for its run)\n"
+    )
 
 
 def test_eval_renders_on_the_device_given_and_refuses_an_unusable_one(

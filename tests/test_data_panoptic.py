@@ -181,7 +181,7 @@ def test_a_downscale_that_leaves_no_image_is_refused(tiny_synth_scene: Path):
         load_scene(tiny_synth_scene, downscale=9)
     assert str(caught.value) == (
         f"{tiny_synth_scene}: downscale 9 turns its 32x18 images into 4x2; expected at least 4 "
-        "pixels a side (a smaller scene.loader.downscale)"
+        "pixels a side (a smaller downscale)"
     )
 
 

@@ -19,6 +19,9 @@ from relaygs.pipeline.artifact import Artifact
 from relaygs.pipeline.store import ArtifactStore, StoredArtifact
 
 KEY_COLUMN_WIDTH = 16
+FLAGGED_LOADING = ("downscale", "test_cameras")
+"""The recorded loader options the model commands take on the command line (`--downscale`,
+`--test-cameras`); a run's max_points and effects are always taken from its manifest."""
 
 
 def add_scene_arguments(parser: argparse.ArgumentParser) -> None:
@@ -59,20 +62,24 @@ def add_threads_argument(parser: argparse.ArgumentParser) -> None:
 
 def load_run_scene(args: argparse.Namespace, item: StoredArtifact) -> Scene:
     """The `--scene` folder loaded as `item`'s run loaded it: with the loader options its
-    manifest records, those given on the command line taking their place."""
+    manifest records, those given on the command line taking their place. An error that only
+    the recorded options cause names them and the manifest."""
     recorded = recorded_loading(item.manifest.provenance)
-    given = {"downscale": args.downscale, "test_cameras": args.test_cameras}
-    given = {name: value for name, value in given.items() if value is not None}
+    given = {
+        name: getattr(args, name) for name in FLAGGED_LOADING if getattr(args, name) is not None
+    }
     used = sorted(recorded.keys() - given.keys())
     try:
         return load_scene(args.scene, **(recorded | given))
     except InputError as error:
         if not used:
             raise
+        load_scene(args.scene, **given)  # fails alike without them: its error is not theirs
+        flags = [f"--{name.replace('_', '-')}" for name in used if name in FLAGGED_LOADING]
+        choose = f"; pass {' or '.join(flags)} to choose others" if flags else ""
         raise InputError(
             f"{error} (loaded with the {', '.join(used)} that {item.stage} "
-            f"{item.key[:KEY_COLUMN_WIDTH]}'s manifest records for its run; pass --downscale "
-            "or --test-cameras to choose others)"
+            f"{item.key[:KEY_COLUMN_WIDTH]}'s manifest records for its run{choose})"
         ) from None
 
 

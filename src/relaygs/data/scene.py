@@ -139,7 +139,7 @@ def _require_visible_size(root: Path, views: list[View], downscale: int) -> None
         raise InputError(
             f"{root}: downscale {downscale} turns its {camera.width}x{camera.height} images into "
             f"{scaled.width}x{scaled.height}; expected at least {MIN_IMAGE_SIDE} pixels a side "
-            "(a smaller scene.loader.downscale)"
+            "(a smaller downscale)"
         )
 
 
