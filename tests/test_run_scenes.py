@@ -2,6 +2,7 @@
 (parallel jobs included); capture folders are checked before any work."""
 
 import dataclasses
+import functools
 import re
 import threading
 import time
@@ -51,7 +52,7 @@ def test_cache_folder_depends_on_every_generation_parameter(tmp_path):
         {"supported_effects": PRESETS["juggle"].supported_effects - {SENSOR_NOISE}},
         {"rig": ring_rig},
         {"build": build_static},
-        {"description": "edited"},
+        {"rig": functools.partial(ring_rig)},
     ],
 )
 def test_cache_folder_depends_on_the_preset_definition(tmp_path, monkeypatch, edit):
@@ -60,6 +61,20 @@ def test_cache_folder_depends_on_the_preset_definition(tmp_path, monkeypatch, ed
     assert synthetic_folder(scene_spec(TINY), tmp_path) == base  # an equal copy: same folder
     monkeypatch.setitem(PRESETS, "juggle", dataclasses.replace(PRESETS["juggle"], **edit))
     assert synthetic_folder(scene_spec(TINY), tmp_path) != base
+
+
+def test_a_preset_description_is_no_generation_parameter(tmp_path, monkeypatch):
+    base = synthetic_folder(scene_spec(TINY), tmp_path)
+    edited = dataclasses.replace(PRESETS["juggle"], description="reworded")
+    monkeypatch.setitem(PRESETS, "juggle", edited)
+    assert synthetic_folder(scene_spec(TINY), tmp_path) == base
+
+
+def test_a_preset_function_without_a_stable_name_is_refused_in_one_line(tmp_path, monkeypatch):
+    edited = dataclasses.replace(PRESETS["juggle"], build=lambda times, effects, seed: [])
+    monkeypatch.setitem(PRESETS, "juggle", edited)
+    with pytest.raises(InputError, match=r"^PRESETS\['juggle'\]\.build: expected a module-level"):
+        synthetic_folder(scene_spec(TINY), tmp_path)
 
 
 def test_the_docs_quote_the_cache_folder_of_the_default_juggle_scene(tmp_path):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass, fields
 from typing import Any
@@ -33,6 +34,7 @@ from relaygs.data.synthetic.rig import dome_rig, ring_rig
 from relaygs.data.synthetic.studio import arena, dome_studio
 from relaygs.data.synthetic.textures import Scoreboard
 from relaygs.data.synthetic.world import Primitive, RigCamera, static_pose
+from relaygs.errors import InputError
 
 DURATION_S = 5.0
 """Every sequence spans 5 s whatever its frame count (150 frames = 30 fps, as Panoptic)."""
@@ -55,19 +57,37 @@ class Preset:
     build: WorldBuilder
 
     def definition(self) -> dict[str, Any]:
-        """Every field as a JSON value the same in every process (callables by qualified name):
-        the scene cache hashes it, so an edited preset is generated anew."""
-        return {field.name: _describe(getattr(self, field.name)) for field in fields(self)}
+        """Every field but the description as JSON, the same in every process (functions by
+        qualified name): the scene cache hashes it, so an edited preset is generated anew."""
+        return {
+            field.name: _describe(getattr(self, field.name), f"PRESETS[{self.name!r}].{field.name}")
+            for field in fields(self)
+            if field.name != "description"
+        }
 
 
-def _describe(value: object) -> object:
-    """A preset field as JSON: sets sorted, tuples as lists, a callable as `module.qualname`."""
+def _describe(value: object, where: str) -> object:
+    """A preset field as JSON: sets sorted, tuples as lists, a function as `module.qualname`,
+    a partial as its function and arguments; a lambda or nested function (no stable name) is
+    refused in one line naming the field `where`."""
     if isinstance(value, frozenset):
         return sorted(value)
     if isinstance(value, tuple):
-        return list(value)
+        return [_describe(item, where) for item in value]
+    if isinstance(value, functools.partial):
+        return {
+            "function": _describe(value.func, where),
+            "args": [_describe(item, where) for item in value.args],
+            "keywords": {key: _describe(item, where) for key, item in value.keywords.items()},
+        }
     if callable(value):
-        return f"{value.__module__}.{value.__qualname__}"
+        name = getattr(value, "__qualname__", "<unnamed>")
+        if "<" in name:
+            raise InputError(
+                f"{where}: expected a module-level function or a functools.partial of one (its "
+                f"name keys the scene cache), got {value!r}"
+            )
+        return f"{value.__module__}.{name}"
     return value
 
 
