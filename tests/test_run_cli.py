@@ -145,6 +145,7 @@ def test_a_preset_edited_to_test_cameras_beyond_its_rig_is_one_line_before_any_w
             "did you mean scene.loader.downscale?",
         ),
         ("relay.kk=8", "relay.kk: relay has no setting 'kk'; did you mean relay.k?"),
+        ("relay.k.x=3", "relay.k.x: relay.k is a value, not a section"),
         (
             "train.devcie=cpu",
             "train.devcie: train has no setting 'devcie'; did you mean train.device?",

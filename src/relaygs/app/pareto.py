@@ -19,7 +19,7 @@ LOG_SCALE_RATIO = 20.0
 LABEL_STEP_PT = 9.0
 """How far (points) a label that would overprint another is lifted at a time."""
 MAX_LABEL_STEPS = 12
-"""At most this many lifts per label: a crowd of jobs still gets every label on the plot."""
+"""At most this many lifts per label: past them a label in a crowd of jobs may overprint."""
 
 
 def pareto_front(times: Sequence[float], scores: Sequence[float]) -> list[int]:
@@ -91,9 +91,10 @@ def plot_pareto(
 
 
 def spread_labels(figure: Figure, notes: Sequence[Annotation]) -> None:
-    """Put labels that would run off the plot on their point's left, then lift them, lowest
-    point first, in LABEL_STEP_PT steps until each clears the labels placed before it: jobs
-    close together (e.g. variants of one cost) stay readable."""
+    """Put labels that would run off the plot's right edge on their point's left, then lift
+    them, lowest point first, in LABEL_STEP_PT steps (at most MAX_LABEL_STEPS) until each clears
+    the labels placed before it: a few jobs close together (e.g. variants of one cost) stay
+    readable."""
     renderer = FigureCanvasAgg(figure).get_renderer()
     figure.draw_without_rendering()  # the constrained layout places the axes first
     placed: list[Bbox] = []

@@ -315,15 +315,19 @@ def _composition_error(error: Exception, overrides: Sequence[str]) -> str:
 def _unknown_setting(config: Mapping[str, Any], key: str) -> str | None:
     """What is wrong with setting the dotted `key` that `config` lacks: the section that has no
     such part, and the nearest keys (`did you mean relay.k?`; one level down too, so
-    `scene.test_cameras` finds `scene.loader.test_cameras`), else the section's keys. None
-    where appending may be meant (a `hydra.*` key that is no typo) or the way is no section."""
+    `scene.test_cameras` finds `scene.loader.test_cameras`), else the section's keys; or that
+    a part of the way is a value. None where appending may be meant (a `hydra.*` key that is
+    no typo)."""
     parts = key.split(".")
     node: Any = config
     depth = 0
     while depth < len(parts) and isinstance(node, Mapping) and parts[depth] in node:
         node, depth = node[parts[depth]], depth + 1
-    if not isinstance(node, Mapping) or depth == len(parts):
+    if depth == len(parts):
         return None
+    if not isinstance(node, Mapping):  # `relay.k.x`: a value, where a section was taken
+        value = ".".join(parts[:depth])
+        return None if parts[0] == "hydra" else f"{key}: {value} is a value, not a section"
     section, missing = ".".join(parts[:depth]), parts[depth]
     lacks = f"{key}: {section or 'the config'} has no setting '{missing}'"
     nearest = _nearest_keys(node, missing)

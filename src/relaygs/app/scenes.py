@@ -34,7 +34,8 @@ GENERATED_MARKER = "scene.json"
 HASH_LENGTH = 12
 RECORDED_LOADING = ("downscale", "max_points", "test_cameras", "effects")
 """The `load_scene` options a run's artifacts record in their manifest's provenance when the
-run set them (`scene_provenance`), so the artifacts commands load the scene as it did."""
+run has them (`scene_provenance`; the base config always sets downscale and max_points), so
+the artifacts commands load the scene as it did."""
 
 
 @dataclass(frozen=True)

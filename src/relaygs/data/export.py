@@ -52,9 +52,9 @@ def export_multiview(scene: Scene, out_dir: str | Path, *, binary: bool = True) 
             index + 1,
             f"{folder}{suffix}",
         )
-    folder_of = {camera.camera_id: f"cam{index:02d}" for index, camera in enumerate(cameras)}
+    index_of = {camera.camera_id: index for index, camera in enumerate(cameras)}
     for view in views:
-        folder = folder_of[view.camera.camera_id]
+        folder = f"cam{index_of[view.camera.camera_id]:02d}"
         name = f"frame_{view.frame:05d}"
         _copy(view.image_path, out / folder / f"{name}{view.image_path.suffix}")
         if view.mask_path is not None:
@@ -62,7 +62,6 @@ def export_multiview(scene: Scene, out_dir: str | Path, *, binary: bool = True) 
     rgb = np.round(scene.points.rgb.double().numpy() * 255.0).astype(np.uint8)
     model = ColmapModel(colmap_cameras, images, scene.points.xyz.double().numpy(), rgb)
     write_model(out / "sparse" / "0", model, binary=binary)
-    index_of = {camera.camera_id: index for index, camera in enumerate(cameras)}
     test_ids = sorted({index_of[view.camera.camera_id] for view in scene.full_test_views})
     _write_declaration(scene, test_ids, out)
     return out
