@@ -93,7 +93,7 @@ def test_gc_removes_leftovers_and_unkept_artifacts(store, capsys):
     assert store.has("decouple", KEY_A) and not store.has("relay", KEY_B)
     locks = store.root / ".locks"
     assert not any(locks.iterdir()) and ".lock\n" not in out  # two lock files, one line
-    assert f"removed 2 free lock file(s) in {locks}\n" in out
+    assert f"removed 2 folder(s) and 2 free lock file(s) (in {locks}), 0 in use\n" in out
 
 
 def test_gc_keep_takes_prefixes_and_refuses_a_key_it_cannot_find(store, capsys):
@@ -159,7 +159,7 @@ def test_module_entry_point_runs_as_a_process(store):
         timeout=120,
     )
     assert done.returncode == 0, done.stderr
-    assert "2 readable artifact(s), 0 problem(s)" in done.stdout
+    assert "0 problem(s) among 2 artifact(s)" in done.stdout
 
 
 def test_usage_errors_exit_2(capsys):

@@ -63,6 +63,14 @@ def test_reports_have_one_row_per_job_with_delta_vs_reference(sweep):
     assert files.pareto.read_bytes().startswith(PNG_SIGNATURE)
 
 
+def test_a_delta_that_rounds_to_zero_reads_plus_zero_not_minus_zero(tmp_path):
+    _job(tmp_path, 0, "k16", 26.0, 20.0)
+    _job(tmp_path, 1, "k8", 25.996, 20.0)  # Δ -0.004
+    rows = report.write_reports(tmp_path).markdown.read_text().splitlines()
+    (k8,) = [row for row in rows if row.startswith("| k8 ")]
+    assert "| +0.00 |" in k8 and "-0.00" not in k8
+
+
 def test_delta_compares_against_the_reference_with_the_same_seed(tmp_path):
     _job(tmp_path, 0, "k16", 26.0, 20.0, seed=0)
     _job(tmp_path, 1, "k16", 28.0, 20.0, seed=1)
@@ -415,6 +423,7 @@ def test_a_pipe_in_a_variant_label_does_not_split_the_markdown_row(tmp_path):
 
 def test_pareto_labels_of_close_jobs_do_not_overprint_nor_leave_the_plot(tmp_path, monkeypatch):
     from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.text import Text
 
     figures = []
 
@@ -424,15 +433,20 @@ def test_pareto_labels_of_close_jobs_do_not_overprint_nor_leave_the_plot(tmp_pat
             figures.append(self)
 
     monkeypatch.setattr(pareto, "Figure", RecordingFigure)
-    times, scores = [30.0, 30.5, 31.0, 60.0, 90.0], [9.51, 9.51, 9.512, 9.50, 9.49]
-    labels = ["full", "no_copies", "no_stage2", "no_pseudo_views", "no_gamma_far_right"]
+    # four jobs at the top of the plot, two at its bottom, one at its right edge
+    times = [5.35, 5.38, 5.40, 5.45, 3.0, 3.02, 8.0]
+    scores = [10.03, 10.03, 10.031, 10.032, 9.95, 9.951, 10.03]
+    labels = ["no_isolation", "no_gamma", "no_pseudo_views", "k8", "no_stage2", "no_copies", "full"]
     pareto.plot_pareto(times, scores, labels, tmp_path / "p.png", "t")
     (axes,) = figures[0].axes
     renderer = FigureCanvasAgg(figures[0]).get_renderer()
-    boxes = [text.get_window_extent(renderer) for text in axes.texts]
-    assert len(boxes) == 5
+    figures[0].draw_without_rendering()  # lay out at the figure's own dpi again, after saving
+    boxes = [Text.get_window_extent(text, renderer) for text in axes.texts]  # text, no leader
+    inside = axes.get_window_extent(renderer)
+    assert len(boxes) == 7
     assert not any(a.overlaps(b) for i, a in enumerate(boxes) for b in boxes[i + 1 :])
-    assert all(box.x1 <= axes.get_window_extent(renderer).x1 for box in boxes)
+    assert all(inside.x0 <= box.x0 and box.x1 <= inside.x1 for box in boxes)
+    assert all(inside.y0 <= box.y0 and box.y1 <= inside.y1 for box in boxes)
 
 
 @pytest.mark.parametrize(("slowest", "scale"), [(30.0, "log"), (15.0, "linear")])

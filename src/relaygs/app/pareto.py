@@ -7,9 +7,9 @@ import math
 from collections.abc import Sequence
 from pathlib import Path
 
-from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.backends.backend_agg import FigureCanvasAgg, RendererAgg
 from matplotlib.figure import Figure
-from matplotlib.text import Annotation
+from matplotlib.text import Annotation, Text
 from matplotlib.transforms import Bbox
 
 from relaygs.app.figures import save_png
@@ -17,9 +17,11 @@ from relaygs.app.figures import save_png
 LOG_SCALE_RATIO = 20.0
 """Use a log time axis when the slowest job takes more than this many times the fastest."""
 LABEL_STEP_PT = 9.0
-"""How far (points) a label that would overprint another is lifted at a time."""
+"""How far (points) a label that would overprint another is moved at a time."""
+LABEL_ROOM = 0.15
+"""Vertical margin (a fraction of the data range) that leaves labels room inside the axes."""
 MAX_LABEL_STEPS = 12
-"""At most this many lifts per label: past them a label in a crowd of jobs may overprint."""
+"""At most this many steps up or down per label: in a larger crowd a label may overprint."""
 
 
 def pareto_front(times: Sequence[float], scores: Sequence[float]) -> list[int]:
@@ -74,10 +76,19 @@ def plot_pareto(
             s=140,
             zorder=3,
         )
+    leader = {"arrowstyle": "-", "color": "0.6", "linewidth": 0.6, "shrinkA": 0, "shrinkB": 3}
     notes = [
-        axes.annotate(label, (x, y), textcoords="offset points", xytext=(5, 5), fontsize=8)
+        axes.annotate(
+            label,
+            (x, y),
+            textcoords="offset points",
+            xytext=(5, 5),
+            fontsize=8,
+            arrowprops=leader,  # a line to its point, for a label moved off it
+        )
         for (x, y), label in point_labels(times, scores, labels).items()
     ]
+    axes.margins(y=LABEL_ROOM)
     positive = [t for t in times if t > 0]
     if positive and max(positive) > LOG_SCALE_RATIO * min(positive):
         axes.set_xscale("log")
@@ -91,22 +102,38 @@ def plot_pareto(
 
 
 def spread_labels(figure: Figure, notes: Sequence[Annotation]) -> None:
-    """Put labels that would run off the plot's right edge on their point's left, then lift
-    them, lowest point first, in LABEL_STEP_PT steps (at most MAX_LABEL_STEPS) until each clears
-    the labels placed before it: a few jobs close together (e.g. variants of one cost) stay
-    readable."""
+    """Put labels that would run off the plot's right edge on their point's left, then move
+    each, lowest point first, up or down in LABEL_STEP_PT steps (the nearest free place inside
+    the axes, at most MAX_LABEL_STEPS away) until it clears the labels placed before it: jobs
+    close together (e.g. variants of one cost) stay readable."""
     renderer = FigureCanvasAgg(figure).get_renderer()
     figure.draw_without_rendering()  # the constrained layout places the axes first
     placed: list[Bbox] = []
     for note in sorted(notes, key=lambda each: each.xy[1]):
-        right_edge = note.axes.get_window_extent(renderer).x1
-        if note.get_window_extent(renderer).x1 > right_edge:  # to the point's left instead
+        inside = note.axes.get_window_extent(renderer)
+        if _text_box(note, renderer).x1 > inside.x1:  # to the point's left instead
             note.set_horizontalalignment("right")
             note.xyann = (-note.xyann[0], note.xyann[1])
-        for _ in range(MAX_LABEL_STEPS):
-            box = note.get_window_extent(renderer)
-            if not any(box.overlaps(other) for other in placed):
+        x, y = note.xyann
+        for step in _label_steps():
+            note.xyann = (x, y + step * LABEL_STEP_PT)
+            box = _text_box(note, renderer)
+            fits = inside.y0 <= box.y0 and box.y1 <= inside.y1
+            if fits and not any(box.overlaps(other) for other in placed):
                 break
-            x, y = note.xyann
-            note.xyann = (x, y + LABEL_STEP_PT)
-        placed.append(note.get_window_extent(renderer))
+        else:
+            note.xyann = (x, y)  # no free place near: where it started
+        placed.append(_text_box(note, renderer))
+
+
+def _text_box(note: Annotation, renderer: RendererAgg) -> Bbox:
+    """Where a label's text is drawn (an annotation's own extent includes its leader line)."""
+    return Text.get_window_extent(note, renderer)
+
+
+def _label_steps() -> list[int]:
+    """Label offsets to try, in steps, nearest first: 0, 1, -1, 2, -2, ..."""
+    steps = [0]
+    for step in range(1, MAX_LABEL_STEPS + 1):
+        steps += [step, -step]
+    return steps

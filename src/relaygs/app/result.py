@@ -135,7 +135,7 @@ def format_summary(result: Mapping[str, Scalar]) -> str:
         ("SSIM", _fmt(result.get("ssim"), ".4f")),
         ("fg-PSNR", _fmt(result.get("fg_psnr"), ".2f", " dB")),
         ("train time", _fmt(result.get("train_s_total"), ".1f", " s")),
-        ("  computed now", _fmt(result.get("train_s_computed"), ".1f", " s")),
+        ("  not reused", _fmt(result.get("train_s_computed"), ".1f", " s")),
         ("storage", _fmt(result.get("storage_mb"), ".2f", " MB")),
         ("render FPS", _fmt(result.get("render_fps"), ".1f")),
         ("Gaussians", _fmt(result.get("num_gaussians"), ",.0f")),

@@ -272,4 +272,9 @@ def _cell(value: Any, spec: str) -> str:
         return MISSING
     if spec == "{}":
         return str(value).replace("|", "\\|")
-    return spec.format(value) if is_number(value) else str(value)
+    if not is_number(value):
+        return str(value)
+    text = spec.format(value)
+    if text.startswith("-") and not text.strip("+-0.,"):  # rounds to zero: no "-0.00"
+        return spec.format(0.0)
+    return text

@@ -325,7 +325,7 @@ def _verify(store: ArtifactStore, args: argparse.Namespace) -> int:
     for problem in problems:
         print(f"CORRUPT {problem.path}: {problem.message}")
     total = len(store.list())
-    print(f"{total} readable artifact(s), {len(problems)} problem(s) in {store.root}")
+    print(f"{len(problems)} problem(s) among {total} artifact(s) in {store.root}")
     if problems:
         print(REPAIR_HINT)
     return 1 if problems else 0
@@ -336,13 +336,14 @@ def _gc(store: ArtifactStore, args: argparse.Namespace) -> int:
     keep = None if args.keep is None else [store.find(prefix).key for prefix in args.keep]
     report = store.gc(keep=keep, dry_run=args.dry_run, annotations=(EVAL_STAGE,))
     verb = "would remove" if args.dry_run else "removed"
-    locks = [path for path in report.removed if path.parent.name == LOCKS_DIR]
-    for path in report.removed:
-        if path.parent.name != LOCKS_DIR:
-            print(f"{verb} {path}")
-    if locks:
-        print(f"{verb} {len(locks)} free lock file(s) in {store.root / LOCKS_DIR}")
+    folders = [path for path in report.removed if path.parent.name != LOCKS_DIR]
+    for path in folders:
+        print(f"{verb} {path}")
     for path in report.busy:
         print(f"in use, kept {path}")
-    print(f"{verb} {len(report.removed)} path(s), {len(report.busy)} in use")
+    locks = len(report.removed) - len(folders)
+    print(
+        f"{verb} {len(folders)} folder(s) and {locks} free lock file(s) "
+        f"(in {store.root / LOCKS_DIR}), {len(report.busy)} in use"
+    )
     return 0
