@@ -230,7 +230,8 @@ def test_an_experiment_setting_a_group_to_a_value_is_told_to_override_it(tmp_pat
     assert str(caught.value) == (
         f"{group}: expected a config section (a mapping), got '{value}': {group} is a config "
         f"group, choose its file with {group}={value} on the command line, or in an experiment "
-        f"file with `defaults: [override /{group}: {value}]`"
+        f"file with `defaults: [override /{group}: {value}]` (the experiment chosen: "
+        "conf/experiment/plain.yaml)"
     )
     assert seen == []
     experiment.write_text(f"# @package _global_\ndefaults: [override /{group}: {value}]\n")

@@ -132,7 +132,7 @@ def _check_launching_command(
         for job in planned_jobs(args, overrides, hydra_cfg, multirun):
             try:
                 config = _compose(job)
-                check_group_sections(config, groups)
+                check_group_sections(config, groups, hydra_cfg.runtime.choices.get("experiment"))
                 validate(config, runs_here)
             except InputError as error:
                 where = f"job {' '.join(job)}: " if job != args else ""
@@ -182,14 +182,20 @@ def check_group_choices(overrides: Sequence[Override], conf_dir: Path) -> None:
             )
 
 
-def check_group_sections(config: DictConfig, groups: Sequence[str]) -> None:
+def check_group_sections(
+    config: DictConfig, groups: Sequence[str], experiment: str | None = None
+) -> None:
     """Each config group of `groups` holds a section: an experiment file that sets one to a
-    value (`pipeline: 4dgs`) is refused in one line naming the group and the `override` that
-    chooses its file, before the value breaks an interpolation (`${pipeline.name}`)."""
+    value (`pipeline: 4dgs`) is refused in one line naming the group, the `override` that
+    chooses its file and the `experiment` file chosen, if any, before the value breaks an
+    interpolation (`${pipeline.name}`)."""
     values = OmegaConf.to_container(config, resolve=False)
     for group in sorted(groups):
         if not isinstance(values.get(group), Mapping):
-            raise InputError(group_value_error(group, values.get(group)))
+            chosen = (
+                f" (the experiment chosen: conf/experiment/{experiment}.yaml)" if experiment else ""
+            )
+            raise InputError(group_value_error(group, values.get(group)) + chosen)
 
 
 def check_output_folder(hydra_cfg: DictConfig, multirun: bool) -> None:
