@@ -134,6 +134,37 @@ def test_grouped_layout_matches_interleaved_rows() -> None:
     assert sum(float(g.abs().sum()) for g in grads[0]) > 0.0
 
 
+@pytest.mark.parametrize("isolate", [False, True])
+def test_forward_split_is_forward_for_background_first_rows_without_device_reads(
+    isolate: bool, monkeypatch
+) -> None:
+    field = small_field(isolate_fg_bg=isolate)
+    randomise_heads(field)
+    xyz, group = points()
+    order = torch.argsort(group, stable=True)
+    xyz, group = xyz[order], group[order]
+    num_background = int((group == 0).sum())
+    with torch.no_grad():
+        want = field(xyz, 0.3, group)
+        reads = []
+        for name in ("__bool__", "__int__", "__index__", "item", "tolist"):
+            original = getattr(torch.Tensor, name)
+
+            def counted(self, *args, _original=original, **kwargs):
+                reads.append(self.shape)
+                return _original(self, *args, **kwargs)
+
+            monkeypatch.setattr(torch.Tensor, name, counted)
+        got = field.forward_split(xyz, 0.3, num_background)
+        monkeypatch.undo()
+    assert reads == []
+    for got_field, want_field in zip(got, want, strict=True):
+        torch.testing.assert_close(got_field, want_field)
+    for bad in (-1, len(group) + 1):
+        with pytest.raises(InputError, match=rf"num_background: expected 0\.\.{len(group)}"):
+            field.forward_split(xyz, 0.3, bad)
+
+
 def test_background_does_not_depend_on_foreground_mlp() -> None:
     field = small_field(isolate_fg_bg=True)
     randomise_heads(field)

@@ -12,7 +12,7 @@ import torch
 import relaygs.stages.deform as deform_module
 from conftest import stage_smoke_cfg
 from relaygs.data import Scene, View, load_scene
-from relaygs.field import BACKGROUND, FOREGROUND, DeformationField, Deltas
+from relaygs.field import DeformationField, Deltas
 from relaygs.model import GaussianSet
 from relaygs.pipeline.artifact import Artifact
 from relaygs.stages import STAGES, SceneModel, evaluate
@@ -155,10 +155,10 @@ class _KnownDeltas:
         self.deltas = Deltas(
             **{k: torch.randn(count, w, generator=generator) for k, w in widths.items()}
         )
-        self.calls: list[tuple[float, torch.Tensor]] = []
+        self.calls: list[tuple[float, int]] = []
 
-    def __call__(self, xyz: torch.Tensor, time: float, group: torch.Tensor) -> Deltas:
-        self.calls.append((time, group))
+    def forward_split(self, xyz: torch.Tensor, time: float, num_background: int) -> Deltas:
+        self.calls.append((time, num_background))
         return self.deltas
 
 
@@ -170,9 +170,7 @@ def test_every_field_delta_is_added_to_its_parameter() -> None:
     rows = torch.tensor([1, 4, 5])
     stub = _KnownDeltas(4 + 3, generator)
     parts = deformed_parts(background, foreground, rows, stub, 0.25, sh_degree=0)
-    assert [(time, group.tolist()) for time, group in stub.calls] == [
-        (0.25, [BACKGROUND] * 4 + [FOREGROUND] * 3)
-    ]
+    assert stub.calls == [(0.25, 4)]  # background rows first, then the 3 shown foreground
     base = {
         name: torch.cat([background.params[name], foreground.params[name][rows]]).detach()
         for name in ("means", "log_scales", "quats", "opacity_logits")

@@ -25,8 +25,9 @@ class ColorAffine(nn.Module):
 
     def forward(self, image: Tensor, camera: int | Tensor) -> Tensor:
         """Corrected channel-last image(s): [H, W, 3] with an int camera, [B, H, W, 3] with [B]."""
-        index = torch.as_tensor(camera, dtype=torch.long, device=self.log_gain.device)
+        index = torch.as_tensor(camera, dtype=torch.long)  # an int stays on the host to check
         self._check(image, index)
+        index = index.to(self.log_gain.device)
         lead = index.shape
         expand = (1,) * (image.dim() - 1 - len(lead))
         gain = torch.exp(self.log_gain[index].clamp(-LOG_GAIN_LIMIT, LOG_GAIN_LIMIT))

@@ -68,17 +68,37 @@ class DeformationField(nn.Module):
         if not self.isolate_fg_bg:
             return self.mlp_sets[SHARED_SET](features)
         group = _validated_group(group, xyz.shape[0])
-        background, foreground = self.mlp_sets["background"], self.mlp_sets["foreground"]
         if not bool((group[1:] < group[:-1]).any()):
             # background rows first (as the stages lay them out): slices instead of gathers
-            split = int((group == BACKGROUND).sum())
-            halves = (background(features[:split]), foreground(features[split:]))
-            return Deltas(*(torch.cat(pair) for pair in zip(*halves, strict=True)))
+            return self._split(features, int((group == BACKGROUND).sum()))
+        background, foreground = self.mlp_sets["background"], self.mlp_sets["foreground"]
         parts = []
         for value, mlp in ((BACKGROUND, background), (FOREGROUND, foreground)):
             rows = torch.nonzero(group == value).squeeze(1)
             parts.append((rows, mlp(features.index_select(0, rows))))
         return _scatter_rows(xyz.shape[0], parts)
+
+    def forward_split(self, xyz: Tensor, t: float | Tensor, num_background: int) -> Deltas:
+        """`forward` for rows laid out as the stages do, the first `num_background` background
+        and the rest foreground: given on the host, so no group is read back from the device."""
+        if not 0 <= num_background <= xyz.shape[0]:
+            raise InputError(
+                f"DeformationField num_background: expected 0..{xyz.shape[0]}, got "
+                f"{num_background}"
+            )
+        features = self.hexplane(xyz, t)
+        if not self.isolate_fg_bg:
+            return self.mlp_sets[SHARED_SET](features)
+        return self._split(features, num_background)
+
+    def _split(self, features: Tensor, num_background: int) -> Deltas:
+        """The background MLPs' deltas of the first `num_background` rows, then the
+        foreground MLPs' of the rest (slices, not gathers)."""
+        halves = (
+            self.mlp_sets["background"](features[:num_background]),
+            self.mlp_sets["foreground"](features[num_background:]),
+        )
+        return Deltas(*(torch.cat(pair) for pair in zip(*halves, strict=True)))
 
     def regularisers(self) -> dict[str, Tensor]:
         """The HexPlane's unweighted regularisers (plane_smoothness, time_smoothness, time_l1)."""

@@ -10,7 +10,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from relaygs.field import BACKGROUND, FOREGROUND, DeformationField, relay_position
+from relaygs.field import DeformationField, relay_position
 from relaygs.model import GaussianSet
 from relaygs.stages.render import Part, part_of
 from relaygs.stages.scene_model import GAMMA
@@ -31,17 +31,12 @@ def deformed_parts(
     fg = part_of("fg", foreground, sh_degree, rows=foreground_rows)
     n_bg = bg.count
     xyz = torch.cat([bg.means, fg.means])
-    group = torch.cat(
-        [
-            torch.full((n_bg,), BACKGROUND, dtype=torch.long, device=xyz.device),
-            torch.full((fg.count,), FOREGROUND, dtype=torch.long, device=xyz.device),
-        ]
-    )
-    deltas = field(xyz, time, group)
+    deltas = field.forward_split(xyz, time, n_bg)  # the counts are known here: no device read
     if GAMMA in foreground.params:
         gamma = foreground.params[GAMMA].index_select(0, foreground_rows)
         gammas = torch.cat([gamma.new_zeros(n_bg, 3), gamma])
-        means = relay_position(xyz, deltas.dxyz, gammas, group == FOREGROUND)
+        is_relay = torch.arange(xyz.shape[0], device=xyz.device) >= n_bg
+        means = relay_position(xyz, deltas.dxyz, gammas, is_relay)
     else:
         means = xyz + deltas.dxyz
     log_scales = torch.cat([bg.log_scales, fg.log_scales]) + deltas.dscale
