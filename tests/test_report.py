@@ -421,18 +421,24 @@ def test_a_pipe_in_a_variant_label_does_not_split_the_markdown_row(tmp_path):
     assert row.startswith("| k16\\|fast | 26.00 |")
 
 
-def test_pareto_labels_of_close_jobs_do_not_overprint_nor_leave_the_plot(tmp_path, monkeypatch):
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.text import Text
-
-    figures = []
+@pytest.fixture
+def figures(monkeypatch):
+    """Every figure the Pareto plot makes, kept to inspect after it is saved."""
+    made = []
 
     class RecordingFigure(pareto.Figure):
         def __init__(self, *args, **kwargs):
             super().__init__(*args, **kwargs)
-            figures.append(self)
+            made.append(self)
 
     monkeypatch.setattr(pareto, "Figure", RecordingFigure)
+    return made
+
+
+def test_pareto_labels_of_close_jobs_do_not_overprint_nor_leave_the_plot(tmp_path, figures):
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.text import Text
+
     # four jobs at the top of the plot, two at its bottom, one at its right edge
     times = [5.35, 5.38, 5.40, 5.45, 3.0, 3.02, 8.0]
     scores = [10.03, 10.03, 10.031, 10.032, 9.95, 9.951, 10.03]
@@ -451,16 +457,8 @@ def test_pareto_labels_of_close_jobs_do_not_overprint_nor_leave_the_plot(tmp_pat
 
 @pytest.mark.parametrize(("slowest", "scale"), [(30.0, "log"), (15.0, "linear")])
 def test_pareto_time_axis_is_logarithmic_only_for_a_wide_time_range(
-    tmp_path, monkeypatch, slowest, scale
+    tmp_path, figures, slowest, scale
 ):
-    figures = []
-
-    class RecordingFigure(pareto.Figure):
-        def __init__(self, *args, **kwargs):
-            super().__init__(*args, **kwargs)
-            figures.append(self)
-
-    monkeypatch.setattr(pareto, "Figure", RecordingFigure)
     # the slowest job takes 30x (log) or 15x (linear) the fastest; the threshold is 20x
     pareto.plot_pareto([1.0, slowest], [20.0, 25.0], ["a", "b"], tmp_path / "p.png", "t")
     assert figures[0].axes[0].get_xscale() == scale
