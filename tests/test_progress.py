@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import io
 
-from relaygs.progress import LOG_INTERVAL_S, is_terminal, progress_bar
+from relaygs.progress import LOG_INTERVAL_S, is_terminal, job_label, labelled, progress_bar
 
 
 class _Terminal(io.StringIO):
@@ -54,3 +54,16 @@ def test_is_terminal_is_false_for_closed_and_plain_streams() -> None:
     assert not is_terminal(closed)
     assert not is_terminal(io.StringIO())
     assert is_terminal(_Terminal())
+
+
+def test_a_job_label_leads_lines_and_bar_names_only_inside_its_block() -> None:
+    with job_label("3_k64"):
+        assert labelled("[relay] built") == "[3_k64] [relay] built"
+        with progress_bar(total=2, desc="relay", stream=io.StringIO()) as bar:
+            assert bar.desc.startswith("3_k64 relay")
+        with job_label(None):  # a job run alone inside it names nothing
+            assert labelled("[relay] built") == "[relay] built"
+        assert labelled("x") == "[3_k64] x"
+    assert labelled("[relay] built") == "[relay] built"
+    with progress_bar(total=2, desc="relay", stream=io.StringIO()) as bar:
+        assert bar.desc.startswith("relay")

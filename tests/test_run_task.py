@@ -58,7 +58,7 @@ def _with(config, **dotted):
     return changed
 
 
-def _run(config, run_dir, fakes, overrides=()):
+def _run(config, run_dir, fakes, overrides=(), label=None):
     """Run with a store beside the run dir (runs in one test share it, tests do not)."""
     config = _with(config, artifacts__root=str(run_dir.parent / "artifacts"))
     return run_task(
@@ -66,6 +66,7 @@ def _run(config, run_dir, fakes, overrides=()):
         run_dir=run_dir,
         original_cwd=run_dir,
         overrides=list(overrides),
+        label=label,
         suite=fakes.suite(),
     )
 
@@ -112,6 +113,25 @@ def test_changing_k_reuses_decouple_and_rebuilds_relay_and_deform(base_config, t
     assert again["train_s_total"] == pytest.approx(second["train_s_total"])
     assert first["psnr"] != second["psnr"]
     assert "reused decouple artifact" in capsys.readouterr().out
+
+
+def _status_lines(out):
+    """The lines that say what a job built, reused or evaluated (not the summary's)."""
+    words = (" built ", " evaluated ", " reused ")
+    return [line for line in out.splitlines() if "]" in line and any(w in line for w in words)]
+
+
+def test_a_labelled_job_names_itself_on_every_status_line(base_config, tmp_path, capsys):
+    # jobs of a parallel launcher print side by side: each line says whose it is
+    fakes = FakeStages()
+    _run(base_config, tmp_path / "3_k64", fakes, label="3_k64")
+    labelled = _status_lines(capsys.readouterr().out)
+    assert len(labelled) == 4  # three stages and the evaluation
+    assert all(line.startswith("[3_k64] [") for line in labelled)
+    _run(base_config, tmp_path / "alone", fakes)
+    alone = _status_lines(capsys.readouterr().out)
+    assert len(alone) == 4 and all(line.startswith("[") for line in alone)
+    assert not any("3_k64" in line for line in alone)
 
 
 def test_a_run_folder_used_again_is_noted(base_config, tmp_path, capsys):

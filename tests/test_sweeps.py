@@ -43,14 +43,15 @@ def _artifact_counts(outputs):
 
 @pytest.fixture(scope="module")
 def experiments(tmp_path_factory):
-    """Run the five experiments in order; record each one's sweep folder and store counts."""
+    """Run the five experiments in order; record each one's sweep folder, store counts and
+    output."""
     outputs = tmp_path_factory.mktemp("outputs")
     runs = {}
     started = time.perf_counter()
     for name in EXPERIMENTS:
-        _launch(outputs, name)
+        done = _launch(outputs, name)
         folder = _newest_sweep(outputs) if name != "smoke" else None
-        runs[name] = {"sweep": folder, "counts": _artifact_counts(outputs)}
+        runs[name] = {"sweep": folder, "counts": _artifact_counts(outputs), "out": done.stdout}
     runs["elapsed_s"] = time.perf_counter() - started
     runs["outputs"] = outputs
     return runs
@@ -84,6 +85,8 @@ def test_ablation_k_on_8_frames_is_one_segment_for_every_k_and_reuses_the_smoke_
     assert (counts["decouple"], counts["relay"], counts["deform"]) == (1, 1, 1)
     assert (table.cache_hits == 3).all()  # the smoke run (k = 16 on 8 frames) built them
     assert counts["eval"] == 1 and (table.eval_s_computed == 0).all()  # and evaluated it
+    lines = experiments["ablation_k"]["out"].splitlines()  # one job at a time: no job labels
+    assert sum(line.startswith("[decouple] reused decouple ") for line in lines) == 5
 
 
 def test_components_build_each_distinct_upstream_once(experiments):
@@ -142,7 +145,13 @@ def _hparam_keys(content: bytes) -> set[str]:
     reason="hydra-joblib-launcher is not installed",
 )
 def test_parallel_jobs_share_the_store_and_build_decouple_once(tmp_path):
-    _launch(tmp_path, "ablation_k", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2")
+    done = _launch(tmp_path, "ablation_k", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2")
     counts = _artifact_counts(tmp_path)
     assert (counts["decouple"], counts["relay"]) == (1, 1)  # every k >= 8 frames: one segment
-    assert len(pd.read_csv(_newest_sweep(tmp_path) / "summary.csv")) == 5
+    sweep = _newest_sweep(tmp_path)
+    assert len(pd.read_csv(sweep / "summary.csv")) == 5
+    # the jobs print side by side: each status line names its job's folder
+    jobs = {folder.name for folder in sweep.iterdir() if folder.is_dir()}
+    status = [line for line in done.stdout.splitlines() if "] [decouple] " in line]
+    assert {line.split("]")[0].lstrip("[") for line in status} == jobs
+    assert sum(" built decouple " in line for line in status) == 1

@@ -1,4 +1,5 @@
-"""Progress bars that suit where they go: live in a terminal, sparse in a log file.
+"""Progress bars and status lines that suit where they go: live in a terminal, sparse in a log
+file, and named by job when a parallel launcher runs jobs side by side on one terminal.
 
 tqdm redraws up to ten times a second; written to a file (a Slurm log, CI, `> run.log`) each
 redraw is another carriage-return record, so away from a terminal the bar is redrawn at most
@@ -8,12 +9,32 @@ every LOG_INTERVAL_S seconds.
 from __future__ import annotations
 
 import sys
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
 from typing import Any, TextIO
 
 from tqdm import tqdm
 
 LOG_INTERVAL_S = 30.0  # seconds between redraws when the stream is not a terminal
+
+_job_label: str | None = None  # the job this process runs, inside `job_label`
+
+
+@contextmanager
+def job_label(label: str | None) -> Iterator[None]:
+    """Name `label` on this process's status lines (`labelled`) and progress bars while the block
+    runs, so that jobs printing side by side can be told apart; None names nothing."""
+    global _job_label
+    previous, _job_label = _job_label, label
+    try:
+        yield
+    finally:
+        _job_label = previous
+
+
+def labelled(line: str) -> str:
+    """`line`, led by `[label] ` inside `job_label`."""
+    return f"[{_job_label}] {line}" if _job_label else line
 
 
 def is_terminal(stream: TextIO) -> bool:
@@ -28,8 +49,11 @@ def progress_bar(
     iterable: Iterable[Any] | None = None, *, stream: TextIO | None = None, **options: Any
 ) -> tqdm:
     """A tqdm bar on `stream` (stderr by default), throttled to one redraw per LOG_INTERVAL_S
-    when that stream is not a terminal; `options` go to tqdm and win over the throttle."""
+    when that stream is not a terminal and its `desc` led by the job's label inside
+    `job_label`; `options` go to tqdm and win over the throttle."""
     stream = sys.stderr if stream is None else stream
+    if _job_label and options.get("desc"):
+        options["desc"] = f"{_job_label} {options['desc']}"
     if not is_terminal(stream):
         options.setdefault("mininterval", LOG_INTERVAL_S)
         options.setdefault("maxinterval", LOG_INTERVAL_S)

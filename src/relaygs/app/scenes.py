@@ -25,6 +25,7 @@ from relaygs.data.synthetic import (
 from relaygs.errors import InputError
 from relaygs.paths import require_folder
 from relaygs.pipeline.keys import canonical_json
+from relaygs.progress import labelled
 
 SCENE_FIELDS = frozenset(
     {"name", "preset", "path", "frames", "width", "height", "seed", "effects", "loader"}
@@ -135,7 +136,7 @@ def prepare_scene(spec: SceneSpec, scenes_dir: Path, progress: bool = True) -> S
     lock.parent.mkdir(parents=True, exist_ok=True)
     with FileLock(str(lock)):
         if not (folder / GENERATED_MARKER).is_file():
-            print(f"generating synthetic scene {spec.preset!r} into {folder}", flush=True)
+            print(labelled(f"generating synthetic scene {spec.preset!r} into {folder}"), flush=True)
             generate(
                 spec.preset,
                 folder,

@@ -38,6 +38,7 @@ from relaygs.device import set_threads
 from relaygs.errors import resource_error
 from relaygs.per_view import METRIC_COLUMNS, PER_VIEW, PER_VIEW_FILE, frame_means, write_per_view
 from relaygs.pipeline import Artifact, ArtifactStore, NodeReport, PipelineRun, run_pipeline
+from relaygs.progress import job_label, labelled
 
 TENSORBOARD_DIR = "tb"
 HPARAM_EXCLUDED_SECTIONS = ("paths", "artifacts")
@@ -62,13 +63,15 @@ def run_task(
     original_cwd: Path,
     overrides: Sequence[str] = (),
     job: int | None = None,
+    label: str | None = None,
     suite: StageSuite | None = None,
 ) -> dict[str, Scalar]:
     """Run one job and return its result (also written to `<run_dir>/result.json`; `job_s`
     is the job's wall time up to the result: scene, stages and evaluation).
 
     `overrides` are the job's command-line/sweep overrides (recorded in the result), `job`
-    its number in a sweep. Bad input raises InputError before any work starts; an error after
+    its number in a sweep, `label` the name its status lines and bars carry when jobs run side
+    by side (`job_label`). Bad input raises InputError before any work starts; an error after
     that is re-raised once a `result.json` with status `failed` and the error is written, as
     a one-line ResourceError when the disk or memory ran out (`resource_error`).
     """
@@ -77,7 +80,8 @@ def run_task(
     suite = suite or load_stage_suite()
     plan = plan_run(config, suite.stages, suite.validate, suite.accepted_upstream)
     try:
-        outcome = _execute(config, plan, suite, run_dir, overrides, job)
+        with job_label(label):
+            outcome = _execute(config, plan, suite, run_dir, overrides, job)
         result = outcome.result
         result["job_s"] = time.perf_counter() - started
         result_path = write_result(run_dir, result)
@@ -182,9 +186,11 @@ def _note_earlier_run(run_dir: Path) -> None:
     if events or result:
         replaced = f"its {RESULT_FILE} is replaced and " if result else ""
         print(
-            f"note: {run_dir} already holds a run: {replaced}TensorBoard shows its curves and "
-            "this run's as one run; give each run its own folder (hydra.run.dir, or "
-            "hydra.sweep.dir for a sweep)",
+            labelled(
+                f"note: {run_dir} already holds a run: {replaced}TensorBoard shows its curves and "
+                "this run's as one run; give each run its own folder (hydra.run.dir, or "
+                "hydra.sweep.dir for a sweep)"
+            ),
             file=sys.stderr,
             flush=True,
         )
@@ -202,7 +208,7 @@ def _announce(report: NodeReport) -> None:
         line = f"built {report.stage} artifact {key} in {seconds:.1f} s"
     if report.replaced_corrupt is not None:
         line += f", replacing the stored one, which failed its check: {report.replaced_corrupt}"
-    print(f"[{report.node}] {line}", flush=True)
+    print(labelled(f"[{report.node}] {line}"), flush=True)
 
 
 def _announce_evaluation(evaluation: Evaluation) -> None:
@@ -212,7 +218,7 @@ def _announce_evaluation(evaluation: Evaluation) -> None:
         line = f"reused evaluation {key} from the store (made earlier in {seconds:.1f} s)"
     else:
         line = f"evaluated the test views in {seconds:.1f} s (stored as {key})"
-    print(f"[eval] {line}", flush=True)
+    print(labelled(f"[eval] {line}"), flush=True)
 
 
 def _log_previews(

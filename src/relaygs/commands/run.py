@@ -94,13 +94,16 @@ def _job_validator(suite: StageSuite) -> JobValidator:
 def run_job(cfg: DictConfig) -> dict[str, Any] | None:
     """Hydra's task function: one job with its run dir, launch dir and overrides.
 
-    A RelayGS error ends a single run with one line on stderr (exit 1). In a multirun, a job
+    A job of a parallel launcher's sweep names its folder (`3_k64`) on its status lines and
+    bars, as jobs then print side by side. A RelayGS error ends a single run with one line on
+    stderr (exit 1). In a multirun, a job
     whose failure is recorded in its `result.json` (see `run_task`) reports it and returns
     None, so the other jobs still run; the sweep summary lists it and the command exits 1.
     """
     hydra_cfg = HydraConfig.get()
     multirun = hydra_cfg.mode == RunMode.MULTIRUN
     run_dir = Path(hydra_cfg.runtime.output_dir)
+    side_by_side = multirun and hydra_cfg.runtime.choices.get("hydra/launcher") != "basic"
     try:
         return run_task(
             cfg,
@@ -108,6 +111,7 @@ def run_job(cfg: DictConfig) -> dict[str, Any] | None:
             original_cwd=Path(hydra_cfg.runtime.cwd),
             overrides=list(hydra_cfg.overrides.task),
             job=hydra_cfg.job.num if multirun else None,
+            label=run_dir.name if side_by_side else None,
         )
     except Exception as error:
         if multirun and (run_dir / RESULT_FILE).is_file():

@@ -83,8 +83,7 @@ class DeformationField(nn.Module):
         and the rest foreground: given on the host, so no group is read back from the device."""
         if not 0 <= num_background <= xyz.shape[0]:
             raise InputError(
-                f"DeformationField num_background: expected 0..{xyz.shape[0]}, got "
-                f"{num_background}"
+                f"DeformationField num_background: expected 0..{xyz.shape[0]}, got {num_background}"
             )
         features = self.hexplane(xyz, t)
         if not self.isolate_fg_bg:

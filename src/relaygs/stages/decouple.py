@@ -27,6 +27,7 @@ from relaygs.model import (
     paper_schedule,
 )
 from relaygs.pipeline.artifact import Artifact
+from relaygs.progress import labelled
 from relaygs.stages.common import (
     BACKGROUND_LR,
     no_upstream,
@@ -166,7 +167,8 @@ def decouple(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, A
     )
     n_fg = int(is_fg.sum())
     if n_fg == 0:
-        print(NO_FOREGROUND_NOTE.format(steps=section.steps), file=sys.stderr, flush=True)
+        note = labelled(NO_FOREGROUND_NOTE.format(steps=section.steps))
+        print(note, file=sys.stderr, flush=True)
     metrics = {
         "num_gaussians": len(final),
         "num_bg": len(final) - n_fg,

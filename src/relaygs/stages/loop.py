@@ -14,7 +14,7 @@ from torch import Tensor
 from relaygs.errors import Interrupted
 from relaygs.pipeline.checkpoint import StageCheckpointer
 from relaygs.pipeline.context import current_build
-from relaygs.progress import progress_bar
+from relaygs.progress import labelled, progress_bar
 from relaygs.stages import log
 from relaygs.stages.loss import batch_psnr
 from relaygs.stages.render import Render
@@ -146,8 +146,10 @@ def run_training(
         for step, scalars in history.records:  # this run's sinks see the steps before the kill
             log.emit(stage, step, scalars)
         print(
-            f"[{stage}] resuming from the checkpoint of step {start} of {steps} "
-            f"({previous_seconds:.1f} s of training before it)",
+            labelled(
+                f"[{stage}] resuming from the checkpoint of step {start} of {steps} "
+                f"({previous_seconds:.1f} s of training before it)"
+            ),
             flush=True,
         )
     began = time.perf_counter()
