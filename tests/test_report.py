@@ -80,6 +80,28 @@ def test_delta_compares_against_the_reference_with_the_same_seed(tmp_path):
     assert list(table.delta_psnr) == pytest.approx([0.0, 0.0, -1.0, 0.0])
 
 
+def test_delta_compares_only_runs_scored_on_the_same_images(tmp_path, capsys):
+    # `report outputs/runs` over runs at two downscales: each compares within its test set
+    _job(tmp_path, 0, "k16", 26.0, 20.0, test_set="full")
+    _job(tmp_path, 1, "k16", 30.0, 20.0, test_set="half")
+    _job(tmp_path, 2, "k8", 25.0, 10.0, test_set="full")
+    _job(tmp_path, 3, "k8", 31.0, 10.0, test_set="half")
+    _job(tmp_path, 4, "k32", 24.0, 10.0, test_set="other")  # no k16 run on its images
+    _job(tmp_path, 5, "k32", 24.0, 10.0, scene="court")  # nor on its scene
+    _job(tmp_path, 6, "k64", 29.0, 10.0)  # written before results named their test set
+    table = summary_table(report.collect_results(tmp_path))
+    assert list(table.delta_psnr[:4]) == pytest.approx([0.0, 0.0, -1.0, 1.0])
+    assert table.delta_psnr[4:6].isna().all()
+    assert table.delta_psnr[6] == pytest.approx(1.0)  # against both k16 runs on juggle
+    files = report.write_reports(tmp_path)
+    markdown = files.markdown.read_text()
+    assert "Δ PSNR is n/a for job 4 (k32), job 5 (k32): no job of its reference variant" in markdown
+    mean = files.mean.read_text()  # nor do the means average PSNR over different images
+    assert mean.splitlines()[2].startswith("| Scene | Variant | Test set | Runs | PSNR")
+    assert "| juggle | k16 | full | 1 | 26.00 ± 0.00 |" in mean
+    assert "| juggle | k16 | half | 1 | 30.00 ± 0.00 |" in mean
+
+
 def test_without_a_reference_variant_job_zero_is_the_reference(tmp_path):
     _job(tmp_path, 0, "k8", 25.0, 30.0, reference_variant=None)
     _job(tmp_path, 1, "k16", 26.5, 30.0, reference_variant=None)

@@ -134,6 +134,17 @@ def test_a_labelled_job_names_itself_on_every_status_line(base_config, tmp_path,
     assert not any("3_k64" in line for line in alone)
 
 
+def test_a_result_names_the_images_it_was_scored_on(base_config, tmp_path):
+    fakes = FakeStages()
+    first = _run(base_config, tmp_path / "a", fakes)
+    again = _run(_with(base_config, relay__k=32), tmp_path / "b", fakes)
+    halved = _run(_with(base_config, scene__loader__downscale=2), tmp_path / "c", fakes)
+    held_out = _run(_with(base_config, scene__loader__test_cameras=[2]), tmp_path / "d", fakes)
+    assert len(first["test_set"]) == 12
+    assert first["test_set"] == again["test_set"]  # another model, the same test images
+    assert len({first["test_set"], halved["test_set"], held_out["test_set"]}) == 3
+
+
 def test_a_run_folder_used_again_is_noted(base_config, tmp_path, capsys):
     # a pinned hydra.run.dir used twice: the result is replaced and TensorBoard mixes the runs
     fakes = FakeStages()

@@ -1,4 +1,5 @@
-"""Mean ± std over seeds: one row per (scene, variant) of a sweep that repeats jobs over seeds.
+"""Mean ± std over seeds: one row per (scene, variant) of a sweep that repeats jobs over seeds,
+and per test set where runs of a pair were scored on different images (other downscales).
 
 Δ PSNR is computed per seed against the reference variant on the same scene and seed (the
 summary's `delta_psnr`), then averaged, so seed-to-seed scene difficulty cancels out.
@@ -26,14 +27,16 @@ METRICS = (
 
 
 def aggregate_table(summary: pd.DataFrame) -> pd.DataFrame:
-    """Per (scene, variant), in order of first appearance: `runs` (finished jobs), and
+    """Per (scene, variant) and, where results record it, `test_set` (PSNR on other images
+    does not average), in order of first appearance: `runs` (finished jobs), and
     `<metric>_mean` / `<metric>_std` (sample std, 0 for one run) of every METRICS column."""
     table = summary
     if "status" in table:
         table = table[table["status"] != STATUS_FAILED]
+    keys = ["scene", "variant", *(["test_set"] if "test_set" in table else [])]
     rows = []
-    for (scene, variant), group in table.groupby(["scene", "variant"], sort=False, dropna=False):
-        row: dict[str, object] = {"scene": scene, "variant": variant, "runs": len(group)}
+    for values, group in table.groupby(keys, sort=False, dropna=False):
+        row: dict[str, object] = {**dict(zip(keys, values, strict=True)), "runs": len(group)}
         for _, column, _ in METRICS:
             values = [float(v) for v in group.get(column, []) if is_number(v)]
             row[f"{column}_mean"] = sum(values) / len(values) if values else None
@@ -43,12 +46,16 @@ def aggregate_table(summary: pd.DataFrame) -> pd.DataFrame:
 
 
 def aggregate_markdown(table: pd.DataFrame, title: str) -> str:
-    """The aggregate as a Markdown table, each metric as `mean ± std`."""
-    header = "| Scene | Variant | Runs | " + " | ".join(label for label, _, _ in METRICS) + " |"
-    rule = "|:---|:---|---:|" + "---:|" * len(METRICS)
+    """The aggregate as a Markdown table, each metric as `mean ± std`; with a `Test set`
+    column where a (scene, variant) pair has rows on different images."""
+    split = "test_set" in table and table.duplicated(["scene", "variant"]).any()
+    names = ["scene", "variant", *(["test_set"] if split else [])]
+    labels = ["Scene", "Variant", *(["Test set"] if split else []), "Runs"]
+    header = "| " + " | ".join(labels + [label for label, _, _ in METRICS]) + " |"
+    rule = "|" + ":---|" * len(names) + "---:|" + "---:|" * len(METRICS)
     lines = [f"# {title}", "", header, rule]
     for _, row in table.iterrows():
-        cells = [str(row["scene"]), str(row["variant"]), str(row["runs"])]
+        cells = [str(row[name]) for name in names] + [str(row["runs"])]
         for _, column, digits in METRICS:
             cells.append(_mean_std(row[f"{column}_mean"], row[f"{column}_std"], digits))
         lines.append("| " + " | ".join(cells) + " |")

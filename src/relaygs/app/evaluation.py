@@ -18,6 +18,7 @@ from typing import Any
 
 import torch
 
+from relaygs.data.fingerprint import digest
 from relaygs.per_view import PER_VIEW, from_tensors, to_tensors
 from relaygs.pipeline import Artifact, ArtifactStore, LineageEntry, PipelineRun
 from relaygs.pipeline.keys import artifact_key, key_config
@@ -91,3 +92,18 @@ def evaluation_config(eval_config: Mapping[str, Any]) -> dict[str, Any]:
     if torch.device(device).type == "cpu":
         keyed["cpu_threads"] = torch.get_num_threads()
     return key_config(keyed)
+
+
+def test_set_id(scene: Any, metrics: Mapping[str, Any]) -> str:
+    """12 hex digits naming the images a run was scored on: the scene folder, its downscale,
+    its test cameras and the (frame, camera) pairs evaluated, where the metrics list them. The
+    sweep report compares PSNR only between runs with the same id."""
+    records = metrics.get(PER_VIEW)
+    views = None if records is None else sorted([r["frame"], r["camera"]] for r in records)
+    payload = {
+        "scene": str(scene.root),
+        "downscale": scene.downscale,
+        "test_cameras": [camera.camera_id for camera in scene.test_cameras],
+        "views": views,
+    }
+    return digest(payload)[:12]

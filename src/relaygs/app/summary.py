@@ -104,9 +104,10 @@ def _read_result(path: Path) -> dict[str, Any]:
 def summary_table(results: pd.DataFrame) -> pd.DataFrame:
     """Results with `delta_psnr` added and the paper's columns first.
 
-    Δ is PSNR minus the reference variant's PSNR on the same scene and seed (the mean over
-    every reference row where there is none; the reference is each row's
-    `reference_variant`, else job 0's variant).
+    Δ is PSNR minus the reference variant's PSNR on the same images (`_reference_rows`) and
+    seed (the mean over the seeds scored on those images where that seed is missing; none
+    where no reference job was scored on them); the reference is each row's
+    `reference_variant`, else job 0's variant.
     """
     table = results.copy()
     table["delta_psnr"] = [_delta(table, index) for index in table.index]
@@ -136,9 +137,9 @@ def markdown_table(table: pd.DataFrame, title: str) -> str:
     sharing = sharing_line(table)
     if sharing:
         lines += ["", sharing]
-    absent = absent_reference_line(table)
-    if absent:
-        lines += ["", absent]
+    for note in (absent_reference_line(table), unmatched_reference_line(table)):
+        if note:
+            lines += ["", note]
     failed = failed_jobs(table)
     if failed:
         lines += ["", f"{len(failed)} of {len(table)} job(s) failed:", ""]
@@ -186,6 +187,26 @@ def absent_reference_line(table: pd.DataFrame) -> str | None:
     )
 
 
+def unmatched_reference_line(table: pd.DataFrame) -> str | None:
+    """Why Δ PSNR is n/a for jobs whose reference variant ran, but on other images (another
+    scene, downscale or set of test cameras); None when there are none."""
+    if "variant" not in table or "psnr" not in table:
+        return None
+    unmatched = [
+        job_name(row)
+        for index, row in table.iterrows()
+        if is_number(row.get("psnr"))
+        and _reference_variant(table, row) in set(table["variant"])
+        and _reference_rows(table, index).empty
+    ]
+    if not unmatched:
+        return None
+    return (
+        f"Δ PSNR is {MISSING} for {', '.join(unmatched)}: no job of its reference variant was "
+        "scored on the same images (another scene, downscale or set of test cameras)"
+    )
+
+
 def _seconds(table: pd.DataFrame, columns: tuple[str, ...]) -> float | None:
     """Sum of the numeric values in `columns` over all rows (None when a column is missing)."""
     if not set(columns) <= set(table.columns):
@@ -195,10 +216,18 @@ def _seconds(table: pd.DataFrame, columns: tuple[str, ...]) -> float | None:
 
 @dataclass(frozen=True)
 class FailedJob:
-    """A failed row: its job folder and the line that names it, `job <n> (<variant>): <error>`."""
+    """A failed row: its job folder and the line that names it (`job_name`: the error)."""
 
     run_dir: Path
     line: str
+
+
+def job_name(row: pd.Series) -> str:
+    """`job <n> (<variant>)`, or for a single run (no job number) `<run folder> (<variant>)`."""
+    number = row.get("job")
+    if is_number(number):
+        return f"job {number:.0f} ({row.get('variant')})"
+    return f"{Path(str(row.get('run_dir'))).name} ({row.get('variant')})"
 
 
 def failed_jobs(table: pd.DataFrame) -> list[FailedJob]:
@@ -209,7 +238,7 @@ def failed_jobs(table: pd.DataFrame) -> list[FailedJob]:
     return [
         FailedJob(
             Path(row["run_dir"]),
-            f"job {_cell(row.get('job'), '{:.0f}')} ({row.get('variant')}): {row.get('error')}",
+            f"{job_name(row)}: {row.get('error')}",
         )
         for _, row in failed.iterrows()
     ]
@@ -240,20 +269,33 @@ def distinguishing_parameters(table: pd.DataFrame) -> list[str]:
 
 def _delta(table: pd.DataFrame, index: Any) -> float | None:
     """PSNR of row `index` minus its reference's PSNR (None when either is missing)."""
-    row = table.loc[index]
-    reference = row.get("reference_variant")
-    if not isinstance(reference, str) or not reference:
-        reference = table["variant"].iloc[0]
-    candidates = table[table["variant"] == reference]
-    same = candidates
-    for column in ("scene", "seed"):
-        if column in table:
-            same = same[same[column] == row.get(column)]
-    pool = same if len(same) else candidates
+    pool = _reference_rows(table, index)
+    same_seed = pool[pool["seed"] == table.loc[index].get("seed")] if "seed" in pool else pool
+    pool = same_seed if len(same_seed) else pool
     values = [v for v in pool["psnr"] if is_number(v)] if "psnr" in pool else []
-    if not values or not is_number(row.get("psnr")):
+    if not values or not is_number(table.loc[index].get("psnr")):
         return None
-    return float(row["psnr"]) - sum(values) / len(values)
+    return float(table.loc[index, "psnr"]) - sum(values) / len(values)
+
+
+def _reference_rows(table: pd.DataFrame, index: Any) -> pd.DataFrame:
+    """The rows of row `index`'s reference variant (its `reference_variant`, else job 0's
+    variant) scored on the same images: the same scene and, where both results record it, the
+    same `test_set` (a run at another downscale or with other test cameras is not comparable)."""
+    row = table.loc[index]
+    rows = table[table["variant"] == _reference_variant(table, row)]
+    if "scene" in table:
+        rows = rows[rows["scene"] == row.get("scene")]
+    test_set = row.get("test_set")
+    if "test_set" in table and isinstance(test_set, str):
+        rows = rows[rows["test_set"].isin([test_set]) | rows["test_set"].isna()]
+    return rows
+
+
+def _reference_variant(table: pd.DataFrame, row: pd.Series) -> Any:
+    """The variant row `row` is compared against: its `reference_variant`, else job 0's."""
+    reference = row.get("reference_variant")
+    return reference if isinstance(reference, str) and reference else table["variant"].iloc[0]
 
 
 def is_number(value: Any) -> bool:

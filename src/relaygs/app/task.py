@@ -18,7 +18,7 @@ import torch
 from omegaconf import DictConfig
 
 from relaygs.app.config import resolve_config
-from relaygs.app.evaluation import Evaluation, evaluate_through_store
+from relaygs.app.evaluation import Evaluation, evaluate_through_store, test_set_id
 from relaygs.app.plan import RunPlan, plan_run
 from relaygs.app.result import (
     METRIC_FIELDS,
@@ -145,6 +145,7 @@ def _execute(
         _log_previews(log, suite, scene, run.output, plan.preview_frames)
         storage_mb = run.reports[-1].size_mb  # not read again: a gc may have removed it since
         result = build_result(config, plan, run, evaluation, storage_mb, overrides, job)
+        result["test_set"] = test_set_id(scene, evaluation.metrics)
         hparams = {k: v for k, v in config.items() if k not in HPARAM_EXCLUDED_SECTIONS}
         logged = (*METRIC_FIELDS, "train_s_total", "train_s_computed", "storage_mb")
         log.add_hparams(flatten_config(hparams), {name: result[name] for name in logged})
