@@ -30,19 +30,22 @@ class FakeStages:
 
     `canonical` maps stage configs to their canonical form (default: unchanged; pass
     `relaygs.stages.canonical_config` for the real one); a stage whose `(type, cfg)` makes
-    `fail_when` true raises a RuntimeError, as a diverging training would.
+    `fail_when` true raises a RuntimeError, as a diverging training would; `notes` gives
+    the notes each stage type's artifacts carry.
     """
 
     def __init__(
         self,
         canonical: CanonicalFn | None = None,
         fail_when: Callable[[str, dict[str, Any]], bool] | None = None,
+        notes: Mapping[str, list[str]] | None = None,
     ) -> None:
         self.calls: list[tuple[str, dict[str, Any]]] = []
         self.evaluations = 0
         self.sinks: list[Any] = []
         self.canonical = canonical or keep_config
         self.fail_when = fail_when
+        self.notes = dict(notes or {})
 
     def suite(self) -> StageSuite:
         """The suite to pass to `run_task`."""
@@ -79,6 +82,7 @@ class FakeStages:
             score += 0.01 * cfg["seed"]
             tensors = {"points": torch.full((10 + len(self.calls), 3), float(score))}
             meta = {"score": score, "metrics": {"score": score}, LOGGED_SCALARS: FAKE_CURVE}
+            meta["notes"] = self.notes.get(stage, [])
             return Artifact(stage, tensors, meta)
 
         return build

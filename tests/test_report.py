@@ -102,6 +102,19 @@ def test_delta_compares_only_runs_scored_on_the_same_images(tmp_path, capsys):
     assert "| juggle | k16 | half | 1 | 30.00 ± 0.00 |" in mean
 
 
+def test_the_summary_says_which_jobs_a_stage_note_is_about(tmp_path):
+    note = "[decouple] decouple marked no Gaussian as foreground"
+    _job(tmp_path, 0, "k16", 26.0, 20.0, notes=note)
+    _job(tmp_path, 1, "k8", 25.0, 10.0)
+    _job(tmp_path, 2, "k32", 25.0, 10.0, notes=note)
+    markdown = report.write_reports(tmp_path).markdown.read_text()
+    assert f"\nNote for job 0 (k16), job 2 (k32): {note}\n" in markdown
+    _job(tmp_path, 3, "k64", 25.0, 10.0, notes=note)
+    (tmp_path / "1_k8" / "result.json").unlink()
+    markdown = report.write_reports(tmp_path).markdown.read_text()
+    assert f"\nNote for every job: {note}\n" in markdown
+
+
 def test_without_a_reference_variant_job_zero_is_the_reference(tmp_path):
     _job(tmp_path, 0, "k8", 25.0, 30.0, reference_variant=None)
     _job(tmp_path, 1, "k16", 26.5, 30.0, reference_variant=None)

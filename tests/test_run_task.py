@@ -145,6 +145,19 @@ def test_a_result_names_the_images_it_was_scored_on(base_config, tmp_path):
     assert len({first["test_set"], halved["test_set"], held_out["test_set"]}) == 3
 
 
+def test_a_stages_note_is_said_by_every_run_of_its_artifact_and_kept_in_the_result(
+    base_config, tmp_path, capsys
+):
+    fakes = FakeStages(notes={"decouple": ["decouple marked no Gaussian as foreground"]})
+    line = "note: [decouple] decouple marked no Gaussian as foreground"
+    built = _run(base_config, tmp_path / "a", fakes)
+    assert capsys.readouterr().err.count(line) == 1
+    reused = _run(_with(base_config, relay__k=32), tmp_path / "b", fakes)
+    assert capsys.readouterr().err.count(line) == 1 and fakes.ran("decouple") == 1
+    assert built["notes"] == reused["notes"] == line.removeprefix("note: ")
+    assert "notes" not in _run(base_config, tmp_path / "quiet" / "c", FakeStages())  # own store
+
+
 def test_a_run_folder_used_again_is_noted(base_config, tmp_path, capsys):
     # a pinned hydra.run.dir used twice: the result is replaced and TensorBoard mixes the runs
     fakes = FakeStages()

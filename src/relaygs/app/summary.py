@@ -140,6 +140,8 @@ def markdown_table(table: pd.DataFrame, title: str) -> str:
     for note in (absent_reference_line(table), unmatched_reference_line(table)):
         if note:
             lines += ["", note]
+    for note in stage_note_lines(table):
+        lines += ["", note]
     failed = failed_jobs(table)
     if failed:
         lines += ["", f"{len(failed)} of {len(table)} job(s) failed:", ""]
@@ -205,6 +207,22 @@ def unmatched_reference_line(table: pd.DataFrame) -> str | None:
         f"Δ PSNR is {MISSING} for {', '.join(unmatched)}: no job of its reference variant was "
         "scored on the same images (another scene, downscale or set of test cameras)"
     )
+
+
+def stage_note_lines(table: pd.DataFrame) -> list[str]:
+    """One line per distinct `notes` value of the results (what a stage of their lineage said
+    a user should know, e.g. that decouple separated no foreground), naming the jobs it is
+    about."""
+    if "notes" not in table:
+        return []
+    lines = []
+    for notes, rows in table.groupby("notes", sort=False):
+        if len(rows) == len(table):
+            jobs = "every job"
+        else:
+            jobs = ", ".join(job_name(row) for _, row in rows.iterrows())
+        lines.append(f"Note for {jobs}: {notes}")
+    return lines
 
 
 def _seconds(table: pd.DataFrame, columns: tuple[str, ...]) -> float | None:

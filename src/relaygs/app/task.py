@@ -146,6 +146,9 @@ def _execute(
         storage_mb = run.reports[-1].size_mb  # not read again: a gc may have removed it since
         result = build_result(config, plan, run, evaluation, storage_mb, overrides, job)
         result["test_set"] = test_set_id(scene, evaluation.metrics)
+        notes = [f"[{report.node}] {note}" for report in run.reports for note in report.notes]
+        if notes:
+            result["notes"] = " ".join(notes)
         hparams = {k: v for k, v in config.items() if k not in HPARAM_EXCLUDED_SECTIONS}
         logged = (*METRIC_FIELDS, "train_s_total", "train_s_computed", "storage_mb")
         log.add_hparams(flatten_config(hparams), {name: result[name] for name in logged})
@@ -198,9 +201,9 @@ def _note_earlier_run(run_dir: Path) -> None:
 
 
 def _announce(report: NodeReport) -> None:
-    """Say whether a node's artifact was reused from the store or built now, and what was wrong
-    with a corrupt one it replaced (flushed at once, so a log file shows each stage as it
-    ends, in order with the progress bars on stderr)."""
+    """Say whether a node's artifact was reused from the store or built now, what was wrong
+    with a corrupt one it replaced, and the artifact's notes on stderr (flushed at once, so a
+    log file shows each stage as it ends, in order with the progress bars on stderr)."""
     key, seconds = report.key[:12], report.wall_seconds
     if report.cache_hit:
         line = f"reused {report.stage} artifact {key} from the store "
@@ -210,6 +213,8 @@ def _announce(report: NodeReport) -> None:
     if report.replaced_corrupt is not None:
         line += f", replacing the stored one, which failed its check: {report.replaced_corrupt}"
     print(labelled(f"[{report.node}] {line}"), flush=True)
+    for note in report.notes:
+        print(labelled(f"note: [{report.node}] {note}"), file=sys.stderr, flush=True)
 
 
 def _announce_evaluation(evaluation: Evaluation) -> None:

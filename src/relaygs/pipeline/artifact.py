@@ -16,18 +16,27 @@ from relaygs.pipeline.fsio import save_tensors
 from relaygs.pipeline.layout import TENSORS_FILE
 
 META_FILE = "meta.json"
+NOTES = "notes"  # meta key of the artifact's notes (`Artifact.notes`)
 
 
 @dataclass
 class Artifact:
     """What a stage returns: tensors (saved via safetensors) and JSON-serialisable metadata.
 
-    `meta["metrics"]`, when present, is copied into the store's manifest.
+    `meta["metrics"]`, when present, is copied into the store's manifest; `meta["notes"]`, a
+    list of lines, says what a user of the artifact should know (`notes`).
     """
 
     stage: str
     tensors: dict[str, torch.Tensor] = field(default_factory=dict)
     meta: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def notes(self) -> tuple[str, ...]:
+        """What the stage that built it said a user should know (every run printing it, whether
+        it builds the artifact or reuses it); empty when it said nothing."""
+        notes = self.meta.get(NOTES, [])
+        return tuple(str(note) for note in notes) if isinstance(notes, list) else ()
 
     @property
     def nbytes(self) -> int:

@@ -68,6 +68,7 @@ class NodeReport:
     path: Path
     size_mb: float
     replaced_corrupt: str | None = None  # what was wrong with the stored artifact it rebuilt
+    notes: tuple[str, ...] = ()  # what the artifact says a user should know (`Artifact.notes`)
 
 
 @dataclass(frozen=True)
@@ -166,6 +167,7 @@ def run_pipeline(
             path=info.path,
             size_mb=info.size_mb,
             replaced_corrupt=info.replaced_corrupt,
+            notes=artifact.notes,
         )
         artifacts[node.name] = artifact
         reports[node.name] = report

@@ -10,7 +10,6 @@ Output: background (M = 1) and foreground (M = 0) sets.
 from __future__ import annotations
 
 import math
-import sys
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -27,7 +26,6 @@ from relaygs.model import (
     paper_schedule,
 )
 from relaygs.pipeline.artifact import Artifact
-from relaygs.progress import labelled
 from relaygs.stages.common import (
     BACKGROUND_LR,
     no_upstream,
@@ -166,21 +164,21 @@ def decouple(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, A
         segment_length=scene.num_frames,
     )
     n_fg = int(is_fg.sum())
-    if n_fg == 0:
-        note = labelled(NO_FOREGROUND_NOTE.format(steps=section.steps))
-        print(note, file=sys.stderr, flush=True)
     metrics = {
         "num_gaussians": len(final),
         "num_bg": len(final) - n_fg,
         "num_fg": n_fg,
         "fg_fraction": n_fg / max(len(final), 1),
     }
-    meta = stage_meta(SCHEMA_VERSION, section, train, report, metrics, downscale=training.downscale)
+    notes = [NO_FOREGROUND_NOTE.format(steps=section.steps)] if n_fg == 0 else []
+    meta = stage_meta(
+        SCHEMA_VERSION, section, train, report, metrics, downscale=training.downscale, notes=notes
+    )
     return model.to("cpu").to_artifact(meta)
 
 
 NO_FOREGROUND_NOTE = (
-    "note: decouple marked no Gaussian as foreground in its {steps} steps (too few, or nothing "
+    "decouple marked no Gaussian as foreground in its {steps} steps (too few, or nothing "
     "in the scene moves): what follows gets no foreground from it, and a pipeline without "
     "relay copies (no_copies, no_stage2) treats no part of the scene apart"
 )
