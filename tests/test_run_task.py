@@ -359,6 +359,19 @@ def test_bad_values_fail_before_any_stage_runs(base_config, tmp_path):
     assert not (tmp_path / "run").exists()
 
 
+def test_bad_scene_data_fails_before_the_run_folder_is_touched(base_config, tmp_path):
+    # a capture that is damaged: an earlier good result in the folder must survive
+    fakes = FakeStages()
+    _run(base_config, tmp_path / "run", fakes)
+    good = (tmp_path / "run" / RESULT_FILE).read_text()
+    capture = tmp_path / "capture"
+    (capture / "cam00").mkdir(parents=True)
+    with pytest.raises(InputError, match=str(capture)):
+        _run(_with(base_config, scene__path=str(capture)), tmp_path / "run", fakes)
+    assert (tmp_path / "run" / RESULT_FILE).read_text() == good
+    assert fakes.ran("decouple") == 1
+
+
 def test_a_corrupted_artifact_is_rebuilt_or_refused(base_config, tmp_path, capsys):
     fakes = FakeStages()
     _run(base_config, tmp_path / "a", fakes)

@@ -71,31 +71,46 @@ def run_task(
 
     `overrides` are the job's command-line/sweep overrides (recorded in the result), `job`
     its number in a sweep, `label` the name its status lines and bars carry when jobs run side
-    by side (`job_label`). Bad input raises InputError before any work starts; an error after
-    that is re-raised once a `result.json` with status `failed` and the error is written, as
-    a one-line ResourceError when the disk or memory ran out (`resource_error`).
+    by side (`job_label`). Bad input, bad scene data included, raises InputError before
+    anything is written to `run_dir` (an earlier run's result there stays as it was); an error
+    after that is re-raised once a `result.json` with status `failed` and the error is
+    written, as a one-line ResourceError when the disk or memory ran out (`resource_error`).
     """
     started = time.perf_counter()
     config = resolve_config(cfg, original_cwd)
     suite = suite or load_stage_suite()
     plan = plan_run(config, suite.stages, suite.validate, suite.accepted_upstream)
-    try:
-        with job_label(label):
-            outcome = _execute(config, plan, suite, run_dir, overrides, job)
-        result = outcome.result
-        result["job_s"] = time.perf_counter() - started
-        result_path = write_result(run_dir, result)
-    except Exception as error:
-        failure = resource_error(error)
-        failed = build_failed_result(config, plan, failure or error, overrides, job)
-        failed["job_s"] = time.perf_counter() - started
-        _record_failure(run_dir, failed)
-        if failure is None:
-            raise
-        raise failure from error
+    with job_label(label):
+        scene = _load_scene(plan)
+        try:
+            outcome = _execute(config, plan, scene, suite, run_dir, overrides, job)
+            result = outcome.result
+            result["job_s"] = time.perf_counter() - started
+            result_path = write_result(run_dir, result)
+        except Exception as error:
+            failure = resource_error(error)
+            failed = build_failed_result(config, plan, failure or error, overrides, job)
+            failed["job_s"] = time.perf_counter() - started
+            _record_failure(run_dir, failed)
+            if failure is None:
+                raise
+            raise failure from error
     print(format_summary(result))
     print(_where(plan, outcome, result_path), flush=True)  # before a sweep's next job starts
     return result
+
+
+def _load_scene(plan: RunPlan) -> Scene:
+    """The run's scene, loaded (generated first, for a synthetic one) with the run's threads;
+    a disk or memory failure as a one-line ResourceError."""
+    set_threads(plan.threads)
+    try:
+        return prepare_scene(plan.scene, plan.scenes_dir, progress=plan.progress)
+    except (OSError, MemoryError, RuntimeError) as error:
+        failure = resource_error(error, "scene")
+        if failure is None:
+            raise
+        raise failure from error
 
 
 def _record_failure(run_dir: Path, failed: dict[str, Scalar]) -> None:
@@ -111,14 +126,13 @@ def _record_failure(run_dir: Path, failed: dict[str, Scalar]) -> None:
 def _execute(
     config: dict[str, Any],
     plan: RunPlan,
+    scene: Scene,
     suite: StageSuite,
     run_dir: Path,
     overrides: Sequence[str],
     job: int | None,
 ) -> _Outcome:
-    """Prepare the scene, run the stages, evaluate and log."""
-    set_threads(plan.threads)
-    scene = prepare_scene(plan.scene, plan.scenes_dir, progress=plan.progress)
+    """Run the stages on the scene, evaluate and log."""
     store = ArtifactStore(plan.artifacts_root)
     _note_earlier_run(Path(run_dir))
     log = TensorBoardLog(Path(run_dir) / TENSORBOARD_DIR)
