@@ -61,6 +61,10 @@ def _main(args):
         (["relay.k=-3"], "relay.k"),
         (["decouple.steps=-5"], "decouple.steps"),
         (["scene.path=/no/such/capture"], "scene.path: /no/such/capture does not exist"),
+        # a capture has its own frames and size: a preset's setting beside it would be ignored
+        (["scene.path=/data/cap", "scene.frames=4"], "scene.frames=4 sets a synthetic scene, but"),
+        (["scene=court", "scene.path=/data/cap"], "scene=court sets a synthetic scene"),
+        (["-m", "scene.path=/data/cap", "scene.width=8,16"], "job scene.path=/data/cap scene."),
         (["-m", "relay.k=16,0"], "job relay.k=0: relay.k"),
         (["+experiment=ablation_k", "relay.k=0"], "relay.k"),
         (["+experiment=budget", "budget.multiplier=0.5,-1"], "budget.multiplier"),

@@ -74,6 +74,17 @@ JobValidator = Callable[[DictConfig, bool], None]
 this machine, so that what it needs from the machine (its device) can be checked here."""
 
 
+SYNTHETIC_ONLY = (
+    "scene",
+    "scene.preset",
+    "scene.frames",
+    "scene.width",
+    "scene.height",
+    "scene.seed",
+)
+"""Overrides that only a synthetic scene takes: a capture (`scene.path`) has its own."""
+
+
 def check_command_line(argv: Sequence[str], conf_dir: Path, validate: JobValidator) -> None:
     """Raise a one-line InputError if the command line names an unknown config, does not
     compose, would launch a job whose config `validate` rejects, or names a run (sweep) folder
@@ -131,6 +142,7 @@ def _check_launching_command(
             _check_submit_commands(launcher)
         for job in planned_jobs(args, overrides, hydra_cfg, multirun):
             try:
+                check_capture_overrides(job)
                 config = _compose(job)
                 check_group_sections(config, groups, hydra_cfg.runtime.choices.get("experiment"))
                 validate(config, runs_here)
@@ -138,6 +150,22 @@ def _check_launching_command(
                 where = f"job {' '.join(job)}: " if job != args else ""
                 raise InputError(f"{where}{error}") from error
         check_output_folder(hydra_cfg, multirun)  # after the jobs' own paths, often its parents
+
+
+def check_capture_overrides(job: Sequence[str]) -> None:
+    """A job that reads a capture (`scene.path=DIR`) must not also set what only a synthetic
+    preset has (the preset, its frame count, image size or generator seed): the capture would
+    ignore it, though the result would record it."""
+    settings = {arg.partition("=")[0].lstrip("+~"): arg.partition("=")[2] for arg in job}
+    if settings.get("scene.path", "null") == "null":
+        return
+    ignored = [key for key in SYNTHETIC_ONLY if key in settings]
+    if ignored:
+        raise InputError(
+            f"{ignored[0]}={settings[ignored[0]]} sets a synthetic scene, but scene.path reads "
+            "a capture, whose frames, size and cameras are its own: drop one of the two "
+            "(a capture's options are scene.loader.*)"
+        )
 
 
 def _is_override(arg: str) -> bool:
