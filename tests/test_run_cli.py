@@ -331,6 +331,7 @@ def test_a_single_run_writes_its_result_in_a_run_dir_under_outputs(fakes, tmp_pa
     assert result["seed"] == 3 and result["job"] is None
     assert result["scene.frames"] == 3  # every override is recorded by its dotted key
     assert (result_path.parent / "tb").is_dir()
+    assert not (result_path.parent / "run.log").exists()  # the app prints: it would stay empty
     assert (tmp_path / "outputs" / "artifacts" / "deform").is_dir()
     assert len(list((tmp_path / "outputs" / "scenes").glob("juggle-*"))) == 1
 
