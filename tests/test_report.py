@@ -244,6 +244,21 @@ def test_repeated_seeds_get_a_mean_and_std_table(tmp_path):
     assert "| juggle | k16 | 3 | 27.00 ± 1.00 | 0.00 ± 0.00 |" in text
 
 
+def test_the_means_keep_jobs_of_one_label_at_other_settings_apart(tmp_path):
+    # `report outputs/runs` over smoke runs at k = 16 and 128, two seeds each: not 4 "seeds"
+    for number, (k, seed) in enumerate([(16, 0), (16, 1), (128, 0), (128, 1)]):
+        _job(tmp_path, number, "k16", 26.0 + number, 10.0, seed=seed, reference_variant=None)
+        result = tmp_path / f"{number}_k16" / "result.json"
+        result.write_text(result.read_text().replace('"relay.k": 16', f'"relay.k": {k}'))
+    files = report.write_reports(tmp_path)
+    mean = pd.read_csv(tmp_path / "summary_mean.csv")
+    assert list(mean["relay.k"]) == [16, 128] and list(mean.runs) == [2, 2]
+    assert list(mean.psnr_mean) == pytest.approx([26.5, 28.5])
+    text = files.mean.read_text()
+    assert "| Scene | Variant | relay.k | Runs | PSNR" in text
+    assert "| juggle | k16 | 128 | 2 | 28.50 ± 0.71 |" in text
+
+
 def test_no_mean_table_without_repeats(sweep):
     assert report.write_reports(sweep).mean is None
     assert not (sweep / "summary_mean.csv").exists()

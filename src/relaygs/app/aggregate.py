@@ -1,5 +1,5 @@
-"""Mean ± std over seeds: one row per (scene, variant) of a sweep that repeats jobs over seeds,
-and per test set where runs of a pair were scored on different images (other downscales).
+"""Mean ± std over seeds: one row per group of a sweep's jobs that differ only in their seed
+(the same scene, variant, parameters and test images).
 
 Δ PSNR is computed per seed against the reference variant on the same scene and seed (the
 summary's `delta_psnr`), then averaged, so seed-to-seed scene difficulty cancels out.
@@ -26,14 +26,21 @@ METRICS = (
 )
 
 
+LABELS = {"scene": "Scene", "variant": "Variant", "test_set": "Test set"}
+"""Column labels of the group keys that have one (parameters keep their dotted key)."""
+
+
 def aggregate_table(summary: pd.DataFrame) -> pd.DataFrame:
-    """Per (scene, variant) and, where results record it, `test_set` (PSNR on other images
-    does not average), in order of first appearance: `runs` (finished jobs), and
-    `<metric>_mean` / `<metric>_std` (sample std, 0 for one run) of every METRICS column."""
+    """One row per group of jobs that differ only in their seed, in order of first appearance:
+    its scene, variant, the parameters that tell rows of one variant apart (`relay.k` when a
+    label repeats over k) and, where results record it, `test_set` (PSNR on other images does
+    not average); then `runs` (finished jobs) and `<metric>_mean` / `<metric>_std` (sample
+    std, 0 for one run) of every METRICS column."""
     table = summary
     if "status" in table:
         table = table[table["status"] != STATUS_FAILED]
-    keys = ["scene", "variant", *(["test_set"] if "test_set" in table else [])]
+    parameters = _within_variant_parameters(table)
+    keys = ["scene", "variant", *parameters, *(["test_set"] if "test_set" in table else [])]
     rows = []
     for values, group in table.groupby(keys, sort=False, dropna=False):
         row: dict[str, object] = {**dict(zip(keys, values, strict=True)), "runs": len(group)}
@@ -45,16 +52,29 @@ def aggregate_table(summary: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def _within_variant_parameters(table: pd.DataFrame) -> list[str]:
+    """The parameters (dotted keys) that take more than one value among the jobs of one scene
+    and variant: the label alone does not tell those jobs apart (`k8` run at two k)."""
+    groups = table.groupby(["scene", "variant"], sort=False, dropna=False)
+    return [
+        column
+        for column in table.columns
+        if "." in column and (groups[column].nunique(dropna=False) > 1).any()
+    ]
+
+
 def aggregate_markdown(table: pd.DataFrame, title: str) -> str:
-    """The aggregate as a Markdown table, each metric as `mean ± std`; with a `Test set`
-    column where a (scene, variant) pair has rows on different images."""
-    split = "test_set" in table and table.duplicated(["scene", "variant"]).any()
-    names = ["scene", "variant", *(["test_set"] if split else [])]
-    labels = ["Scene", "Variant", *(["Test set"] if split else []), "Runs"]
-    header = "| " + " | ".join(labels + [label for label, _, _ in METRICS]) + " |"
+    """The aggregate as a Markdown table, each metric as `mean ± std`, after the columns that
+    tell its rows apart (`Test set` only where nothing else does)."""
+    keys = list(table.columns[: list(table.columns).index("runs")])
+    names = [key for key in keys if key != "test_set"]
+    if "test_set" in keys and table.duplicated(names).any():
+        names.append("test_set")
+    labels = [LABELS.get(name, name) for name in names]
+    header = "| " + " | ".join([*labels, "Runs"] + [label for label, _, _ in METRICS]) + " |"
     rule = "|" + ":---|" * len(names) + "---:|" + "---:|" * len(METRICS)
     lines = [f"# {title}", "", header, rule]
-    for _, row in table.iterrows():
+    for _, row in table.convert_dtypes().iterrows():
         cells = [str(row[name]) for name in names] + [str(row["runs"])]
         for _, column, digits in METRICS:
             cells.append(_mean_std(row[f"{column}_mean"], row[f"{column}_std"], digits))
