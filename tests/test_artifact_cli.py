@@ -234,10 +234,10 @@ def test_eval_refuses_a_per_view_path_it_cannot_write_before_any_work(store, tmp
 def test_eval_names_a_missing_scene_and_a_bad_stride(store, capsys, tmp_path):
     code, _, err = _cli(capsys, store.root, "eval", KEY_A[:8], "--scene", str(tmp_path / "none"))
     assert code == 1 and str(tmp_path / "none") in err
-    code, _, err = _cli(
-        capsys, store.root, "eval", KEY_A[:8], "--scene", ".", "--frame-stride", "0"
-    )
-    assert code == 1 and "--frame-stride must be >= 1, got 0" in err
+    with pytest.raises(SystemExit) as stop:
+        _cli(capsys, store.root, "eval", KEY_A[:8], "--scene", ".", "--frame-stride", "0")
+    assert stop.value.code == 2
+    assert "--frame-stride: expected an integer >= 1, got '0'" in capsys.readouterr().err
 
 
 def _stored_evaluation(store, model_key, model_stage):

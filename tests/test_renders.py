@@ -21,7 +21,10 @@ from relaygs.stages.scene_model import SceneModel
 
 
 def _render_cli(capsys, store, key, scene, *args):
-    code = main(["--root", str(store.root), "render", key[:8], "--scene", str(scene), *args])
+    try:
+        code = main(["--root", str(store.root), "render", key[:8], "--scene", str(scene), *args])
+    except SystemExit as stop:  # a malformed value: argparse's usage error
+        code = stop.code
     out, err = capsys.readouterr()
     return code, out, err
 
@@ -151,30 +154,34 @@ def test_render_path_puts_other_models_beside(
     np.testing.assert_array_equal(view[:, :width], view[:, width:])
 
 
+USAGE = 2  # a usage error: a malformed value or options that contradict each other
+
+
 @pytest.mark.parametrize(
-    ("args", "message"),
+    ("args", "status", "message"),
     [
-        (["--camera", "99"], "camera 99 is not in "),
-        (["--beside", "ffff"], "no artifact with key starting 'ffff'"),
-        (["--fps", "0"], "render fps: expected a positive number, got 0.0"),
-        (["--frame-stride", "0"], "render frame_stride: expected an int >= 1, got 0"),
-        (["--device", "mps"], "--device: expected 'cpu', 'cuda' or 'cuda:N', got 'mps'"),
-        (["--path", "0"], "render path: expected at least 1 view, got 0"),
-        (["--path", "2", "--path-frame", "8"], "render path frame 8 is not in "),
-        (["--path", "2", "--truth"], "--truth: a camera path (--path) has no ground truth"),
-        (["--path", "2", "--error"], "--error: a camera path (--path) has no ground truth"),
-        (["--path", "2", "--frame-stride", "2"], "--frame-stride: a camera path (--path) has"),
-        (["--path-frame", "1"], "--path-frame needs --path N"),
-        (["--path", "2", "--camera", "99"], "camera 99 is not in "),
+        (["--camera", "99"], 1, "camera 99 is not in "),
+        (["--beside", "ffff"], 1, "no artifact with key starting 'ffff'"),
+        (["--fps", "0"], 1, "render fps: expected a positive number, got 0.0"),
+        (["--frame-stride", "0"], USAGE, "--frame-stride: expected an integer >= 1, got '0'"),
+        (["--device", "mps"], USAGE, "--device: expected cpu, cuda or cuda:N, got 'mps'"),
+        (["--path", "0"], 1, "render path: expected at least 1 view, got 0"),
+        (["--path", "2", "--path-frame", "8"], 1, "render path frame 8 is not in "),
+        (["--path", "2", "--truth"], USAGE, "--truth: a camera path (--path) has no ground"),
+        (["--path", "2", "--error"], USAGE, "--error: a camera path (--path) has no ground"),
+        (["--path", "2", "--frame-stride", "2"], USAGE, "--frame-stride: a camera path (--path)"),
+        (["--path-frame", "1"], USAGE, "--path-frame needs --path N (a camera path of N views) ("),
+        (["--path", "2", "--camera", "99"], 1, "camera 99 is not in "),
     ],
 )
 def test_bad_render_options_fail_in_one_line(
-    stored_deform, stage_scene_path, tmp_path, capsys, args, message
+    stored_deform, stage_scene_path, tmp_path, capsys, args, status, message
 ):
     store, key = stored_deform
     out = tmp_path / "renders"
     code, _, err = _render_cli(capsys, store, key, stage_scene_path, *args, "--out", str(out))
-    assert code == 1 and message in err and err.count("\n") == 1
+    assert code == status and message in err and err.count("\n") == 1
+    assert (code == USAGE) == ("render --help)" in err)  # usage errors say where help is
     assert not out.exists() or not any(out.rglob("*.png"))
 
 

@@ -244,7 +244,7 @@ def test_repeated_seeds_get_a_mean_and_std_table(tmp_path):
     assert "| juggle | k16 | 3 | 27.00 ± 1.00 | 0.00 ± 0.00 |" in text
 
 
-def test_the_means_keep_jobs_of_one_label_at_other_settings_apart(tmp_path):
+def test_the_means_keep_jobs_of_one_label_at_other_settings_apart(tmp_path, capsys):
     # `report outputs/runs` over smoke runs at k = 16 and 128, two seeds each: not 4 "seeds"
     for number, (k, seed) in enumerate([(16, 0), (16, 1), (128, 0), (128, 1)]):
         _job(tmp_path, number, "k16", 26.0 + number, 10.0, seed=seed, reference_variant=None)
@@ -257,6 +257,9 @@ def test_the_means_keep_jobs_of_one_label_at_other_settings_apart(tmp_path):
     text = files.mean.read_text()
     assert "| Scene | Variant | relay.k | Runs | PSNR" in text
     assert "| juggle | k16 | 128 | 2 | 28.50 ± 0.71 |" in text
+    assert report.main([str(tmp_path)]) == 0  # and says where both of its files are
+    listed = capsys.readouterr().out.split("summary of 4 job(s):\n")[1].split()
+    assert {str(tmp_path / "summary_mean.md"), str(tmp_path / "summary_mean.csv")} <= set(listed)
 
 
 def test_no_mean_table_without_repeats(sweep):

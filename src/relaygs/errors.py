@@ -14,6 +14,11 @@ class InputError(RelayGSError, ValueError):
     """Bad user input: a file, field or value that is not what was expected."""
 
 
+class UsageError(RelayGSError):
+    """Command-line options that contradict each other: reported as argparse reports its usage
+    errors, with exit status 2."""
+
+
 class DivergenceError(RelayGSError, FloatingPointError):
     """A training run produced a non-finite value; names the stage, step and tensor."""
 

@@ -1,6 +1,6 @@
 """What the store's model commands (`artifacts eval`, `render`, `ply`) share: the stored model a
 key names, the scene it was trained on loaded as the run loaded it (with a note when it was
-not), the frame-stride check and the `--threads` option."""
+not), and the `--device` and `--threads` options."""
 
 from __future__ import annotations
 
@@ -14,6 +14,7 @@ from relaygs.app.plan import MAX_THREADS
 from relaygs.app.scenes import recorded_loading
 from relaygs.cli import camera_ids, int_at_least
 from relaygs.data import Scene, load_scene
+from relaygs.device import parse_device
 from relaygs.errors import InputError, RelayGSError
 from relaygs.pipeline.artifact import Artifact
 from relaygs.pipeline.store import ArtifactStore, StoredArtifact
@@ -45,8 +46,20 @@ def add_scene_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def add_device_argument(parser: argparse.ArgumentParser) -> None:
-    """`--device`, where the model renders (checked with `usable_device` before any work)."""
-    parser.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N (default cpu)")
+    """`--device`, where the model renders: a device name, or a usage error; whether this
+    machine can use it is checked with `usable_device` before any work."""
+    parser.add_argument(
+        "--device", default="cpu", type=_device_name, help="cpu, cuda or cuda:N (default cpu)"
+    )
+
+
+def _device_name(text: str) -> str:
+    """argparse type of `--device`: `text` when it names a device (`parse_device`)."""
+    try:
+        parse_device(text, "--device")
+    except InputError:
+        raise argparse.ArgumentTypeError(f"expected cpu, cuda or cuda:N, got {text!r}") from None
+    return text
 
 
 def add_threads_argument(parser: argparse.ArgumentParser) -> None:
@@ -107,9 +120,3 @@ def note_other_scene(items: Sequence[StoredArtifact], scene: Scene) -> None:
                 "views may not be the run's: pass the run's --downscale and --test-cameras",
                 file=sys.stderr,
             )
-
-
-def require_stride(stride: int) -> None:
-    """One line unless `--frame-stride` is at least 1."""
-    if stride < 1:
-        raise RelayGSError(f"--frame-stride must be >= 1, got {stride}")

@@ -14,7 +14,7 @@ from pathlib import Path
 from safetensors import SafetensorError, safe_open
 
 from relaygs.app.evaluation import EVAL_STAGE
-from relaygs.cli import OneLineErrorParser, writable_file
+from relaygs.cli import OneLineErrorParser, int_at_least, writable_file
 from relaygs.commands.artifact_models import (
     KEY_COLUMN_WIDTH,
     add_device_argument,
@@ -23,11 +23,10 @@ from relaygs.commands.artifact_models import (
     load_run_scene,
     model_artifact,
     note_other_scene,
-    require_stride,
 )
 from relaygs.commands.artifacts_eval import run_eval
 from relaygs.device import set_threads, usable_device
-from relaygs.errors import RERUN_COMMAND, RelayGSError, resource_error
+from relaygs.errors import RERUN_COMMAND, RelayGSError, UsageError, resource_error
 from relaygs.paths import require_creatable_folder
 from relaygs.pipeline.integrity import CorruptArtifactError
 from relaygs.pipeline.layout import LOCKS_DIR, TENSORS_FILE
@@ -55,6 +54,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         if not store.root.is_dir():
             raise RelayGSError(f"no artifact store at {store.root} (pass --root DIR)")
         return args.command_fn(store, args)
+    except UsageError as error:  # options that contradict each other, as argparse reports
+        print(f"error: {error} (see {_parser().prog} {args.command} --help)", file=sys.stderr)
+        return 2
     except CorruptArtifactError as error:
         print(f"error: {error}; {REPAIR_HINT}", file=sys.stderr)
         return 1
@@ -93,7 +95,7 @@ def _parser() -> argparse.ArgumentParser:
     add_threads_argument(score)
     score.add_argument(
         "--frame-stride",
-        type=int,
+        type=int_at_least(1),
         default=1,
         metavar="N",
         help="score every N-th frame (default 1; a run scores every eval.frame_stride-th)",
@@ -125,7 +127,11 @@ def _parser() -> argparse.ArgumentParser:
         help="camera id to render (repeat for more; default: the test cameras)",
     )
     render.add_argument(
-        "--frame-stride", type=int, default=1, metavar="N", help="render every N-th frame"
+        "--frame-stride",
+        type=int_at_least(1),
+        default=1,
+        metavar="N",
+        help="render every N-th frame",
     )
     render.add_argument(
         "--beside",
@@ -173,7 +179,11 @@ def _parser() -> argparse.ArgumentParser:
         help="frame to export (repeat for more; default: every --frame-stride-th frame)",
     )
     ply.add_argument(
-        "--frame-stride", type=int, default=1, metavar="N", help="export every N-th frame"
+        "--frame-stride",
+        type=int_at_least(1),
+        default=1,
+        metavar="N",
+        help="export every N-th frame",
     )
     add_threads_argument(ply)
     ply.add_argument(
@@ -282,21 +292,20 @@ def _render_settings(args: argparse.Namespace) -> RenderSettings | PathSettings:
     fps = None if args.no_video else args.fps
     if args.path is None:
         if args.path_frame is not None:
-            raise RelayGSError("--path-frame needs --path N (a camera path of N views)")
+            raise UsageError("--path-frame needs --path N (a camera path of N views)")
         return RenderSettings(cameras, args.frame_stride, args.truth, fps, args.error)
     for flag, given in (("--truth", args.truth), ("--error", args.error)):
         if given:
-            raise RelayGSError(f"{flag}: a camera path (--path) has no ground truth to show")
+            raise UsageError(f"{flag}: a camera path (--path) has no ground truth to show")
     if args.frame_stride != 1:
-        raise RelayGSError("--frame-stride: a camera path (--path) has N views, not frames")
+        raise UsageError("--frame-stride: a camera path (--path) has N views, not frames")
     return PathSettings(args.path, cameras, args.path_frame, fps)
 
 
 def _ply(store: ArtifactStore, args: argparse.Namespace) -> int:
     """Write the artifact's model at the chosen frames as PLY files and say where they are."""
-    require_stride(args.frame_stride)
     if args.frame and args.frame_stride != 1:
-        raise RelayGSError("--frame-stride: --frame names the frames to export; give one of them")
+        raise UsageError("--frame-stride: --frame names the frames to export; give one of them")
     set_threads(args.threads)
     item, artifact = model_artifact(store, args.key)
     out = _output_folder(args.out, PLY_FOLDER, item, store)

@@ -12,7 +12,6 @@ from relaygs.commands.artifact_models import (
     load_run_scene,
     model_artifact,
     note_other_scene,
-    require_stride,
 )
 from relaygs.data import Scene
 from relaygs.device import set_threads, usable_device
@@ -27,7 +26,6 @@ LINEAGE_COLUMNS = ("psnr", "ssim", "fg_psnr", "num_gaussians", "storage_mb")
 def run_eval(store: ArtifactStore, args: argparse.Namespace) -> int:
     """Render the artifact's model (with `--lineage`, each model of its lineage too) at the
     scene's test views and print the test metrics, e.g. to see what each stage contributes."""
-    require_stride(args.frame_stride)
     device = usable_device(args.device, "--device")
     set_threads(args.threads)
     item, artifact = model_artifact(store, args.key)

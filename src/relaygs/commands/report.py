@@ -162,9 +162,12 @@ def describe(files: ReportFiles) -> str:
     and the failed jobs, where they apply), then where the report's files are, one per line."""
     lines = [files.table.rstrip("\n"), "", f"summary of {files.jobs} job(s):"]
     lines += [f"  {files.markdown}", f"  {files.csv}"]
-    for extra in (files.pareto, files.frames, files.mean, files.budget):
+    for extra in (files.pareto, files.frames):
         if extra is not None:
             lines.append(f"  {extra}")
+    for table in (files.mean, files.budget):  # each Markdown table beside its CSV
+        if table is not None:
+            lines += [f"  {table}", f"  {table.with_suffix('.csv')}"]
     return "\n".join(lines)
 
 
