@@ -265,9 +265,25 @@ def test_quaternion_of_no_direction_is_refused(qvec):
         qvec_to_rotation(np.array(qvec))
 
 
-def test_cameras_with_different_frame_counts_are_refused(multiview_copy: Path):
-    (multiview_copy / "cam04" / "frame_00005.png").unlink()
-    _expect(multiview_copy, "cam04", "holds 5 frames", "cam00 holds 6")
+@pytest.mark.parametrize(
+    ("folder", "frames", "message"),
+    [
+        ("cam04", [5], "cam04: lacks frame_00005.png (frames 0..5 in cam00)"),
+        (
+            "cam00",
+            [1, 2, 3, 4],
+            "cam00: lacks frame_00001.png, frame_00002.png, frame_00003.png and 1 more "
+            "(frames 0..5 in cam01)",
+        ),
+    ],
+    ids=["one frame", "frames of the first camera"],
+)
+def test_a_camera_that_lacks_frames_is_refused_naming_them(
+    multiview_copy: Path, folder: str, frames: list[int], message: str
+):
+    for frame in frames:
+        (multiview_copy / folder / f"frame_{frame:05d}.png").unlink()
+    _expect(multiview_copy, message, "every camera needs the same frame numbers")
 
 
 def test_two_files_of_one_frame_number_are_refused(multiview_copy: Path):

@@ -30,6 +30,8 @@ FRAME_FILE = re.compile(r"^frame_(\d+)\.(jpg|jpeg|png)$", re.IGNORECASE)
 MODEL_FOLDERS = ("sparse/0", "sparse", "sparse_", "colmap/sparse/0")
 DEFAULT_TEST_CAMERAS = (0, 10, 20, 30)
 MASK_FOLDER = "seg"
+MISSING_FRAMES_LISTED = 3
+"""How many of the frame files a camera folder lacks its error names."""
 
 # COLMAP model → parameter indices of fx, fy, cx, cy; later parameters are distortion terms.
 _PINHOLE_PARAMS: dict[str, tuple[int, int, int, int]] = {
@@ -95,23 +97,36 @@ def load_multiview(root: Path, options: LoaderOptions) -> Scene:
 
 
 def _frame_files(folders: list[Path]) -> list[list[Path]]:
-    """Per camera folder, its frame files in frame order; every camera must hold the same frames."""
-    per_camera = []
+    """Per camera folder, its frame files in frame order; every camera must hold the same frames
+    (a camera that lacks some is named with the files it lacks)."""
+    cameras: dict[Path, dict[int, Path]] = {}
     for folder in folders:
         numbered = _numbered_frames(folder)
         if not numbered:
             raise InputError(f"{folder}: no frame_XXXXX.(jpg|png) images")
-        per_camera.append(numbered)
-    reference = [number for number, _ in per_camera[0]]
-    for folder, numbered in zip(folders, per_camera, strict=True):
-        numbers = [number for number, _ in numbered]
-        if numbers != reference:
-            raise InputError(
-                f"{folder}: holds {len(numbers)} frames ({numbers[0]}..{numbers[-1]}) but "
-                f"{folders[0].name} holds {len(reference)} ({reference[0]}..{reference[-1]}); "
-                "every camera needs the same frame numbers"
-            )
-    return [[path for _, path in numbered] for numbered in per_camera]
+        cameras[folder] = dict(numbered)
+    every = set().union(*cameras.values())
+    for folder, frames in cameras.items():
+        missing = sorted(every - frames.keys())
+        if missing:
+            raise InputError(_missing_frames(folder, missing, cameras))
+    return [list(frames.values()) for frames in cameras.values()]
+
+
+def _missing_frames(folder: Path, missing: list[int], cameras: dict[Path, dict[int, Path]]) -> str:
+    """One line naming the frame files `folder` lacks (the first few, each named as the first
+    camera holding it names it) and the frame range of the first camera holding the first."""
+    holder, frames = next((other, held) for other, held in cameras.items() if missing[0] in held)
+    names = [
+        next(held[number] for held in cameras.values() if number in held).name
+        for number in missing[:MISSING_FRAMES_LISTED]
+    ]
+    more = len(missing) - len(names)
+    listed = ", ".join(names) + (f" and {more} more" if more else "")
+    return (
+        f"{folder}: lacks {listed} (frames {min(frames)}..{max(frames)} in {holder.name}); "
+        "every camera needs the same frame numbers"
+    )
 
 
 def _numbered_frames(folder: Path) -> list[tuple[int, Path]]:
