@@ -18,6 +18,7 @@ from relaygs.data.colmap import (
     ColmapCamera,
     ColmapImage,
     ColmapModel,
+    model_suffix,
     qvec_to_rotation,
     read_model,
     rotation_to_qvec,
@@ -230,7 +231,7 @@ def test_distorted_cameras_are_refused(multiview_copy: Path):
         )
 
     _rewrite_model(multiview_copy, distort)
-    _expect(multiview_copy, "camera 1 (OPENCV)", "non-zero distortion")
+    _expect(multiview_copy, f"{_cameras_file(multiview_copy)}: camera 1 (OPENCV)", "distortion")
 
 
 @pytest.mark.parametrize("focal", [0.0, -50.0, float("nan"), float("inf")])
@@ -243,7 +244,17 @@ def test_cameras_without_a_finite_positive_focal_length_are_refused(
         model.cameras[1] = replace(camera, params=(focal, fy, cx, cy))
 
     _rewrite_model(multiview_copy, bad_focal)
-    _expect(multiview_copy, "camera 1 (PINHOLE)", "fx, fy > 0")
+    _expect(
+        multiview_copy,
+        f"{_cameras_file(multiview_copy)}: camera 1 (PINHOLE) has fx = {focal};",
+        "fx, fy > 0",
+    )
+
+
+def _cameras_file(root: Path) -> Path:
+    """The cameras file of root's COLMAP model (binary or text, as it was written)."""
+    folder = root / "sparse" / "0"
+    return folder / f"cameras{model_suffix(folder)}"
 
 
 @pytest.mark.parametrize(
@@ -510,7 +521,11 @@ def test_fisheye_camera_model_is_refused(multiview_copy: Path):
         )
 
     _rewrite_model(multiview_copy, fisheye)
-    _expect(multiview_copy, "camera 1 uses model SIMPLE_RADIAL_FISHEYE", "undistort fisheye")
+    _expect(
+        multiview_copy,
+        f"{_cameras_file(multiview_copy)}: camera 1 uses model SIMPLE_RADIAL_FISHEYE",
+        "undistort fisheye",
+    )
 
 
 def test_image_whose_size_differs_from_its_colmap_camera_is_refused(multiview_copy: Path):

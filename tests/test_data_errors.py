@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from relaygs.data import load_scene
+from relaygs.data.camera import check_intrinsics, check_rigid
 from relaygs.data.imageio import image_size, read_mask, read_rgb
 from relaygs.errors import InputError
 
@@ -94,21 +95,36 @@ def test_wrong_matrix_shape(tiny_synth_copy: Path):
     _expect(tiny_synth_copy, "'k'", "[T][C][3][3]")
 
 
-def test_zero_focal_length(tiny_synth_copy: Path):
+def _camera_at(root: Path, name: str, t: int, c: int) -> int:
+    return json.loads((root / name).read_text())["cam_id"][t][c]
+
+
+def test_zero_focal_length_is_named_with_its_view(tiny_synth_copy: Path):
     def zero_fx(meta: dict) -> None:
         meta["k"][2][1][0][0] = 0.0
 
     _edit_meta(tiny_synth_copy, "train_meta.json", zero_fx)
-    _expect(tiny_synth_copy, "train_meta.json: field 'k'", "fx, fy > 0")
+    camera = _camera_at(tiny_synth_copy, "train_meta.json", 2, 1)
+    _expect(
+        tiny_synth_copy,
+        f"train_meta.json: field 'k' at [2][1] (frame 2, column 1: camera {camera}) has fx = 0.0;",
+        "fx, fy > 0",
+    )
 
 
-def test_pose_that_is_not_rigid(tiny_synth_copy: Path):
+def test_pose_that_is_not_rigid_is_named_with_its_view(tiny_synth_copy: Path):
     def scale_rotation(meta: dict) -> None:
         pose = meta["w2c"][0][3]
         pose[:3] = [[2.0 * value for value in line[:3]] + line[3:] for line in pose[:3]]
 
     _edit_meta(tiny_synth_copy, "test_meta.json", scale_rotation)
-    _expect(tiny_synth_copy, "test_meta.json: field 'w2c'", "rigid world→camera")
+    camera = _camera_at(tiny_synth_copy, "test_meta.json", 0, 3)
+    _expect(
+        tiny_synth_copy,
+        f"test_meta.json: field 'w2c' at [0][3] (frame 0, column 3: camera {camera}) has a "
+        "rotation that is not orthonormal (|R Rᵀ - I| up to 3)",
+        "rigid world→camera",
+    )
 
 
 def test_non_positive_image_size_field(tiny_synth_copy: Path):
@@ -363,7 +379,12 @@ def test_pose_that_is_a_reflection(tiny_synth_copy: Path):
         pose[2] = [-value for value in pose[2][:3]] + pose[2][3:]
 
     _edit_meta(tiny_synth_copy, "test_meta.json", mirror_z)
-    _expect(tiny_synth_copy, "test_meta.json: field 'w2c'", "rotation with det +1")
+    _expect(
+        tiny_synth_copy,
+        "test_meta.json: field 'w2c' at [1][2] (frame 1, column 2: camera",
+        "has a rotation of det -1;",
+        "rotation with det +1",
+    )
 
 
 def test_zero_vertical_focal_length(tiny_synth_copy: Path):
@@ -371,7 +392,42 @@ def test_zero_vertical_focal_length(tiny_synth_copy: Path):
         meta["k"][4][0][1][1] = 0.0
 
     _edit_meta(tiny_synth_copy, "test_meta.json", zero_fy)
-    _expect(tiny_synth_copy, "test_meta.json: field 'k'", "fx, fy > 0")
+    _expect(tiny_synth_copy, "test_meta.json: field 'k' at [4][0]", "has fy = 0.0;", "fx, fy > 0")
+
+
+@pytest.mark.parametrize(
+    ("entries", "problem"),
+    [
+        ({(0, 0): -2.0, (1, 1): 0.0}, "fx = -2.0, fy = 0.0"),
+        ({(0, 2): float("inf")}, "cx = inf"),
+        ({(0, 1): float("nan")}, "K[0][1] = nan"),
+        ({(2, 0): 0.5}, "last row [0.5, 0.0, 1.0]"),
+    ],
+    ids=["focal lengths", "infinite cx", "nan skew", "last row"],
+)
+def test_intrinsics_errors_name_the_bad_values(entries: dict, problem: str):
+    K = np.array([[20.0, 0.0, 16.0], [0.0, 20.0, 9.0], [0.0, 0.0, 1.0]])
+    for at, value in entries.items():
+        K[at] = value
+    with pytest.raises(InputError) as caught:
+        check_intrinsics(K, "cam.txt: camera 3")
+    assert str(caught.value).startswith(f"cam.txt: camera 3 has {problem}; expected intrinsics")
+
+
+def test_a_batch_of_poses_names_the_first_bad_one_and_non_finite_entries():
+    w2c = np.tile(np.eye(4), (2, 3, 1, 1))
+    w2c[1, 2, 0, 3] = np.nan
+    with pytest.raises(InputError) as caught:
+        check_rigid(w2c, "poses")
+    assert str(caught.value).startswith(
+        "poses at [1][2] has non-finite entries [[1.0, 0.0, 0.0, nan]"
+    )
+    w2c[1, 2] = np.eye(4)
+    w2c[0, 1, 3] = [0.0, 0.0, 1.0, 1.0]
+    with pytest.raises(
+        InputError, match=r"^poses at \[0\]\[1\] has last row \[0\.0, 0\.0, 1\.0, 1\.0\];"
+    ):
+        check_rigid(w2c, "poses")
 
 
 def test_test_camera_that_is_also_a_train_camera(tiny_synth_copy: Path):

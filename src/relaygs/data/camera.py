@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -72,38 +73,95 @@ class Camera:
         return c2w
 
 
-def check_intrinsics(K: np.ndarray, where: str) -> None:
-    """Raise InputError naming `where` unless every K [..., 3, 3] is a pinhole matrix with
-    finite entries and positive focal lengths (the projection divides by them)."""
-    if not (bool(np.isfinite(K).all()) and _is_pinhole(K)):
+INTRINSICS_FORM = "intrinsics [[fx,0,cx],[0,fy,cy],[0,0,1]] with finite entries and fx, fy > 0"
+RIGID_FORM = "a rigid world→camera transform (finite, rotation with det +1, last row 0 0 0 1)"
+_INTRINSIC_NAMES = {(0, 0): "fx", (1, 1): "fy", (0, 2): "cx", (1, 2): "cy"}
+
+
+def _bracketed(index: tuple[int, ...]) -> str:
+    """How a check names a bad matrix of a batch by default: " at [2][1]" ("" for one matrix)."""
+    return " at " + "".join(f"[{i}]" for i in index) if index else ""
+
+
+def check_intrinsics(
+    K: np.ndarray, where: str, at: Callable[[tuple[int, ...]], str] = _bracketed
+) -> None:
+    """Raise InputError unless every K [..., 3, 3] is a pinhole matrix with finite entries and
+    positive focal lengths (the projection divides by them); the message names `where`, the
+    first bad matrix (`at` its leading indices) and its bad values."""
+    bad = _first_false(_is_pinhole(K))
+    if bad is not None:
         raise InputError(
-            f"{where} must hold intrinsics [[fx,0,cx],[0,fy,cy],[0,0,1]] with finite entries "
-            "and fx, fy > 0"
+            f"{where}{at(bad)} has {_intrinsics_problem(K[bad])}; expected {INTRINSICS_FORM}"
         )
 
 
-def _is_pinhole(K: np.ndarray) -> bool:
-    return bool(
-        np.allclose(K[..., 2, :], [0.0, 0.0, 1.0])
-        and (K[..., 0, 0] > 0).all()
-        and (K[..., 1, 1] > 0).all()
+def _is_pinhole(K: np.ndarray) -> np.ndarray:
+    """Per matrix of K [..., 3, 3]: finite, last row 0 0 1, fx and fy > 0."""
+    finite = np.isfinite(K).all(axis=(-2, -1))
+    last_row = np.isclose(K[..., 2, :], [0.0, 0.0, 1.0]).all(axis=-1)
+    return finite & last_row & (K[..., 0, 0] > 0) & (K[..., 1, 1] > 0)
+
+
+def _intrinsics_problem(k: np.ndarray) -> str:
+    """The bad values of one K [3, 3]: non-finite entries, focal lengths <= 0, its last row."""
+    problems = [
+        f"{_INTRINSIC_NAMES.get((i, j), f'K[{i}][{j}]')} = {float(k[i, j])}"
+        for i, j in np.ndindex(3, 3)
+        if not np.isfinite(k[i, j]) or ((i, j) in ((0, 0), (1, 1)) and not k[i, j] > 0)
+    ]
+    if np.isfinite(k[2]).all() and not np.allclose(k[2], [0.0, 0.0, 1.0]):
+        problems.append(f"last row {k[2].tolist()}")
+    return ", ".join(problems)
+
+
+def check_rigid(
+    w2c: np.ndarray, where: str, at: Callable[[tuple[int, ...]], str] = _bracketed
+) -> None:
+    """Raise InputError unless every w2c [..., 4, 4] is a finite rigid transform; the message
+    names `where`, the first bad matrix (`at` its leading indices) and what is wrong with it."""
+    bad = _first_false(_is_rigid(w2c))
+    if bad is not None:
+        raise InputError(f"{where}{at(bad)} has {_rigid_problem(w2c[bad])}; expected {RIGID_FORM}")
+
+
+def _is_rigid(w2c: np.ndarray) -> np.ndarray:
+    """Per matrix of w2c [..., 4, 4]: finite, orthonormal rotation of det +1, last row 0 0 0 1."""
+    finite = np.isfinite(w2c).all(axis=(-2, -1))
+    rotation = np.where(finite[..., None, None], w2c, 0.0)[..., :3, :3]
+    return (
+        finite
+        & (_orthonormality_error(rotation) < POSE_TOLERANCE)
+        & (np.linalg.det(rotation) > 0)
+        & np.isclose(w2c[..., 3, :], [0.0, 0.0, 0.0, 1.0]).all(axis=-1)
     )
 
 
-def check_rigid(w2c: np.ndarray, where: str) -> None:
-    """Raise InputError naming `where` unless every w2c [..., 4, 4] is a finite rigid transform."""
-    if not (bool(np.isfinite(w2c).all()) and _is_rigid(w2c)):
-        raise InputError(
-            f"{where} must hold rigid world→camera transforms "
-            "(finite, rotation with det +1, last row 0 0 0 1)"
-        )
-
-
-def _is_rigid(w2c: np.ndarray) -> bool:
-    rotation = w2c[..., :3, :3]
+def _orthonormality_error(rotation: np.ndarray) -> np.ndarray:
+    """Largest entry of |R Rᵀ - I| per rotation [..., 3, 3]."""
     gram = rotation @ np.swapaxes(rotation, -1, -2)
-    return bool(
-        np.abs(gram - np.eye(3)).max() < POSE_TOLERANCE
-        and (np.linalg.det(rotation) > 0).all()
-        and np.allclose(w2c[..., 3, :], [0.0, 0.0, 0.0, 1.0])
-    )
+    return np.abs(gram - np.eye(3)).max(axis=(-2, -1))
+
+
+def _rigid_problem(w2c: np.ndarray) -> str:
+    """What makes one w2c [4, 4] no rigid transform: non-finite entries, else its rotation
+    (not orthonormal, or a reflection) and its last row."""
+    if not np.isfinite(w2c).all():
+        return f"non-finite entries {w2c.tolist()}"
+    rotation = w2c[:3, :3]
+    problems = []
+    error = float(_orthonormality_error(rotation))
+    if error >= POSE_TOLERANCE:
+        problems.append(f"a rotation that is not orthonormal (|R Rᵀ - I| up to {error:.3g})")
+    determinant = float(np.linalg.det(rotation))
+    if determinant <= 0:
+        problems.append(f"a rotation of det {determinant:.3g}")
+    if not np.allclose(w2c[3], [0.0, 0.0, 0.0, 1.0]):
+        problems.append(f"last row {w2c[3].tolist()}")
+    return ", ".join(problems)
+
+
+def _first_false(ok: np.ndarray) -> tuple[int, ...] | None:
+    """The index of the first False in `ok` (() for a 0-d False), None when all are True."""
+    bad = np.argwhere(~ok)
+    return tuple(int(i) for i in bad[0]) if len(bad) else None

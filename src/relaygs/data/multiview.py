@@ -187,21 +187,23 @@ def _cameras(folders: list[Path], model: ColmapModel, model_folder: Path) -> lis
 
 
 def _intrinsics(camera: ColmapCamera, model_folder: Path) -> torch.Tensor:
+    """K of a COLMAP camera without distortion; errors name the cameras file it came from."""
+    source = model_folder / f"cameras{model_suffix(model_folder)}"
     indices = _PINHOLE_PARAMS.get(camera.model)
     if indices is None:
         raise InputError(
-            f"{model_folder}: camera {camera.camera_id} uses model {camera.model}; "
+            f"{source}: camera {camera.camera_id} uses model {camera.model}; "
             f"supported: {', '.join(_PINHOLE_PARAMS)} (undistort fisheye images first)"
         )
     distortion = camera.params[max(indices) + 1 :]
     if any(abs(value) > 1e-9 for value in distortion):
         raise InputError(
-            f"{model_folder}: camera {camera.camera_id} ({camera.model}) has non-zero distortion "
+            f"{source}: camera {camera.camera_id} ({camera.model}) has non-zero distortion "
             f"{list(distortion)}; undistort the images first (colmap image_undistorter)"
         )
     fx, fy, cx, cy = (camera.params[index] for index in indices)
     K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
-    check_intrinsics(K, f"{model_folder}: camera {camera.camera_id} ({camera.model})")
+    check_intrinsics(K, f"{source}: camera {camera.camera_id} ({camera.model})")
     return torch.from_numpy(K.astype(np.float32))
 
 

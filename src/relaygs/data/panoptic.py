@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import zipfile
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -86,9 +87,17 @@ def read_meta(path: Path) -> PanopticMeta:
     w2c = _array_field(meta, "w2c", path, shape, (4, 4))
     cam_id = _array_field(meta, "cam_id", path, shape, (), integer=True)
     _check_unique_cameras(cam_id, path)
-    check_intrinsics(K, f"{path}: field 'k'")
-    check_rigid(w2c, f"{path}: field 'w2c'")
+    check_intrinsics(K, f"{path}: field 'k'", at=_view_at(cam_id))
+    check_rigid(w2c, f"{path}: field 'w2c'", at=_view_at(cam_id))
     return PanopticMeta(path, width, height, K, w2c, fn, cam_id)
+
+
+def _view_at(cam_id: np.ndarray) -> Callable[[tuple[int, ...]], str]:
+    """How a meta file's check names the view at [t][c]: its frame, column and camera id."""
+    return lambda index: (
+        f" at [{index[0]}][{index[1]}] (frame {index[0]}, column {index[1]}: camera "
+        f"{cam_id[index]})"
+    )
 
 
 def _positive_int(meta: dict, name: str, path: Path) -> int:
