@@ -475,10 +475,12 @@ def _nan_in_w2c(meta: dict) -> None:
         (_set_field("fn", [[1, 2]]), "field 'fn' must be a non-empty [T][C] list of file names"),
         (_ragged_fn, "field 'fn' rows have different camera counts"),
         (_drop_field("k"), "missing field 'k' (expected [T][C][3][3])"),
+        (_drop_field("w"), "missing field 'w' (expected a positive integer)"),
+        (_set_field("h", None), "field 'h' must be a positive integer, got None"),
         (_set_field("w2c", "identity"), "field 'w2c' must be a [T][C][4][4] array of numbers"),
         (_nan_in_w2c, "field 'w2c' holds non-finite values"),
     ],
-    ids=["empty fn", "fn of numbers", "ragged fn", "no k", "w2c text", "nan w2c"],
+    ids=["empty fn", "fn of numbers", "ragged fn", "no k", "no w", "null h", "w2c text", "nan w2c"],
 )
 def test_malformed_meta_fields_are_refused_naming_the_field(
     tiny_synth_copy: Path, edit: Callable[[dict], None], fragment: str

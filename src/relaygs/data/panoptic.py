@@ -101,7 +101,9 @@ def _view_at(cam_id: np.ndarray) -> Callable[[tuple[int, ...]], str]:
 
 
 def _positive_int(meta: dict, name: str, path: Path) -> int:
-    value = meta.get(name)
+    if name not in meta:
+        raise InputError(f"{path}: missing field '{name}' (expected a positive integer)")
+    value = meta[name]
     if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
         raise InputError(f"{path}: field '{name}' must be a positive integer, got {value!r}")
     return value
