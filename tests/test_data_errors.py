@@ -166,7 +166,18 @@ def test_unreadable_image(tiny_synth_copy: Path):
 
 def test_missing_image(tiny_synth_copy: Path):
     (tiny_synth_copy / "ims" / "7" / "000003.png").unlink()
-    _expect(tiny_synth_copy, "missing image file", "000003.png")
+    _expect(tiny_synth_copy, "missing image file", "000003.png (No such file or directory)")
+
+
+def test_a_mask_saved_with_another_extension_is_named(tiny_synth_copy: Path):
+    mask = tiny_synth_copy / "seg" / "7" / "000003.png"
+    cv2.imwrite(str(mask.with_suffix(".jpg")), cv2.imread(str(mask)))
+    mask.unlink()
+    _expect(
+        tiny_synth_copy,
+        "missing mask file: ",
+        "seg/7/000003.png (found 000003.jpg beside it: same name, other extension)",
+    )
 
 
 def test_empty_image_file(tiny_synth_copy: Path):

@@ -32,7 +32,13 @@ def file_record(path: Path, *, image: bool = False, what: str = "file") -> FileR
     try:
         stat = path.stat()
     except OSError as error:
-        raise InputError(f"missing {what}: {path} ({error.strerror})") from None
+        others = _other_extensions(path) if isinstance(error, FileNotFoundError) else []
+        reason = (
+            f"found {', '.join(others)} beside it: same name, other extension"
+            if others
+            else error.strerror
+        )
+        raise InputError(f"missing {what}: {path} ({reason})") from None
     key = (str(path), stat.st_size, stat.st_mtime_ns, image)
     with _RECORDS_LOCK:
         cached = _RECORDS.get(key)
@@ -50,6 +56,16 @@ def file_record(path: Path, *, image: bool = False, what: str = "file") -> FileR
     with _RECORDS_LOCK:
         _RECORDS[key] = record
     return record
+
+
+def _other_extensions(path: Path) -> list[str]:
+    """Names of the files beside a missing `path` that differ from it only in their extension
+    (masks saved as .jpg where .png is expected)."""
+    try:
+        siblings = list(path.parent.iterdir())
+    except OSError:
+        return []
+    return sorted(other.name for other in siblings if other.stem == path.stem and other != path)
 
 
 def digest(payload: dict[str, Any]) -> str:
