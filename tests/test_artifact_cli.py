@@ -615,6 +615,15 @@ def test_test_cameras_that_are_not_ids_are_a_usage_error(capsys, given, tmp_path
     assert "argument --test-cameras: expected camera ids separated by commas" in err
 
 
+@pytest.mark.parametrize("given", ["0", "-2", "x"])
+def test_a_downscale_below_1_is_a_usage_error_naming_the_flag(capsys, given, tmp_path):
+    with pytest.raises(SystemExit) as caught:
+        main(["eval", KEY_A[:8], "--scene", str(tmp_path), "--downscale", given])
+    out, err = capsys.readouterr()
+    assert caught.value.code == 2 and out == "" and err.count("\n") == 1
+    assert f"argument --downscale: expected an integer >= 1, got '{given}'" in err
+
+
 @pytest.mark.parametrize(
     ("error", "message"),
     [

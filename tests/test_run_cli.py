@@ -94,7 +94,9 @@ def _main(args):
         (["~artifacts"], "artifacts: expected a config section (a mapping), got None"),
         (["scene.preset=[a]"], "scene.preset: unknown synthetic preset ['a']"),
         (["scene.effects=3"], "scene.effects: expected an effect name or a list of them, got 3"),
-        (["scene.loader.test_cameras=3"], "test_cameras must be a list of ids, got 3"),
+        (["scene.loader.test_cameras=3"], "scene.loader.test_cameras must be a list of ids, got"),
+        (["scene.loader.downscale=0"], "error: scene.loader.downscale must be an integer >= 1"),
+        (["scene.loader.test_cameras=[1,-2]"], "scene.loader.test_cameras entry must be an"),
         (
             ["scene.loader.test_cameras=[2,31,40]"],
             "scene.loader.test_cameras: cameras [31, 40] are not in preset 'juggle' (camera "

@@ -87,7 +87,7 @@ def scene_spec(section: Mapping[str, Any]) -> SceneSpec:
         raise InputError(
             f"scene.loader: unknown option(s) {unknown}; expected {list(LOADER_OPTIONS)}"
         )
-    options = make_options(**loader)
+    options = make_options(**loader, prefix="scene.loader.")
     counts = {name: _count(section, name, minimum=1) for name in ("frames", "width", "height")}
     seed = _count(section, "seed", minimum=0)
     path = section.get("path")

@@ -32,7 +32,7 @@ def add_scene_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--downscale",
-        type=int,
+        type=int_at_least(1),
         help="the run's scene.loader.downscale (default: the one the model's manifest records, "
         "else 1)",
     )

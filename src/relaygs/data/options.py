@@ -12,6 +12,9 @@ from relaygs.errors import InputError
 
 DEFAULT_MAX_POINTS = 100_000
 DEFAULT_CACHE_MB = 512.0
+OPTION_PREFIX = "loader option "
+"""How errors name a loader option by default (`loader option downscale`); the app names its
+own keys (`scene.loader.downscale`)."""
 
 
 @dataclass(frozen=True)
@@ -40,28 +43,30 @@ def make_options(
     cache_mb: float = DEFAULT_CACHE_MB,
     test_cameras: Iterable[int] | None = None,
     effects: Iterable[str] | None = None,
+    prefix: str = OPTION_PREFIX,
 ) -> LoaderOptions:
-    """Validate raw option values into LoaderOptions, naming the bad option on error."""
-    downscale = require_int("downscale", downscale, minimum=1)
-    max_points = require_int("max_points", max_points, minimum=1)
+    """Validate raw option values into LoaderOptions; an error names the bad option as
+    `prefix` + its name."""
+    downscale = require_int("downscale", downscale, minimum=1, prefix=prefix)
+    max_points = require_int("max_points", max_points, minimum=1, prefix=prefix)
     if isinstance(cache_mb, bool) or not isinstance(cache_mb, int | float) or not cache_mb > 0:
-        raise InputError(f"loader option cache_mb must be a number > 0, got {cache_mb!r}")
+        raise InputError(f"{prefix}cache_mb must be a number > 0, got {cache_mb!r}")
     cameras = None
     if test_cameras is not None:
         if isinstance(test_cameras, str | bytes) or not isinstance(test_cameras, Iterable):
-            raise InputError(
-                f"loader option test_cameras must be a list of ids, got {test_cameras!r}"
-            )
+            raise InputError(f"{prefix}test_cameras must be a list of ids, got {test_cameras!r}")
         ids = {
-            require_int("test_cameras entry", camera_id, minimum=0) for camera_id in test_cameras
+            require_int("test_cameras entry", camera_id, minimum=0, prefix=prefix)
+            for camera_id in test_cameras
         }
         cameras = tuple(sorted(ids))
-    declared = None if effects is None else parse_effects(effects, source="loader option effects")
+    declared = None if effects is None else parse_effects(effects, source=f"{prefix}effects")
     return LoaderOptions(downscale, max_points, float(cache_mb), cameras, declared)
 
 
-def require_int(name: str, value: object, *, minimum: int) -> int:
-    """`value` as an int if it is an integer >= minimum, else an InputError naming the option."""
+def require_int(name: str, value: object, *, minimum: int, prefix: str = OPTION_PREFIX) -> int:
+    """`value` as an int if it is an integer >= minimum, else an InputError naming the option
+    (`prefix` + `name`)."""
     if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < minimum:
-        raise InputError(f"loader option {name} must be an integer >= {minimum}, got {value!r}")
+        raise InputError(f"{prefix}{name} must be an integer >= {minimum}, got {value!r}")
     return int(value)
