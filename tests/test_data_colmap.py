@@ -154,6 +154,18 @@ def test_bad_declared_test_cameras_are_refused(multiview_copy: Path, declared, m
         load_scene(multiview_copy)
 
 
+def test_a_multiview_scene_json_that_is_an_array_is_refused(multiview_copy: Path):
+    (multiview_copy / "scene.json").write_text('["nonrigid"]')
+    _expect(multiview_copy, "scene.json: expected a JSON object with fields such as effects")
+
+
+def test_export_refuses_a_source_scene_json_that_is_not_an_object(tiny_synth_copy: Path, tmp_path):
+    scene = load_scene(tiny_synth_copy)
+    (tiny_synth_copy / "scene.json").write_text("[]")
+    with pytest.raises(InputError, match=r"scene\.json: expected a JSON object with fields"):
+        export_multiview(scene, tmp_path / "out")
+
+
 def test_binary_and_text_models_round_trip(tmp_path: Path):
     rng = np.random.default_rng(1)
     model = ColmapModel(

@@ -363,6 +363,12 @@ def test_effects_in_scene_json_that_are_not_a_list(tiny_synth_copy: Path, effect
     _expect(tiny_synth_copy, "scene.json: field 'effects' must be a list of effect names")
 
 
+@pytest.mark.parametrize("content", ['["nonrigid"]', '"nonrigid"', "null"])
+def test_scene_json_that_is_not_an_object_is_refused_as_such(tiny_synth_copy: Path, content):
+    (tiny_synth_copy / "scene.json").write_text(content)
+    _expect(tiny_synth_copy, "scene.json: expected a JSON object with fields such as effects")
+
+
 def test_a_scene_without_scene_json_declares_no_effects(tiny_synth_copy: Path):
     (tiny_synth_copy / "scene.json").unlink()
     assert load_scene(tiny_synth_copy).effects == frozenset()

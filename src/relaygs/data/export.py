@@ -17,7 +17,7 @@ from relaygs.data.colmap import (
     rotation_to_qvec,
     write_model,
 )
-from relaygs.data.metafiles import SCENE_JSON, read_json
+from relaygs.data.metafiles import SCENE_JSON, scene_declaration
 from relaygs.data.multiview import MASK_FOLDER
 from relaygs.data.scene import Scene
 from relaygs.errors import InputError
@@ -70,10 +70,7 @@ def export_multiview(scene: Scene, out_dir: str | Path, *, binary: bool = True) 
 def _write_declaration(scene: Scene, test_ids: list[int], out: Path) -> None:
     """out/scene.json: the source's (if any) with `test_cameras` set to `test_ids` (the test
     cameras' multi-view ids), so the exported folder loads with its source's held-out cameras."""
-    source = scene.root / SCENE_JSON
-    declaration = read_json(source) if source.exists() else {}
-    if not isinstance(declaration, dict):
-        raise InputError(f"{source}: expected a JSON object")
+    declaration = scene_declaration(scene.root) or {}
     declaration["test_cameras"] = test_ids
     text = json.dumps(declaration, indent=1) + "\n"
     (out / SCENE_JSON).write_text(text, encoding="utf-8")

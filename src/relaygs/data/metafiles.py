@@ -41,13 +41,24 @@ def read_json(path: Path) -> Any:
         ) from None
 
 
+def scene_declaration(root: Path) -> dict[str, Any] | None:
+    """The JSON object of a scene folder's scene.json, None when the file is absent; any other
+    JSON value (an array of effect names, say) is an InputError naming the file."""
+    path = root / SCENE_JSON
+    if not path.exists():
+        return None
+    declaration = read_json(path)
+    if not isinstance(declaration, dict):
+        raise InputError(
+            f"{path}: expected a JSON object with fields such as effects and test_cameras"
+        )
+    return declaration
+
+
 def declared_effects(root: Path) -> frozenset[str]:
     """Effects a scene folder declares in scene.json (none when the file is absent)."""
     path = root / SCENE_JSON
-    if not path.exists():
-        return frozenset()
-    declaration = read_json(path)
-    effects = declaration.get("effects", []) if isinstance(declaration, dict) else None
+    effects = (scene_declaration(root) or {}).get("effects", [])
     if not isinstance(effects, list):
         raise InputError(f"{path}: field 'effects' must be a list of effect names")
     return parse_effects(effects, source=f"{path} field 'effects'")
@@ -56,11 +67,8 @@ def declared_effects(root: Path) -> frozenset[str]:
 def declared_test_cameras(root: Path) -> tuple[int, ...] | None:
     """Held-out camera ids a scene folder's scene.json lists in 'test_cameras' (None when the
     file or the field is absent), so an exported scene keeps its source's split."""
-    path = root / SCENE_JSON
-    if not path.exists():
-        return None
-    declaration = read_json(path)
-    if not isinstance(declaration, dict) or "test_cameras" not in declaration:
+    declaration = scene_declaration(root) or {}
+    if "test_cameras" not in declaration:
         return None
     ids = declaration["test_cameras"]
     valid = isinstance(ids, list) and all(
@@ -69,7 +77,7 @@ def declared_test_cameras(root: Path) -> tuple[int, ...] | None:
     )
     if not valid:
         raise InputError(
-            f"{path}: field 'test_cameras' must be a list of camera ids (integers >= 0), "
-            f"got {ids!r}"
+            f"{root / SCENE_JSON}: field 'test_cameras' must be a list of camera ids "
+            f"(integers >= 0), got {ids!r}"
         )
     return tuple(sorted(set(ids)))
