@@ -43,9 +43,15 @@ def test_folder_of_unknown_layout(tmp_path: Path):
     _expect(tmp_path, "unknown scene layout", "train_meta.json")
 
 
-def test_missing_meta_file(tiny_synth_copy: Path):
+def test_missing_test_meta_file_says_what_to_do(tiny_synth_copy: Path):
     (tiny_synth_copy / "test_meta.json").unlink()
-    _expect(tiny_synth_copy, "missing file", "test_meta.json")
+    _expect(
+        tiny_synth_copy,
+        "missing file: ",
+        "test_meta.json; it lists the test cameras, so without it name some of "
+        "train_meta.json's: scene.loader.test_cameras=[ID,...] (artifacts commands: "
+        "--test-cameras ID,...)",
+    )
 
 
 def test_malformed_json(tiny_synth_copy: Path):

@@ -257,6 +257,19 @@ def test_test_cameras_option_regroups_views(tiny_synth_scene: Path):
     assert len(scene.train_cameras) == 28
 
 
+def test_without_test_meta_the_test_cameras_option_splits_train_metas_views(
+    tiny_synth_copy: Path,
+):
+    (tiny_synth_copy / "test_meta.json").unlink()
+    scene = load_scene(tiny_synth_copy, test_cameras=[1, 2])
+    assert [camera.camera_id for camera in scene.test_cameras] == [1, 2]
+    assert len(scene.train_cameras) == 25  # juggle's 27 train cameras less the two held out
+    assert len(scene.test_views) == 2 * scene.num_frames
+    assert load_scene(tiny_synth_copy, test_cameras=[]).test_views == []
+    with pytest.raises(InputError, match=r"cameras \[0\] are not in the scene"):
+        load_scene(tiny_synth_copy, test_cameras=[0])  # a camera of the removed test_meta.json
+
+
 def test_point_budget_voxel_downsamples_keeping_fg_apart(tiny_synth_scene: Path):
     scene = load_scene(tiny_synth_scene, max_points=400)
     assert 200 <= len(scene.points) <= 400

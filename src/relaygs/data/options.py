@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import numbers
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -70,3 +70,11 @@ def require_int(name: str, value: object, *, minimum: int, prefix: str = OPTION_
     if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < minimum:
         raise InputError(f"{prefix}{name} must be an integer >= {minimum}, got {value!r}")
     return int(value)
+
+
+def test_cameras_setting(ids: Sequence[int] | None) -> str:
+    """How a user sets the held-out cameras to `ids` (None: a placeholder), as loader errors
+    suggest it: a run's scene.loader.test_cameras, the artifacts commands' --test-cameras."""
+    listed = "ID,..." if ids is None else ",".join(str(camera_id) for camera_id in ids)
+    flag = listed or "'[]'"
+    return f"scene.loader.test_cameras=[{listed}] (artifacts commands: --test-cameras {flag})"

@@ -14,7 +14,7 @@ import torch
 from relaygs.data.camera import Camera, check_intrinsics, check_rigid
 from relaygs.data.fingerprint import digest, file_record
 from relaygs.data.metafiles import SCENE_JSON, declared_effects, read_json
-from relaygs.data.options import LoaderOptions
+from relaygs.data.options import LoaderOptions, test_cameras_setting
 from relaygs.data.points import PointCloud, point_cloud_from_arrays
 from relaygs.data.scene import Scene, View, assemble_scene, frame_time, split_views
 from relaygs.errors import InputError
@@ -45,14 +45,14 @@ class PanopticMeta:
 
 
 def load_panoptic(root: Path, options: LoaderOptions) -> Scene:
-    """Load a PanopticSports-layout scene folder; test cameras from test_meta.json by default."""
+    """Load a PanopticSports-layout scene folder; test cameras from test_meta.json by default,
+    which may be absent when the test_cameras option names them."""
     train = read_meta(root / TRAIN_META)
-    test = read_meta(root / TEST_META)
-    _check_compatible(train, test)
+    metas = [train, *_test_meta(root, train, options.test_cameras)]
     files: dict[str, str] = {}
     cameras: dict[tuple, Camera] = {}
-    entries = _views(root, train, files, cameras) + _views(root, test, files, cameras)
-    train_views, test_views = _split(entries, train, test, options.test_cameras)
+    entries = [view for meta in metas for view in _views(root, meta, files, cameras)]
+    train_views, test_views = _split(entries, metas, options.test_cameras)
     points = _read_points(root / POINTS_FILE, options.max_points)
     files[POINTS_FILE] = file_record(root / POINTS_FILE).sha256
     for name in (TRAIN_META, TEST_META, SCENE_JSON):
@@ -172,6 +172,29 @@ def _check_unique_cameras(cam_id: np.ndarray, path: Path) -> None:
                 )
 
 
+def _test_meta(
+    root: Path, train: PanopticMeta, test_cameras: tuple[int, ...] | None
+) -> list[PanopticMeta]:
+    """[test_meta.json's meta], checked against train's; [] when the file is absent and
+    `test_cameras` names the held-out cameras (every view then comes from train_meta.json)."""
+    path = root / TEST_META
+    if not path.exists():
+        if test_cameras is not None:
+            return []
+        raise InputError(
+            f"missing file: {path}; it lists the test cameras, so without it name some of "
+            f"{TRAIN_META}'s: {test_cameras_setting(None)}"
+        )
+    test = read_meta(path)
+    _check_compatible(train, test)
+    return [test]
+
+
+def _camera_ids(meta: PanopticMeta) -> set[int]:
+    """The camera ids a meta file lists."""
+    return set(meta.cam_id.ravel().tolist())
+
+
 def _check_compatible(train: PanopticMeta, test: PanopticMeta) -> None:
     if (train.width, train.height) != (test.width, test.height):
         raise InputError(
@@ -182,7 +205,7 @@ def _check_compatible(train: PanopticMeta, test: PanopticMeta) -> None:
         raise InputError(
             f"{test.path}: T={test.num_frames} frames but {train.path} has T={train.num_frames}"
         )
-    shared = set(train.cam_id.ravel().tolist()) & set(test.cam_id.ravel().tolist())
+    shared = _camera_ids(train) & _camera_ids(test)
     if shared:
         raise InputError(
             f"{test.path}: camera ids {sorted(shared)} also appear in {train.path}; "
@@ -243,22 +266,21 @@ def _camera(meta: PanopticMeta, t: int, c: int, cameras: dict[tuple, Camera]) ->
 
 def _split(
     views: list[View],
-    train: PanopticMeta,
-    test: PanopticMeta,
+    metas: list[PanopticMeta],
     test_cameras: tuple[int, ...] | None,
 ) -> tuple[list[View], list[View]]:
+    """Hold out the `test_cameras` option's ids (cameras of any meta file), else the cameras
+    of test_meta.json (metas[1], there whenever the option is not given)."""
     if test_cameras is None:
-        test_ids = set(test.cam_id.ravel().tolist())
-    else:
-        known = set(train.cam_id.ravel().tolist()) | set(test.cam_id.ravel().tolist())
-        missing = sorted(set(test_cameras) - known)
-        if missing:
-            raise InputError(
-                f"loader option test_cameras: cameras {missing} are not in the scene "
-                f"(camera ids: {sorted(known)})"
-            )
-        test_ids = set(test_cameras)
-    return split_views(views, test_ids, train.path)
+        return split_views(views, _camera_ids(metas[1]), metas[0].path)
+    known = set().union(*map(_camera_ids, metas))
+    missing = sorted(set(test_cameras) - known)
+    if missing:
+        raise InputError(
+            f"loader option test_cameras: cameras {missing} are not in the scene "
+            f"(camera ids: {sorted(known)})"
+        )
+    return split_views(views, set(test_cameras), metas[0].path)
 
 
 def _read_points(path: Path, max_points: int) -> PointCloud:
