@@ -143,7 +143,12 @@ def test_a_declared_split_changes_the_fingerprint_and_only_then(multiview_copy: 
 @pytest.mark.parametrize(
     ("declared", "message"),
     [
-        ([0, 99], r"scene\.json field 'test_cameras': cameras \[99\] are not in .* 0\.\.30"),
+        (
+            [0, 99],
+            r"scene\.json field 'test_cameras': cameras \[99\] are not in .* 0\.\.30, one per "
+            r"camXX folder\); correct that field, or override it, e.g. "
+            r"scene\.loader\.test_cameras=\[0\] \(artifacts commands: --test-cameras 0\)$",
+        ),
         ("0,10", r"scene\.json: field 'test_cameras' must be a list of camera ids"),
         ([0, -1], r"scene\.json: field 'test_cameras' must be a list of camera ids"),
     ],
@@ -549,8 +554,32 @@ def test_image_whose_size_differs_from_its_colmap_camera_is_refused(multiview_co
 
 
 def test_test_cameras_beyond_the_camera_folders_are_refused(multiview_root: Path):
-    with pytest.raises(InputError, match=r"test_cameras: cameras \[99\] are not in .* 0\.\.30"):
+    with pytest.raises(
+        InputError,
+        match=r"test_cameras: cameras \[99\] are not in .* 0\.\.30, one per camXX folder\); hold "
+        r"out only cameras it has \(or none\), e.g. scene\.loader\.test_cameras=\[0\] "
+        r"\(artifacts commands: --test-cameras 0\)$",
+    ):
         load_scene(multiview_root, test_cameras=[0, 99])
+
+
+def test_a_one_camera_capture_is_told_how_to_hold_out_none(multiview_copy: Path):
+    for folder in [*multiview_copy.glob("cam*"), *multiview_copy.glob("seg/cam*")]:
+        if folder.name != "cam00":
+            shutil.rmtree(folder)
+    none = "scene.loader.test_cameras=[] (artifacts commands: --test-cameras '[]')"
+    _declare(multiview_copy, test_cameras=[10, 15, 30])  # a split copied from a larger rig
+    _expect(
+        multiview_copy,
+        "field 'test_cameras': cameras [10, 15, 30] are not in",
+        f"(camera ids 0..0, one per camXX folder); correct that field, or override it, e.g. {none}",
+    )
+    _declare(multiview_copy, test_cameras=None)  # the default split holds out camera 0
+    _expect(
+        multiview_copy,
+        f"no training cameras left after holding out [0]; hold out fewer (or none), e.g. {none}",
+    )
+    assert load_scene(multiview_copy, test_cameras=[]).test_views == []
 
 
 PYCOLMAP_FIXTURE = Path(__file__).parent / "data" / "pycolmap"

@@ -388,6 +388,16 @@ def test_a_scene_without_scene_json_declares_no_effects(tiny_synth_copy: Path):
         ({"max_points": 0}, "max_points must be an integer >= 1"),
         ({"cache_mb": -1}, "cache_mb must be a number > 0"),
         ({"test_cameras": [99]}, "cameras [99] are not in the scene"),
+        (
+            {"test_cameras": [1, 99]},
+            "30]); hold out only cameras it has (or none), e.g. scene.loader.test_cameras=[1] "
+            "(artifacts commands: --test-cameras 1)",
+        ),
+        (
+            {"test_cameras": range(31)},
+            "30]; hold out fewer (or none), e.g. scene.loader.test_cameras=[] (artifacts "
+            "commands: --test-cameras '[]')",
+        ),
         ({"effects": ["sparkle"]}, "unknown effect 'sparkle'"),
     ],
 )

@@ -22,7 +22,14 @@ from relaygs.data.fingerprint import digest, file_record
 from relaygs.data.metafiles import SCENE_JSON, declared_effects, declared_test_cameras
 from relaygs.data.options import LoaderOptions
 from relaygs.data.points import point_cloud_from_arrays
-from relaygs.data.scene import Scene, View, assemble_scene, frame_time, split_views
+from relaygs.data.scene import (
+    Scene,
+    View,
+    assemble_scene,
+    frame_time,
+    held_out_instead,
+    split_views,
+)
 from relaygs.errors import InputError
 
 CAMERA_FOLDER = re.compile(r"^cam(\d+)$")
@@ -261,8 +268,10 @@ def _split(
     DEFAULT_TEST_CAMERAS that exist; explicit or declared ids must all exist."""
     if test_cameras is not None:
         ids, source = test_cameras, "loader option test_cameras"
+        fix = "hold out only cameras it has (or none)"
     elif declared is not None:
         ids, source = declared, f"{root / SCENE_JSON} field 'test_cameras'"
+        fix = "correct that field, or override it"
     else:
         defaults = {camera_id for camera_id in DEFAULT_TEST_CAMERAS if camera_id < num_cameras}
         return split_views(views, defaults, root)
@@ -270,6 +279,7 @@ def _split(
     if missing:
         raise InputError(
             f"{source}: cameras {missing} are not in {root} "
-            f"(camera ids 0..{num_cameras - 1}, one per camXX folder)"
+            f"(camera ids 0..{num_cameras - 1}, one per camXX folder); {fix}, e.g. "
+            + held_out_instead(ids, range(num_cameras))
         )
     return split_views(views, set(ids), root)

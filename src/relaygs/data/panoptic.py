@@ -16,7 +16,14 @@ from relaygs.data.fingerprint import digest, file_record
 from relaygs.data.metafiles import SCENE_JSON, declared_effects, read_json
 from relaygs.data.options import LoaderOptions, test_cameras_setting
 from relaygs.data.points import PointCloud, point_cloud_from_arrays
-from relaygs.data.scene import Scene, View, assemble_scene, frame_time, split_views
+from relaygs.data.scene import (
+    Scene,
+    View,
+    assemble_scene,
+    frame_time,
+    held_out_instead,
+    split_views,
+)
 from relaygs.errors import InputError
 
 TRAIN_META = "train_meta.json"
@@ -278,7 +285,8 @@ def _split(
     if missing:
         raise InputError(
             f"loader option test_cameras: cameras {missing} are not in the scene "
-            f"(camera ids: {sorted(known)})"
+            f"(camera ids: {sorted(known)}); hold out only cameras it has (or none), e.g. "
+            + held_out_instead(test_cameras, known)
         )
     return split_views(views, set(test_cameras), metas[0].path)
 

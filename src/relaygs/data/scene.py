@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Collection, Iterable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -13,7 +13,7 @@ from relaygs.data.cache import TensorCache
 from relaygs.data.camera import Camera, near_plane_for
 from relaygs.data.fingerprint import digest
 from relaygs.data.imageio import read_mask, read_rgb
-from relaygs.data.options import require_int
+from relaygs.data.options import require_int, test_cameras_setting
 from relaygs.data.points import PointCloud
 from relaygs.errors import InputError
 
@@ -157,8 +157,18 @@ def split_views(
     train_views = [view for view in views if view.camera.camera_id not in test_ids]
     test_views = [view for view in views if view.camera.camera_id in test_ids]
     if not train_views:
-        raise InputError(f"{source}: no training cameras left after holding out {sorted(test_ids)}")
+        raise InputError(
+            f"{source}: no training cameras left after holding out {sorted(test_ids)}; hold out "
+            f"fewer (or none), e.g. {test_cameras_setting([])}"
+        )
     return train_views, test_views
+
+
+def held_out_instead(ids: Iterable[int], known: Collection[int]) -> str:
+    """The test cameras to suggest in place of `ids`, some of which the scene lacks: those of
+    them it has, when that leaves a camera to train on, else none."""
+    kept = [camera_id for camera_id in ids if camera_id in known]
+    return test_cameras_setting(kept if len(kept) < len(known) else [])
 
 
 def scene_extent(cameras: list[Camera], points: PointCloud) -> float:
