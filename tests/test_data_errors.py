@@ -447,6 +447,35 @@ def test_intrinsics_errors_name_the_bad_values(entries: dict, problem: str):
     assert str(caught.value).startswith(f"cam.txt: camera 3 has {problem}; expected intrinsics")
 
 
+@pytest.mark.parametrize(
+    ("centre", "problem"),
+    [((3200.0, 9.0), "cx = 3200.0 outside 0..32"), ((16.0, -1.0), "cy = -1.0 outside 0..18")],
+)
+def test_a_principal_point_outside_the_image_is_refused(centre: tuple, problem: str):
+    # intrinsics meant for another resolution: well-formed, but they would train a wrong scene
+    K = np.array([[20.0, 0.0, centre[0]], [0.0, 20.0, centre[1]], [0.0, 0.0, 1.0]])
+    check_intrinsics(K, "cam.txt: camera 3")  # the image's size unknown: nothing to compare
+    with pytest.raises(InputError) as caught:
+        check_intrinsics(K, "cam.txt: camera 3", size=(32, 18))
+    assert str(caught.value).startswith(f"cam.txt: camera 3 has {problem}; expected intrinsics")
+    assert str(caught.value).endswith("and the principal point inside the 32x18 image")
+    K[:2, 2] = (31.5, 0.5)  # near the edge is inside; on it, as twice the resolution gives, not
+    check_intrinsics(K, "cam.txt: camera 3", size=(32, 18))
+    K[0, 2] = 32.0
+    with pytest.raises(InputError, match="cx = 32.0 outside 0..32"):
+        check_intrinsics(K, "cam.txt: camera 3", size=(32, 18))
+
+
+def test_a_panoptic_k_for_another_resolution_is_refused(tiny_synth_copy: Path):
+    def doubled(meta: dict) -> None:
+        meta["k"][1][2] = [[2.0 * value for value in row] for row in meta["k"][1][2][:2]] + [
+            [0.0, 0.0, 1.0]
+        ]
+
+    _edit_meta(tiny_synth_copy, "train_meta.json", doubled)
+    _expect(tiny_synth_copy, "train_meta.json: field 'k' at [1][2]", "outside 0..", "inside the")
+
+
 def test_a_batch_of_poses_names_the_first_bad_one_and_non_finite_entries():
     w2c = np.tile(np.eye(4), (2, 3, 1, 1))
     w2c[1, 2, 0, 3] = np.nan

@@ -84,16 +84,33 @@ def _bracketed(index: tuple[int, ...]) -> str:
 
 
 def check_intrinsics(
-    K: np.ndarray, where: str, at: Callable[[tuple[int, ...]], str] = _bracketed
+    K: np.ndarray,
+    where: str,
+    at: Callable[[tuple[int, ...]], str] = _bracketed,
+    size: tuple[int, int] | None = None,
 ) -> None:
     """Raise InputError unless every K [..., 3, 3] is a pinhole matrix with finite entries and
-    positive focal lengths (the projection divides by them); the message names `where`, the
-    first bad matrix (`at` its leading indices) and its bad values."""
-    bad = _first_false(_is_pinhole(K))
+    positive focal lengths (the projection divides by them) and, given the images' `size`
+    (width, height), its principal point inside them (intrinsics meant for another resolution
+    put it outside); the message names `where`, the first bad matrix (`at` its leading
+    indices) and its bad values."""
+    ok = _is_pinhole(K)
+    if size is not None:
+        ok = ok & _centre_inside(K, size)
+    bad = _first_false(ok)
     if bad is not None:
+        inside = f" and the principal point inside the {size[0]}x{size[1]} image" if size else ""
         raise InputError(
-            f"{where}{at(bad)} has {_intrinsics_problem(K[bad])}; expected {INTRINSICS_FORM}"
+            f"{where}{at(bad)} has {_intrinsics_problem(K[bad], size)}; expected "
+            f"{INTRINSICS_FORM}{inside}"
         )
+
+
+def _centre_inside(K: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """Per matrix of K [..., 3, 3]: 0 < cx < width and 0 < cy < height (a centre on the edge is
+    what intrinsics for twice the resolution give)."""
+    cx, cy = K[..., 0, 2], K[..., 1, 2]
+    return (cx > 0) & (cx < size[0]) & (cy > 0) & (cy < size[1])
 
 
 def _is_pinhole(K: np.ndarray) -> np.ndarray:
@@ -103,13 +120,20 @@ def _is_pinhole(K: np.ndarray) -> np.ndarray:
     return finite & last_row & (K[..., 0, 0] > 0) & (K[..., 1, 1] > 0)
 
 
-def _intrinsics_problem(k: np.ndarray) -> str:
-    """The bad values of one K [3, 3]: non-finite entries, focal lengths <= 0, its last row."""
+def _intrinsics_problem(k: np.ndarray, size: tuple[int, int] | None = None) -> str:
+    """The bad values of one K [3, 3]: non-finite entries, focal lengths <= 0, a principal
+    point outside an image of `size`, its last row."""
     problems = [
         f"{_INTRINSIC_NAMES.get((i, j), f'K[{i}][{j}]')} = {float(k[i, j])}"
         for i, j in np.ndindex(3, 3)
         if not np.isfinite(k[i, j]) or ((i, j) in ((0, 0), (1, 1)) and not k[i, j] > 0)
     ]
+    if size is not None and np.isfinite(k[:2, 2]).all():
+        problems += [
+            f"{name} = {float(value)} outside 0..{limit}"
+            for name, value, limit in (("cx", k[0, 2], size[0]), ("cy", k[1, 2], size[1]))
+            if not 0 < value < limit
+        ]
     if np.isfinite(k[2]).all() and not np.allclose(k[2], [0.0, 0.0, 1.0]):
         problems.append(f"last row {k[2].tolist()}")
     return ", ".join(problems)

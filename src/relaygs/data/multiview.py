@@ -210,7 +210,8 @@ def _intrinsics(camera: ColmapCamera, model_folder: Path) -> torch.Tensor:
         )
     fx, fy, cx, cy = (camera.params[index] for index in indices)
     K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
-    check_intrinsics(K, f"{source}: camera {camera.camera_id} ({camera.model})")
+    where = f"{source}: camera {camera.camera_id} ({camera.model})"
+    check_intrinsics(K, where, size=(camera.width, camera.height))
     return torch.from_numpy(K.astype(np.float32))
 
 

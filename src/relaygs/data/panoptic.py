@@ -94,7 +94,7 @@ def read_meta(path: Path) -> PanopticMeta:
     w2c = _array_field(meta, "w2c", path, shape, (4, 4))
     cam_id = _array_field(meta, "cam_id", path, shape, (), integer=True)
     _check_unique_cameras(cam_id, path)
-    check_intrinsics(K, f"{path}: field 'k'", at=_view_at(cam_id))
+    check_intrinsics(K, f"{path}: field 'k'", at=_view_at(cam_id), size=(width, height))
     check_rigid(w2c, f"{path}: field 'w2c'", at=_view_at(cam_id))
     return PanopticMeta(path, width, height, K, w2c, fn, cam_id)
 
