@@ -517,7 +517,11 @@ def test_two_registered_images_of_one_camera_folder_are_refused(multiview_copy: 
         model.images[image_id] = replace(model.images[image_id], name="cam03_copy.png")
 
     _rewrite_model(multiview_copy, duplicate)
-    _expect(multiview_copy, "'cam03_copy.png' both map to camera folder cam03")
+    _expect(
+        multiview_copy,
+        "'cam03_copy.png' both map to camera folder cam03; the rig is fixed, so the model must "
+        "register one image per camera: run COLMAP on one frame of each",
+    )
 
 
 def test_registered_image_of_an_unknown_camera_is_refused(multiview_copy: Path):

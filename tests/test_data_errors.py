@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import json
+import re
 import shutil
 from collections.abc import Callable
 from pathlib import Path
@@ -462,7 +463,7 @@ def test_a_principal_point_outside_the_image_is_refused(centre: tuple, problem: 
     K[:2, 2] = (31.5, 0.5)  # near the edge is inside; on it, as twice the resolution gives, not
     check_intrinsics(K, "cam.txt: camera 3", size=(32, 18))
     K[0, 2] = 32.0
-    with pytest.raises(InputError, match="cx = 32.0 outside 0..32"):
+    with pytest.raises(InputError, match=re.escape("cx = 32.0 outside 0..32")):
         check_intrinsics(K, "cam.txt: camera 3", size=(32, 18))
 
 

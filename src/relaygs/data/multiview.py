@@ -162,6 +162,8 @@ def _find_model(root: Path) -> Path:
 
 
 def _cameras(folders: list[Path], model: ColmapModel, model_folder: Path) -> list[Camera]:
+    """One camera per camXX folder, from the one registered image named after it: the rig is
+    fixed, so the model poses each camera once (COLMAP run on one frame of each)."""
     by_folder = {}
     for image in model.images.values():
         match = re.search(r"cam\d+", image.name)
@@ -170,7 +172,9 @@ def _cameras(folders: list[Path], model: ColmapModel, model_folder: Path) -> lis
         if match[0] in by_folder:
             raise InputError(
                 f"{model_folder}: images {by_folder[match[0]].name!r} and {image.name!r} both "
-                f"map to camera folder {match[0]}"
+                f"map to camera folder {match[0]}; the rig is fixed, so the model must register "
+                "one image per camera: run COLMAP on one frame of each (python -m relaygs.frames "
+                "prints the commands)"
             )
         by_folder[match[0]] = image
     cameras = []
