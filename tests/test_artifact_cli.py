@@ -509,6 +509,34 @@ def test_eval_and_render_note_a_scene_loaded_otherwise_than_for_training(
     assert code == 0 and err.rsplit("\r", 1)[-1].startswith(f"note: decouple {key[:16]} was")
 
 
+def test_the_note_says_which_given_option_or_the_files_differ_from_the_run(
+    stage_decoupled, stage_scene_path, tmp_path, capsys
+):
+    from relaygs.data import load_scene
+
+    store = ArtifactStore(tmp_path / "store")
+    scene = ("--scene", str(stage_scene_path), "--frame-stride", "8")
+    trained_on = load_scene(stage_scene_path, test_cameras=[1, 5]).fingerprint
+    recorded = {"downscale": 1, "test_cameras": [1, 5]}
+    notes = {}
+    for name, fingerprint in (("same files", trained_on), ("other files", "0" * 64)):
+        key = artifact_key("decouple", 1, {"steps": 2, "name": name}, "juggle", [])
+        provenance = {"scene": fingerprint, **recorded}
+        store.get_or_build(
+            "decouple", key, lambda: stage_decoupled, config={}, lineage=[], provenance=provenance
+        )
+        for given in ((), ("--test-cameras", "1,6")):
+            code, _, err = _cli(capsys, store.root, "eval", key[:8], *scene, *given)
+            assert code == 0
+            notes[name, given] = err
+    assert notes["same files", ()] == ""  # loaded as its run loaded it
+    given_here = "(given here: --test-cameras (the run's: [1, 5])), so its test views are not"
+    assert given_here in notes["same files", ("--test-cameras", "1,6")]
+    assert given_here in notes["other files", ("--test-cameras", "1,6")]
+    files = "(its run's loader options were used, so its files differ from those the run read"
+    assert files in notes["other files", ()]
+
+
 def test_a_model_trained_on_every_camera_is_told_to_load_none_as_test_cameras(
     stage_decoupled, stage_scene_path, tmp_path, capsys
 ):

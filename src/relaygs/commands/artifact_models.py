@@ -107,16 +107,42 @@ def model_artifact(store: ArtifactStore, key_prefix: str) -> tuple[StoredArtifac
     return item, store.load(item.stage, item.key)
 
 
-def note_other_scene(items: Sequence[StoredArtifact], scene: Scene) -> None:
+def note_other_scene(
+    items: Sequence[StoredArtifact], scene: Scene, args: argparse.Namespace
+) -> None:
     """A stderr note for each model that was not trained on this scene as loaded here (the
-    fingerprint in its manifest differs): its test views, and so its scores, may not be the
-    run's."""
+    fingerprint in its manifest differs), saying why where the manifest tells: its test views,
+    and so its scores, may not be the run's."""
     for item in items:
         trained_on = item.manifest.provenance.get("scene")
         if trained_on is not None and trained_on != scene.fingerprint:
             print(
                 f"note: {item.stage} {item.key[:KEY_COLUMN_WIDTH]} was not trained on "
-                f"{scene.root} as loaded here (its files or loader options differ), so its test "
-                "views may not be the run's: pass the run's --downscale and --test-cameras",
+                f"{scene.root} as loaded here ({_why_other_scene(item, args)}",
                 file=sys.stderr,
             )
+
+
+def _why_other_scene(item: StoredArtifact, args: argparse.Namespace) -> str:
+    """What differs from `item`'s run, a closing bracket, and what that means: the loader
+    options given here, else (its manifest records the run's options, and they were used)
+    the scene's files."""
+    recorded = recorded_loading(item.manifest.provenance)
+    if not recorded:  # written before manifests recorded the run's loader options
+        return (
+            "its files or loader options differ), so its test views may not be the run's: "
+            "pass the run's --downscale and --test-cameras"
+        )
+    given = {name: getattr(args, name) for name in FLAGGED_LOADING}
+    changed = [
+        f"--{name.replace('_', '-')} (the run's: {recorded.get(name, 'the default')})"
+        for name, value in given.items()
+        if value is not None
+        and (list(value) if isinstance(value, tuple) else value) != recorded.get(name)
+    ]
+    if changed:
+        return f"given here: {', '.join(changed)}), so its test views are not the run's"
+    return (
+        "its run's loader options were used, so its files differ from those the run read: "
+        "another copy of the scene, or an edited one), and its scores may not be the run's"
+    )

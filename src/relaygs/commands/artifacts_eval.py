@@ -40,7 +40,7 @@ def run_eval(store: ArtifactStore, args: argparse.Namespace) -> int:
             _scores(entry, store.load(entry.stage, entry.key), scene, settings) for entry in entries
         ]
         print(_lineage_table(entries, rows))
-        note_other_scene(entries, scene)
+        note_other_scene(entries, scene, args)
         return 0
     metrics = _scores(item, artifact, scene, settings)
     print(f"{item.stage} {item.key[:KEY_COLUMN_WIDTH]} {where}")
@@ -50,7 +50,7 @@ def run_eval(store: ArtifactStore, args: argparse.Namespace) -> int:
     if args.per_view is not None:
         written = write_per_view(args.per_view, metrics[PER_VIEW])
         print(f"  per-view metrics of {len(metrics[PER_VIEW])} image(s) in {written}")
-    note_other_scene([item], scene)
+    note_other_scene([item], scene, args)
     return 0
 
 
