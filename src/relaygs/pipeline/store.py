@@ -212,7 +212,7 @@ class ArtifactStore:
                 if problem.path.name.startswith(prefix):
                     name = f"{problem.path.parent.name}/{problem.path.name[:16]}"
                     raise CorruptArtifactError(
-                        f"artifact {name} is damaged, not missing: {problem.message}; {VERIFY_HINT}"
+                        f"artifact {name} is damaged, not missing: {problem.message}"
                     )
         if len(matches) > 1:
             names = ", ".join(f"{item.stage}/{item.key[:16]}" for item in matches)
