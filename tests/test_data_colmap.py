@@ -565,6 +565,8 @@ def test_test_cameras_beyond_the_camera_folders_are_refused(multiview_root: Path
         r"\(artifacts commands: --test-cameras 0\)$",
     ):
         load_scene(multiview_root, test_cameras=[0, 99])
+    with pytest.raises(InputError, match=r"^scene\.loader\.test_cameras: cameras \[99\] are not"):
+        load_scene(multiview_root, test_cameras=[99], option_prefix="scene.loader.")
 
 
 def test_a_one_camera_capture_is_told_how_to_hold_out_none(multiview_copy: Path):

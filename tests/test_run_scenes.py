@@ -148,6 +148,14 @@ def test_a_capture_path_is_loaded_in_place(tiny_synth_scene):
     assert not (tiny_synth_scene.parent / "unused").exists()
 
 
+def test_loader_errors_of_a_capture_name_the_runs_option(tiny_synth_scene, tmp_path):
+    spec = scene_spec({**TINY, "path": str(tiny_synth_scene), "loader": {"test_cameras": [99]}})
+    with pytest.raises(InputError, match=r"^scene\.loader\.test_cameras: cameras \[99\] are not"):
+        prepare_scene(spec, tmp_path)
+    with pytest.raises(InputError, match=r"^loader option test_cameras: cameras \[99\] are not"):
+        load_scene(tiny_synth_scene, test_cameras=[99])
+
+
 def test_the_loading_a_run_records_loads_its_scene_again_as_the_run_did(tiny_synth_scene, tmp_path):
     loader = {"downscale": 2, "max_points": 50, "test_cameras": [3, 1], "cache_mb": 8}
     section = {**TINY, "path": str(tiny_synth_scene), "effects": ["sensor_noise"]}

@@ -31,6 +31,8 @@ SCENE_FIELDS = frozenset(
     {"name", "preset", "path", "frames", "width", "height", "seed", "effects", "loader"}
 )
 LOADER_OPTIONS = ("downscale", "max_points", "cache_mb", "test_cameras")
+LOADER_PREFIX = "scene.loader."
+"""How errors name a run's loader options."""
 GENERATED_MARKER = "scene.json"
 HASH_LENGTH = 12
 RECORDED_LOADING = ("downscale", "max_points", "test_cameras", "effects")
@@ -87,7 +89,7 @@ def scene_spec(section: Mapping[str, Any]) -> SceneSpec:
         raise InputError(
             f"scene.loader: unknown option(s) {unknown}; expected {list(LOADER_OPTIONS)}"
         )
-    options = make_options(**loader, prefix="scene.loader.")
+    options = make_options(**loader, prefix=LOADER_PREFIX)
     counts = {name: _count(section, name, minimum=1) for name in ("frames", "width", "height")}
     seed = _count(section, "seed", minimum=0)
     path = section.get("path")
@@ -130,7 +132,7 @@ def prepare_scene(spec: SceneSpec, scenes_dir: Path, progress: bool = True) -> S
     """Load the scene, generating a synthetic one first if its cache folder is missing
     (`progress`: with a bar over the rendered views)."""
     if not spec.is_synthetic:
-        return load_scene(spec.path, **loader_arguments(spec))
+        return load_scene(spec.path, **loader_arguments(spec), option_prefix=LOADER_PREFIX)
     folder = synthetic_folder(spec, scenes_dir)
     lock = scenes_dir / ".locks" / f"{folder.name}.lock"
     lock.parent.mkdir(parents=True, exist_ok=True)
@@ -147,7 +149,7 @@ def prepare_scene(spec: SceneSpec, scenes_dir: Path, progress: bool = True) -> S
                 effects=spec.effects,
                 progress=progress,
             )
-    return load_scene(folder, **loader_arguments(spec))
+    return load_scene(folder, **loader_arguments(spec), option_prefix=LOADER_PREFIX)
 
 
 def loader_arguments(spec: SceneSpec) -> dict[str, Any]:

@@ -8,7 +8,12 @@ from pathlib import Path
 
 from relaygs.cli import python_command
 from relaygs.data.multiview import camera_folders, load_multiview
-from relaygs.data.options import DEFAULT_CACHE_MB, DEFAULT_MAX_POINTS, make_options
+from relaygs.data.options import (
+    DEFAULT_CACHE_MB,
+    DEFAULT_MAX_POINTS,
+    OPTION_PREFIX,
+    make_options,
+)
 from relaygs.data.panoptic import TRAIN_META, load_panoptic
 from relaygs.data.scene import Scene
 from relaygs.data.video_frames import VIDEO_SUFFIXES
@@ -41,13 +46,14 @@ def load_scene(
     cache_mb: float = DEFAULT_CACHE_MB,
     test_cameras: Iterable[int] | None = None,
     effects: Iterable[str] | None = None,
+    option_prefix: str = OPTION_PREFIX,
 ) -> Scene:
     """Load the scene folder at `path` in whichever supported layout it uses.
 
     downscale: integer factor for half/quarter resolution; max_points: voxel-downsampling budget
     of the initial cloud; cache_mb: in-memory image cache budget; test_cameras: held-out camera
     ids (default: test_meta.json; multi-view: scene.json's, else 0/10/20/30); effects: override
-    scene.json.
+    scene.json; option_prefix: how errors name these options (the app's `scene.loader.`).
     """
     root = require_folder(Path(path).expanduser().absolute(), "scene folder")
     options = make_options(
@@ -56,6 +62,7 @@ def load_scene(
         cache_mb=cache_mb,
         test_cameras=test_cameras,
         effects=effects,
+        prefix=option_prefix,
     )
     if detect_format(root) == "panoptic":
         return load_panoptic(root, options)

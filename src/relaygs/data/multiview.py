@@ -75,7 +75,7 @@ def load_multiview(root: Path, options: LoaderOptions) -> Scene:
     declared = declared_test_cameras(root)
     cameras = _cameras(folders, model, model_folder)
     views = _views(root, folders, frames, cameras, files)
-    train_views, test_views = _split(views, len(folders), options.test_cameras, declared, root)
+    train_views, test_views = _split(views, len(folders), options, declared, root)
     points = point_cloud_from_arrays(
         model.xyz,
         model.rgb.astype(np.float64) / 255.0,
@@ -265,14 +265,14 @@ def _check_size(path: Path, camera: Camera, files: dict[str, str], root: Path, w
 def _split(
     views: list[View],
     num_cameras: int,
-    test_cameras: tuple[int, ...] | None,
+    options: LoaderOptions,
     declared: tuple[int, ...] | None,
     root: Path,
 ) -> tuple[list[View], list[View]]:
     """Hold out the `test_cameras` option's ids, else scene.json's `declared` ones, else the
     DEFAULT_TEST_CAMERAS that exist; explicit or declared ids must all exist."""
-    if test_cameras is not None:
-        ids, source = test_cameras, "loader option test_cameras"
+    if options.test_cameras is not None:
+        ids, source = options.test_cameras, f"{options.prefix}test_cameras"
         fix = "hold out only cameras it has (or none)"
     elif declared is not None:
         ids, source = declared, f"{root / SCENE_JSON} field 'test_cameras'"

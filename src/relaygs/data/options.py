@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numbers
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from relaygs.data.effects import parse_effects
@@ -26,6 +26,8 @@ class LoaderOptions:
     cache_mb: float = DEFAULT_CACHE_MB
     test_cameras: tuple[int, ...] | None = None
     effects: frozenset[str] | None = None
+    prefix: str = field(default=OPTION_PREFIX, compare=False)
+    """How the loaders' errors name these options (`scene.loader.` under the app)."""
 
     def content_options(self) -> dict[str, Any]:
         """The options that change what a scene holds (everything but the cache budget)."""
@@ -61,7 +63,7 @@ def make_options(
         }
         cameras = tuple(sorted(ids))
     declared = None if effects is None else parse_effects(effects, source=f"{prefix}effects")
-    return LoaderOptions(downscale, max_points, float(cache_mb), cameras, declared)
+    return LoaderOptions(downscale, max_points, float(cache_mb), cameras, declared, prefix)
 
 
 def require_int(name: str, value: object, *, minimum: int, prefix: str = OPTION_PREFIX) -> int:

@@ -59,7 +59,7 @@ def load_panoptic(root: Path, options: LoaderOptions) -> Scene:
     files: dict[str, str] = {}
     cameras: dict[tuple, Camera] = {}
     entries = [view for meta in metas for view in _views(root, meta, files, cameras)]
-    train_views, test_views = _split(entries, metas, options.test_cameras)
+    train_views, test_views = _split(entries, metas, options)
     points = _read_points(root / POINTS_FILE, options.max_points)
     files[POINTS_FILE] = file_record(root / POINTS_FILE).sha256
     for name in (TRAIN_META, TEST_META, SCENE_JSON):
@@ -274,17 +274,18 @@ def _camera(meta: PanopticMeta, t: int, c: int, cameras: dict[tuple, Camera]) ->
 def _split(
     views: list[View],
     metas: list[PanopticMeta],
-    test_cameras: tuple[int, ...] | None,
+    options: LoaderOptions,
 ) -> tuple[list[View], list[View]]:
     """Hold out the `test_cameras` option's ids (cameras of any meta file), else the cameras
     of test_meta.json (metas[1], there whenever the option is not given)."""
+    test_cameras = options.test_cameras
     if test_cameras is None:
         return split_views(views, _camera_ids(metas[1]), metas[0].path)
     known = set().union(*map(_camera_ids, metas))
     missing = sorted(set(test_cameras) - known)
     if missing:
         raise InputError(
-            f"loader option test_cameras: cameras {missing} are not in the scene "
+            f"{options.prefix}test_cameras: cameras {missing} are not in the scene "
             f"(camera ids: {sorted(known)}); hold out only cameras it has (or none), e.g. "
             + held_out_instead(test_cameras, known)
         )
