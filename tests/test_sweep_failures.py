@@ -5,6 +5,7 @@ import errno
 import functools
 import json
 import pickle
+import shutil
 
 import pandas as pd
 import pytest
@@ -12,6 +13,7 @@ from filelock import FileLock
 from omegaconf import OmegaConf
 
 from fake_stages import TINY_SCENE, FakeStages, compose_config
+from relaygs.app import task as task_module
 from relaygs.app.callbacks import SWEEP_LOCK_FILE, SweepFolderLock
 from relaygs.app.task import run_task
 from relaygs.commands import report
@@ -233,3 +235,42 @@ def test_a_sweep_holding_its_folder_goes_to_parallel_workers_without_the_lock(tm
     callback.on_multirun_end(OmegaConf.create({}))
     with FileLock(tmp_path / SWEEP_LOCK_FILE).acquire(timeout=0):
         pass
+
+
+def test_a_sweep_job_on_damaged_scene_data_fails_alone_even_over_an_earlier_good_result(
+    monkeypatch, tmp_path, tiny_synth_scene, capsys
+):
+    monkeypatch.chdir(tmp_path)
+    damaged = shutil.copytree(tiny_synth_scene, tmp_path / "damaged")
+    folder = tmp_path / "sweep"
+    scenes = f"scene.path={damaged},{tiny_synth_scene}"
+    args = ["-m", scenes, "budget=smoke", f"hydra.sweep.dir={folder}"]
+    assert _main_with(monkeypatch, FakeStages(), args) == 0
+    image = next(damaged.glob("ims/*/000001.png"))
+    image.unlink()
+    fakes = FakeStages()
+    assert _main_with(monkeypatch, fakes, args) == 1  # not 0 on job 0's earlier result
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    assert f"error: job 0 failed: InputError: missing image file: {image}" in err
+    table = pd.read_csv(folder / "summary.csv")
+    assert list(table.status) == ["failed", "ok"]
+    assert fakes.ran("decouple") == 0  # job 1 reused the first sweep's artifacts
+
+
+def test_a_sweep_job_that_cannot_record_its_failure_stops_the_sweep(monkeypatch, tmp_path, capsys):
+    # an earlier sweep's result in the job's folder is no record of this job's failure
+    monkeypatch.chdir(tmp_path)
+    args = ["-m", "relay.k=2,4", "budget=smoke", "hydra.sweep.dir=sweep", *TINY_SCENE]
+    assert _main_with(monkeypatch, FakeStages(), args) == 0
+    full = OSError(errno.ENOSPC, "No space left on device", "/store/x.safetensors")
+
+    def refuse_failed(run_dir, result):
+        raise full
+
+    monkeypatch.setattr(task_module, "write_result", refuse_failed)
+    fakes = FakeStages(fail_when=_raise_in_relay(full))
+    assert _main_with(monkeypatch, fakes, [*args, "relay.steps=3"]) == 1
+    err = capsys.readouterr().err
+    assert err.strip().splitlines()[-1].startswith("error: stage relay: No space left on device")
+    assert "job 0 failed" not in err and fakes.ran("relay") == 1  # job 1 never started

@@ -71,18 +71,22 @@ def run_task(
 
     `overrides` are the job's command-line/sweep overrides (recorded in the result), `job`
     its number in a sweep, `label` the name its status lines and bars carry when jobs run side
-    by side (`job_label`). Bad input, bad scene data included, raises InputError before
-    anything is written to `run_dir` (an earlier run's result there stays as it was); an error
-    after that is re-raised once a `result.json` with status `failed` and the error is
-    written, as a one-line ResourceError when the disk or memory ran out (`resource_error`).
+    by side (`job_label`). Bad input raises InputError before anything is written to
+    `run_dir`, and so does bad scene data in a single run (an earlier run's result there stays
+    as it was); in a sweep's job (`job` given) a bad scene is that job's failure, so the
+    sweep's other jobs, on other scenes, still run. A failure is re-raised once a
+    `result.json` with status `failed` and the error is written, as a one-line ResourceError
+    when the disk or memory ran out (`resource_error`).
     """
     started = time.perf_counter()
     config = resolve_config(cfg, original_cwd)
     suite = suite or load_stage_suite()
     plan = plan_run(config, suite.stages, suite.validate, suite.accepted_upstream)
     with job_label(label):
-        scene = _load_scene(plan)
+        scene = _load_scene(plan) if job is None else None
         try:
+            if scene is None:
+                scene = _load_scene(plan)
             outcome = _execute(config, plan, scene, suite, run_dir, overrides, job)
             result = outcome.result
             result["job_s"] = time.perf_counter() - started

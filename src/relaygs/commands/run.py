@@ -97,13 +97,15 @@ def run_job(cfg: DictConfig) -> dict[str, Any] | None:
     A job of a parallel launcher's sweep names its folder (`3_k64`) on its status lines and
     bars, as jobs then print side by side. A RelayGS error ends a single run with one line on
     stderr (exit 1). In a multirun, a job
-    whose failure is recorded in its `result.json` (see `run_task`) reports it and returns
-    None, so the other jobs still run; the sweep summary lists it and the command exits 1.
+    whose failure it recorded in its `result.json` (see `run_task`; not a result an earlier
+    sweep left in its folder) reports it and returns None, so the other jobs still run; the
+    sweep summary lists it and the command exits 1.
     """
     hydra_cfg = HydraConfig.get()
     multirun = hydra_cfg.mode == RunMode.MULTIRUN
     run_dir = Path(hydra_cfg.runtime.output_dir)
     side_by_side = multirun and hydra_cfg.runtime.choices.get("hydra/launcher") != "basic"
+    earlier_result = _file_identity(run_dir / RESULT_FILE)
     try:
         return run_task(
             cfg,
@@ -114,7 +116,8 @@ def run_job(cfg: DictConfig) -> dict[str, Any] | None:
             label=run_dir.name if side_by_side else None,
         )
     except Exception as error:
-        if multirun and (run_dir / RESULT_FILE).is_file():
+        recorded = _file_identity(run_dir / RESULT_FILE) not in (None, earlier_result)
+        if multirun and recorded:
             if not isinstance(error, RelayGSError):
                 traceback.print_exc()
             print(f"error: job {hydra_cfg.job.num} failed: {error_line(error)}", file=sys.stderr)
@@ -123,3 +126,13 @@ def run_job(cfg: DictConfig) -> dict[str, Any] | None:
             print(f"error: {error}", file=sys.stderr)
             raise SystemExit(1) from None
         raise
+
+
+def _file_identity(path: Path) -> tuple[int, int] | None:
+    """(inode, mtime in ns) of `path`, None when it does not exist: whether a file was written
+    (replaced) since an earlier look."""
+    try:
+        stat = path.stat()
+    except FileNotFoundError:
+        return None
+    return stat.st_ino, stat.st_mtime_ns
