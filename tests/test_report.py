@@ -1,6 +1,7 @@
 """Sweep reports: summary.csv and summary.md rows with Δ vs the reference, Pareto plot, CLI."""
 
 import json
+import math
 from pathlib import Path
 
 import pandas as pd
@@ -96,10 +97,13 @@ def test_delta_compares_only_runs_scored_on_the_same_images(tmp_path, capsys):
     files = report.write_reports(tmp_path)
     markdown = files.markdown.read_text()
     assert "Δ PSNR is n/a for job 4 (k32), job 5 (k32): no job of its reference variant" in markdown
-    mean = files.mean.read_text()  # nor do the means average PSNR over different images
+    assert files.mean is None  # no two jobs differ only in their seed
+    _job(tmp_path, 7, "k16", 28.0, 20.0, test_set="full", seed=1)
+    mean = report.write_reports(tmp_path).mean.read_text()
+    # nor do the means average PSNR over different images; one run has no spread
     assert mean.splitlines()[2].startswith("| Scene | Variant | Test set | Runs | PSNR")
-    assert "| juggle | k16 | full | 1 | 26.00 ± 0.00 |" in mean
-    assert "| juggle | k16 | half | 1 | 30.00 ± 0.00 |" in mean
+    assert "| juggle | k16 | full | 2 | 27.00 ± 1.41 |" in mean
+    assert "| juggle | k16 | half | 1 | 30.00 | 0.00 |" in mean
 
 
 def test_the_summary_says_which_jobs_a_stage_note_is_about(tmp_path):
@@ -420,7 +424,7 @@ def test_jobs_are_ordered_by_job_number_not_by_folder_name(tmp_path):
     assert list(table.variant) == ["k16", "k8"]
 
 
-def test_mean_table_keeps_first_appearance_and_one_run_has_zero_std(tmp_path):
+def test_mean_table_keeps_first_appearance_and_one_run_has_no_std(tmp_path):
     # k8 appears first (and sorts after k16 as text); k16 ran once
     runs = [("k8", 0, 25.0), ("k16", 0, 27.0), ("k8", 1, 26.0)]
     for number, (variant, seed, psnr) in enumerate(runs):
@@ -430,8 +434,26 @@ def test_mean_table_keeps_first_appearance_and_one_run_has_zero_std(tmp_path):
     assert list(mean.variant) == ["k8", "k16"]
     assert list(mean.runs) == [2, 1]
     assert list(mean.psnr_mean) == pytest.approx([25.5, 27.0])
-    # sample std of (25, 26): sqrt((0.25 + 0.25) / 1); a single run: 0
-    assert list(mean.psnr_std) == pytest.approx([0.5**0.5, 0.0])
+    # sample std of (25, 26): sqrt((0.25 + 0.25) / 1); a single run: none
+    assert mean.psnr_std[0] == pytest.approx(0.5**0.5) and math.isnan(mean.psnr_std[1])
+
+
+def test_the_mean_table_needs_a_repeated_finished_job_and_an_old_one_goes(tmp_path):
+    _job(tmp_path, 0, "k16", 26.0, 20.0, test_set="aaa")
+    _job(tmp_path, 1, "k16", 27.0, 20.0, test_set="aaa", seed=1)
+    _job(tmp_path, 2, "k16", 28.0, 20.0, seed=2)  # written before results named their test set
+    _job(tmp_path, 3, "k16", 25.0, 20.0, test_set="bbb", seed=3)
+    text = report.write_reports(tmp_path).mean.read_text()
+    assert "| juggle | k16 | aaa | 2 | 26.50 ± 0.71 |" in text
+    assert "| juggle | k16 | n/a | 1 | 28.00 |" in text  # not <NA>
+    for number in (0, 1, 2, 3):  # every job failed: nothing to average
+        result = tmp_path / f"{number}_k16" / "result.json"
+        failed = {**json.loads(result.read_text()), "status": "failed", "psnr": None}
+        result.write_text(json.dumps(failed))
+    assert report.main([str(tmp_path)]) == 0
+    assert not (tmp_path / "summary_mean.md").exists()
+    assert not (tmp_path / "summary_mean.csv").exists()
+    assert not (tmp_path / "pareto.png").exists()  # nor a plot of the jobs that finished before
 
 
 def test_budget_points_follow_the_multiplier_and_gain_needs_more_time(tmp_path):

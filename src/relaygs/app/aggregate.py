@@ -12,7 +12,7 @@ import math
 import pandas as pd
 
 from relaygs.app.result import STATUS_FAILED
-from relaygs.app.summary import MISSING, is_number
+from relaygs.app.summary import is_number, markdown_cell
 
 METRICS = (
     ("PSNR ↑", "psnr", 2),
@@ -35,7 +35,7 @@ def aggregate_table(summary: pd.DataFrame) -> pd.DataFrame:
     its scene, variant, the parameters that tell rows of one variant apart (`relay.k` when a
     label repeats over k) and, where results record it, `test_set` (PSNR on other images does
     not average); then `runs` (finished jobs) and `<metric>_mean` / `<metric>_std` (sample
-    std, 0 for one run) of every METRICS column."""
+    std, None for one run) of every METRICS column."""
     table = summary
     if "status" in table:
         table = table[table["status"] != STATUS_FAILED]
@@ -47,7 +47,7 @@ def aggregate_table(summary: pd.DataFrame) -> pd.DataFrame:
         for _, column, _ in METRICS:
             values = [float(v) for v in group.get(column, []) if is_number(v)]
             row[f"{column}_mean"] = sum(values) / len(values) if values else None
-            row[f"{column}_std"] = _std(values) if values else None
+            row[f"{column}_std"] = _std(values)
         rows.append(row)
     return pd.DataFrame(rows)
 
@@ -64,8 +64,9 @@ def _within_variant_parameters(table: pd.DataFrame) -> list[str]:
 
 
 def aggregate_markdown(table: pd.DataFrame, title: str) -> str:
-    """The aggregate as a Markdown table, each metric as `mean ± std`, after the columns that
-    tell its rows apart (`Test set` only where nothing else does)."""
+    """The aggregate as a Markdown table, each metric as `mean ± std` (the mean alone for one
+    run), after the columns that tell its rows apart (`Test set` only where nothing else
+    does)."""
     keys = list(table.columns[: list(table.columns).index("runs")])
     names = [key for key in keys if key != "test_set"]
     if "test_set" in keys and table.duplicated(names).any():
@@ -75,24 +76,23 @@ def aggregate_markdown(table: pd.DataFrame, title: str) -> str:
     rule = "|" + ":---|" * len(names) + "---:|" + "---:|" * len(METRICS)
     lines = [f"# {title}", "", header, rule]
     for _, row in table.convert_dtypes().iterrows():
-        cells = [str(row[name]) for name in names] + [str(row["runs"])]
+        cells = [markdown_cell(row[name], "{}") for name in names] + [str(row["runs"])]
         for _, column, digits in METRICS:
             cells.append(_mean_std(row[f"{column}_mean"], row[f"{column}_std"], digits))
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
 
-def _std(values: list[float]) -> float:
-    """Sample standard deviation (0 for a single value)."""
+def _std(values: list[float]) -> float | None:
+    """Sample standard deviation (None for fewer than two values: one run has no spread)."""
     if len(values) < 2:
-        return 0.0
+        return None
     mean = sum(values) / len(values)
     return math.sqrt(sum((v - mean) ** 2 for v in values) / (len(values) - 1))
 
 
 def _mean_std(mean: object, std: object, digits: int) -> str:
-    """`mean ± std` with `digits` decimals, or MISSING."""
-    if not is_number(mean):
-        return MISSING
-    std_value = float(std) if is_number(std) else 0.0
-    return f"{float(mean):.{digits}f} ± {std_value:.{digits}f}"
+    """`mean ± std` with `digits` decimals (the mean alone without a std), or MISSING."""
+    spec = f"{{:.{digits}f}}"
+    text = markdown_cell(mean, spec)
+    return f"{text} ± {markdown_cell(std, spec)}" if is_number(mean) and is_number(std) else text

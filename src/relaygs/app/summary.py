@@ -130,7 +130,7 @@ def markdown_table(table: pd.DataFrame, title: str) -> str:
     # each column in its narrowest type, as in the CSV: a whole-number setting that some jobs
     # lack (`scene.loader.downscale`) reads 2, not 2.0
     for _, row in table.convert_dtypes().iterrows():
-        cells = [_cell(row.get(column), spec) for _, column, spec in columns]
+        cells = [markdown_cell(row.get(column), spec) for _, column, spec in columns]
         if row.get("status") == STATUS_FAILED:
             cells[0] += " (failed)"
         lines.append("| " + " | ".join(cells) + " |")
@@ -325,7 +325,7 @@ def is_number(value: Any) -> bool:
     )
 
 
-def _cell(value: Any, spec: str) -> str:
+def markdown_cell(value: Any, spec: str) -> str:
     """One Markdown cell: numbers formatted with `spec`, missing values (None, NaN, pandas'
     NA) as MISSING."""
     if value is None or value is pd.NA or (isinstance(value, float) and math.isnan(value)):

@@ -1,6 +1,6 @@
 """`python -m relaygs.report SWEEP_DIR`: (re)write a sweep's `summary.csv`, `summary.md`,
-`pareto.png` and `psnr_by_frame.png`, with `summary_mean.csv/md` when it repeats a variant
-(e.g. over seeds) and `summary_budget.csv/md` when it varies `budget.multiplier`, from its
+`pareto.png` and `psnr_by_frame.png`, with `summary_mean.csv/md` when jobs differ only in
+their seed and `summary_budget.csv/md` when it varies `budget.multiplier`, from its
 jobs' `result.json` and `per_view.csv` files (the multirun end callback calls the same)."""
 
 from __future__ import annotations
@@ -105,7 +105,11 @@ def _write_files(table: pd.DataFrame, sweep_dir: Path) -> ReportFiles:
             sweep_dir / PARETO_PNG,
             title,
         )
+    else:
+        _remove(sweep_dir / PARETO_PNG)
     frames = plot_frame_curves(curves, sweep_dir / FRAMES_PNG, title)
+    if frames is None:
+        _remove(sweep_dir / FRAMES_PNG)
     mean = _write_mean(table, sweep_dir, title)
     budget = _write_budget(table, sweep_dir, title)
     failed = tuple(failed_jobs(table))
@@ -115,13 +119,13 @@ def _write_files(table: pd.DataFrame, sweep_dir: Path) -> ReportFiles:
 
 
 def _write_mean(table: pd.DataFrame, sweep_dir: Path, title: str) -> Path | None:
-    """`summary_mean.{csv,md}` (mean ± std per scene and variant) when a sweep repeats a
-    (scene, variant) pair, e.g. over seeds; else nothing."""
-    if not {"scene", "variant"} <= set(table.columns):
+    """`summary_mean.{csv,md}` (mean ± std over the jobs that differ only in their seed) when
+    some such group has more than one finished job; else nothing, and an earlier report's
+    files, which would describe other jobs, are removed."""
+    mean = aggregate_table(table) if {"scene", "variant"} <= set(table.columns) else None
+    if mean is None or mean.empty or not (mean["runs"] > 1).any():
+        _remove(sweep_dir / MEAN_CSV, sweep_dir / MEAN_MD)
         return None
-    if not table.duplicated(["scene", "variant"]).any():
-        return None
-    mean = aggregate_table(table)
     _write_csv(mean, sweep_dir / MEAN_CSV)
     path = sweep_dir / MEAN_MD
     publish_text(path, aggregate_markdown(mean, f"{title}: mean ± std over seeds"))
@@ -130,11 +134,10 @@ def _write_mean(table: pd.DataFrame, sweep_dir: Path, title: str) -> Path | None
 
 def _write_budget(table: pd.DataFrame, sweep_dir: Path, title: str) -> Path | None:
     """`summary_budget.{csv,md}` (PSNR and dB per extra minute at each step multiplier) when
-    the sweep varies `budget.multiplier`; else nothing."""
-    if not varies_budget(table):
-        return None
-    marginal = marginal_table(table)
-    if marginal.empty:
+    the sweep varies `budget.multiplier`; else nothing (an earlier report's files removed)."""
+    marginal = marginal_table(table) if varies_budget(table) else None
+    if marginal is None or marginal.empty:
+        _remove(sweep_dir / BUDGET_CSV, sweep_dir / BUDGET_MD)
         return None
     _write_csv(marginal, sweep_dir / BUDGET_CSV)
     path = sweep_dir / BUDGET_MD
@@ -169,6 +172,13 @@ def describe(files: ReportFiles) -> str:
         if table is not None:
             lines += [f"  {table}", f"  {table.with_suffix('.csv')}"]
     return "\n".join(lines)
+
+
+def _remove(*paths: Path) -> None:
+    """Remove files a report writes only where they apply, left by an earlier report of the
+    folder when it held other jobs."""
+    for path in paths:
+        path.unlink(missing_ok=True)
 
 
 def _write_csv(table: pd.DataFrame, path: Path) -> None:
