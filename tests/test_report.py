@@ -106,6 +106,21 @@ def test_delta_compares_only_runs_scored_on_the_same_images(tmp_path, capsys):
     assert "| juggle | k16 | half | 1 | 30.00 | 0.00 |" in mean
 
 
+def test_delta_compares_a_row_with_the_reference_run_at_its_own_settings(tmp_path):
+    # `report outputs/runs` over runs labelled k16 at k = 16 and 128, and a k8 run at each
+    for number, (variant, k, psnr) in enumerate(
+        [("k16", 16, 26.0), ("k16", 128, 27.0), ("k8", 16, 25.0), ("k8", 128, 27.5)]
+    ):
+        _job(tmp_path, number, variant, psnr, 10.0)
+        result = tmp_path / f"{number}_{variant}" / "result.json"
+        result.write_text(
+            result.read_text().replace(f'"relay.k": {variant[1:]}', f'"relay.k": {k}')
+        )
+    _job(tmp_path, 4, "k32", 25.0, 10.0)  # at a k no reference run has: their mean
+    table = summary_table(report.collect_results(tmp_path))
+    assert list(table.delta_psnr) == pytest.approx([0.0, 0.0, -1.0, 0.5, -1.5])
+
+
 def test_the_summary_says_which_jobs_a_stage_note_is_about(tmp_path):
     note = "[decouple] decouple marked no Gaussian as foreground"
     _job(tmp_path, 0, "k16", 26.0, 20.0, notes=note)

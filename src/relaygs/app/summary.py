@@ -286,10 +286,16 @@ def distinguishing_parameters(table: pd.DataFrame) -> list[str]:
 
 
 def _delta(table: pd.DataFrame, index: Any) -> float | None:
-    """PSNR of row `index` minus its reference's PSNR (None when either is missing)."""
+    """PSNR of row `index` minus its reference's PSNR (None when either is missing): the
+    reference rows of its seed and, where they differ in a parameter (`-m relay.k=8,16`
+    under one label), of its value, each where there are any (else the mean over them)."""
+    row = table.loc[index]
     pool = _reference_rows(table, index)
-    same_seed = pool[pool["seed"] == table.loc[index].get("seed")] if "seed" in pool else pool
-    pool = same_seed if len(same_seed) else pool
+    varying = [column for column in pool.columns if "." in column and pool[column].nunique() > 1]
+    for column in ["seed", *varying]:
+        if column in pool:
+            same = pool[pool[column] == row.get(column)]
+            pool = same if len(same) else pool
     values = [v for v in pool["psnr"] if is_number(v)] if "psnr" in pool else []
     if not values or not is_number(table.loc[index].get("psnr")):
         return None
