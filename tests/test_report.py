@@ -121,6 +121,24 @@ def test_delta_compares_a_row_with_the_reference_run_at_its_own_settings(tmp_pat
     assert list(table.delta_psnr) == pytest.approx([0.0, 0.0, -1.0, 0.5, -1.5])
 
 
+def test_the_summary_names_run_folders_that_hold_no_result(tmp_path, capsys):
+    # an interrupted sweep: job 1 started (Hydra wrote its .hydra/) but never finished
+    (tmp_path / "1_k16" / ".hydra").mkdir(parents=True)
+    assert report.main([str(tmp_path)]) == 1
+    assert capsys.readouterr().err == (
+        f"error: no result.json found under {tmp_path} (1 run folder(s) hold no result.json "
+        "(interrupted, still running or stopped before writing it): 1_k16)\n"
+    )
+    _job(tmp_path, 0, "k8", 25.0, 10.0)
+    for number in range(2, 8):
+        (tmp_path / f"{number}_k{number}" / ".hydra").mkdir(parents=True)
+    markdown = report.write_reports(tmp_path).markdown.read_text()
+    assert (
+        "\nNot in the table: 7 run folder(s) hold no result.json (interrupted, still " in markdown
+    )
+    assert "writing it): 1_k16, 2_k2, 3_k3, 4_k4, 5_k5 and 2 more.\n" in markdown
+
+
 def test_the_summary_says_which_jobs_a_stage_note_is_about(tmp_path):
     note = "[decouple] decouple marked no Gaussian as foreground"
     _job(tmp_path, 0, "k16", 26.0, 20.0, notes=note)

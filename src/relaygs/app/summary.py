@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import math
 import numbers
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -17,6 +18,10 @@ from relaygs.app.result import METRIC_FIELDS, RESULT_FILE, STATUS_FAILED, STATUS
 from relaygs.errors import InputError
 
 MISSING = "n/a"
+HYDRA_FOLDER = ".hydra"
+"""What Hydra writes into every run folder it creates, before the job starts."""
+LISTED_FOLDERS = 5
+"""How many folders without a result a note names before it counts the rest."""
 LEADING_COLUMNS = (
     "job",
     "variant",
@@ -69,12 +74,44 @@ def collect_results(sweep_dir: Path) -> pd.DataFrame:
     result without a `status`, written before failures were recorded, counts as ok)."""
     paths = sorted(Path(sweep_dir).rglob(RESULT_FILE))
     if not paths:
-        raise InputError(f"no {RESULT_FILE} found under {sweep_dir}")
+        unfinished = unfinished_runs(sweep_dir)
+        held = f" ({_unfinished_clause(sweep_dir, unfinished)})" if unfinished else ""
+        raise InputError(f"no {RESULT_FILE} found under {sweep_dir}{held}")
     rows = [
         {"status": STATUS_OK, **_read_result(path), "run_dir": str(path.parent)} for path in paths
     ]
     table = pd.DataFrame(rows).sort_values("job", kind="stable", na_position="last")
     return table.reset_index(drop=True)
+
+
+def unfinished_runs(sweep_dir: Path) -> list[Path]:
+    """The run folders below `sweep_dir` (those Hydra gave a HYDRA_FOLDER) that hold no
+    `result.json`: jobs that were interrupted, are still running or died before writing it."""
+    return sorted(
+        folder.parent
+        for folder in Path(sweep_dir).rglob(HYDRA_FOLDER)
+        if folder.is_dir() and not (folder.parent / RESULT_FILE).exists()
+    )
+
+
+def unfinished_line(sweep_dir: Path, unfinished: list[Path]) -> str | None:
+    """Which run folders the table leaves out for want of a result (None when none does)."""
+    if not unfinished:
+        return None
+    return f"Not in the table: {_unfinished_clause(sweep_dir, unfinished)}."
+
+
+def _unfinished_clause(sweep_dir: Path, unfinished: list[Path]) -> str:
+    """`<n> run folder(s) hold no result.json (interrupted, ...): a, b, c` with at most
+    LISTED_FOLDERS names, relative to `sweep_dir`."""
+    names = [folder.relative_to(sweep_dir).as_posix() for folder in unfinished]
+    listed = ", ".join(names[:LISTED_FOLDERS])
+    if len(names) > LISTED_FOLDERS:
+        listed += f" and {len(names) - LISTED_FOLDERS} more"
+    return (
+        f"{len(names)} run folder(s) hold no {RESULT_FILE} (interrupted, still running or "
+        f"stopped before writing it): {listed}"
+    )
 
 
 def _read_result(path: Path) -> dict[str, Any]:
@@ -118,10 +155,11 @@ def summary_table(results: pd.DataFrame) -> pd.DataFrame:
     return table[leading + [c for c in table.columns if c not in leading]]
 
 
-def markdown_table(table: pd.DataFrame, title: str) -> str:
+def markdown_table(table: pd.DataFrame, title: str, notes: Sequence[str] = ()) -> str:
     """The summary as a Markdown table in the paper's form (missing values as MISSING); when
     variant labels repeat, the parameters that tell the rows apart follow the variant. Failed
-    jobs are marked in the table and listed with their errors below it."""
+    jobs are marked in the table and listed with their errors below it, after `notes` (lines
+    the caller adds, such as `unfinished_line`)."""
     extra = [(name, name, "{}") for name in distinguishing_parameters(table)]
     columns = [MARKDOWN_COLUMNS[0], *extra, *MARKDOWN_COLUMNS[1:]]
     header = "| " + " | ".join(label for label, _, _ in columns) + " |"
@@ -140,7 +178,7 @@ def markdown_table(table: pd.DataFrame, title: str) -> str:
     for note in (absent_reference_line(table), unmatched_reference_line(table)):
         if note:
             lines += ["", note]
-    for note in stage_note_lines(table):
+    for note in [*stage_note_lines(table), *notes]:
         lines += ["", note]
     failed = failed_jobs(table)
     if failed:

@@ -24,6 +24,8 @@ from relaygs.app.summary import (
     is_number,
     markdown_table,
     summary_table,
+    unfinished_line,
+    unfinished_runs,
 )
 from relaygs.cli import OneLineErrorParser
 from relaygs.errors import InputError, RelayGSError
@@ -92,7 +94,8 @@ def _write_files(table: pd.DataFrame, sweep_dir: Path) -> ReportFiles:
     csv_path = sweep_dir / SUMMARY_CSV
     _write_csv(table, csv_path)
     markdown_path = sweep_dir / SUMMARY_MD
-    markdown = markdown_table(table, title)
+    unfinished = unfinished_line(sweep_dir, unfinished_runs(sweep_dir))
+    markdown = markdown_table(table, title, [unfinished] if unfinished else [])
     publish_text(markdown_path, markdown)
     plottable = zip(table.psnr, table.train_s_total, strict=True)
     plotted = table[[is_number(psnr) and is_number(time) for psnr, time in plottable]]
