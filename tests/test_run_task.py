@@ -76,6 +76,7 @@ def test_a_run_writes_a_flat_result_with_every_required_field(base_config, tmp_p
     overrides = [
         "relay.k=8",
         "+component=full",
+        "budget=smoke",
         "scene.loader.test_cameras=[0,2]",
         "paths.outputs=/x",
         "hydra.verbose=true",
@@ -89,6 +90,7 @@ def test_a_run_writes_a_flat_result_with_every_required_field(base_config, tmp_p
     assert (written["pipeline"], written["scene"], written["seed"]) == ("relaygs", "juggle", 0)
     assert written["relay.k"] == base_config["relay"]["k"]
     assert written["component"] == "full"
+    assert written["budget.name"] == "smoke" and "budget" not in written  # one column, not two
     assert written["scene.loader.test_cameras"] == "[0, 2]"  # a list as its JSON text
     assert not any(key.startswith(("paths", "hydra")) for key in written)
     assert written["storage_mb"] > 0

@@ -174,10 +174,13 @@ def _identity(cfg: Mapping[str, Any], plan: RunPlan, job: int | None) -> dict[st
 def _add_parameters(
     result: dict[str, Scalar], cfg: Mapping[str, Any], plan: RunPlan, overrides: Sequence[str]
 ) -> None:
-    """Add the ablation axes and every recorded override, by dotted key, to `result`."""
+    """Add the ablation axes and every recorded override, by dotted key, to `result` (a group
+    choice such as `budget=smoke` only where its `<group>.name` is not there already)."""
     for key in ALWAYS_RECORDED:
         result.setdefault(key, effective_value(cfg, plan, key))
     for key, text in recorded_overrides(overrides).items():
+        if f"{key}.name" in result:
+            continue
         in_config = key.split(".")[0] in cfg  # `+component=x` selects a group, not a key
         result.setdefault(key, effective_value(cfg, plan, key) if in_config else text)
 
