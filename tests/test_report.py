@@ -362,8 +362,8 @@ def test_a_budget_sweep_says_what_a_minute_buys_and_which_points_are_on_the_fron
     assert table.on_front.tolist() == [True, True, True, False, False]
     assert table.runs.tolist() == [1, 1, 1, 1, 2]
     text = files.budget.read_text()
-    assert "| juggle | relaygs | 0.5 | 1 | 5.0 | 23.00 | n/a | yes |" in text
-    assert "| juggle | relaygs | 1 | 1 | 10.0 | 24.00 | +0.200 | yes |" in text
+    assert "| juggle | relaygs | 0.5 | 1 | 5.00 | 23.00 | n/a | yes |" in text
+    assert "| juggle | relaygs | 1 | 1 | 10.00 | 24.00 | +0.200 | yes |" in text
 
 
 def test_no_budget_table_at_one_multiplier(sweep):

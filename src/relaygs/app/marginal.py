@@ -75,7 +75,7 @@ def marginal_markdown(table: pd.DataFrame, title: str) -> str:
             str(row.pipeline),
             f"{row.multiplier:g}",
             str(row.runs),
-            f"{row.minutes:.1f}",
+            f"{row.minutes:.2f}",
             f"{row.psnr:.2f}",
             gain,
             "yes" if row.on_front else "no",
