@@ -139,6 +139,21 @@ def test_the_summary_names_run_folders_that_hold_no_result(tmp_path, capsys):
     assert "writing it): 1_k16, 2_k2, 3_k3, 4_k4, 5_k5 and 2 more.\n" in markdown
 
 
+def test_the_summary_says_which_jobs_share_one_model(tmp_path):
+    # ablation_k on an 8-frame scene: k = 8 ... 128 are one segment, one relay/deform lineage
+    for number, variant in enumerate(["k8", "k16", "k32"]):
+        _job(tmp_path, number, variant, 25.0, 10.0, output_key="ab12cd34" + "0" * 56)
+    _job(tmp_path, 3, "k4", 26.0, 10.0, output_key="ef56" + "0" * 60)
+    _job(tmp_path, 4, "k2", None, 10.0, status="failed", output_key=None)
+    markdown = report.write_reports(tmp_path).markdown.read_text()
+    assert (
+        "\nSame model for job 0 (k8), job 1 (k16), job 2 (k32) (artifact ab12cd34): the same "
+        "computation on this scene, so their rows match (every relay.k at or above the "
+        "scene's frame count is one segment)\n"
+    ) in markdown
+    assert markdown.count("Same model") == 1
+
+
 def test_the_summary_says_which_jobs_a_stage_note_is_about(tmp_path):
     note = "[decouple] decouple marked no Gaussian as foreground"
     _job(tmp_path, 0, "k16", 26.0, 20.0, notes=note)

@@ -178,7 +178,7 @@ def markdown_table(table: pd.DataFrame, title: str, notes: Sequence[str] = ()) -
     for note in (absent_reference_line(table), unmatched_reference_line(table)):
         if note:
             lines += ["", note]
-    for note in [*stage_note_lines(table), *notes]:
+    for note in [*shared_model_lines(table), *stage_note_lines(table), *notes]:
         lines += ["", note]
     failed = failed_jobs(table)
     if failed:
@@ -260,6 +260,27 @@ def stage_note_lines(table: pd.DataFrame) -> list[str]:
         else:
             jobs = ", ".join(job_name(row) for _, row in rows.iterrows())
         lines.append(f"Note for {jobs}: {notes}")
+    return lines
+
+
+def shared_model_lines(table: pd.DataFrame) -> list[str]:
+    """One line per model that several finished jobs share (the same `output_key`): settings
+    that mean the same computation on this scene (every k at or above its frame count is one
+    segment), or a repeated run, so their rows are equal by construction."""
+    if "output_key" not in table:
+        return []
+    finished = table[[isinstance(key, str) and bool(key) for key in table["output_key"]]]
+    lines = []
+    for key, rows in finished.groupby("output_key", sort=False):
+        if len(rows) > 1:
+            jobs = ", ".join(job_name(row) for _, row in rows.iterrows())
+            why = ""
+            if "relay.k" in rows and rows["relay.k"].nunique() > 1:
+                why = " (every relay.k at or above the scene's frame count is one segment)"
+            lines.append(
+                f"Same model for {jobs} (artifact {str(key)[:8]}): the same computation on "
+                f"this scene, so their rows match{why}"
+            )
     return lines
 
 
