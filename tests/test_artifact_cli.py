@@ -440,6 +440,20 @@ def test_eval_lineage_names_an_upstream_artifact_gc_removed(
     assert f"needs decouple {keys['decouple'][:16]}, which is no longer in {store.root}" in err
 
 
+def test_eval_lineage_names_a_damaged_upstream_artifact_before_any_output(
+    stored_lineage, stage_scene_path, capsys
+):
+    store, keys = stored_lineage
+    tensors = next(store.path("relay", keys["relay"]).glob("*.safetensors"))
+    data = bytearray(tensors.read_bytes())
+    data[-1] ^= 0xFF
+    tensors.write_bytes(bytes(data))
+    argv = ("eval", keys["deform"][:8], "--scene", str(stage_scene_path), "--lineage")
+    code, out, err = _cli(capsys, store.root, *argv)
+    assert code == 1 and out == "" and err.count("\n") == 1
+    assert keys["relay"][:16] in err and "damaged" in err, err
+
+
 def test_eval_lineage_and_per_view_are_a_usage_error(capsys, tmp_path):
     with pytest.raises(SystemExit) as caught:
         main(["eval", KEY_A[:8], "--scene", str(tmp_path), "--lineage", "--per-view", "v.csv"])

@@ -35,9 +35,11 @@ def run_eval(store: ArtifactStore, args: argparse.Namespace) -> int:
     where = f"on {args.scene} (test cameras {tests})"
     if args.lineage:
         entries = _lineage(store, item)
+        models = [store.load(entry.stage, entry.key) for entry in entries]  # damaged: before output
         print(f"{item.stage} {item.key[:KEY_COLUMN_WIDTH]} and its lineage {where}")
         rows = [
-            _scores(entry, store.load(entry.stage, entry.key), scene, settings) for entry in entries
+            _scores(entry, model, scene, settings)
+            for entry, model in zip(entries, models, strict=True)
         ]
         print(_lineage_table(entries, rows))
         note_other_scene(entries, scene, args)
