@@ -7,6 +7,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import io
+import math
 import os
 import re
 import shlex
@@ -71,6 +72,18 @@ def int_at_least(minimum: int, maximum: int | None = None) -> Callable[[str], in
         return value
 
     return parse
+
+
+def positive_float(text: str) -> float:
+    """argparse type of a rate such as `--fps`: a finite number above 0, else refused in one
+    line (`nan`, `inf` and 0 would only fail once the work is done)."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
+    return value
 
 
 def python_command() -> str:

@@ -14,7 +14,7 @@ from pathlib import Path
 from safetensors import SafetensorError, safe_open
 
 from relaygs.app.evaluation import EVAL_STAGE
-from relaygs.cli import OneLineErrorParser, int_at_least, writable_file
+from relaygs.cli import OneLineErrorParser, int_at_least, positive_float, writable_file
 from relaygs.commands.artifact_models import (
     KEY_COLUMN_WIDTH,
     add_device_argument,
@@ -148,7 +148,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     render.add_argument(
         "--path",
-        type=int,
+        type=int_at_least(1),
         metavar="N",
         help="instead, N views along the orbit that the --camera ids (default: the train "
         "cameras) place around the scene's centre, time running over the frames",
@@ -156,7 +156,9 @@ def _parser() -> argparse.ArgumentParser:
     render.add_argument(
         "--path-frame", type=int, metavar="F", help="with --path: hold the model at frame F"
     )
-    render.add_argument("--fps", type=float, default=15.0, help="video frame rate (default 15)")
+    render.add_argument(
+        "--fps", type=positive_float, default=15.0, help="video frame rate (default 15)"
+    )
     render.add_argument("--no-video", action="store_true", help="write PNG frames only")
     add_device_argument(render)
     add_threads_argument(render)
