@@ -540,16 +540,18 @@ def test_the_note_says_which_given_option_or_the_files_differ_from_the_run(
         store.get_or_build(
             "decouple", key, lambda: stage_decoupled, config={}, lineage=[], provenance=provenance
         )
-        for given in ((), ("--test-cameras", "1,6")):
+        for given in ((), ("--test-cameras", "1,6"), ("--test-cameras", "5,1,5")):
             code, _, err = _cli(capsys, store.root, "eval", key[:8], *scene, *given)
             assert code == 0
             notes[name, given] = err
     assert notes["same files", ()] == ""  # loaded as its run loaded it
-    given_here = "(given here: --test-cameras (the run's: [1, 5])), so its test views are not"
+    assert notes["same files", ("--test-cameras", "5,1,5")] == ""  # the same cameras
+    given_here = "(given here: --test-cameras (the run's: 1,5)), so its test views are not"
     assert given_here in notes["same files", ("--test-cameras", "1,6")]
     assert given_here in notes["other files", ("--test-cameras", "1,6")]
     files = "(its run's loader options were used, so its files differ from those the run read"
     assert files in notes["other files", ()]
+    assert files in notes["other files", ("--test-cameras", "5,1,5")]  # not the flag's fault
 
 
 def test_a_model_trained_on_every_camera_is_told_to_load_none_as_test_cameras(

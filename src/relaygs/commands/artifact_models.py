@@ -8,6 +8,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 from relaygs.app.evaluation import EVAL_STAGE
 from relaygs.app.plan import MAX_THREADS
@@ -134,11 +135,11 @@ def _why_other_scene(item: StoredArtifact, args: argparse.Namespace) -> str:
             "pass the run's --downscale and --test-cameras"
         )
     given = {name: getattr(args, name) for name in FLAGGED_LOADING}
+    run_flags = {name: _as_typed(value) for name, value in recorded.items()}
     changed = [
-        f"--{name.replace('_', '-')} (the run's: {recorded.get(name, 'the default')})"
+        f"--{name.replace('_', '-')} (the run's: {run_flags.get(name, 'the default')})"
         for name, value in given.items()
-        if value is not None
-        and (list(value) if isinstance(value, tuple) else value) != recorded.get(name)
+        if value is not None and _as_typed(value) != run_flags.get(name)
     ]
     if changed:
         return f"given here: {', '.join(changed)}), so its test views are not the run's"
@@ -146,3 +147,11 @@ def _why_other_scene(item: StoredArtifact, args: argparse.Namespace) -> str:
         "its run's loader options were used, so its files differ from those the run read: "
         "another copy of the scene, or an edited one), and its scores may not be the run's"
     )
+
+
+def _as_typed(value: Any) -> str:
+    """A loader option's value as its flag is typed, camera ids as the set they are (`1,5`, or
+    `[]` for none), so that the same cameras in another order or repeated count as the same."""
+    if isinstance(value, list | tuple):
+        return ",".join(str(item) for item in sorted(set(value))) or "[]"
+    return str(value)
