@@ -4,7 +4,14 @@ from __future__ import annotations
 
 import io
 
-from relaygs.progress import LOG_INTERVAL_S, is_terminal, job_label, labelled, progress_bar
+from relaygs.progress import (
+    LOG_INTERVAL_S,
+    is_terminal,
+    job_label,
+    labelled,
+    print_labelled,
+    progress_bar,
+)
 
 
 class _Terminal(io.StringIO):
@@ -64,6 +71,30 @@ def test_a_job_label_leads_lines_and_bar_names_only_inside_its_block() -> None:
         with job_label(None):  # a job run alone inside it names nothing
             assert labelled("[relay] built") == "[relay] built"
         assert labelled("x") == "[3_k64] x"
+        assert labelled("outputs:\n  result r.json") == "[3_k64] outputs:\n[3_k64]   result r.json"
     assert labelled("[relay] built") == "[relay] built"
+    assert labelled("outputs:\n  result r.json") == "outputs:\n  result r.json"
     with progress_bar(total=2, desc="relay", stream=io.StringIO()) as bar:
         assert bar.desc.startswith("relay")
+
+
+class _Writes(io.StringIO):
+    """A stdout that records each write it is given."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.writes: list[str] = []
+
+    def write(self, text: str) -> int:
+        self.writes.append(text)
+        return super().write(text)
+
+
+def test_a_labelled_block_is_printed_in_one_write(monkeypatch) -> None:
+    # jobs printing side by side: another job's lines cannot land inside this block
+    stdout = _Writes()
+    monkeypatch.setattr("sys.stdout", stdout)
+    with job_label("3_k64"):
+        print_labelled("PSNR 30\noutputs:")
+    print_labelled("PSNR 30\noutputs:")
+    assert stdout.writes == ["[3_k64] PSNR 30\n[3_k64] outputs:\n", "PSNR 30\noutputs:\n"]

@@ -5,6 +5,7 @@ import dataclasses
 import errno
 import json
 import os
+import re
 
 import pytest
 import torch
@@ -119,21 +120,27 @@ def test_changing_k_reuses_decouple_and_rebuilds_relay_and_deform(base_config, t
 
 def _status_lines(out):
     """The lines that say what a job built, reused or evaluated (not the summary's)."""
-    words = (" built ", " evaluated ", " reused ")
-    return [line for line in out.splitlines() if "]" in line and any(w in line for w in words)]
+    status = re.compile(r"(\[\w+\] )?\[\w+\] (built|evaluated|reused) ")
+    return [line for line in out.splitlines() if status.match(line)]
 
 
 def test_a_labelled_job_names_itself_on_every_status_line(base_config, tmp_path, capsys):
     # jobs of a parallel launcher print side by side: each line says whose it is
     fakes = FakeStages()
     _run(base_config, tmp_path / "3_k64", fakes, label="3_k64")
-    labelled = _status_lines(capsys.readouterr().out)
+    out = capsys.readouterr().out
+    labelled = _status_lines(out)
     assert len(labelled) == 4  # three stages and the evaluation
     assert all(line.startswith("[3_k64] [") for line in labelled)
+    # and so does every line of its results table and outputs block
+    assert all(line.startswith("[3_k64] ") for line in out.splitlines())
+    assert "\n[3_k64]   PSNR " in out and "\n[3_k64] outputs:\n[3_k64]   result " in out
     _run(base_config, tmp_path / "alone", fakes)
-    alone = _status_lines(capsys.readouterr().out)
+    out = capsys.readouterr().out
+    alone = _status_lines(out)
     assert len(alone) == 4 and all(line.startswith("[") for line in alone)
-    assert not any("3_k64" in line for line in alone)
+    assert "3_k64" not in out
+    assert "\n  PSNR " in out and "\noutputs:\n  result " in out  # as a single run prints
 
 
 def test_a_result_names_the_images_it_was_scored_on(base_config, tmp_path):

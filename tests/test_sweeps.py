@@ -155,3 +155,12 @@ def test_parallel_jobs_share_the_store_and_build_decouple_once(tmp_path):
     status = [line for line in done.stdout.splitlines() if "] [decouple] " in line]
     assert {line.split("]")[0].lstrip("[") for line in status} == jobs
     assert sum(" built decouple " in line for line in status) == 1
+    # and so does each job's results table and outputs block, printed whole
+    lines = done.stdout.splitlines()
+    blocks = [
+        (line.removesuffix("outputs:"), lines[i + 1])
+        for i, line in enumerate(lines[:-1])
+        if line.endswith("] outputs:")
+    ]
+    assert {label for label, _ in blocks} == {f"[{job}] " for job in jobs}
+    assert all(after.startswith(f"{label}  result ") for label, after in blocks)

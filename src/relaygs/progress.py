@@ -32,9 +32,18 @@ def job_label(label: str | None) -> Iterator[None]:
         _job_label = previous
 
 
-def labelled(line: str) -> str:
-    """`line`, led by `[label] ` inside `job_label`."""
-    return f"[{_job_label}] {line}" if _job_label else line
+def labelled(text: str) -> str:
+    """`text`, each of its lines led by `[label] ` inside `job_label`."""
+    if not _job_label:
+        return text
+    return "\n".join(f"[{_job_label}] {line}" for line in text.split("\n"))
+
+
+def print_labelled(text: str) -> None:
+    """Print the lines of `text`, `labelled`, to stdout in one flushed write, so that the block
+    a job prints is not interleaved with the lines of jobs printing beside it."""
+    sys.stdout.write(labelled(text) + "\n")
+    sys.stdout.flush()
 
 
 def is_terminal(stream: TextIO) -> bool:

@@ -38,7 +38,7 @@ from relaygs.device import set_threads
 from relaygs.errors import resource_error
 from relaygs.per_view import METRIC_COLUMNS, PER_VIEW, PER_VIEW_FILE, frame_means, write_per_view
 from relaygs.pipeline import Artifact, ArtifactStore, NodeReport, PipelineRun, run_pipeline
-from relaygs.progress import job_label, labelled
+from relaygs.progress import job_label, labelled, print_labelled
 
 TENSORBOARD_DIR = "tb"
 HPARAM_EXCLUDED_SECTIONS = ("paths", "artifacts")
@@ -69,14 +69,14 @@ def run_task(
     """Run one job and return its result (also written to `<run_dir>/result.json`; `job_s`
     is the job's wall time up to the result: scene, stages and evaluation).
 
-    `overrides` are the job's command-line/sweep overrides (recorded in the result), `job`
-    its number in a sweep, `label` the name its status lines and bars carry when jobs run side
-    by side (`job_label`). Bad input raises InputError before anything is written to
-    `run_dir`, and so does bad scene data in a single run (an earlier run's result there stays
-    as it was); in a sweep's job (`job` given) a bad scene is that job's failure, so the
-    sweep's other jobs, on other scenes, still run. A failure is re-raised once a
-    `result.json` with status `failed` and the error is written, as a one-line ResourceError
-    when the disk or memory ran out (`resource_error`).
+    `overrides` are the job's command-line/sweep overrides (recorded in the result), `job` its
+    number in a sweep, `label` the name its status lines, bars and closing results and outputs
+    lines carry when jobs run side by side (`job_label`). Bad input raises InputError before
+    anything is written to `run_dir`, and so does bad scene data in a single run (an earlier
+    run's result there stays as it was); in a sweep's job (`job` given) a bad scene is that
+    job's failure, so the sweep's other jobs, on other scenes, still run. A failure is re-raised
+    once a `result.json` with status `failed` and the error is written, as a one-line
+    ResourceError when the disk or memory ran out (`resource_error`).
     """
     started = time.perf_counter()
     config = resolve_config(cfg, original_cwd)
@@ -99,8 +99,8 @@ def run_task(
             if failure is None:
                 raise
             raise failure from error
-    print(format_summary(result))
-    print(_where(plan, outcome, result_path), flush=True)  # before a sweep's next job starts
+        # flushed before a sweep's next job starts; one block, named by the job side by side
+        print_labelled(f"{format_summary(result)}\n{_where(plan, outcome, result_path)}")
     return result
 
 

@@ -94,9 +94,9 @@ def _job_validator(suite: StageSuite) -> JobValidator:
 def run_job(cfg: DictConfig) -> dict[str, Any] | None:
     """Hydra's task function: one job with its run dir, launch dir and overrides.
 
-    A job of a parallel launcher's sweep names its folder (`3_k64`) on its status lines and
-    bars, as jobs then print side by side. A RelayGS error ends a single run with one line on
-    stderr (exit 1). In a multirun, a job
+    A job of a parallel launcher's sweep names its folder (`3_k64`) on its status lines, bars
+    and closing results and outputs lines, as jobs then print side by side. A RelayGS error
+    ends a single run with one line on stderr (exit 1). In a multirun, a job
     whose failure it recorded in its `result.json` (see `run_task`; not a result an earlier
     sweep left in its folder) reports it and returns None, so the other jobs still run; the
     sweep summary lists it and the command exits 1.
