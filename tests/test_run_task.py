@@ -242,6 +242,26 @@ def test_another_cpu_thread_count_is_another_evaluation(base_config, tmp_path):
     assert fakes.evaluations == 2 and fakes.ran("deform") == 1
 
 
+def test_the_printed_ply_and_render_commands_take_the_runs_thread_count(
+    base_config, tmp_path, capsys
+):
+    """A run that set `threads` (a share of a busy machine) prints commands that use as many:
+    with torch's default instead, a render on a loaded 2-core machine ran 25 times slower."""
+    fakes = FakeStages()
+    threads = torch.get_num_threads()
+    try:
+        result = _run(_with(base_config, threads=2), tmp_path / "two", fakes)
+        two = capsys.readouterr().out
+        _run(_with(base_config, threads=None), tmp_path / "default", fakes)
+        default = capsys.readouterr().out
+    finally:
+        torch.set_num_threads(threads)
+    key = result["output_key"][:16]
+    assert f" ply {key} --threads 2\n" in two and " --truth --error --threads 2\n" in two
+    assert f" ply {key}\n" in default and " --truth --error\n" in default
+    assert "--threads" not in default
+
+
 def test_evaluation_key_names_the_thread_count_only_on_the_cpu():
     settings = {"eval": {"frame_stride": 1}}
     cpu = evaluation_config({**settings, "train": {"device": "cpu"}})
@@ -334,13 +354,13 @@ def test_the_suites_upstream_types_are_checked_before_any_stage_runs(base_config
 def test_the_printed_render_command_keeps_the_scenes_downscale(base_config, tmp_path, capsys):
     _run(_with(base_config, scene__loader__downscale=2), tmp_path / "run", FakeStages())
     videos = next(line for line in capsys.readouterr().out.splitlines() if "videos" in line)
-    assert videos.endswith(" --downscale 2 --truth --error")
+    assert videos.endswith(" --downscale 2 --truth --error --threads 1")  # smoke: threads=1
 
 
 def test_the_printed_render_command_renders_where_the_run_trained(base_config, tmp_path, capsys):
     _run(_with(base_config, train__device="cuda:1"), tmp_path / "run", FakeStages())
     videos = next(line for line in capsys.readouterr().out.splitlines() if "videos" in line)
-    assert videos.endswith(" --truth --error --device cuda:1")
+    assert videos.endswith(" --truth --error --device cuda:1 --threads 1")
 
 
 @pytest.mark.parametrize(("held_out", "printed"), [([4, 1], "1,4"), ([], "'[]'")])
@@ -349,7 +369,7 @@ def test_the_printed_render_command_keeps_the_runs_test_cameras(
 ):
     _run(_with(base_config, scene__loader__test_cameras=held_out), tmp_path / "run", FakeStages())
     videos = next(line for line in capsys.readouterr().out.splitlines() if "videos" in line)
-    assert videos.endswith(f" --test-cameras {printed} --truth --error")
+    assert videos.endswith(f" --test-cameras {printed} --truth --error --threads 1")
 
 
 def test_bad_values_fail_before_any_stage_runs(base_config, tmp_path):

@@ -271,7 +271,7 @@ def _log_previews(
 def _where(plan: RunPlan, outcome: _Outcome, result_path: Path) -> str:
     """Where this run's outputs are, and the commands that export its model for 3DGS viewers
     and render it as videos (paths in the commands shell-quoted, so a folder with spaces
-    pastes as one argument)."""
+    pastes as one argument; the run's `threads`, when set, so they run as fast as it did)."""
     output = outcome.run.reports[-1]
     scene = outcome.scene
     loader = f" --downscale {scene.downscale}" if scene.downscale != 1 else ""
@@ -279,6 +279,7 @@ def _where(plan: RunPlan, outcome: _Outcome, result_path: Path) -> str:
         ids = ",".join(str(camera.camera_id) for camera in scene.test_cameras) or "[]"
         loader += f" --test-cameras {shlex.quote(ids)}"
     device = f" --device {shlex.quote(plan.device)}" if plan.device != "cpu" else ""
+    threads = f" --threads {plan.threads}" if plan.threads is not None else ""
     root, scene_dir = shlex.quote(str(plan.artifacts_root)), shlex.quote(str(scene.root))
     artifacts = f"{python_command()} -m relaygs.artifacts --root {root}"
     lines = [
@@ -289,8 +290,8 @@ def _where(plan: RunPlan, outcome: _Outcome, result_path: Path) -> str:
         f"{shlex.quote(str(outcome.log_dir))}",
         f"  model        {output.path}",
         f"  store        {plan.artifacts_root}  ({artifacts} ls)",
-        f"  ply          {artifacts} ply {output.key[:16]}",
+        f"  ply          {artifacts} ply {output.key[:16]}{threads}",
         f"  videos       {artifacts} render {output.key[:16]} --scene {scene_dir}{loader} "
-        f"--truth --error{device}",
+        f"--truth --error{device}{threads}",
     ]
     return "\n".join(lines)
