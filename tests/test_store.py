@@ -315,12 +315,13 @@ def test_gc_keeps_only_annotations_whose_upstreams_are_all_kept(tmp_path):
     assert not store.has("evaluate", orphan)
 
 
-def test_a_key_prefix_under_4_digits_is_refused(tmp_path):
+@pytest.mark.parametrize("prefix", [KEY[:3], "zzzz", KEY[:3] + "-"])
+def test_a_key_prefix_under_4_hex_digits_is_refused(tmp_path, prefix):
     store = ArtifactStore(tmp_path)
     _build(store, CountingStage())
-    assert store.find(KEY[:4]).key == KEY
-    with pytest.raises(InputError, match=f"key prefix '{KEY[:3]}' is too short"):
-        store.find(KEY[:3])
+    assert store.find(KEY[:4].upper()).key == KEY
+    with pytest.raises(InputError, match=f"^key prefix '{prefix}': expected at least 4 hex digits"):
+        store.find(prefix)
 
 
 def test_metrics_that_are_not_a_mapping_are_refused_and_nothing_is_stored(tmp_path):

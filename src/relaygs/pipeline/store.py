@@ -51,6 +51,7 @@ from relaygs.pipeline.manifest import (
 OnCorrupt = Literal["rebuild", "error"]
 ON_CORRUPT_CHOICES = ("rebuild", "error")
 VERIFY_HINT = "`python -m relaygs.artifacts verify` lists the damaged artifacts"
+HEX_DIGITS = frozenset("0123456789abcdef")
 
 
 class MissingArtifactError(RelayGSError, LookupError):
@@ -203,8 +204,11 @@ class ArtifactStore:
         """The one finished artifact whose key starts with `key_prefix` (any stage); a prefix
         that matches only a damaged folder says so rather than that nothing matches."""
         prefix = key_prefix.strip().lower()
-        if len(prefix) < 4:
-            raise InputError(f"key prefix {key_prefix!r} is too short (need at least 4 hex digits)")
+        if len(prefix) < 4 or any(digit not in HEX_DIGITS for digit in prefix):
+            raise InputError(
+                f"key prefix {key_prefix!r}: expected at least 4 hex digits (0-9, a-f), as "
+                "`ls` lists keys"
+            )
         found, damaged = self._scan(check_hashes=False)
         matches = [item for item in found if item.key.startswith(prefix)]
         if not matches:
