@@ -257,22 +257,26 @@ def test_a_slurm_sweep_off_a_cluster_is_one_line_before_any_work(fakes, tmp_path
     assert list(tmp_path.iterdir()) == []
 
 
-def test_ctrl_c_ends_the_run_with_one_line_and_status_130(fakes, capsys):
-    def interrupt(stage, step, scalars, images=None):
-        raise Interrupted(f"{stage} stopped after step 3 of 9; run the same command again")
+def _terminate(stage, step, scalars, images=None):
+    """A sink that stops the job as `kill PID` does, where no stage says where it stopped."""
+    os.kill(os.getpid(), signal.SIGTERM)
+    time.sleep(5)  # the handler raises before this ends
 
-    fakes.sinks.append(interrupt)
+
+def _interrupt(stage, step, scalars, images=None):
+    """A sink that stops the job as Ctrl-C in a stage's training loop does."""
+    raise Interrupted(f"{stage} stopped after step 3 of 9; run the same command again")
+
+
+def test_ctrl_c_ends_the_run_with_one_line_and_status_130(fakes, capsys):
+    fakes.sinks.append(_interrupt)
     assert _main(["budget=smoke", *TINY_SCENE]) == run_module.INTERRUPTED_EXIT == 130
     last = capsys.readouterr().err.strip().splitlines()[-1]
     assert last == "interrupted: decouple stopped after step 3 of 9; run the same command again"
 
 
 def test_sigterm_stops_the_run_as_ctrl_c_does_with_status_143(fakes, capsys):
-    def terminate(stage, step, scalars, images=None):
-        os.kill(os.getpid(), signal.SIGTERM)
-        time.sleep(5)  # the handler raises before this ends
-
-    fakes.sinks.append(terminate)
+    fakes.sinks.append(_terminate)
     previous = signal.getsignal(signal.SIGTERM)
     assert _main(["budget=smoke", *TINY_SCENE]) == run_module.TERMINATED_EXIT == 143
     # a stage that cannot say where it stopped (a fake one here, a parallel launcher's worker
@@ -280,6 +284,45 @@ def test_sigterm_stops_the_run_as_ctrl_c_does_with_status_143(fakes, capsys):
     last = capsys.readouterr().err.strip().splitlines()[-1]
     assert last == f"interrupted: {RERUN_RUN}"
     assert signal.getsignal(signal.SIGTERM) is previous
+
+
+@pytest.mark.parametrize(
+    ("stop", "status", "stopped"),
+    [
+        (_terminate, run_module.TERMINATED_EXIT, RERUN_RUN),
+        (_interrupt, run_module.INTERRUPTED_EXIT, "decouple stopped after step 3 of 9; run the"),
+    ],
+)
+def test_an_interrupted_sweep_is_told_to_rerun_in_its_own_folder(
+    fakes, tmp_path, capsys, stop, status, stopped
+):
+    # the same command again would go on in a new timestamped folder, leaving this one
+    # without a summary: the line names the folder, quoted to paste as one override
+    fakes.sinks.append(stop)
+    args = ["-m", "relay.k=8,16", "budget=smoke", "paths.outputs=my out", *TINY_SCENE]
+    assert _main(args) == status
+    [folder] = (tmp_path / "my out" / "sweeps").iterdir()
+    override = f"hydra.sweep.dir={folder.relative_to(tmp_path)}"
+    last = capsys.readouterr().err.strip().splitlines()[-1]
+    assert last.startswith(f"interrupted: {stopped}")
+    assert last.endswith(
+        f"; add {shlex.quote(override)} to the command, so that the sweep goes on in its "
+        "folder, not a new one"
+    )
+    fakes.sinks.remove(stop)
+    assert _main([*args, override]) == 0
+    assert (folder / "summary.md").is_file()
+    assert list((tmp_path / "my out" / "sweeps").iterdir()) == [folder]
+
+
+def test_an_interrupted_sweep_in_a_folder_the_command_names_is_told_to_rerun_it(
+    fakes, tmp_path, capsys
+):
+    fakes.sinks.append(_terminate)
+    folder = tmp_path / "sweep"
+    args = ["-m", "relay.k=8,16", "budget=smoke", f"hydra.sweep.dir={folder}", *TINY_SCENE]
+    assert _main(args) == run_module.TERMINATED_EXIT
+    assert capsys.readouterr().err.strip().splitlines()[-1] == f"interrupted: {RERUN_RUN}"
 
 
 @pytest.mark.parametrize(

@@ -6,17 +6,30 @@ from __future__ import annotations
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 from filelock import FileLock, Timeout
 from hydra.experimental.callback import Callback
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
 from relaygs.app.summary import results_written_before
 from relaygs.commands.report import describe, write_reports
 from relaygs.errors import RelayGSError
 
 SWEEP_LOCK_FILE = ".sweep.lock"
+
+
+class StartedSweep(NamedTuple):
+    """A sweep this process started: its folder, and whether the command named it
+    (`hydra.sweep.dir=...`), so that the same command run again goes on in that folder."""
+
+    folder: Path
+    named: bool
+
+
+STARTED_SWEEPS: list[StartedSweep] = []
+"""The sweeps this process started, as `SweepFolderLock` took their folders: what a command
+stopped by Ctrl-C names for its rerun (`relaygs.commands.run` empties it before each launch)."""
 
 
 class SweepFolderLock(Callback):
@@ -34,7 +47,8 @@ class SweepFolderLock(Callback):
         return {**self.__dict__, "_lock": None}
 
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
-        """Take the sweep folder's lock, or end the command with one line if a sweep holds it."""
+        """Take the sweep folder's lock, or end the command with one line if a sweep holds it;
+        record the folder in `STARTED_SWEEPS`."""
         sweep_dir = Path(str(config.hydra.sweep.dir))
         sweep_dir.mkdir(parents=True, exist_ok=True)
         lock = FileLock(sweep_dir / SWEEP_LOCK_FILE)
@@ -49,6 +63,9 @@ class SweepFolderLock(Callback):
             # Hydra turns a callback's exception into a warning; SystemExit ends the command.
             raise SystemExit(1) from None
         self._lock = lock
+        given = OmegaConf.select(config, "hydra.overrides.hydra", default=None) or []
+        named = any(str(line).partition("=")[0].lstrip("+") == "hydra.sweep.dir" for line in given)
+        STARTED_SWEEPS.append(StartedSweep(sweep_dir, named))
 
     def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
         """Let the next sweep in this folder start."""

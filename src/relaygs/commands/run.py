@@ -9,6 +9,7 @@ Hydra composes the config and calls `relaygs.app.task.run_task` for each job.
 
 from __future__ import annotations
 
+import shlex
 import signal
 import sys
 import traceback
@@ -22,6 +23,7 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig
 
+from relaygs.app.callbacks import STARTED_SWEEPS, StartedSweep
 from relaygs.app.config import resolve_config
 from relaygs.app.plan import plan_run
 from relaygs.app.prelaunch import LAUNCH_FLAGS, JobValidator, check_command_line
@@ -49,6 +51,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     # installed before the command line is checked (composing every job takes a while), so a
     # Ctrl-C or SIGTERM then also ends with one line and 130/143, not a traceback
     previous = signal.signal(signal.SIGTERM, stop_like_ctrl_c)
+    STARTED_SWEEPS.clear()  # an earlier command's, when this process runs several
     try:
         conf = config_dir()
         check_command_line(args, conf, _job_validator(load_stage_suite()))
@@ -61,7 +64,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"error: {error}", file=sys.stderr)
         return 1
     except KeyboardInterrupt as stop:
-        print(_interrupted_line(stop, bool(launched)), file=sys.stderr)
+        sweep = STARTED_SWEEPS[-1] if STARTED_SWEEPS else None
+        print(_interrupted_line(stop, bool(launched), sweep), file=sys.stderr)
         return TERMINATED_EXIT if terminated else INTERRUPTED_EXIT
     finally:
         signal.signal(signal.SIGTERM, previous)
@@ -69,13 +73,24 @@ def main(argv: Sequence[str] | None = None) -> int:
     return 0
 
 
-def _interrupted_line(stop: KeyboardInterrupt, launched: bool) -> str:
+def _interrupted_line(stop: KeyboardInterrupt, launched: bool, sweep: StartedSweep | None) -> str:
     """The line a stopped command ends with: the stage's own account of where it stopped, else
     (a parallel launcher's workers cannot report theirs) what running it again does, once jobs
-    had started."""
+    had started. A sweep whose folder the command did not name (a timestamped one) is told to
+    name it in the rerun, which would otherwise go on in a new folder."""
     if str(stop):
-        return f"interrupted: {stop}"
-    return f"interrupted: {RERUN_RUN}" if launched else "interrupted"
+        line = f"interrupted: {stop}"
+    elif launched:
+        line = f"interrupted: {RERUN_RUN}"
+    else:
+        return "interrupted"
+    if sweep is None or sweep.named:
+        return line
+    override = shlex.quote(f"hydra.sweep.dir={sweep.folder}")
+    return (
+        f"{line}; add {override} to the command, so that the sweep goes on in its folder, "
+        "not a new one"
+    )
 
 
 def _job_validator(suite: StageSuite) -> JobValidator:
