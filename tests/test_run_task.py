@@ -59,7 +59,7 @@ def _with(config, **dotted):
     return changed
 
 
-def _run(config, run_dir, fakes, overrides=(), label=None):
+def _run(config, run_dir, fakes, overrides=(), label=None, job=None):
     """Run with a store beside the run dir (runs in one test share it, tests do not)."""
     config = _with(config, artifacts__root=str(run_dir.parent / "artifacts"))
     return run_task(
@@ -67,6 +67,7 @@ def _run(config, run_dir, fakes, overrides=(), label=None):
         run_dir=run_dir,
         original_cwd=run_dir,
         overrides=list(overrides),
+        job=job,
         label=label,
         suite=fakes.suite(),
     )
@@ -179,6 +180,24 @@ def test_a_run_folder_used_again_is_noted(base_config, tmp_path, capsys):
     _run(base_config, tmp_path / "a", fakes)
     err = capsys.readouterr().err
     assert "already holds a run: TensorBoard shows its curves" in err
+
+
+def test_a_sweep_job_resumed_in_its_folder_is_not_noted_but_another_run_there_is(
+    base_config, tmp_path, capsys
+):
+    # a sweep rerun with its hydra.sweep.dir (as an interrupted one is told to) finds each
+    # job's own result: no advice to give it another folder
+    fakes = FakeStages()
+    folder = tmp_path / "sweep" / "0_relaygs"
+    k8, k16 = _with(base_config, relay__k=8), _with(base_config, relay__k=16)
+    _run(k8, folder, fakes, overrides=["relay.k=8", "+component=full"], job=0)
+    _run(k8, folder, fakes, overrides=["relay.k=8", "+component=full"], job=0)
+    assert "already holds a run" not in capsys.readouterr().err
+    note = f"note: {folder} already holds a run: its result.json is replaced"
+    _run(k16, folder, fakes, overrides=["relay.k=16"], job=0)  # another sweep's job 0
+    assert note in capsys.readouterr().err
+    _run(k16, folder, fakes, overrides=["relay.k=16"], job=1)  # another job of a sweep
+    assert note in capsys.readouterr().err
 
 
 def test_an_evaluated_model_is_not_evaluated_again(base_config, tmp_path, capsys):

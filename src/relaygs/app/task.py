@@ -7,6 +7,7 @@ and fake stages.
 
 from __future__ import annotations
 
+import json
 import shlex
 import sys
 import time
@@ -26,7 +27,9 @@ from relaygs.app.result import (
     Scalar,
     build_failed_result,
     build_result,
+    effective_value,
     format_summary,
+    recorded_overrides,
     write_result,
 )
 from relaygs.app.scenes import prepare_scene, scene_provenance
@@ -138,7 +141,7 @@ def _execute(
 ) -> _Outcome:
     """Run the stages on the scene, evaluate and log."""
     store = ArtifactStore(plan.artifacts_root)
-    _note_earlier_run(Path(run_dir))
+    _note_earlier_run(Path(run_dir), config, plan, overrides, job)
     log = TensorBoardLog(Path(run_dir) / TENSORBOARD_DIR)
     suite.add_sink(log)
     try:
@@ -200,11 +203,21 @@ def _log_reused_stages(log: TensorBoardLog, suite: StageSuite, run: PipelineRun)
                 log(report.stage, step, scalars)
 
 
-def _note_earlier_run(run_dir: Path) -> None:
+def _note_earlier_run(
+    run_dir: Path,
+    config: dict[str, Any],
+    plan: RunPlan,
+    overrides: Sequence[str],
+    job: int | None,
+) -> None:
     """Say on stderr when the run folder already holds a run (a pinned `hydra.run.dir` used
-    again): its result is replaced and TensorBoard would show both runs' curves as one run."""
+    again): its result is replaced and TensorBoard would show both runs' curves as one run.
+    Nothing is said where the folder holds this sweep job's own result, as a sweep resumed in
+    place (the same `hydra.sweep.dir`, as an interrupted sweep is told to) finds it."""
     events = any((run_dir / TENSORBOARD_DIR).glob("events.out.tfevents.*"))
     result = (run_dir / RESULT_FILE).is_file()
+    if result and job is not None and _is_same_job(run_dir, config, plan, overrides, job):
+        return
     if events or result:
         replaced = f"its {RESULT_FILE} is replaced and " if result else ""
         print(
@@ -216,6 +229,25 @@ def _note_earlier_run(run_dir: Path) -> None:
             file=sys.stderr,
             flush=True,
         )
+
+
+def _is_same_job(
+    run_dir: Path, config: dict[str, Any], plan: RunPlan, overrides: Sequence[str], job: int
+) -> bool:
+    """Whether the folder's `result.json` records sweep job `job` with each of this job's
+    overrides at the value it has now (a `+group` choice the config does not hold, such as
+    `+component`, goes by the job's folder, which its variant names)."""
+    try:
+        earlier = json.loads((run_dir / RESULT_FILE).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    if not isinstance(earlier, dict) or earlier.get("job") != job:
+        return False
+    return all(
+        earlier.get(key) == effective_value(config, plan, key)
+        for key in recorded_overrides(overrides)
+        if key.split(".")[0] in config
+    )
 
 
 def _announce(report: NodeReport) -> None:
