@@ -64,9 +64,12 @@ def _main(args):
         # a capture has its own frames and size: a preset's setting beside it would be ignored
         (["scene.path=/data/cap", "scene.frames=4"], "scene.frames=4 sets a synthetic scene, but"),
         (["scene=court", "scene.path=/data/cap"], "scene=court sets a synthetic scene"),
-        (["-m", "scene.path=/data/cap", "scene.width=8,16"], "job scene.path=/data/cap scene."),
+        (["-m", "scene.path=/data/cap", "scene.width=8,16"], "job scene.width=8: scene.width="),
         (["-m", "relay.k=16,0"], "job relay.k=0: relay.k"),
-        (["+experiment=ablation_k", "relay.k=0"], "relay.k"),
+        # a job is named by what tells it from the others: the swept overrides
+        (["-m", "budget=smoke", "relay.k=8,0", "seed=3"], "error: job relay.k=0: relay.k:"),
+        (["-m", "relay.k=8,0", "seed=1,2", "budget=smoke"], "error: job relay.k=0 seed=1: relay"),
+        (["+experiment=ablation_k", "relay.k=0"], "error: job relay.k=0 +experiment=ablation_k: "),
         (["+experiment=budget", "budget.multiplier=0.5,-1"], "budget.multiplier"),
         (["relay.k=8,16"], "add --multirun"),
         (["relay.kk=3"], "relay.kk"),

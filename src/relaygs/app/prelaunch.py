@@ -140,16 +140,30 @@ def _check_launching_command(
         runs_here = not multirun or launcher not in REMOTE_LAUNCHERS
         if not runs_here:
             _check_submit_commands(launcher)
-        for job in planned_jobs(args, overrides, hydra_cfg, multirun):
+        jobs = planned_jobs(args, overrides, hydra_cfg, multirun)
+        swept = _swept_keys(jobs)
+        for job in jobs:
             try:
                 check_capture_overrides(job)
                 config = _compose(job)
                 check_group_sections(config, groups, hydra_cfg.runtime.choices.get("experiment"))
                 validate(config, runs_here)
             except InputError as error:
-                where = f"job {' '.join(job)}: " if job != args else ""
+                named = [arg for arg in job if arg.partition("=")[0] in swept] or job
+                where = f"job {' '.join(named)}: " if job != args else ""
                 raise InputError(f"{where}{error}") from error
         check_output_folder(hydra_cfg, multirun)  # after the jobs' own paths, often its parents
+
+
+def _swept_keys(jobs: Sequence[Sequence[str]]) -> set[str]:
+    """The override keys whose value differs between `jobs` (a sweep's axes): what names a
+    job among the others, as `job relay.k=0`."""
+    values: dict[str, set[str]] = {}
+    for job in jobs:
+        for arg in job:
+            key, _, value = arg.partition("=")
+            values.setdefault(key, set()).add(value)
+    return {key for key, seen in values.items() if len(seen) > 1}
 
 
 def check_capture_overrides(job: Sequence[str]) -> None:
