@@ -64,6 +64,7 @@ def _main(args):
         # a capture has its own frames and size: a preset's setting beside it would be ignored
         (["scene.path=/data/cap", "scene.frames=4"], "scene.frames=4 sets a synthetic scene, but"),
         (["scene=court", "scene.path=/data/cap"], "scene=court sets a synthetic scene"),
+        (["scene.path=", "scene.frames=4"], "scene.path: expected a path (a non-empty string)"),
         (["-m", "scene.path=/data/cap", "scene.width=8,16"], "job scene.width=8: scene.width="),
         (["-m", "relay.k=16,0"], "job relay.k=0: relay.k"),
         # a job is named by what tells it from the others: the swept overrides
@@ -248,6 +249,25 @@ def test_an_experiment_setting_a_group_to_a_value_is_told_to_override_it(tmp_pat
         ["+experiment=plain"], conf, lambda cfg, here: seen.append(cfg[group].name)
     )
     assert seen == [value]  # the form the message gives chooses the group's file
+
+
+@pytest.mark.parametrize(
+    "path", ["~scene.path", "~scene.path=/data/cap", "scene.path=null", "scene.path=NULL"]
+)
+def test_a_deleted_or_null_scene_path_leaves_a_synthetic_scene_its_settings(tmp_path, path):
+    # a scene file (or an experiment) may set a capture's path: without it the scene is
+    # synthetic, and its frames are the command line's to set
+    conf = shutil.copytree(config_dir(), tmp_path / "conf")
+    (conf / "scene" / "capture.yaml").write_text(
+        "defaults: [/base/synthetic_scene@_here_, _self_]\npreset: juggle\npath: /data/cap\n"
+    )
+    seen = []
+    prelaunch.check_command_line(
+        ["scene=capture", path, "scene.frames=8"],
+        conf,
+        lambda cfg, here: seen.append((cfg.scene.get("path"), cfg.scene.frames)),
+    )
+    assert seen == [(None, 8)]
 
 
 def test_a_slurm_sweep_off_a_cluster_is_one_line_before_any_work(fakes, tmp_path, capsys):

@@ -169,14 +169,16 @@ def _swept_keys(jobs: Sequence[Sequence[str]]) -> set[str]:
 def check_capture_overrides(job: Sequence[str]) -> None:
     """A job that reads a capture (`scene.path=DIR`) must not also set what only a synthetic
     preset has (the preset, its frame count, image size or generator seed): the capture would
-    ignore it, though the result would record it."""
-    settings = {arg.partition("=")[0].lstrip("+~"): arg.partition("=")[2] for arg in job}
-    if settings.get("scene.path", "null") == "null":
+    ignore it, though the result would record it. A deleted (`~scene.path`), null or empty
+    path reads none (an empty one is refused as no path later)."""
+    settings = {o.key_or_group: o for o in _parse(job)}  # the last override of a key counts
+    path = settings.get("scene.path")
+    if path is None or path.is_delete() or path.value() in (None, ""):
         return
-    ignored = [key for key in SYNTHETIC_ONLY if key in settings]
+    ignored = [o for key, o in settings.items() if key in SYNTHETIC_ONLY and not o.is_delete()]
     if ignored:
         raise InputError(
-            f"{ignored[0]}={settings[ignored[0]]} sets a synthetic scene, but scene.path reads "
+            f"{ignored[0].input_line.lstrip('+')} sets a synthetic scene, but scene.path reads "
             "a capture, whose frames, size and cameras are its own: drop one of the two "
             "(a capture's options are scene.loader.*)"
         )
