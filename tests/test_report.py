@@ -154,6 +154,30 @@ def test_the_summary_says_which_jobs_share_one_model(tmp_path):
     assert markdown.count("Same model") == 1
 
 
+def test_a_folder_of_sweeps_names_each_jobs_sweep(tmp_path):
+    # `report outputs/sweeps`: two sweeps of the same experiment, jobs numbered alike
+    _job(tmp_path / "sw2", 0, "k16", 26.0, 20.0)
+    _job(tmp_path / "sw2", 1, "k8", 25.5, 10.0)
+    _job(tmp_path / "sw1", 1, "k8", 25.0, 10.0)
+    _job(tmp_path / "sw1", 0, "k16", 27.0, 20.0)
+    _job(tmp_path, 2, "k32", None, 10.0, status="failed", error="RuntimeError: x")
+    files = report.write_reports(tmp_path)
+    table = pd.read_csv(files.csv)
+    rows = list(zip(table.sweep, table.job, table.delta_psnr.fillna(0.0), strict=True))
+    # Δ against the reference job of the row's own sweep
+    assert rows == [
+        (".", 2, 0.0),
+        ("sw1", 0, 0.0),
+        ("sw1", 1, -2.0),
+        ("sw2", 0, 0.0),
+        ("sw2", 1, -0.5),
+    ]
+    markdown = files.markdown.read_text()
+    assert "| Variant | sweep | relay.k | PSNR" in markdown
+    assert "| k8 | sw2 | 8 | 25.50 | -0.50 |" in markdown
+    assert "- job 2 (k32): RuntimeError: x\n" in markdown
+
+
 def test_the_summary_says_which_jobs_a_stage_note_is_about(tmp_path):
     note = "[decouple] decouple marked no Gaussian as foreground"
     _job(tmp_path, 0, "k16", 26.0, 20.0, notes=note)

@@ -18,6 +18,9 @@ from relaygs.app.result import METRIC_FIELDS, RESULT_FILE, STATUS_FAILED, STATUS
 from relaygs.errors import InputError
 
 MISSING = "n/a"
+SWEEP_COLUMN = "sweep"
+"""The column that names each job's sweep folder, relative to the report's (`.` for jobs
+directly in it), where the report's folder holds several sweeps."""
 HYDRA_FOLDER = ".hydra"
 """What Hydra writes into every run folder it creates, before the job starts."""
 LISTED_FOLDERS = 5
@@ -71,7 +74,9 @@ MARKDOWN_COLUMNS = (
 
 def collect_results(sweep_dir: Path) -> pd.DataFrame:
     """One row per `result.json` below `sweep_dir`, ordered by job number then folder (a
-    result without a `status`, written before failures were recorded, counts as ok)."""
+    result without a `status`, written before failures were recorded, counts as ok); in a
+    folder that holds sweeps (`report outputs/sweeps`), each row's SWEEP_COLUMN names the one
+    it belongs to, and rows go by sweep, then job."""
     paths = sorted(Path(sweep_dir).rglob(RESULT_FILE))
     if not paths:
         unfinished = unfinished_runs(sweep_dir)
@@ -80,7 +85,13 @@ def collect_results(sweep_dir: Path) -> pd.DataFrame:
     rows = [
         {"status": STATUS_OK, **_read_result(path), "run_dir": str(path.parent)} for path in paths
     ]
-    table = pd.DataFrame(rows).sort_values("job", kind="stable", na_position="last")
+    sweeps = [path.parent.parent.relative_to(sweep_dir).as_posix() for path in paths]
+    order = ["job"]
+    if set(sweeps) != {"."}:  # a folder of sweeps: each row says whose job it is
+        for row, sweep in zip(rows, sweeps, strict=True):
+            row[SWEEP_COLUMN] = sweep
+        order.insert(0, SWEEP_COLUMN)
+    table = pd.DataFrame(rows).sort_values(order, kind="stable", na_position="last")
     return table.reset_index(drop=True)
 
 
@@ -300,11 +311,15 @@ class FailedJob:
 
 
 def job_name(row: pd.Series) -> str:
-    """`job <n> (<variant>)`, or for a single run (no job number) `<run folder> (<variant>)`."""
+    """`job <n> (<variant>)`, or for a single run (no job number) `<run folder> (<variant>)`;
+    `... of <sweep>` where the report covers several sweeps."""
     number = row.get("job")
     if is_number(number):
-        return f"job {number:.0f} ({row.get('variant')})"
-    return f"{Path(str(row.get('run_dir'))).name} ({row.get('variant')})"
+        name = f"job {number:.0f} ({row.get('variant')})"
+    else:
+        name = f"{Path(str(row.get('run_dir'))).name} ({row.get('variant')})"
+    sweep = row.get(SWEEP_COLUMN)
+    return f"{name} of {sweep}" if isinstance(sweep, str) and sweep != "." else name
 
 
 def failed_jobs(table: pd.DataFrame) -> list[FailedJob]:
@@ -332,11 +347,12 @@ def results_written_before(sweep_dir: Path, moment: float) -> list[Path]:
 
 
 def distinguishing_parameters(table: pd.DataFrame) -> list[str]:
-    """Parameters (scene, seed and dotted config keys) that vary across rows, when the
-    variant labels alone do not tell the rows apart; else none."""
+    """Parameters (the sweep, scene, seed and dotted config keys) that vary across rows, when
+    the variant labels alone do not tell the rows apart; else none."""
     if "variant" not in table or table["variant"].is_unique:
         return []
-    candidates = ["scene", "seed", *(column for column in table.columns if "." in column)]
+    dotted = (column for column in table.columns if "." in column)
+    candidates = [SWEEP_COLUMN, "scene", "seed", *dotted]
     return [
         column
         for column in candidates
@@ -346,12 +362,13 @@ def distinguishing_parameters(table: pd.DataFrame) -> list[str]:
 
 def _delta(table: pd.DataFrame, index: Any) -> float | None:
     """PSNR of row `index` minus its reference's PSNR (None when either is missing): the
-    reference rows of its seed and, where they differ in a parameter (`-m relay.k=8,16`
-    under one label), of its value, each where there are any (else the mean over them)."""
+    reference rows of its seed, its sweep (in a folder of sweeps) and, where they differ in a
+    parameter (`-m relay.k=8,16` under one label), its value, each where there are any (else
+    the mean over them)."""
     row = table.loc[index]
     pool = _reference_rows(table, index)
     varying = [column for column in pool.columns if "." in column and pool[column].nunique() > 1]
-    for column in ["seed", *varying]:
+    for column in ["seed", SWEEP_COLUMN, *varying]:
         if column in pool:
             same = pool[pool[column] == row.get(column)]
             pool = same if len(same) else pool
