@@ -405,6 +405,15 @@ def test_a_budget_sweep_says_what_a_minute_buys_and_which_points_are_on_the_fron
     assert "| juggle | relaygs | 1 | 1 | 10.00 | 24.00 | +0.200 | yes |" in text
 
 
+def test_a_budget_sweep_whose_jobs_all_failed_gets_its_summary_without_a_budget_table(tmp_path):
+    for number, multiplier in enumerate([0.5, 1.0]):
+        extra = {"budget.multiplier": multiplier, "status": "failed", "error": "InputError: x"}
+        _job(tmp_path, number, "k16", None, 5.0, **extra)
+    files = report.write_reports(tmp_path)
+    assert files.budget is None and files.pareto is None
+    assert "| k16 (failed) | 0.5 | n/a |" in files.markdown.read_text()
+
+
 def test_no_budget_table_at_one_multiplier(sweep):
     assert report.write_reports(sweep).budget is None
     assert not (sweep / "summary_budget.md").exists()

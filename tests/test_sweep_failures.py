@@ -13,6 +13,7 @@ from filelock import FileLock
 from omegaconf import OmegaConf
 
 from fake_stages import TINY_SCENE, FakeStages, compose_config
+from relaygs.app import callbacks
 from relaygs.app import task as task_module
 from relaygs.app.callbacks import SWEEP_LOCK_FILE, SweepFolderLock
 from relaygs.app.task import run_task
@@ -274,3 +275,17 @@ def test_a_sweep_job_that_cannot_record_its_failure_stops_the_sweep(monkeypatch,
     err = capsys.readouterr().err
     assert err.strip().splitlines()[-1].startswith("error: stage relay: No space left on device")
     assert "job 0 failed" not in err and fakes.ran("relay") == 1  # job 1 never started
+
+
+def test_a_sweep_whose_summary_cannot_be_written_exits_1(monkeypatch, tmp_path, capsys):
+    monkeypatch.chdir(tmp_path)
+
+    def broken(sweep_dir):
+        raise KeyError("psnr")
+
+    monkeypatch.setattr(callbacks, "write_reports", broken)
+    args = ["-m", "relay.k=2,4", "budget=smoke", *TINY_SCENE]
+    assert _main_with(monkeypatch, FakeStages(), args) == 1
+    err = capsys.readouterr().err
+    assert "Traceback" in err  # not a relaygs error: where it happened is shown
+    assert err.strip().splitlines()[-1] == "error: no sweep summary: KeyError: 'psnr'"

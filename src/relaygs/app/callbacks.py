@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import sys
 import time
+import traceback
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -12,6 +13,7 @@ from filelock import FileLock, Timeout
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
 
+from relaygs.app.result import error_line
 from relaygs.app.summary import results_written_before
 from relaygs.commands.report import describe, write_reports
 from relaygs.errors import RelayGSError
@@ -83,15 +85,19 @@ class SweepSummary(Callback):
         self.started = time.time()
 
     def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
-        """Write the report of the sweep folder (a failure to write it is reported, not
-        raised); name the jobs in it that an earlier sweep ran; when a job of this sweep
-        failed, say which on stderr and exit with status 1."""
+        """Write the report of the sweep folder; name the jobs in it that an earlier sweep
+        ran; when a job of this sweep failed, or the report could not be written (a sweep
+        without its summary is no success), say which on stderr and exit with status 1."""
         sweep_dir = Path(str(config.hydra.sweep.dir))
         try:
             files = write_reports(sweep_dir)
-        except RelayGSError as error:
-            print(f"error: no sweep summary: {error}", file=sys.stderr)
-            return
+        except Exception as error:
+            if not isinstance(error, RelayGSError):
+                traceback.print_exc()
+            detail = error if isinstance(error, RelayGSError) else error_line(error)
+            print(f"error: no sweep summary: {detail}", file=sys.stderr)
+            # Hydra turns a callback's exception into a warning; SystemExit ends the command.
+            raise SystemExit(1) from None
         print(describe(files))
         earlier = results_written_before(sweep_dir, self.started)
         if earlier:

@@ -27,7 +27,10 @@ def marginal_table(summary: pd.DataFrame) -> pd.DataFrame:
     if "status" in table:
         table = table[table["status"] != STATUS_FAILED]
     times = table.train_s_total
-    table = table[[is_number(p) and is_number(t) for p, t in zip(table.psnr, times, strict=True)]]
+    scored = [is_number(p) and is_number(t) for p, t in zip(table.psnr, times, strict=True)]
+    table = table.loc[pd.Series(scored, index=table.index, dtype=bool)]
+    if table.empty:  # every job failed or has no time: no point to draw
+        return pd.DataFrame()
     points = (
         table.astype({"psnr": float, "train_s_total": float})
         .groupby(["scene", "pipeline", MULTIPLIER], sort=False)
