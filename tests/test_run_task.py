@@ -190,9 +190,15 @@ def test_a_sweep_job_resumed_in_its_folder_is_not_noted_but_another_run_there_is
     fakes = FakeStages()
     folder = tmp_path / "sweep" / "0_relaygs"
     k8, k16 = _with(base_config, relay__k=8), _with(base_config, relay__k=16)
-    _run(k8, folder, fakes, overrides=["relay.k=8", "+component=full"], job=0)
-    _run(k8, folder, fakes, overrides=["relay.k=8", "+component=full"], job=0)
+    overrides = ["relay.k=8", "+component=full", "budget=smoke"]
+    _run(k8, folder, fakes, overrides=overrides, job=0)
+    _run(k8, folder, fakes, overrides=overrides, job=0)
     assert "already holds a run" not in capsys.readouterr().err
+    (folder / RESULT_FILE).unlink()  # the job the interruption stopped: only its curves
+    _run(k8, folder, fakes, overrides=overrides, job=0)
+    err = capsys.readouterr().err
+    assert "already holds a run" not in err
+    assert f"note: {folder} holds the TensorBoard curves of a run stopped before its " in err
     note = f"note: {folder} already holds a run: its result.json is replaced"
     _run(k16, folder, fakes, overrides=["relay.k=16"], job=0)  # another sweep's job 0
     assert note in capsys.readouterr().err

@@ -174,15 +174,23 @@ def _identity(cfg: Mapping[str, Any], plan: RunPlan, job: int | None) -> dict[st
 def _add_parameters(
     result: dict[str, Scalar], cfg: Mapping[str, Any], plan: RunPlan, overrides: Sequence[str]
 ) -> None:
-    """Add the ablation axes and every recorded override, by dotted key, to `result` (a group
-    choice such as `budget=smoke` only where its `<group>.name` is not there already)."""
-    for key in ALWAYS_RECORDED:
-        result.setdefault(key, effective_value(cfg, plan, key))
+    """Add `recorded_parameters` to `result`, keeping the fields it already has."""
+    for key, value in recorded_parameters(cfg, plan, overrides).items():
+        result.setdefault(key, value)
+
+
+def recorded_parameters(
+    cfg: Mapping[str, Any], plan: RunPlan, overrides: Sequence[str]
+) -> dict[str, Scalar]:
+    """The ablation axes and every recorded override, by dotted key, as a result holds them (a
+    group choice such as `budget=smoke` only where its `<group>.name` is not there already)."""
+    parameters = {key: effective_value(cfg, plan, key) for key in ALWAYS_RECORDED}
     for key, text in recorded_overrides(overrides).items():
-        if f"{key}.name" in result:
+        if f"{key}.name" in parameters or key in parameters:
             continue
         in_config = key.split(".")[0] in cfg  # `+component=x` selects a group, not a key
-        result.setdefault(key, effective_value(cfg, plan, key) if in_config else text)
+        parameters[key] = effective_value(cfg, plan, key) if in_config else text
+    return parameters
 
 
 def _lookup(config: Mapping[str, Any], dotted: str) -> Any:

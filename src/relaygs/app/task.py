@@ -27,9 +27,8 @@ from relaygs.app.result import (
     Scalar,
     build_failed_result,
     build_result,
-    effective_value,
     format_summary,
-    recorded_overrides,
+    recorded_parameters,
     write_result,
 )
 from relaygs.app.scenes import prepare_scene, scene_provenance
@@ -212,11 +211,21 @@ def _note_earlier_run(
 ) -> None:
     """Say on stderr when the run folder already holds a run (a pinned `hydra.run.dir` used
     again): its result is replaced and TensorBoard would show both runs' curves as one run.
-    Nothing is said where the folder holds this sweep job's own result, as a sweep resumed in
-    place (the same `hydra.sweep.dir`, as an interrupted sweep is told to) finds it."""
+    A sweep resumed in place (the same `hydra.sweep.dir`, as an interrupted sweep is told to)
+    is not told to use another folder: nothing is said where the folder holds this job's own
+    result, and the curves of a job stopped before its result are only named as such."""
     events = any((run_dir / TENSORBOARD_DIR).glob("events.out.tfevents.*"))
     result = (run_dir / RESULT_FILE).is_file()
-    if result and job is not None and _is_same_job(run_dir, config, plan, overrides, job):
+    if job is not None and (not result or _is_same_job(run_dir, config, plan, overrides, job)):
+        if events and not result:
+            print(
+                labelled(
+                    f"note: {run_dir} holds the TensorBoard curves of a run stopped before its "
+                    f"{RESULT_FILE}; TensorBoard shows them with this run's"
+                ),
+                file=sys.stderr,
+                flush=True,
+            )
         return
     if events or result:
         replaced = f"its {RESULT_FILE} is replaced and " if result else ""
@@ -234,20 +243,16 @@ def _note_earlier_run(
 def _is_same_job(
     run_dir: Path, config: dict[str, Any], plan: RunPlan, overrides: Sequence[str], job: int
 ) -> bool:
-    """Whether the folder's `result.json` records sweep job `job` with each of this job's
-    overrides at the value it has now (a `+group` choice the config does not hold, such as
-    `+component`, goes by the job's folder, which its variant names)."""
+    """Whether the folder's `result.json` records sweep job `job` with the parameters this job
+    records (`recorded_parameters`: its overrides as it would write them)."""
     try:
         earlier = json.loads((run_dir / RESULT_FILE).read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return False
     if not isinstance(earlier, dict) or earlier.get("job") != job:
         return False
-    return all(
-        earlier.get(key) == effective_value(config, plan, key)
-        for key in recorded_overrides(overrides)
-        if key.split(".")[0] in config
-    )
+    parameters = recorded_parameters(config, plan, overrides)
+    return all(earlier.get(key) == value for key, value in parameters.items())
 
 
 def _announce(report: NodeReport) -> None:
