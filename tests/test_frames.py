@@ -206,7 +206,7 @@ def test_frame_selection_refuses_impossible_values():
 @pytest.mark.parametrize("name", ["scene", "my scene", "scène", 'odd"name', 'a\\"b', "ends\\"])
 def test_the_printed_run_override_reads_back_as_the_folder(tmp_path, name):
     folder = tmp_path / name
-    (word,) = shlex.split(frames_command.scene_override(folder))
+    (word,) = shlex.split(frames_command.path_override("scene.path", folder))
     override = OverridesParser.create().parse_override(word)
     assert override.key_or_group == "scene.path" and override.value() == str(folder)
 

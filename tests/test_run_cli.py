@@ -320,22 +320,22 @@ def test_an_interrupted_sweep_is_told_to_rerun_in_its_own_folder(
     fakes, tmp_path, capsys, stop, status, stopped
 ):
     # the same command again would go on in a new timestamped folder, leaving this one
-    # without a summary: the line names the folder, quoted to paste as one override
+    # without a summary: the line names the folder, quoted to paste as one override (a comma
+    # or space in it inside Hydra's quotes, or the rerun would sweep over it)
     fakes.sinks.append(stop)
-    args = ["-m", "relay.k=8,16", "budget=smoke", "paths.outputs=my out", *TINY_SCENE]
+    args = ["-m", "relay.k=8,16", "budget=smoke", 'paths.outputs="my out,2"', *TINY_SCENE]
     assert _main(args) == status
-    [folder] = (tmp_path / "my out" / "sweeps").iterdir()
-    override = f"hydra.sweep.dir={folder.relative_to(tmp_path)}"
+    [folder] = (tmp_path / "my out,2" / "sweeps").iterdir()
     last = capsys.readouterr().err.strip().splitlines()[-1]
     assert last.startswith(f"interrupted: {stopped}")
-    assert last.endswith(
-        f"; add {shlex.quote(override)} to the command, so that the sweep goes on in its "
-        "folder, not a new one"
-    )
+    suffix = " to the command, so that the sweep goes on in its folder, not a new one"
+    assert last.endswith(suffix)
+    [override] = shlex.split(last.removesuffix(suffix).rpartition("; add ")[2])
+    assert override == f'hydra.sweep.dir="{folder.relative_to(tmp_path)}"'
     fakes.sinks.remove(stop)
     assert _main([*args, override]) == 0
     assert (folder / "summary.md").is_file()
-    assert list((tmp_path / "my out" / "sweeps").iterdir()) == [folder]
+    assert list((tmp_path / "my out,2" / "sweeps").iterdir()) == [folder]
 
 
 def test_an_interrupted_sweep_in_a_folder_the_command_names_is_told_to_rerun_it(

@@ -103,16 +103,17 @@ def python_command() -> str:
     return shlex.quote(str(here))
 
 
-def scene_override(folder: Path) -> str:
-    """`scene.path=FOLDER` as one shell word that Hydra reads back: a path with characters
-    beyond letters, digits and `_/.-` goes inside Hydra's double quotes (a `"` in it as `\\"`)."""
+def path_override(key: str, folder: Path) -> str:
+    """`KEY=FOLDER` (`scene.path`, `hydra.sweep.dir`) as one shell word that Hydra reads back:
+    a path with characters beyond letters, digits and `_/.-` goes inside Hydra's double quotes
+    (a `"` in it as `\\"`)."""
     text = str(folder)
     if re.fullmatch(r"[A-Za-z0-9_/.\-]+", text):
-        return f"scene.path={text}"
+        return f"{key}={text}"
     # Hydra halves a run of backslashes before a quote, and a lone one escapes the quote
     escaped = re.sub(r'(\\*)"', lambda run: run[1] * 2 + '\\"', text)
     escaped = re.sub(r"(\\+)$", lambda run: run[1] * 2, escaped)
-    return shlex.quote(f'scene.path="{escaped}"')
+    return shlex.quote(f'{key}="{escaped}"')
 
 
 def camera_ids(text: str) -> tuple[int, ...]:

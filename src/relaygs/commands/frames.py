@@ -11,7 +11,7 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from relaygs.cli import OneLineErrorParser, int_at_least, python_command, scene_override
+from relaygs.cli import OneLineErrorParser, int_at_least, path_override, python_command
 from relaygs.data.video_frames import (
     COLMAP_LIST,
     FRAME_FORMATS,
@@ -93,7 +93,8 @@ def describe(scene: ExtractedScene, seconds: float) -> str:
         f"  colmap exhaustive_matcher --database_path {out}/colmap.db",
         f"  mkdir -p {out}/sparse && colmap mapper --database_path {out}/colmap.db "
         f"--image_path {out} --output_path {out}/sparse",
-        f"then train: {python_command()} -m relaygs.run {scene_override(scene.folder)}",
+        f"then train: {python_command()} -m relaygs.run "
+        f"{path_override('scene.path', scene.folder)}",
     ]
     return "\n".join(lines)
 

@@ -9,7 +9,6 @@ Hydra composes the config and calls `relaygs.app.task.run_task` for each job.
 
 from __future__ import annotations
 
-import shlex
 import signal
 import sys
 import traceback
@@ -30,7 +29,7 @@ from relaygs.app.prelaunch import LAUNCH_FLAGS, JobValidator, check_command_line
 from relaygs.app.result import RESULT_FILE, error_line
 from relaygs.app.suite import StageSuite, load_stage_suite
 from relaygs.app.task import run_task
-from relaygs.cli import INTERRUPTED_EXIT
+from relaygs.cli import INTERRUPTED_EXIT, path_override
 from relaygs.device import usable_device
 from relaygs.errors import RERUN_RUN, RelayGSError
 from relaygs.paths import config_dir
@@ -86,7 +85,7 @@ def _interrupted_line(stop: KeyboardInterrupt, launched: bool, sweep: StartedSwe
         return "interrupted"
     if sweep is None or sweep.named:
         return line
-    override = shlex.quote(f"hydra.sweep.dir={sweep.folder}")
+    override = path_override("hydra.sweep.dir", sweep.folder)
     return (
         f"{line}; add {override} to the command, so that the sweep goes on in its folder, "
         "not a new one"

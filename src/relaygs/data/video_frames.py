@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from relaygs.cli import python_command, scene_override
+from relaygs.cli import path_override, python_command
 from relaygs.data.multiview import CAMERA_FOLDER
 from relaygs.errors import InputError
 from relaygs.paths import require_creatable_folder, require_folder
@@ -109,7 +109,7 @@ def camera_videos(folder: Path) -> list[Path]:
         scene = any(CAMERA_FOLDER.match(path.name) and path.is_dir() for path in entries)
         hint = (
             f"; its camXX folders make it a scene: {python_command()} -m relaygs.run "
-            f"{scene_override(folder)}"
+            f"{path_override('scene.path', folder)}"
         )
         raise InputError(
             f"{folder}: expected a video per camera ({', '.join(VIDEO_SUFFIXES)}), at least "
