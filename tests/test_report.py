@@ -519,6 +519,18 @@ def test_mean_table_keeps_first_appearance_and_one_run_has_no_std(tmp_path):
     assert mean.psnr_std[0] == pytest.approx(0.5**0.5) and math.isnan(mean.psnr_std[1])
 
 
+def test_jobs_repeated_at_one_seed_get_no_table_over_seeds(tmp_path):
+    # two copies of one sweep in a folder: the same seed twice is no spread over seeds
+    for sweep in ("a", "b"):
+        _job(tmp_path / sweep, 0, "k16", 26.0, 20.0)
+        _job(tmp_path / sweep, 1, "k8", 25.0, 10.0)
+    assert report.write_reports(tmp_path).mean is None
+    _job(tmp_path / "c", 0, "k16", 27.0, 20.0, seed=1)
+    assert report.write_reports(tmp_path).mean is not None
+    mean = pd.read_csv(tmp_path / "summary_mean.csv")
+    assert list(mean.seeds) == [2, 1] and list(mean.runs) == [3, 2]
+
+
 def test_the_mean_table_needs_a_repeated_finished_job_and_an_old_one_goes(tmp_path):
     _job(tmp_path, 0, "k16", 26.0, 20.0, test_set="aaa")
     _job(tmp_path, 1, "k16", 27.0, 20.0, test_set="aaa", seed=1)

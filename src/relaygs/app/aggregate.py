@@ -34,8 +34,8 @@ def aggregate_table(summary: pd.DataFrame) -> pd.DataFrame:
     """One row per group of jobs that differ only in their seed, in order of first appearance:
     its scene, variant, the parameters that tell rows of one variant apart (`relay.k` when a
     label repeats over k) and, where results record it, `test_set` (PSNR on other images does
-    not average); then `runs` (finished jobs) and `<metric>_mean` / `<metric>_std` (sample
-    std, None for one run) of every METRICS column."""
+    not average); then `runs` (finished jobs), `seeds` (distinct seeds among them) and
+    `<metric>_mean` / `<metric>_std` (sample std, None for one run) of every METRICS column."""
     table = summary
     if "status" in table:
         table = table[table["status"] != STATUS_FAILED]
@@ -44,6 +44,7 @@ def aggregate_table(summary: pd.DataFrame) -> pd.DataFrame:
     rows = []
     for values, group in table.groupby(keys, sort=False, dropna=False):
         row: dict[str, object] = {**dict(zip(keys, values, strict=True)), "runs": len(group)}
+        row["seeds"] = group["seed"].nunique() if "seed" in group else len(group)
         for _, column, _ in METRICS:
             values = [float(v) for v in group.get(column, []) if is_number(v)]
             row[f"{column}_mean"] = sum(values) / len(values) if values else None

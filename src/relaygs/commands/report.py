@@ -123,10 +123,10 @@ def _write_files(table: pd.DataFrame, sweep_dir: Path) -> ReportFiles:
 
 def _write_mean(table: pd.DataFrame, sweep_dir: Path, title: str) -> Path | None:
     """`summary_mean.{csv,md}` (mean ± std over the jobs that differ only in their seed) when
-    some such group has more than one finished job; else nothing, and an earlier report's
-    files, which would describe other jobs, are removed."""
+    some such group has finished jobs at two or more seeds; else nothing, and an earlier
+    report's files, which would describe other jobs, are removed."""
     mean = aggregate_table(table) if {"scene", "variant"} <= set(table.columns) else None
-    if mean is None or mean.empty or not (mean["runs"] > 1).any():
+    if mean is None or mean.empty or not (mean["seeds"] > 1).any():
         _remove(sweep_dir / MEAN_CSV, sweep_dir / MEAN_MD)
         return None
     _write_csv(mean, sweep_dir / MEAN_CSV)
