@@ -147,11 +147,11 @@ def test_the_summary_says_which_jobs_share_one_model(tmp_path):
     _job(tmp_path, 4, "k2", None, 10.0, status="failed", output_key=None)
     markdown = report.write_reports(tmp_path).markdown.read_text()
     assert (
-        "\nSame model for job 0 (k8), job 1 (k16), job 2 (k32) (artifact ab12cd34): the same "
-        "computation on this scene, so their rows match (every relay.k at or above the "
+        "\nSame trained model for job 0 (k8), job 1 (k16), job 2 (k32) (artifact ab12cd34): "
+        "their settings train the same model on this scene (every relay.k at or above the "
         "scene's frame count is one segment)\n"
     ) in markdown
-    assert markdown.count("Same model") == 1
+    assert markdown.count("Same trained model") == 1
 
 
 def test_a_folder_of_sweeps_names_each_jobs_sweep(tmp_path):

@@ -276,8 +276,8 @@ def stage_note_lines(table: pd.DataFrame) -> list[str]:
 
 def shared_model_lines(table: pd.DataFrame) -> list[str]:
     """One line per model that several finished jobs share (the same `output_key`): settings
-    that mean the same computation on this scene (every k at or above its frame count is one
-    segment), or a repeated run, so their rows are equal by construction."""
+    that train the same model on this scene (every k at or above its frame count is one
+    segment), or a repeated run; their rows differ only where evaluation settings do."""
     if "output_key" not in table:
         return []
     finished = table[[isinstance(key, str) and bool(key) for key in table["output_key"]]]
@@ -289,8 +289,8 @@ def shared_model_lines(table: pd.DataFrame) -> list[str]:
             if "relay.k" in rows and rows["relay.k"].nunique() > 1:
                 why = " (every relay.k at or above the scene's frame count is one segment)"
             lines.append(
-                f"Same model for {jobs} (artifact {str(key)[:8]}): the same computation on "
-                f"this scene, so their rows match{why}"
+                f"Same trained model for {jobs} (artifact {str(key)[:8]}): their settings train "
+                f"the same model on this scene{why}"
             )
     return lines
 
