@@ -129,6 +129,11 @@ def test_the_summary_names_run_folders_that_hold_no_result(tmp_path, capsys):
         f"error: no result.json found under {tmp_path} (1 run folder(s) hold no result.json "
         "(interrupted, still running or stopped before writing it): 1_k16)\n"
     )
+    run = tmp_path / "1_k16"  # `report RUN_DIR` of that run: the folder by its path, not "."
+    assert report.main([str(run)]) == 1
+    assert capsys.readouterr().err.endswith(
+        f"(interrupted, still running or stopped before writing it): {run})\n"
+    )
     _job(tmp_path, 0, "k8", 25.0, 10.0)
     for number in range(2, 8):
         (tmp_path / f"{number}_k{number}" / ".hydra").mkdir(parents=True)

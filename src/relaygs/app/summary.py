@@ -115,7 +115,10 @@ def unfinished_line(sweep_dir: Path, unfinished: list[Path]) -> str | None:
 def _unfinished_clause(sweep_dir: Path, unfinished: list[Path]) -> str:
     """`<n> run folder(s) hold no result.json (interrupted, ...): a, b, c` with at most
     LISTED_FOLDERS names, relative to `sweep_dir`."""
-    names = [folder.relative_to(sweep_dir).as_posix() for folder in unfinished]
+    names = [
+        folder.relative_to(sweep_dir).as_posix() if folder != sweep_dir else str(folder)
+        for folder in unfinished
+    ]
     listed = ", ".join(names[:LISTED_FOLDERS])
     if len(names) > LISTED_FOLDERS:
         listed += f" and {len(names) - LISTED_FOLDERS} more"
