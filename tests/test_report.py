@@ -118,7 +118,20 @@ def test_delta_compares_a_row_with_the_reference_run_at_its_own_settings(tmp_pat
         )
     _job(tmp_path, 4, "k32", 25.0, 10.0)  # at a k no reference run has: their mean
     table = summary_table(report.collect_results(tmp_path))
-    assert list(table.delta_psnr) == pytest.approx([0.0, 0.0, -1.0, 0.5, -1.5])
+    # the reference variant's own row at k = 128 against its first job, not itself
+    assert list(table.delta_psnr) == pytest.approx([0.0, 1.0, -1.0, 0.5, -1.5])
+
+
+def test_a_sweep_without_labels_compares_each_job_with_job_0_of_its_seed(tmp_path):
+    # `-m relay.k=1,2 seed=0,1`: every job is the variant `relaygs`
+    for number, (k, seed, psnr) in enumerate(
+        [(1, 0, 25.0), (2, 0, 24.0), (1, 1, 26.0), (2, 1, 27.0)]
+    ):
+        _job(tmp_path, number, "k1", psnr, 10.0, seed=seed, reference_variant=None)
+        result = tmp_path / f"{number}_k1" / "result.json"
+        result.write_text(result.read_text().replace('"relay.k": 1', f'"relay.k": {k}'))
+    table = summary_table(report.collect_results(tmp_path))
+    assert list(table.delta_psnr) == pytest.approx([0.0, -1.0, 0.0, 1.0])
 
 
 def test_the_summary_names_run_folders_that_hold_no_result(tmp_path, capsys):

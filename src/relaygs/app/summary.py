@@ -365,20 +365,34 @@ def distinguishing_parameters(table: pd.DataFrame) -> list[str]:
 
 def _delta(table: pd.DataFrame, index: Any) -> float | None:
     """PSNR of row `index` minus its reference's PSNR (None when either is missing): the
-    reference rows of its seed, its sweep (in a folder of sweeps) and, where they differ in a
-    parameter (`-m relay.k=8,16` under one label), its value, each where there are any (else
-    the mean over them)."""
+    scored reference rows of its seed and its sweep (in a folder of sweeps), each where there
+    are any, else the mean over them. Where those rows differ in a parameter (`-m
+    relay.k=8,16` under one label), a row of another variant takes the one at its own value,
+    where there is one, and a row of the reference variant the first (job 0 of a sweep with
+    no labels), not itself."""
     row = table.loc[index]
-    pool = _reference_rows(table, index)
-    varying = [column for column in pool.columns if "." in column and pool[column].nunique() > 1]
-    for column in ["seed", SWEEP_COLUMN, *varying]:
-        if column in pool:
-            same = pool[pool[column] == row.get(column)]
-            pool = same if len(same) else pool
-    values = [v for v in pool["psnr"] if is_number(v)] if "psnr" in pool else []
-    if not values or not is_number(table.loc[index].get("psnr")):
+    if not is_number(row.get("psnr")):
         return None
-    return float(table.loc[index, "psnr"]) - sum(values) / len(values)
+    pool = _reference_rows(table, index)
+    pool = pool[pool["psnr"].map(is_number).astype(bool)]
+    for column in ("seed", SWEEP_COLUMN):
+        pool = _narrowed(pool, column, row.get(column))
+    varying = [column for column in pool.columns if "." in column and pool[column].nunique() > 1]
+    if varying and row.get("variant") == _reference_variant(table, row):
+        pool = pool.iloc[:1]
+    for column in varying:
+        pool = _narrowed(pool, column, row.get(column))
+    if pool.empty:
+        return None
+    return float(row["psnr"]) - float(pool["psnr"].astype(float).mean())
+
+
+def _narrowed(pool: pd.DataFrame, column: str, value: Any) -> pd.DataFrame:
+    """The rows of `pool` whose `column` equals `value`, or all of them where none does."""
+    if column not in pool:
+        return pool
+    same = pool[pool[column] == value]
+    return same if len(same) else pool
 
 
 def _reference_rows(table: pd.DataFrame, index: Any) -> pd.DataFrame:
