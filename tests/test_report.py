@@ -194,6 +194,7 @@ def test_a_folder_of_sweeps_names_each_jobs_sweep(tmp_path):
     assert "| Variant | sweep | relay.k | PSNR" in markdown
     assert "| k8 | sw2 | 8 | 25.50 | -0.50 |" in markdown
     assert "- job 2 (k32): RuntimeError: x\n" in markdown
+    assert "Stage time: 35 s computed by these sweeps, 70 s if every job built" in markdown
 
 
 def test_the_summary_says_which_jobs_a_stage_note_is_about(tmp_path):

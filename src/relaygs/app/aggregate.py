@@ -19,7 +19,7 @@ METRICS = (
     ("Δ PSNR", "delta_psnr", 2),
     ("fg-PSNR ↑", "fg_psnr", 2),
     ("SSIM ↑", "ssim", 4),
-    ("Train (s)", "train_s_total", 0),
+    ("Train (s)", "train_s_total", 1),
     ("Storage (MB)", "storage_mb", 2),
     ("FPS", "render_fps", 1),
     ("Gaussians", "num_gaussians", 0),

@@ -209,8 +209,9 @@ def sharing_line(table: pd.DataFrame) -> str | None:
     lineage = _seconds(table, ("train_s_total",))
     if computed is None or lineage is None or lineage <= 0:
         return None
+    sweeps = "these sweeps" if SWEEP_COLUMN in table else "this sweep"
     line = (
-        f"Stage time: {computed:.0f} s computed by this sweep, {lineage:.0f} s if every job "
+        f"Stage time: {computed:.0f} s computed by {sweeps}, {lineage:.0f} s if every job "
         f"built its own lineage (ratio {computed / lineage:.2f})."
     )
     computed_all = _seconds(table, ("train_s_computed", "eval_s_computed"))
