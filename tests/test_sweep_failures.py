@@ -289,3 +289,22 @@ def test_a_sweep_whose_summary_cannot_be_written_exits_1(monkeypatch, tmp_path, 
     err = capsys.readouterr().err
     assert "Traceback" in err  # not a relaygs error: where it happened is shown
     assert err.strip().splitlines()[-1] == "error: no sweep summary: KeyError: 'psnr'"
+
+
+def test_the_report_of_a_half_finished_sweep_counts_the_jobs_it_lacks(
+    monkeypatch, tmp_path, capsys
+):
+    monkeypatch.chdir(tmp_path)
+    args = ["-m", "relay.k=8,16,32", "variant=k${relay.k}", "budget=smoke", *TINY_SCENE]
+    assert _main_with(monkeypatch, FakeStages(), [*args, "hydra.sweep.dir=sweep"]) == 0
+    # as a sweep stopped in job 1 leaves it: job 1 started (Hydra's .hydra/), job 2 did not
+    (tmp_path / "sweep" / "1_k16" / "result.json").unlink()
+    shutil.rmtree(tmp_path / "sweep" / "2_k32")
+    capsys.readouterr()
+    assert report.main([str(tmp_path / "sweep")]) == 0
+    out = capsys.readouterr().out
+    assert (
+        "Not in the table: 1 run folder(s) hold no result.json (interrupted, still running or "
+        "stopped before writing it): 1_k16; 1 of the 3 job(s) the sweep planned have no folder "
+        "(not started).\n"
+    ) in out

@@ -47,6 +47,8 @@ CONFIG_LOCATION_FLAGS = frozenset(
 )
 """Hydra flags that compose another config than conf/config.yaml (checked by Hydra alone)."""
 BASIC_SWEEPER = "hydra._internal.core_plugins.basic_sweeper.BasicSweeper"
+MULTIRUN_RECORD = "multirun.yaml"
+"""What Hydra writes into a sweep folder: the sweep's config, its overrides included."""
 LAUNCHER_PLUGINS = {
     "joblib": ("hydra_plugins.hydra_joblib_launcher", "hydra-joblib-launcher"),
     "submitit_local": ("hydra_plugins.hydra_submitit_launcher", "hydra-submitit-launcher"),
@@ -272,6 +274,20 @@ def planned_jobs(
     except HydraException as error:
         raise InputError(one_line(error)) from error
     return batches[0]
+
+
+def recorded_job_count(sweep_dir: Path) -> int | None:
+    """How many jobs the sweep last started in `sweep_dir` planned, from the MULTIRUN_RECORD
+    Hydra writes there; None where that file is missing or unreadable, or its sweeper is not
+    Hydra's basic one (whose jobs this cannot count)."""
+    try:
+        hydra_cfg = OmegaConf.load(sweep_dir / MULTIRUN_RECORD).hydra
+        if hydra_cfg.sweeper.get("_target_") != BASIC_SWEEPER:
+            return None
+        task = [str(arg) for arg in hydra_cfg.overrides.task]
+        return len(planned_jobs(task, _parse(task), hydra_cfg, multirun=True))
+    except (OSError, yaml.YAMLError, OmegaConfBaseException, InputError):
+        return None
 
 
 def primary_groups(conf_dir: Path) -> set[str]:

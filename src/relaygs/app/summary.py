@@ -105,11 +105,22 @@ def unfinished_runs(sweep_dir: Path) -> list[Path]:
     )
 
 
-def unfinished_line(sweep_dir: Path, unfinished: list[Path]) -> str | None:
-    """Which run folders the table leaves out for want of a result (None when none does)."""
-    if not unfinished:
-        return None
-    return f"Not in the table: {_unfinished_clause(sweep_dir, unfinished)}."
+def unfinished_line(sweep_dir: Path, unfinished: list[Path], planned: int | None) -> str | None:
+    """Which run folders the table leaves out for want of a result, and how many of the
+    `planned` jobs of the sweep (None: not known) have no folder at all, not having started
+    (None when the table misses nothing)."""
+    started = {
+        path.parent
+        for pattern in (RESULT_FILE, HYDRA_FOLDER)
+        for path in Path(sweep_dir).glob(f"*/{pattern}")
+    }
+    parts = [_unfinished_clause(sweep_dir, unfinished)] if unfinished else []
+    if planned is not None and planned > len(started):
+        parts.append(
+            f"{planned - len(started)} of the {planned} job(s) the sweep planned have no folder "
+            "(not started)"
+        )
+    return f"Not in the table: {'; '.join(parts)}." if parts else None
 
 
 def _unfinished_clause(sweep_dir: Path, unfinished: list[Path]) -> str:

@@ -16,6 +16,7 @@ from relaygs.app.aggregate import aggregate_markdown, aggregate_table
 from relaygs.app.frame_curves import frame_curves, plot_frame_curves
 from relaygs.app.marginal import marginal_markdown, marginal_table, varies_budget
 from relaygs.app.pareto import plot_pareto
+from relaygs.app.prelaunch import recorded_job_count
 from relaygs.app.result import RESULT_FILE
 from relaygs.app.summary import (
     FailedJob,
@@ -94,7 +95,8 @@ def _write_files(table: pd.DataFrame, sweep_dir: Path) -> ReportFiles:
     csv_path = sweep_dir / SUMMARY_CSV
     _write_csv(table, csv_path)
     markdown_path = sweep_dir / SUMMARY_MD
-    unfinished = unfinished_line(sweep_dir, unfinished_runs(sweep_dir))
+    planned = recorded_job_count(sweep_dir)
+    unfinished = unfinished_line(sweep_dir, unfinished_runs(sweep_dir), planned)
     markdown = markdown_table(table, title, [unfinished] if unfinished else [])
     publish_text(markdown_path, markdown)
     plottable = zip(table.psnr, table.train_s_total, strict=True)
