@@ -3,6 +3,7 @@
 import copy
 import dataclasses
 import errno
+import io
 import json
 import os
 import re
@@ -142,6 +143,33 @@ def test_a_labelled_job_names_itself_on_every_status_line(base_config, tmp_path,
     assert len(alone) == 4 and all(line.startswith("[") for line in alone)
     assert "3_k64" not in out
     assert "\n  PSNR " in out and "\noutputs:\n  result " in out  # as a single run prints
+
+
+class _WriteThrough(io.StringIO):
+    """Unbuffered stdout (PYTHONUNBUFFERED): each write reaches the pipe as it is made."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.writes: list[str] = []
+
+    def write(self, text: str) -> int:
+        self.writes.append(text)
+        return super().write(text)
+
+
+def test_a_labelled_jobs_lines_each_go_out_whole_with_their_newline(
+    base_config, tmp_path, monkeypatch
+):
+    # jobs side by side on one unbuffered pipe: a line and its newline written apart would
+    # let another job's line land between them
+    stdout, stderr = _WriteThrough(), _WriteThrough()
+    monkeypatch.setattr("sys.stdout", stdout)
+    monkeypatch.setattr("sys.stderr", stderr)
+    fakes = FakeStages(notes={"decouple": ["no foreground"]})
+    _run(base_config, tmp_path / "3_k64", fakes, label="3_k64")
+    writes = [text for text in stdout.writes + stderr.writes if text]
+    assert sum("[decouple] " in text for text in writes) == 2  # its status line and its note
+    assert all(text.startswith("[3_k64] ") and text.endswith("\n") for text in writes)
 
 
 def test_a_result_names_the_images_it_was_scored_on(base_config, tmp_path):

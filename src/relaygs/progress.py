@@ -39,11 +39,14 @@ def labelled(text: str) -> str:
     return "\n".join(f"[{_job_label}] {line}" for line in text.split("\n"))
 
 
-def print_labelled(text: str) -> None:
-    """Print the lines of `text`, `labelled`, to stdout in one flushed write, so that the block
-    a job prints is not interleaved with the lines of jobs printing beside it."""
-    sys.stdout.write(labelled(text) + "\n")
-    sys.stdout.flush()
+def print_labelled(text: str, stream: TextIO | None = None) -> None:
+    """Print the lines of `text`, `labelled`, to `stream` (stdout by default) in one flushed
+    write, newline included: a job's lines are then not interleaved with those of jobs printing
+    beside it, even where stdout is unbuffered (PYTHONUNBUFFERED), under which `print` writes
+    a line and its newline apart."""
+    stream = sys.stdout if stream is None else stream
+    stream.write(labelled(text) + "\n")
+    stream.flush()
 
 
 def is_terminal(stream: TextIO) -> bool:

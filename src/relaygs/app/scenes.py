@@ -25,7 +25,7 @@ from relaygs.data.synthetic import (
 from relaygs.errors import InputError
 from relaygs.paths import require_folder
 from relaygs.pipeline.keys import canonical_json
-from relaygs.progress import labelled
+from relaygs.progress import print_labelled
 
 SCENE_FIELDS = frozenset(
     {"name", "preset", "path", "frames", "width", "height", "seed", "effects", "loader"}
@@ -138,7 +138,7 @@ def prepare_scene(spec: SceneSpec, scenes_dir: Path, progress: bool = True) -> S
     lock.parent.mkdir(parents=True, exist_ok=True)
     with FileLock(str(lock)):
         if not (folder / GENERATED_MARKER).is_file():
-            print(labelled(f"generating synthetic scene {spec.preset!r} into {folder}"), flush=True)
+            print_labelled(f"generating synthetic scene {spec.preset!r} into {folder}")
             generate(
                 spec.preset,
                 folder,

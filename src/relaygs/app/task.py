@@ -40,7 +40,7 @@ from relaygs.device import set_threads
 from relaygs.errors import resource_error
 from relaygs.per_view import METRIC_COLUMNS, PER_VIEW, PER_VIEW_FILE, frame_means, write_per_view
 from relaygs.pipeline import Artifact, ArtifactStore, NodeReport, PipelineRun, run_pipeline
-from relaygs.progress import job_label, labelled, print_labelled
+from relaygs.progress import job_label, print_labelled
 
 TENSORBOARD_DIR = "tb"
 HPARAM_EXCLUDED_SECTIONS = ("paths", "artifacts")
@@ -218,25 +218,19 @@ def _note_earlier_run(
     result = (run_dir / RESULT_FILE).is_file()
     if job is not None and (not result or _is_same_job(run_dir, config, plan, overrides, job)):
         if events and not result:
-            print(
-                labelled(
-                    f"note: {run_dir} holds the TensorBoard curves of a run stopped before its "
-                    f"{RESULT_FILE}; TensorBoard shows them with this run's"
-                ),
-                file=sys.stderr,
-                flush=True,
+            print_labelled(
+                f"note: {run_dir} holds the TensorBoard curves of a run stopped before its "
+                f"{RESULT_FILE}; TensorBoard shows them with this run's",
+                sys.stderr,
             )
         return
     if events or result:
         replaced = f"its {RESULT_FILE} is replaced and " if result else ""
-        print(
-            labelled(
-                f"note: {run_dir} already holds a run: {replaced}TensorBoard shows its curves and "
-                "this run's as one run; give each run its own folder (hydra.run.dir, or "
-                "hydra.sweep.dir for a sweep)"
-            ),
-            file=sys.stderr,
-            flush=True,
+        print_labelled(
+            f"note: {run_dir} already holds a run: {replaced}TensorBoard shows its curves and "
+            "this run's as one run; give each run its own folder (hydra.run.dir, or "
+            "hydra.sweep.dir for a sweep)",
+            sys.stderr,
         )
 
 
@@ -267,9 +261,9 @@ def _announce(report: NodeReport) -> None:
         line = f"built {report.stage} artifact {key} in {seconds:.1f} s"
     if report.replaced_corrupt is not None:
         line += f", replacing the stored one, which failed its check: {report.replaced_corrupt}"
-    print(labelled(f"[{report.node}] {line}"), flush=True)
+    print_labelled(f"[{report.node}] {line}")
     for note in report.notes:
-        print(labelled(f"note: [{report.node}] {note}"), file=sys.stderr, flush=True)
+        print_labelled(f"note: [{report.node}] {note}", sys.stderr)
 
 
 def _announce_evaluation(evaluation: Evaluation) -> None:
@@ -279,7 +273,7 @@ def _announce_evaluation(evaluation: Evaluation) -> None:
         line = f"reused evaluation {key} from the store (made earlier in {seconds:.1f} s)"
     else:
         line = f"evaluated the test views in {seconds:.1f} s (stored as {key})"
-    print(labelled(f"[eval] {line}"), flush=True)
+    print_labelled(f"[eval] {line}")
 
 
 def _log_previews(

@@ -14,7 +14,7 @@ from torch import Tensor
 from relaygs.errors import Interrupted
 from relaygs.pipeline.checkpoint import StageCheckpointer
 from relaygs.pipeline.context import current_build
-from relaygs.progress import labelled, progress_bar
+from relaygs.progress import print_labelled, progress_bar
 from relaygs.stages import log
 from relaygs.stages.loss import batch_psnr
 from relaygs.stages.render import Render
@@ -145,12 +145,9 @@ def run_training(
         build.earlier_seconds = previous_seconds  # a checkpoint was found: `build` is set
         for step, scalars in history.records:  # this run's sinks see the steps before the kill
             log.emit(stage, step, scalars)
-        print(
-            labelled(
-                f"[{stage}] resuming from the checkpoint of step {start} of {steps} "
-                f"({previous_seconds:.1f} s of training before it)"
-            ),
-            flush=True,
+        print_labelled(
+            f"[{stage}] resuming from the checkpoint of step {start} of {steps} "
+            f"({previous_seconds:.1f} s of training before it)"
         )
     began = time.perf_counter()
     bar = progress_bar(
