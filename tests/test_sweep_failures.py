@@ -308,3 +308,30 @@ def test_the_report_of_a_half_finished_sweep_counts_the_jobs_it_lacks(
         "stopped before writing it): 1_k16; 1 of the 3 job(s) the sweep planned have no folder "
         "(not started).\n"
     ) in out
+
+
+def test_jobs_in_nested_folders_count_as_started(monkeypatch, tmp_path, capsys):
+    monkeypatch.chdir(tmp_path)
+    subdir = "hydra.sweep.subdir=s${seed}/j${hydra.job.num}"
+    args = ["-m", "seed=0,1", "budget=smoke", "hydra.sweep.dir=sweep", subdir, *TINY_SCENE]
+    assert _main_with(monkeypatch, FakeStages(), args) == 0
+    assert "Not in the table" not in (tmp_path / "sweep" / "summary.md").read_text()
+
+
+@pytest.mark.parametrize(
+    "record",
+    [
+        "hydra: {sweeper: {_target_: hydra._internal.core_plugins.basic_sweeper.BasicSweeper}, "
+        "overrides: {task: null}}",
+        "hydra: {sweeper: basic, overrides: {task: [seed=0]}}",
+        "hydra: [1, 2]",
+        "{{not yaml",
+    ],
+)
+def test_a_multirun_record_the_count_cannot_read_leaves_the_report_whole(tmp_path, record):
+    (tmp_path / "0_k8").mkdir()
+    result = {"variant": "k8", "job": 0, "pipeline": "relaygs", "scene": "s", "seed": 0, "psnr": 20}
+    (tmp_path / "0_k8" / "result.json").write_text(json.dumps(result))
+    (tmp_path / "multirun.yaml").write_text(record)
+    assert report.main([str(tmp_path)]) == 0
+    assert "Not in the table" not in (tmp_path / "summary.md").read_text()

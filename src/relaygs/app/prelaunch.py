@@ -286,8 +286,8 @@ def recorded_job_count(sweep_dir: Path) -> int | None:
             return None
         task = [str(arg) for arg in hydra_cfg.overrides.task]
         return len(planned_jobs(task, _parse(task), hydra_cfg, multirun=True))
-    except (OSError, yaml.YAMLError, OmegaConfBaseException, InputError):
-        return None
+    except (OSError, yaml.YAMLError, OmegaConfBaseException, InputError, TypeError, AttributeError):
+        return None  # a record the count cannot read: the report goes on without it
 
 
 def primary_groups(conf_dir: Path) -> set[str]:

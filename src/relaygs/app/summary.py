@@ -107,12 +107,14 @@ def unfinished_runs(sweep_dir: Path) -> list[Path]:
 
 def unfinished_line(sweep_dir: Path, unfinished: list[Path], planned: int | None) -> str | None:
     """Which run folders the table leaves out for want of a result, and how many of the
-    `planned` jobs of the sweep (None: not known) have no folder at all, not having started
-    (None when the table misses nothing)."""
+    `planned` jobs of the sweep (None: not known) have no folder at all, not having started: a
+    count of the run folders at any depth (`hydra.sweep.subdir` may nest them), an earlier
+    sweep's in the same folder included (None when the table misses nothing)."""
     started = {
         path.parent
         for pattern in (RESULT_FILE, HYDRA_FOLDER)
-        for path in Path(sweep_dir).glob(f"*/{pattern}")
+        for path in Path(sweep_dir).rglob(pattern)
+        if path.parent != Path(sweep_dir)
     }
     parts = [_unfinished_clause(sweep_dir, unfinished)] if unfinished else []
     if planned is not None and planned > len(started):
