@@ -15,16 +15,13 @@ import numpy as np
 import pandas as pd
 
 from relaygs.app.result import METRIC_FIELDS, RESULT_FILE, STATUS_FAILED, STATUS_OK
+from relaygs.app.unfinished import unfinished_clause, unfinished_runs
 from relaygs.errors import InputError
 
 MISSING = "n/a"
 SWEEP_COLUMN = "sweep"
 """The column that names each job's sweep folder, relative to the report's (`.` for jobs
 directly in it), where the report's folder holds several sweeps."""
-HYDRA_FOLDER = ".hydra"
-"""What Hydra writes into every run folder it creates, before the job starts."""
-LISTED_FOLDERS = 5
-"""How many folders without a result a note names before it counts the rest."""
 LEADING_COLUMNS = (
     "job",
     "variant",
@@ -80,7 +77,7 @@ def collect_results(sweep_dir: Path) -> pd.DataFrame:
     paths = sorted(Path(sweep_dir).rglob(RESULT_FILE))
     if not paths:
         unfinished = unfinished_runs(sweep_dir)
-        held = f" ({_unfinished_clause(sweep_dir, unfinished)})" if unfinished else ""
+        held = f" ({unfinished_clause(sweep_dir, unfinished)})" if unfinished else ""
         raise InputError(f"no {RESULT_FILE} found under {sweep_dir}{held}")
     rows = [
         {"status": STATUS_OK, **_read_result(path), "run_dir": str(path.parent)} for path in paths
@@ -93,52 +90,6 @@ def collect_results(sweep_dir: Path) -> pd.DataFrame:
         order.insert(0, SWEEP_COLUMN)
     table = pd.DataFrame(rows).sort_values(order, kind="stable", na_position="last")
     return table.reset_index(drop=True)
-
-
-def unfinished_runs(sweep_dir: Path) -> list[Path]:
-    """The run folders below `sweep_dir` (those Hydra gave a HYDRA_FOLDER) that hold no
-    `result.json`: jobs that were interrupted, are still running or died before writing it."""
-    return sorted(
-        folder.parent
-        for folder in Path(sweep_dir).rglob(HYDRA_FOLDER)
-        if folder.is_dir() and not (folder.parent / RESULT_FILE).exists()
-    )
-
-
-def unfinished_line(sweep_dir: Path, unfinished: list[Path], planned: int | None) -> str | None:
-    """Which run folders the table leaves out for want of a result, and how many of the
-    `planned` jobs of the sweep (None: not known) have no folder at all, not having started: a
-    count of the run folders at any depth (`hydra.sweep.subdir` may nest them), an earlier
-    sweep's in the same folder included (None when the table misses nothing)."""
-    started = {
-        path.parent
-        for pattern in (RESULT_FILE, HYDRA_FOLDER)
-        for path in Path(sweep_dir).rglob(pattern)
-        if path.parent != Path(sweep_dir)
-    }
-    parts = [_unfinished_clause(sweep_dir, unfinished)] if unfinished else []
-    if planned is not None and planned > len(started):
-        parts.append(
-            f"{planned - len(started)} of the {planned} job(s) the sweep planned have no folder "
-            "(not started)"
-        )
-    return f"Not in the table: {'; '.join(parts)}." if parts else None
-
-
-def _unfinished_clause(sweep_dir: Path, unfinished: list[Path]) -> str:
-    """`<n> run folder(s) hold no result.json (interrupted, ...): a, b, c` with at most
-    LISTED_FOLDERS names, relative to `sweep_dir`."""
-    names = [
-        folder.relative_to(sweep_dir).as_posix() if folder != sweep_dir else str(folder)
-        for folder in unfinished
-    ]
-    listed = ", ".join(names[:LISTED_FOLDERS])
-    if len(names) > LISTED_FOLDERS:
-        listed += f" and {len(names) - LISTED_FOLDERS} more"
-    return (
-        f"{len(names)} run folder(s) hold no {RESULT_FILE} (interrupted, still running or "
-        f"stopped before writing it): {listed}"
-    )
 
 
 def _read_result(path: Path) -> dict[str, Any]:
@@ -297,7 +248,7 @@ def shared_model_lines(table: pd.DataFrame) -> list[str]:
     segment), or a repeated run; their rows differ only where evaluation settings do."""
     if "output_key" not in table:
         return []
-    finished = table[[isinstance(key, str) and bool(key) for key in table["output_key"]]]
+    finished = table[table["output_key"].map(lambda key: isinstance(key, str) and bool(key))]
     lines = []
     for key, rows in finished.groupby("output_key", sort=False):
         if len(rows) > 1:

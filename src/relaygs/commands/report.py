@@ -25,9 +25,8 @@ from relaygs.app.summary import (
     is_number,
     markdown_table,
     summary_table,
-    unfinished_line,
-    unfinished_runs,
 )
+from relaygs.app.unfinished import unfinished_line, unfinished_runs
 from relaygs.cli import OneLineErrorParser
 from relaygs.errors import InputError, RelayGSError
 from relaygs.paths import require_folder

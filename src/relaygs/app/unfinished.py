@@ -1,0 +1,60 @@
+"""Which jobs of a sweep folder the summary table lacks: run folders that hold no
+`result.json` (a job interrupted, still running, or stopped before writing it) and, given how
+many jobs the sweep planned, those that never started."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from relaygs.app.result import RESULT_FILE
+
+HYDRA_FOLDER = ".hydra"
+"""What Hydra writes into every run folder it creates, before the job starts."""
+LISTED_FOLDERS = 5
+"""How many folders without a result a note names before it counts the rest."""
+
+
+def unfinished_runs(sweep_dir: Path) -> list[Path]:
+    """The run folders below `sweep_dir` (those Hydra gave a HYDRA_FOLDER) that hold no
+    `result.json`: jobs that were interrupted, are still running or died before writing it."""
+    return sorted(
+        folder.parent
+        for folder in Path(sweep_dir).rglob(HYDRA_FOLDER)
+        if folder.is_dir() and not (folder.parent / RESULT_FILE).exists()
+    )
+
+
+def unfinished_line(sweep_dir: Path, unfinished: list[Path], planned: int | None) -> str | None:
+    """Which run folders the table leaves out for want of a result, and how many of the
+    `planned` jobs of the sweep (None: not known) have no folder at all, not having started: a
+    count of the run folders at any depth (`hydra.sweep.subdir` may nest them), an earlier
+    sweep's in the same folder included (None when the table misses nothing)."""
+    started = {
+        path.parent
+        for pattern in (RESULT_FILE, HYDRA_FOLDER)
+        for path in Path(sweep_dir).rglob(pattern)
+        if path.parent != Path(sweep_dir)
+    }
+    parts = [unfinished_clause(sweep_dir, unfinished)] if unfinished else []
+    if planned is not None and planned > len(started):
+        parts.append(
+            f"{planned - len(started)} of the {planned} job(s) the sweep planned have no folder "
+            "(not started)"
+        )
+    return f"Not in the table: {'; '.join(parts)}." if parts else None
+
+
+def unfinished_clause(sweep_dir: Path, unfinished: list[Path]) -> str:
+    """`<n> run folder(s) hold no result.json (interrupted, ...): a, b, c` with at most
+    LISTED_FOLDERS names, relative to `sweep_dir`."""
+    names = [
+        folder.relative_to(sweep_dir).as_posix() if folder != sweep_dir else str(folder)
+        for folder in unfinished
+    ]
+    listed = ", ".join(names[:LISTED_FOLDERS])
+    if len(names) > LISTED_FOLDERS:
+        listed += f" and {len(names) - LISTED_FOLDERS} more"
+    return (
+        f"{len(names)} run folder(s) hold no {RESULT_FILE} (interrupted, still running or "
+        f"stopped before writing it): {listed}"
+    )
