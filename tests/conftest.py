@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import io
 import shutil
 import sys
 from pathlib import Path
@@ -117,3 +118,16 @@ def stored_deform(stage_deformed: Artifact, tmp_path: Path) -> tuple[ArtifactSto
     key = artifact_key("deform", 1, {"steps": 20}, "juggle", [])
     store.get_or_build("deform", key, lambda: stage_deformed, config={}, lineage=[])
     return store, key
+
+
+class WriteRecorder(io.StringIO):
+    """A stream that records each write it is given, as an unbuffered stdout passes each one
+    to the pipe (PYTHONUNBUFFERED): what jobs printing side by side could interleave."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.writes: list[str] = []
+
+    def write(self, text: str) -> int:
+        self.writes.append(text)
+        return super().write(text)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 
+from conftest import WriteRecorder
 from relaygs.progress import (
     LOG_INTERVAL_S,
     is_terminal,
@@ -78,21 +79,9 @@ def test_a_job_label_leads_lines_and_bar_names_only_inside_its_block() -> None:
         assert bar.desc.startswith("relay")
 
 
-class _Writes(io.StringIO):
-    """A stdout that records each write it is given."""
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.writes: list[str] = []
-
-    def write(self, text: str) -> int:
-        self.writes.append(text)
-        return super().write(text)
-
-
 def test_a_labelled_block_is_printed_in_one_write(monkeypatch) -> None:
     # jobs printing side by side: another job's lines cannot land inside this block
-    stdout = _Writes()
+    stdout = WriteRecorder()
     monkeypatch.setattr("sys.stdout", stdout)
     with job_label("3_k64"):
         print_labelled("PSNR 30\noutputs:")

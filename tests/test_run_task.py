@@ -3,7 +3,6 @@
 import copy
 import dataclasses
 import errno
-import io
 import json
 import os
 import re
@@ -13,6 +12,7 @@ import torch
 from omegaconf import OmegaConf
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
+from conftest import WriteRecorder
 from fake_stages import TINY_SCENE, FakeStages, compose_config
 from relaygs import errors
 from relaygs.app import task as task_module
@@ -145,24 +145,12 @@ def test_a_labelled_job_names_itself_on_every_status_line(base_config, tmp_path,
     assert "\n  PSNR " in out and "\noutputs:\n  result " in out  # as a single run prints
 
 
-class _WriteThrough(io.StringIO):
-    """Unbuffered stdout (PYTHONUNBUFFERED): each write reaches the pipe as it is made."""
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.writes: list[str] = []
-
-    def write(self, text: str) -> int:
-        self.writes.append(text)
-        return super().write(text)
-
-
 def test_a_labelled_jobs_lines_each_go_out_whole_with_their_newline(
     base_config, tmp_path, monkeypatch
 ):
     # jobs side by side on one unbuffered pipe: a line and its newline written apart would
     # let another job's line land between them
-    stdout, stderr = _WriteThrough(), _WriteThrough()
+    stdout, stderr = WriteRecorder(), WriteRecorder()
     monkeypatch.setattr("sys.stdout", stdout)
     monkeypatch.setattr("sys.stderr", stderr)
     fakes = FakeStages(notes={"decouple": ["no foreground"]})
