@@ -24,21 +24,18 @@ def unfinished_runs(sweep_dir: Path) -> list[Path]:
     )
 
 
-def unfinished_line(sweep_dir: Path, unfinished: list[Path], planned: int | None) -> str | None:
+def unfinished_line(
+    sweep_dir: Path, unfinished: list[Path], finished: int, planned: int | None
+) -> str | None:
     """Which run folders the table leaves out for want of a result, and how many of the
-    `planned` jobs of the sweep (None: not known) have no folder at all, not having started: a
-    count of the run folders at any depth (`hydra.sweep.subdir` may nest them), an earlier
-    sweep's in the same folder included (None when the table misses nothing)."""
-    started = {
-        path.parent
-        for pattern in (RESULT_FILE, HYDRA_FOLDER)
-        for path in Path(sweep_dir).rglob(pattern)
-        if path.parent != Path(sweep_dir)
-    }
+    `planned` jobs of the sweep (None: not known) have no folder at all, not having started:
+    `planned` less the folders with a result (`finished`) or without one, an earlier sweep's
+    in the same folder included (None when the table misses nothing)."""
     parts = [unfinished_clause(sweep_dir, unfinished)] if unfinished else []
-    if planned is not None and planned > len(started):
+    started = finished + len(unfinished)
+    if planned is not None and planned > started:
         parts.append(
-            f"{planned - len(started)} of the {planned} job(s) the sweep planned have no folder "
+            f"{planned - started} of the {planned} job(s) the sweep planned have no folder "
             "(not started)"
         )
     return f"Not in the table: {'; '.join(parts)}." if parts else None

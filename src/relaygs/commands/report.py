@@ -95,7 +95,7 @@ def _write_files(table: pd.DataFrame, sweep_dir: Path) -> ReportFiles:
     _write_csv(table, csv_path)
     markdown_path = sweep_dir / SUMMARY_MD
     planned = recorded_job_count(sweep_dir)
-    unfinished = unfinished_line(sweep_dir, unfinished_runs(sweep_dir), planned)
+    unfinished = unfinished_line(sweep_dir, unfinished_runs(sweep_dir), len(table), planned)
     markdown = markdown_table(table, title, [unfinished] if unfinished else [])
     publish_text(markdown_path, markdown)
     plottable = zip(table.psnr, table.train_s_total, strict=True)
