@@ -156,6 +156,11 @@ DELAYED = {"init": 1e-3, "final": 1e-5, "delay_steps": 10}
         ("deform", {"densify_fg": {"split_scale_divisor": float("inf")}}, "split_scale_divisor"),
         ("warmup", {"densify": {"max_screen_radius": -1.0}}, "warmup.densify.max_screen_radius"),
         ("relay", {"densify_fg": {"max_screen_radius": float("nan")}}, "max_screen_radius"),
+        # infinite thresholds would train, then fail writing the artifact's JSON meta
+        ("decouple", {"densify": {"grad_threshold": float("inf")}}, "densify.grad_threshold"),
+        ("relay", {"densify_fg": {"percent_dense": float("inf")}}, "densify_fg.percent_dense"),
+        ("deform", {"densify_bg": {"max_world_size": float("inf")}}, "bg.max_world_size"),
+        ("warmup", {"densify": {"max_screen_radius": float("inf")}}, "max_screen_radius"),
         # the background's settings enter the relay key even while it is frozen (the default)
         ("relay", {"densify_bg": {"grad_treshold": 1.0}}, "relay.densify_bg"),
         ("relay", {"lr_bg": {"quats": -1.0}}, "relay.lr_bg.quats"),

@@ -217,9 +217,11 @@ def densify_settings(
 
 def _check_densify(settings: DensifySettings, where: str) -> None:
     """The ranges of density-control settings (errors name `<where>.<key>`)."""
+    # an infinite setting passes as "never split", but cannot be written to the artifact's
+    # JSON meta: refused here rather than after the stage has trained
     for name in ("grad_threshold", "percent_dense", "max_world_size"):
         value = getattr(settings, name)
-        require(value > 0.0, f"{where}.{name}", value, "a number > 0")
+        require(0.0 < value < math.inf, f"{where}.{name}", value, "a finite number > 0")
     # an infinite divisor gives split children a log-scale of -inf: the training diverges
     divisor = settings.split_scale_divisor
     key = f"{where}.split_scale_divisor"
@@ -227,7 +229,7 @@ def _check_densify(settings: DensifySettings, where: str) -> None:
     # a radius <= 0 prunes every Gaussian ever seen; NaN would silently never prune
     radius = settings.max_screen_radius
     key = f"{where}.max_screen_radius"
-    require(radius is None or radius > 0.0, key, radius, "None or a number > 0")
+    require(radius is None or 0.0 < radius < math.inf, key, radius, "None or a finite number > 0")
     for name in ("densify_from", "densify_until", "opacity_reset_every"):
         require_steps(f"{where}.{name}", getattr(settings, name))
     require(settings.densify_every >= 1, f"{where}.densify_every", settings.densify_every, ">= 1")
