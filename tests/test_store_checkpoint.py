@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import torch
 
-from relaygs.errors import InputError
+from relaygs.errors import DivergenceError, InputError
 from relaygs.pipeline.artifact import Artifact
 from relaygs.pipeline.checkpoint import STATE_FILE, StageCheckpointer
 from relaygs.pipeline.context import current_build
@@ -132,6 +132,24 @@ def test_only_the_newest_checkpoints_are_kept_and_damage_falls_back(tmp_path):
     assert state.step == 4 and torch.equal(state.tensors["x"], torch.full((3,), 4.0))
     ckpt.clear()
     assert ckpt.load() is None and not ckpt.folder.exists()
+
+
+def test_a_non_finite_optimizer_moment_stops_the_stage_before_anything_is_written(tmp_path):
+    ckpt = StageCheckpointer(tmp_path, "relay", KEY, every_n_steps=2)
+    param = torch.nn.Parameter(torch.ones(4))
+    optimizer = torch.optim.Adam([param], lr=0.1)
+    param.grad = torch.full((4,), 2.0)
+    optimizer.step()
+    ckpt.save(2, {"param": param}, {"adam": optimizer})  # finite: written
+    optimizer.state[param]["exp_avg_sq"][1] = float("inf")  # a squared gradient overflowed
+    with pytest.raises(DivergenceError) as caught:
+        ckpt.save(4, {"param": param}, {"adam": optimizer})
+    message = str(caught.value)
+    assert "stage 'relay' diverged at step 4" in message
+    assert "optimizers['adam']['state'][0]['exp_avg_sq']" in message
+    assert [path.name for path in ckpt.folder.iterdir()] == ["step-000000000002"]
+    with pytest.raises(DivergenceError, match=r"extras\['history'\]\[1\]"):
+        ckpt.save(4, {"param": param}, None, {"history": [torch.zeros(2), torch.tensor(np.nan)]})
 
 
 def test_bad_checkpoint_settings_are_refused(tmp_path):

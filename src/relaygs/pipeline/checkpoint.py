@@ -21,6 +21,7 @@ from safetensors import SafetensorError
 from safetensors.torch import load_file
 
 from relaygs.errors import InputError
+from relaygs.model.guard import check_finite
 from relaygs.pipeline.fsio import publish_dir, remove_tree, save_tensors
 from relaygs.pipeline.integrity import CorruptArtifactError, check_seal, is_sealed, seal
 from relaygs.pipeline.layout import TEMP_PREFIX, TENSORS_FILE, checkpoint_dir, make_temp_dir
@@ -60,6 +61,7 @@ class StageCheckpointer:
                 f"got {every_n_steps} and {keep_last}"
             )
         self.folder = checkpoint_dir(Path(store_root).expanduser().resolve(), stage, key)
+        self.stage = stage
         self.every_n_steps = every_n_steps
         self.keep_last = keep_last
 
@@ -78,25 +80,25 @@ class StageCheckpointer:
         optimizers: Mapping[str, torch.optim.Optimizer] | None = None,
         extras: Mapping[str, Any] | None = None,
     ) -> Path:
-        """Write a checkpoint of the state after `step` completed steps (RNG captured now)."""
+        """Write a checkpoint of the state after `step` completed steps (RNG captured now).
+        A non-finite tensor anywhere in it (an Adam moment, a density statistic) stops the
+        stage with a DivergenceError naming it, before anything is written."""
         stored: dict[str, torch.Tensor] = {}
+        places: dict[str, str] = {}
+        optimizer_states = {name: opt.state_dict() for name, opt in (optimizers or {}).items()}
         skeleton = {
             "step": step,
-            "tensors": encode_tree(dict(tensors), stored, "model.", "tensors"),
-            "optimizers": encode_tree(
-                {name: opt.state_dict() for name, opt in (optimizers or {}).items()},
-                stored,
-                "optim.",
-                "optimizers",
-            ),
+            "tensors": encode_tree(dict(tensors), stored, "model.", "tensors", places),
+            "optimizers": encode_tree(optimizer_states, stored, "optim.", "optimizers", places),
             "rng": encode_tree(capture_rng_state(), stored, "rng.", "rng"),
-            "extras": encode_tree(dict(extras or {}), stored, "extra.", "extras"),
+            "extras": encode_tree(dict(extras or {}), stored, "extra.", "extras", places),
         }
+        check_finite(self.stage, step, {places[name]: stored[name] for name in places})
         self._remove_stale_temps()
         temp = make_temp_dir(self.folder, f"{STEP_PREFIX}{step}")
         try:
             save_tensors(stored, temp / TENSORS_FILE)
-            (temp / STATE_FILE).write_text(json.dumps(skeleton, allow_nan=True), encoding="utf-8")
+            (temp / STATE_FILE).write_text(json.dumps(skeleton, allow_nan=False), encoding="utf-8")
             seal(temp)
             final = self.folder / f"{STEP_PREFIX}{step:012d}"
             publish_dir(temp, final)

@@ -18,27 +18,39 @@ TUPLE_TAG = "$tuple"
 NDARRAY_TAG = "$ndarray"
 
 
-def encode_tree(value: Any, tensors: dict[str, torch.Tensor], prefix: str, where: str) -> Any:
+def encode_tree(
+    value: Any,
+    tensors: dict[str, torch.Tensor],
+    prefix: str,
+    where: str,
+    places: dict[str, str] | None = None,
+) -> Any:
     """JSON-able skeleton of `value`; its tensors are added to `tensors` as `<prefix><n>`
-    (detached contiguous CPU copies). `where` names the value in error messages."""
+    (detached contiguous CPU copies). `where` names the value in error messages; `places`,
+    when given, gets each stored name's `where` (e.g. `optimizers['mlp']['state'][0]`)."""
     if isinstance(value, torch.Tensor):
         name = f"{prefix}{len(tensors)}"
         tensors[name] = value.detach().to("cpu").clone(memory_format=torch.contiguous_format)
+        if places is not None:
+            places[name] = where
         return {TENSOR_TAG: name}
     if isinstance(value, dict):
         return {
             DICT_TAG: [
                 [
-                    encode_tree(key, tensors, prefix, f"{where} key"),
-                    encode_tree(item, tensors, prefix, f"{where}[{key!r}]"),
+                    encode_tree(key, tensors, prefix, f"{where} key", places),
+                    encode_tree(item, tensors, prefix, f"{where}[{key!r}]", places),
                 ]
                 for key, item in value.items()
             ]
         }
     if isinstance(value, tuple):
-        return {TUPLE_TAG: [encode_tree(item, tensors, prefix, where) for item in value]}
+        return {TUPLE_TAG: encode_tree(list(value), tensors, prefix, where, places)}
     if isinstance(value, list):
-        return [encode_tree(item, tensors, prefix, f"{where}[{i}]") for i, item in enumerate(value)]
+        return [
+            encode_tree(item, tensors, prefix, f"{where}[{i}]", places)
+            for i, item in enumerate(value)
+        ]
     if isinstance(value, np.ndarray):
         return {
             NDARRAY_TAG: {
