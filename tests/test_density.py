@@ -11,8 +11,8 @@ from relaygs.model import (
     GaussianSet,
     LRSchedule,
     SetLearningRates,
-    quats_to_rotmats,
 )
+from relaygs.splat.projection import quat_to_rotmat
 
 SMALL_LOG_SCALE = math.log(1e-3)  # below percent_dense · extent = 0.01 → clone
 LARGE_LOG_SCALE = math.log(5e-2)  # above it → split
@@ -102,7 +102,7 @@ def test_split_replaces_parent_by_two_rotated_children_with_fresh_state() -> Non
         elif key not in ("means", "log_scales"):
             assert torch.equal(after[key][2:], value[[2, 2]]), key
     assert torch.allclose(after["log_scales"][2:], before["log_scales"][[2, 2]] - math.log(1.6))
-    long_axis = quats_to_rotmats(g.quats[2].detach())[:, 0]
+    long_axis = quat_to_rotmat(g.quats[2].detach())[:, 0]
     for child in (2, 3):
         offset = after["means"][child] - before["means"][2]
         assert offset.norm() > 1e-4

@@ -23,6 +23,7 @@ from relaygs.errors import InputError, RelayGSError
 from relaygs.model import MAX_LOG_SCALE, normalize_quats
 from relaygs.pipeline.fsio import publish_bytes
 from relaygs.progress import progress_bar
+from relaygs.splat.sh import num_sh_bases
 from relaygs.stages.model_render import ModelRenderer
 from relaygs.stages.render import Part
 from relaygs.stages.scene_model import SceneModel
@@ -36,7 +37,7 @@ def ply_columns(parts: Sequence[Part], sh_degree: int) -> dict[str, torch.Tensor
     its model's full degree; zero bands change no colour)."""
     means = torch.cat([part.means for part in parts])
     sh = torch.cat([part.sh for part in parts])  # [N, K, 3]
-    missing = (sh_degree + 1) ** 2 - sh.shape[1]
+    missing = num_sh_bases(sh_degree) - sh.shape[1]
     if missing > 0:
         sh = torch.cat([sh, sh.new_zeros(sh.shape[0], missing, 3)], dim=1)
     columns = {name: means[:, axis] for axis, name in enumerate("xyz")}

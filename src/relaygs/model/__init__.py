@@ -15,7 +15,6 @@ from relaygs.model.gaussians import (
     GaussianSet,
     inverse_sigmoid,
     normalize_quats,
-    quats_to_rotmats,
     sh_degree_for_step,
 )
 from relaygs.model.guard import check_finite
@@ -50,6 +49,5 @@ __all__ = [
     "mean_sq_knn_distance",
     "normalize_quats",
     "paper_schedule",
-    "quats_to_rotmats",
     "sh_degree_for_step",
 ]

@@ -26,8 +26,9 @@ import torch
 from torch import Tensor
 
 from relaygs.errors import InputError
-from relaygs.model.gaussians import GaussianSet, inverse_sigmoid, quats_to_rotmats
+from relaygs.model.gaussians import GaussianSet, inverse_sigmoid
 from relaygs.model.optim import GaussianOptimizer
+from relaygs.splat.projection import quat_to_rotmat
 
 
 @dataclass(frozen=True)
@@ -105,9 +106,9 @@ class DensityController:
         radii: Tensor,
         width: int,
         height: int,
-        loss_is_mean_over_cameras: bool = True,
     ) -> None:
-        """Add one step's statistics: means2d_grad [C,N,2] (pixels), radii [C,N,2] or [C,N]."""
+        """Add one step's statistics: means2d_grad [C,N,2] (pixels), radii [C,N,2] or [C,N].
+        The loss is a mean over the C cameras, so each camera's gradient is scaled back by C."""
         n = len(self.gaussians)
         if means2d_grad.ndim != 3 or means2d_grad.shape[1:] != (n, 2):
             raise InputError(
@@ -117,7 +118,7 @@ class DensityController:
             raise InputError(f"accumulate: radii {tuple(radii.shape)} do not match the grad")
         per_axis = radii if radii.ndim == 3 else radii[..., None]
         visible = (per_axis > 0).all(dim=-1)
-        n_cameras = means2d_grad.shape[0] if loss_is_mean_over_cameras else 1
+        n_cameras = means2d_grad.shape[0]
         to_ndc = means2d_grad.new_tensor([width / 2.0, height / 2.0]) * n_cameras
         grad_norm = (means2d_grad.detach() * to_ndc).norm(dim=-1)
         self._grad_sum += torch.where(visible, grad_norm, 0.0).sum(dim=0)
@@ -225,7 +226,7 @@ class DensityController:
         with torch.no_grad():
             stds = g.scales[parent_idx]
             noise = torch.randn(stds.shape, generator=self.generator, device=stds.device)
-            rotations = quats_to_rotmats(g.quats[parent_idx])
+            rotations = quat_to_rotmat(g.quats[parent_idx])
             offsets = (rotations @ (noise * stds)[..., None]).squeeze(-1)
             means = g.means.detach()[parent_idx] + offsets
             shrink = math.log(self.settings.split_scale_divisor)

@@ -16,8 +16,8 @@ from torch import Tensor, nn
 
 from relaygs.errors import InputError
 from relaygs.model.knn import mean_sq_knn_distance
+from relaygs.splat.sh import SH_C0, num_sh_bases
 
-SH_C0 = 0.28209479177387814
 MAX_LOG_SCALE = 10.0  # exp(10) ≈ 2.2e4 world units: far beyond any scene, far from float32 inf
 MIN_QUAT_SQ_NORM = 1e-16  # |q| below 1e-8 is treated as the zero quaternion → identity
 MIN_INIT_SQ_DIST = 1e-7  # 3DGS clamp on the mean squared neighbour distance at init
@@ -25,11 +25,6 @@ CORE_PARAMS = ("means", "log_scales", "quats", "opacity_logits", "sh_dc", "sh_re
 TENSOR_KEY_SH_DEGREE = "active_sh_degree"
 EXTRA_PARAM_PREFIX = "param."
 BUFFER_PREFIX = "buffer."
-
-
-def sh_coeff_count(degree: int) -> int:
-    """Number of SH coefficients per colour channel up to `degree` ((degree + 1)²)."""
-    return (degree + 1) ** 2
 
 
 def sh_degree_for_step(step: int, max_degree: int, every: int = 1000) -> int:
@@ -55,17 +50,6 @@ def normalize_quats(quats: Tensor) -> Tensor:
     safe_quats = torch.where(degenerate, identity, quats)
     safe_norm = torch.sqrt(torch.where(degenerate, torch.ones_like(sq_norm), sq_norm))
     return safe_quats / safe_norm
-
-
-def quats_to_rotmats(unit_quats: Tensor) -> Tensor:
-    """Rotation matrices [..., 3, 3] from unit wxyz quaternions [..., 4]."""
-    w, x, y, z = unit_quats.unbind(dim=-1)
-    rows = (
-        (1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)),
-        (2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)),
-        (2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)),
-    )
-    return torch.stack([torch.stack(row, dim=-1) for row in rows], dim=-2)
 
 
 class GaussianSet:
@@ -125,7 +109,7 @@ class GaussianSet:
             "quats": quats,
             "opacity_logits": inverse_sigmoid(xyz.new_full((n,), init_opacity)),
             "sh_dc": ((rgb.detach().to(xyz.device, torch.float32) - 0.5) / SH_C0)[:, None, :],
-            "sh_rest": xyz.new_zeros(n, sh_coeff_count(max_sh_degree) - 1, 3),
+            "sh_rest": xyz.new_zeros(n, num_sh_bases(max_sh_degree) - 1, 3),
         }
         return cls(core)
 
@@ -186,7 +170,7 @@ class GaussianSet:
         degree = self.active_sh_degree if sh_degree is None else sh_degree
         if not 0 <= degree <= self.max_sh_degree:
             raise InputError(f"colors: sh_degree {degree} outside [0, {self.max_sh_degree}]")
-        rest = self._params["sh_rest"][:, : sh_coeff_count(degree) - 1]
+        rest = self._params["sh_rest"][:, : num_sh_bases(degree) - 1]
         return torch.cat([self._params["sh_dc"], rest], dim=1)
 
     def to_tensors(self, prefix: str = "") -> dict[str, Tensor]:
@@ -293,7 +277,7 @@ class GaussianSet:
                     f"GaussianSet: {name} must be {shape}, got {tuple(self._params[name].shape)}"
                 )
         rest = tuple(self._params["sh_rest"].shape)
-        valid_counts = {sh_coeff_count(d) - 1 for d in range(5)}
+        valid_counts = {num_sh_bases(d) - 1 for d in range(5)}
         if len(rest) != 3 or rest[0] != n or rest[2] != 3 or rest[1] not in valid_counts:
             raise InputError(f"GaussianSet: sh_rest must be [N,(d+1)^2-1,3], got {rest}")
 

@@ -143,13 +143,13 @@ def has_fused_adam(device: torch.device) -> bool:
     return True
 
 
-def adam(groups: list[dict], betas: tuple[float, float] = (0.9, 0.999)) -> torch.optim.Adam:
+def adam(groups: list[dict]) -> torch.optim.Adam:
     """Adam with eps 1e-15 over param groups, as one fused kernel per step where torch has one
     for the params' device (the per-tensor loop costs several times more on the CPU), else as
     the multi-tensor (foreach) step; the update is the same."""
     fused = has_fused_adam(groups[0]["params"][0].device)
     kernel = {"fused": True} if fused else {"foreach": True}
-    return torch.optim.Adam(groups, lr=0.0, betas=betas, eps=ADAM_EPS, **kernel)
+    return torch.optim.Adam(groups, lr=0.0, eps=ADAM_EPS, **kernel)
 
 
 class GaussianOptimizer:
@@ -160,7 +160,6 @@ class GaussianOptimizer:
         sets: Mapping[str, GaussianSet],
         learning_rates: Mapping[str, SetLearningRates],
         spatial_lr_scale: float = 1.0,
-        betas: tuple[float, float] = (0.9, 0.999),
     ) -> None:
         """Build groups for every parameter of every set; extras must have a schedule."""
         missing = sorted(set(sets) - set(learning_rates))
@@ -176,7 +175,7 @@ class GaussianOptimizer:
                 schedule = learning_rates[set_name].for_param(param_name)
                 self._schedules[group_name] = schedule
                 groups.append({"params": [param], "name": group_name, "lr": schedule.at(0)})
-        self.adam = adam(groups, betas)
+        self.adam = adam(groups)
         self.update_learning_rates(0)
 
     def update_learning_rates(self, step: int) -> dict[str, float]:

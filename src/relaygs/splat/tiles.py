@@ -14,7 +14,7 @@ import torch
 
 DEFAULT_TILE_SIZE = 8
 # Upper bound on pixel–Gaussian candidates per processing group (memory and cache).
-DEFAULT_GROUP_BUDGET = 1 << 19
+GROUP_BUDGET = 1 << 19
 # A group stops growing when list lengths drop below this fraction of its longest.
 GROUP_FILL = 0.75
 
@@ -59,7 +59,6 @@ def bin_gaussians(
     width: int,
     height: int,
     tile_size: int = DEFAULT_TILE_SIZE,
-    group_budget: int = DEFAULT_GROUP_BUDGET,
 ) -> TileBins:
     """Build per-tile front-to-back lists from pixel boxes [C,N,4] (x0, x1, y0, y1)."""
     num_cameras, n = depths.shape
@@ -95,7 +94,7 @@ def bin_gaussians(
     num_tiles = num_cameras * per_camera
     tile_count = torch.bincount(tile_id, minlength=num_tiles)
     tile_start = torch.cumsum(tile_count, 0) - tile_count
-    groups = _group_tiles(tile_count, tile_size * tile_size, group_budget)
+    groups = _group_tiles(tile_count, tile_size * tile_size)
     return TileBins(
         tile_size, tiles_x, tiles_y, num_cameras, pair_gaussian, tile_start, tile_count, groups
     )
@@ -112,15 +111,13 @@ def tiles_touched_by(bins: TileBins, rows: torch.Tensor) -> torch.Tensor:
     return before[start + bins.tile_count] > before[start]
 
 
-def only_tiles(
-    bins: TileBins, tiles: torch.Tensor, group_budget: int = DEFAULT_GROUP_BUDGET
-) -> TileBins:
+def only_tiles(bins: TileBins, tiles: torch.Tensor) -> TileBins:
     """The bins with processing groups over the tiles where `tiles` [num_tiles] is true."""
     counts = torch.where(tiles, bins.tile_count, torch.zeros_like(bins.tile_count))
-    return replace(bins, groups=_group_tiles(counts, bins.tile_size**2, group_budget))
+    return replace(bins, groups=_group_tiles(counts, bins.tile_size**2))
 
 
-def _group_tiles(tile_count: torch.Tensor, pixels: int, budget: int) -> list[TileGroup]:
+def _group_tiles(tile_count: torch.Tensor, pixels: int) -> list[TileGroup]:
     """Split non-empty tiles, longest lists first, into groups of bounded padded size."""
     by_length = torch.argsort(tile_count, descending=True, stable=True)
     lengths = tile_count[by_length].tolist()
@@ -128,7 +125,7 @@ def _group_tiles(tile_count: torch.Tensor, pixels: int, budget: int) -> list[Til
     start = 0
     while start < len(lengths) and lengths[start] > 0:
         longest = lengths[start]
-        end = start + max(1, budget // (longest * pixels))
+        end = start + max(1, GROUP_BUDGET // (longest * pixels))
         end = min(end, len(lengths))
         floor = longest * GROUP_FILL
         # lengths are non-increasing: cut where they fall below the fill floor or reach 0.

@@ -23,11 +23,10 @@ def deformed_parts(
     field: DeformationField,
     time: float,
     sh_degree: int,
-    frozen_background: bool = False,
 ) -> list[Part]:
     """Background and foreground Parts at `time` in [0, 1]; γ is used when the foreground has
     a `gamma` parameter."""
-    bg = part_of("bg", background, sh_degree, frozen=frozen_background)
+    bg = part_of("bg", background, sh_degree)
     fg = part_of("fg", foreground, sh_degree, rows=foreground_rows)
     n_bg = bg.count
     xyz = torch.cat([bg.means, fg.means])

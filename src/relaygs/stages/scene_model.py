@@ -15,7 +15,6 @@ frame belongs to exactly one segment.
 from __future__ import annotations
 
 import dataclasses
-import math
 import textwrap
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -28,6 +27,7 @@ from relaygs.errors import InputError, one_line
 from relaygs.field import ColorAffine, DeformationField
 from relaygs.model import GaussianSet
 from relaygs.pipeline.artifact import Artifact
+from relaygs.stages.segments import num_segments
 
 SEGMENT = "segment"
 GAMMA = "gamma"
@@ -57,7 +57,7 @@ class SceneModel:
     @property
     def num_segments(self) -> int:
         """S = ceil(T / k)."""
-        return math.ceil(self.num_frames / self.segment_length)
+        return num_segments(self.num_frames, self.segment_length)
 
     def segment_of(self, frame: int) -> int:
         """The segment that frame `frame` belongs to (frame // k; frames past the last count as
