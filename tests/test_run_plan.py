@@ -121,6 +121,8 @@ def test_merge_overrides_is_deep_and_rejects_unknown_settings():
         ({"warmup__steps": -1, "pipeline__name": "4dgs"}, "warmup.steps"),
         ({"scene__preset": "mars"}, "scene.preset: unknown synthetic preset 'mars'"),
         ({"scene__width": 0}, "scene.width"),
+        # generated, it would be refused by the loader: refused before anything is generated
+        ({"scene__height": 3}, r"scene.height must be an integer >= 4, got 3"),
         ({"scene__effects": ["wind"]}, "scene.effects: unknown effect 'wind'"),
         ({"scene__loader": {"zoom": 2}}, r"scene.loader: unknown option\(s\) \['zoom'\]"),
     ],

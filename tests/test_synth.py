@@ -283,8 +283,10 @@ def test_other_sizes_work(tmp_path: Path):
         ("juggle", {"effects": ["wobble"]}, "unknown effect 'wobble'"),
         ("static", {"effects": [LARGE_MOTION]}, "cannot simulate large_motion"),
         ("juggle", {"frames": 0}, "frames must be an integer >= 1"),
-        ("juggle", {"width": -4}, "width must be an integer >= 1"),
-        ("juggle", {"height": 0}, "height must be an integer >= 1"),
+        ("juggle", {"width": -4}, "width must be an integer >= 4"),
+        ("juggle", {"height": 0}, "height must be an integer >= 4"),
+        # an image no loader takes (under 4 pixels a side) is refused before it is rendered
+        ("juggle", {"width": 3}, "width must be an integer >= 4, got 3"),
         ("juggle", {"seed": -1}, "seed must be an integer >= 0"),
     ],
 )

@@ -42,7 +42,7 @@ def test_cli_effects_none_or_nothing_writes_a_scene_without_effects(tmp_path: Pa
     [
         (["nope"], "unknown preset 'nope'"),
         (["juggle", "--frames", "0"], "frames must be an integer >= 1"),
-        (["juggle", "--width", "-3"], "width must be an integer >= 1"),
+        (["juggle", "--width", "-3"], "width must be an integer >= 4"),
         (["juggle", "--effects", "wobble"], "unknown effect 'wobble'"),
         (["juggle", "--effects", "none,nonrigid"], "unknown effect 'none'; expected one of"),
         (["static", "--effects", "fast_objects"], "cannot simulate fast_objects"),
@@ -90,7 +90,7 @@ def test_cli_process_exits_nonzero_without_traceback(tmp_path: Path):
     ]
     result = subprocess.run(command, capture_output=True, text=True, timeout=120)
     assert result.returncode == 2
-    assert result.stderr.strip() == "error: height must be an integer >= 1, got 0"
+    assert result.stderr.strip() == "error: height must be an integer >= 4, got 0"
 
 
 def test_cli_usage_errors_are_one_line(capsys):

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from relaygs.app.scenes import SceneSpec, scene_spec
+from relaygs.data.options import require_int
 from relaygs.errors import InputError
 from relaygs.paths import require_creatable_folder
 from relaygs.pipeline import Node, Pipeline, load_pipeline
@@ -260,9 +261,7 @@ def _require_label(cfg: Mapping[str, Any], dotted: str) -> None:
 def _preview_frames(cfg: Mapping[str, Any]) -> int:
     """`tensorboard.preview_frames`: how many render-vs-truth frames TensorBoard gets (>= 0)."""
     count = _section(cfg, "tensorboard").get("preview_frames")
-    if isinstance(count, bool) or not isinstance(count, int) or count < 0:
-        raise InputError(f"tensorboard.preview_frames must be an integer >= 0, got {count!r}")
-    return count
+    return require_int("preview_frames", count, minimum=0, prefix="tensorboard.")
 
 
 def _budget(budget: Mapping[str, Any]) -> tuple[float, list[str]]:

@@ -14,7 +14,8 @@ from filelock import FileLock
 
 from relaygs.data import Scene, detect_format, load_scene
 from relaygs.data.effects import parse_effects
-from relaygs.data.options import make_options
+from relaygs.data.options import make_options, require_int
+from relaygs.data.scene import MIN_IMAGE_SIDE
 from relaygs.data.synthetic import (
     GENERATOR_VERSION,
     PRESETS,
@@ -90,8 +91,11 @@ def scene_spec(section: Mapping[str, Any]) -> SceneSpec:
             f"scene.loader: unknown option(s) {unknown}; expected {list(LOADER_OPTIONS)}"
         )
     options = make_options(**loader, prefix=LOADER_PREFIX)
-    counts = {name: _count(section, name, minimum=1) for name in ("frames", "width", "height")}
-    seed = _count(section, "seed", minimum=0)
+    counts = {
+        name: require_int(name, section.get(name), minimum=minimum, prefix="scene.")
+        for name, minimum in (("frames", 1), ("width", MIN_IMAGE_SIDE), ("height", MIN_IMAGE_SIDE))
+    }
+    seed = require_int("seed", section.get("seed"), minimum=0, prefix="scene.")
     path = section.get("path")
     if path is not None:
         root = require_folder(Path(str(path)), "scene.path")
@@ -172,14 +176,6 @@ def _check_held_out(preset: str, test_cameras: tuple[int, ...] | None, count: in
         raise InputError(
             f"scene.loader.test_cameras: {problem} preset {preset!r} (camera ids 0..{count - 1})"
         )
-
-
-def _count(section: Mapping[str, Any], name: str, minimum: int) -> int:
-    """`section[name]` as an int >= minimum, else an InputError naming `scene.<name>`."""
-    value = section.get(name)
-    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-        raise InputError(f"scene.{name} must be an integer >= {minimum}, got {value!r}")
-    return value
 
 
 def scene_provenance(spec: SceneSpec) -> dict[str, Any]:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import numbers
 import os
 import shutil
 from collections.abc import Iterable
@@ -14,7 +13,9 @@ import numpy as np
 
 from relaygs.data.effects import COLOR_INCONSISTENCY, SENSOR_NOISE, parse_effects
 from relaygs.data.metafiles import SCENE_JSON
+from relaygs.data.options import require_int
 from relaygs.data.panoptic import POINTS_FILE, TEST_META, TRAIN_META
+from relaygs.data.scene import MIN_IMAGE_SIDE
 from relaygs.data.synthetic.presets import DURATION_S, PRESETS, Preset
 from relaygs.data.synthetic.render import (
     Buffers,
@@ -65,9 +66,11 @@ def generate(
     recipe = PRESETS.get(preset)
     if recipe is None:
         raise InputError(f"unknown preset {preset!r}; expected one of: {', '.join(PRESETS)}")
+    # an image under MIN_IMAGE_SIDE pixels a side is one no loader takes: refused before work
+    minimums = {"frames": 1, "width": MIN_IMAGE_SIDE, "height": MIN_IMAGE_SIDE}
     for name, value in (("frames", frames), ("width", width), ("height", height)):
-        _require_count(name, value, minimum=1)
-    _require_count("seed", seed, minimum=0)
+        require_int(name, value, minimum=minimums[name], prefix="")
+    require_int("seed", seed, minimum=0, prefix="")
     declared = declared_effects(recipe, effects)
     times = np.linspace(0.0, DURATION_S, frames) if frames > 1 else np.zeros(1)
     world = World(
@@ -109,11 +112,6 @@ def rig_cameras(recipe: Preset, width: int, height: int) -> list[RigCamera]:
             f"(0..{count - 1}), leaving some to train on"
         )
     return cameras
-
-
-def _require_count(name: str, value: object, *, minimum: int) -> None:
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < minimum:
-        raise InputError(f"{name} must be an integer >= {minimum}, got {value!r}")
 
 
 def declared_effects(
