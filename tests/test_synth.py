@@ -347,6 +347,27 @@ def test_refuses_to_overwrite_a_generated_scene_that_holds_other_files(tmp_path:
     assert (scene / "my_results" / "notes.txt").read_text() == "mine"
 
 
+def test_refuses_to_overwrite_a_scene_with_files_of_its_own_inside_ims_or_seg(tmp_path: Path):
+    scene = generate("static", tmp_path / "scene", frames=1, width=8, height=6)
+    (scene / "ims" / "mine").mkdir()
+    (scene / "ims" / "mine" / "notes.txt").write_text("mine")
+    (scene / "seg" / "README").write_text("mine too")
+    (scene / "seg" / "0" / "000000.jpg").write_text("not the generator's")
+    with pytest.raises(InputError) as caught:
+        generate("static", scene, frames=2, width=8, height=6)
+    held = "['ims/mine/notes.txt', 'seg/0/000000.jpg', 'seg/README']"
+    assert f"besides a generated scene it holds {held}" in str(caught.value)
+    assert (scene / "ims" / "mine" / "notes.txt").read_text() == "mine"
+    assert (scene / "seg" / "README").read_text() == "mine too"
+    for name in ("ims/mine/notes.txt", "seg/README", "seg/0/000000.jpg"):
+        (scene / name).unlink()
+    generate("static", scene, frames=2, width=8, height=6)  # only its own files: replaced
+    assert sorted(path.name for path in (scene / "ims" / "0").iterdir()) == [
+        "000000.png",
+        "000001.png",
+    ]
+
+
 def test_an_unwritable_target_is_one_line(tmp_path: Path):
     (tmp_path / "taken").write_text("a file")
     with pytest.raises(InputError, match="is not a folder"):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 from collections.abc import Iterable
 from pathlib import Path
@@ -38,6 +39,8 @@ GENERATOR = "relaygs.synth"
 GENERATOR_VERSION = "1"
 GENERATED_ENTRIES = frozenset({"ims", "seg", TRAIN_META, TEST_META, POINTS_FILE, SCENE_JSON})
 """What a generated scene folder holds (regenerating replaces exactly these)."""
+GENERATED_IMAGE = re.compile(r"\d+/\d{6}\.png")
+"""The files the generator writes inside ims/ and seg/: `<camera>/<frame:06d>.png`."""
 SUPERSAMPLE = 2
 POINTS_PER_PIXEL = 0.1
 """Initial-cloud samples per pixel of each training camera's frame 0 ..."""
@@ -151,10 +154,11 @@ def _staging_folder(out: Path) -> Path:
         entries = {entry.name for entry in out.iterdir()}
         if entries and not _is_generated(out):
             raise InputError(f"refusing to overwrite {out}: not empty and not a generated scene")
-        foreign = sorted(entries - GENERATED_ENTRIES)
+        foreign = sorted(entries - GENERATED_ENTRIES) + _foreign_image_files(out)
         if foreign:
+            shown = foreign if len(foreign) <= 5 else [*foreign[:5], f"... {len(foreign)} in all"]
             raise InputError(
-                f"refusing to overwrite {out}: besides a generated scene it holds {foreign}; "
+                f"refusing to overwrite {out}: besides a generated scene it holds {shown}; "
                 "move them or write the scene elsewhere"
             )
     require_creatable_folder(out.parent, "synthetic scene folder")
@@ -164,6 +168,18 @@ def _staging_folder(out: Path) -> Path:
         shutil.rmtree(staging)
     staging.mkdir()
     return staging
+
+
+def _foreign_image_files(scene: Path) -> list[str]:
+    """Files under the scene's ims/ and seg/ that the generator does not write there (only
+    `<camera>/<frame:06d>.png`), as paths relative to the scene: regenerating would lose them."""
+    foreign = []
+    for kind in ("ims", "seg"):
+        for path in sorted((scene / kind).rglob("*")):
+            relative = path.relative_to(scene / kind).as_posix()
+            if not path.is_dir() and not GENERATED_IMAGE.fullmatch(relative):
+                foreign.append(f"{kind}/{relative}")
+    return foreign
 
 
 def _is_generated(folder: Path) -> bool:
