@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import re
 from pathlib import Path
 
 import cv2
@@ -118,6 +119,22 @@ def test_court_without_effects_is_still_and_each_background_effect_adds_motion(t
             masks = _images(moving, "seg", camera)
             assert all(np.array_equal(masks[0], mask) for mask in masks[1:])
         assert changed > 0, effect
+
+
+@pytest.mark.parametrize("preset", sorted(PRESETS))
+def test_declaring_an_effect_changes_no_material_of_the_scene(preset: str):
+    # an effect may add primitives (fast objects) or move them, but every material of the
+    # scene without it is still there: toggling jitter once redrew the spectators' clothes
+    recipe = PRESETS[preset]
+    times = np.linspace(0.0, 5.0, 4)
+    for effect in sorted(recipe.supported_effects):
+        without = recipe.build(times, recipe.supported_effects - {effect}, 0)
+        with_it = recipe.build(times, recipe.supported_effects, 0)
+        # the one material field an effect sets is the panels' animation (dynamic_panels)
+        kept = [re.sub(r"animated=\w+", "", repr(p.material)) for p in without]
+        added = [re.sub(r"animated=\w+", "", repr(p.material)) for p in with_it]
+        missing = [m for m in kept if m not in added]
+        assert not missing, (effect, missing[:2])
 
 
 def test_surface_radiance_is_the_same_from_every_camera():

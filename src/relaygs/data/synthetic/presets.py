@@ -197,10 +197,11 @@ def build_court(times: np.ndarray, effects: frozenset[str], seed: int) -> list[P
         )
     for side in (1.0, -1.0):
         for x in np.linspace(-9.0, 9.0, 7):
+            # drawn whether or not the sway is declared: declaring it changes nothing else
+            frequency = rng.uniform(0.4, 1.2, size=3)
+            phase0 = rng.uniform(0, 2 * np.pi, size=3)
             jitter = None
             if BACKGROUND_JITTER in effects:
-                frequency = rng.uniform(0.4, 1.2, size=3)
-                phase0 = rng.uniform(0, 2 * np.pi, size=3)
                 amplitude = np.array([0.08, 0.06, 0.03])
                 jitter = amplitude * np.sin(2 * np.pi * frequency * times[:, None] + phase0)
             shirt = tuple(float(v) for v in rng.uniform(0.1, 0.9, size=3))
