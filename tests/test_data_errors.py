@@ -387,7 +387,8 @@ def test_a_scene_without_scene_json_declares_no_effects(tiny_synth_copy: Path):
         ({"downscale": 0}, "downscale must be an integer >= 1"),
         ({"downscale": 1.5}, "downscale must be an integer >= 1"),
         ({"max_points": 0}, "max_points must be an integer >= 1"),
-        ({"cache_mb": -1}, "cache_mb must be a number > 0"),
+        ({"cache_mb": -1}, "cache_mb must be a finite number > 0"),
+        ({"cache_mb": float("inf")}, r"cache_mb must be a finite number > 0, got inf"),
         ({"test_cameras": [99]}, "cameras [99] are not in the scene"),
         (
             {"test_cameras": [1, 99]},

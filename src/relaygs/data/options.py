@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import numbers
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
@@ -51,8 +52,10 @@ def make_options(
     `prefix` + its name."""
     downscale = require_int("downscale", downscale, minimum=1, prefix=prefix)
     max_points = require_int("max_points", max_points, minimum=1, prefix=prefix)
-    if isinstance(cache_mb, bool) or not isinstance(cache_mb, int | float) or not cache_mb > 0:
-        raise InputError(f"{prefix}cache_mb must be a number > 0, got {cache_mb!r}")
+    # a budget in whole bytes: an infinite one has no byte count (and memory is finite anyway)
+    number = not isinstance(cache_mb, bool) and isinstance(cache_mb, int | float)
+    if not number or not 0 < cache_mb < math.inf:
+        raise InputError(f"{prefix}cache_mb must be a finite number > 0, got {cache_mb!r}")
     cameras = None
     if test_cameras is not None:
         if isinstance(test_cameras, str | bytes) or not isinstance(test_cameras, Iterable):
