@@ -276,7 +276,11 @@ def _cameras_file(root: Path) -> Path:
 
 @pytest.mark.parametrize(
     ("qvec", "tvec"),
-    [((0.0, 0.0, 0.0, 0.0), (0.0, 0.0, 4.0)), ((1.0, 0.0, 0.0, 0.0), (float("nan"), 0.0, 4.0))],
+    [
+        ((0.0, 0.0, 0.0, 0.0), (0.0, 0.0, 4.0)),
+        ((1.0, 0.0, 0.0, 0.0), (float("nan"), 0.0, 4.0)),
+        ((1.0, 0.0, 0.0, 0.0), (1e39, 0.0, 4.0)),  # inf once cast to float32
+    ],
 )
 def test_images_without_a_usable_pose_are_refused(multiview_copy: Path, qvec, tvec):
     def bad_pose(model) -> None:

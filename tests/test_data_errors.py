@@ -284,11 +284,12 @@ def test_empty_point_cloud(tiny_synth_copy: Path):
     _expect(tiny_synth_copy, "init_pt_cld.npz", "non-empty")
 
 
-def test_non_finite_point_cloud(tiny_synth_copy: Path):
-    data = np.random.default_rng(0).random((50, 7)).astype(np.float32)
-    data[3, 1] = np.nan
+@pytest.mark.parametrize("value", [np.nan, 1e300], ids=["nan", "beyond float32"])
+def test_non_finite_point_cloud(tiny_synth_copy: Path, value: float):
+    data = np.random.default_rng(0).random((50, 7))  # float64: 1e300 is finite until the cast
+    data[3, 1] = value
     np.savez(tiny_synth_copy / "init_pt_cld.npz", data=data)
-    _expect(tiny_synth_copy, "init_pt_cld.npz", "non-finite")
+    _expect(tiny_synth_copy, "init_pt_cld.npz", "not finite in float32 (NaN, inf, or beyond")
 
 
 def test_point_cloud_with_wrong_columns_or_key(tiny_synth_copy: Path):
@@ -437,8 +438,11 @@ def test_zero_vertical_focal_length(tiny_synth_copy: Path):
         ({(0, 2): float("inf")}, "cx = inf"),
         ({(0, 1): float("nan")}, "K[0][1] = nan"),
         ({(2, 0): 0.5}, "last row [0.5, 0.0, 1.0]"),
+        # the renderer models no skew: dropping it would train on wrong rays
+        ({(0, 1): 1e6}, "skew K[0][1] = 1000000.0, K[1][0] = 0.0"),
+        ({(1, 0): 5.0}, "skew K[0][1] = 0.0, K[1][0] = 5.0"),
     ],
-    ids=["focal lengths", "infinite cx", "nan skew", "last row"],
+    ids=["focal lengths", "infinite cx", "nan skew", "last row", "skew", "lower skew"],
 )
 def test_intrinsics_errors_name_the_bad_values(entries: dict, problem: str):
     K = np.array([[20.0, 0.0, 16.0], [0.0, 20.0, 9.0], [0.0, 0.0, 1.0]])
@@ -447,6 +451,14 @@ def test_intrinsics_errors_name_the_bad_values(entries: dict, problem: str):
     with pytest.raises(InputError) as caught:
         check_intrinsics(K, "cam.txt: camera 3")
     assert str(caught.value).startswith(f"cam.txt: camera 3 has {problem}; expected intrinsics")
+
+
+def test_a_skew_within_a_thousandth_of_the_focal_length_is_taken_for_zero():
+    K = np.array([[2000.0, 1.9, 16.0], [-1.9, 2000.0, 9.0], [0.0, 0.0, 1.0]])
+    check_intrinsics(K, "cam.txt: camera 3")  # rounding in a calibration file: accepted
+    K[0, 1] = 2.1
+    with pytest.raises(InputError, match="has skew K"):
+        check_intrinsics(K, "cam.txt: camera 3")
 
 
 @pytest.mark.parametrize(
@@ -484,7 +496,7 @@ def test_a_batch_of_poses_names_the_first_bad_one_and_non_finite_entries():
     with pytest.raises(InputError) as caught:
         check_rigid(w2c, "poses")
     assert str(caught.value).startswith(
-        "poses at [1][2] has non-finite entries [[1.0, 0.0, 0.0, nan]"
+        "poses at [1][2] has entries not finite in float32 [[1.0, 0.0, 0.0, nan]"
     )
     w2c[1, 2] = np.eye(4)
     w2c[0, 1, 3] = [0.0, 0.0, 1.0, 1.0]
@@ -532,6 +544,10 @@ def _nan_in_w2c(meta: dict) -> None:
     meta["w2c"][2][0][1][3] = float("nan")  # json.dumps writes NaN, json.loads reads it back
 
 
+def _huge_w2c(meta: dict) -> None:
+    meta["w2c"][0][0][0][3] = 1e39  # finite as JSON's float64, inf once cast to float32
+
+
 @pytest.mark.parametrize(
     ("edit", "fragment"),
     [
@@ -542,9 +558,20 @@ def _nan_in_w2c(meta: dict) -> None:
         (_drop_field("w"), "missing field 'w' (expected a positive integer)"),
         (_set_field("h", None), "field 'h' must be a positive integer, got None"),
         (_set_field("w2c", "identity"), "field 'w2c' must be a [T][C][4][4] array of numbers"),
-        (_nan_in_w2c, "field 'w2c' holds non-finite values"),
+        (_nan_in_w2c, "field 'w2c' holds values not finite in float32"),
+        (_huge_w2c, "field 'w2c' holds values not finite in float32 (NaN, inf, or beyond"),
     ],
-    ids=["empty fn", "fn of numbers", "ragged fn", "no k", "no w", "null h", "w2c text", "nan w2c"],
+    ids=[
+        "empty fn",
+        "fn of numbers",
+        "ragged fn",
+        "no k",
+        "no w",
+        "null h",
+        "w2c text",
+        "nan w2c",
+        "huge w2c",
+    ],
 )
 def test_malformed_meta_fields_are_refused_naming_the_field(
     tiny_synth_copy: Path, edit: Callable[[dict], None], fragment: str

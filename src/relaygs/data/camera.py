@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from relaygs.data.finite import finite_in_float32
 from relaygs.errors import InputError
 
 POSE_TOLERANCE = 1e-3
@@ -76,6 +77,10 @@ class Camera:
 INTRINSICS_FORM = "intrinsics [[fx,0,cx],[0,fy,cy],[0,0,1]] with finite entries and fx, fy > 0"
 RIGID_FORM = "a rigid world→camera transform (finite, rotation with det +1, last row 0 0 0 1)"
 _INTRINSIC_NAMES = {(0, 0): "fx", (1, 1): "fy", (0, 2): "cx", (1, 2): "cy"}
+MAX_SKEW = 1e-3
+"""The largest K[0][1] (skew) and K[1][0], as a fraction of fx and fy, taken for zero: the
+renderer models neither, so a larger one would be silently dropped (at fx = 1000 a skew of 1
+moves a point at the image's edge by about half a pixel)."""
 
 
 def _bracketed(index: tuple[int, ...]) -> str:
@@ -114,10 +119,18 @@ def _centre_inside(K: np.ndarray, size: tuple[int, int]) -> np.ndarray:
 
 
 def _is_pinhole(K: np.ndarray) -> np.ndarray:
-    """Per matrix of K [..., 3, 3]: finite, last row 0 0 1, fx and fy > 0."""
-    finite = np.isfinite(K).all(axis=(-2, -1))
+    """Per matrix of K [..., 3, 3]: finite, last row 0 0 1, fx and fy > 0, no skew."""
+    finite = finite_in_float32(K).all(axis=(-2, -1))
     last_row = np.isclose(K[..., 2, :], [0.0, 0.0, 1.0]).all(axis=-1)
-    return finite & last_row & (K[..., 0, 0] > 0) & (K[..., 1, 1] > 0)
+    return finite & last_row & (K[..., 0, 0] > 0) & (K[..., 1, 1] > 0) & ~_skewed(K)
+
+
+def _skewed(K: np.ndarray) -> np.ndarray:
+    """Per matrix of K [..., 3, 3]: K[0][1] or K[1][0] beyond MAX_SKEW of fx or fy."""
+    with np.errstate(invalid="ignore"):  # non-finite entries are reported on their own
+        over_x = np.abs(K[..., 0, 1]) > MAX_SKEW * np.abs(K[..., 0, 0])
+        over_y = np.abs(K[..., 1, 0]) > MAX_SKEW * np.abs(K[..., 1, 1])
+    return over_x | over_y
 
 
 def _intrinsics_problem(k: np.ndarray, size: tuple[int, int] | None = None) -> str:
@@ -126,15 +139,17 @@ def _intrinsics_problem(k: np.ndarray, size: tuple[int, int] | None = None) -> s
     problems = [
         f"{_INTRINSIC_NAMES.get((i, j), f'K[{i}][{j}]')} = {float(k[i, j])}"
         for i, j in np.ndindex(3, 3)
-        if not np.isfinite(k[i, j]) or ((i, j) in ((0, 0), (1, 1)) and not k[i, j] > 0)
+        if not finite_in_float32(k[i, j]) or ((i, j) in ((0, 0), (1, 1)) and not k[i, j] > 0)
     ]
-    if size is not None and np.isfinite(k[:2, 2]).all():
+    if size is not None and finite_in_float32(k[:2, 2]).all():
         problems += [
             f"{name} = {float(value)} outside 0..{limit}"
             for name, value, limit in (("cx", k[0, 2], size[0]), ("cy", k[1, 2], size[1]))
             if not 0 < value < limit
         ]
-    if np.isfinite(k[2]).all() and not np.allclose(k[2], [0.0, 0.0, 1.0]):
+    if finite_in_float32(k[:2, :2]).all() and _skewed(k):
+        problems.append(f"skew K[0][1] = {float(k[0, 1])}, K[1][0] = {float(k[1, 0])}")
+    if finite_in_float32(k[2]).all() and not np.allclose(k[2], [0.0, 0.0, 1.0]):
         problems.append(f"last row {k[2].tolist()}")
     return ", ".join(problems)
 
@@ -151,7 +166,7 @@ def check_rigid(
 
 def _is_rigid(w2c: np.ndarray) -> np.ndarray:
     """Per matrix of w2c [..., 4, 4]: finite, orthonormal rotation of det +1, last row 0 0 0 1."""
-    finite = np.isfinite(w2c).all(axis=(-2, -1))
+    finite = finite_in_float32(w2c).all(axis=(-2, -1))
     rotation = np.where(finite[..., None, None], w2c, 0.0)[..., :3, :3]
     return (
         finite
@@ -170,8 +185,8 @@ def _orthonormality_error(rotation: np.ndarray) -> np.ndarray:
 def _rigid_problem(w2c: np.ndarray) -> str:
     """What makes one w2c [4, 4] no rigid transform: non-finite entries, else its rotation
     (not orthonormal, or a reflection) and its last row."""
-    if not np.isfinite(w2c).all():
-        return f"non-finite entries {w2c.tolist()}"
+    if not finite_in_float32(w2c).all():
+        return f"entries not finite in float32 {w2c.tolist()}"
     rotation = w2c[:3, :3]
     problems = []
     error = float(_orthonormality_error(rotation))

@@ -19,6 +19,7 @@ from relaygs.data.colmap import (
     read_model,
 )
 from relaygs.data.fingerprint import digest, file_record
+from relaygs.data.finite import finite_in_float32
 from relaygs.data.metafiles import SCENE_JSON, declared_effects, declared_test_cameras
 from relaygs.data.options import LoaderOptions
 from relaygs.data.points import point_cloud_from_arrays
@@ -223,10 +224,10 @@ def _check_pose(image: ColmapImage, model_folder: Path) -> None:
     """A finite translation and a finite quaternion of non-zero norm (it is normalised)."""
     pose = np.array([*image.qvec, *image.tvec], dtype=np.float64)
     norm = float(np.linalg.norm(pose[:4]))
-    if not (np.isfinite(pose).all() and np.isfinite(norm) and norm > 0):
+    if not (finite_in_float32(pose).all() and np.isfinite(norm) and norm > 0):
         raise InputError(
             f"{model_folder}: image {image.name!r} has pose qvec {list(image.qvec)} tvec "
-            f"{list(image.tvec)}; expected finite values and a non-zero quaternion"
+            f"{list(image.tvec)}; expected values finite in float32 and a non-zero quaternion"
         )
 
 

@@ -13,6 +13,7 @@ import torch
 
 from relaygs.data.camera import Camera, check_intrinsics, check_rigid
 from relaygs.data.fingerprint import digest, file_record
+from relaygs.data.finite import FINITE, finite_in_float32
 from relaygs.data.metafiles import SCENE_JSON, declared_effects, read_json
 from relaygs.data.options import LoaderOptions, test_cameras_setting
 from relaygs.data.points import PointCloud, point_cloud_from_arrays
@@ -158,8 +159,8 @@ def _array_field(
             f"{path}: field '{name}' has T={array.shape[0]}, C={array.shape[1]} but 'fn' has "
             f"T={shape[0]}, C={shape[1]}"
         )
-    if not np.isfinite(array).all():
-        raise InputError(f"{path}: field '{name}' holds non-finite values")
+    if not finite_in_float32(array).all():
+        raise InputError(f"{path}: field '{name}' holds values not finite in float32 ({FINITE})")
     if integer:
         if (array != np.round(array)).any() or (array < 0).any() or (array > MAX_CAMERA_ID).any():
             raise InputError(f"{path}: field '{name}' must hold integers in 0..{MAX_CAMERA_ID}")

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from relaygs.data.finite import FINITE, finite_in_float32
 from relaygs.errors import InputError
 
 _SEARCH_STEPS = 16
@@ -34,8 +35,8 @@ def point_cloud_from_arrays(
     is_fg = np.asarray(is_fg, dtype=bool)
     if xyz.ndim != 2 or xyz.shape[1] != 3 or xyz.shape[0] == 0:
         raise InputError(f"{source}: expected a non-empty point cloud, got xyz shape {xyz.shape}")
-    if not (np.isfinite(xyz).all() and np.isfinite(rgb).all()):
-        raise InputError(f"{source}: point cloud holds non-finite values (NaN or inf)")
+    if not (finite_in_float32(xyz).all() and finite_in_float32(rgb).all()):
+        raise InputError(f"{source}: point cloud holds values not finite in float32 ({FINITE})")
     if rgb.min() < 0.0 or rgb.max() > 1.0:
         raise InputError(
             f"{source}: point colours must lie in [0, 1], got range "
