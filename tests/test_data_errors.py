@@ -585,6 +585,12 @@ def test_test_meta_with_another_image_size_is_refused(tiny_synth_copy: Path):
     _expect(tiny_synth_copy, "test_meta.json: w/h 33x18 differ from", "train_meta.json (32x18)")
 
 
+def test_a_smaller_test_image_size_is_named_before_its_intrinsics(tiny_synth_copy: Path):
+    # its principal points then lie outside the smaller image: the size is what to fix
+    _edit_meta(tiny_synth_copy, "test_meta.json", lambda meta: meta.__setitem__("h", 8))
+    _expect(tiny_synth_copy, "test_meta.json: w/h 32x8 differ from", "train_meta.json (32x18)")
+
+
 def test_missing_point_cloud_file(tiny_synth_copy: Path):
     (tiny_synth_copy / "init_pt_cld.npz").unlink()
     _expect(tiny_synth_copy, "missing file: ", "init_pt_cld.npz")

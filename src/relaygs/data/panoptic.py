@@ -82,13 +82,19 @@ def load_panoptic(root: Path, options: LoaderOptions) -> Scene:
     )
 
 
-def read_meta(path: Path) -> PanopticMeta:
-    """Parse and check a train/test meta file: every per-view field is [T][C] with equal T, C."""
+def read_meta(path: Path, train: PanopticMeta | None = None) -> PanopticMeta:
+    """Parse and check a train/test meta file: every per-view field is [T][C] with equal T, C.
+    A test meta's image size is checked against `train`'s first, as its intrinsics are
+    checked against that size."""
     meta = read_json(path)
     if not isinstance(meta, dict):
         raise InputError(f"{path}: expected a JSON object with fields w, h, k, w2c, fn, cam_id")
     width = _positive_int(meta, "w", path)
     height = _positive_int(meta, "h", path)
+    if train is not None and (train.width, train.height) != (width, height):
+        raise InputError(
+            f"{path}: w/h {width}x{height} differ from {train.path} ({train.width}x{train.height})"
+        )
     fn = _file_names(meta, path)
     shape = (len(fn), len(fn[0]))
     K = _array_field(meta, "k", path, shape, (3, 3))
@@ -193,7 +199,7 @@ def _test_meta(
             f"missing file: {path}; it lists the test cameras, so without it name some of "
             f"{TRAIN_META}'s: {test_cameras_setting(None)}"
         )
-    test = read_meta(path)
+    test = read_meta(path, train)
     _check_compatible(train, test)
     return [test]
 
@@ -204,11 +210,6 @@ def _camera_ids(meta: PanopticMeta) -> set[int]:
 
 
 def _check_compatible(train: PanopticMeta, test: PanopticMeta) -> None:
-    if (train.width, train.height) != (test.width, test.height):
-        raise InputError(
-            f"{test.path}: w/h {test.width}x{test.height} differ from {train.path} "
-            f"({train.width}x{train.height})"
-        )
     if train.num_frames != test.num_frames:
         raise InputError(
             f"{test.path}: T={test.num_frames} frames but {train.path} has T={train.num_frames}"
