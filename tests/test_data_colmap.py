@@ -472,6 +472,23 @@ def test_malformed_text_model_records_are_refused_naming_file_and_line(
     assert fragment in str(caught.value), str(caught.value)
 
 
+def test_an_images_file_without_its_points2d_lines_is_refused_naming_the_line(tmp_path: Path):
+    # written by hand with one line per image: the second image's line would be read as the
+    # first one's 2D points, and that image silently lost
+    write_model(tmp_path, _two_image_model(), binary=False)
+    path = tmp_path / "images.txt"
+    records = [line for line in path.read_text().splitlines() if line and line[0] != "#"]
+    path.write_text("\n".join(records) + "\n")
+    with pytest.raises(InputError) as caught:
+        read_model(tmp_path)
+    assert str(caught.value) == (
+        f"{path} line 2: expected the POINTS2D line of image 'cam00.png' (X Y POINT3D_ID "
+        "triples, or empty): each image takes two lines"
+    )
+    path.write_text("\n".join([records[0], "1.5 2.5 -1 3.0 4.0 7", records[1], ""]) + "\n")
+    assert sorted(read_model(tmp_path).images) == [3, 8]  # two observations: read past
+
+
 def test_folder_without_a_complete_model_is_refused(tmp_path: Path):
     write_model(tmp_path, _two_image_model(), binary=False)
     (tmp_path / "points3D.txt").unlink()

@@ -70,11 +70,19 @@ def _read_images(path: Path) -> dict[int, ColmapImage]:
             pose = [float(value) for value in fields[1:8]]
         except ValueError:
             raise _bad_line(path, number, "IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME") from None
-        next(lines, None)
+        _skip_points2d(path, next(lines, None), fields[9])
         images[image_id] = ColmapImage(
             image_id, tuple(pose[:4]), tuple(pose[4:]), camera_id, fields[9]
         )
     return images
+
+
+def _skip_points2d(path: Path, line: tuple[int, str] | None, image: str) -> None:
+    """Check the line after an image's, its 2D points (X Y POINT3D_ID triples, or none): a
+    model written by hand with one line per image would otherwise lose every second image."""
+    if line is not None and len(line[1].split()) % 3:
+        expected = f"the POINTS2D line of image {image!r} (X Y POINT3D_ID triples, or empty)"
+        raise _bad_line(path, line[0], f"{expected}: each image takes two lines")
 
 
 def _read_points(path: Path) -> tuple[np.ndarray, np.ndarray]:
