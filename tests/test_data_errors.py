@@ -342,7 +342,8 @@ def test_camera_listed_twice_in_a_frame(tiny_synth_copy: Path):
     _expect(tiny_synth_copy, "train_meta.json: field 'cam_id'", "columns 0 and 1 of frame 2")
 
 
-@pytest.mark.parametrize("name", ["", ".", "3/.."])
+# a NUL or a lone surrogate (valid JSON) made path.stat() raise a bare ValueError
+@pytest.mark.parametrize("name", ["", ".", "3/..", "0/a\0b.png", "0/\ud800.png"])
 def test_file_name_that_names_no_file(tiny_synth_copy: Path, name: str):
     _edit_meta(tiny_synth_copy, "train_meta.json", lambda meta: meta["fn"][2].__setitem__(1, name))
     _expect(tiny_synth_copy, f"train_meta.json: field 'fn' at [2][1] is {name!r}")

@@ -133,11 +133,21 @@ def _file_names(meta: dict, path: Path) -> list[list[str]]:
         raise InputError(f"{path}: field 'fn' rows have different camera counts {sorted(widths)}")
     for t, row in enumerate(fn):
         for c, name in enumerate(row):
-            if os.path.normpath(name) == ".":
+            if os.path.normpath(name) == "." or not _is_path_text(name):
                 raise InputError(
                     f"{path}: field 'fn' at [{t}][{c}] is {name!r}, expected an image file name"
                 )
     return fn
+
+
+def _is_path_text(name: str) -> bool:
+    """True when `name` can name a file here: no NUL, and encodable in the file system's
+    encoding (JSON may hold a lone surrogate such as \\ud800, which no path can)."""
+    try:
+        os.fsencode(name)
+    except UnicodeEncodeError:
+        return False
+    return "\0" not in name
 
 
 def _array_field(
