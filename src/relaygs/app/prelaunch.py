@@ -64,9 +64,12 @@ REMOTE_LAUNCHERS = {
 the commands they submit through, which must be on this machine's PATH."""
 GROUP_HINTS = {"scene": "; or set scene.path=DIR for a capture"}
 CONFIG_NAME = "config"
+UNQUOTED_ASCII_REFUSED = "~!#&();<>^`"
+"""ASCII characters Hydra's override grammar reads in a value only inside its quotes."""
 QUOTE_HINT = (
     "; a value with spaces needs shell quotes around the override ('scene.path=/data/my "
-    """scene'), one with non-ASCII characters Hydra's quotes too: 'scene.path="/data/scène"'"""
+    f"scene'), one with non-ASCII characters or any of {UNQUOTED_ASCII_REFUSED} Hydra's "
+    """quotes too: 'scene.path="~/data/scène"'"""
 )
 """Added to a parse error when an override holds characters Hydra reads only when quoted, or
 is a bare word (a path with a space the shell split in two)."""
@@ -348,11 +351,18 @@ def _parse(args: Sequence[str]) -> list[Override]:
     try:
         return OverridesParser.create().parse_overrides(list(args))
     except HydraException as error:
-        plain = all(
-            arg.isascii() and " " not in arg and ("=" in arg or arg.startswith("~")) for arg in args
-        )
-        hint = "" if plain else QUOTE_HINT
+        hint = "" if all(_needs_no_quotes(arg) for arg in args) else QUOTE_HINT
         raise InputError(f"cannot parse overrides: {one_line(error)}{hint}") from error
+
+
+def _needs_no_quotes(arg: str) -> bool:
+    """True for an override Hydra can read as typed: `key=value` (or `~key`) in ASCII, with no
+    space and none of UNQUOTED_ASCII_REFUSED in the value."""
+    if arg.startswith("~") and "=" not in arg:
+        return arg.isascii() and " " not in arg
+    _, equals, value = arg.partition("=")
+    refused = any(char in UNQUOTED_ASCII_REFUSED for char in value)
+    return bool(equals) and arg.isascii() and " " not in arg and not refused
 
 
 def _compose(overrides: Sequence[str], with_hydra: bool = False) -> DictConfig:
