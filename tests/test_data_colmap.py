@@ -171,6 +171,41 @@ def test_export_refuses_a_source_scene_json_that_is_not_an_object(tiny_synth_cop
         export_multiview(scene, tmp_path / "out")
 
 
+def _edit_train_meta(root: Path, edit) -> None:
+    path = root / "train_meta.json"
+    meta = json.loads(path.read_text())
+    edit(meta)
+    path.write_text(json.dumps(meta))
+
+
+def _move_camera(meta: dict) -> None:
+    meta["w2c"][1][0][0][3] += 0.5  # camera of column 0 moves at frame 1
+
+
+def _swap_in_a_camera(meta: dict) -> None:
+    meta["cam_id"][1][0] = 99  # frame 1 sees camera 99 instead: two cameras miss frames
+
+
+@pytest.mark.parametrize(
+    ("edit", "fragment"),
+    [
+        (_move_camera, "changes over time; the multi-view layout needs a fixed rig"),
+        (
+            _swap_in_a_camera,
+            "camera 1 is in 5 of the 6 frames; the multi-view layout needs every camera",
+        ),
+    ],
+)
+def test_export_refuses_a_scene_that_is_no_fixed_rig(
+    tiny_synth_copy: Path, tmp_path, edit, fragment
+):
+    _edit_train_meta(tiny_synth_copy, edit)
+    scene = load_scene(tiny_synth_copy)
+    with pytest.raises(InputError, match=fragment):
+        export_multiview(scene, tmp_path / "out")
+    assert not (tmp_path / "out").exists()
+
+
 def test_binary_and_text_models_round_trip(tmp_path: Path):
     rng = np.random.default_rng(1)
     model = ColmapModel(

@@ -77,9 +77,12 @@ def _write_declaration(scene: Scene, test_ids: list[int], out: Path) -> None:
 
 
 def _fixed_rig(scene: Scene, views: list) -> list[Camera]:
-    """One camera per id, ordered by id; a camera whose pose or intrinsics vary is an error."""
+    """One camera per id, ordered by id; a camera whose pose or intrinsics vary, or that
+    misses frames (each camera folder must hold every frame), is an error."""
     cameras: dict[int, Camera] = {}
+    frames: dict[int, set[int]] = {}
     for view in views:
+        frames.setdefault(view.camera.camera_id, set()).add(view.frame)
         known = cameras.setdefault(view.camera.camera_id, view.camera)
         same = known is view.camera or (
             bool((known.K == view.camera.K).all()) and bool((known.w2c == view.camera.w2c).all())
@@ -88,6 +91,12 @@ def _fixed_rig(scene: Scene, views: list) -> list[Camera]:
             raise InputError(
                 f"{scene.root}: camera {view.camera.camera_id} changes over time; the multi-view "
                 "layout needs a fixed rig"
+            )
+    for camera_id, seen in sorted(frames.items()):
+        if len(seen) != scene.num_frames:
+            raise InputError(
+                f"{scene.root}: camera {camera_id} is in {len(seen)} of the {scene.num_frames} "
+                "frames; the multi-view layout needs every camera in every frame"
             )
     return [cameras[camera_id] for camera_id in sorted(cameras)]
 
