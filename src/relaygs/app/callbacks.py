@@ -41,6 +41,7 @@ class SweepFolderLock(Callback):
     released before the summary, which may end the command (a failed job)."""
 
     def __init__(self) -> None:
+        """No lock yet: it is taken when the multirun starts."""
         self._lock: FileLock | None = None
 
     def __getstate__(self) -> dict[str, Any]:

@@ -33,6 +33,7 @@ class TensorBoardLog:
     """
 
     def __init__(self, log_dir: Path) -> None:
+        """Open the writer on `log_dir` (created if missing)."""
         self.log_dir = Path(log_dir)
         _QuietWriterThreads.install()
         self.writer = SummaryWriter(log_dir=str(self.log_dir))

@@ -18,6 +18,7 @@ class TensorCache:
     """
 
     def __init__(self, budget_mb: float) -> None:
+        """An empty cache of `budget_mb` megabytes (finite, as `make_options` checks)."""
         self.budget_bytes = int(budget_mb * 2**20)
         self._entries: OrderedDict[Hashable, torch.Tensor] = OrderedDict()
         self._used_bytes = 0

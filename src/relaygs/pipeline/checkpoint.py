@@ -53,6 +53,8 @@ class StageCheckpointer:
     def __init__(
         self, store_root: Path | str, stage: str, key: str, every_n_steps: int, keep_last: int = 1
     ) -> None:
+        """Checkpoints of artifact `key` of `stage` every `every_n_steps` steps, the newest
+        `keep_last` of them kept; bad settings are an InputError."""
         if isinstance(every_n_steps, bool) or not isinstance(every_n_steps, int):
             raise InputError(f"checkpoint every_n_steps must be an int, got {every_n_steps!r}")
         if every_n_steps < 1 or keep_last < 1:

@@ -111,6 +111,7 @@ class ArtifactStore:
     """Artifacts under `<root>/<stage>/<key>/`; the root is made absolute at construction."""
 
     def __init__(self, root: Path | str) -> None:
+        """A store at `root` (`~` expanded, made absolute; created when first written)."""
         self.root = Path(root).expanduser().resolve()
 
     def path(self, stage: str, key: str) -> Path:

@@ -92,6 +92,7 @@ class Layer:
     """A set of primitives cast together; frame-independent attributes are gathered once."""
 
     def __init__(self, primitives: list[Primitive]) -> None:
+        """Gather the primitives' kinds, sizes, flags and materials into arrays."""
         self.primitives = primitives
         self.kinds = np.array([KINDS.index(p.kind) for p in primitives], dtype=np.int64)
         self.dims = np.zeros((len(primitives), 3))
