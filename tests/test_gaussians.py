@@ -68,6 +68,19 @@ def test_init_scale_equals_grid_spacing(offset: float) -> None:
     assert g.params["sh_rest"].shape == (len(g), 15, 3) and not g.params["sh_rest"].any()
 
 
+@pytest.mark.parametrize("unit", [1.0, 1e-3, 1e-6])
+def test_initial_scales_follow_the_units_of_a_small_cloud(unit: float) -> None:
+    # a 0.01 grid, and apart from it 4 points at one place (squared distance 0: the floor)
+    xyz = torch.cat([grid_points(0.01, 0.0), torch.full((4, 3), 0.2)]) * unit
+    g = GaussianSet.from_points(xyz, torch.rand_like(xyz))
+    assert torch.allclose(g.scales[:-4], torch.full_like(xyz[:-4], 0.01 * unit), rtol=1e-3)
+    # the 3DGS floor sqrt(1e-7) for a cloud of size >= 1, scaled by the size below it
+    size = float((xyz.amax(dim=0) - xyz.amin(dim=0)).norm())
+    floor = math.sqrt(1e-7) * min(size, 1.0)
+    assert torch.allclose(g.scales[-4:], torch.full((4, 3), floor), rtol=1e-4)
+    assert bool((g.scales[-4:] < 0.01 * unit).all())  # never larger than the cloud's spacing
+
+
 def test_knn_matches_brute_force_across_blocks() -> None:
     gen = torch.Generator().manual_seed(3)
     clusters = torch.randn(8, 3, generator=gen) * 50

@@ -20,7 +20,8 @@ from relaygs.splat.sh import SH_C0, num_sh_bases
 
 MAX_LOG_SCALE = 10.0  # exp(10) ≈ 2.2e4 world units: far beyond any scene, far from float32 inf
 MIN_QUAT_SQ_NORM = 1e-16  # |q| below 1e-8 is treated as the zero quaternion → identity
-MIN_INIT_SQ_DIST = 1e-7  # 3DGS clamp on the mean squared neighbour distance at init
+MIN_INIT_SQ_DIST = 1e-7  # 3DGS clamp on the mean squared neighbour distance at init, for a
+# cloud of size >= 1; a smaller cloud (a capture in small units) scales it by its size²
 CORE_PARAMS = ("means", "log_scales", "quats", "opacity_logits", "sh_dc", "sh_rest")
 TENSOR_KEY_SH_DEGREE = "active_sh_degree"
 EXTRA_PARAM_PREFIX = "param."
@@ -50,6 +51,16 @@ def normalize_quats(quats: Tensor) -> Tensor:
     safe_quats = torch.where(degenerate, identity, quats)
     safe_norm = torch.sqrt(torch.where(degenerate, torch.ones_like(sq_norm), sq_norm))
     return safe_quats / safe_norm
+
+
+def _init_sq_dist_floor(xyz: Tensor) -> Tensor:
+    """MIN_INIT_SQ_DIST in the cloud's units: scaled by the square of its bounding-box diagonal
+    when that is under 1, so a scene in millimetres does not start with Gaussians larger than
+    itself (one point, or all at one place: unscaled); never below float32's smallest normal
+    number, whose log is finite. A 0-d tensor on the points' device (no host read)."""
+    size = torch.linalg.vector_norm(xyz.amax(dim=0) - xyz.amin(dim=0))
+    unit = torch.where((size > 0.0) & (size < 1.0), size, torch.ones_like(size))
+    return (MIN_INIT_SQ_DIST * unit * unit).clamp_min(torch.finfo(torch.float32).tiny)
 
 
 class GaussianSet:
@@ -99,7 +110,7 @@ class GaussianSet:
             raise InputError(f"from_points: rgb must be {tuple(xyz.shape)}, got {tuple(rgb.shape)}")
         xyz = xyz.detach().to(torch.float32)
         n = xyz.shape[0]
-        sq_dist = mean_sq_knn_distance(xyz, k=3).clamp_min(MIN_INIT_SQ_DIST)
+        sq_dist = torch.maximum(mean_sq_knn_distance(xyz, k=3), _init_sq_dist_floor(xyz))
         log_scale = 0.5 * torch.log(sq_dist)
         quats = xyz.new_zeros(n, 4)
         quats[:, 0] = 1.0
