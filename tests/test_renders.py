@@ -275,3 +275,11 @@ def test_a_path_through_the_train_cameras_is_a_video_by_default(
     code, _, _ = _render_cli(capsys, store, key, stage_scene_path, *args[:1], "3", *args[2:])
     assert code == 0  # a shorter path into the same folder replaces the frames
     assert sorted(p.name for p in (out / "path").iterdir()) == [f"{v:06d}.png" for v in range(3)]
+
+
+@pytest.mark.parametrize("time", [float("nan"), float("inf")])
+def test_a_render_time_that_is_not_finite_is_one_line(stage_deformed, stage_scene_path, time):
+    camera = load_scene(stage_scene_path).train_views[0].camera
+    renderer = ModelRenderer(SceneModel.from_artifact(stage_deformed))
+    with pytest.raises(InputError, match=r"render time must be a finite number in \[0, 1\], got"):
+        renderer.render([camera], time)

@@ -10,6 +10,7 @@ import torch
 
 from relaygs.data.finite import finite_in_float32
 from relaygs.errors import InputError
+from relaygs.splat.projection import MAX_FOCAL
 
 POSE_TOLERANCE = 1e-3
 """How far a loaded rotation may be from orthonormal (largest entry of |R Rᵀ - I|)."""
@@ -74,7 +75,10 @@ class Camera:
         return c2w
 
 
-INTRINSICS_FORM = "intrinsics [[fx,0,cx],[0,fy,cy],[0,0,1]] with finite entries and fx, fy > 0"
+INTRINSICS_FORM = (
+    "intrinsics [[fx,0,cx],[0,fy,cy],[0,0,1]] with finite entries and "
+    f"0 < fx, fy <= {MAX_FOCAL:.0e}"
+)
 RIGID_FORM = "a rigid world→camera transform (finite, rotation with det +1, last row 0 0 0 1)"
 _INTRINSIC_NAMES = {(0, 0): "fx", (1, 1): "fy", (0, 2): "cx", (1, 2): "cy"}
 MAX_SKEW = 1e-3
@@ -122,7 +126,9 @@ def _is_pinhole(K: np.ndarray) -> np.ndarray:
     """Per matrix of K [..., 3, 3]: finite, last row 0 0 1, fx and fy > 0, no skew."""
     finite = finite_in_float32(K).all(axis=(-2, -1))
     last_row = np.isclose(K[..., 2, :], [0.0, 0.0, 1.0]).all(axis=-1)
-    return finite & last_row & (K[..., 0, 0] > 0) & (K[..., 1, 1] > 0) & ~_skewed(K)
+    focal = K[..., [0, 1], [0, 1]]
+    in_range = ((focal > 0) & (focal <= MAX_FOCAL)).all(axis=-1)
+    return finite & last_row & in_range & ~_skewed(K)
 
 
 def _skewed(K: np.ndarray) -> np.ndarray:
@@ -134,12 +140,13 @@ def _skewed(K: np.ndarray) -> np.ndarray:
 
 
 def _intrinsics_problem(k: np.ndarray, size: tuple[int, int] | None = None) -> str:
-    """The bad values of one K [3, 3]: non-finite entries, focal lengths <= 0, a principal
-    point outside an image of `size`, its last row."""
+    """The bad values of one K [3, 3]: non-finite entries, focal lengths <= 0 or above
+    MAX_FOCAL, a principal point outside an image of `size`, skew, its last row."""
     problems = [
         f"{_INTRINSIC_NAMES.get((i, j), f'K[{i}][{j}]')} = {float(k[i, j])}"
         for i, j in np.ndindex(3, 3)
-        if not finite_in_float32(k[i, j]) or ((i, j) in ((0, 0), (1, 1)) and not k[i, j] > 0)
+        if not finite_in_float32(k[i, j])
+        or ((i, j) in ((0, 0), (1, 1)) and not 0 < k[i, j] <= MAX_FOCAL)
     ]
     if size is not None and finite_in_float32(k[:2, 2]).all():
         problems += [

@@ -22,6 +22,9 @@ MAX_SCALE = 1e12
 MAX_RATIO = 1e30
 # 2D variances (px²) above this are culled: keeps det and its square root finite in float32.
 MAX_VAR_PX = 1e14
+MAX_FOCAL = 1e20
+"""Largest focal length (px) a camera may have: the Jacobian's backward takes fx/depth², which
+stays a finite float32 down to the smallest near plane (rasterize.MIN_NEAR_PLANE, 1e-9)."""
 
 
 @dataclass

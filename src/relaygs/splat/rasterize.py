@@ -14,6 +14,7 @@ from relaygs.errors import InputError
 from relaygs.splat.composite import CompositeGaussians, FixedLayer
 from relaygs.splat.projection import (
     ALPHA_MIN,
+    MAX_FOCAL,
     Projection,
     covariance_factor,
     project_gaussians,
@@ -66,12 +67,13 @@ def validate_inputs(
     )
     c = viewmats.shape[0]
     _check(Ks.shape == (c, 3, 3), f"Ks must be [{c},3,3], got {list(Ks.shape)}")
-    good = torch.isfinite(Ks).flatten(1).all(1) & (Ks[:, [0, 1], [0, 1]] > 0).all(1)
+    focal = Ks[:, [0, 1], [0, 1]]
+    good = torch.isfinite(Ks).flatten(1).all(1) & ((focal > 0) & (focal <= MAX_FOCAL)).all(1)
     if not bool(good.all()):  # one read from the device
         bad = int((~good).nonzero()[0, 0])
         raise InputError(
-            f"Ks must be finite with focal lengths fx, fy > 0, got camera {bad}'s "
-            f"{Ks[bad].tolist()}"
+            f"Ks must be finite with focal lengths fx, fy in (0, {MAX_FOCAL:.0e}], got camera "
+            f"{bad}'s {Ks[bad].tolist()}"
         )
     _check(width > 0 and height > 0, f"width and height must be positive, got {width}x{height}")
     _check(
@@ -82,8 +84,9 @@ def validate_inputs(
         _check(
             colors.dim() in (2, 3)
             and colors.shape[-2] == n
+            and colors.shape[-1] >= 1
             and (colors.dim() == 2 or colors.shape[0] == c),
-            f"colors must be [N,D] or [C,N,D] with N={n}, C={c}, got {list(colors.shape)}",
+            f"colors must be [N,D] or [C,N,D] with N={n}, C={c}, D>=1, got {list(colors.shape)}",
         )
     else:
         _check(0 <= sh_degree <= 3, f"sh_degree must be 0..3, got {sh_degree}")
@@ -337,6 +340,10 @@ def rasterization(
     of Gaussians that have not changed since it was made: the tiles only they touch are
     copied from it, which skips their compositing and backward (see FixedLayer).
     """
+    _check(
+        not isinstance(tile_size, bool) and isinstance(tile_size, int) and tile_size >= 1,
+        f"tile_size must be an int >= 1, got {tile_size!r}",
+    )
     if fixed is not None:
         channels = 3 if sh_degree is not None else colors.shape[-1]
         validate_fixed(

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import math
+
 import torch
 from torch import Tensor
 
 from relaygs.data import Camera
+from relaygs.errors import InputError
 from relaygs.pipeline.artifact import Artifact
 from relaygs.stages.motion import deformed_parts
 from relaygs.stages.render import Part, part_of, splat
@@ -22,7 +25,9 @@ class ModelRenderer:
         self._affine_rows = {camera_id: row for row, camera_id in enumerate(model.affine_cameras)}
 
     def frame_at(self, time: float) -> int:
-        """The frame nearest to `time` in [0, 1]."""
+        """The frame nearest to `time` in [0, 1] (a time outside it: the first or last)."""
+        if not math.isfinite(time):
+            raise InputError(f"render time must be a finite number in [0, 1], got {time!r}")
         frames = self.model.num_frames
         return min(max(round(time * (frames - 1)), 0), frames - 1)
 
