@@ -279,6 +279,38 @@ def test_a_jpeg_whose_frame_header_is_cut_short_has_no_size():
         image_size(b"\xff\xd8\xff\xc0\x00\x02\xff\xd9", Path("a.jpg"))
 
 
+def test_opengl_axes_are_refused_as_putting_the_scene_behind_the_cameras(tiny_synth_copy: Path):
+    # a common pose mistake: OpenGL's camera axes (y up, z backward) for OpenCV's; a cloud
+    # around the subject the rig looks at is then behind every camera: a black scene
+    def opengl(meta: dict) -> None:
+        meta["w2c"] = (np.diag([1.0, -1.0, -1.0, 1.0]) @ np.array(meta["w2c"])).tolist()
+
+    subject = np.random.default_rng(0).uniform(-0.5, 0.5, (50, 7))
+    subject[:, 3:] = 0.5
+    np.savez(tiny_synth_copy / "init_pt_cld.npz", data=subject)
+    load_scene(tiny_synth_copy)  # in OpenCV's axes the rig sees it
+
+    for name in ("train_meta.json", "test_meta.json"):
+        _edit_meta(tiny_synth_copy, name, opengl)
+    _expect(
+        tiny_synth_copy,
+        f"{tiny_synth_copy}: none of the point cloud's",
+        "points is in front of a training camera and inside its image; expected world→camera",
+    )
+
+
+def test_one_point_in_view_is_enough(tiny_synth_copy: Path):
+    scene = load_scene(tiny_synth_copy)
+    camera = scene.full_train_views[0].camera
+    centre = camera.center.double().numpy()
+    ahead = centre + camera.c2w.double().numpy()[:3, 2]  # 1 unit along the optical axis
+    data = np.zeros((50, 7))
+    data[:, :3] = centre - 5.0 * camera.c2w.double().numpy()[:3, 2]  # behind that camera
+    data[0, :3] = ahead
+    np.savez(tiny_synth_copy / "init_pt_cld.npz", data=data)
+    assert load_scene(tiny_synth_copy).points.xyz.shape[0] >= 1
+
+
 def test_empty_point_cloud(tiny_synth_copy: Path):
     np.savez(tiny_synth_copy / "init_pt_cld.npz", data=np.zeros((0, 7), np.float32))
     _expect(tiny_synth_copy, "init_pt_cld.npz", "non-empty")

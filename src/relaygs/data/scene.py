@@ -191,6 +191,30 @@ def _radius(positions: np.ndarray) -> float:
     return float(np.linalg.norm(positions - positions.mean(axis=0), axis=1).max())
 
 
+def _require_points_in_view(
+    root: Path, cameras: list[Camera], points: PointCloud, near: float
+) -> None:
+    """One line unless some initial point lies in front of a training camera and inside its
+    image: with none, training starts from Gaussians no view sees and learns a black scene.
+    The usual cause is poses given camera→world, or in OpenGL axes."""
+    xyz = points.xyz.double().numpy()
+    for camera in cameras:  # a usable scene ends at its first camera
+        w2c, K = camera.w2c.double().numpy(), camera.K.double().numpy()
+        in_camera = xyz @ w2c[:3, :3].T + w2c[:3, 3]
+        depth = in_camera[:, 2]
+        front = in_camera[depth > near]
+        u = K[0, 0] * front[:, 0] / front[:, 2] + K[0, 2]
+        v = K[1, 1] * front[:, 1] / front[:, 2] + K[1, 2]
+        if bool(((u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)).any()):
+            return
+    raise InputError(
+        f"{root}: none of the point cloud's {len(xyz)} points is in front of a training camera "
+        "and inside its image; expected world→camera poses in OpenCV axes (x right, y down, z "
+        "forward): camera→world poses, or OpenGL axes (y up, z backward), put the scene "
+        "behind the cameras"
+    )
+
+
 def assemble_scene(
     *,
     root: Path,
@@ -210,6 +234,7 @@ def assemble_scene(
     train_cameras = {id(view.camera): view.camera for view in train_views}
     extent = scene_extent(list(train_cameras.values()), points)
     near = near_plane_for(extent)
+    _require_points_in_view(root, list(train_cameras.values()), points, near)
     train_views, test_views = (
         map_cameras(views, lambda camera: replace(camera, near=near))
         for views in (train_views, test_views)
