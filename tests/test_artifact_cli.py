@@ -133,6 +133,18 @@ def test_gc_leaves_files_named_like_keys_alone(store, capsys):
     assert code == 0 and str(blob) not in out and blob.read_text() == "not ours"
 
 
+def test_gc_refuses_a_root_that_is_no_store_and_deletes_nothing(tmp_path, capsys):
+    # --root at, say, Docker's overlay2: folders named by a sha256, none with a seal
+    layer = tmp_path / "overlay2" / KEY_A
+    (layer / "diff").mkdir(parents=True)
+    (layer / "diff" / "file").write_text("not ours")
+    code, _, err = _cli(capsys, tmp_path, "gc")
+    assert code == 1 and err.count("\n") == 1
+    assert f"gc: {tmp_path} is no artifact store" in err and "nothing was removed" in err
+    assert (layer / "diff" / "file").read_text() == "not ours"
+    assert sorted(path.name for path in tmp_path.iterdir()) == ["overlay2"]  # no .locks made
+
+
 def test_ctrl_c_during_a_command_is_one_line_and_status_130(store, capsys, monkeypatch):
     # a render or eval stopped by Ctrl-C (say while loading the scene) ends like a run does
     def interrupted(*args):

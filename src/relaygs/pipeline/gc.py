@@ -52,12 +52,26 @@ def collect_garbage(
     artifact (a typo would otherwise keep nothing) fails before anything is removed."""
     report = GcReport()
     kept = _kept_keys(root, keep, annotations) if keep is not None else None
-    for path in store_entries(root):
-        key = _owning_key(path)
-        if key is not None and _is_garbage(path, key, kept):
-            _remove_if_free(root, key, path, kept, dry_run, report)
+    owned = [(path, _owning_key(path)) for path in store_entries(root)]
+    garbage = [
+        (path, key) for path, key in owned if key is not None and _is_garbage(path, key, kept)
+    ]
+    if garbage and not _is_store(root):
+        raise InputError(
+            f"gc: {root} is no artifact store (it has no {LOCKS_DIR} folder and no finished "
+            f"artifact), so {garbage[0][0]} is not the store's to remove; nothing was removed"
+        )
+    for path, key in garbage:
+        _remove_if_free(root, key, path, kept, dry_run, report)
     _remove_free_locks(root, dry_run, report)
     return report
+
+
+def _is_store(root: Path) -> bool:
+    """Whether `root` shows what every store that built something has: its lock folder, or a
+    finished artifact. Folders named like keys alone are no sign (other tools name folders by
+    a sha256 too, Docker's overlay2 for one)."""
+    return (root / LOCKS_DIR).is_dir() or any(is_sealed(folder) for folder in key_dirs(root))
 
 
 def _owning_key(path: Path) -> str | None:
