@@ -1,6 +1,7 @@
 """Command-line plumbing shared by the tools: their start, Ctrl-C, and output into a pipe
 whose reader went away."""
 
+import importlib
 import os
 import shlex
 import subprocess
@@ -158,3 +159,24 @@ def test_a_python_of_another_kind_in_the_same_folder_is_not_taken_for_this_one(
     monkeypatch.setattr(sys, "executable", str(tmp_path / "python3"))
     monkeypatch.setenv("PATH", str(tmp_path))
     assert python_command() == shlex.quote(str(tmp_path / "python3"))
+
+
+@pytest.mark.parametrize(
+    ("module", "argv"),
+    [
+        ("artifacts", ["--root", "", "ls"]),
+        ("artifacts", ["render", "abcd", "--scene", "s", "--out", " "]),
+        ("artifacts", ["eval", "abcd", "--scene", ""]),
+        ("report", [""]),
+        ("synth", ["juggle", ""]),
+        ("frames", ["videos", ""]),
+    ],
+)
+def test_an_empty_path_is_a_usage_error_not_the_current_folder(module, argv, capsys):
+    # Path("") is ".": `render --out ''` wrote (and replaced) frames in the current folder
+    main = importlib.import_module(f"relaygs.commands.{module}").main
+    with pytest.raises(SystemExit) as stop:
+        main(argv)
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "expected a path, got" in err

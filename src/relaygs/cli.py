@@ -130,10 +130,18 @@ def camera_ids(text: str) -> tuple[int, ...]:
     return tuple(int(item) for item in items)
 
 
+def path_argument(value: str) -> Path:
+    """argparse type of a path: any non-blank text (an empty one would silently mean the
+    current folder, where an output option writes, and replaces, files)."""
+    if not value.strip():
+        raise argparse.ArgumentTypeError(f"expected a path, got {value!r}")
+    return Path(value)
+
+
 def writable_file(value: str) -> Path:
     """argparse type of an output file option: a path that can be written once the command's
     work is done, checked before it starts (so minutes of work are not lost to a bad path)."""
-    path = Path(value).expanduser().absolute()
+    path = path_argument(value).expanduser().absolute()
     if path.is_dir():
         raise argparse.ArgumentTypeError(f"{path} is a folder, expected a file path")
     try:

@@ -7,13 +7,12 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Any
 
 from relaygs.app.evaluation import EVAL_STAGE
 from relaygs.app.plan import MAX_THREADS
 from relaygs.app.scenes import recorded_loading
-from relaygs.cli import camera_ids, int_at_least
+from relaygs.cli import camera_ids, int_at_least, path_argument
 from relaygs.data import Scene, load_scene
 from relaygs.device import parse_device
 from relaygs.errors import InputError, RelayGSError
@@ -29,7 +28,7 @@ FLAGGED_LOADING = ("downscale", "test_cameras")
 def add_scene_arguments(parser: argparse.ArgumentParser) -> None:
     """`--scene` and the loader options that decide its views as the run loaded them."""
     parser.add_argument(
-        "--scene", type=Path, required=True, help="the scene folder it was trained on"
+        "--scene", type=path_argument, required=True, help="the scene folder it was trained on"
     )
     parser.add_argument(
         "--downscale",

@@ -14,7 +14,13 @@ from pathlib import Path
 from safetensors import SafetensorError, safe_open
 
 from relaygs.app.evaluation import EVAL_STAGE
-from relaygs.cli import OneLineErrorParser, int_at_least, positive_float, writable_file
+from relaygs.cli import (
+    OneLineErrorParser,
+    int_at_least,
+    path_argument,
+    positive_float,
+    writable_file,
+)
 from relaygs.commands.artifact_models import (
     KEY_COLUMN_WIDTH,
     add_device_argument,
@@ -80,7 +86,12 @@ REPAIR_HINT = (
 def _parser() -> argparse.ArgumentParser:
     """The argument parser with one sub-command per store operation."""
     parser = OneLineErrorParser(prog="python -m relaygs.artifacts", description=__doc__)
-    parser.add_argument("--root", default=DEFAULT_ROOT, help=f"store root (default {DEFAULT_ROOT})")
+    parser.add_argument(
+        "--root",
+        type=path_argument,
+        default=DEFAULT_ROOT,
+        help=f"store root (default {DEFAULT_ROOT})",
+    )
     commands = parser.add_subparsers(dest="command", required=True)
     commands.add_parser("ls", help="list finished artifacts").set_defaults(command_fn=_ls)
     show = commands.add_parser("show", help="print one artifact's manifest and tensors")
@@ -164,7 +175,7 @@ def _parser() -> argparse.ArgumentParser:
     add_threads_argument(render)
     render.add_argument(
         "--out",
-        type=Path,
+        type=path_argument,
         help=f"output folder (default <outputs>/{RENDERS_FOLDER}/<stage>-<key>: beside a run's "
         "artifacts folder, else ./outputs)",
     )
@@ -190,7 +201,7 @@ def _parser() -> argparse.ArgumentParser:
     add_threads_argument(ply)
     ply.add_argument(
         "--out",
-        type=Path,
+        type=path_argument,
         help=f"output folder (default <outputs>/{PLY_FOLDER}/<stage>-<key>: beside a run's "
         "artifacts folder, else ./outputs)",
     )

@@ -16,7 +16,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from relaygs.cli import writable_file
+from relaygs.cli import path_argument, writable_file
 from relaygs.commands.bench_output import save_json
 
 TINY_SCENE = ("budget=smoke", "scene.frames=8", "scene.width=48", "scene.height=27")
@@ -41,7 +41,9 @@ def command(name: str, outputs: Path, *overrides: str) -> list[str]:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The `sweeps` subcommand's options."""
-    parser.add_argument("--outputs", type=Path, help="output folder (default: a temporary one)")
+    parser.add_argument(
+        "--outputs", type=path_argument, help="output folder (default: a temporary one)"
+    )
     parser.add_argument("--json", type=writable_file, help="also write the results as JSON here")
 
 

@@ -25,7 +25,7 @@ from typing import Any
 
 import torch
 
-from relaygs.cli import int_at_least, writable_file
+from relaygs.cli import int_at_least, path_argument, writable_file
 from relaygs.commands.bench_output import save_json
 from relaygs.data import Scene, load_scene
 from relaygs.data.synthetic import generate
@@ -48,7 +48,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--steps", type=int_at_least(2), default=30, help="steps timed per stage (>= 2)"
     )
     parser.add_argument("--full", action="store_true", help="also time the whole small pipeline")
-    parser.add_argument("--cache", type=Path, default=DEFAULT_CACHE, help="scene cache folder")
+    parser.add_argument(
+        "--cache", type=path_argument, default=DEFAULT_CACHE, help="scene cache folder"
+    )
     parser.add_argument("--json", type=writable_file, help="also write the results as JSON here")
     parser.add_argument(
         "--threads", type=int_at_least(1), help="torch CPU threads (default: torch's default)"

@@ -9,9 +9,14 @@ import shlex
 import sys
 import time
 from collections.abc import Sequence
-from pathlib import Path
 
-from relaygs.cli import OneLineErrorParser, int_at_least, path_override, python_command
+from relaygs.cli import (
+    OneLineErrorParser,
+    int_at_least,
+    path_argument,
+    path_override,
+    python_command,
+)
 from relaygs.data.video_frames import (
     COLMAP_LIST,
     FRAME_FORMATS,
@@ -27,8 +32,10 @@ from relaygs.errors import RERUN_COMMAND, RelayGSError, resource_error
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the frames command."""
     parser = OneLineErrorParser(prog="python -m relaygs.frames", description=__doc__)
-    parser.add_argument("videos_dir", type=Path, help="folder holding one video per camera")
-    parser.add_argument("out_dir", type=Path, help="new (or empty) scene folder to write")
+    parser.add_argument(
+        "videos_dir", type=path_argument, help="folder holding one video per camera"
+    )
+    parser.add_argument("out_dir", type=path_argument, help="new (or empty) scene folder to write")
     parser.add_argument(
         "--start",
         type=int_at_least(0),

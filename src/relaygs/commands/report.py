@@ -27,7 +27,7 @@ from relaygs.app.summary import (
     summary_table,
 )
 from relaygs.app.unfinished import unfinished_line, unfinished_runs
-from relaygs.cli import OneLineErrorParser
+from relaygs.cli import OneLineErrorParser, path_argument
 from relaygs.errors import InputError, RelayGSError
 from relaygs.paths import require_folder
 from relaygs.pipeline.fsio import publish_text
@@ -153,7 +153,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Command-line entry: exit 0 on success, 1 with one line on stderr on bad input (2 on a
     usage error)."""
     parser = OneLineErrorParser(prog="python -m relaygs.report", description=__doc__)
-    parser.add_argument("sweep_dir", type=Path, help="a multirun folder holding job folders")
+    parser.add_argument(
+        "sweep_dir", type=path_argument, help="a multirun folder holding job folders"
+    )
     args = parser.parse_args(argv)
     try:
         files = write_reports(args.sweep_dir)

@@ -10,7 +10,7 @@ import argparse
 import sys
 import time
 
-from relaygs.cli import OneLineErrorParser
+from relaygs.cli import OneLineErrorParser, path_argument
 from relaygs.data.effects import ALL_EFFECTS
 from relaygs.data.synthetic import PRESETS, generate
 from relaygs.errors import RERUN_COMMAND, RelayGSError, resource_error
@@ -25,7 +25,9 @@ def build_parser() -> argparse.ArgumentParser:
         + "; ".join(f"{name}: {preset.description}" for name, preset in PRESETS.items()),
     )
     parser.add_argument("name", help=f"preset: {', '.join(PRESETS)}")
-    parser.add_argument("out_dir", help="output folder (replaced if it holds a generated scene)")
+    parser.add_argument(
+        "out_dir", type=path_argument, help="output folder (replaced if it holds a generated scene)"
+    )
     parser.add_argument("--frames", type=int, default=64, help="number of frames T (default 64)")
     parser.add_argument("--width", type=int, default=160, help="image width (default 160)")
     parser.add_argument("--height", type=int, default=90, help="image height (default 90)")
