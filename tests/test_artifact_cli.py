@@ -733,3 +733,21 @@ def test_threads_outside_1_to_1024_is_a_one_line_usage_error(capsys, given):
     out, err = capsys.readouterr()
     assert caught.value.code == 2 and out == "" and err.count("\n") == 1
     assert f"argument --threads: expected an integer in [1, 1024], got '{given}'" in err
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["show", "zzzz"],
+        ["show", "abc"],
+        ["ply", "xyz1"],
+        ["render", "abcd", "--scene", "s", "--beside", "zz"],
+        ["gc", "--keep", "abcd", "nothex"],
+    ],
+)
+def test_a_malformed_key_prefix_is_a_usage_error(store, capsys, argv):
+    with pytest.raises(SystemExit) as stop:
+        main(["--root", str(store.root), *argv])
+    err = capsys.readouterr().err
+    assert stop.value.code == 2 and err.count("\n") == 1
+    assert "expected at least 4 hex digits (0-9, a-f)" in err

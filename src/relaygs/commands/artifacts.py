@@ -32,7 +32,7 @@ from relaygs.commands.artifact_models import (
 )
 from relaygs.commands.artifacts_eval import run_eval
 from relaygs.device import set_threads, usable_device
-from relaygs.errors import RERUN_COMMAND, RelayGSError, UsageError, resource_error
+from relaygs.errors import RERUN_COMMAND, InputError, RelayGSError, UsageError, resource_error
 from relaygs.paths import require_creatable_folder
 from relaygs.pipeline.integrity import CorruptArtifactError
 from relaygs.pipeline.layout import LOCKS_DIR, TENSORS_FILE
@@ -41,6 +41,7 @@ from relaygs.pipeline.store import (
     ArtifactStore,
     MissingArtifactError,
     StoredArtifact,
+    checked_key_prefix,
 )
 from relaygs.ply import write_frame_plys
 from relaygs.renders import PathSettings, RenderSettings, write_path_render, write_renders
@@ -83,6 +84,18 @@ REPAIR_HINT = (
 )
 
 
+KEY_HELP = "full key or a unique prefix (at least 4 hex digits)"
+
+
+def _key_prefix(text: str) -> str:
+    """argparse type of a key argument: a malformed prefix is a usage error (exit 2)."""
+    try:
+        checked_key_prefix(text)
+    except InputError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+    return text
+
+
 def _parser() -> argparse.ArgumentParser:
     """The argument parser with one sub-command per store operation."""
     parser = OneLineErrorParser(prog="python -m relaygs.artifacts", description=__doc__)
@@ -95,12 +108,12 @@ def _parser() -> argparse.ArgumentParser:
     commands = parser.add_subparsers(dest="command", required=True)
     commands.add_parser("ls", help="list finished artifacts").set_defaults(command_fn=_ls)
     show = commands.add_parser("show", help="print one artifact's manifest and tensors")
-    show.add_argument("key", help="full key or a unique prefix (at least 4 hex digits)")
+    show.add_argument("key", type=_key_prefix, help=KEY_HELP)
     show.set_defaults(command_fn=_show)
     score = commands.add_parser(
         "eval", help="score one artifact's model on a scene's test views (any stage's output)"
     )
-    score.add_argument("key", help="full key or a unique prefix (at least 4 hex digits)")
+    score.add_argument("key", type=_key_prefix, help=KEY_HELP)
     add_scene_arguments(score)
     add_device_argument(score)
     add_threads_argument(score)
@@ -128,7 +141,7 @@ def _parser() -> argparse.ArgumentParser:
         "render",
         help="render one artifact's model over time: a PNG per frame and an MP4 per camera",
     )
-    render.add_argument("key", help="full key or a unique prefix (at least 4 hex digits)")
+    render.add_argument("key", type=_key_prefix, help=KEY_HELP)
     add_scene_arguments(render)
     render.add_argument(
         "--camera",
@@ -146,6 +159,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     render.add_argument(
         "--beside",
+        type=_key_prefix,
         action="append",
         metavar="KEY",
         help="also render this model (trained on the same scene) to the right, e.g. a baseline "
@@ -183,7 +197,7 @@ def _parser() -> argparse.ArgumentParser:
     ply = commands.add_parser(
         "ply", help="export one artifact's model as 3DGS PLY files, one per frame, for viewers"
     )
-    ply.add_argument("key", help="full key or a unique prefix (at least 4 hex digits)")
+    ply.add_argument("key", type=_key_prefix, help=KEY_HELP)
     ply.add_argument(
         "--frame",
         type=int,
@@ -211,6 +225,7 @@ def _parser() -> argparse.ArgumentParser:
     gc = commands.add_parser("gc", help="remove leftovers of killed builds and stale locks")
     gc.add_argument(
         "--keep",
+        type=_key_prefix,
         nargs="+",
         metavar="KEY",
         help="also remove every artifact that is neither one of these (full keys or unique "

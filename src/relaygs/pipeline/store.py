@@ -54,6 +54,17 @@ VERIFY_HINT = "`python -m relaygs.artifacts verify` lists the damaged artifacts"
 HEX_DIGITS = frozenset("0123456789abcdef")
 
 
+def checked_key_prefix(text: str) -> str:
+    """`text` as a key prefix (trimmed, lower case), or an InputError unless it is at least 4
+    hex digits: the tools take this check as a usage error, before any work."""
+    prefix = text.strip().lower()
+    if len(prefix) < 4 or any(digit not in HEX_DIGITS for digit in prefix):
+        raise InputError(
+            f"key prefix {text!r}: expected at least 4 hex digits (0-9, a-f), as `ls` lists keys"
+        )
+    return prefix
+
+
 class MissingArtifactError(RelayGSError, LookupError):
     """The requested artifact is not in the store (or is ambiguous by key prefix)."""
 
@@ -204,12 +215,7 @@ class ArtifactStore:
     def find(self, key_prefix: str) -> StoredArtifact:
         """The one finished artifact whose key starts with `key_prefix` (any stage); a prefix
         that matches only a damaged folder says so rather than that nothing matches."""
-        prefix = key_prefix.strip().lower()
-        if len(prefix) < 4 or any(digit not in HEX_DIGITS for digit in prefix):
-            raise InputError(
-                f"key prefix {key_prefix!r}: expected at least 4 hex digits (0-9, a-f), as "
-                "`ls` lists keys"
-            )
+        prefix = checked_key_prefix(key_prefix)
         found, damaged = self._scan(check_hashes=False)
         matches = [item for item in found if item.key.startswith(prefix)]
         if not matches:
