@@ -36,6 +36,19 @@ def _expect(root: Path, *fragments: str, **options) -> str:
     return message
 
 
+def test_a_scene_folder_that_cannot_be_read_is_one_line(tmp_path: Path, monkeypatch):
+    # chmod 000 on the folder (tests run as root here, whom permissions do not stop)
+    exists = Path.exists
+
+    def denied(path: Path, *args, **kwargs) -> bool:
+        if path.parent == tmp_path:
+            raise PermissionError(13, "Permission denied", str(path))
+        return exists(path, *args, **kwargs)
+
+    monkeypatch.setattr(Path, "exists", denied)
+    _expect(tmp_path, f"{tmp_path}: cannot read the scene folder (Permission denied)")
+
+
 def test_missing_scene_folder(tmp_path: Path):
     _expect(tmp_path / "absent", "scene folder: ", "absent does not exist")
 

@@ -23,7 +23,14 @@ from relaygs.paths import require_folder
 
 def detect_format(root: Path) -> str:
     """'panoptic' when train_meta.json exists (a folder of that name is refused when it is
-    read), 'multiview' when camXX/ folders exist."""
+    read), 'multiview' when camXX/ folders exist; a folder it cannot read is one line."""
+    try:
+        return _layout_of(root)
+    except PermissionError as error:
+        raise InputError(f"{root}: cannot read the scene folder ({error.strerror})") from None
+
+
+def _layout_of(root: Path) -> str:
     if (root / TRAIN_META).exists():
         return "panoptic"
     if camera_folders(root):
