@@ -5,6 +5,7 @@ import json
 import shutil
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 import torch
@@ -56,6 +57,26 @@ def test_ls_lists_finished_artifacts_only(store, capsys):
     assert KEY_A[:16] in out and KEY_B[:16] in out and ".tmp" not in out
     assert f"decouple:{KEY_A[:8]}" in out
     assert "2 artifact(s)" in out
+
+
+def test_an_artifact_folder_that_cannot_be_read_is_one_problem_not_the_end(
+    store, capsys, monkeypatch
+):
+    # chmod 000 on one artifact folder (as root here, permissions are simulated)
+    is_file = Path.is_file
+    denied = store.path("relay", KEY_B)
+
+    def unreadable(path: Path) -> bool:
+        if path.parent == denied:
+            raise PermissionError(errno.EACCES, "Permission denied", str(path))
+        return is_file(path)
+
+    monkeypatch.setattr(Path, "is_file", unreadable)
+    code, out, _ = _cli(capsys, store.root, "ls")
+    assert code == 0 and KEY_A[:16] in out and "1 artifact(s)" in out
+    code, out, _ = _cli(capsys, store.root, "verify")
+    assert code == 1 and f"{denied}: cannot be read (Permission denied)" in out
+    assert _cli(capsys, store.root, "show", KEY_A[:8])[0] == 0
 
 
 def test_show_prints_manifest_and_tensors_by_key_prefix(store, capsys):

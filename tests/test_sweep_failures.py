@@ -123,12 +123,12 @@ ENVIRONMENT_FAILURES = [
     ),
     pytest.param(
         PermissionError(errno.EACCES, "Permission denied", "/store/relay"),
-        "stage relay: cannot write /store/relay (Permission denied): make it writable, then",
+        "stage relay: cannot access /store/relay (Permission denied): give this user access",
         id="permission",
     ),
     pytest.param(
         PermissionError(errno.EPERM, "Operation not permitted", "/store/relay"),
-        "stage relay: cannot write /store/relay (Operation not permitted): make it writable",
+        "stage relay: cannot access /store/relay (Operation not permitted): give this user",
         id="not-permitted",
     ),
     pytest.param(MemoryError(), "stage relay: out of memory: free memory", id="memory-error"),

@@ -68,7 +68,10 @@ def _disk_failure(error: OSError, rerun: str) -> str:
         target = f" writing {error.filename}" if error.filename else ""
         return f"{reason}{target}: free space, then {rerun}"
     target = f" {error.filename}" if error.filename else ""
-    return f"cannot write{target} ({reason}): make it writable, then {rerun}"
+    if error.errno == errno.EROFS:
+        return f"cannot write{target} ({reason}): make it writable, then {rerun}"
+    # a permission refusal may be of a read (an unreadable artifact folder) or of a write
+    return f"cannot access{target} ({reason}): give this user access to it, then {rerun}"
 
 
 class Interrupted(KeyboardInterrupt):

@@ -384,15 +384,18 @@ def read_own_manifest(folder: Path) -> Manifest:
 
 
 def _examine(folder: Path, check_hashes: bool) -> StoredArtifact | VerifyProblem:
-    """The artifact in `folder`, or its problem (with `check_hashes`, its hashes checked too)."""
-    if not is_sealed(folder):
-        return VerifyProblem(folder, "incomplete (no completion marker)")
+    """The artifact in `folder`, or its problem (with `check_hashes`, its hashes checked too);
+    a folder this user may not read is one problem, not the end of `ls` or `verify`."""
     try:
+        if not is_sealed(folder):
+            return VerifyProblem(folder, "incomplete (no completion marker)")
         if check_hashes:
             check_seal(folder)
         return StoredArtifact(folder, read_own_manifest(folder))
     except CorruptArtifactError as error:
         return VerifyProblem(folder, str(error))
+    except PermissionError as error:
+        return VerifyProblem(folder, f"cannot be read ({error.strerror})")
 
 
 def _examine_steady(folder: Path, check_hashes: bool) -> StoredArtifact | VerifyProblem | None:
