@@ -2,6 +2,7 @@
 
 import json
 import math
+import os
 from pathlib import Path
 
 import pandas as pd
@@ -302,6 +303,29 @@ def test_a_report_being_rewritten_is_never_read_half_written(sweep, monkeypatch)
         for name, content in snapshot.items():
             assert content in (before[name], after[name]), f"{name} was read half-written"
     assert sorted(p.name for p in sweep.iterdir() if p.name.startswith(".")) == []
+
+
+def test_a_job_folder_that_cannot_be_read_is_named_and_the_tables_stay(
+    sweep, capsys, monkeypatch
+):
+    # chmod 000 on a job folder (simulated: tests run as root): before, the report passed
+    # over it and rewrote the tables without that job, with exit 0
+    assert report.main([str(sweep)]) == 0
+    before = (sweep / "summary.md").read_text()
+    scandir = os.scandir
+
+    def unreadable(path):
+        if Path(path) == sweep / "2_k32":
+            raise PermissionError(13, "Permission denied", str(path))
+        return scandir(path)
+
+    monkeypatch.setattr(os, "scandir", unreadable)
+    capsys.readouterr()
+    assert report.main([str(sweep)]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert f"cannot read {sweep / '2_k32'} (Permission denied): the report would leave" in err
+    assert (sweep / "summary.md").read_text() == before
 
 
 def test_a_damaged_result_is_named(sweep, capsys):

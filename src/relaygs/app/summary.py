@@ -16,6 +16,7 @@ import pandas as pd
 
 from relaygs.app.result import METRIC_FIELDS, RESULT_FILE, STATUS_FAILED, STATUS_OK
 from relaygs.app.unfinished import unfinished_clause, unfinished_runs
+from relaygs.app.walk import entries_named
 from relaygs.errors import InputError
 
 MISSING = "n/a"
@@ -74,7 +75,7 @@ def collect_results(sweep_dir: Path) -> pd.DataFrame:
     result without a `status`, written before failures were recorded, counts as ok); in a
     folder that holds sweeps (`report outputs/sweeps`), each row's SWEEP_COLUMN names the one
     it belongs to, and rows go by sweep, then job."""
-    paths = sorted(Path(sweep_dir).rglob(RESULT_FILE))
+    paths = entries_named(Path(sweep_dir), RESULT_FILE)
     if not paths:
         unfinished = unfinished_runs(sweep_dir)
         held = f" ({unfinished_clause(sweep_dir, unfinished)})" if unfinished else ""
@@ -309,7 +310,7 @@ def results_written_before(sweep_dir: Path, moment: float) -> list[Path]:
     since the epoch): results a sweep started at `moment` did not write."""
     return [
         path.parent
-        for path in sorted(Path(sweep_dir).rglob(RESULT_FILE))
+        for path in entries_named(Path(sweep_dir), RESULT_FILE)
         if path.stat().st_mtime < moment
     ]
 

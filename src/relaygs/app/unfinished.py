@@ -7,6 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from relaygs.app.result import RESULT_FILE
+from relaygs.app.walk import entries_named
 
 HYDRA_FOLDER = ".hydra"
 """What Hydra writes into every run folder it creates, before the job starts."""
@@ -19,7 +20,7 @@ def unfinished_runs(sweep_dir: Path) -> list[Path]:
     `result.json`: jobs that were interrupted, are still running or died before writing it."""
     return sorted(
         folder.parent
-        for folder in Path(sweep_dir).rglob(HYDRA_FOLDER)
+        for folder in entries_named(Path(sweep_dir), HYDRA_FOLDER)
         if folder.is_dir() and not (folder.parent / RESULT_FILE).exists()
     )
 
