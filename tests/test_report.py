@@ -305,9 +305,7 @@ def test_a_report_being_rewritten_is_never_read_half_written(sweep, monkeypatch)
     assert sorted(p.name for p in sweep.iterdir() if p.name.startswith(".")) == []
 
 
-def test_a_job_folder_that_cannot_be_read_is_named_and_the_tables_stay(
-    sweep, capsys, monkeypatch
-):
+def test_a_job_folder_that_cannot_be_read_is_named_and_the_tables_stay(sweep, capsys, monkeypatch):
     # chmod 000 on a job folder (simulated: tests run as root): before, the report passed
     # over it and rewrote the tables without that job, with exit 0
     assert report.main([str(sweep)]) == 0

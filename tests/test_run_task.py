@@ -463,6 +463,18 @@ def test_a_corrupted_artifact_is_rebuilt_or_refused(base_config, tmp_path, capsy
     assert f", replacing the stored one, which failed its check: {reason}" in line
 
 
+def test_a_corrupted_stored_evaluation_is_redone_and_said_so(base_config, tmp_path, capsys):
+    fakes = FakeStages()
+    _run(base_config, tmp_path / "a", fakes)
+    (manifest,) = (tmp_path / "artifacts" / "eval").glob("*/manifest.json")
+    manifest.write_text(manifest.read_text().replace('"', " ", 1) + " ")  # one byte changed
+    capsys.readouterr()
+    _run(base_config, tmp_path / "b", fakes)
+    (line,) = [line for line in capsys.readouterr().out.splitlines() if line.startswith("[eval]")]
+    assert line.startswith("[eval] evaluated the test views in ")
+    assert ", replacing the stored one, which failed its check: " in line and "manifest" in line
+
+
 def test_a_gc_removing_the_model_while_it_is_evaluated_does_not_fail_the_run(
     base_config, tmp_path, monkeypatch
 ):

@@ -39,6 +39,7 @@ class Evaluation:
     key: str
     cache_hit: bool
     wall_seconds: float
+    replaced_corrupt: str | None = None  # what was wrong with a stored evaluation it redid
 
     @property
     def seconds_computed(self) -> float:
@@ -80,7 +81,7 @@ def evaluate_through_store(
     records = from_tensors(artifact.tensors)
     if records is not None:
         metrics[PER_VIEW] = records
-    return Evaluation(metrics, key, info.cache_hit, info.wall_seconds)
+    return Evaluation(metrics, key, info.cache_hit, info.wall_seconds, info.replaced_corrupt)
 
 
 def evaluation_config(eval_config: Mapping[str, Any]) -> dict[str, Any]:

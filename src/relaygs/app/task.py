@@ -259,9 +259,7 @@ def _announce(report: NodeReport) -> None:
         line += f"(built earlier in {seconds:.1f} s)"
     else:
         line = f"built {report.stage} artifact {key} in {seconds:.1f} s"
-    if report.replaced_corrupt is not None:
-        line += f", replacing the stored one, which failed its check: {report.replaced_corrupt}"
-    print_labelled(f"[{report.node}] {line}")
+    print_labelled(f"[{report.node}] {line}{_replacing(report.replaced_corrupt)}")
     for note in report.notes:
         print_labelled(f"note: [{report.node}] {note}", sys.stderr)
 
@@ -273,7 +271,15 @@ def _announce_evaluation(evaluation: Evaluation) -> None:
         line = f"reused evaluation {key} from the store (made earlier in {seconds:.1f} s)"
     else:
         line = f"evaluated the test views in {seconds:.1f} s (stored as {key})"
-    print_labelled(f"[eval] {line}")
+    print_labelled(f"[eval] {line}{_replacing(evaluation.replaced_corrupt)}")
+
+
+def _replacing(problem: str | None) -> str:
+    """The clause a status line ends with when what it built replaced a stored artifact that
+    failed its hash check (`problem`: what was wrong), else nothing."""
+    return (
+        "" if problem is None else f", replacing the stored one, which failed its check: {problem}"
+    )
 
 
 def _log_previews(
