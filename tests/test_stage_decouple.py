@@ -2,14 +2,17 @@
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import pytest
 import torch
 
+import relaygs.stages.common as common_module
 import relaygs.stages.decouple as decouple_module
 from conftest import stage_smoke_cfg
 from relaygs.data import Scene, View
+from relaygs.errors import InputError
 from relaygs.pipeline.artifact import Artifact
 from relaygs.stages import STAGES, SceneModel
 from relaygs.stages.decouple import straight_through_mask
@@ -143,3 +146,17 @@ def test_every_batch_has_frame0_views_rendered_without_the_mask(
         unmasked = sum(count for count, masked in calls if not masked)
         masked = sum(count for count, masked in calls if masked)
         assert (unmasked, masked) == (at_zero, batch_views - at_zero)
+
+
+@pytest.mark.parametrize("stage", ["decouple", "warmup"])
+def test_a_scene_in_huge_units_is_refused_before_its_sizes_freeze(stage_scene: Scene, stage: str):
+    # ×1e6: neighbours ~1e5 units apart, beyond the renderer's largest Gaussian (e^10):
+    # sizes past the cap get no gradient, and the scene trained to a black image
+    points = stage_scene.points
+    huge = dataclasses.replace(
+        stage_scene, points=dataclasses.replace(points, xyz=points.xyz * 1e6)
+    )
+    cfg = stage_smoke_cfg(**{stage: {"steps": 1}})
+    with pytest.raises(InputError, match=r"initial points lie more than 2.2e\+04 units from"):
+        STAGES[stage](huge, {}, cfg)
+    common_module.initial_gaussians(stage_scene, None, 0.1, 0, 0)  # its own units: fine

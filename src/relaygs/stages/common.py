@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Collection, Mapping
 from typing import Any
 
@@ -9,7 +10,7 @@ import torch
 
 from relaygs.data import Scene
 from relaygs.errors import InputError
-from relaygs.model import GaussianSet
+from relaygs.model import MAX_LOG_SCALE, GaussianSet
 from relaygs.pipeline.artifact import Artifact
 from relaygs.stages.config import json_ready
 from relaygs.stages.loop import TrainReport
@@ -90,7 +91,26 @@ def initial_gaussians(
         generator = torch.Generator().manual_seed(seed)
         keep = torch.randperm(xyz.shape[0], generator=generator)[:init_points].sort().values
         xyz, rgb = xyz[keep], rgb[keep]
-    return GaussianSet.from_points(xyz, rgb, max_sh_degree=sh_degree, init_opacity=init_opacity)
+    gaussians = GaussianSet.from_points(
+        xyz, rgb, max_sh_degree=sh_degree, init_opacity=init_opacity
+    )
+    _require_sizes_below_the_cap(scene, gaussians)
+    return gaussians
+
+
+def _require_sizes_below_the_cap(scene: Scene, gaussians: GaussianSet) -> None:
+    """One line when most initial Gaussians (sized by their neighbours' distance) are larger
+    than the renderer's cap e^MAX_LOG_SCALE: their sizes would get no gradient and stay
+    frozen, and the scene would train to nothing. A scene in huge units, to be rescaled."""
+    log_scales = gaussians.params["log_scales"].detach()[:, 0]
+    over = int((log_scales > MAX_LOG_SCALE).sum())
+    if 2 * over > len(log_scales):
+        raise InputError(
+            f"{scene.root}: {over} of the {len(log_scales)} initial points lie more than "
+            f"{math.exp(MAX_LOG_SCALE):.2g} units from their neighbours, the largest Gaussian "
+            "the renderer draws; expected a scene in units near metres (rescale the poses' "
+            "translations and the point cloud alike)"
+        )
 
 
 def static_session(
