@@ -9,7 +9,7 @@ from pathlib import Path
 PAGE = Path(__file__).resolve().parents[1] / "docs" / "python.md"
 EXAMPLE_ROOT = '"outputs/artifacts"'
 EXAMPLE_KEY = '"2ec914192ee2"'
-EXAMPLE_SCENE = '"outputs/scenes/juggle-f10226649c64"'
+EXAMPLE_SCENE = '"outputs/scenes/juggle-fc11a31e10c2"'
 
 
 def _page_code() -> str:

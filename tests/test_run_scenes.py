@@ -53,6 +53,7 @@ def test_cache_folder_depends_on_every_generation_parameter(tmp_path):
         {"rig": ring_rig},
         {"build": build_static},
         {"rig": functools.partial(ring_rig)},
+        {"revision": 2},  # the builder changed what it draws
     ],
 )
 def test_cache_folder_depends_on_the_preset_definition(tmp_path, monkeypatch, edit):
@@ -61,6 +62,12 @@ def test_cache_folder_depends_on_the_preset_definition(tmp_path, monkeypatch, ed
     assert synthetic_folder(scene_spec(TINY), tmp_path) == base  # an equal copy: same folder
     monkeypatch.setitem(PRESETS, "juggle", dataclasses.replace(PRESETS["juggle"], **edit))
     assert synthetic_folder(scene_spec(TINY), tmp_path) != base
+
+
+def test_only_a_raised_revision_enters_a_preset_definition():
+    # so the presets never revised keep the cache folders (and scene keys) they had
+    assert "revision" not in PRESETS["juggle"].definition()
+    assert PRESETS["court"].definition()["revision"] == 2
 
 
 def test_a_preset_description_is_no_generation_parameter(tmp_path, monkeypatch):

@@ -36,7 +36,7 @@ from relaygs.paths import require_creatable_folder
 from relaygs.progress import progress_bar
 
 GENERATOR = "relaygs.synth"
-GENERATOR_VERSION = "2"
+GENERATOR_VERSION = "1"
 GENERATED_ENTRIES = frozenset({"ims", "seg", TRAIN_META, TEST_META, POINTS_FILE, SCENE_JSON})
 """What a generated scene folder holds (regenerating replaces exactly these)."""
 GENERATED_IMAGE = re.compile(r"\d+/\d{6}\.png")

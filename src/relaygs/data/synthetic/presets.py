@@ -55,14 +55,18 @@ class Preset:
     default_effects: frozenset[str]
     supported_effects: frozenset[str]
     build: WorldBuilder
+    revision: int = 1
+    """Raised when a change to this preset's builder alters its images (GENERATOR_VERSION is
+    for changes to every preset's), so only its cached scenes are generated anew."""
 
     def definition(self) -> dict[str, Any]:
         """Every field but the description as JSON, the same in every process (functions by
-        qualified name): the scene cache hashes it, so an edited preset is generated anew."""
+        qualified name): the scene cache hashes it, so an edited preset is generated anew. The
+        revision enters only once raised, so a preset never revised keeps its cache folders."""
         return {
             field.name: _describe(getattr(self, field.name), f"PRESETS[{self.name!r}].{field.name}")
             for field in fields(self)
-            if field.name != "description"
+            if field.name != "description" and (field.name, self.revision) != ("revision", 1)
         }
 
 
@@ -236,6 +240,7 @@ PRESETS: dict[str, Preset] = {
         frozenset({LARGE_MOTION, NONRIGID, FAST_OBJECTS, DYNAMIC_PANELS, BACKGROUND_JITTER})
         | _CAMERA_EFFECTS,
         build_court,
+        revision=2,  # declaring background_jitter no longer redraws the spectators' clothes
     ),
     "static": Preset(
         "static",
