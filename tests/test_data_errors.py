@@ -436,6 +436,7 @@ def test_a_scene_without_scene_json_declares_no_effects(tiny_synth_copy: Path):
         ({"max_points": 0}, "max_points must be an integer >= 1"),
         ({"cache_mb": -1}, "cache_mb must be a finite number > 0"),
         ({"cache_mb": float("inf")}, r"cache_mb must be a finite number > 0, got inf"),
+        ({"cache_mb": 1e308}, "cache_mb must be a finite number > 0, got 1e+308"),
         ({"test_cameras": [99]}, "cameras [99] are not in the scene"),
         (
             {"test_cameras": [1, 99]},

@@ -52,9 +52,9 @@ def make_options(
     `prefix` + its name."""
     downscale = require_int("downscale", downscale, minimum=1, prefix=prefix)
     max_points = require_int("max_points", max_points, minimum=1, prefix=prefix)
-    # a budget in whole bytes: an infinite one has no byte count (and memory is finite anyway)
+    # a budget in whole bytes: one whose byte count is infinite has none (memory is finite)
     number = not isinstance(cache_mb, bool) and isinstance(cache_mb, int | float)
-    if not number or not 0 < cache_mb < math.inf:
+    if not number or not 0 < cache_mb * 2**20 < math.inf:
         raise InputError(f"{prefix}cache_mb must be a finite number > 0, got {cache_mb!r}")
     cameras = None
     if test_cameras is not None:
