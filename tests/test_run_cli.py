@@ -77,7 +77,7 @@ def _main(args):
         (["-m", "relay.kk=1,2"], "job relay.kk=1: relay.kk: relay has no setting 'kk'; did you"),
         (["hydra/launcher=nope"], "Could not find 'hydra/launcher/nope'"),
         (["relay.k=[1,"], "cannot parse overrides"),
-        (["paths.outputs=/tmp/scène"], """non-ASCII characters or any of ~!#&();<>^` Hydra's"""),
+        (["paths.outputs=/tmp/scène"], """non-ASCII characters or any of ~!#&;<>^` Hydra's"""),
         (["scene.path=~/data"], """Hydra's quotes too: 'scene.path="~/data/scène"'"""),
         (["scene.path=/data/my", "scene"], "'<EOF>'; a value with spaces needs shell quotes"),
         (["scene.test_cameras=[1,2]"], "did you mean scene.loader.test_cameras?"),
@@ -457,8 +457,11 @@ class _FlushLog(io.StringIO):
         self.flushed.append(self.getvalue())
 
 
-def test_a_delete_override_is_no_reason_for_the_quoting_hint(fakes, capsys):
-    assert _main(["~relay.k", "relay.k=[1,"]) == 1
+@pytest.mark.parametrize("other", ["~relay.k", "relay.k=choice(1,2)"])
+def test_a_delete_override_or_a_sweep_function_is_no_reason_for_the_quoting_hint(
+    fakes, capsys, other
+):
+    assert _main([other, "relay.p=[1,"]) == 1
     err = capsys.readouterr().err
     assert err.startswith("error: cannot parse overrides") and "quotes" not in err
 

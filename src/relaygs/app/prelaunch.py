@@ -64,8 +64,9 @@ REMOTE_LAUNCHERS = {
 the commands they submit through, which must be on this machine's PATH."""
 GROUP_HINTS = {"scene": "; or set scene.path=DIR for a capture"}
 CONFIG_NAME = "config"
-UNQUOTED_ASCII_REFUSED = "~!#&();<>^`"
-"""ASCII characters Hydra's override grammar reads in a value only inside its quotes."""
+UNQUOTED_ASCII_REFUSED = "~!#&;<>^`"
+"""ASCII characters Hydra's override grammar reads in a value only inside its quotes (not the
+brackets, which are its own syntax: lists, dicts, sweep functions such as `choice(1,2)`)."""
 QUOTE_HINT = (
     "; a value with spaces needs shell quotes around the override ('scene.path=/data/my "
     f"scene'), one with non-ASCII characters or any of {UNQUOTED_ASCII_REFUSED} Hydra's "
