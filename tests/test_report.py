@@ -326,6 +326,20 @@ def test_a_job_folder_that_cannot_be_read_is_named_and_the_tables_stay(sweep, ca
     assert (sweep / "summary.md").read_text() == before
 
 
+def test_a_folder_removed_while_the_report_looks_is_passed_over(sweep, monkeypatch):
+    scandir = os.scandir
+    vanishing = sweep / "3_k64" / "tmp"
+    vanishing.mkdir()
+
+    def removed_meanwhile(path):
+        if Path(path) == vanishing:
+            vanishing.rmdir()  # a running job cleaned it up
+        return scandir(path)
+
+    monkeypatch.setattr(os, "scandir", removed_meanwhile)
+    assert report.main([str(sweep)]) == 0
+
+
 def test_a_damaged_result_is_named(sweep, capsys):
     (sweep / "0_k8" / "result.json").write_text("{not json")
     assert report.main([str(sweep)]) == 1

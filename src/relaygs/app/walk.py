@@ -11,9 +11,11 @@ from relaygs.errors import InputError
 
 def entries_named(root: Path, name: str) -> list[Path]:
     """Every file or folder called `name` below `root`, sorted; InputError naming the first
-    folder that cannot be listed."""
+    folder that cannot be listed (one removed meanwhile, say by a running job, is passed)."""
 
     def refuse(error: OSError) -> None:
+        if isinstance(error, FileNotFoundError):
+            return
         raise InputError(
             f"cannot read {error.filename} ({error.strerror}): the report would leave out the "
             "jobs in it; give this user access to it"
