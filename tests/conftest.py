@@ -5,6 +5,7 @@ from __future__ import annotations
 import copy
 import io
 import shutil
+import signal
 import sys
 from pathlib import Path
 from typing import Any
@@ -19,6 +20,15 @@ from relaygs.pipeline.keys import artifact_key
 from relaygs.pipeline.store import ArtifactStore
 
 TINY_SYNTH_SIZE = {"frames": 6, "width": 32, "height": 18}
+
+
+@pytest.fixture(autouse=True)
+def sigint_handler_restored():
+    """A tool started in-process ignores Ctrl-C once its work is done; the next test (and
+    the child processes it starts, which inherit an ignored SIGINT) must not."""
+    handler = signal.getsignal(signal.SIGINT)
+    yield
+    signal.signal(signal.SIGINT, handler)
 
 
 @pytest.fixture(scope="session")

@@ -4,6 +4,7 @@ whose reader went away."""
 import importlib
 import os
 import shlex
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -125,6 +126,9 @@ def test_a_started_tool_exits_with_its_mains_status(tmp_path, monkeypatch, capsy
         start_tool(
             _tool_module(tmp_path, monkeypatch, "def main():\n    print('ran')\n    return 3")
         )
+    # once its work is done, a Ctrl-C during the interpreter's shutdown changes nothing
+    # (conftest's sigint_handler_restored undoes it for the tests that follow)
+    assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
     assert (stop.value.code, capsys.readouterr().out) == (3, "ran\n")
 
 

@@ -12,6 +12,7 @@ import os
 import re
 import shlex
 import shutil
+import signal
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -37,6 +38,9 @@ def start_tool(module: str) -> NoReturn:
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         status = INTERRUPTED_EXIT
+    # the work is done: a Ctrl-C while the interpreter shuts down would end a finished
+    # render with status 130 and no word
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     raise SystemExit(status)
 
 
