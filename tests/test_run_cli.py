@@ -89,6 +89,12 @@ def _main(args):
         (["tensorboard.preview_frames=abc"], "tensorboard.preview_frames must be an integer"),
         (["+tensorboard.every=3"], "tensorboard: unknown setting(s) ['every']"),
         (["hydra.run.dir=/proc/relaygs-run"], "hydra.run.dir: cannot write in /proc"),
+        # Path("") is the folder the command started in: the run's files would land there
+        (["hydra.run.dir="], "hydra.run.dir: expected a path (a non-empty string), got ''"),
+        (["-m", "hydra.sweep.dir=' '"], "hydra.sweep.dir: expected a path (a non-empty string)"),
+        # torch takes no seed past int64: a traceback in the first stage before
+        (["seed=100000000000000000000"], "seed must be an integer <= 9223372036854775807"),
+        (["scene.width=100000000000000000000"], "scene.width must be an integer <= 100000, got"),
         (["-m", "hydra.sweep.dir=/proc/relaygs-sweep"], "hydra.sweep.dir: cannot write in /proc"),
         (["artifacts.root=/proc/relaygs-store"], "artifacts.root: cannot write in /proc"),
         ([f"train.device={UNUSABLE_GPU}"], f"train.device: cannot use '{UNUSABLE_GPU}' here ("),

@@ -156,6 +156,9 @@ DELAYED = {"init": 1e-3, "final": 1e-5, "delay_steps": 10}
         ("deform", {"densify_fg": {"split_scale_divisor": float("inf")}}, "split_scale_divisor"),
         ("warmup", {"densify": {"max_screen_radius": -1.0}}, "warmup.densify.max_screen_radius"),
         ("relay", {"densify_fg": {"max_screen_radius": float("nan")}}, "max_screen_radius"),
+        # torch takes no size past int64: a traceback deep in the stage before
+        ("relay", {"p": 10**20}, "relay.p: expected an int <= 9223372036854775807"),
+        ("deform", {"width": -(10**20)}, "deform.width: expected an int <="),
         # infinite thresholds would train, then fail writing the artifact's JSON meta
         ("decouple", {"densify": {"grad_threshold": float("inf")}}, "densify.grad_threshold"),
         ("relay", {"densify_fg": {"percent_dense": float("inf")}}, "densify_fg.percent_dense"),
@@ -183,6 +186,7 @@ def test_bad_section_values_name_the_key(stage: str, section: dict, needle: str)
         ({"train": {"device": "meta"}}, "train.device: expected 'cpu', 'cuda'"),
         ({"train": {"wandb": True}}, "wandb"),
         ({"eval": {"frame_stride": 0}}, "eval.frame_stride"),
+        ({"train": {"batch_views": 10**20}}, "train.batch_views: expected an int <= 9223372"),
     ],
 )
 def test_bad_shared_sections_name_the_key(cfg: dict, needle: str) -> None:

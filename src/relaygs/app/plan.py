@@ -90,9 +90,7 @@ def plan_run(
     `validate` checks each node's stage config (the output node's with `eval` added);
     `accepted_upstream` the pipeline's upstream node types (`load_pipeline`)."""
     _check_setting_names(cfg, stage_types)
-    seed = cfg.get("seed")
-    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-        raise InputError(f"seed must be an integer >= 0, got {seed!r}")
+    seed = require_int("seed", cfg.get("seed"), minimum=0, prefix="")
     artifacts, paths = _section(cfg, "artifacts"), _section(cfg, "paths")
     if artifacts.get("on_corrupt") not in ON_CORRUPT_CHOICES:
         raise InputError(

@@ -252,7 +252,11 @@ def check_output_folder(hydra_cfg: DictConfig, multirun: bool) -> None:
     """The run folder (`hydra.run.dir`, or `hydra.sweep.dir` for a multirun) must be a folder
     that files can be written in, or one that can be created."""
     key = "sweep" if multirun else "run"
-    folder = Path(str(hydra_cfg[key].dir)).expanduser().absolute()
+    text = str(hydra_cfg[key].dir)
+    if not text.strip():
+        # Path("") is the folder the command started in, which would get the run's files
+        raise InputError(f"hydra.{key}.dir: expected a path (a non-empty string), got {text!r}")
+    folder = Path(text).expanduser().absolute()
     require_creatable_folder(folder, f"hydra.{key}.dir")
 
 

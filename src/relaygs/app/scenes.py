@@ -18,6 +18,7 @@ from relaygs.data.options import make_options, require_int
 from relaygs.data.scene import MIN_IMAGE_SIDE
 from relaygs.data.synthetic import (
     GENERATOR_VERSION,
+    MAX_SYNTH_COUNT,
     PRESETS,
     declared_effects,
     generate,
@@ -92,7 +93,9 @@ def scene_spec(section: Mapping[str, Any]) -> SceneSpec:
         )
     options = make_options(**loader, prefix=LOADER_PREFIX)
     counts = {
-        name: require_int(name, section.get(name), minimum=minimum, prefix="scene.")
+        name: require_int(
+            name, section.get(name), minimum=minimum, prefix="scene.", maximum=MAX_SYNTH_COUNT
+        )
         for name, minimum in (("frames", 1), ("width", MIN_IMAGE_SIDE), ("height", MIN_IMAGE_SIDE))
     }
     seed = require_int("seed", section.get("seed"), minimum=0, prefix="scene.")

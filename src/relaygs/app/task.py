@@ -291,6 +291,7 @@ def _log_previews(
     first_views = scene.views_at(0, "test")
     if count <= 0 or not first_views:
         return
+    count = min(count, scene.num_frames)  # there are no more frames to show
     camera_id = first_views[0].camera.camera_id
     last = scene.num_frames - 1
     frames = sorted({round(i * last / max(count - 1, 1)) for i in range(count)})

@@ -69,11 +69,24 @@ def make_options(
     return LoaderOptions(downscale, max_points, float(cache_mb), cameras, declared, prefix)
 
 
-def require_int(name: str, value: object, *, minimum: int, prefix: str = OPTION_PREFIX) -> int:
-    """`value` as an int if it is an integer >= minimum, else an InputError naming the option
-    (`prefix` + `name`)."""
+INT64_MAX = 2**63 - 1
+"""The largest int torch and numpy take as a size or seed (a larger one is a traceback)."""
+
+
+def require_int(
+    name: str,
+    value: object,
+    *,
+    minimum: int,
+    prefix: str = OPTION_PREFIX,
+    maximum: int = INT64_MAX,
+) -> int:
+    """`value` as an int if it is an integer in [minimum, maximum], else an InputError naming
+    the option (`prefix` + `name`)."""
     if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < minimum:
         raise InputError(f"{prefix}{name} must be an integer >= {minimum}, got {value!r}")
+    if value > maximum:
+        raise InputError(f"{prefix}{name} must be an integer <= {maximum}, got {value!r}")
     return int(value)
 
 

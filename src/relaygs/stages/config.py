@@ -14,6 +14,7 @@ import typing
 from collections.abc import Mapping
 from typing import Any, ClassVar, TypeVar
 
+from relaygs.data.options import INT64_MAX
 from relaygs.errors import InputError
 from relaygs.model import (
     BACKGROUND_DENSIFY,
@@ -72,6 +73,8 @@ def coerce(value: Any, hint: Any, where: str) -> Any:
         return {str(key): item for key, item in value.items()}
     if not _matches(value, hint):
         raise _type_error(where, value, hint)
+    # torch and numpy take no int beyond int64 (a traceback deep in a stage otherwise)
+    require(hint is not int or abs(value) <= INT64_MAX, where, value, f"an int <= {INT64_MAX}")
     return float(value) if hint is float else value
 
 

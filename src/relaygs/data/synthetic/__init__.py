@@ -4,6 +4,7 @@ effects they declare (see `relaygs.data.effects`); `generate` writes the Panopti
 from relaygs.data.effects import ALL_EFFECTS
 from relaygs.data.synthetic.generate import (
     GENERATOR_VERSION,
+    MAX_SYNTH_COUNT,
     declared_effects,
     generate,
     rig_cameras,
@@ -13,6 +14,7 @@ from relaygs.data.synthetic.presets import PRESETS
 __all__ = [
     "ALL_EFFECTS",
     "GENERATOR_VERSION",
+    "MAX_SYNTH_COUNT",
     "PRESETS",
     "declared_effects",
     "generate",

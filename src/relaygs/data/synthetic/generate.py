@@ -39,6 +39,9 @@ GENERATOR = "relaygs.synth"
 GENERATOR_VERSION = "1"
 GENERATED_ENTRIES = frozenset({"ims", "seg", TRAIN_META, TEST_META, POINTS_FILE, SCENE_JSON})
 """What a generated scene folder holds (regenerating replaces exactly these)."""
+MAX_SYNTH_COUNT = 100_000
+"""The most frames, and pixels a side, a synthetic scene may have (more is no scene one
+machine renders: numpy's arrays for it cannot even be made)."""
 GENERATED_IMAGE = re.compile(r"\d+/\d{6}\.png")
 """The files the generator writes inside ims/ and seg/: `<camera>/<frame:06d>.png`."""
 SUPERSAMPLE = 2
@@ -72,7 +75,7 @@ def generate(
     # an image under MIN_IMAGE_SIDE pixels a side is one no loader takes: refused before work
     minimums = {"frames": 1, "width": MIN_IMAGE_SIDE, "height": MIN_IMAGE_SIDE}
     for name, value in (("frames", frames), ("width", width), ("height", height)):
-        require_int(name, value, minimum=minimums[name], prefix="")
+        require_int(name, value, minimum=minimums[name], prefix="", maximum=MAX_SYNTH_COUNT)
     require_int("seed", seed, minimum=0, prefix="")
     declared = declared_effects(recipe, effects)
     times = np.linspace(0.0, DURATION_S, frames) if frames > 1 else np.zeros(1)
