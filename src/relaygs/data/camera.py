@@ -60,6 +60,20 @@ class Camera:
         )
         return Camera(self.camera_id, self.K * scale, self.w2c.clone(), width, height, self.near)
 
+    def project(self, points: torch.Tensor, min_depth: float) -> tuple[torch.Tensor, torch.Tensor]:
+        """Pixel coordinates [N,2] (float32) of world points [N,3], and whether each lies
+        deeper than `min_depth` and inside the image (a point at or behind it gets the
+        coordinates of depth 1: finite, and flagged outside)."""
+        homogeneous = torch.cat([points, points.new_ones(points.shape[0], 1)], dim=1)
+        cam = homogeneous @ self.w2c.to(torch.float32).T
+        depth = cam[:, 2]
+        in_front = depth > min_depth
+        safe_depth = torch.where(in_front, depth, torch.ones_like(depth))
+        pixels = ((cam[:, :3] / safe_depth[:, None]) @ self.K.to(torch.float32).T)[:, :2]
+        column, row = pixels[:, 0].floor(), pixels[:, 1].floor()
+        inside = in_front & (column >= 0) & (column < self.width) & (row >= 0) & (row < self.height)
+        return pixels, inside
+
     @property
     def center(self) -> torch.Tensor:
         """Camera centre in world coordinates [3]."""

@@ -197,15 +197,9 @@ def _require_points_in_view(
     """One line unless some initial point lies in front of a training camera and inside its
     image: with none, training starts from Gaussians no view sees and learns a black scene.
     The usual cause is poses given camera→world, or in OpenGL axes."""
-    xyz = points.xyz.double().numpy()
+    xyz = points.xyz.to(torch.float32)
     for camera in cameras:  # a usable scene ends at its first camera
-        w2c, K = camera.w2c.double().numpy(), camera.K.double().numpy()
-        in_camera = xyz @ w2c[:3, :3].T + w2c[:3, 3]
-        depth = in_camera[:, 2]
-        front = in_camera[depth > near]
-        u = K[0, 0] * front[:, 0] / front[:, 2] + K[0, 2]
-        v = K[1, 1] * front[:, 1] / front[:, 2] + K[1, 2]
-        if bool(((u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)).any()):
+        if bool(camera.project(xyz, min_depth=near)[1].any()):
             return
     raise InputError(
         f"{root}: none of the point cloud's {len(xyz)} points is in front of a training camera "

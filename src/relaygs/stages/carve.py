@@ -99,17 +99,10 @@ def _consistent(
     seen = torch.zeros(n, dtype=torch.int64)
     hits = torch.zeros(n, dtype=torch.int64)
     color_sum = torch.zeros(n, 3)
-    homogeneous = torch.cat([points, torch.ones(n, 1)], dim=1)
     for index, camera in enumerate(cameras):
-        cam = homogeneous @ camera.w2c.to(torch.float32).T
-        depth = cam[:, 2]
-        in_front = depth > 0.1 * camera.near  # 1e-3 at the default near plane
-        safe_depth = torch.where(in_front, depth, torch.ones_like(depth))
-        pixels = (cam[:, :3] / safe_depth[:, None]) @ camera.K.to(torch.float32).T
+        # deeper than 1e-3 at the default near plane
+        pixels, inside = camera.project(points, min_depth=0.1 * camera.near)
         column, row = pixels[:, 0].floor().long(), pixels[:, 1].floor().long()
-        inside = (
-            in_front & (column >= 0) & (column < camera.width) & (row >= 0) & (row < camera.height)
-        )
         column = column.clamp(0, camera.width - 1)
         row = row.clamp(0, camera.height - 1)
         hit = inside & masks[index][row, column]
