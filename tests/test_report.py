@@ -418,6 +418,23 @@ def test_sharing_counts_evaluations_read_back_from_the_store(tmp_path):
     assert "With evaluation: 54 s against 96 s (ratio 0.56)." in text
 
 
+def test_a_sweep_resumed_in_place_counts_what_its_jobs_built_before_the_interruption(tmp_path):
+    # the rerun of each job read everything back (computed 0), but the jobs' folders built it:
+    # k8 all 20 s of its lineage, k16 its own 10 s; an older result without the field counts
+    # what it computed
+    reread = {"train_s_computed": 0.0, "eval_s_total": 2.0, "eval_s_computed": 0.0}
+    _job(tmp_path, 0, "k8", 24.0, 20.0, **reread, train_s_built_by_job=20.0, eval_s_built_by_job=2)
+    _job(tmp_path, 1, "k16", 23.0, 20.0, **reread, train_s_built_by_job=10.0, eval_s_built_by_job=2)
+    _job(tmp_path, 2, "k32", 23.0, 20.0, eval_s_total=2.0, eval_s_computed=2.0)
+    text = report.write_reports(tmp_path).markdown.read_text()
+    assert "Stage time: 40 s computed by this sweep, 60 s if every job built" in text
+    assert "With evaluation: 46 s against 66 s (ratio 0.70)." in text
+    assert "| k8 | 24.00 | +1.00 | n/a | 0.8000 | 20.0 | 20.0 |" in text
+    assert "| k16 | 23.00 | +0.00 | n/a | 0.8000 | 20.0 | 10.0 |" in text
+    summary = pd.read_csv(tmp_path / "summary.csv")
+    assert summary.train_s_computed.tolist() == [0.0, 0.0, 10.0]  # the CSV keeps the fields
+
+
 def test_jobs_on_the_same_point_share_one_label():
     labels = point_labels([1.0, 2.0, 2.0, 1.0], [5.0, 6.0, 6.0, 5.0], ["k64", "k128", "k8", "k64"])
     assert labels == {(1.0, 5.0): "k64", (2.0, 6.0): "k128, k8"}

@@ -222,6 +222,24 @@ def test_a_sweep_job_resumed_in_its_folder_is_not_noted_but_another_run_there_is
     assert note in capsys.readouterr().err
 
 
+def test_a_job_rerun_in_its_folder_still_counts_what_it_built_there(base_config, tmp_path):
+    # a sweep resumed in place: the rerun reuses everything, yet the job built it all in its
+    # folder before the interruption; a job in another folder built none of it
+    fakes = FakeStages()
+    folder = tmp_path / "sweep" / "0_k8"
+    first = _run(base_config, folder, fakes, job=0)
+    assert first["train_s_built_by_job"] == first["train_s_computed"] > 0
+    assert first["eval_s_built_by_job"] == first["eval_s_computed"] > 0
+    (folder / RESULT_FILE).unlink()  # killed after its stages, before its result
+    again = _run(base_config, folder, fakes, job=0)
+    assert (again["train_s_computed"], again["eval_s_computed"], again["cache_hits"]) == (0, 0, 3)
+    assert again["train_s_built_by_job"] == pytest.approx(first["train_s_computed"])
+    assert again["eval_s_built_by_job"] == pytest.approx(first["eval_s_computed"])
+    other = _run(base_config, tmp_path / "sweep" / "1_k8", fakes, job=1)
+    assert (other["train_s_built_by_job"], other["eval_s_built_by_job"]) == (0, 0)
+    assert fakes.ran("deform") == 1 and fakes.evaluations == 1
+
+
 def test_an_evaluated_model_is_not_evaluated_again(base_config, tmp_path, capsys):
     fakes = FakeStages()
     first = _run(base_config, tmp_path / "a", fakes)

@@ -22,6 +22,7 @@ from relaygs.data.fingerprint import digest
 from relaygs.per_view import PER_VIEW, from_tensors, to_tensors
 from relaygs.pipeline import Artifact, ArtifactStore, LineageEntry, PipelineRun
 from relaygs.pipeline.keys import artifact_key, key_config
+from relaygs.pipeline.manifest import built_by
 from relaygs.pipeline.store import OnCorrupt
 
 EVAL_STAGE = "eval"
@@ -40,11 +41,17 @@ class Evaluation:
     cache_hit: bool
     wall_seconds: float
     replaced_corrupt: str | None = None  # what was wrong with a stored evaluation it redid
+    built_by: str | None = None  # the run folder that evaluated (manifest provenance `BUILT_BY`)
 
     @property
     def seconds_computed(self) -> float:
         """Seconds this job spent evaluating (0 when the metrics were read back)."""
         return 0.0 if self.cache_hit else self.wall_seconds
+
+    def seconds_built_by(self, run_dir: str) -> float:
+        """The evaluation's seconds when `run_dir`'s job made it, now or in an earlier,
+        interrupted run in the same folder; else 0."""
+        return self.wall_seconds if self.built_by == run_dir else 0.0
 
 
 def evaluate_through_store(
@@ -54,9 +61,11 @@ def evaluate_through_store(
     eval_config: dict[str, Any],
     evaluate: EvaluateFn,
     on_corrupt: OnCorrupt = "rebuild",
+    provenance: Mapping[str, Any] | None = None,
 ) -> Evaluation:
     """The metrics of `run.output` on `scene`: read from the store, or computed by `evaluate`
-    and stored (once, even when parallel jobs ask at the same time)."""
+    and stored (once, even when parallel jobs ask at the same time). `provenance` entries go
+    into the stored entry's manifest (e.g. `BUILT_BY`)."""
     output = run.reports[-1]
     keyed = evaluation_config(eval_config)
     fingerprint = str(scene.fingerprint)
@@ -74,14 +83,25 @@ def evaluate_through_store(
         build,
         config=keyed,
         lineage=[LineageEntry(output.node, output.stage, output.key)],
-        provenance={"schema_version": EVAL_SCHEMA_VERSION, "scene": fingerprint},
+        provenance={
+            **(provenance or {}),
+            "schema_version": EVAL_SCHEMA_VERSION,
+            "scene": fingerprint,
+        },
         on_corrupt=on_corrupt,
     )
     metrics = dict(artifact.meta["metrics"])
     records = from_tensors(artifact.tensors)
     if records is not None:
         metrics[PER_VIEW] = records
-    return Evaluation(metrics, key, info.cache_hit, info.wall_seconds, info.replaced_corrupt)
+    return Evaluation(
+        metrics,
+        key,
+        info.cache_hit,
+        info.wall_seconds,
+        info.replaced_corrupt,
+        built_by(info.provenance),
+    )
 
 
 def evaluation_config(eval_config: Mapping[str, Any]) -> dict[str, Any]:

@@ -49,8 +49,11 @@ def build_result(
     storage_mb: float,
     overrides: Sequence[str],
     job: int | None,
+    run_dir: str,
 ) -> dict[str, Scalar]:
-    """The flat result of one run; `overrides` are the job's command-line/sweep overrides."""
+    """The flat result of one run; `overrides` are the job's command-line/sweep overrides.
+    The `*_built_by_job` seconds count what the job in `run_dir` built, before an
+    interruption too, so a sweep resumed in place still shows what it computed."""
     metrics = evaluation.metrics
     result = _identity(cfg, plan, job)
     result["status"] = STATUS_OK
@@ -61,6 +64,8 @@ def build_result(
             "train_s_computed": run.train_seconds_computed,
             "eval_s_total": evaluation.wall_seconds,
             "eval_s_computed": evaluation.seconds_computed,
+            "train_s_built_by_job": run.train_seconds_built_by(run_dir),
+            "eval_s_built_by_job": evaluation.seconds_built_by(run_dir),
             "storage_mb": storage_mb,
             "cache_hits": sum(report.cache_hit for report in run.reports),
             "stages": len(run.reports),

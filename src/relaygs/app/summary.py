@@ -138,7 +138,9 @@ def markdown_table(table: pd.DataFrame, title: str, notes: Sequence[str] = ()) -
     """The summary as a Markdown table in the paper's form (missing values as MISSING); when
     variant labels repeat, the parameters that tell the rows apart follow the variant. Failed
     jobs are marked in the table and listed with their errors below it, after `notes` (lines
-    the caller adds, such as `unfinished_line`)."""
+    the caller adds, such as `unfinished_line`). Computed seconds are `computed_in_sweep`'s."""
+    if "train_s_computed" in table:
+        table = table.assign(train_s_computed=computed_in_sweep(table, "train_s_computed"))
     extra = [(name, name, "{}") for name in distinguishing_parameters(table)]
     columns = [MARKDOWN_COLUMNS[0], *extra, *MARKDOWN_COLUMNS[1:]]
     header = "| " + " | ".join(label for label, _, _ in columns) + " |"
@@ -170,7 +172,7 @@ def sharing_line(table: pd.DataFrame) -> str | None:
     """What sharing artifacts saved: stage seconds this sweep computed against the sum of
     every job's whole lineage (what running the jobs independently would have computed), and
     the same with evaluation added (results written before evaluations were stored lack it)."""
-    computed = _seconds(table, ("train_s_computed",))
+    computed = _sum(computed_in_sweep(table, "train_s_computed"))
     lineage = _seconds(table, ("train_s_total",))
     if computed is None or lineage is None or lineage <= 0:
         return None
@@ -179,9 +181,10 @@ def sharing_line(table: pd.DataFrame) -> str | None:
         f"Stage time: {computed:.0f} s computed by {sweeps}, {lineage:.0f} s if every job "
         f"built its own lineage (ratio {computed / lineage:.2f})."
     )
-    computed_all = _seconds(table, ("train_s_computed", "eval_s_computed"))
+    evaluated = _sum(computed_in_sweep(table, "eval_s_computed"))
     alone_all = _seconds(table, ("train_s_total", "eval_s_total"))
-    if computed_all is not None and alone_all is not None and alone_all > 0:
+    if evaluated is not None and alone_all is not None and alone_all > 0:
+        computed_all = computed + evaluated
         line += (
             f" With evaluation: {computed_all:.0f} s against {alone_all:.0f} s "
             f"(ratio {computed_all / alone_all:.2f})."
@@ -264,11 +267,36 @@ def shared_model_lines(table: pd.DataFrame) -> list[str]:
     return lines
 
 
+BUILT_BY_JOB = {
+    "train_s_computed": "train_s_built_by_job",
+    "eval_s_computed": "eval_s_built_by_job",
+}
+"""Each `*_computed` result field and the field that also counts what the job's folder built
+before an interruption (results written before it existed lack it)."""
+
+
+def computed_in_sweep(table: pd.DataFrame, column: str) -> pd.Series | None:
+    """Per row, the seconds of `column` that the sweep's own job built: its `BUILT_BY_JOB`
+    field where the result has one, so a job rerun in a sweep resumed in place still counts
+    what it built before the interruption, else `column` (None when neither is there)."""
+    built = BUILT_BY_JOB[column]
+    if column not in table:
+        return None
+    if built not in table:
+        return table[column]
+    return table[built].where(table[built].map(is_number), table[column])
+
+
+def _sum(values: pd.Series | None) -> float | None:
+    """Sum of the numeric values (None for no column)."""
+    return None if values is None else sum(float(v) for v in values if is_number(v))
+
+
 def _seconds(table: pd.DataFrame, columns: tuple[str, ...]) -> float | None:
     """Sum of the numeric values in `columns` over all rows (None when a column is missing)."""
     if not set(columns) <= set(table.columns):
         return None
-    return sum(float(v) for column in columns for v in table[column] if is_number(v))
+    return sum(_sum(table[column]) for column in columns)
 
 
 @dataclass(frozen=True)

@@ -39,7 +39,14 @@ from relaygs.data import Scene
 from relaygs.device import set_threads
 from relaygs.errors import resource_error
 from relaygs.per_view import METRIC_COLUMNS, PER_VIEW, PER_VIEW_FILE, frame_means, write_per_view
-from relaygs.pipeline import Artifact, ArtifactStore, NodeReport, PipelineRun, run_pipeline
+from relaygs.pipeline import (
+    BUILT_BY,
+    Artifact,
+    ArtifactStore,
+    NodeReport,
+    PipelineRun,
+    run_pipeline,
+)
 from relaygs.progress import job_label, print_labelled
 
 TENSORBOARD_DIR = "tb"
@@ -140,6 +147,7 @@ def _execute(
 ) -> _Outcome:
     """Run the stages on the scene, evaluate and log."""
     store = ArtifactStore(plan.artifacts_root)
+    builder = {BUILT_BY: str(Path(run_dir).resolve())}
     _note_earlier_run(Path(run_dir), config, plan, overrides, job)
     log = TensorBoardLog(Path(run_dir) / TENSORBOARD_DIR)
     suite.add_sink(log)
@@ -154,17 +162,19 @@ def _execute(
             on_corrupt=plan.on_corrupt,
             on_node_done=_announce,
             canonical=suite.canonical,
-            provenance=scene_provenance(plan.scene),
+            provenance={**scene_provenance(plan.scene), **builder},
         )
         _log_reused_stages(log, suite, run)
         evaluation = evaluate_through_store(
-            store, scene, run, plan.eval_config, suite.evaluate, plan.on_corrupt
+            store, scene, run, plan.eval_config, suite.evaluate, plan.on_corrupt, builder
         )
         _announce_evaluation(evaluation)
         per_view = _record_per_view(Path(run_dir), log, evaluation)
         _log_previews(log, suite, scene, run.output, plan.preview_frames)
         storage_mb = run.reports[-1].size_mb  # not read again: a gc may have removed it since
-        result = build_result(config, plan, run, evaluation, storage_mb, overrides, job)
+        result = build_result(
+            config, plan, run, evaluation, storage_mb, overrides, job, builder[BUILT_BY]
+        )
         result["test_set"] = test_set_id(scene, evaluation.metrics)
         notes = [f"[{report.node}] {note}" for report in run.reports for note in report.notes]
         if notes:

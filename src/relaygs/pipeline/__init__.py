@@ -6,11 +6,12 @@ from relaygs.pipeline.context import BuildContext, current_build
 from relaygs.pipeline.dag import NodeReport, PipelineRun, run_pipeline
 from relaygs.pipeline.integrity import CorruptArtifactError
 from relaygs.pipeline.keys import artifact_key, key_config
-from relaygs.pipeline.manifest import LineageEntry, Manifest
+from relaygs.pipeline.manifest import BUILT_BY, LineageEntry, Manifest
 from relaygs.pipeline.spec import Node, Pipeline, available_pipelines, load_pipeline
 from relaygs.pipeline.store import ArtifactStore, BuildInfo, MissingArtifactError
 
 __all__ = [
+    "BUILT_BY",
     "Artifact",
     "ArtifactStore",
     "BuildContext",

@@ -15,7 +15,7 @@ from typing import Any, Protocol
 from relaygs.errors import InputError, resource_error
 from relaygs.pipeline.artifact import Artifact
 from relaygs.pipeline.keys import artifact_key, key_config
-from relaygs.pipeline.manifest import LineageEntry
+from relaygs.pipeline.manifest import LineageEntry, built_by
 from relaygs.pipeline.spec import Node, Pipeline, available_pipelines, load_pipeline
 from relaygs.pipeline.store import ArtifactStore, OnCorrupt
 
@@ -69,6 +69,7 @@ class NodeReport:
     size_mb: float
     replaced_corrupt: str | None = None  # what was wrong with the stored artifact it rebuilt
     notes: tuple[str, ...] = ()  # what the artifact says a user should know (`Artifact.notes`)
+    built_by: str | None = None  # the run folder that built it (manifest provenance `BUILT_BY`)
 
 
 @dataclass(frozen=True)
@@ -93,6 +94,11 @@ class PipelineRun:
     def train_seconds_computed(self) -> float:
         """Build seconds of the nodes this run actually computed."""
         return sum(report.wall_seconds for report in self.reports if not report.cache_hit)
+
+    def train_seconds_built_by(self, run_dir: str) -> float:
+        """Build seconds of the nodes that `run_dir`'s job built, in this run or in an earlier,
+        interrupted run in the same folder (a sweep resumed in place)."""
+        return sum(report.wall_seconds for report in self.reports if report.built_by == run_dir)
 
 
 def run_pipeline(
@@ -168,6 +174,7 @@ def run_pipeline(
             size_mb=info.size_mb,
             replaced_corrupt=info.replaced_corrupt,
             notes=artifact.notes,
+            built_by=built_by(info.provenance),
         )
         artifacts[node.name] = artifact
         reports[node.name] = report

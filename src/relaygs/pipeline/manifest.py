@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
@@ -13,6 +14,9 @@ from relaygs.pipeline.integrity import CorruptArtifactError, file_sha256
 
 MANIFEST_FILE = "manifest.json"
 MANIFEST_FORMAT = 1
+BUILT_BY = "run_dir"
+"""The provenance entry naming the run folder whose job built the artifact, so a sweep resumed
+in place can count what its own jobs built before it was interrupted."""
 _FIELD_TYPES: dict[str, type | tuple[type, ...]] = {
     "key": str,
     "stage": str,
@@ -28,6 +32,12 @@ _FIELD_TYPES: dict[str, type | tuple[type, ...]] = {
 }
 """The JSON type of each manifest field (a missing one without a default is refused when the
 Manifest is made)."""
+
+
+def built_by(provenance: Mapping[str, Any]) -> str | None:
+    """The run folder a manifest's provenance names as the artifact's builder, if any."""
+    folder = provenance.get(BUILT_BY)
+    return folder if isinstance(folder, str) else None
 
 
 @dataclass(frozen=True)

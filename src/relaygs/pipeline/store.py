@@ -10,7 +10,7 @@ from __future__ import annotations
 import json
 import time
 from collections.abc import Callable, Collection, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
@@ -80,7 +80,8 @@ class BuildInfo:
     `wall_seconds` is the build's duration, read from the manifest on a hit, so the full
     cost of a lineage can be summed whether or not this run computed it. `size_mb` is the
     artifact's size as its manifest records it, so a caller need not read the store again (a
-    concurrent `gc --keep` may have removed the artifact by then).
+    concurrent `gc --keep` may have removed the artifact by then). `provenance` is the
+    manifest's, so a caller can tell which run built a hit (`BUILT_BY`).
     """
 
     stage: str
@@ -90,6 +91,7 @@ class BuildInfo:
     path: Path
     size_mb: float
     replaced_corrupt: str | None = None  # why the stored artifact it replaced failed its check
+    provenance: Mapping[str, Any] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -199,7 +201,16 @@ class ArtifactStore:
             manifest = self._write(stage, key, stored, fields)
             remove_tree(checkpoint_dir(self.root, stage, key))
         path = self.path(stage, key)
-        info = BuildInfo(stage, key, False, wall_seconds, path, manifest.size_mb, replaced_corrupt)
+        info = BuildInfo(
+            stage,
+            key,
+            False,
+            wall_seconds,
+            path,
+            manifest.size_mb,
+            replaced_corrupt,
+            manifest.provenance,
+        )
         return stored, info
 
     def list(self) -> list[StoredArtifact]:
@@ -282,7 +293,15 @@ class ArtifactStore:
                 ) from error
             return None, str(error)
         path = self.path(stage, key)
-        info = BuildInfo(stage, key, True, manifest.wall_seconds, path, manifest.size_mb)
+        info = BuildInfo(
+            stage,
+            key,
+            True,
+            manifest.wall_seconds,
+            path,
+            manifest.size_mb,
+            provenance=manifest.provenance,
+        )
         return (artifact, info), None
 
     def _load_unchanged(self, stage: str, key: str, verify: bool) -> tuple[Artifact, Manifest]:
