@@ -116,6 +116,8 @@ def test_merge_overrides_is_deep_and_rejects_unknown_settings():
         ({"budget__multiplier": float("nan")}, "budget.multiplier"),
         ({"budget__scaled_keys": "steps"}, "budget.scaled_keys must be a list of setting names"),
         ({"budget__scaled_keys": ["steps", 3]}, r"budget.scaled_keys .* got \['steps', 3\]"),
+        # a misspelt name would leave the steps it meant unscaled
+        ({"budget__scaled_keys": ["stpes"]}, r"budget.scaled_keys: \['stpes'\] name no setting"),
         ({"relay__k": -2}, "relay.k"),
         ({"deform__steps": -1}, "deform.steps"),
         ({"warmup__steps": -1, "pipeline__name": "4dgs"}, "warmup.steps"),

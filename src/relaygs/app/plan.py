@@ -108,6 +108,7 @@ def plan_run(
     for dotted in LABELS:  # after the pipeline: `variant` is `${pipeline.name}` by default
         _require_label(cfg, dotted)
     multiplier, scaled_keys = _budget(cfg.get("budget") or {})
+    _require_stage_setting_names(cfg, stage_types, scaled_keys)
     eval_config = {"seed": seed, "train": _section(cfg, "train"), "eval": _section(cfg, "eval")}
     for what, path in (
         ("paths.outputs", paths["outputs"]),
@@ -238,6 +239,32 @@ def _require_known_keys(section: Mapping[str, Any], name: str, known: Collection
     unknown = sorted(set(section) - set(known))
     if unknown:
         raise InputError(f"{name}: unknown setting(s) {unknown}; expected {sorted(known)}")
+
+
+def _require_stage_setting_names(
+    cfg: Mapping[str, Any], stage_types: Collection[str], scaled_keys: Collection[str]
+) -> None:
+    """Each of `budget.scaled_keys` names a setting of some stage section, at any depth: a
+    misspelt name (`stpes`) would leave the step counts it meant unscaled without a word."""
+    names: set[str] = set()
+    for stage in stage_types:
+        if isinstance(cfg.get(stage), Mapping):
+            names |= _setting_names(cfg[stage])
+    unknown = sorted(set(scaled_keys) - names)
+    if unknown:
+        raise InputError(
+            f"budget.scaled_keys: {unknown} name no setting of any stage section "
+            "(expected step-count settings such as 'steps' or 'densify_every')"
+        )
+
+
+def _setting_names(section: Mapping[str, Any]) -> set[str]:
+    """Every key of `section` and of the mappings nested in it."""
+    names = set(section)
+    for value in section.values():
+        if isinstance(value, Mapping):
+            names |= _setting_names(value)
+    return names
 
 
 def _require_label(cfg: Mapping[str, Any], dotted: str) -> None:
