@@ -82,6 +82,11 @@ def _main(args):
         (["scene.path=/data/my", "scene"], "'<EOF>'; a value with spaces needs shell quotes"),
         (["scene.test_cameras=[1,2]"], "did you mean scene.loader.test_cameras?"),
         (["+scene.downscale=2"], "(did you mean scene.loader.downscale?)"),
+        # Hydra's "Error merging override" and its advice to append a key inside a mapping
+        (["deform.multires={a:1}"], "deform.multires: expected a list, as in the config, got {"),
+        (["decouple.densify=[1]"], "decouple.densify: expected a section of settings, as in"),
+        (["scene.loader={zoom:2}"], "scene.loader.zoom: scene.loader has no setting 'zoom' (it"),
+        (["hydra.job={foo:x}"], "Could not override 'hydra.job'. To append to your config use"),
         (["train=nope"], "train: expected a config section (a mapping), got 'nope'"),
         (["relay.k=${nope}"], "cannot resolve the config: Interpolation key 'nope' not found"),
         (["scene.loader=abc"], "scene.loader must be a mapping of loader options"),

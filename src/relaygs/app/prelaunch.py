@@ -380,17 +380,52 @@ def _compose(overrides: Sequence[str], with_hydra: bool = False) -> DictConfig:
 
 def _composition_error(error: Exception, overrides: Sequence[str]) -> str:
     """The one line for a failed composition. Hydra answers an override of a key the config
-    lacks (`relay.kk=8`) with advice to append it (`+relay.kk=8`), which every section but
-    `hydra` then refuses: such a key gets `_unknown_setting`'s line instead, composed without it."""
-    found = re.match(r"Could not override '([^']+)'", str(error))
+    lacks (`relay.kk=8`, or `scene.loader={zoom:2}`) with advice to append it, which every
+    section but `hydra` then refuses, and a value of the wrong kind (`deform.multires={a:1}`)
+    with "Error merging override": such an override gets `_unknown_setting`'s or
+    `_kind_mismatch`'s line instead, from the config composed without it."""
+    found = re.match(r"Could not override '([^']+)'|Error merging override ([^=]+)=", str(error))
     if found is None:
         return one_line(error)
-    others = [o.input_line for o in _parse(overrides) if o.key_or_group != found[1]]
+    key = found[1] or found[2]
+    parsed = _parse(overrides)
+    given = next((o.value() for o in parsed if o.key_or_group == key), None)
+    others = [o.input_line for o in parsed if o.key_or_group != key]
     try:
         config = compose(CONFIG_NAME, overrides=others, return_hydra_config=True)
     except (HydraException, OmegaConfBaseException):
         return one_line(error)
-    return _unknown_setting(OmegaConf.to_container(config), found[1]) or one_line(error)
+    container = OmegaConf.to_container(config)
+    line = _unknown_setting(container, key) or _kind_mismatch(container, key, given)
+    return line or one_line(error)
+
+
+def _kind_mismatch(config: Mapping[str, Any], key: str, given: Any) -> str | None:
+    """What is wrong with giving the config's dotted `key` the value `given`: a kind other than
+    the config's (a mapping for a list), or, for a mapping, the first setting inside it that
+    the section lacks. None when neither (the error is Hydra's to tell)."""
+    current: Any = config
+    for part in key.split("."):
+        if not isinstance(current, Mapping) or part not in current:
+            return None  # a `hydra.*` key to append: `_unknown_setting` leaves those alone
+        current = current[part]
+    if isinstance(current, Mapping) and isinstance(given, Mapping):
+        for name, value in given.items():
+            inner = f"{key}.{name}"
+            line = _unknown_setting(config, inner) or _kind_mismatch(config, inner, value)
+            if line:
+                return line
+        return None
+    if _kind(current) != _kind(given):
+        return f"{key}: expected {_kind(current)}, as in the config, got {given!r}"
+    return None
+
+
+def _kind(value: Any) -> str:
+    """How a config value is shaped: a section, a list or a single value."""
+    if isinstance(value, Mapping):
+        return "a section of settings"
+    return "a list" if isinstance(value, list) else "a single value"
 
 
 def _unknown_setting(config: Mapping[str, Any], key: str) -> str | None:
