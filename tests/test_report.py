@@ -12,6 +12,7 @@ from relaygs.app import pareto
 from relaygs.app.pareto import pareto_front, point_labels
 from relaygs.app.summary import summary_table
 from relaygs.commands import report
+from relaygs.errors import InputError
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
@@ -433,6 +434,9 @@ def test_a_sweep_resumed_in_place_counts_what_its_jobs_built_before_the_interrup
     assert "| k16 | 23.00 | +0.00 | n/a | 0.8000 | 20.0 | 10.0 |" in text
     summary = pd.read_csv(tmp_path / "summary.csv")
     assert summary.train_s_computed.tolist() == [0.0, 0.0, 10.0]  # the CSV keeps the fields
+    _job(tmp_path, 3, "k64", 23.0, 20.0, train_s_built_by_job="x")
+    with pytest.raises(InputError, match="train_s_built_by_job: expected a finite number or"):
+        report.write_reports(tmp_path)
 
 
 def test_jobs_on_the_same_point_share_one_label():

@@ -238,6 +238,11 @@ def test_a_job_rerun_in_its_folder_still_counts_what_it_built_there(base_config,
     other = _run(base_config, tmp_path / "sweep" / "1_k8", fakes, job=1)
     assert (other["train_s_built_by_job"], other["eval_s_built_by_job"]) == (0, 0)
     assert fakes.ran("deform") == 1 and fakes.evaluations == 1
+    # another sweep's job 0 in the same folder built only what its own setting changed
+    k2 = _run(_with(base_config, relay__k=2), folder, fakes, overrides=["relay.k=2"], job=0)
+    built_now = (k2["train_s_computed"], k2["eval_s_computed"])
+    assert built_now == (k2["train_s_built_by_job"], k2["eval_s_built_by_job"])
+    assert k2["cache_hits"] == 1 and fakes.ran("deform") == 2
 
 
 def test_an_evaluated_model_is_not_evaluated_again(base_config, tmp_path, capsys):

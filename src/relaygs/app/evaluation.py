@@ -41,17 +41,17 @@ class Evaluation:
     cache_hit: bool
     wall_seconds: float
     replaced_corrupt: str | None = None  # what was wrong with a stored evaluation it redid
-    built_by: str | None = None  # the run folder that evaluated (manifest provenance `BUILT_BY`)
+    built_by: str | None = None  # the job that evaluated (manifest provenance `BUILT_BY`)
 
     @property
     def seconds_computed(self) -> float:
         """Seconds this job spent evaluating (0 when the metrics were read back)."""
         return 0.0 if self.cache_hit else self.wall_seconds
 
-    def seconds_built_by(self, run_dir: str) -> float:
-        """The evaluation's seconds when `run_dir`'s job made it, now or in an earlier,
-        interrupted run in the same folder; else 0."""
-        return self.wall_seconds if self.built_by == run_dir else 0.0
+    def seconds_built_by(self, builder: str) -> float:
+        """The evaluation's seconds when job `builder` (a `BUILT_BY` value) made it, now or in
+        an earlier, interrupted run of it; else 0."""
+        return self.wall_seconds if self.built_by == builder else 0.0
 
 
 def evaluate_through_store(

@@ -51,6 +51,8 @@ NUMERIC_FIELDS = (
     "train_s_computed",
     "eval_s_total",
     "eval_s_computed",
+    "train_s_built_by_job",
+    "eval_s_built_by_job",
     "storage_mb",
     "cache_hits",
     "budget.multiplier",

@@ -28,6 +28,7 @@ from relaygs.app.result import (
     build_failed_result,
     build_result,
     format_summary,
+    job_builder,
     recorded_parameters,
     write_result,
 )
@@ -147,7 +148,7 @@ def _execute(
 ) -> _Outcome:
     """Run the stages on the scene, evaluate and log."""
     store = ArtifactStore(plan.artifacts_root)
-    builder = {BUILT_BY: str(Path(run_dir).resolve())}
+    builder = {BUILT_BY: job_builder(Path(run_dir), job, config, plan, overrides)}
     _note_earlier_run(Path(run_dir), config, plan, overrides, job)
     log = TensorBoardLog(Path(run_dir) / TENSORBOARD_DIR)
     suite.add_sink(log)

@@ -69,7 +69,7 @@ class NodeReport:
     size_mb: float
     replaced_corrupt: str | None = None  # what was wrong with the stored artifact it rebuilt
     notes: tuple[str, ...] = ()  # what the artifact says a user should know (`Artifact.notes`)
-    built_by: str | None = None  # the run folder that built it (manifest provenance `BUILT_BY`)
+    built_by: str | None = None  # the job that built it (manifest provenance `BUILT_BY`)
 
 
 @dataclass(frozen=True)
@@ -95,10 +95,10 @@ class PipelineRun:
         """Build seconds of the nodes this run actually computed."""
         return sum(report.wall_seconds for report in self.reports if not report.cache_hit)
 
-    def train_seconds_built_by(self, run_dir: str) -> float:
-        """Build seconds of the nodes that `run_dir`'s job built, in this run or in an earlier,
-        interrupted run in the same folder (a sweep resumed in place)."""
-        return sum(report.wall_seconds for report in self.reports if report.built_by == run_dir)
+    def train_seconds_built_by(self, builder: str) -> float:
+        """Build seconds of the nodes that job `builder` (a `BUILT_BY` value) built, in this run
+        or in an earlier, interrupted run of it (a sweep resumed in place)."""
+        return sum(report.wall_seconds for report in self.reports if report.built_by == builder)
 
 
 def run_pipeline(

@@ -14,9 +14,10 @@ from relaygs.pipeline.integrity import CorruptArtifactError, file_sha256
 
 MANIFEST_FILE = "manifest.json"
 MANIFEST_FORMAT = 1
-BUILT_BY = "run_dir"
-"""The provenance entry naming the run folder whose job built the artifact, so a sweep resumed
-in place can count what its own jobs built before it was interrupted."""
+BUILT_BY = "built_by"
+"""The provenance entry naming the job that built the artifact (its run folder, then `#` and a
+digest of what the job ran), so a sweep resumed in place can count what its own jobs built
+before it was interrupted."""
 _FIELD_TYPES: dict[str, type | tuple[type, ...]] = {
     "key": str,
     "stage": str,
@@ -35,7 +36,7 @@ Manifest is made)."""
 
 
 def built_by(provenance: Mapping[str, Any]) -> str | None:
-    """The run folder a manifest's provenance names as the artifact's builder, if any."""
+    """The job a manifest's provenance names as the artifact's builder (`BUILT_BY`), if any."""
     folder = provenance.get(BUILT_BY)
     return folder if isinstance(folder, str) else None
 
