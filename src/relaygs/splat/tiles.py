@@ -1,4 +1,4 @@
-"""Bin screen-space Gaussians into square pixel tiles, depth-ordered, without sorting pairs.
+"""Bin screen-space Gaussians into square pixel tiles, depth-ordered: pairs sort on tile id alone.
 
 Gaussians are sorted by depth once per camera; each visible one is expanded into the
 tiles its pixel box touches; a stable sort on the (small) tile id keeps depth order
