@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 import torch
 
+from relaygs.app.suite import load_stage_suite
 from relaygs.errors import InputError
 from relaygs.model import BACKGROUND_DENSIFY, FOREGROUND_DENSIFY, DensityController, GaussianSet
 from relaygs.stages import BUDGETS, CONFIGS, SCHEMA_VERSIONS, STAGES, budgets, validate_config
@@ -24,20 +25,40 @@ def test_every_stage_has_function_config_and_schema() -> None:
     assert all(isinstance(version, int) and version >= 1 for version in SCHEMA_VERSIONS.values())
 
 
-@pytest.mark.parametrize("registry", ["CONFIGS", "SCHEMA_VERSIONS", "CONFIGS and SCHEMA_VERSIONS"])
-def test_a_stage_type_missing_from_a_registry_is_one_line(
+def _register_mine(monkeypatch: pytest.MonkeyPatch, left_out: list[str], version: object = 2):
+    """Register stage type 'mine' (warm-up's function and settings) in every registry but
+    `left_out`."""
+    from relaygs import stages
+
+    values = {"STAGES": STAGES["warmup"], "CONFIGS": CONFIGS["warmup"], "UPSTREAM": ()}
+    for name in stages.REGISTRIES:
+        if name not in left_out:
+            monkeypatch.setitem(getattr(stages, name), "mine", values.get(name, version))
+
+
+@pytest.mark.parametrize(
+    "registry", ["CONFIGS", "SCHEMA_VERSIONS", "CONFIGS and SCHEMA_VERSIONS", "UPSTREAM", "STAGES"]
+)
+def test_a_stage_type_missing_from_a_registry_is_one_line_before_any_config_is_read(
     monkeypatch: pytest.MonkeyPatch, registry: str
 ) -> None:
     # before: without SCHEMA_VERSIONS the stage was keyed as version 1 whatever its module
-    # said (a bump kept reusing stale artifacts); without CONFIGS, "unknown stage type"
-    from relaygs import stages
-
-    for name in ("STAGES", "CONFIGS", "SCHEMA_VERSIONS"):
-        if name not in registry.split(" and "):
-            value = {"STAGES": STAGES["warmup"], "CONFIGS": CONFIGS["warmup"]}.get(name, 2)
-            monkeypatch.setitem(getattr(stages, name), "mine", value)
-    with pytest.raises(InputError, match=f"stage type 'mine' is not registered in {registry} of"):
+    # said (a bump kept reusing stale artifacts); without CONFIGS, "unknown stage type";
+    # without UPSTREAM, its pipelines' upstream went unchecked until the stage ran; without
+    # STAGES, its config section was refused as an unknown top-level setting
+    _register_mine(monkeypatch, registry.split(" and "))
+    line = f"stage type 'mine' is not registered in {registry} of"
+    with pytest.raises(InputError, match=line):
+        load_stage_suite()
+    with pytest.raises(InputError, match=line):
         validate_config("mine", {"mine": {}})
+
+
+@pytest.mark.parametrize("version", ["1", 0, True])
+def test_a_schema_version_that_is_no_integer_from_1_is_refused(monkeypatch, version) -> None:
+    _register_mine(monkeypatch, [], version)
+    with pytest.raises(InputError, match="'mine': its SCHEMA_VERSION must be an integer >= 1"):
+        load_stage_suite()
 
 
 def test_a_budget_section_missing_from_sections_is_one_line(

@@ -40,11 +40,12 @@ class StageSuite:
 
 
 def load_stage_suite() -> StageSuite:
-    """The real stages from `relaygs.stages`."""
+    """The real stages from `relaygs.stages`, once their registries are checked complete."""
     from relaygs import stages
     from relaygs.stages import log
     from relaygs.stages.common import logged_scalars
 
+    stages.require_complete_registries()
     return StageSuite(
         stages=stages.STAGES,
         schema_versions=stages.SCHEMA_VERSIONS,

@@ -91,11 +91,20 @@ def validate_config(stage: str, cfg: Mapping[str, Any]) -> None:
     EvalSettings.from_config(cfg.get("eval"))
 
 
+REGISTRIES: dict[str, Mapping[str, Any]] = {
+    "STAGES": STAGES,
+    "CONFIGS": CONFIGS,
+    "SCHEMA_VERSIONS": SCHEMA_VERSIONS,
+    "UPSTREAM": UPSTREAM,
+}
+"""The registries every stage type must be in (CANONICAL is optional)."""
+
+
 def require_registered(stage: str) -> None:
-    """Raise InputError unless stage type `stage` is in all three registries of this module: one
-    missing from SCHEMA_VERSIONS would be keyed as version 1 and reuse stale artifacts."""
-    registries = {"STAGES": STAGES, "CONFIGS": CONFIGS, "SCHEMA_VERSIONS": SCHEMA_VERSIONS}
-    missing = [name for name, registry in registries.items() if stage not in registry]
+    """Raise InputError unless stage type `stage` is in every one of REGISTRIES: one missing
+    from SCHEMA_VERSIONS would be keyed as version 1 and reuse stale artifacts, one missing
+    from UPSTREAM would have its pipelines' upstream unchecked until the stage ran."""
+    missing = [name for name, registry in REGISTRIES.items() if stage not in registry]
     if missing:
         raise InputError(
             f"stage type {stage!r} is not registered in {' and '.join(missing)} of "
@@ -103,10 +112,25 @@ def require_registered(stage: str) -> None:
         )
 
 
+def require_complete_registries() -> None:
+    """Raise InputError unless every stage type of any registry is in all of them with a
+    schema version that is an integer >= 1: checked when a run loads the stages, before any
+    config or pipeline is read."""
+    for stage in sorted(set().union(*REGISTRIES.values())):
+        require_registered(stage)
+        version = SCHEMA_VERSIONS[stage]
+        if isinstance(version, bool) or not isinstance(version, int) or version < 1:
+            raise InputError(
+                f"stage type {stage!r}: its SCHEMA_VERSION must be an integer >= 1, got "
+                f"{version!r} (src/relaygs/stages/__init__.py, SCHEMA_VERSIONS)"
+            )
+
+
 __all__ = [
     "BUDGETS",
     "CANONICAL",
     "CONFIGS",
+    "REGISTRIES",
     "SCHEMA_VERSIONS",
     "STAGES",
     "UPSTREAM",
@@ -118,6 +142,7 @@ __all__ = [
     "canonical_config",
     "evaluate",
     "render_model",
+    "require_complete_registries",
     "require_registered",
     "validate_config",
 ]
