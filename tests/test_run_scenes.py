@@ -107,6 +107,23 @@ def test_preset_test_cameras_beyond_its_rig_are_refused_before_generation(monkey
         scene_spec(TINY)
 
 
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        # before: refused only by the cache key, as "scene.definition.default_effects is a set"
+        ({"default_effects": set()}, r"PRESETS\['juggle'\]\.default_effects .* got a set"),
+        # before: taken, its scene.json labelled with the other name
+        ({"name": "court"}, r"PRESETS\['juggle'\]\.name .* is 'court'; expected 'juggle'"),
+        # before: generated, then refused by the loader as a test_meta.json without frames
+        ({"test_cameras": ()}, r"PRESETS\['juggle'\]\.test_cameras .* at least one"),
+    ],
+)
+def test_a_broken_preset_is_refused_before_generation(monkeypatch, edit, message):
+    monkeypatch.setitem(PRESETS, "juggle", dataclasses.replace(PRESETS["juggle"], **edit))
+    with pytest.raises(InputError, match=message):
+        scene_spec(TINY)
+
+
 @pytest.mark.parametrize("none", ["none", ["none"]])
 def test_effects_none_is_no_effects_as_in_synth(tmp_path, none):
     spec = scene_spec({**TINY, "effects": none})

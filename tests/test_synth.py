@@ -313,6 +313,10 @@ def test_bad_generator_input_is_rejected(tmp_path: Path, preset: str, kwargs: di
     assert not (tmp_path / "out").exists()
 
 
+def none_builder(times, effects, seed):
+    """A preset builder that forgets to return its primitives."""
+
+
 @pytest.mark.parametrize(
     ("changes", "message"),
     [
@@ -327,12 +331,22 @@ def test_bad_generator_input_is_rejected(tmp_path: Path, preset: str, kwargs: di
         ({"test_cameras": tuple(range(31))}, "leaving some to train on"),
         # before: written without a word, scene.json declaring an effect the world lacks
         ({"default_effects": frozenset({DYNAMIC_PANELS})}, r"PRESETS\['mine'\].default_effects"),
+        # before: each written without a word, then refused or mislabelled by `run`
+        ({"test_cameras": ()}, r"\[\] must be distinct indices into its rig .* at least one"),
+        ({"name": "static"}, r"PRESETS\['mine'\]\.name \(.*\) is 'static'; expected 'mine'"),
+        (
+            {"supported_effects": frozenset({"large_motoin"})},
+            r"PRESETS\['mine'\]\.supported_effects \(.*\): unknown effect\(s\) \['large_motoin'\]",
+        ),
+        ({"default_effects": set()}, r"default_effects \(.*\): expected a frozenset .* got a set"),
+        # before: a TypeError traceback
+        ({"build": none_builder}, r"PRESETS\['mine'\]\.build \(.*\) returned NoneType; expected"),
     ],
 )
 def test_a_new_preset_that_does_not_fit_its_rig_or_effects_is_one_line(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, changes: dict, message: str
 ):
-    preset = dataclasses.replace(PRESETS["static"], name="mine", **changes)
+    preset = dataclasses.replace(PRESETS["static"], **{"name": "mine", **changes})
     monkeypatch.setitem(PRESETS, "mine", preset)
     with pytest.raises(InputError, match=message) as caught:
         generate("mine", tmp_path / "out", frames=1, width=8, height=6)

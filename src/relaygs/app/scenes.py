@@ -22,6 +22,7 @@ from relaygs.data.synthetic import (
     PRESETS,
     declared_effects,
     generate,
+    require_valid_preset,
     rig_cameras,
 )
 from relaygs.errors import InputError
@@ -111,6 +112,7 @@ def scene_spec(section: Mapping[str, Any]) -> SceneSpec:
             f"scene.preset: unknown synthetic preset {preset!r} (available: "
             f"{', '.join(sorted(PRESETS))}); or set scene.path=DIR for a capture"
         )
+    require_valid_preset(preset, PRESETS[preset])
     declared_effects(PRESETS[preset], effects, source="scene.effects")
     rig = rig_cameras(PRESETS[preset], counts["width"], counts["height"])
     _check_held_out(preset, options.test_cameras, len(rig))

@@ -7,6 +7,7 @@ from relaygs.data.synthetic.generate import (
     MAX_SYNTH_COUNT,
     declared_effects,
     generate,
+    require_valid_preset,
     rig_cameras,
 )
 from relaygs.data.synthetic.presets import PRESETS
@@ -18,5 +19,6 @@ __all__ = [
     "PRESETS",
     "declared_effects",
     "generate",
+    "require_valid_preset",
     "rig_cameras",
 ]

@@ -12,7 +12,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from relaygs.data.effects import COLOR_INCONSISTENCY, SENSOR_NOISE, parse_effects
+from relaygs.data.effects import ALL_EFFECTS, COLOR_INCONSISTENCY, SENSOR_NOISE, parse_effects
 from relaygs.data.metafiles import SCENE_JSON
 from relaygs.data.options import require_int
 from relaygs.data.panoptic import POINTS_FILE, TEST_META, TRAIN_META
@@ -30,11 +30,12 @@ from relaygs.data.synthetic.sensor import (
     noise_generator,
     sensor_image,
 )
-from relaygs.data.synthetic.world import RigCamera, World
+from relaygs.data.synthetic.world import Primitive, RigCamera, World
 from relaygs.errors import InputError
 from relaygs.paths import require_creatable_folder
 from relaygs.progress import progress_bar
 
+PRESETS_FILE = "relaygs/data/synthetic/presets.py"
 GENERATOR = "relaygs.synth"
 GENERATOR_VERSION = "1"
 GENERATED_ENTRIES = frozenset({"ims", "seg", TRAIN_META, TEST_META, POINTS_FILE, SCENE_JSON})
@@ -72,6 +73,7 @@ def generate(
     recipe = PRESETS.get(preset)
     if recipe is None:
         raise InputError(f"unknown preset {preset!r}; expected one of: {', '.join(PRESETS)}")
+    require_valid_preset(preset, recipe)
     # an image under MIN_IMAGE_SIDE pixels a side is one no loader takes: refused before work
     minimums = {"frames": 1, "width": MIN_IMAGE_SIDE, "height": MIN_IMAGE_SIDE}
     for name, value in (("frames", frames), ("width", width), ("height", height)):
@@ -82,7 +84,7 @@ def generate(
     world = World(
         cameras=rig_cameras(recipe, width, height),
         test_cameras=recipe.test_cameras,
-        primitives=recipe.build(times, declared, seed),
+        primitives=_primitives(recipe, times, declared, seed),
         times_s=times,
         width=width,
         height=height,
@@ -105,19 +107,56 @@ def generate(
     return out
 
 
+def require_valid_preset(key: str, recipe: Preset) -> None:
+    """What a preset must be before a scene is made of it (`rig_cameras` checks its test
+    cameras, `declared_effects` its defaults against what it supports): named by its PRESETS
+    key, which scene.json and the cache folder carry, with frozensets of known effects."""
+    where = f"PRESETS[{key!r}]"
+    if recipe.name != key:
+        raise InputError(
+            f"{where}.name ({PRESETS_FILE}) is {recipe.name!r}; expected {key!r}, its PRESETS key"
+        )
+    for field in ("default_effects", "supported_effects"):
+        effects = getattr(recipe, field)
+        if not isinstance(effects, frozenset):
+            raise InputError(
+                f"{where}.{field} ({PRESETS_FILE}): expected a frozenset of effect names, "
+                f"got a {type(effects).__name__}"
+            )
+        unknown = sorted(map(str, effects - ALL_EFFECTS))
+        if unknown:
+            raise InputError(
+                f"{where}.{field} ({PRESETS_FILE}): unknown effect(s) {unknown}; expected "
+                f"some of: {', '.join(sorted(ALL_EFFECTS))}"
+            )
+
+
 def rig_cameras(recipe: Preset, width: int, height: int) -> list[RigCamera]:
     """The preset's rig, whose cameras must include each of its test cameras (indices into the
-    rig) and leave at least one to train on."""
+    rig, at least one) and leave at least one to train on."""
     cameras = recipe.rig(width, height)
     count, test = len(cameras), recipe.test_cameras
-    fits = len(set(test)) == len(test) < count
+    fits = 0 < len(set(test)) == len(test) < count
     if not fits or any(not 0 <= index < count for index in test):
         raise InputError(
-            f"PRESETS[{recipe.name!r}].test_cameras (relaygs/data/synthetic/presets.py) "
-            f"{list(test)} must be distinct indices into its rig of {count} cameras "
-            f"(0..{count - 1}), leaving some to train on"
+            f"PRESETS[{recipe.name!r}].test_cameras ({PRESETS_FILE}) {list(test)} must be "
+            f"distinct indices into its rig of {count} cameras (0..{count - 1}), at least "
+            "one, leaving some to train on"
         )
     return cameras
+
+
+def _primitives(
+    recipe: Preset, times: np.ndarray, effects: frozenset[str], seed: int
+) -> list[Primitive]:
+    """The preset's world at `times`: its builder's list of primitives."""
+    primitives = recipe.build(times, effects, seed)
+    if not isinstance(primitives, list) or not all(isinstance(p, Primitive) for p in primitives):
+        raise InputError(
+            f"PRESETS[{recipe.name!r}].build ({PRESETS_FILE}) returned "
+            f"{type(primitives).__name__}; expected a list of Primitive"
+        )
+    return primitives
 
 
 def declared_effects(
@@ -126,7 +165,7 @@ def declared_effects(
     """The effects a scene of `recipe` simulates: its defaults when `effects` is None, else
     `effects` (named by `source` in errors), each of which the preset must support."""
     if effects is None:
-        source = f"PRESETS[{recipe.name!r}].default_effects (relaygs/data/synthetic/presets.py)"
+        source = f"PRESETS[{recipe.name!r}].default_effects ({PRESETS_FILE})"
         _require_supported(recipe, recipe.default_effects, source)
         return recipe.default_effects
     declared = parse_effects(effects, source=source)
