@@ -263,6 +263,42 @@ def test_an_experiment_setting_a_group_to_a_value_is_told_to_override_it(tmp_pat
     assert seen == [value]  # the form the message gives chooses the group's file
 
 
+@pytest.mark.parametrize("args", [["scene.frames=8"], ["-m", "scene.width=48,64"]])
+def test_a_group_set_to_a_value_is_named_also_when_the_command_sets_keys_inside_it(tmp_path, args):
+    # before: "scene.frames: scene is a value, not a section", naming no experiment file
+    conf = shutil.copytree(config_dir(), tmp_path / "conf")
+    (conf / "experiment" / "plain.yaml").write_text("# @package _global_\nscene: court\n")
+    with pytest.raises(InputError, match=r"scene: expected a config section .* \(the experi"):
+        prelaunch.check_command_line(["+experiment=plain", *args], conf, lambda cfg, here: None)
+
+
+@pytest.mark.parametrize(
+    ("entry", "fix"),
+    [
+        ("pipeline: 4dgs", "override /pipeline: 4dgs"),  # read as conf/experiment/pipeline/
+        ("/pipeline: 4dgs", "override /pipeline: 4dgs"),  # a second choice of the group
+        ("override pipeline: 4dgs", "override /pipeline: NAME"),  # no such group in experiment/
+        ("scene: court", "override /scene: court"),
+    ],
+)
+def test_an_experiment_choosing_a_group_without_override_slash_is_told_the_entry(
+    tmp_path, entry, fix
+):
+    # before: Hydra's "Could not find 'experiment/pipeline/4dgs' Config search path: ...",
+    # "Multiple values for pipeline" or "Could not override 'experiment/pipeline@pipeline'"
+    conf = shutil.copytree(config_dir(), tmp_path / "conf")
+    experiment = conf / "experiment" / "plain.yaml"
+    experiment.write_text(f"# @package _global_\ndefaults:\n  - {entry}\n")
+    with pytest.raises(InputError) as caught:
+        prelaunch.check_command_line(["+experiment=plain"], conf, lambda cfg, here: None)
+    group = fix.split("/")[1].split(":")[0]
+    assert str(caught.value) == (
+        f"conf/experiment/plain.yaml: its defaults list chooses the {group} group without "
+        f"`override /`: write `- {fix}` (a group of the main config is chosen with both the "
+        "slash and `override`)"
+    )
+
+
 @pytest.mark.parametrize(
     "path", ["~scene.path", "~scene.path=/data/cap", "scene.path=null", "scene.path=NULL"]
 )

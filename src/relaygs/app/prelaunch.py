@@ -139,7 +139,7 @@ def _check_launching_command(
     groups = [group for group in primary_groups(conf_dir) if "/" not in group]
     with initialize_config_dir(config_dir=str(conf_dir), version_base="1.3", job_name="run"):
         plain = [o.input_line for o in overrides if not o.is_sweep_override()]
-        hydra_cfg = _compose(plain, with_hydra=True).hydra
+        hydra_cfg = _compose_explained(plain, groups, with_hydra=True).hydra
         # --run does not override a config's `hydra.mode: MULTIRUN`; --multirun does
         multirun = multirun_flag or hydra_cfg.mode == RunMode.MULTIRUN
         launcher = hydra_cfg.launcher.get("_target_")
@@ -151,7 +151,7 @@ def _check_launching_command(
         for job in jobs:
             try:
                 check_capture_overrides(job)
-                config = _compose(job)
+                config = _compose_explained(job, groups)
                 check_group_sections(config, groups, hydra_cfg.runtime.choices.get("experiment"))
                 validate(config, runs_here)
             except InputError as error:
@@ -246,6 +246,31 @@ def check_group_sections(
                 f" (the experiment chosen: conf/experiment/{experiment}.yaml)" if experiment else ""
             )
             raise InputError(group_value_error(group, values.get(group)) + chosen)
+
+
+def _compose_explained(
+    args: Sequence[str], groups: Sequence[str], with_hydra: bool = False
+) -> DictConfig:
+    """`_compose`, whose failure is first checked for its cause in the group choices alone
+    (`_check_choices_alone`)."""
+    try:
+        return _compose(args, with_hydra)
+    except InputError:
+        _check_choices_alone(args, groups)
+        raise
+
+
+def _check_choices_alone(args: Sequence[str], groups: Sequence[str]) -> None:
+    """`check_group_sections` on the config of the group choices among `args` alone: an
+    experiment that sets a group to a value (`scene: court`) makes each override inside that
+    group (`scene.frames=8`) fail to compose, which the group's own line explains."""
+    choices = [o.input_line for o in _parse(args) if o.is_add() or o.key_or_group in groups]
+    try:
+        config = _compose(choices, with_hydra=True)
+    except InputError:
+        return  # the choices fail alone too: the composition's own line says why
+    experiment = config.hydra.runtime.choices.get("experiment")
+    check_group_sections(config, groups, experiment)
 
 
 def check_output_folder(hydra_cfg: DictConfig, multirun: bool) -> None:
@@ -378,12 +403,42 @@ def _compose(overrides: Sequence[str], with_hydra: bool = False) -> DictConfig:
         raise InputError(_composition_error(error, overrides)) from error
 
 
+EXPERIMENT_GROUP_ERRORS = (
+    r"Could not find 'experiment/(?P<group>[\w/]+)/(?P<choice>[^']+)'",
+    r"Multiple values for (?P<group>[\w/]+)\. To override a value use 'override "
+    r"(?P=group): (?P<choice>[^']+)'",
+    r"Could not override 'experiment/(?P<group>[\w/]+)@(?P=group)'",
+)
+"""Hydra's errors for a group chosen in an experiment's defaults list without both the `/`
+(`pipeline: 4dgs`, read as a group inside conf/experiment/) and `override` (`/pipeline:
+4dgs`, a second choice of it; `override pipeline: 4dgs`, no such group there)."""
+
+
+def _experiment_defaults_error(error: Exception, overrides: Sequence[str]) -> str | None:
+    """The line for a group chosen in an experiment's defaults list without `override /`
+    (EXPERIMENT_GROUP_ERRORS), naming the file and the entry that chooses the group; None
+    for any other error."""
+    experiment = next((o for o in _parse(overrides) if o.key_or_group == "experiment"), None)
+    found = next(filter(None, (re.search(p, str(error)) for p in EXPERIMENT_GROUP_ERRORS)), None)
+    if experiment is None or found is None:
+        return None
+    group, choice = found["group"], found.groupdict().get("choice") or "NAME"
+    return (
+        f"conf/experiment/{experiment.value()}.yaml: its defaults list chooses the {group} "
+        f"group without `override /`: write `- override /{group}: {choice}` (a group of the "
+        "main config is chosen with both the slash and `override`)"
+    )
+
+
 def _composition_error(error: Exception, overrides: Sequence[str]) -> str:
     """The one line for a failed composition. Hydra answers an override of a key the config
     lacks (`relay.kk=8`, or `scene.loader={zoom:2}`) with advice to append it, which every
     section but `hydra` then refuses, and a value of the wrong kind (`deform.multires={a:1}`)
     with "Error merging override": such an override gets `_unknown_setting`'s or
     `_kind_mismatch`'s line instead, from the config composed without it."""
+    experiment_line = _experiment_defaults_error(error, overrides)
+    if experiment_line is not None:
+        return experiment_line
     found = re.match(r"Could not override '([^']+)'|Error merging override ([^=]+)=", str(error))
     if found is None:
         return one_line(error)
