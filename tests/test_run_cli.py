@@ -272,6 +272,21 @@ def test_a_group_set_to_a_value_is_named_also_when_the_command_sets_keys_inside_
         prelaunch.check_command_line(["+experiment=plain", *args], conf, lambda cfg, here: None)
 
 
+def test_an_unknown_choice_an_experiment_sweeps_is_named_with_the_available_ones(tmp_path):
+    # before: Hydra's "Could not find 'pipeline/nope' ... Config search path: ..."
+    conf = shutil.copytree(config_dir(), tmp_path / "conf")
+    (conf / "experiment" / "plain.yaml").write_text(
+        "# @package _global_\nhydra:\n  mode: MULTIRUN\n  sweeper:\n    params:\n"
+        "      pipeline: relaygs,nope\n"
+    )
+    with pytest.raises(InputError) as caught:
+        prelaunch.check_command_line(["+experiment=plain"], conf, lambda cfg, here: None)
+    assert str(caught.value) == (
+        "job pipeline=nope: unknown pipeline 'nope' (available: 4dgs, no_copies, no_stage2, "
+        "relaygs)"
+    )
+
+
 @pytest.mark.parametrize(
     ("entry", "fix"),
     [

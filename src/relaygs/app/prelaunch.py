@@ -151,6 +151,7 @@ def _check_launching_command(
         for job in jobs:
             try:
                 check_capture_overrides(job)
+                check_group_choices(_parse(job), conf_dir)  # a choice swept by an experiment
                 config = _compose_explained(job, groups)
                 check_group_sections(config, groups, hydra_cfg.runtime.choices.get("experiment"))
                 validate(config, runs_here)
