@@ -8,6 +8,8 @@ import pytest
 from omegaconf import OmegaConf
 
 from fake_stages import STAGE_TYPES, compose_config, validate_config
+from relaygs import stages
+from relaygs.app import plan as plan_module
 from relaygs.app.plan import merge_overrides, plan_run, scale_steps
 from relaygs.errors import InputError
 from relaygs.paths import pipelines_dir
@@ -73,6 +75,33 @@ def test_pipeline_overrides_pin_the_4dgs_deform_settings(config):
     deform = plan.config_for(plan.pipeline.nodes["deform"])["deform"]
     assert (deform["gamma"], deform["isolate_fg_bg"]) == (False, False)
     assert config["deform"]["gamma"] is True  # the input is not modified
+
+
+@pytest.mark.parametrize(
+    ("overrides", "message", "named"),
+    [
+        ("{gamma: maybe}", "deform.gamma: expected bool, got 'maybe'", True),
+        # the same key set badly on the command line, not by the pipeline: not named
+        ("{isolate_fg_bg: false}", "deform.gamma: expected bool", False),
+    ],
+)
+def test_a_bad_value_a_pipeline_node_pins_names_its_file(
+    config, tmp_path, monkeypatch, overrides, message, named
+):
+    # before: "deform.gamma: expected bool, got 'maybe'", which no command line can change
+    path = tmp_path / "mine.yaml"
+    path.write_text(
+        "nodes:\n  warmup: {stage: warmup}\n"
+        f"  deform: {{stage: deform, upstream: [warmup], overrides: {overrides}}}\n"
+    )
+    real = plan_module.load_pipeline
+    monkeypatch.setattr(plan_module, "load_pipeline", lambda name, *rest: real(path, *rest))
+    config = copy.deepcopy(config)
+    config["deform"]["gamma"] = True if named else "maybe"
+    with pytest.raises(InputError) as caught:
+        plan_run(config, stages.STAGES, stages.validate_config)
+    assert str(caught.value).startswith(message)
+    assert str(caught.value).endswith(f" (set by {path}: node 'deform' overrides)") == named
 
 
 def test_budget_multiplier_scales_steps_of_every_node(config):

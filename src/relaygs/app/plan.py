@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import copy
 import math
+import re
 from collections.abc import Callable, Collection, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -130,7 +131,10 @@ def plan_run(
             node.stage: scaled,
         }
         evaluated = node is pipeline.output_node
-        validate(node.stage, {**node_configs[node.name], **(eval_config if evaluated else {})})
+        try:
+            validate(node.stage, {**node_configs[node.name], **(eval_config if evaluated else {})})
+        except InputError as error:
+            raise InputError(f"{error}{_pinned_by(node, str(error), where)}") from error
     return RunPlan(
         pipeline=pipeline,
         stage_types=frozenset(stage_types),
@@ -160,6 +164,27 @@ def merge_overrides(
         else:
             merged[key] = copy.deepcopy(value)
     return merged
+
+
+def _pinned_by(node: Node, message: str, where: str) -> str:
+    """` (set by <where>)` when `message` is about a setting that the pipeline node pins in its
+    `overrides` (e.g. `deform.gamma: ...`), whose value the command line cannot change; else
+    empty."""
+    pinned = [f"{node.stage}.{key}" for key in _dotted_keys(node.overrides)]
+    if any(re.match(rf"{re.escape(key)}\b", message) for key in pinned):
+        return f" (set by {where})"
+    return ""
+
+
+def _dotted_keys(section: Mapping[str, Any]) -> list[str]:
+    """The dotted paths of every leaf of a nested mapping."""
+    keys = []
+    for key, value in section.items():
+        if isinstance(value, Mapping) and value:
+            keys += [f"{key}.{inner}" for inner in _dotted_keys(value)]
+        else:
+            keys.append(str(key))
+    return keys
 
 
 def scale_steps(
