@@ -108,7 +108,7 @@ def _resolve(name_or_path: str | Path) -> Path:
     path = pipelines_dir() / f"{text}.yaml"
     if not path.is_file():
         available = ", ".join(available_pipelines())
-        raise InputError(f"unknown pipeline {text!r} (available: {available})")
+        raise InputError(f"unknown pipeline {text!r}: no {path} (available: {available})")
     return path
 
 
