@@ -153,7 +153,8 @@ def test_a_preset_edited_to_test_cameras_beyond_its_rig_is_one_line_before_any_w
     lines = capsys.readouterr().err.strip().splitlines()
     assert lines == [
         "error: PRESETS['juggle'].test_cameras (relaygs/data/synthetic/presets.py) [0, 99] must "
-        "be distinct indices into its rig of 31 cameras (0..30), leaving some to train on"
+        "be distinct indices into its rig of 31 cameras (0..30), at least one, leaving some to "
+        "train on"
     ]
     assert fakes.calls == [] and list(tmp_path.iterdir()) == []
 
