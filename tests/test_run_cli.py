@@ -87,6 +87,11 @@ def _main(args):
         (["decouple.densify=[1]"], "decouple.densify: expected a section of settings, as in"),
         (["scene.loader={zoom:2}"], "scene.loader.zoom: scene.loader has no setting 'zoom' (it"),
         (["hydra.job={foo:x}"], "Could not override 'hydra.job'. To append to your config use"),
+        (["+deform.multires={a:1}"], "deform.multires: expected a list, as in the config, got"),
+        # before: Hydra's "Multiple values for pipeline. To override a value use 'override ..."
+        (["+pipeline=4dgs"], "pipeline is chosen by default: write pipeline=4dgs (without the +)"),
+        (["+experiment=smoke", "+pipeline=4dgs"], "pipeline is chosen by default: write pipel"),
+        (["+hydra/launcher=joblib"], "hydra/launcher is chosen by default: write hydra/launcher="),
         (["train=nope"], "train: expected a config section (a mapping), got 'nope'"),
         (["relay.k=${nope}"], "cannot resolve the config: Interpolation key 'nope' not found"),
         (["scene.loader=abc"], "scene.loader must be a mapping of loader options"),
@@ -264,7 +269,9 @@ def test_an_experiment_setting_a_group_to_a_value_is_told_to_override_it(tmp_pat
     assert seen == [value]  # the form the message gives chooses the group's file
 
 
-@pytest.mark.parametrize("args", [["scene.frames=8"], ["-m", "scene.width=48,64"]])
+@pytest.mark.parametrize(
+    "args", [["scene.frames=8"], ["-m", "scene.width=48,64"], ["--cfg", "job", "scene.frames=8"]]
+)
 def test_a_group_set_to_a_value_is_named_also_when_the_command_sets_keys_inside_it(tmp_path, args):
     # before: "scene.frames: scene is a value, not a section", naming no experiment file
     conf = shutil.copytree(config_dir(), tmp_path / "conf")
@@ -308,11 +315,10 @@ def test_a_pipeline_without_its_conf_file_says_which_file_is_missing(tmp_path, m
         ("/pipeline: 4dgs", "override /pipeline: 4dgs"),  # a second choice of the group
         ("override pipeline: 4dgs", "override /pipeline: NAME"),  # no such group in experiment/
         ("scene: court", "override /scene: court"),
+        ("component: no_gamma", "/component: no_gamma"),  # a group the main config lacks
     ],
 )
-def test_an_experiment_choosing_a_group_without_override_slash_is_told_the_entry(
-    tmp_path, entry, fix
-):
+def test_an_experiment_choosing_a_group_the_wrong_way_is_told_the_entry(tmp_path, entry, fix):
     # before: Hydra's "Could not find 'experiment/pipeline/4dgs' Config search path: ...",
     # "Multiple values for pipeline" or "Could not override 'experiment/pipeline@pipeline'"
     conf = shutil.copytree(config_dir(), tmp_path / "conf")
@@ -321,10 +327,29 @@ def test_an_experiment_choosing_a_group_without_override_slash_is_told_the_entry
     with pytest.raises(InputError) as caught:
         prelaunch.check_command_line(["+experiment=plain"], conf, lambda cfg, here: None)
     group = fix.split("/")[1].split(":")[0]
+    override = ", and one the main config chooses needs `override`" if "override" in fix else ""
     assert str(caught.value) == (
-        f"conf/experiment/plain.yaml: its defaults list chooses the {group} group without "
-        f"`override /`: write `- {fix}` (a group of the main config is chosen with both the "
-        "slash and `override`)"
+        f"conf/experiment/plain.yaml: its defaults list must choose the {group} group as "
+        f"`- {fix}` (a group of conf/ is named with a leading slash{override})"
+    )
+    experiment.write_text(f"# @package _global_\ndefaults:\n  - {fix.replace('NAME', '4dgs')}\n")
+    prelaunch.check_command_line(["+experiment=plain"], conf, lambda cfg, here: None)  # the fix
+
+
+@pytest.mark.parametrize("entry", ["override /scene: courtt", "pipeline: 4dgz"])
+def test_an_experiment_choosing_an_unknown_file_of_a_group_names_the_available_ones(
+    tmp_path, entry
+):
+    # before: Hydra's "Could not find 'scene/courtt' ... Config search path: ..."; a typo
+    # with the slash missing was told to add it, then failed again
+    conf = shutil.copytree(config_dir(), tmp_path / "conf")
+    (conf / "experiment" / "plain.yaml").write_text(f"# @package _global_\ndefaults: [{entry}]\n")
+    with pytest.raises(InputError) as caught:
+        prelaunch.check_command_line(["+experiment=plain"], conf, lambda cfg, here: None)
+    group, choice = entry.split("/")[-1].split(": ")
+    assert str(caught.value).startswith(
+        f"conf/experiment/plain.yaml: its defaults list chooses an unknown {group} {choice!r} "
+        "(available: "
     )
 
 

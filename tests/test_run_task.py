@@ -235,6 +235,11 @@ def test_a_job_rerun_in_its_folder_still_counts_what_it_built_there(base_config,
     assert (again["train_s_computed"], again["eval_s_computed"], again["cache_hits"]) == (0, 0, 3)
     assert again["train_s_built_by_job"] == pytest.approx(first["train_s_computed"])
     assert again["eval_s_built_by_job"] == pytest.approx(first["eval_s_computed"])
+    # resumed with settings that build nothing differently: still the same job
+    quiet = _with(base_config, train__progress=False, train__checkpoint_every=7)
+    assert _run(quiet, folder, fakes, job=0)["train_s_built_by_job"] == pytest.approx(
+        first["train_s_computed"]
+    )
     other = _run(base_config, tmp_path / "sweep" / "1_k8", fakes, job=1)
     assert (other["train_s_built_by_job"], other["eval_s_built_by_job"]) == (0, 0)
     assert fakes.ran("deform") == 1 and fakes.evaluations == 1

@@ -64,6 +64,8 @@ REMOTE_LAUNCHERS = {
 the commands they submit through, which must be on this machine's PATH."""
 GROUP_HINTS = {"scene": "; or set scene.path=DIR for a capture"}
 CONFIG_NAME = "config"
+HYDRA_CHOSEN_GROUPS = frozenset({"hydra/launcher", "hydra/sweeper"})
+"""Groups of Hydra's own that its defaults always choose (a `+` would choose them twice)."""
 UNQUOTED_ASCII_REFUSED = "~!#&;<>^`"
 """ASCII characters Hydra's override grammar reads in a value only inside its quotes (not the
 brackets, which are its own syntax: lists, dicts, sweep functions such as `choice(1,2)`)."""
@@ -139,7 +141,7 @@ def _check_launching_command(
     groups = [group for group in primary_groups(conf_dir) if "/" not in group]
     with initialize_config_dir(config_dir=str(conf_dir), version_base="1.3", job_name="run"):
         plain = [o.input_line for o in overrides if not o.is_sweep_override()]
-        hydra_cfg = _compose_explained(plain, groups, with_hydra=True).hydra
+        hydra_cfg = _compose_explained(plain, conf_dir, with_hydra=True).hydra
         # --run does not override a config's `hydra.mode: MULTIRUN`; --multirun does
         multirun = multirun_flag or hydra_cfg.mode == RunMode.MULTIRUN
         launcher = hydra_cfg.launcher.get("_target_")
@@ -152,7 +154,7 @@ def _check_launching_command(
             try:
                 check_capture_overrides(job)
                 check_group_choices(_parse(job), conf_dir)  # a choice swept by an experiment
-                config = _compose_explained(job, groups)
+                config = _compose_explained(job, conf_dir)
                 check_group_sections(config, groups, hydra_cfg.runtime.choices.get("experiment"))
                 validate(config, runs_here)
             except InputError as error:
@@ -204,15 +206,20 @@ def _check_printing_command(args: list[str], conf_dir: Path) -> None:
     check_group_choices(overrides, conf_dir)
     plain = [o.input_line for o in overrides if not o.is_sweep_override()]
     with initialize_config_dir(config_dir=str(conf_dir), version_base="1.3", job_name="run"):
-        _compose(plain)
+        _compose_explained(plain, conf_dir)
 
 
 def check_group_choices(overrides: Sequence[Override], conf_dir: Path) -> None:
     """Every `group=name` override of a group in conf/ must name one of its files; groups not
-    in the main defaults list need `+`; a launcher's plugin must be installed."""
-    primary = primary_groups(conf_dir)
+    in the main defaults list need `+`, those in it take none; a launcher's plugin must be
+    installed."""
+    primary = primary_groups(conf_dir) | HYDRA_CHOSEN_GROUPS
     for override in overrides:
         group = override.key_or_group
+        if group in primary and override.is_add():  # Hydra: "Multiple values for <group>"
+            raise InputError(
+                f"{group} is chosen by default: write {group}={override.value()} (without the +)"
+            )
         if group == "hydra/launcher" and not override.is_delete():
             for choice in _choices(override):
                 _check_launcher_plugin(choice)
@@ -261,25 +268,24 @@ def check_group_sections(
             raise InputError(group_value_error(group, values.get(group)) + chosen)
 
 
-def _compose_explained(
-    args: Sequence[str], groups: Sequence[str], with_hydra: bool = False
-) -> DictConfig:
+def _compose_explained(args: Sequence[str], conf_dir: Path, with_hydra: bool = False) -> DictConfig:
     """`_compose`, whose failure is first checked for its cause in the group choices alone
     (`_check_choices_alone`)."""
     try:
-        return _compose(args, with_hydra)
+        return _compose(args, conf_dir, with_hydra)
     except InputError:
-        _check_choices_alone(args, groups)
+        _check_choices_alone(args, conf_dir)
         raise
 
 
-def _check_choices_alone(args: Sequence[str], groups: Sequence[str]) -> None:
+def _check_choices_alone(args: Sequence[str], conf_dir: Path) -> None:
     """`check_group_sections` on the config of the group choices among `args` alone: an
     experiment that sets a group to a value (`scene: court`) makes each override inside that
     group (`scene.frames=8`) fail to compose, which the group's own line explains."""
+    groups = [group for group in primary_groups(conf_dir) if "/" not in group]
     choices = [o.input_line for o in _parse(args) if o.is_add() or o.key_or_group in groups]
     try:
-        config = _compose(choices, with_hydra=True)
+        config = _compose(choices, conf_dir, with_hydra=True)
     except InputError:
         return  # the choices fail alone too: the composition's own line says why
     experiment = config.hydra.runtime.choices.get("experiment")
@@ -408,12 +414,13 @@ def _needs_no_quotes(arg: str) -> bool:
     return bool(equals) and arg.isascii() and " " not in arg and not refused
 
 
-def _compose(overrides: Sequence[str], with_hydra: bool = False) -> DictConfig:
-    """Compose the main config with `overrides`; composition errors become one line."""
+def _compose(overrides: Sequence[str], conf_dir: Path, with_hydra: bool = False) -> DictConfig:
+    """Compose the main config (of `conf_dir`, initialised by the caller) with `overrides`;
+    composition errors become one line."""
     try:
         return compose(CONFIG_NAME, overrides=list(overrides), return_hydra_config=with_hydra)
     except (HydraException, OmegaConfBaseException) as error:
-        raise InputError(_composition_error(error, overrides)) from error
+        raise InputError(_composition_error(error, overrides, conf_dir)) from error
 
 
 EXPERIMENT_GROUP_ERRORS = (
@@ -421,41 +428,57 @@ EXPERIMENT_GROUP_ERRORS = (
     r"Multiple values for (?P<group>[\w/]+)\. To override a value use 'override "
     r"(?P=group): (?P<choice>[^']+)'",
     r"Could not override 'experiment/(?P<group>[\w/]+)@(?P=group)'",
+    r"Could not find '(?P<group>[\w/]+)/(?P<choice>[^']+)'\s+Available options",
 )
-"""Hydra's errors for a group chosen in an experiment's defaults list without both the `/`
-(`pipeline: 4dgs`, read as a group inside conf/experiment/) and `override` (`/pipeline:
-4dgs`, a second choice of it; `override pipeline: 4dgs`, no such group there)."""
+"""Hydra's errors for a group chosen wrongly in an experiment's defaults list: without the `/`
+(`pipeline: 4dgs`, read as a group inside conf/experiment/), without `override` for a group
+the main config chooses (`/pipeline: 4dgs`, a second choice of it; `override pipeline: 4dgs`,
+no such group in conf/experiment/), or a choice that is no file of the group."""
 
 
-def _experiment_defaults_error(error: Exception, overrides: Sequence[str]) -> str | None:
-    """The line for a group chosen in an experiment's defaults list without `override /`
-    (EXPERIMENT_GROUP_ERRORS), naming the file and the entry that chooses the group; None
-    for any other error."""
-    experiment = next((o for o in _parse(overrides) if o.key_or_group == "experiment"), None)
+def _experiment_defaults_error(
+    error: Exception, overrides: Sequence[str], conf_dir: Path
+) -> str | None:
+    """The line for a group chosen wrongly in the defaults list of the experiment `overrides`
+    choose (EXPERIMENT_GROUP_ERRORS), naming the file and the entry to write; None for any
+    other error, and where the command line chooses that group too (the error may be its)."""
+    parsed = _parse(overrides)
+    experiment = next((o for o in parsed if o.key_or_group == "experiment"), None)
     found = next(filter(None, (re.search(p, str(error)) for p in EXPERIMENT_GROUP_ERRORS)), None)
     if experiment is None or found is None:
         return None
-    group, choice = found["group"], found.groupdict().get("choice") or "NAME"
+    group, choice = found["group"], found.groupdict().get("choice")
+    if any(o.key_or_group == group for o in parsed):
+        return None
+    where = f"conf/experiment/{experiment.value()}.yaml"
+    available = available_choices(conf_dir, group)
+    if choice is not None and choice not in available:
+        return (
+            f"{where}: its defaults list chooses an unknown {group} {choice!r} "
+            f"(available: {', '.join(available)})"
+        )
+    primary = group in primary_groups(conf_dir)
+    entry = f"{'override ' if primary else ''}/{group}: {choice or 'NAME'}"
     return (
-        f"conf/experiment/{experiment.value()}.yaml: its defaults list chooses the {group} "
-        f"group without `override /`: write `- override /{group}: {choice}` (a group of the "
-        "main config is chosen with both the slash and `override`)"
+        f"{where}: its defaults list must choose the {group} group as `- {entry}` (a group of "
+        "conf/ is named with a leading slash"
+        + (", and one the main config chooses needs `override`)" if primary else ")")
     )
 
 
-def _composition_error(error: Exception, overrides: Sequence[str]) -> str:
+def _composition_error(error: Exception, overrides: Sequence[str], conf_dir: Path) -> str:
     """The one line for a failed composition. Hydra answers an override of a key the config
     lacks (`relay.kk=8`, or `scene.loader={zoom:2}`) with advice to append it, which every
     section but `hydra` then refuses, and a value of the wrong kind (`deform.multires={a:1}`)
     with "Error merging override": such an override gets `_unknown_setting`'s or
     `_kind_mismatch`'s line instead, from the config composed without it."""
-    experiment_line = _experiment_defaults_error(error, overrides)
+    experiment_line = _experiment_defaults_error(error, overrides, conf_dir)
     if experiment_line is not None:
         return experiment_line
     found = re.match(r"Could not override '([^']+)'|Error merging override ([^=]+)=", str(error))
     if found is None:
         return one_line(error)
-    key = found[1] or found[2]
+    key = (found[1] or found[2]).lstrip("+")  # `+key=` and `++key=` name the key
     parsed = _parse(overrides)
     given = next((o.value() for o in parsed if o.key_or_group == key), None)
     others = [o.input_line for o in parsed if o.key_or_group != key]

@@ -11,7 +11,6 @@ from typing import Any
 
 from relaygs.app.evaluation import Evaluation
 from relaygs.app.plan import RunPlan
-from relaygs.data.fingerprint import digest
 from relaygs.pipeline import PipelineRun
 from relaygs.pipeline.fsio import publish_text
 
@@ -53,7 +52,7 @@ def build_result(
     builder: str,
 ) -> dict[str, Scalar]:
     """The flat result of one run; `overrides` are the job's command-line/sweep overrides.
-    The `*_built_by_job` seconds count what job `builder` (`job_builder`) built, before an
+    The `*_built_by_job` seconds count what job `builder` (a `BUILT_BY` value) built, before an
     interruption too, so a sweep resumed in place still shows what it computed."""
     metrics = evaluation.metrics
     result = _identity(cfg, plan, job)
@@ -197,16 +196,6 @@ def recorded_parameters(
         in_config = key.split(".")[0] in cfg  # `+component=x` selects a group, not a key
         parameters[key] = effective_value(cfg, plan, key) if in_config else text
     return parameters
-
-
-def job_builder(
-    run_dir: Path, job: int | None, cfg: Mapping[str, Any], plan: RunPlan, overrides: Sequence[str]
-) -> str:
-    """Who builds a run's artifacts, as their manifests record it (`BUILT_BY`): the run folder
-    and a digest of the job number and `recorded_parameters`, so the same job rerun in its
-    folder (a sweep resumed in place) is told apart from another job run there later."""
-    parameters = recorded_parameters(cfg, plan, overrides)
-    return f"{Path(run_dir).resolve()}#{digest({'job': job, 'parameters': parameters})[:12]}"
 
 
 def _lookup(config: Mapping[str, Any], dotted: str) -> Any:

@@ -28,7 +28,6 @@ from relaygs.app.result import (
     build_failed_result,
     build_result,
     format_summary,
-    job_builder,
     recorded_parameters,
     write_result,
 )
@@ -37,6 +36,7 @@ from relaygs.app.suite import StageSuite, load_stage_suite
 from relaygs.app.tensorboard import TensorBoardLog, flatten_config
 from relaygs.cli import python_command, script_command
 from relaygs.data import Scene
+from relaygs.data.fingerprint import digest
 from relaygs.device import set_threads
 from relaygs.errors import resource_error
 from relaygs.per_view import METRIC_COLUMNS, PER_VIEW, PER_VIEW_FILE, frame_means, write_per_view
@@ -46,6 +46,7 @@ from relaygs.pipeline import (
     ArtifactStore,
     NodeReport,
     PipelineRun,
+    key_config,
     run_pipeline,
 )
 from relaygs.progress import job_label, print_labelled
@@ -148,7 +149,7 @@ def _execute(
 ) -> _Outcome:
     """Run the stages on the scene, evaluate and log."""
     store = ArtifactStore(plan.artifacts_root)
-    builder = {BUILT_BY: job_builder(Path(run_dir), job, config, plan, overrides)}
+    builder = {BUILT_BY: _job_builder(Path(run_dir), job, plan, scene)}
     _note_earlier_run(Path(run_dir), config, plan, overrides, job)
     log = TensorBoardLog(Path(run_dir) / TENSORBOARD_DIR)
     suite.add_sink(log)
@@ -187,6 +188,16 @@ def _execute(
         suite.remove_sink(log)
         log.close()
     return _Outcome(result, run, log.log_dir, scene, per_view)
+
+
+def _job_builder(run_dir: Path, job: int | None, plan: RunPlan, scene: Scene) -> str:
+    """Who builds this run's artifacts, as their manifests record it (`BUILT_BY`): the run
+    folder, then `#` and a digest of the job number, the scene and each node's keyed settings,
+    so the same job run again in its folder (a sweep resumed in place, with another thread
+    count or progress setting too) is told apart from another job run there later."""
+    nodes = {node.name: key_config(plan.config_for(node)) for node in plan.pipeline.nodes.values()}
+    job_digest = digest({"job": job, "scene": scene.fingerprint, "nodes": nodes})[:12]
+    return f"{Path(run_dir).resolve()}#{job_digest}"
 
 
 def _record_per_view(run_dir: Path, log: TensorBoardLog, evaluation: Evaluation) -> Path | None:

@@ -37,8 +37,8 @@ Manifest is made)."""
 
 def built_by(provenance: Mapping[str, Any]) -> str | None:
     """The job a manifest's provenance names as the artifact's builder (`BUILT_BY`), if any."""
-    folder = provenance.get(BUILT_BY)
-    return folder if isinstance(folder, str) else None
+    builder = provenance.get(BUILT_BY)
+    return builder if isinstance(builder, str) else None
 
 
 @dataclass(frozen=True)
