@@ -79,6 +79,11 @@ def test_topological_order_puts_upstreams_first_whatever_the_file_order(tmp_path
         ("nodes:\n  a: decouple\n", "node 'a': expected a mapping with 'stage' and 'upstream'"),
         ("- a\n- b\n", "expected a mapping with 'nodes'"),
         ("nodes: [unclosed\n", "cannot read pipeline"),
+        # before: "(while parsing a flow mapping)", with no line
+        (
+            "nodes:\n  a: {stage: decouple\n  b: {stage: relay}\n",
+            r"cannot read pipeline \(expected ',' or '}', but got ':' at line 3, column 4\)",
+        ),
         ("nodes:\n  a: {stage: decouple}\n  b: {stage: relay}\n", "exactly one output node"),
     ],
 )

@@ -90,11 +90,19 @@ def load_pipeline(
     try:
         raw = yaml.safe_load(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as error:
-        reason = str(error).splitlines()[0] if str(error) else type(error).__name__
-        raise InputError(f"{path}: cannot read pipeline ({reason})") from error
+        raise InputError(f"{path}: cannot read pipeline ({_read_error(error)})") from error
     pipeline = _parse(path, raw)
     _check_graph(pipeline, known_stages, accepted_upstream or {})
     return pipeline
+
+
+def _read_error(error: Exception) -> str:
+    """Why a pipeline file could not be read: a YAML error's problem with its line and column,
+    else the error's first line."""
+    mark = getattr(error, "problem_mark", None)
+    if isinstance(error, yaml.MarkedYAMLError) and error.problem and mark is not None:
+        return f"{error.problem} at line {mark.line + 1}, column {mark.column + 1}"
+    return str(error).splitlines()[0] if str(error) else type(error).__name__
 
 
 def _resolve(name_or_path: str | Path) -> Path:
