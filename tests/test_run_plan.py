@@ -220,6 +220,14 @@ def test_an_experiment_without_its_package_line_says_so(config):
         plan_run(config, STAGE_TYPES, validate_config)
 
 
+def test_an_experiment_whose_package_line_lacks_an_underscore_says_so(config):
+    # `# @package _global` puts the settings under `_global`; before: "unknown setting(s)
+    # ['_global']; expected [...]" with no word on the package line
+    config = {**copy.deepcopy(config), "_global": {"seed": 3}}
+    with pytest.raises(InputError, match=r"'_global' \(holding \['seed'\]\): an experiment file's"):
+        plan_run(config, STAGE_TYPES, validate_config)
+
+
 def test_a_pipeline_name_yaml_reads_as_a_number_names_its_file(config, tmp_path, monkeypatch):
     # `name: 2024` in conf/pipeline/2024.yaml is an integer once YAML has read it
     shutil.copy(pipelines_dir() / "4dgs.yaml", tmp_path / "2024.yaml")

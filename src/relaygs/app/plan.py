@@ -252,6 +252,12 @@ def _check_setting_names(cfg: Mapping[str, Any], stage_types: Collection[str]) -
             "an experiment file in conf/experiment/ must start with the line "
             "`# @package _global_`, else its settings land under `experiment.`"
         )
+    if isinstance(cfg.get("_global"), Mapping):  # `# @package _global`, one underscore short
+        raise InputError(
+            f"top level: unknown setting '_global' (holding {sorted(cfg['_global'])}): an "
+            "experiment file's first line must be `# @package _global_`, with the trailing "
+            "underscore"
+        )
     _require_known_keys(cfg, "top level", TOP_LEVEL_KEYS | set(stage_types))
     for name, keys in SECTION_KEYS.items():
         if name in cfg:  # a missing section is reported where it is read
