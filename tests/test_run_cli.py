@@ -313,7 +313,7 @@ def test_a_pipeline_without_its_conf_file_says_which_file_is_missing(tmp_path, m
     [
         ("pipeline: 4dgs", "override /pipeline: 4dgs"),  # read as conf/experiment/pipeline/
         ("/pipeline: 4dgs", "override /pipeline: 4dgs"),  # a second choice of the group
-        ("override pipeline: 4dgs", "override /pipeline: NAME"),  # no such group in experiment/
+        ("override pipeline: 4dgs", "override /pipeline: 4dgs"),  # no such group in experiment/
         ("scene: court", "override /scene: court"),
         ("component: no_gamma", "/component: no_gamma"),  # a group the main config lacks
     ],
@@ -332,7 +332,7 @@ def test_an_experiment_choosing_a_group_the_wrong_way_is_told_the_entry(tmp_path
         f"conf/experiment/plain.yaml: its defaults list must choose the {group} group as "
         f"`- {fix}` (a group of conf/ is named with a leading slash{override})"
     )
-    experiment.write_text(f"# @package _global_\ndefaults:\n  - {fix.replace('NAME', '4dgs')}\n")
+    experiment.write_text(f"# @package _global_\ndefaults:\n  - {fix}\n")
     prelaunch.check_command_line(["+experiment=plain"], conf, lambda cfg, here: None)  # the fix
 
 

@@ -447,10 +447,12 @@ def _experiment_defaults_error(
     found = next(filter(None, (re.search(p, str(error)) for p in EXPERIMENT_GROUP_ERRORS)), None)
     if experiment is None or found is None:
         return None
-    group, choice = found["group"], found.groupdict().get("choice")
+    group = found["group"]
     if any(o.key_or_group == group for o in parsed):
         return None
     where = f"conf/experiment/{experiment.value()}.yaml"
+    chosen = _defaults_entry_choice(conf_dir / "experiment" / f"{experiment.value()}.yaml", group)
+    choice = found.groupdict().get("choice") or chosen
     available = available_choices(conf_dir, group)
     if choice is not None and choice not in available:
         return (
@@ -458,12 +460,28 @@ def _experiment_defaults_error(
             f"(available: {', '.join(available)})"
         )
     primary = group in primary_groups(conf_dir)
-    entry = f"{'override ' if primary else ''}/{group}: {choice or 'NAME'}"
+    entry = f"{'override ' if primary else ''}/{group}: {choice or '<name>'}"
     return (
         f"{where}: its defaults list must choose the {group} group as `- {entry}` (a group of "
         "conf/ is named with a leading slash"
         + (", and one the main config chooses needs `override`)" if primary else ")")
     )
+
+
+def _defaults_entry_choice(path: Path, group: str) -> str | None:
+    """The choice that an entry of the defaults list in the YAML file `path` makes for `group`,
+    however the entry names it (`pipeline`, `/pipeline`, `override pipeline`); None when the
+    file cannot be read or has no such entry."""
+    try:
+        defaults = yaml.safe_load(path.read_text(encoding="utf-8")).get("defaults")
+    except (OSError, UnicodeDecodeError, yaml.YAMLError, AttributeError):
+        return None
+    for entry in defaults if isinstance(defaults, list) else []:
+        for key, value in entry.items() if isinstance(entry, dict) else []:
+            named = str(key).removeprefix("override").strip().lstrip("/")
+            if named == group and isinstance(value, str):
+                return value
+    return None
 
 
 def _composition_error(error: Exception, overrides: Sequence[str], conf_dir: Path) -> str:
