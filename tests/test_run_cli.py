@@ -89,9 +89,13 @@ def _main(args):
         (["hydra.job={foo:x}"], "Could not override 'hydra.job'. To append to your config use"),
         (["+deform.multires={a:1}"], "deform.multires: expected a list, as in the config, got"),
         # before: Hydra's "Multiple values for pipeline. To override a value use 'override ..."
-        (["+pipeline=4dgs"], "pipeline is chosen by default: write pipeline=4dgs (without the +)"),
-        (["+experiment=smoke", "+pipeline=4dgs"], "pipeline is chosen by default: write pipel"),
-        (["+hydra/launcher=joblib"], "hydra/launcher is chosen by default: write hydra/launcher="),
+        (["+pipeline=4dgs"], "pipeline is chosen already (by the main config or the experi"),
+        (["+experiment=smoke", "+pipeline=4dgs"], ": write pipeline=4dgs (without the +)"),
+        (["+hydra/launcher=joblib"], "hydra/launcher is chosen already (by the main config or"),
+        (["+hydra/hydra_logging=disabled"], "write hydra/hydra_logging=disabled (without the +)"),
+        # as typed, not as Hydra parses it
+        (["-m", "+pipeline=relaygs,4dgs"], "write pipeline=relaygs,4dgs (without the +)"),
+        (["+relay={kk:2}"], "unknown relay \"{'kk': 2}\""),
         (["train=nope"], "train: expected a config section (a mapping), got 'nope'"),
         (["relay.k=${nope}"], "cannot resolve the config: Interpolation key 'nope' not found"),
         (["scene.loader=abc"], "scene.loader must be a mapping of loader options"),
@@ -334,6 +338,49 @@ def test_an_experiment_choosing_a_group_the_wrong_way_is_told_the_entry(tmp_path
     )
     experiment.write_text(f"# @package _global_\ndefaults:\n  - {fix}\n")
     prelaunch.check_command_line(["+experiment=plain"], conf, lambda cfg, here: None)  # the fix
+
+
+def _experiment(tmp_path, text):
+    """A copy of conf/ with experiment `plain` holding `text` after the package line."""
+    conf = shutil.copytree(config_dir(), tmp_path / "conf")
+    (conf / "experiment" / "plain.yaml").write_text(f"# @package _global_\n{text}")
+    return conf
+
+
+def test_a_group_an_experiment_adds_is_changed_without_a_plus(tmp_path):
+    # before: `component=no_stage2` was refused ("write +component=..."), and the `+` form
+    # failed in Hydra with "Multiple values for component"
+    conf = _experiment(tmp_path, "defaults:\n  - /component: no_gamma\n")
+    seen = []
+    args = ["+experiment=plain", "component=no_stage2"]
+    prelaunch.check_command_line(args, conf, lambda cfg, here: seen.append(cfg.variant))
+    assert seen == ["no_stage2"]
+    with pytest.raises(InputError, match=r"component is chosen already .*: write component=no_s"):
+        prelaunch.check_command_line(["+experiment=plain", "+component=no_stage2"], conf, print)
+
+
+def test_a_broken_defaults_entry_elsewhere_is_not_blamed_on_the_experiment(tmp_path):
+    conf = _experiment(tmp_path, "seed: 3\n")
+    court = conf / "scene" / "court.yaml"
+    court.write_text(court.read_text().replace("/base/synthetic_scene@_here_", "/base: nothere"))
+    with pytest.raises(InputError) as caught:
+        prelaunch.check_command_line(["scene=court", "+experiment=plain"], conf, print)
+    assert "conf/experiment" not in str(caught.value) and "nothere" in str(caught.value)
+
+
+def test_a_defaults_entry_only_the_experiment_can_cause_is_blamed_on_it_whatever_else_is_set(
+    tmp_path,
+):
+    conf = _experiment(tmp_path, "defaults:\n  - pipeline: 4dgs\n")
+    with pytest.raises(InputError, match=r"plain.yaml: .* as `- override /pipeline: 4dgs`"):
+        prelaunch.check_command_line(["+experiment=plain", "pipeline=relaygs"], conf, print)
+
+
+def test_an_override_of_a_group_the_main_config_lacks_is_told_the_slash_entry(tmp_path):
+    # before: Hydra's "Could not override 'component'. No match in the defaults list."
+    conf = _experiment(tmp_path, "defaults:\n  - override /component: no_gamma\n")
+    with pytest.raises(InputError, match=r"as `- /component: no_gamma` \(a group of conf/ is"):
+        prelaunch.check_command_line(["+experiment=plain"], conf, print)
 
 
 @pytest.mark.parametrize("entry", ["override /scene: courtt", "pipeline: 4dgz"])

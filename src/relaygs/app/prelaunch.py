@@ -64,7 +64,19 @@ REMOTE_LAUNCHERS = {
 the commands they submit through, which must be on this machine's PATH."""
 GROUP_HINTS = {"scene": "; or set scene.path=DIR for a capture"}
 CONFIG_NAME = "config"
-HYDRA_CHOSEN_GROUPS = frozenset({"hydra/launcher", "hydra/sweeper"})
+HYDRA_CHOSEN_GROUPS = frozenset(
+    f"hydra/{group}"
+    for group in (
+        "output",
+        "launcher",
+        "sweeper",
+        "help",
+        "hydra_help",
+        "hydra_logging",
+        "job_logging",
+        "env",
+    )
+)
 """Groups of Hydra's own that its defaults always choose (a `+` would choose them twice)."""
 UNQUOTED_ASCII_REFUSED = "~!#&;<>^`"
 """ASCII characters Hydra's override grammar reads in a value only inside its quotes (not the
@@ -210,15 +222,18 @@ def _check_printing_command(args: list[str], conf_dir: Path) -> None:
 
 
 def check_group_choices(overrides: Sequence[Override], conf_dir: Path) -> None:
-    """Every `group=name` override of a group in conf/ must name one of its files; groups not
-    in the main defaults list need `+`, those in it take none; a launcher's plugin must be
-    installed."""
-    primary = primary_groups(conf_dir) | HYDRA_CHOSEN_GROUPS
+    """Every `group=name` override of a group in conf/ must name one of its files; groups that
+    neither the main defaults list nor the chosen experiment's choose need `+`, the others take
+    none; a launcher's plugin must be installed."""
+    chosen = _experiment_groups(overrides, conf_dir)
+    primary = primary_groups(conf_dir) | HYDRA_CHOSEN_GROUPS | chosen
     for override in overrides:
         group = override.key_or_group
-        if group in primary and override.is_add():  # Hydra: "Multiple values for <group>"
+        named = isinstance(override.value(), str) or override.is_sweep_override()
+        if group in primary and override.is_add() and named:  # Hydra: "Multiple values for"
             raise InputError(
-                f"{group} is chosen by default: write {group}={override.value()} (without the +)"
+                f"{group} is chosen already (by the main config or the experiment): write "
+                f"{override.input_line.removeprefix('+')} (without the +)"
             )
         if group == "hydra/launcher" and not override.is_delete():
             for choice in _choices(override):
@@ -238,6 +253,17 @@ def check_group_choices(overrides: Sequence[Override], conf_dir: Path) -> None:
                 f"{group} is not chosen by default: write +{group}={override.value()} "
                 f"(with a leading +)"
             )
+
+
+def _experiment_groups(overrides: Sequence[Override], conf_dir: Path) -> set[str]:
+    """The groups of conf/ that the defaults lists of the experiments `overrides` choose
+    (`- /component: full`): a command line then picks another file of them without `+`."""
+    groups: set[str] = set()
+    for override in overrides:
+        if override.key_or_group == "experiment" and not override.is_delete():
+            for name in _choices(override):
+                groups |= _defaults_entries(conf_dir / "experiment" / f"{name}.yaml").keys()
+    return groups
 
 
 def _half_added_pipeline(group: str, choice: Any, conf_dir: Path) -> str:
@@ -424,35 +450,47 @@ def _compose(overrides: Sequence[str], conf_dir: Path, with_hydra: bool = False)
 
 
 EXPERIMENT_GROUP_ERRORS = (
-    r"Could not find 'experiment/(?P<group>[\w/]+)/(?P<choice>[^']+)'",
+    r"^In 'experiment/[^']+': Could not find 'experiment/(?P<group>[\w/]+)/(?P<choice>[^']+)'",
+    r"^In 'experiment/[^']+': Could not override 'experiment/(?P<group>[\w/]+)@(?P=group)'",
+    r"^In 'experiment/[^']+': Could not override '(?P<group>[\w/]+)'\. No match in the defaults",
+)
+"""Hydra's errors for a group chosen wrongly in an experiment's defaults list, which only the
+experiment file can cause: without the `/` (`pipeline: 4dgs`, read as a group inside
+conf/experiment/), or `override` with no slash or for a group the main config does not
+choose (`override pipeline: 4dgs`, `override /component: full`)."""
+SHARED_GROUP_ERRORS = (
     r"Multiple values for (?P<group>[\w/]+)\. To override a value use 'override "
     r"(?P=group): (?P<choice>[^']+)'",
-    r"Could not override 'experiment/(?P<group>[\w/]+)@(?P=group)'",
     r"Could not find '(?P<group>[\w/]+)/(?P<choice>[^']+)'\s+Available options",
 )
-"""Hydra's errors for a group chosen wrongly in an experiment's defaults list: without the `/`
-(`pipeline: 4dgs`, read as a group inside conf/experiment/), without `override` for a group
-the main config chooses (`/pipeline: 4dgs`, a second choice of it; `override pipeline: 4dgs`,
-no such group in conf/experiment/), or a choice that is no file of the group."""
+"""Hydra's errors that an experiment's defaults list causes when it chooses a group the main
+config chooses without `override` (`/pipeline: 4dgs`), or a file the group lacks; another
+config, or the command line, can cause them too."""
 
 
 def _experiment_defaults_error(
     error: Exception, overrides: Sequence[str], conf_dir: Path
 ) -> str | None:
     """The line for a group chosen wrongly in the defaults list of the experiment `overrides`
-    choose (EXPERIMENT_GROUP_ERRORS), naming the file and the entry to write; None for any
-    other error, and where the command line chooses that group too (the error may be its)."""
+    choose (EXPERIMENT_GROUP_ERRORS; SHARED_GROUP_ERRORS where the command line does not
+    choose the group and the experiment's defaults list does), naming the file and the entry
+    to write; None for any other error, and for Hydra's own groups."""
     parsed = _parse(overrides)
     experiment = next((o for o in parsed if o.key_or_group == "experiment"), None)
-    found = next(filter(None, (re.search(p, str(error)) for p in EXPERIMENT_GROUP_ERRORS)), None)
-    if experiment is None or found is None:
+    if experiment is None:
+        return None
+    path = conf_dir / "experiment" / f"{experiment.value()}.yaml"
+    entries = _defaults_entries(path)
+    found = _first_match(EXPERIMENT_GROUP_ERRORS, str(error))
+    shared = _first_match(SHARED_GROUP_ERRORS, str(error))
+    if found is None and shared is not None:
+        on_command_line = any(o.key_or_group == shared["group"] for o in parsed)
+        found = None if on_command_line or shared["group"] not in entries else shared
+    if found is None or found["group"].startswith("hydra/"):
         return None
     group = found["group"]
-    if any(o.key_or_group == group for o in parsed):
-        return None
+    choice = found.groupdict().get("choice") or entries.get(group)
     where = f"conf/experiment/{experiment.value()}.yaml"
-    chosen = _defaults_entry_choice(conf_dir / "experiment" / f"{experiment.value()}.yaml", group)
-    choice = found.groupdict().get("choice") or chosen
     available = available_choices(conf_dir, group)
     if choice is not None and choice not in available:
         return (
@@ -468,20 +506,25 @@ def _experiment_defaults_error(
     )
 
 
-def _defaults_entry_choice(path: Path, group: str) -> str | None:
-    """The choice that an entry of the defaults list in the YAML file `path` makes for `group`,
-    however the entry names it (`pipeline`, `/pipeline`, `override pipeline`); None when the
-    file cannot be read or has no such entry."""
+def _first_match(patterns: Sequence[str], text: str) -> re.Match[str] | None:
+    """The match of the first of `patterns` found in `text`, if any."""
+    return next(filter(None, (re.search(pattern, text) for pattern in patterns)), None)
+
+
+def _defaults_entries(path: Path) -> dict[str, str]:
+    """{group: choice} of the entries of the defaults list in the YAML file `path`, however an
+    entry names its group (`pipeline`, `/pipeline`, `override pipeline`); empty when the file
+    cannot be read."""
     try:
         defaults = yaml.safe_load(path.read_text(encoding="utf-8")).get("defaults")
     except (OSError, UnicodeDecodeError, yaml.YAMLError, AttributeError):
-        return None
-    for entry in defaults if isinstance(defaults, list) else []:
-        for key, value in entry.items() if isinstance(entry, dict) else []:
-            named = str(key).removeprefix("override").strip().lstrip("/")
-            if named == group and isinstance(value, str):
-                return value
-    return None
+        return {}
+    return {
+        str(key).removeprefix("override").strip().lstrip("/"): value
+        for entry in (defaults if isinstance(defaults, list) else [])
+        for key, value in (entry.items() if isinstance(entry, dict) else [])
+        if isinstance(value, str)
+    }
 
 
 def _composition_error(error: Exception, overrides: Sequence[str], conf_dir: Path) -> str:
