@@ -368,10 +368,11 @@ def test_a_broken_defaults_entry_elsewhere_is_not_blamed_on_the_experiment(tmp_p
     assert "conf/experiment" not in str(caught.value) and "nothere" in str(caught.value)
 
 
-def test_a_defaults_entry_only_the_experiment_can_cause_is_blamed_on_it_whatever_else_is_set(
-    tmp_path,
-):
-    conf = _experiment(tmp_path, "defaults:\n  - pipeline: 4dgs\n")
+# before: with `pipeline=relaygs` too, "/pipeline" gave Hydra's "pipeline appears more than
+# once in the final defaults list", naming no file
+@pytest.mark.parametrize("entry", ["pipeline: 4dgs", "/pipeline: 4dgs"])
+def test_a_defaults_entry_of_the_experiment_is_blamed_on_it_whatever_else_is_set(tmp_path, entry):
+    conf = _experiment(tmp_path, f"defaults:\n  - {entry}\n")
     with pytest.raises(InputError, match=r"plain.yaml: .* as `- override /pipeline: 4dgs`"):
         prelaunch.check_command_line(["+experiment=plain", "pipeline=relaygs"], conf, print)
 

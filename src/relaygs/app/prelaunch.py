@@ -462,19 +462,21 @@ SHARED_GROUP_ERRORS = (
     r"Multiple values for (?P<group>[\w/]+)\. To override a value use 'override "
     r"(?P=group): (?P<choice>[^']+)'",
     r"Could not find '(?P<group>[\w/]+)/(?P<choice>[^']+)'\s+Available options",
+    r"^(?P<group>[\w/]+) appears more than once in the final defaults list",
 )
 """Hydra's errors that an experiment's defaults list causes when it chooses a group the main
-config chooses without `override` (`/pipeline: 4dgs`), or a file the group lacks; another
-config, or the command line, can cause them too."""
+config chooses without `override` (`/pipeline: 4dgs`; "appears more than once" where the
+command line chooses it too), or a file the group lacks; another config can cause them too."""
 
 
 def _experiment_defaults_error(
     error: Exception, overrides: Sequence[str], conf_dir: Path
 ) -> str | None:
     """The line for a group chosen wrongly in the defaults list of the experiment `overrides`
-    choose (EXPERIMENT_GROUP_ERRORS; SHARED_GROUP_ERRORS where the command line does not
-    choose the group and the experiment's defaults list does), naming the file and the entry
-    to write; None for any other error, and for Hydra's own groups."""
+    choose (EXPERIMENT_GROUP_ERRORS; SHARED_GROUP_ERRORS where the experiment's defaults list
+    chooses the group), naming the file and the entry to write; None for any other error, and
+    for Hydra's own groups. (A `+group=` of a chosen group on the command line, the other cause
+    of "Multiple values", is refused before composing: `check_group_choices`.)"""
     parsed = _parse(overrides)
     experiment = next((o for o in parsed if o.key_or_group == "experiment"), None)
     if experiment is None:
@@ -483,9 +485,8 @@ def _experiment_defaults_error(
     entries = _defaults_entries(path)
     found = _first_match(EXPERIMENT_GROUP_ERRORS, str(error))
     shared = _first_match(SHARED_GROUP_ERRORS, str(error))
-    if found is None and shared is not None:
-        on_command_line = any(o.key_or_group == shared["group"] for o in parsed)
-        found = None if on_command_line or shared["group"] not in entries else shared
+    if found is None and shared is not None and shared["group"] in entries:
+        found = shared
     if found is None or found["group"].startswith("hydra/"):
         return None
     group = found["group"]
