@@ -370,12 +370,7 @@ def recorded_job_count(sweep_dir: Path) -> int | None:
 
 def primary_groups(conf_dir: Path) -> set[str]:
     """Groups the main config's defaults list chooses (the others need `+group=`)."""
-    main = yaml.safe_load((conf_dir / f"{CONFIG_NAME}.yaml").read_text(encoding="utf-8"))
-    groups = set()
-    for entry in main.get("defaults", []):
-        if isinstance(entry, dict):
-            groups.update(key.removeprefix("override ").strip() for key in entry)
-    return groups
+    return set(_defaults_entries(conf_dir / f"{CONFIG_NAME}.yaml"))
 
 
 def available_choices(conf_dir: Path, group: str) -> list[str]:
@@ -490,7 +485,8 @@ def _experiment_defaults_error(
     if found is None or found["group"].startswith("hydra/"):
         return None
     group = found["group"]
-    choice = found.groupdict().get("choice") or entries.get(group)
+    chosen = entries.get(group)
+    choice = found.groupdict().get("choice") or (chosen if isinstance(chosen, str) else None)
     where = f"conf/experiment/{experiment.value()}.yaml"
     available = available_choices(conf_dir, group)
     if choice is not None and choice not in available:
@@ -512,10 +508,10 @@ def _first_match(patterns: Sequence[str], text: str) -> re.Match[str] | None:
     return next(filter(None, (re.search(pattern, text) for pattern in patterns)), None)
 
 
-def _defaults_entries(path: Path) -> dict[str, str]:
+def _defaults_entries(path: Path) -> dict[str, Any]:
     """{group: choice} of the entries of the defaults list in the YAML file `path`, however an
     entry names its group (`pipeline`, `/pipeline`, `override pipeline`); empty when the file
-    cannot be read."""
+    cannot be read (the main config's, or an experiment's)."""
     try:
         defaults = yaml.safe_load(path.read_text(encoding="utf-8")).get("defaults")
     except (OSError, UnicodeDecodeError, yaml.YAMLError, AttributeError):
@@ -524,7 +520,6 @@ def _defaults_entries(path: Path) -> dict[str, str]:
         str(key).removeprefix("override").strip().lstrip("/"): value
         for entry in (defaults if isinstance(defaults, list) else [])
         for key, value in (entry.items() if isinstance(entry, dict) else [])
-        if isinstance(value, str)
     }
 
 
