@@ -18,6 +18,7 @@ from relaygs.data.synthetic import generate
 from relaygs.pipeline.artifact import Artifact
 from relaygs.pipeline.keys import artifact_key
 from relaygs.pipeline.store import ArtifactStore
+from relaygs.splat import native, rasterize
 
 TINY_SYNTH_SIZE = {"frames": 6, "width": 32, "height": 18}
 
@@ -29,6 +30,30 @@ def sigint_handler_restored():
     handler = signal.getsignal(signal.SIGINT)
     yield
     signal.signal(signal.SIGINT, handler)
+
+
+@pytest.fixture(params=["torch", "native"])
+def splat_backend(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> str:
+    """Runs a test once per splatting backend: `backend="auto"` (the default) resolves to
+    this one on CPU tensors, so tests written for the default cover both."""
+    chosen = request.param
+    if chosen == "native":
+        try:
+            native.load()
+        except native.NativeUnavailableError as err:
+            # only a machine without a compiler may skip; a failed build fails the test
+            if native.build.compiler() is not None:
+                raise
+            pytest.skip(f"native kernel unavailable: {err}")
+    original = rasterize.select_backend
+
+    def forced(backend: str, like: Any) -> rasterize.Backend:
+        if backend == "auto" and native.supports(like):
+            backend = chosen
+        return original(backend, like)
+
+    monkeypatch.setattr(rasterize, "select_backend", forced)
+    return chosen
 
 
 @pytest.fixture(scope="session")

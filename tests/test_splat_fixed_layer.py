@@ -12,6 +12,9 @@ from relaygs.splat import FixedLayer, rasterization
 from relaygs.splat.projection import Projection
 from splat_scenes import random_scene, render_and_grads, with_grad
 
+# Every test here runs on both backends (the `splat_backend` fixture in conftest).
+pytestmark = pytest.mark.usefixtures("splat_backend")
+
 MOVING = 12  # the last rows move; the rest are fixed
 PROJECTION_FIELDS = tuple(f.name for f in fields(Projection))
 

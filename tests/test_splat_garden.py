@@ -10,9 +10,13 @@ from relaygs.splat import rasterization
 from relaygs.splat.projection import covariance_factor, project_gaussians
 from relaygs.splat.reference import rasterization_reference
 
-pytestmark = pytest.mark.skipif(
-    not GARDEN_PATH.is_file(), reason=f"{GARDEN_PATH} not found (shared data absent)"
-)
+# Every test here runs on both backends (the `splat_backend` fixture in conftest).
+pytestmark = [
+    pytest.mark.usefixtures("splat_backend"),
+    pytest.mark.skipif(
+        not GARDEN_PATH.is_file(), reason=f"{GARDEN_PATH} not found (shared data absent)"
+    ),
+]
 
 
 @pytest.fixture(scope="module")

@@ -1,5 +1,5 @@
-"""The compositor reads nothing back from the device per tile group: on a GPU every such read
-(`int(tensor)`, `.item()`, `.tolist()`, `bool(tensor)`) waits for all queued work."""
+"""The torch compositor reads nothing back from the device per tile group: on a GPU every such
+read (`int(tensor)`, `.item()`, `.tolist()`, `bool(tensor)`) waits for all queued work."""
 
 from __future__ import annotations
 
@@ -47,7 +47,7 @@ def test_host_reads_do_not_grow_with_the_tile_groups(host_reads, groups_composit
         scene = with_grad(random_scene(3000, seed=0, num_cameras=4, width=width, height=height))
         host_reads.clear()
         groups_composited.clear()
-        colors, alphas, _ = rasterization(**scene)
+        colors, alphas, _ = rasterization(**scene, backend="torch")
         forward = list(host_reads)
         host_reads.clear()
         (colors.sum() + alphas.sum()).backward()

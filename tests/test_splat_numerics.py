@@ -16,6 +16,9 @@ from relaygs.splat.projection import ALPHA_MIN, MAX_SIGMA_MULT, opacity_sigma_mu
 from relaygs.splat.reference import rasterization_reference
 from splat_scenes import LEARNABLE, camera_rig, render_and_grads, with_grad
 
+# Every test here runs on both backends (the `splat_backend` fixture in conftest).
+pytestmark = pytest.mark.usefixtures("splat_backend")
+
 W, H = 24, 20
 
 

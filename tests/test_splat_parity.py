@@ -11,6 +11,9 @@ from relaygs.splat import rasterization
 from relaygs.splat.reference import rasterization_reference
 from splat_scenes import on_device, random_scene, render_and_grads, with_grad
 
+# Every test here runs on both backends (the `splat_backend` fixture in conftest).
+pytestmark = pytest.mark.usefixtures("splat_backend")
+
 CASES = [
     # (seed, n, cameras, width, height, channels, background)
     (0, 60, 1, 40, 32, 3, False),

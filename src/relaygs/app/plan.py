@@ -21,6 +21,7 @@ from relaygs.errors import InputError
 from relaygs.paths import require_creatable_folder
 from relaygs.pipeline import Node, Pipeline, load_pipeline
 from relaygs.pipeline.store import ON_CORRUPT_CHOICES
+from relaygs.splat import BACKENDS
 
 SECTION_KEYS = {
     "tensorboard": ("preview_frames",),
@@ -29,6 +30,7 @@ SECTION_KEYS = {
     "artifacts": ("root", "on_corrupt"),
     "pipeline": ("name",),
     "budget": ("name", "multiplier", "scaled_keys"),
+    "splat": ("backend",),
 }
 """The settings of the config sections that are not a stage's (stage sections, `train`,
 `eval` and `scene` are checked by their own parsers): a `+budget.multipler=2` is refused."""
@@ -64,6 +66,7 @@ class RunPlan:
     eval_config: dict[str, Any]
     preview_frames: int
     threads: int | None = None
+    splat_backend: str = "auto"
 
     @property
     def device(self) -> str:
@@ -105,6 +108,9 @@ def plan_run(
         raise InputError(
             f"threads must be an integer in [1, {MAX_THREADS}] or null, got {threads!r}"
         )
+    splat_backend = (_section(cfg, "splat") if "splat" in cfg else {}).get("backend", "auto")
+    if splat_backend not in BACKENDS:
+        raise InputError(f"splat.backend must be one of {list(BACKENDS)}, got {splat_backend!r}")
     pipeline = load_pipeline(_pipeline_name(cfg), stage_types, accepted_upstream)
     for dotted in LABELS:  # after the pipeline: `variant` is `${pipeline.name}` by default
         _require_label(cfg, dotted)
@@ -147,6 +153,7 @@ def plan_run(
         eval_config=eval_config,
         preview_frames=_preview_frames(cfg),
         threads=threads,
+        splat_backend=splat_backend,
     )
 
 

@@ -50,6 +50,7 @@ from relaygs.pipeline import (
     run_pipeline,
 )
 from relaygs.progress import job_label, print_labelled
+from relaygs.splat import use_backend
 
 TENSORBOARD_DIR = "tb"
 HPARAM_EXCLUDED_SECTIONS = ("paths", "artifacts")
@@ -119,6 +120,7 @@ def _load_scene(plan: RunPlan) -> Scene:
     """The run's scene, loaded (generated first, for a synthetic one) with the run's threads;
     a disk or memory failure as a one-line ResourceError."""
     set_threads(plan.threads)
+    use_backend(plan.splat_backend)
     try:
         return prepare_scene(plan.scene, plan.scenes_dir, progress=plan.progress)
     except (OSError, MemoryError, RuntimeError) as error:

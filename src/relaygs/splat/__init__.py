@@ -1,6 +1,20 @@
-"""Differentiable Gaussian splatting in pure torch (CPU and CUDA), gsplat-style API."""
+"""Differentiable Gaussian splatting, gsplat-style API: a torch path (CPU and CUDA) and native
+CPU kernels behind one `rasterization` entry."""
 
 from relaygs.splat.composite import FixedLayer
-from relaygs.splat.rasterize import RENDER_MODES, rasterization
+from relaygs.splat.rasterize import (
+    BACKENDS,
+    RENDER_MODES,
+    default_backend,
+    rasterization,
+    use_backend,
+)
 
-__all__ = ["RENDER_MODES", "FixedLayer", "rasterization"]
+__all__ = [
+    "BACKENDS",
+    "RENDER_MODES",
+    "FixedLayer",
+    "default_backend",
+    "rasterization",
+    "use_backend",
+]

@@ -5,13 +5,17 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 import torch
 
 from relaygs.errors import InputError
+from relaygs.splat import native
 from relaygs.splat.composite import CompositeGaussians, FixedLayer
+from relaygs.splat.native.binning import bin_gaussians_native
+from relaygs.splat.native.composite import NativeCompositeGaussians
 from relaygs.splat.projection import (
     ALPHA_MIN,
     MAX_FOCAL,
@@ -29,6 +33,7 @@ from relaygs.splat.tiles import (
 )
 
 RENDER_MODES = ("RGB", "D", "RGB+D")
+BACKENDS = ("auto", "torch", "native")
 MIN_NEAR_PLANE = 1e-9
 """Smallest near plane: the projection's backward divides by depth², and fx/depth² stays a
 finite float32 for any focal length below 1e20 (scenes' near planes are >= 1.1e-8)."""
@@ -307,6 +312,66 @@ def finish_depth(render: torch.Tensor, alphas: torch.Tensor, render_mode: str) -
     return depth if render_mode == "D" else torch.cat([render[..., :-1], depth], dim=-1)
 
 
+@dataclass(frozen=True)
+class Backend:
+    """How one backend bins and composites (the projection is shared torch code)."""
+
+    name: str
+    bin: Callable[..., TileBins]
+    composite: type[torch.autograd.Function]
+
+
+TORCH_BACKEND = Backend("torch", bin_gaussians, CompositeGaussians)
+NATIVE_BACKEND = Backend("native", bin_gaussians_native, NativeCompositeGaussians)
+
+
+_default_backend = "auto"
+
+
+def use_backend(backend: str) -> None:
+    """Set the backend that `rasterization(backend=None)` uses in this process (a run's
+    `splat.backend`); "native" is checked here, so a run that cannot have it stops before
+    any work with one line naming the cause."""
+    global _default_backend
+    _check(backend in BACKENDS, f"splat.backend must be one of {BACKENDS}, got {backend!r}")
+    if backend == "native":
+        try:
+            native.load()
+        except native.NativeUnavailableError as err:
+            raise InputError(f"splat.backend 'native' is unavailable: {err}") from err
+    _default_backend = backend
+
+
+def default_backend() -> str:
+    """The backend `rasterization(backend=None)` uses ("auto" unless `use_backend` set one)."""
+    return _default_backend
+
+
+def select_backend(backend: str, like: torch.Tensor) -> Backend:
+    """The backend `backend` names, for tensors like `like`.
+
+    "auto" takes the native kernels for CPU float tensors when they build (the first failure
+    prints one line why) and the torch path otherwise; "native" raises InputError naming
+    the cause where the kernels cannot run.
+    """
+    _check(backend in BACKENDS, f"backend must be one of {BACKENDS}, got {backend!r}")
+    if backend == "torch":
+        return TORCH_BACKEND
+    if backend == "auto":
+        ok = native.supports(like) and native.available()
+        return NATIVE_BACKEND if ok else TORCH_BACKEND
+    _check(
+        native.supports(like),
+        f"backend 'native' renders float32/float64 CPU tensors, got {like.dtype} on "
+        f"{like.device.type}",
+    )
+    try:
+        native.load()
+    except native.NativeUnavailableError as err:
+        raise InputError(f"backend 'native' is unavailable: {err}") from err
+    return NATIVE_BACKEND
+
+
 def rasterization(
     means: torch.Tensor,
     quats: torch.Tensor,
@@ -326,6 +391,7 @@ def rasterization(
     render_mode: str = "RGB",
     tile_size: int = DEFAULT_TILE_SIZE,
     fixed: FixedLayer | None = None,
+    backend: str | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor, dict[str, Any]]:
     """Render N Gaussians into C cameras; returns colors [C,H,W,D], alphas [C,H,W,1], meta.
 
@@ -339,6 +405,9 @@ def rasterization(
     per-camera features. `fixed` (RGB only) gives the render
     of Gaussians that have not changed since it was made: the tiles only they touch are
     copied from it, which skips their compositing and backward (see FixedLayer).
+    `backend` picks binning and compositing: "auto" (the native kernels on CPU where they
+    build, else torch), "torch" or "native" (see `select_backend`); None takes the process
+    default (`use_backend`, "auto" unless set). `meta["backend"]` names the one used.
     """
     _check(
         not isinstance(tile_size, bool) and isinstance(tile_size, int) and tile_size >= 1,
@@ -349,6 +418,7 @@ def rasterization(
         validate_fixed(
             fixed, means.shape[0], viewmats.shape[0], width, height, channels, render_mode
         )
+    chosen = select_backend(default_backend() if backend is None else backend, means)
     prep = prepare(
         means, quats, scales, opacities, colors, viewmats, Ks, width, height,
         sh_degree=sh_degree, backgrounds=backgrounds, near_plane=near_plane,
@@ -359,9 +429,9 @@ def rasterization(
     means2d = proj.means2d
     if means2d.requires_grad:
         means2d.retain_grad()
-    bins = bin_gaussians(proj.bounds, proj.depths.detach(), proj.visible, width, height, tile_size)
+    bins = chosen.bin(proj.bounds, proj.depths.detach(), proj.visible, width, height, tile_size)
     opac = torch.where(proj.visible, opacities[None], torch.zeros_like(proj.depths))
-    render, alphas = CompositeGaussians.apply(
+    render, alphas = chosen.composite.apply(
         means2d, proj.conics, opac, prep.features, prep.backgrounds, proj.bounds,
         _moving_tiles(bins, fixed), width, height, fixed,
     )  # fmt: skip
@@ -379,5 +449,6 @@ def rasterization(
         "num_pairs": int(bins.pair_gaussian.numel()),
         "bounds": proj.bounds,
         "features": prep.features,
+        "backend": chosen.name,
     }
     return render, alphas, meta

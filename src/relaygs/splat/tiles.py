@@ -39,7 +39,8 @@ class TileBins:
     pair_gaussian: torch.Tensor  # [M] flat index c*N + n, grouped by tile, front to back
     tile_start: torch.Tensor  # [num_tiles] offset of each tile's list in pair_gaussian
     tile_count: torch.Tensor  # [num_tiles] list length
-    groups: list[TileGroup]  # tiles processed together, lists of similar length
+    groups: list[TileGroup]  # tiles processed together, lists of similar length (torch path)
+    busy_tiles: torch.Tensor | None = None  # tiles to composite, longest list first (native)
 
     @property
     def num_tiles(self) -> int:
@@ -112,7 +113,9 @@ def tiles_touched_by(bins: TileBins, rows: torch.Tensor) -> torch.Tensor:
 
 
 def only_tiles(bins: TileBins, tiles: torch.Tensor) -> TileBins:
-    """The bins with processing groups over the tiles where `tiles` [num_tiles] is true."""
+    """The bins with processing groups (or busy tiles) only where `tiles` [num_tiles] is true."""
+    if bins.busy_tiles is not None:
+        return replace(bins, busy_tiles=bins.busy_tiles[tiles[bins.busy_tiles]])
     counts = torch.where(tiles, bins.tile_count, torch.zeros_like(bins.tile_count))
     return replace(bins, groups=_group_tiles(counts, bins.tile_size**2))
 

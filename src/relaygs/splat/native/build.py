@@ -1,0 +1,131 @@
+"""The native CPU splatting kernels (binning, compositing forward and backward), built from
+this folder's C++ source on first use, then cached.
+
+`load()` returns the compiled module, or raises NativeUnavailableError with a one-line reason
+(no C++ compiler, no ninja, a compile error with the log's path). The build goes to torch's
+extension folder (`TORCH_EXTENSIONS_DIR`, default ~/.cache/torch_extensions) under a name
+that hashes the source, the flags, the torch version and this CPU, so a changed source or
+another machine sharing the folder gets its own build, compiled for the CPU it runs on.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import os
+import platform
+import shutil
+import sys
+import tempfile
+from pathlib import Path
+from types import ModuleType
+
+import torch
+
+HERE = Path(__file__).parent
+SOURCES = [HERE / "module.cpp", HERE / "binning.cpp", HERE / "composite.cpp"]
+HEADERS = [HERE / "kernels.h"]
+# -fopenmp compiles at::parallel_for's OpenMP region (without it the loop runs on one
+# thread); the process already holds torch's libgomp, which the kernel then shares.
+CFLAGS = ["-O3", "-march=native", "-fopenmp", "-fno-math-errno"]
+
+
+class NativeUnavailableError(RuntimeError):
+    """The native kernel cannot be built or loaded here; the message says why in one line."""
+
+
+def _cpu_signature() -> str:
+    """What -march=native compiles for: the CPU's model and flags (Linux), else the machine."""
+    try:
+        text = Path("/proc/cpuinfo").read_text(errors="replace")
+    except OSError:
+        return platform.machine()
+    keep = [line for line in text.splitlines() if line.startswith(("model name", "flags"))]
+    return "\n".join(sorted(set(keep))) or platform.machine()
+
+
+def build_name() -> str:
+    """Extension name unique to this source, flags, torch and CPU."""
+    digest = hashlib.sha256()
+    for path in (*SOURCES, *HEADERS):
+        digest.update(path.read_bytes())
+    digest.update(" ".join(CFLAGS).encode())
+    digest.update(torch.__version__.encode())
+    digest.update(_cpu_signature().encode())
+    return f"relaygs_splat_{digest.hexdigest()[:12]}"
+
+
+def compiler() -> str | None:
+    """Path of the C++ compiler torch's build would call ($CXX, else c++), or None."""
+    return shutil.which(os.environ.get("CXX", "c++"))
+
+
+def _ninja_available() -> bool:
+    from torch.utils.cpp_extension import is_ninja_available
+
+    return is_ninja_available()
+
+
+def load() -> ModuleType:
+    """The compiled kernel module, built on the process's first call; a failure is kept
+    and raised again (NativeUnavailableError) without another build attempt."""
+    module, reason = _build_once()
+    if module is None:
+        raise NativeUnavailableError(reason)
+    return module
+
+
+@functools.cache
+def _build_once() -> tuple[ModuleType | None, str]:
+    """(module, "") or (None, why it cannot be had): one build attempt per process."""
+    if compiler() is None:
+        return (
+            None,
+            f"no C++ compiler found ({os.environ.get('CXX', 'c++')}; set CXX or install g++)",
+        )
+    if not _ninja_available():
+        return None, "ninja not found (pip install ninja)"
+    from torch.utils.cpp_extension import load as build
+
+    name = build_name()
+    try:
+        module = build(
+            name=name,
+            sources=[str(path) for path in SOURCES],
+            extra_cflags=CFLAGS,
+            extra_ldflags=["-fopenmp"],
+            verbose=False,
+        )
+    except (RuntimeError, OSError, ImportError) as err:
+        log = Path(tempfile.gettempdir()) / f"{name}-build.log"
+        try:
+            log.write_text(str(err))
+            where = f"log: {log}"
+        except OSError:
+            where = "its log could not be written"
+        return None, f"the kernel failed to build ({type(err).__name__}; {where})"
+    return module, ""
+
+
+@functools.cache
+def _warn_fallback(reason: str) -> None:
+    print(
+        f"relaygs: native CPU splatting kernel unavailable: {reason}; using the torch path "
+        "(about 5x slower training)",
+        file=sys.stderr,
+    )
+
+
+def available() -> bool:
+    """True when the kernel loads; the first failure prints one line saying why."""
+    try:
+        load()
+    except NativeUnavailableError as err:
+        _warn_fallback(str(err))
+        return False
+    return True
+
+
+def supports(tensor: torch.Tensor) -> bool:
+    """Whether the kernel handles renders of this tensor's device and dtype."""
+    return tensor.device.type == "cpu" and tensor.dtype in (torch.float32, torch.float64)

@@ -1,0 +1,11 @@
+// Python bindings of the native splatting kernels (built by relaygs.splat.native).
+#include <torch/extension.h>
+
+#include "kernels.h"
+
+PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
+  m.def("bin_tiles", &relaygs::bin_tiles, "Depth-ordered Gaussian lists per tile");
+  m.def("composite_forward", &relaygs::composite_forward, "Composite tiles front to back");
+  m.def("composite_backward", &relaygs::composite_backward,
+        "Per-Gaussian gradients, tiles walked back to front");
+}
