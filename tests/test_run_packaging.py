@@ -1,5 +1,6 @@
-"""conf/ and pipelines/ ship inside the package: the `_data` links and pyproject's package-data
-globs cover every file, so a regular install finds the same configs as the repository."""
+"""conf/, pipelines/ and the native kernels' C++ source ship inside the package: the `_data`
+links and pyproject's package-data globs cover every file, so a regular install finds the same
+configs as the repository and can build the kernels."""
 
 from pathlib import Path
 
@@ -44,7 +45,7 @@ def test_packaged_data_links_point_at_the_repository_folders():
     assert (paths.PACKAGED_DATA_DIR / "pipelines").resolve() == paths.REPO_ROOT / "pipelines"
 
 
-def test_package_data_globs_cover_every_config_and_pipeline_file(pyproject):
+def test_package_data_globs_cover_every_config_pipeline_and_kernel_source_file(pyproject):
     patterns = pyproject["tool"]["setuptools"]["package-data"]["relaygs"]
     shipped = {
         path.relative_to(paths.PACKAGE_DIR).as_posix()
@@ -57,4 +58,10 @@ def test_package_data_globs_cover_every_config_and_pipeline_file(pyproject):
         for path in Path(paths.REPO_ROOT, folder).rglob("*")
         if path.is_file()
     }
-    assert expected and shipped == expected
+    native = paths.PACKAGE_DIR / "splat" / "native"
+    kernels = {
+        path.relative_to(paths.PACKAGE_DIR).as_posix()
+        for path in native.iterdir()
+        if path.suffix in (".cpp", ".h")
+    }
+    assert expected and kernels and shipped == expected | kernels

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import gc
 import statistics
 import sys
 import time
@@ -15,9 +16,9 @@ from relaygs.cli import OneLineErrorParser, int_at_least, writable_file
 from relaygs.commands import bench_sweeps, bench_train
 from relaygs.commands.bench_output import save_json
 from relaygs.device import synchronize, usable_device
-from relaygs.errors import RelayGSError
+from relaygs.errors import InputError, RelayGSError
 from relaygs.paths import REPO_ROOT
-from relaygs.splat import rasterization
+from relaygs.splat import BACKENDS, rasterization
 
 GARDEN_PATH = REPO_ROOT.parent / "shared" / "data" / "test_garden.npz"
 
@@ -85,75 +86,120 @@ def _median_ms(fn: Callable[[], None], repeats: int, device: torch.device) -> fl
     return statistics.median(times)
 
 
-def _peak_rss_mb() -> float:
-    import resource
+CASES: dict[str, Callable[[], dict]] = {
+    "random-2k-256": lambda: random_case(2_000),
+    "random-10k-256": lambda: random_case(10_000),
+    "random-50k-256": lambda: random_case(50_000),
+    "garden": garden_case,
+}
 
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
-
-def time_splat(case: dict, repeats: int, device: torch.device) -> dict:
-    """Median forward and forward+backward milliseconds for one scene."""
-    case = {k: v.to(device) if torch.is_tensor(v) else v for k, v in case.items()}
+def _forward_backward(case: dict, backend: str) -> Callable[[], None]:
     learn = ("means", "quats", "scales", "opacities", "colors")
+
+    def run() -> None:
+        params = {k: case[k].detach().requires_grad_(True) for k in learn}
+        colors, alphas, _ = rasterization(**{**case, **params}, backend=backend)
+        (colors.sum() + alphas.sum()).backward()
+
+    return run
+
+
+def time_splat(case: dict, repeats: int, device: torch.device, backend: str) -> dict:
+    """Median forward and forward+backward milliseconds for one scene on one backend."""
+    case = {k: v.to(device) if torch.is_tensor(v) else v for k, v in case.items()}
 
     def forward() -> None:
         with torch.no_grad():
-            rasterization(**case)
-
-    def forward_backward() -> None:
-        params = {k: case[k].detach().requires_grad_(True) for k in learn}
-        colors, alphas, _ = rasterization(**{**case, **params})
-        (colors.sum() + alphas.sum()).backward()
+            rasterization(**case, backend=backend)
 
     if device.type == "cuda":
         torch.cuda.reset_peak_memory_stats(device)
     fwd = _median_ms(forward, repeats, device)
-    fwd_bwd = _median_ms(forward_backward, repeats, device)
+    fwd_bwd = _median_ms(_forward_backward(case, backend), repeats, device)
     if device.type == "cuda":
         peak = torch.cuda.max_memory_allocated(device) / 2**20
     else:
-        peak = _peak_rss_mb()
-    return {
-        "n_gaussians": int(case["means"].shape[0]),
-        "cameras": int(case["viewmats"].shape[0]),
-        "width": case["width"],
-        "height": case["height"],
-        "fwd_ms": round(fwd, 2),
-        "fwd_bwd_ms": round(fwd_bwd, 2),
-        "peak_mb": round(peak, 1),
-    }
+        peak = _cpu_peak_mb(case, backend)
+    peak = None if peak is None else round(peak, 1)
+    return {"fwd_ms": round(fwd, 2), "fwd_bwd_ms": round(fwd_bwd, 2), "peak_mb": peak}
 
 
-def bench_splat(repeats: int, device: torch.device, cases: list[str]) -> list[dict]:
-    """Run the named splat cases; garden is skipped with a note when its file is absent."""
-    makers = {
-        "random-2k-256": lambda: random_case(2_000),
-        "random-10k-256": lambda: random_case(10_000),
-        "random-50k-256": lambda: random_case(50_000),
-        "garden": garden_case,
-    }
+def _cpu_peak_mb(case: dict, backend: str) -> float | None:
+    """Peak resident memory (MB) a forward+backward adds above what the process held before
+    it, from Linux's peak-RSS counter (reset through /proc/self/clear_refs); None elsewhere."""
+    status, clear = Path("/proc/self/status"), Path("/proc/self/clear_refs")
+
+    def read_kb(field: str) -> int:
+        line = next(x for x in status.read_text().splitlines() if x.startswith(field))
+        return int(line.split()[1])
+
+    run = _forward_backward(case, backend)
+    run()  # warm-up: kernels loaded, allocator caches filled as in the timed runs
+    try:
+        gc.collect()
+        before = read_kb("VmRSS:")
+        clear.write_text("5")
+    except (OSError, StopIteration):
+        return None
+    run()
+    return (read_kb("VmHWM:") - before) / 1024.0
+
+
+def bench_splat(
+    repeats: int, device: torch.device, cases: list[str], backends: list[str]
+) -> list[dict]:
+    """Run the named splat cases on each backend; garden is skipped with a note when its file
+    is absent."""
     results = []
     for name in cases:
-        if name not in makers:
-            raise RelayGSError(f"unknown case {name!r}; choose from {', '.join(makers)}")
+        if name not in CASES:
+            raise RelayGSError(f"unknown case {name!r}; choose from {', '.join(CASES)}")
         if name == "garden" and not GARDEN_PATH.is_file():
             print(f"skipping garden: {GARDEN_PATH} not found", file=sys.stderr)
             continue
-        results.append({"name": name, **time_splat(makers[name](), repeats, device)})
+        case = CASES[name]()
+        row = {
+            "name": name,
+            "n_gaussians": int(case["means"].shape[0]),
+            "cameras": int(case["viewmats"].shape[0]),
+            "width": case["width"],
+            "height": case["height"],
+            "backends": {b: time_splat(case, repeats, device, b) for b in backends},
+        }
+        results.append(row)
     return results
 
 
-def _print_table(rows: list[dict]) -> None:
-    print(
-        f"{'case':<16}{'N':>9}{'cams':>6}{'size':>10}"
-        f"{'fwd ms':>10}{'fwd+bwd ms':>12}{'peak MB':>10}"
-    )
+def _print_table(rows: list[dict], backends: list[str]) -> None:
+    header = f"{'case':<16}{'N':>8}{'cams':>5}{'size':>9}"
+    for b in backends:
+        header += f"{b + ' fwd':>13}{b + ' f+b':>13}{'MB':>6}"
+    if len(backends) == 2:
+        header += f"{'f+b ratio':>11}"
+    print(header + "   (ms; MB: peak memory a forward+backward adds)")
     for r in rows:
-        size = f"{r['width']}x{r['height']}"
-        print(
-            f"{r['name']:<16}{r['n_gaussians']:>9}{r['cameras']:>6}{size:>10}"
-            f"{r['fwd_ms']:>10.1f}{r['fwd_bwd_ms']:>12.1f}{r['peak_mb']:>10.0f}"
-        )
+        line = f"{r['name']:<16}{r['n_gaussians']:>8}{r['cameras']:>5}"
+        line += f"{str(r['width']) + 'x' + str(r['height']):>9}"
+        for b in backends:
+            t = r["backends"][b]
+            peak = "-" if t["peak_mb"] is None else f"{t['peak_mb']:.0f}"
+            line += f"{t['fwd_ms']:>13.1f}{t['fwd_bwd_ms']:>13.1f}{peak:>6}"
+        if len(backends) == 2:
+            first, second = (r["backends"][b]["fwd_bwd_ms"] for b in backends)
+            line += f"{first / second:>10.1f}x"
+        print(line)
+
+
+def _backends(text: str | None, device: torch.device) -> list[str]:
+    """The --backends list: default torch and native on CPU, torch on CUDA."""
+    if text is None:
+        return ["torch", "native"] if device.type == "cpu" else ["torch"]
+    names = [name for name in text.split(",") if name]
+    for name in names:
+        if name not in BACKENDS:
+            raise RelayGSError(f"unknown backend {name!r}; choose from {', '.join(BACKENDS)}")
+    return names
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -166,6 +212,11 @@ def main(argv: list[str] | None = None) -> int:
         "--repeats", type=int_at_least(1), default=5, help="timed runs per case (median)"
     )
     splat.add_argument("--device", default="cpu", help="cpu or cuda")
+    splat.add_argument(
+        "--backends",
+        help="comma-separated backends timed side by side (default: torch,native on cpu, torch "
+        "on cuda); with two, the table gives the first's forward+backward time over the second's",
+    )
     splat.add_argument(
         "--cases",
         default="random-2k-256,random-10k-256,random-50k-256,garden",
@@ -184,10 +235,12 @@ def main(argv: list[str] | None = None) -> int:
         device = usable_device(args.device, "--device")
         if device.type == "cpu":
             torch.set_num_threads(2)
-        rows = bench_splat(args.repeats, device, args.cases.split(","))
-    except RelayGSError as err:
+        backends = _backends(args.backends, device)
+        rows = bench_splat(args.repeats, device, args.cases.split(","), backends)
+    except (RelayGSError, InputError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
-    _print_table(rows)
-    save_json(args.json, {"device": str(device), "threads": torch.get_num_threads(), "cases": rows})
+    _print_table(rows, backends)
+    report = {"device": str(device), "threads": torch.get_num_threads(), "cases": rows}
+    save_json(args.json, report)
     return 0

@@ -3,11 +3,12 @@
 Three measurements, all at the `small` budget's settings on the 160×90, 64-frame `juggle` scene
 (generated into a cache folder on first use):
 - stages: steps/s of warmup, decouple, relay and deform over `--steps` steps each (the first
-  steps, so before the budget's densification has grown the model);
+  steps, so before the budget's densification has grown the model), once per splatting backend
+  of `--backends` (default torch, then auto), with the speed-up of the last over the first;
 - ratio: a deform step and a decouple step on the same N Gaussians (no densification), the
-  deform/decouple step-time ratio (target ≤ 1.5);
+  deform/decouple step-time ratio (target ≤ 1.5), on the last backend;
 - full (`--full`): the whole default pipeline decouple → relay → deform at `small`, plus
-  evaluation, timed end to end (target ≤ 15 minutes on 2 CPU cores).
+  evaluation, timed end to end on the last backend (target ≤ 15 minutes on 2 CPU cores).
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ from relaygs.device import set_threads
 from relaygs.errors import RelayGSError
 from relaygs.model import GaussianSet
 from relaygs.pipeline.artifact import Artifact
+from relaygs.splat import BACKENDS, default_backend, use_backend
 from relaygs.stages import BUDGETS, STAGES, evaluate, log
 from relaygs.stages.decouple import DecoupleConfig
 from relaygs.stages.scene_model import SceneModel, foreground_with_segments
@@ -55,6 +57,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--threads", type=int_at_least(1), help="torch CPU threads (default: torch's default)"
     )
+    parser.add_argument(
+        "--backends",
+        default="torch,auto",
+        help="comma-separated splatting backends the stages are timed on (default torch,auto)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -71,15 +78,28 @@ def run(args: argparse.Namespace) -> int:
 
 
 def measure(args: argparse.Namespace) -> dict[str, Any]:
-    """The report: scene, per-stage speeds, step-cost ratio and (with --full) the pipeline."""
+    """The report: scene, per-stage speeds per backend, step-cost ratio and (with --full) the
+    pipeline; the process's splatting backend is left as it was."""
+    backends = [name for name in args.backends.split(",") if name]
+    for name in backends:
+        if name not in BACKENDS:
+            raise RelayGSError(f"unknown backend {name!r}; choose from {', '.join(BACKENDS)}")
     scene = bench_scene(args.cache)
     report: dict[str, Any] = {
         "scene": {**SCENE, "points": len(scene.points), "threads": torch.get_num_threads()},
-        "stages": stage_speeds(scene, args.steps),
-        "ratio": step_cost_ratio(scene, args.steps),
+        "backends": backends,
+        "stages": {},
     }
-    if args.full:
-        report["full"] = full_pipeline(scene)
+    previous = default_backend()
+    try:
+        for name in backends:
+            use_backend(name)
+            report["stages"][name] = stage_speeds(scene, args.steps)
+        report["ratio"] = step_cost_ratio(scene, args.steps)
+        if args.full:
+            report["full"] = full_pipeline(scene)
+    finally:
+        use_backend(previous)
     return report
 
 
@@ -215,11 +235,15 @@ def _print(report: dict[str, Any]) -> None:
         f"scene {scene['preset']} {scene['width']}x{scene['height']}, {scene['frames']} frames, "
         f"{scene['points']} points, {scene['threads']} threads"
     )
-    print(f"{'stage':<10}{'steps':>7}{'steps/s':>10}{'Gaussians':>11}")
-    for row in report["stages"]:
-        print(
-            f"{row['stage']:<10}{row['steps']:>7}{row['steps_per_s']:>10.2f}{row['gaussians']:>11}"
-        )
+    backends = report["backends"]
+    header = f"{'stage':<10}{'steps':>7}{'Gaussians':>11}"
+    header += "".join(f"{name + ' steps/s':>16}" for name in backends)
+    print(header + (f"{'speed-up':>10}" if len(backends) > 1 else ""))
+    for index, row in enumerate(report["stages"][backends[0]]):
+        speeds = [report["stages"][name][index]["steps_per_s"] for name in backends]
+        line = f"{row['stage']:<10}{row['steps']:>7}{row['gaussians']:>11}"
+        line += "".join(f"{speed:>16.2f}" for speed in speeds)
+        print(line + (f"{speeds[-1] / speeds[0]:>9.2f}x" if len(backends) > 1 else ""))
     ratio = report["ratio"]
     print(
         f"step cost at {ratio['gaussians']} Gaussians: decouple {ratio['decouple_ms']:.0f} ms, "
