@@ -290,12 +290,12 @@ int64_t backward_tile(const Inputs<scalar_t>& in, int64_t tile, const Layout& la
     for (int64_t b = 0; b < B; ++b) {
       const PairValues<scalar_t> pv(gauss, pix.col[b], pix.row[b]);
       const M hit = pv.composited & (last_hit[b] >= index);
-      const V one_minus = one - pv.alpha;  // >= 0.01
-      const V before = trans[b] / one_minus;
+      const V inverse = one / (one - pv.alpha);  // 1 − α >= 0.01
+      const V before = trans[b] * inverse;
       const V w = pv.alpha * before;
       // dL/dα = v·T − (Σ_{j>i} v_j w_j + K) / (1 − α); the clamp at 0.99 passes none.
       const V d_alpha = (hit & (pv.alpha_raw < alpha_max))
-                            ? v[b] * before - (suffix[b] + k[b]) / one_minus
+                            ? v[b] * before - (suffix[b] + k[b]) * inverse
                             : zero;
       weight[b] = hit ? w : zero;
       suffix[b] = hit ? suffix[b] + v[b] * w : suffix[b];
