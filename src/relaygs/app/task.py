@@ -18,6 +18,7 @@ from typing import Any, NamedTuple
 import torch
 from omegaconf import DictConfig
 
+from relaygs.allocator import keep_freed_memory
 from relaygs.app.config import resolve_config
 from relaygs.app.evaluation import Evaluation, evaluate_through_store, test_set_id
 from relaygs.app.plan import RunPlan, plan_run
@@ -121,6 +122,7 @@ def _load_scene(plan: RunPlan) -> Scene:
     a disk or memory failure as a one-line ResourceError."""
     set_threads(plan.threads)
     use_backend(plan.splat_backend)
+    keep_freed_memory()
     try:
         return prepare_scene(plan.scene, plan.scenes_dir, progress=plan.progress)
     except (OSError, MemoryError, RuntimeError) as error:

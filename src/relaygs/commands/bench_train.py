@@ -26,6 +26,7 @@ from typing import Any
 
 import torch
 
+from relaygs.allocator import keep_freed_memory
 from relaygs.cli import int_at_least, path_argument, writable_file
 from relaygs.commands.bench_output import save_json
 from relaygs.data import Scene, load_scene
@@ -67,6 +68,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run the measurements, print a table, optionally write JSON; returns the exit code."""
     set_threads(args.threads)
+    keep_freed_memory()  # as a run does
     try:
         report = measure(args)
     except RelayGSError as error:

@@ -134,7 +134,7 @@ def camera_colors(
     dirs = means[None] - centres[:, None]
     norm = torch.linalg.vector_norm(dirs, dim=-1, keepdim=True)
     dirs = dirs / torch.where(norm > 0, norm, torch.ones_like(norm))
-    return eval_sh(sh_degree, colors[None].expand(c, *colors.shape), dirs)
+    return eval_sh(sh_degree, colors, dirs)
 
 
 @dataclass

@@ -60,13 +60,16 @@ def sh_basis(degree: int, dirs: torch.Tensor) -> torch.Tensor:
 
 
 def eval_sh(degree: int, coeffs: torch.Tensor, dirs: torch.Tensor) -> torch.Tensor:
-    """Colours [..., 3] from SH coefficients [..., K, 3] (K >= (degree+1)^2) along dirs [..., 3].
+    """Colours [C,N,3] of N Gaussians' SH coefficients [N,K,3] (K >= (degree+1)^2) along each
+    of C cameras' view directions [C,N,3].
 
     As in 3DGS the result is offset by 0.5 and clamped at 0, so SH DC = (rgb - 0.5) / C0.
+    One small matrix product per Gaussian ([C,K] by [K,3]) rather than a [C,N,K,3] product
+    and its sum: the coefficients are not copied per camera, forward or backward.
     """
     k = num_sh_bases(degree)
     if coeffs.shape[-2] < k:
         raise ValueError(f"SH degree {degree} needs {k} coefficients, got {coeffs.shape[-2]}")
-    basis = sh_basis(degree, dirs)
-    rgb = (basis.unsqueeze(-1) * coeffs[..., :k, :]).sum(dim=-2)
+    basis = sh_basis(degree, dirs)  # [C,N,K]
+    rgb = torch.bmm(basis.transpose(0, 1), coeffs[:, :k, :]).transpose(0, 1)
     return torch.clamp_min(rgb + 0.5, 0.0)
