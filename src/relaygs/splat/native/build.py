@@ -110,8 +110,8 @@ def _build_once() -> tuple[ModuleType | None, str]:
 @functools.cache
 def _warn_fallback(reason: str) -> None:
     print(
-        f"relaygs: native CPU splatting kernel unavailable: {reason}; using the torch path "
-        "(about 5x slower training)",
+        f"relaygs: native CPU splatting kernels unavailable: {reason}; using the torch path "
+        "(5-8x slower renders, about 2x slower training)",
         file=sys.stderr,
     )
 
