@@ -141,7 +141,7 @@ def test_without_a_compiler_auto_renders_with_torch_and_says_so_once(tmp_path):
     assert len(warning) == 1 and "no C++ compiler" in warning[0], done.stderr
 
 
-def test_a_kernel_that_fails_to_compile_names_its_log(tmp_path, monkeypatch):
+def test_a_kernel_that_fails_to_compile_names_its_log(tmp_path, monkeypatch, capsys):
     broken = tmp_path / "broken.cpp"
     broken.write_text("this is not C++\n")
     monkeypatch.setattr(build, "SOURCES", [broken])
@@ -152,3 +152,4 @@ def test_a_kernel_that_fails_to_compile_names_its_log(tmp_path, monkeypatch):
     assert module is None
     log = Path(reason.split("log: ")[1].rstrip(")"))
     assert log.parent == tmp_path and "broken.cpp" in log.read_text()
+    assert str(tmp_path / "build") in capsys.readouterr().err  # the build said where it works

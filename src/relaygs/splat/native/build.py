@@ -4,8 +4,9 @@ this folder's C++ source on first use, then cached.
 `load()` returns the compiled module, or raises NativeUnavailableError with a one-line reason
 (no C++ compiler, no ninja, a compile error with the log's path). The build goes to torch's
 extension folder (`TORCH_EXTENSIONS_DIR`, default ~/.cache/torch_extensions) under a name
-that hashes the source, the flags, the torch version and this CPU, so a changed source or
-another machine sharing the folder gets its own build, compiled for the CPU it runs on.
+that hashes the source (content and folder), the flags, the torch version and this CPU, so a
+changed source, another checkout or another machine sharing the folder gets its own build,
+compiled for the CPU it runs on. A build says so in one line first.
 """
 
 from __future__ import annotations
@@ -45,14 +46,23 @@ def _cpu_signature() -> str:
 
 
 def build_name() -> str:
-    """Extension name unique to this source, flags, torch and CPU."""
+    """Extension name unique to this source (its content and folder: ninja rebuilds when the
+    sources' paths change, so two checkouts must not share a build), flags, torch and CPU."""
     digest = hashlib.sha256()
     for path in (*SOURCES, *HEADERS):
+        digest.update(str(path.resolve()).encode())
         digest.update(path.read_bytes())
     digest.update(" ".join(CFLAGS).encode())
     digest.update(torch.__version__.encode())
     digest.update(_cpu_signature().encode())
     return f"relaygs_splat_{digest.hexdigest()[:12]}"
+
+
+def build_folder(name: str) -> Path:
+    """Where extension `name` is built and cached: torch's extension folder
+    ($TORCH_EXTENSIONS_DIR, default ~/.cache/torch_extensions)."""
+    root = os.environ.get("TORCH_EXTENSIONS_DIR") or Path.home() / ".cache" / "torch_extensions"
+    return Path(root) / name
 
 
 def compiler() -> str | None:
@@ -88,12 +98,22 @@ def _build_once() -> tuple[ModuleType | None, str]:
     from torch.utils.cpp_extension import load as build
 
     name = build_name()
+    folder = build_folder(name)
     try:
+        folder.mkdir(parents=True, exist_ok=True)
+        if not (folder / f"{name}.so").is_file():
+            print(
+                f"relaygs: building the native splatting kernels for this CPU (once, about 30 s "
+                f"on 2 cores) in {folder}",
+                file=sys.stderr,
+                flush=True,
+            )
         module = build(
             name=name,
             sources=[str(path) for path in SOURCES],
             extra_cflags=CFLAGS,
             extra_ldflags=["-fopenmp"],
+            build_directory=str(folder),
             verbose=False,
         )
     except (RuntimeError, OSError, ImportError) as err:
