@@ -53,6 +53,7 @@ def splat_backend(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatc
         return original(backend, like)
 
     monkeypatch.setattr(rasterize, "select_backend", forced)
+    monkeypatch.setattr(rasterize, "_default_backend", "auto")
     return chosen
 
 

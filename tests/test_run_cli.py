@@ -140,6 +140,7 @@ def _main(args):
         (["+paths.output=x"], "paths: unknown setting(s) ['output']"),
         (["+sed=1"], "top level: unknown setting(s) ['sed']"),
         (["threads=100000"], "threads must be an integer in [1, 1024] or null, got 100000"),
+        (["splat.backend=fast"], "splat.backend"),
     ],
 )
 def test_bad_input_is_one_line_before_any_work(fakes, tmp_path, capsys, args, fragment):

@@ -23,6 +23,7 @@ from relaygs.app.tensorboard import TensorBoardLog, flatten_config
 from relaygs.errors import InputError
 from relaygs.per_view import PER_VIEW, PER_VIEW_FILE, read_per_view
 from relaygs.pipeline import ArtifactStore, CorruptArtifactError
+from relaygs.splat import default_backend, use_backend
 from relaygs.stages import UPSTREAM
 
 REQUIRED_FIELDS = {
@@ -309,6 +310,16 @@ def test_another_cpu_thread_count_is_another_evaluation(base_config, tmp_path):
     finally:
         torch.set_num_threads(threads)
     assert fakes.evaluations == 2 and fakes.ran("deform") == 1
+
+
+def test_the_runs_splat_backend_is_the_jobs_default(base_config, tmp_path):
+    try:
+        _run(_with(base_config, splat__backend="torch"), tmp_path / "a", FakeStages())
+        assert default_backend() == "torch"
+        _run(base_config, tmp_path / "b", FakeStages())
+        assert default_backend() == "auto"
+    finally:
+        use_backend("auto")
 
 
 def test_the_printed_ply_and_render_commands_take_the_runs_thread_count(

@@ -57,9 +57,11 @@ std::vector<at::Tensor> bin_tiles(const at::Tensor& bounds, const at::Tensor& de
   TORCH_CHECK(bounds.device().is_cpu() && bounds.scalar_type() == at::kInt &&
                   bounds.is_contiguous() && bounds.dim() == 3 && bounds.size(2) == 4,
               "bounds must be a contiguous CPU [C,N,4] int32 tensor");
-  TORCH_CHECK(depths.is_contiguous() && depths.sizes() == bounds.sizes().slice(0, 2),
-              "depths must be a contiguous [C,N] tensor");
-  TORCH_CHECK(visible.scalar_type() == at::kBool && visible.is_contiguous() &&
+  TORCH_CHECK(depths.device().is_cpu() && depths.is_contiguous() &&
+                  depths.sizes() == bounds.sizes().slice(0, 2),
+              "depths must be a contiguous CPU [C,N] tensor");
+  TORCH_CHECK(visible.device().is_cpu() && visible.scalar_type() == at::kBool &&
+                  visible.is_contiguous() &&
                   visible.sizes() == depths.sizes(),
               "visible must be a contiguous [C,N] bool tensor");
   TORCH_CHECK(tile_size >= 1 && width >= 1 && height >= 1, "bad image or tile size");

@@ -11,6 +11,7 @@ compiled for the CPU it runs on. A build says so in one line first.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import hashlib
 import os
@@ -18,17 +19,22 @@ import platform
 import shutil
 import sys
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 from types import ModuleType
 
 import torch
+from filelock import FileLock
 
 HERE = Path(__file__).parent
 SOURCES = [HERE / "module.cpp", HERE / "binning.cpp", HERE / "composite.cpp"]
 HEADERS = [HERE / "kernels.h"]
 # -fopenmp compiles at::parallel_for's OpenMP region (without it the loop runs on one
 # thread); the process already holds torch's libgomp, which the kernel then shares.
-CFLAGS = ["-O3", "-march=native", "-fopenmp", "-fno-math-errno"]
+# -ffp-contract=off: no fused multiply-adds, so the forward and the backward, which evaluate
+# each pair in separately inlined copies of one function, round it identically and agree on
+# which pairs pass the 1/255 and power >= 0 tests.
+CFLAGS = ["-O3", "-march=native", "-fopenmp", "-fno-math-errno", "-ffp-contract=off"]
 
 
 class NativeUnavailableError(RuntimeError):
@@ -54,6 +60,7 @@ def build_name() -> str:
         digest.update(path.read_bytes())
     digest.update(" ".join(CFLAGS).encode())
     digest.update(torch.__version__.encode())
+    digest.update(sys.implementation.cache_tag.encode())  # the Python ABI it links against
     digest.update(_cpu_signature().encode())
     return f"relaygs_splat_{digest.hexdigest()[:12]}"
 
@@ -63,6 +70,13 @@ def build_folder(name: str) -> Path:
     ($TORCH_EXTENSIONS_DIR, default ~/.cache/torch_extensions)."""
     root = os.environ.get("TORCH_EXTENSIONS_DIR") or Path.home() / ".cache" / "torch_extensions"
     return Path(root) / name
+
+
+@contextlib.contextmanager
+def _exclusive(path: Path) -> Iterator[None]:
+    """Hold an exclusive lock on `path` (released by the OS if this process dies)."""
+    with FileLock(path):
+        yield
 
 
 def compiler() -> str | None:
@@ -101,21 +115,25 @@ def _build_once() -> tuple[ModuleType | None, str]:
     folder = build_folder(name)
     try:
         folder.mkdir(parents=True, exist_ok=True)
-        if not (folder / f"{name}.so").is_file():
-            print(
-                f"relaygs: building the native splatting kernels for this CPU (once, about 30 s "
-                f"on 2 cores) in {folder}",
-                file=sys.stderr,
-                flush=True,
+        with _exclusive(folder / "relaygs.lock"):
+            if not (folder / f"{name}.so").is_file():
+                print(
+                    "relaygs: building the native splatting kernels for this CPU (once, about "
+                    f"30 s on 2 cores) in {folder}",
+                    file=sys.stderr,
+                    flush=True,
+                )
+            # torch's own lock file outlives a builder killed mid-build and would make every
+            # later build wait forever; under our lock no other build can be running
+            (folder / "lock").unlink(missing_ok=True)
+            module = build(
+                name=name,
+                sources=[str(path) for path in SOURCES],
+                extra_cflags=CFLAGS,
+                extra_ldflags=["-fopenmp"],
+                build_directory=str(folder),
+                verbose=False,
             )
-        module = build(
-            name=name,
-            sources=[str(path) for path in SOURCES],
-            extra_cflags=CFLAGS,
-            extra_ldflags=["-fopenmp"],
-            build_directory=str(folder),
-            verbose=False,
-        )
     except (RuntimeError, OSError, ImportError) as err:
         log = Path(tempfile.gettempdir()) / f"{name}-build.log"
         try:

@@ -332,12 +332,13 @@ void check_common(const at::Tensor& table, const at::Tensor& colors,
   TORCH_CHECK(table.device().is_cpu() && table.is_contiguous() && table.dim() == 2 &&
                   table.size(1) == kColumns,
               "table must be a contiguous CPU [G,10] tensor");
-  TORCH_CHECK(colors.scalar_type() == table.scalar_type() && colors.is_contiguous() &&
+  TORCH_CHECK(colors.device().is_cpu() && colors.scalar_type() == table.scalar_type() &&
+                  colors.is_contiguous() &&
                   colors.dim() == 2 && colors.size(0) == table.size(0),
               "colors must be a contiguous [G,D] tensor of the table's dtype");
   for (const at::Tensor* t : std::initializer_list<const at::Tensor*>{&pair_gaussian, &tile_start, &tile_count, &tiles}) {
-    TORCH_CHECK(t->scalar_type() == at::kLong && t->is_contiguous(),
-                "index tensors must be contiguous int64");
+    TORCH_CHECK(t->device().is_cpu() && t->scalar_type() == at::kLong && t->is_contiguous(),
+                "index tensors must be contiguous CPU int64 tensors");
   }
 }
 
@@ -358,6 +359,8 @@ void composite_forward(const at::Tensor& table, const at::Tensor& colors,
                        int64_t tiles_x, int64_t tiles_y, int64_t width, int64_t height,
                        at::Tensor out, at::Tensor t_final, at::Tensor last) {
   check_common(table, colors, pair_gaussian, tile_start, tile_count, tiles);
+  TORCH_CHECK(out.device().is_cpu() && t_final.device().is_cpu() && last.device().is_cpu(),
+              "outputs must be CPU tensors");
   TORCH_CHECK(out.is_contiguous() && t_final.is_contiguous() && last.is_contiguous() &&
                   out.scalar_type() == table.scalar_type() &&
                   t_final.scalar_type() == table.scalar_type() &&
@@ -388,10 +391,12 @@ std::vector<at::Tensor> composite_backward(
   check_common(table, colors, pair_gaussian, tile_start, tile_count, tiles);
   for (const at::Tensor* t : std::initializer_list<const at::Tensor*>{&grad_out, &pixel_k,
                                                                       &t_final}) {
-    TORCH_CHECK(t->is_contiguous() && t->scalar_type() == table.scalar_type(),
-                "backward tensors must be contiguous, of the table's dtype");
+    TORCH_CHECK(t->device().is_cpu() && t->is_contiguous() &&
+                    t->scalar_type() == table.scalar_type(),
+                "backward tensors must be contiguous CPU tensors of the table's dtype");
   }
-  TORCH_CHECK(last.is_contiguous() && last.scalar_type() == at::kInt, "last must be int32");
+  TORCH_CHECK(last.device().is_cpu() && last.is_contiguous() && last.scalar_type() == at::kInt,
+              "last must be a CPU int32 tensor");
   const Layout layout = make_layout(tile_size, tiles_x, tiles_y, width, height, colors.size(1));
   const int64_t D = layout.channels;
   at::Tensor pair_grads = at::empty({pair_gaussian.numel(), kGradColumns}, table.options());

@@ -4,8 +4,12 @@
 #include "kernels.h"
 
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
-  m.def("bin_tiles", &relaygs::bin_tiles, "Depth-ordered Gaussian lists per tile");
-  m.def("composite_forward", &relaygs::composite_forward, "Composite tiles front to back");
+  // The kernels touch no Python object: other Python threads (TensorBoard's writer, the
+  // scene cache) run while they do.
+  using release = py::call_guard<py::gil_scoped_release>;
+  m.def("bin_tiles", &relaygs::bin_tiles, "Depth-ordered Gaussian lists per tile", release());
+  m.def("composite_forward", &relaygs::composite_forward, "Composite tiles front to back",
+        release());
   m.def("composite_backward", &relaygs::composite_backward,
-        "Per-Gaussian gradients, tiles walked back to front");
+        "Per-Gaussian gradients, tiles walked back to front", release());
 }
