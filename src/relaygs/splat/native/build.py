@@ -4,9 +4,10 @@ this folder's C++ source on first use, then cached.
 `load()` returns the compiled module, or raises NativeUnavailableError with a one-line reason
 (no C++ compiler, no ninja, a compile error with the log's path). The build goes to torch's
 extension folder (`TORCH_EXTENSIONS_DIR`, default ~/.cache/torch_extensions) under a name
-that hashes the source (content and folder), the flags, the torch version and this CPU, so a
-changed source, another checkout or another machine sharing the folder gets its own build,
-compiled for the CPU it runs on. A build says so in one line first.
+that hashes the source, the flags, the torch and Python versions and this CPU, so a changed
+source or another machine sharing the folder gets its own build, compiled for the CPU it runs
+on, while checkouts of the same source share one (it is built from a copy in that folder). A
+build says so in one line first.
 """
 
 from __future__ import annotations
@@ -52,11 +53,10 @@ def _cpu_signature() -> str:
 
 
 def build_name() -> str:
-    """Extension name unique to this source (its content and folder: ninja rebuilds when the
-    sources' paths change, so two checkouts must not share a build), flags, torch and CPU."""
+    """Extension name unique to this source, flags, torch, Python and CPU."""
     digest = hashlib.sha256()
     for path in (*SOURCES, *HEADERS):
-        digest.update(str(path.resolve()).encode())
+        digest.update(path.name.encode())
         digest.update(path.read_bytes())
     digest.update(" ".join(CFLAGS).encode())
     digest.update(torch.__version__.encode())
@@ -70,6 +70,18 @@ def build_folder(name: str) -> Path:
     ($TORCH_EXTENSIONS_DIR, default ~/.cache/torch_extensions)."""
     root = os.environ.get("TORCH_EXTENSIONS_DIR") or Path.home() / ".cache" / "torch_extensions"
     return Path(root) / name
+
+
+def _copy_sources(target: Path) -> list[Path]:
+    """The sources and headers copied into `target` (unchanged files left alone): ninja
+    rebuilds whenever the sources' paths change, so every checkout builds from this one
+    place and shares the cached build of the same source."""
+    target.mkdir(exist_ok=True)
+    for path in (*SOURCES, *HEADERS):
+        copy = target / path.name
+        if not copy.is_file() or copy.read_bytes() != path.read_bytes():
+            shutil.copyfile(path, copy)
+    return [target / path.name for path in SOURCES]
 
 
 @contextlib.contextmanager
@@ -126,9 +138,10 @@ def _build_once() -> tuple[ModuleType | None, str]:
             # torch's own lock file outlives a builder killed mid-build and would make every
             # later build wait forever; under our lock no other build can be running
             (folder / "lock").unlink(missing_ok=True)
+            sources = _copy_sources(folder / "src")
             module = build(
                 name=name,
-                sources=[str(path) for path in SOURCES],
+                sources=[str(path) for path in sources],
                 extra_cflags=CFLAGS,
                 extra_ldflags=["-fopenmp"],
                 build_directory=str(folder),
