@@ -5,9 +5,9 @@ this folder's C++ source on first use, then cached.
 (no C++ compiler, no ninja, a compile error with the log's path). The build goes to torch's
 extension folder (`TORCH_EXTENSIONS_DIR`, default ~/.cache/torch_extensions) under a name
 that hashes the source, the flags, the torch and Python versions and this CPU, so a changed
-source or another machine sharing the folder gets its own build, compiled for the CPU it runs
-on, while checkouts of the same source share one (it is built from a copy in that folder). A
-build says so in one line first.
+source, another torch install or another machine sharing the folder gets its own build,
+compiled for the CPU it runs on, while checkouts of the same source share one (it is built
+from a copy in that folder). A build says so in one line first.
 """
 
 from __future__ import annotations
@@ -53,13 +53,16 @@ def _cpu_signature() -> str:
 
 
 def build_name() -> str:
-    """Extension name unique to this source, flags, torch, Python and CPU."""
+    """Extension name unique to this source, flags, torch (version and install), Python and
+    CPU."""
     digest = hashlib.sha256()
     for path in (*SOURCES, *HEADERS):
         digest.update(path.name.encode())
         digest.update(path.read_bytes())
     digest.update(" ".join(CFLAGS).encode())
     digest.update(torch.__version__.encode())
+    # the headers' paths enter ninja's command lines: another torch install builds its own
+    digest.update(str(Path(torch.__file__).resolve().parent).encode())
     digest.update(sys.implementation.cache_tag.encode())  # the Python ABI it links against
     digest.update(_cpu_signature().encode())
     return f"relaygs_splat_{digest.hexdigest()[:12]}"
