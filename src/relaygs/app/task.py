@@ -51,7 +51,7 @@ from relaygs.pipeline import (
     run_pipeline,
 )
 from relaygs.progress import job_label, print_labelled
-from relaygs.splat import use_backend
+from relaygs.splat import native, use_backend
 
 TENSORBOARD_DIR = "tb"
 HPARAM_EXCLUDED_SECTIONS = ("paths", "artifacts")
@@ -122,6 +122,8 @@ def _load_scene(plan: RunPlan) -> Scene:
     a disk or memory failure as a one-line ResourceError."""
     set_threads(plan.threads)
     use_backend(plan.splat_backend)
+    if plan.splat_backend == "auto" and plan.device == "cpu":
+        native.available()  # a first build (or why there is none) is said before any bar
     keep_freed_memory()
     try:
         return prepare_scene(plan.scene, plan.scenes_dir, progress=plan.progress)
