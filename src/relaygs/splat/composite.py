@@ -335,14 +335,7 @@ class CompositeGaussians(torch.autograd.Function):
         table = _pack(means2d, conics, opacities, bounds)
         flat_colors = colors.reshape(c * n, d)
 
-        # Per pixel: K = T_N·(g·bg) − g_alpha·T_N, what every α_i changes through T_N.
-        pixel_k = -grad_alphas * t_final
-        grad_bg = None
-        if backgrounds is not None:
-            pixel_k = pixel_k + t_final * (grad_colors * backgrounds[:, None, None, :]).sum(
-                -1, True
-            )
-            grad_bg = (grad_colors * t_final).sum(dim=(1, 2))
+        pixel_k, grad_bg = background_terms(grad_colors, grad_alphas, t_final, backgrounds)
         g_tiles = _to_tiles(grad_colors, bins)
         k_tiles = _to_tiles(pixel_k, bins)[..., 0]
 
@@ -366,18 +359,50 @@ class CompositeGaussians(torch.autograd.Function):
             grad_table.index_add_(0, rows.gid.reshape(-1), grads.reshape(-1, 6))
             grad_cols.index_add_(0, rows.gid.reshape(-1), d_cols.reshape(-1, d))
         ctx.saved_pairs = None
-        if ctx.fixed is not None:
-            grad_table.view(c, n, 6).masked_fill_(ctx.fixed[None, :, None], 0.0)
-            grad_cols.view(c, n, d).masked_fill_(ctx.fixed[None, :, None], 0.0)
-        return (
-            grad_table[:, 0:2].reshape_as(means2d),
-            grad_table[:, 2:5].reshape_as(conics),
-            grad_table[:, 5].reshape_as(opacities),
-            grad_cols.reshape_as(colors),
-            grad_bg,
-            None,
-            None,
-            None,
-            None,
-            None,
+        return input_gradients(
+            grad_table, grad_cols, ctx.fixed, (means2d, conics, opacities, colors), grad_bg
         )
+
+
+def background_terms(
+    grad_colors: torch.Tensor,
+    grad_alphas: torch.Tensor,
+    t_final: torch.Tensor,
+    backgrounds: torch.Tensor | None,
+) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """Per pixel K = T_N·(g·bg) − g_alpha·T_N [C,H,W,1], what every α_i changes through T_N,
+    and the backgrounds' gradient [C,D] (None without backgrounds)."""
+    pixel_k = -grad_alphas * t_final
+    if backgrounds is None:
+        return pixel_k, None
+    pixel_k = pixel_k + t_final * (grad_colors * backgrounds[:, None, None, :]).sum(-1, True)
+    return pixel_k, (grad_colors * t_final).sum(dim=(1, 2))
+
+
+def input_gradients(
+    grad_table: torch.Tensor,
+    grad_cols: torch.Tensor,
+    fixed: torch.Tensor | None,
+    inputs: tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor],
+    grad_bg: torch.Tensor | None,
+) -> tuple[torch.Tensor | None, ...]:
+    """A compositing Function's backward result from per-Gaussian gradients [C·N,6] (mean
+    x/y, conic A/B/C, opacity) and of colours [C·N,D]: rows of `fixed` [N] zeroed, shaped as
+    `inputs` (means2d, conics, opacities, colors), None for the non-tensor arguments."""
+    means2d, conics, opacities, colors = inputs
+    c, n, d = colors.shape
+    if fixed is not None:
+        grad_table.view(c, n, 6).masked_fill_(fixed[None, :, None], 0.0)
+        grad_cols.view(c, n, d).masked_fill_(fixed[None, :, None], 0.0)
+    return (
+        grad_table[:, 0:2].reshape_as(means2d),
+        grad_table[:, 2:5].reshape_as(conics),
+        grad_table[:, 5].reshape_as(opacities),
+        grad_cols.reshape_as(colors),
+        grad_bg,
+        None,
+        None,
+        None,
+        None,
+        None,
+    )

@@ -8,7 +8,7 @@ from typing import Any
 
 import torch
 
-from relaygs.splat.composite import FixedLayer, _pack
+from relaygs.splat.composite import FixedLayer, _pack, background_terms, input_gradients
 from relaygs.splat.native.build import load
 from relaygs.splat.tiles import TileBins
 
@@ -73,32 +73,13 @@ class NativeCompositeGaussians(torch.autograd.Function):
         c, n, d = colors.shape
         table = _pack(means2d, conics, opacities, bounds).contiguous()
         flat_colors = colors.reshape(c * n, d).contiguous()
-        # Per pixel: K = T_N·(g·bg) − g_alpha·T_N, what every α_i changes through T_N.
-        pixel_k = -grad_alphas * t_final
-        grad_bg = None
-        if backgrounds is not None:
-            pixel_k = pixel_k + t_final * (grad_colors * backgrounds[:, None, None, :]).sum(
-                -1, True
-            )
-            grad_bg = (grad_colors * t_final).sum(dim=(1, 2))
+        pixel_k, grad_bg = background_terms(grad_colors, grad_alphas, t_final, backgrounds)
         grad_table, grad_cols = load().composite_backward(
             table, flat_colors, bins.pair_gaussian, bins.tile_start, bins.tile_count, ctx.tiles,
             *_geometry(bins, grad_colors.shape[2], grad_colors.shape[1]),
             grad_colors.contiguous(), pixel_k[..., 0].contiguous(), t_final[..., 0].contiguous(),
             last,
         )  # fmt: skip
-        if ctx.fixed is not None:
-            grad_table.view(c, n, 6).masked_fill_(ctx.fixed[None, :, None], 0.0)
-            grad_cols.view(c, n, d).masked_fill_(ctx.fixed[None, :, None], 0.0)
-        return (
-            grad_table[:, 0:2].reshape_as(means2d),
-            grad_table[:, 2:5].reshape_as(conics),
-            grad_table[:, 5].reshape_as(opacities),
-            grad_cols.reshape_as(colors),
-            grad_bg,
-            None,
-            None,
-            None,
-            None,
-            None,
+        return input_gradients(
+            grad_table, grad_cols, ctx.fixed, (means2d, conics, opacities, colors), grad_bg
         )
