@@ -153,3 +153,10 @@ def test_a_kernel_that_fails_to_compile_names_its_log(tmp_path, monkeypatch, cap
     log = Path(reason.split("log: ")[1].rstrip(")"))
     assert log.parent == tmp_path and "broken.cpp" in log.read_text()
     assert str(tmp_path / "build") in capsys.readouterr().err  # the build said where it works
+
+
+def test_the_ninja_package_is_found_when_path_has_no_ninja(tmp_path, monkeypatch):
+    ninja = pytest.importorskip("ninja")
+    monkeypatch.setenv("PATH", str(tmp_path))  # no ninja here
+    assert build._ninja_available()
+    assert os.environ["PATH"].split(os.pathsep)[0] == ninja.BIN_DIR

@@ -100,8 +100,17 @@ def compiler() -> str | None:
 
 
 def _ninja_available() -> bool:
+    """Whether torch's build finds `ninja` on PATH; the `ninja` package's own binary (a
+    dependency, in the venv's bin folder, which is not on PATH unless the venv is active)
+    is put there first when PATH has none."""
     from torch.utils.cpp_extension import is_ninja_available
 
+    if shutil.which("ninja") is None:
+        try:
+            import ninja
+        except ImportError:
+            return False
+        os.environ["PATH"] = os.pathsep.join([ninja.BIN_DIR, os.environ.get("PATH", "")])
     return is_ninja_available()
 
 
