@@ -82,3 +82,11 @@ def test_bad_options_are_refused_in_one_line_before_any_work(argv, message, monk
     err = capsys.readouterr().err
     assert stopped.value.code == 2 and err.startswith(f"error: {message}")
     assert err.count("\n") == 1
+
+
+@pytest.mark.parametrize("what", ["splat", "train"])
+def test_an_unknown_backend_is_named_before_any_work(what, monkeypatch, capsys):
+    monkeypatch.setattr(bench, "bench_splat", lambda *args: pytest.fail("splat started"))
+    monkeypatch.setattr(bench_train, "bench_scene", lambda *args: pytest.fail("train started"))
+    assert bench.main([what, "--backends", "torch,fast"]) == 2
+    assert "'fast'" in capsys.readouterr().err

@@ -18,7 +18,7 @@ from relaygs.commands.bench_output import save_json
 from relaygs.device import synchronize, usable_device
 from relaygs.errors import InputError, RelayGSError
 from relaygs.paths import REPO_ROOT
-from relaygs.splat import BACKENDS, rasterization
+from relaygs.splat import rasterization
 
 GARDEN_PATH = REPO_ROOT.parent / "shared" / "data" / "test_garden.npz"
 
@@ -195,11 +195,7 @@ def _backends(text: str | None, device: torch.device) -> list[str]:
     """The --backends list: default torch and native on CPU, torch on CUDA."""
     if text is None:
         return ["torch", "native"] if device.type == "cpu" else ["torch"]
-    names = [name for name in text.split(",") if name]
-    for name in names:
-        if name not in BACKENDS:
-            raise RelayGSError(f"unknown backend {name!r}; choose from {', '.join(BACKENDS)}")
-    return names
+    return bench_train.backend_names(text)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -82,10 +82,7 @@ def run(args: argparse.Namespace) -> int:
 def measure(args: argparse.Namespace) -> dict[str, Any]:
     """The report: scene, per-stage speeds per backend, step-cost ratio and (with --full) the
     pipeline; the process's splatting backend is left as it was."""
-    backends = [name for name in args.backends.split(",") if name]
-    for name in backends:
-        if name not in BACKENDS:
-            raise RelayGSError(f"unknown backend {name!r}; choose from {', '.join(BACKENDS)}")
+    backends = backend_names(args.backends)
     scene = bench_scene(args.cache)
     report: dict[str, Any] = {
         "scene": {**SCENE, "points": len(scene.points), "threads": torch.get_num_threads()},
@@ -103,6 +100,15 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
     finally:
         use_backend(previous)
     return report
+
+
+def backend_names(text: str) -> list[str]:
+    """A comma-separated --backends value as a list, each a splatting backend's name."""
+    names = [name for name in text.split(",") if name]
+    for name in names:
+        if name not in BACKENDS:
+            raise RelayGSError(f"unknown backend {name!r}; choose from {', '.join(BACKENDS)}")
+    return names
 
 
 def bench_scene(cache: Path) -> Scene:
