@@ -16,6 +16,7 @@ from relaygs.splat import native
 from relaygs.splat.composite import CompositeGaussians, FixedLayer
 from relaygs.splat.native.binning import bin_gaussians_native
 from relaygs.splat.native.composite import NativeCompositeGaussians
+from relaygs.splat.native.projection import project_gaussians_native
 from relaygs.splat.projection import (
     ALPHA_MIN,
     MAX_FOCAL,
@@ -164,8 +165,10 @@ def prepare(
     eps2d: float,
     render_mode: str,
     fixed: FixedLayer | None = None,
+    project: Callable[..., Projection] = project_gaussians,
 ) -> Prepared:
-    """Validate, project, and build the features every render mode composites.
+    """Validate, project (with `project`, a backend's `project_gaussians`), and build the
+    features every render mode composites.
 
     The rows a FixedLayer `fixed` marks are prepared without autograd (they get no
     gradient), so the backward of projection and SH covers only the other rows; its
@@ -179,7 +182,7 @@ def prepare(
     shade = functools.partial(
         _project_and_shade, viewmats=viewmats, Ks=Ks, width=width, height=height,
         sh_degree=sh_degree, render_mode=render_mode, near_plane=near_plane,
-        far_plane=far_plane, eps2d=eps2d,
+        far_plane=far_plane, eps2d=eps2d, project=project,
     )  # fmt: skip
     inputs = (means, quats, scales, opacities, colors)
     if fixed is None or bool(fixed.mask.all()) or not bool(fixed.mask.any()):
@@ -217,9 +220,10 @@ def _project_and_shade(
     near_plane: float,
     far_plane: float,
     eps2d: float,
+    project: Callable[..., Projection],
 ) -> tuple[Projection, torch.Tensor]:
     """The projection and the features [C,N,D'] of the mode (colours, then depth)."""
-    proj = project_gaussians(
+    proj = project(
         means,
         covariance_factor(quats, scales),
         opacities,
@@ -314,15 +318,19 @@ def finish_depth(render: torch.Tensor, alphas: torch.Tensor, render_mode: str) -
 
 @dataclass(frozen=True)
 class Backend:
-    """How one backend bins and composites (the projection is shared torch code)."""
+    """How one backend projects, bins and composites (the signatures of
+    `project_gaussians`, `bin_gaussians` and `CompositeGaussians`)."""
 
     name: str
+    project: Callable[..., Projection]
     bin: Callable[..., TileBins]
     composite: type[torch.autograd.Function]
 
 
-TORCH_BACKEND = Backend("torch", bin_gaussians, CompositeGaussians)
-NATIVE_BACKEND = Backend("native", bin_gaussians_native, NativeCompositeGaussians)
+TORCH_BACKEND = Backend("torch", project_gaussians, bin_gaussians, CompositeGaussians)
+NATIVE_BACKEND = Backend(
+    "native", project_gaussians_native, bin_gaussians_native, NativeCompositeGaussians
+)
 
 
 _default_backend = "auto"
@@ -405,9 +413,9 @@ def rasterization(
     per-camera features. `fixed` (RGB only) gives the render
     of Gaussians that have not changed since it was made: the tiles only they touch are
     copied from it, which skips their compositing and backward (see FixedLayer).
-    `backend` picks binning and compositing: "auto" (the native kernels on CPU where they
-    build, else torch), "torch" or "native" (see `select_backend`); None takes the process
-    default (`use_backend`, "auto" unless set). `meta["backend"]` names the one used.
+    `backend` picks projection, binning and compositing: "auto" (the native kernels on CPU
+    where they build, else torch), "torch" or "native" (see `select_backend`); None takes the
+    process default (`use_backend`, "auto" unless set). `meta["backend"]` names the one used.
     """
     _check(
         not isinstance(tile_size, bool) and isinstance(tile_size, int) and tile_size >= 1,
@@ -423,7 +431,7 @@ def rasterization(
         means, quats, scales, opacities, colors, viewmats, Ks, width, height,
         sh_degree=sh_degree, backgrounds=backgrounds, near_plane=near_plane,
         far_plane=far_plane, eps2d=eps2d, render_mode=render_mode,
-        fixed=fixed,
+        fixed=fixed, project=chosen.project,
     )  # fmt: skip
     proj = prep.proj
     means2d = proj.means2d

@@ -28,7 +28,12 @@ import torch
 from filelock import FileLock
 
 HERE = Path(__file__).parent
-SOURCES = [HERE / "module.cpp", HERE / "binning.cpp", HERE / "composite.cpp"]
+SOURCES = [
+    HERE / "module.cpp",
+    HERE / "binning.cpp",
+    HERE / "composite.cpp",
+    HERE / "projection.cpp",
+]
 HEADERS = [HERE / "kernels.h"]
 # -fopenmp compiles at::parallel_for's OpenMP region (without it the loop runs on one
 # thread); the process already holds torch's libgomp, which the kernel then shares.

@@ -27,4 +27,20 @@ std::vector<at::Tensor> composite_backward(
     const at::Tensor& grad_out, const at::Tensor& pixel_k, const at::Tensor& t_final,
     const at::Tensor& last);
 
+// EWA projection into C cameras: {means2d, conics, depths, radii, visible, bounds}.
+std::vector<at::Tensor> project_forward(const at::Tensor& means, const at::Tensor& factors,
+                                        const at::Tensor& opacities, const at::Tensor& viewmats,
+                                        const at::Tensor& ks, int64_t width, int64_t height,
+                                        double near_plane, double far_plane, double eps2d);
+
+// Gradients {[N,3], [N,3,3]} of the means and covariance factors from the projection's.
+std::vector<at::Tensor> project_backward(const at::Tensor& means, const at::Tensor& factors,
+                                         const at::Tensor& opacities,
+                                         const at::Tensor& viewmats, const at::Tensor& ks,
+                                         int64_t width, int64_t height, double near_plane,
+                                         double far_plane, double eps2d,
+                                         const at::Tensor& grad_means2d,
+                                         const at::Tensor& grad_conics,
+                                         const at::Tensor& grad_depths);
+
 }  // namespace relaygs

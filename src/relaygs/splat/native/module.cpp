@@ -12,4 +12,8 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
         release());
   m.def("composite_backward", &relaygs::composite_backward,
         "Per-Gaussian gradients, tiles walked back to front", release());
+  m.def("project_forward", &relaygs::project_forward, "EWA projection into C cameras",
+        release());
+  m.def("project_backward", &relaygs::project_backward,
+        "Mean and covariance-factor gradients of the projection", release());
 }
