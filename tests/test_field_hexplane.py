@@ -1,4 +1,5 @@
-"""HexPlane: feature shapes, time/space coordinate mapping, gradients and regularisers."""
+"""HexPlane: feature shapes, time/space coordinate mapping, gradients and regularisers, on
+both paths (`splat_backend`: torch's grid_sample, or the native kernel on CPU)."""
 
 import pytest
 import torch
@@ -9,6 +10,8 @@ from relaygs.field import HexPlane
 from relaygs.field.hexplane import second_difference_energy
 
 UNIT_BOX = [[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]]
+
+pytestmark = pytest.mark.usefixtures("splat_backend")
 
 
 def tiny_hexplane(resolution: int = 4, time_resolution: int = 5) -> HexPlane:
@@ -115,6 +118,37 @@ def test_gradcheck_float64() -> None:
         return functional_call(hexplane, params, (xyz, t))
 
     assert torch.autograd.gradcheck(sample, inputs)
+    # a frame time without gradient (as the stages give it) takes the native kernel there
+    assert torch.autograd.gradcheck(lambda *a: sample(*a, t.detach()), inputs[:3])
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_both_paths_give_the_same_features_and_gradients(dtype: torch.dtype) -> None:
+    hexplane = HexPlane(
+        [[-1.0, -2.0, -1.0], [1.0, 2.0, 3.0]], 5, multires=[1, 2], spatial_resolution=8, channels=4
+    ).to(dtype)
+    generator = torch.Generator().manual_seed(3)
+    with torch.no_grad():
+        for plane in hexplane.time_planes:
+            plane.copy_(torch.rand(plane.shape, generator=generator, dtype=dtype) + 0.5)
+    # points inside, outside (border-clamped) and on the box's faces
+    xyz = torch.rand(300, 3, generator=generator, dtype=dtype) * 3.0 - 1.5
+    xyz[:20, 0] = 1.0
+    xyz = xyz * torch.tensor([1.0, 2.0, 2.0], dtype=dtype) + torch.tensor(
+        [0.0, 0.0, 1.0], dtype=dtype
+    )
+    weights = torch.randn(300, hexplane.feature_dim, generator=generator, dtype=dtype)
+    results = []
+    for features_of in (hexplane, lambda x, t: hexplane._sampled(hexplane.normalise(x), t * 2 - 1)):
+        hexplane.zero_grad()
+        points = xyz.clone().requires_grad_()
+        features = features_of(points, torch.full((300,), 0.37, dtype=dtype))
+        (features * weights).sum().backward()
+        results.append([features, points.grad, *(p.grad for p in hexplane.parameters())])
+    tol = 1e-6 if dtype == torch.float32 else 1e-13
+    for got, expected in zip(*results, strict=True):
+        scale = float(expected.detach().abs().max())
+        torch.testing.assert_close(got, expected, rtol=tol, atol=tol * scale)
 
 
 def test_regularisers_vanish_on_flat_planes() -> None:

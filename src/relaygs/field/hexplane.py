@@ -15,6 +15,8 @@ from torch import Tensor, nn
 from torch.autograd.function import once_differentiable
 
 from relaygs.errors import InputError
+from relaygs.field.hexplane_native import NativeHexPlaneFeatures
+from relaygs.splat import native_kernels_in_use
 
 SPATIAL_PLANES = ("xy", "xz", "yz")
 TIME_PLANES = ("xt", "yt", "zt")
@@ -132,7 +134,16 @@ class HexPlane(nn.Module):
             raise InputError(f"HexPlane xyz: expected shape [N, 3], got {list(xyz.shape)}")
         count = xyz.shape[0]
         coords = self.normalise(xyz)
-        grid_t = _time_coordinate(t, count, xyz).unsqueeze(1)
+        times = _time_coordinate(t, count, xyz)
+        if native_kernels_in_use(coords) and not times.requires_grad:
+            levels = zip(self.spatial_planes, self.time_planes, strict=True)
+            planes = [plane for level in levels for plane in level]
+            return NativeHexPlaneFeatures.apply(coords, times, *planes)
+        return self._sampled(coords, times)
+
+    def _sampled(self, coords: Tensor, times: Tensor) -> Tensor:
+        """`forward` by torch's grid_sample (any device; the native kernel's reference)."""
+        grid_t = times.unsqueeze(1)
         x, y, z = coords[:, 0:1], coords[:, 1:2], coords[:, 2:3]
         # grid[..., 0] indexes a plane's columns (first axis), grid[..., 1] its rows.
         spatial_grid = torch.stack(

@@ -6,6 +6,7 @@ from relaygs.splat.rasterize import (
     BACKENDS,
     RENDER_MODES,
     default_backend,
+    native_kernels_in_use,
     rasterization,
     use_backend,
 )
@@ -15,6 +16,7 @@ __all__ = [
     "RENDER_MODES",
     "FixedLayer",
     "default_backend",
+    "native_kernels_in_use",
     "rasterization",
     "use_backend",
 ]

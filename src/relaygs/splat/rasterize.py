@@ -380,6 +380,12 @@ def select_backend(backend: str, like: torch.Tensor) -> Backend:
     return NATIVE_BACKEND
 
 
+def native_kernels_in_use(like: torch.Tensor) -> bool:
+    """Whether the process default backend takes the native kernels for tensors like `like`
+    (other native kernels, such as the deformation field's, follow the same switch)."""
+    return select_backend(default_backend(), like) is NATIVE_BACKEND
+
+
 def rasterization(
     means: torch.Tensor,
     quats: torch.Tensor,

@@ -33,6 +33,7 @@ SOURCES = [
     HERE / "binning.cpp",
     HERE / "composite.cpp",
     HERE / "projection.cpp",
+    HERE / "hexplane.cpp",
 ]
 HEADERS = [HERE / "kernels.h"]
 # -fopenmp compiles at::parallel_for's OpenMP region (without it the loop runs on one

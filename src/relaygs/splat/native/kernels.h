@@ -43,4 +43,16 @@ std::vector<at::Tensor> project_backward(const at::Tensor& means, const at::Tens
                                          const at::Tensor& grad_conics,
                                          const at::Tensor& grad_depths);
 
+// HexPlane features [N, C*levels] at normalised coords [N,3] and grid times [N] from
+// channel-last planes (per level: spatial [3,R,R,C], time [3,T,R,C]).
+at::Tensor hexplane_forward(const at::Tensor& coords, const at::Tensor& times,
+                            const std::vector<at::Tensor>& spatial,
+                            const std::vector<at::Tensor>& time);
+
+// Gradients {per level: spatial [3,C,R,R], time [3,C,T,R] (channel-first)..., coords [N,3]}.
+std::vector<at::Tensor> hexplane_backward(const at::Tensor& coords, const at::Tensor& times,
+                                          const std::vector<at::Tensor>& spatial,
+                                          const std::vector<at::Tensor>& time,
+                                          const at::Tensor& grad_features);
+
 }  // namespace relaygs

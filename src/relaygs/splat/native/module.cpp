@@ -16,4 +16,8 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
         release());
   m.def("project_backward", &relaygs::project_backward,
         "Mean and covariance-factor gradients of the projection", release());
+  m.def("hexplane_forward", &relaygs::hexplane_forward, "HexPlane features of points",
+        release());
+  m.def("hexplane_backward", &relaygs::hexplane_backward,
+        "Plane and coordinate gradients of HexPlane features", release());
 }
