@@ -19,6 +19,7 @@ from relaygs.pipeline.integrity import seal
 from relaygs.pipeline.keys import artifact_key
 from relaygs.pipeline.manifest import LineageEntry
 from relaygs.pipeline.store import ArtifactStore
+from store_damage import damage_dtype_and_rehash
 
 KEY_A = artifact_key("decouple", 1, {"steps": 1}, "scene", [])
 KEY_B = artifact_key("relay", 1, {"k": 2}, "scene", [KEY_A])
@@ -102,6 +103,19 @@ def test_verify_exits_1_on_a_corrupt_artifact(store, capsys):
     code, out, err = _cli(capsys, store.root, "ply", KEY_A[:8], "--out", str(store.root / "p"))
     assert code == 1 and out == "" and err.count("\n") == 1
     assert err.startswith(f"error: {victim}: sha256 mismatch") and "or delete its folder" in err
+
+
+def test_verify_names_an_artifact_that_does_not_decode_and_counts_every_folder(store, capsys):
+    undecodable = store.path("decouple", KEY_A)
+    damage_dtype_and_rehash(undecodable)
+    unparsable = store.path("relay", KEY_B)
+    (unparsable / "manifest.json").write_text("{not json")
+    seal(unparsable)
+    code, out, _ = _cli(capsys, store.root, "verify")
+    assert code == 1
+    assert f"CORRUPT {undecodable}: " in out and "unreadable artifact files" in out
+    assert f"CORRUPT {unparsable}: " in out
+    assert "2 problem(s) among 2 artifact(s)" in out
 
 
 def test_gc_removes_leftovers_and_unkept_artifacts(store, capsys):

@@ -126,7 +126,7 @@ def _legacy_fingerprint(root: Path) -> str:
     names = [f"sparse/0/{path.name}" for path in sorted((root / "sparse" / "0").iterdir())]
     names += [path.relative_to(root).as_posix() for path in root.glob("cam*/*.png")]
     names += [path.relative_to(root).as_posix() for path in root.glob("seg/cam*/*.png")]
-    files = {name: file_record(root / name).sha256 for name in [*names, "scene.json"]}
+    files = {name: file_record(root / name, root=root).sha256 for name in [*names, "scene.json"]}
     content = digest(
         {"format": "multiview", "options": make_options().content_options(), "files": files}
     )

@@ -397,7 +397,7 @@ def test_file_name_that_names_no_file(tiny_synth_copy: Path, name: str):
 def test_meta_file_that_is_a_folder(tiny_synth_copy: Path):
     (tiny_synth_copy / "train_meta.json").unlink()
     (tiny_synth_copy / "train_meta.json").mkdir()
-    _expect(tiny_synth_copy, "train_meta.json: is a folder, expected a file")
+    _expect(tiny_synth_copy, "train_meta.json: is a folder, expected a regular file")
 
 
 def test_unknown_effect_in_scene_json(tiny_synth_copy: Path):

@@ -2,6 +2,7 @@
 multirun, the sweep-summary callback) driven in-process on fake stages."""
 
 import dataclasses
+import errno
 import functools
 import io
 import json
@@ -58,6 +59,7 @@ def _main(args):
         (["scene=mars"], "unknown scene 'mars' (available: court, juggle, static); or set"),
         (["experiment=smoke"], "write +experiment=smoke"),
         (["relay.k=0"], "relay.k"),
+        (["-m", "variant=../../x", "relay.k=8,16"], "variant: '../../x' holds a path separator"),
         (["relay.k=-3"], "relay.k"),
         (["decouple.steps=-5"], "decouple.steps"),
         (["scene.path=/no/such/capture"], "scene.path: /no/such/capture does not exist"),
@@ -446,7 +448,37 @@ def test_ctrl_c_ends_the_run_with_one_line_and_status_130(fakes, capsys):
     fakes.sinks.append(_interrupt)
     assert _main(["budget=smoke", *TINY_SCENE]) == run_module.INTERRUPTED_EXIT == 130
     last = capsys.readouterr().err.strip().splitlines()[-1]
-    assert last == "interrupted: decouple stopped after step 3 of 9; run the same command again"
+    stopped = "interrupted: decouple stopped after step 3 of 9; run the same command again"
+    assert last.startswith(f"{stopped}; add hydra.run.dir=")
+
+
+def _stop_in_relay(stage, step, scalars, images=None):
+    """A sink that stops the job as SIGTERM would once decouple is built, in relay."""
+    if stage == "relay":
+        raise KeyboardInterrupt
+
+
+def test_a_stopped_run_is_told_to_rerun_in_its_folder_and_is_credited_with_both_attempts(
+    fakes, tmp_path, capsys
+):
+    # the same command again would go on in a new timestamped folder, crediting the decouple
+    # the stopped attempt built to no job
+    fakes.sinks.append(_stop_in_relay)
+    args = ["budget=smoke", *TINY_SCENE]
+    assert _main(args) == run_module.INTERRUPTED_EXIT
+    [folder] = (tmp_path / "outputs" / "runs").iterdir()
+    last = capsys.readouterr().err.strip().splitlines()[-1]
+    suffix = " to the command, so that the run goes on in its folder, not a new one"
+    assert last.startswith(f"interrupted: {RERUN_RUN}") and last.endswith(suffix)
+    [override] = shlex.split(last.removesuffix(suffix).rpartition("; add ")[2])
+    assert override == f"hydra.run.dir={folder}"
+    fakes.sinks.remove(_stop_in_relay)
+    assert _main([*args, override]) == 0
+    assert "already holds a run" not in capsys.readouterr().err
+    result = json.loads((folder / "result.json").read_text())
+    assert result["cache_hits"] == 1 and fakes.ran("decouple") == 1
+    assert result["train_s_built_by_job"] == result["train_s_total"]
+    assert list((tmp_path / "outputs" / "runs").iterdir()) == [folder]
 
 
 def test_sigterm_stops_the_run_as_ctrl_c_does_with_status_143(fakes, capsys):
@@ -456,7 +488,7 @@ def test_sigterm_stops_the_run_as_ctrl_c_does_with_status_143(fakes, capsys):
     # a stage that cannot say where it stopped (a fake one here, a parallel launcher's worker
     # in a real sweep): the line says what running the command again does
     last = capsys.readouterr().err.strip().splitlines()[-1]
-    assert last == f"interrupted: {RERUN_RUN}"
+    assert last.startswith(f"interrupted: {RERUN_RUN}; add hydra.run.dir=")
     assert signal.getsignal(signal.SIGTERM) is previous
 
 
@@ -668,6 +700,27 @@ def test_each_stage_line_and_a_jobs_summary_reach_the_log_when_printed(fakes, mo
     assert any(end.startswith("[eval] evaluated the test views") for end in ends)
     jobs_done = [end for end in ends if end.lstrip().startswith("videos ")]
     assert len(set(jobs_done)) == 2  # job 0's summary is out before job 1 starts
+
+
+@pytest.mark.parametrize("args", [[], ["+experiment=ablation_k"]])
+def test_a_full_disk_refusing_hydras_own_files_is_one_line_not_a_traceback(
+    fakes, tmp_path, capsys, monkeypatch, args
+):
+    # Hydra writes each job's .hydra/*.yaml (and a sweep's multirun.yaml) before the job runs
+    import hydra.core.utils
+
+    def full(cfg, filename, output_dir):
+        output_dir.mkdir(parents=True, exist_ok=True)
+        (output_dir / filename).touch()  # opened, then the write fails: a 0-byte file
+        raise OSError(errno.ENOSPC, "No space left on device", str(output_dir / filename))
+
+    monkeypatch.setattr(hydra.core.utils, "_save_config", full)
+    assert _main(["budget=smoke", *TINY_SCENE, *args]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err, err
+    assert err.startswith("error: No space left on device writing ") and ".yaml" in err
+    assert "HYDRA_FULL_ERROR" not in os.environ
+    assert fakes.ran("decouple") == 0
 
 
 def test_ablation_k_sweep_shares_decouple_and_writes_the_summary(fakes, tmp_path):

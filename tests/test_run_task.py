@@ -194,9 +194,10 @@ def test_a_run_folder_used_again_is_noted(base_config, tmp_path, capsys):
     err = capsys.readouterr().err
     assert f"note: {tmp_path / 'a'} already holds a run: its result.json is replaced" in err
     (tmp_path / "a" / RESULT_FILE).unlink()  # a killed run's folder: only its curves
-    _run(base_config, tmp_path / "a", fakes)
+    _run(base_config, tmp_path / "a", fakes)  # resumed there, as a stopped run is told to
     err = capsys.readouterr().err
-    assert "already holds a run: TensorBoard shows its curves" in err
+    assert "already holds a run" not in err
+    assert f"note: {tmp_path / 'a'} holds the TensorBoard curves of a run stopped before" in err
 
 
 def test_a_sweep_job_resumed_in_its_folder_is_not_noted_but_another_run_there_is(
@@ -631,6 +632,17 @@ def test_a_full_disk_refusing_the_result_is_one_resource_error(base_config, tmp_
     monkeypatch.setattr(task_module, "write_result", _disk_full)
     with pytest.raises(errors.ResourceError, match=r"^No space left on device writing /runs/x/"):
         _run(base_config, tmp_path / "run", FakeStages())
+
+
+def test_a_job_the_full_disk_fails_after_its_per_view_leaves_neither_file(
+    base_config, tmp_path, monkeypatch
+):
+    # the disk had room for per_view.csv, then refused result.json (and the failed one too)
+    monkeypatch.setattr(task_module, "write_result", _disk_full)
+    run_dir = tmp_path / "run"
+    with pytest.raises(errors.ResourceError, match=r"^No space left on device writing "):
+        _run(base_config, run_dir, FakeStages())
+    assert not (run_dir / PER_VIEW_FILE).exists() and not (run_dir / RESULT_FILE).exists()
 
 
 def test_a_failed_result_the_full_disk_refuses_does_not_hide_why_the_run_failed(

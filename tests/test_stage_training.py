@@ -135,6 +135,19 @@ def test_divergence_names_stage_step_tensor_and_stores_nothing(
     assert all(saved_step < step for saved_step in saved)
 
 
+@pytest.mark.parametrize("group", ["sh_dc", "log_scales"])
+def test_divergence_names_the_parameter_whose_update_went_non_finite_first(
+    stage_scene: Scene, group: str
+) -> None:
+    # the symptom (a non-finite loss or gradient at step 2) follows from the update of step 1
+    cfg = stage_smoke_cfg(decouple={"lr": {group: 1e38}, "steps": 5})
+    with pytest.raises(DivergenceError) as caught:
+        STAGES["decouple"](stage_scene, {}, cfg)
+    message = str(caught.value)
+    assert message.startswith("stage 'decouple' diverged at step 2: tensor ")
+    assert f"the update of step 1 made parameter(s) all.{group} non-finite first" in message
+
+
 def test_non_finite_optimiser_step_stops_before_its_checkpoint(
     stage_scene: Scene, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -15,6 +15,7 @@ from relaygs.pipeline.integrity import MARKER_FILE, CorruptArtifactError, seal
 from relaygs.pipeline.keys import artifact_key
 from relaygs.pipeline.manifest import LineageEntry
 from relaygs.pipeline.store import ArtifactStore, MissingArtifactError
+from store_damage import damage_dtype_and_rehash
 
 KEY = artifact_key("decouple", 1, {"steps": 3}, "scene", [])
 CHILD_KEY = artifact_key("relay", 1, {"k": 4}, "scene", [KEY])
@@ -348,6 +349,22 @@ def test_sealed_files_that_do_not_decode_are_corrupt_not_a_traceback(tmp_path, n
         store.load("decouple", KEY)
     _, info = _build(store, fake)
     assert fake.calls == 2 and info.replaced_corrupt
+
+
+def test_an_artifact_whose_hashes_match_but_whose_tensors_do_not_decode_is_replaced(tmp_path):
+    # a dtype changed in the safetensors header, manifest and marker rehashed to match: the
+    # rebuild must replace the folder on disk, not only build beside it on every run
+    store, fake = ArtifactStore(tmp_path), CountingStage()
+    _build(store, fake)
+    folder = store.path("decouple", KEY)
+    damage_dtype_and_rehash(folder)
+    assert [problem.path for problem in store.verify()] == [folder]
+    _, info = _build(store, fake)
+    assert fake.calls == 2 and "unreadable artifact files" in info.replaced_corrupt
+    assert store.verify() == []
+    assert torch.equal(store.load("decouple", KEY).tensors["xyz"], torch.arange(12.0).reshape(4, 3))
+    _, third = _build(store, fake)
+    assert fake.calls == 2 and third.cache_hit
 
 
 def test_a_marker_without_a_hash_table_is_damaged(tmp_path):

@@ -164,3 +164,20 @@ def test_parallel_jobs_share_the_store_and_build_decouple_once(tmp_path):
     ]
     assert {label for label, _ in blocks} == {f"[{job}] " for job in jobs}
     assert all(after.startswith(f"{label}  result ") for label, after in blocks)
+
+
+@pytest.mark.skipif(
+    not is_installed("hydra_plugins.hydra_submitit_launcher"),
+    reason="hydra-submitit-launcher (the slurm extra) is not installed",
+)
+def test_a_sweep_through_submitit_gives_the_basic_launchers_summary(experiments, tmp_path):
+    # submitit's local executor is the Slurm launcher's code path: each job pickled into a
+    # process of its own, the jobs sharing one store and its locks, the results gathered back
+    _launch(tmp_path, "ablation_k", "hydra/launcher=submitit_local")
+    counts = _artifact_counts(tmp_path)
+    assert counts["decouple"] == 1 and counts["relay"] == 1  # every k >= 8 frames: one segment
+    submitit = pd.read_csv(_newest_sweep(tmp_path) / "summary.csv")
+    basic = _summary(experiments, "ablation_k")
+    shared = ["variant", "relay.k", "psnr", "ssim", "fg_psnr", "num_gaussians", "output_key"]
+    pd.testing.assert_frame_equal(submitit[shared], basic[shared])
+    assert (submitit.status == "ok").all()

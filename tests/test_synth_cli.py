@@ -4,13 +4,17 @@ from __future__ import annotations
 
 import errno
 import json
+import os
+import socket
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
 
 from relaygs.commands.synth import main, parse_effect_list
+from relaygs.data.synthetic import remove_abandoned_staging
 
 
 def test_cli_writes_a_scene_with_the_requested_effects(tmp_path: Path, capsys):
@@ -132,3 +136,39 @@ def test_cli_full_disk_is_one_line_and_leaves_no_folder(tmp_path: Path, capsys, 
         f"error: No space left on device writing {out}: free space, then rerun the command\n"
     )
     assert list(tmp_path.iterdir()) == []
+
+
+def _staging_leftovers(out: Path) -> list[str]:
+    return sorted(path.name for path in out.parent.glob(f".{out.name}.partial-*"))
+
+
+def test_a_generation_killed_midway_leaves_no_staging_folder_once_run_again(tmp_path: Path):
+    out = tmp_path / "scene"
+    args = ["court", str(out), "--frames", "64", "--width", "160", "--height", "90"]
+    code = f"from relaygs.commands.synth import main; main({args!r})"
+    writer = subprocess.Popen([sys.executable, "-c", code])
+    try:
+        deadline = time.monotonic() + 120
+        while not _staging_leftovers(out) and writer.poll() is None:
+            assert time.monotonic() < deadline, "the generation never started writing"
+            time.sleep(0.05)
+    finally:
+        writer.kill()
+        writer.wait()
+    assert _staging_leftovers(out) and not out.exists()  # killed while it wrote
+    assert main(["static", str(out), "--frames", "1", "--width", "8", "--height", "6"]) == 0
+    assert _staging_leftovers(out) == [] and (out / "scene.json").is_file()
+
+
+def test_staging_of_a_running_or_unknown_writer_is_left_unless_the_caller_holds_the_lock(
+    tmp_path: Path,
+):
+    out = tmp_path / "scene"
+    running = tmp_path / f".scene.partial-{socket.gethostname()}-{os.getpid()}"
+    elsewhere = tmp_path / ".scene.partial-another-host-12"
+    for folder in (running, elsewhere):
+        folder.mkdir()
+    remove_abandoned_staging(out)
+    assert _staging_leftovers(out) == sorted([running.name, elsewhere.name])
+    remove_abandoned_staging(out, any_writer=True)
+    assert _staging_leftovers(out) == []

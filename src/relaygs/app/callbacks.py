@@ -6,6 +6,7 @@ from __future__ import annotations
 import sys
 import time
 import traceback
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -21,17 +22,31 @@ from relaygs.errors import RelayGSError
 SWEEP_LOCK_FILE = ".sweep.lock"
 
 
-class StartedSweep(NamedTuple):
-    """A sweep this process started: its folder, and whether the command named it
-    (`hydra.sweep.dir=...`), so that the same command run again goes on in that folder."""
+class StartedFolder(NamedTuple):
+    """A sweep or single run this process started: its folder, the override that names it
+    (`hydra.sweep.dir` or `hydra.run.dir`) and whether the command named it, so that the same
+    command run again goes on in that folder."""
 
     folder: Path
     named: bool
+    override: str = "hydra.sweep.dir"
+
+    @property
+    def kind(self) -> str:
+        """'sweep' or 'run'."""
+        return "sweep" if self.override == "hydra.sweep.dir" else "run"
 
 
-STARTED_SWEEPS: list[StartedSweep] = []
-"""The sweeps this process started, as `SweepFolderLock` took their folders: what a command
-stopped by Ctrl-C names for its rerun (`relaygs.commands.run` empties it before each launch)."""
+STARTED_FOLDERS: list[StartedFolder] = []
+"""The sweeps this process started, as `SweepFolderLock` took their folders, and its single
+runs, as they started: what a command stopped by Ctrl-C names for its rerun
+(`relaygs.commands.run` empties it before each launch)."""
+
+
+def names_override(hydra_overrides: Iterable[Any], override: str) -> bool:
+    """Whether the command line's Hydra overrides (`hydra.overrides.hydra`) set `override`
+    (`hydra.run.dir=...`, say)."""
+    return any(str(line).partition("=")[0].lstrip("+") == override for line in hydra_overrides)
 
 
 class SweepFolderLock(Callback):
@@ -51,7 +66,7 @@ class SweepFolderLock(Callback):
 
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
         """Take the sweep folder's lock, or end the command with one line if a sweep holds it;
-        record the folder in `STARTED_SWEEPS`."""
+        record the folder in `STARTED_FOLDERS`."""
         sweep_dir = Path(str(config.hydra.sweep.dir))
         sweep_dir.mkdir(parents=True, exist_ok=True)
         lock = FileLock(sweep_dir / SWEEP_LOCK_FILE)
@@ -67,8 +82,7 @@ class SweepFolderLock(Callback):
             raise SystemExit(1) from None
         self._lock = lock
         given = OmegaConf.select(config, "hydra.overrides.hydra", default=None) or []
-        named = any(str(line).partition("=")[0].lstrip("+") == "hydra.sweep.dir" for line in given)
-        STARTED_SWEEPS.append(StartedSweep(sweep_dir, named))
+        STARTED_FOLDERS.append(StartedFolder(sweep_dir, names_override(given, "hydra.sweep.dir")))
 
     def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
         """Let the next sweep in this folder start."""

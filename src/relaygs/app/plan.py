@@ -308,7 +308,8 @@ def _setting_names(section: Mapping[str, Any]) -> set[str]:
 def _require_label(cfg: Mapping[str, Any], dotted: str) -> None:
     """A label setting (LABELS) is a string, a finite number or, but for `variant`, null: a
     list or mapping would make `result.json` one that the sweep report refuses, and NaN one
-    that cannot be written, both only once the job has trained."""
+    that cannot be written, both only once the job has trained. A variant, which names a sweep
+    job's folder, holds no path separator (its folder would land elsewhere)."""
     section, _, key = dotted.rpartition(".")
     values = cfg.get(section) if section else cfg
     if not isinstance(values, Mapping) or key not in values:
@@ -319,6 +320,11 @@ def _require_label(cfg: Mapping[str, Any], dotted: str) -> None:
     if not (isinstance(value, str) or number or nullable):
         kind = "a string or a number" if dotted == "variant" else "a string, a number or null"
         raise InputError(f"{dotted}: expected {kind}, got {value!r}")
+    if dotted == "variant" and any(separator in str(value) for separator in ("/", "\\")):
+        raise InputError(
+            f"variant: {value!r} holds a path separator; a sweep names each job's folder "
+            "<job>_<variant> inside the sweep folder, so a variant is a plain name (no / or \\)"
+        )
 
 
 def _preview_frames(cfg: Mapping[str, Any]) -> int:

@@ -22,6 +22,7 @@ from relaygs.data.synthetic import (
     PRESETS,
     declared_effects,
     generate,
+    remove_abandoned_staging,
     require_valid_preset,
     rig_cameras,
 )
@@ -146,6 +147,7 @@ def prepare_scene(spec: SceneSpec, scenes_dir: Path, progress: bool = True) -> S
     lock = scenes_dir / ".locks" / f"{folder.name}.lock"
     lock.parent.mkdir(parents=True, exist_ok=True)
     with FileLock(str(lock)):
+        remove_abandoned_staging(folder, any_writer=True)  # a job killed while generating it
         if not (folder / GENERATED_MARKER).is_file():
             print_labelled(f"generating synthetic scene {spec.preset!r} into {folder}")
             generate(

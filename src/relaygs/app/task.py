@@ -50,6 +50,7 @@ from relaygs.pipeline import (
     key_config,
     run_pipeline,
 )
+from relaygs.pipeline.fsio import file_identity
 from relaygs.progress import job_label, print_labelled
 from relaygs.splat import native, use_backend
 
@@ -95,6 +96,8 @@ def run_task(
     config = resolve_config(cfg, original_cwd)
     suite = suite or load_stage_suite()
     plan = plan_run(config, suite.stages, suite.validate, suite.accepted_upstream)
+    per_view_file = Path(run_dir) / PER_VIEW_FILE
+    per_view_before = file_identity(per_view_file)
     with job_label(label):
         scene = _load_scene(plan) if job is None else None
         try:
@@ -108,6 +111,8 @@ def run_task(
             failure = resource_error(error)
             failed = build_failed_result(config, plan, failure or error, overrides, job)
             failed["job_s"] = time.perf_counter() - started
+            if file_identity(per_view_file) != per_view_before:
+                per_view_file.unlink(missing_ok=True)  # a failed job writes none
             _record_failure(run_dir, failed)
             if failure is None:
                 raise
@@ -239,12 +244,13 @@ def _note_earlier_run(
 ) -> None:
     """Say on stderr when the run folder already holds a run (a pinned `hydra.run.dir` used
     again): its result is replaced and TensorBoard would show both runs' curves as one run.
-    A sweep resumed in place (the same `hydra.sweep.dir`, as an interrupted sweep is told to)
-    is not told to use another folder: nothing is said where the folder holds this job's own
-    result, and the curves of a job stopped before its result are only named as such."""
+    A run or sweep resumed in place (the same `hydra.run.dir` or `hydra.sweep.dir`, as an
+    interrupted one is told to) is not told to use another folder: nothing is said where the
+    folder holds this job's own result, and the curves of a job stopped before its result are
+    only named as such."""
     events = any((run_dir / TENSORBOARD_DIR).glob("events.out.tfevents.*"))
     result = (run_dir / RESULT_FILE).is_file()
-    if job is not None and (not result or _is_same_job(run_dir, config, plan, overrides, job)):
+    if not result or (job is not None and _is_same_job(run_dir, config, plan, overrides, job)):
         if events and not result:
             print_labelled(
                 f"note: {run_dir} holds the TensorBoard curves of a run stopped before its "

@@ -358,10 +358,10 @@ def _output_folder(
 
 def _verify(store: ArtifactStore, args: argparse.Namespace) -> int:
     """Check all artifacts; print each bad one and exit 1 when there is any."""
-    problems = store.verify()
+    sound, problems = store.verify_all()
     for problem in problems:
         print(f"CORRUPT {problem.path}: {problem.message}")
-    total = len(store.list())
+    total = len(sound) + len(problems)
     print(f"{len(problems)} problem(s) among {total} artifact(s) in {store.root}")
     if problems:
         print(REPAIR_HINT)

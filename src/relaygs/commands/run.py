@@ -9,20 +9,23 @@ Hydra composes the config and calls `relaygs.app.task.run_task` for each job.
 
 from __future__ import annotations
 
+import os
 import signal
 import sys
 import traceback
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
 import hydra
 from hydra.core.global_hydra import GlobalHydra
 from hydra.core.hydra_config import HydraConfig
+from hydra.errors import HydraException
 from hydra.types import RunMode
 from omegaconf import DictConfig
 
-from relaygs.app.callbacks import STARTED_SWEEPS, StartedSweep
+from relaygs.app.callbacks import STARTED_FOLDERS, StartedFolder, names_override
 from relaygs.app.config import resolve_config
 from relaygs.app.plan import plan_run
 from relaygs.app.prelaunch import LAUNCH_FLAGS, JobValidator, check_command_line
@@ -31,10 +34,13 @@ from relaygs.app.suite import StageSuite, load_stage_suite
 from relaygs.app.task import run_task
 from relaygs.cli import INTERRUPTED_EXIT, path_override
 from relaygs.device import usable_device
-from relaygs.errors import RERUN_RUN, RelayGSError
+from relaygs.errors import RERUN_RUN, RelayGSError, one_line, resource_error
 from relaygs.paths import config_dir
+from relaygs.pipeline.fsio import file_identity
 
 TERMINATED_EXIT = 143  # a command stopped by SIGTERM (`kill PID`, a scheduler): 128 + SIGTERM
+HYDRA_FULL_ERROR = "HYDRA_FULL_ERROR"
+RUN_DIR = "hydra.run.dir"
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -50,7 +56,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     # installed before the command line is checked (composing every job takes a while), so a
     # Ctrl-C or SIGTERM then also ends with one line and 130/143, not a traceback
     previous = signal.signal(signal.SIGTERM, stop_like_ctrl_c)
-    STARTED_SWEEPS.clear()  # an earlier command's, when this process runs several
+    STARTED_FOLDERS.clear()  # an earlier command's, when this process runs several
     try:
         conf = config_dir()
         check_command_line(args, conf, _job_validator(load_stage_suite()))
@@ -58,13 +64,23 @@ def main(argv: Sequence[str] | None = None) -> int:
         flags = [arg for arg in args if arg in LAUNCH_FLAGS]
         sys.argv = [sys.argv[0], *flags, *(arg for arg in args if arg not in LAUNCH_FLAGS)]
         launched.append(True)
-        hydra.main(version_base="1.3", config_path=str(conf), config_name="config")(run_job)()
+        with _hydra_errors_raised():
+            hydra.main(version_base="1.3", config_path=str(conf), config_name="config")(run_job)()
     except RelayGSError as error:  # the command line (a job's own errors end in run_job)
         print(f"error: {error}", file=sys.stderr)
         return 1
+    except (OSError, MemoryError) as error:  # Hydra's own writes: config files, multirun.yaml
+        failure = resource_error(error)
+        if failure is None:
+            raise
+        print(f"error: {failure}", file=sys.stderr)
+        return 1
+    except HydraException as error:
+        print(f"error: {one_line(error)}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt as stop:
-        sweep = STARTED_SWEEPS[-1] if STARTED_SWEEPS else None
-        print(_interrupted_line(stop, bool(launched), sweep), file=sys.stderr)
+        started = STARTED_FOLDERS[-1] if STARTED_FOLDERS else None
+        print(_interrupted_line(stop, bool(launched), started), file=sys.stderr)
         return TERMINATED_EXIT if terminated else INTERRUPTED_EXIT
     finally:
         signal.signal(signal.SIGTERM, previous)
@@ -72,23 +88,42 @@ def main(argv: Sequence[str] | None = None) -> int:
     return 0
 
 
-def _interrupted_line(stop: KeyboardInterrupt, launched: bool, sweep: StartedSweep | None) -> str:
+@contextmanager
+def _hydra_errors_raised() -> Iterator[None]:
+    """Let an error out of Hydra rather than have it print a traceback and exit: Hydra writes
+    each job's `.hydra/` configs (and a sweep's multirun.yaml) itself, so a full disk there
+    reaches `main` and ends in one line. Hydra reads HYDRA_FULL_ERROR when an error occurs."""
+    before = os.environ.get(HYDRA_FULL_ERROR)
+    os.environ[HYDRA_FULL_ERROR] = "1"
+    try:
+        yield
+    finally:
+        if before is None:
+            os.environ.pop(HYDRA_FULL_ERROR, None)
+        else:
+            os.environ[HYDRA_FULL_ERROR] = before
+
+
+def _interrupted_line(
+    stop: KeyboardInterrupt, launched: bool, started: StartedFolder | None
+) -> str:
     """The line a stopped command ends with: the stage's own account of where it stopped, else
     (a parallel launcher's workers cannot report theirs) what running it again does, once jobs
-    had started. A sweep whose folder the command did not name (a timestamped one) is told to
-    name it in the rerun, which would otherwise go on in a new folder."""
+    had started. A sweep or run whose folder the command did not name (a timestamped one) is
+    told to name it in the rerun, which would otherwise go on in a new folder (and credit the
+    stopped attempt's work to no job)."""
     if str(stop):
         line = f"interrupted: {stop}"
     elif launched:
         line = f"interrupted: {RERUN_RUN}"
     else:
         return "interrupted"
-    if sweep is None or sweep.named:
+    if started is None or started.named:
         return line
-    override = path_override("hydra.sweep.dir", sweep.folder)
+    override = path_override(started.override, started.folder)
     return (
-        f"{line}; add {override} to the command, so that the sweep goes on in its folder, "
-        "not a new one"
+        f"{line}; add {override} to the command, so that the {started.kind} goes on in its "
+        "folder, not a new one"
     )
 
 
@@ -119,7 +154,10 @@ def run_job(cfg: DictConfig) -> dict[str, Any] | None:
     multirun = hydra_cfg.mode == RunMode.MULTIRUN
     run_dir = Path(hydra_cfg.runtime.output_dir)
     side_by_side = multirun and hydra_cfg.runtime.choices.get("hydra/launcher") != "basic"
-    earlier_result = _file_identity(run_dir / RESULT_FILE)
+    earlier_result = file_identity(run_dir / RESULT_FILE)
+    if not multirun:
+        named = names_override(hydra_cfg.overrides.hydra, RUN_DIR)
+        STARTED_FOLDERS.append(StartedFolder(run_dir, named, RUN_DIR))
     try:
         return run_task(
             cfg,
@@ -130,7 +168,7 @@ def run_job(cfg: DictConfig) -> dict[str, Any] | None:
             label=run_dir.name if side_by_side else None,
         )
     except Exception as error:
-        recorded = _file_identity(run_dir / RESULT_FILE) not in (None, earlier_result)
+        recorded = file_identity(run_dir / RESULT_FILE) not in (None, earlier_result)
         if multirun and recorded:
             if not isinstance(error, RelayGSError):
                 traceback.print_exc()
@@ -140,13 +178,3 @@ def run_job(cfg: DictConfig) -> dict[str, Any] | None:
             print(f"error: {error}", file=sys.stderr)
             raise SystemExit(1) from None
         raise
-
-
-def _file_identity(path: Path) -> tuple[int, int] | None:
-    """(inode, mtime in ns) of `path`, None when it does not exist: whether a file was written
-    (replaced) since an earlier look."""
-    try:
-        stat = path.stat()
-    except FileNotFoundError:
-        return None
-    return stat.st_ino, stat.st_mtime_ns

@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from relaygs.data.imageio import image_size
+from relaygs.data.sources import check_inside, regular_file_status
 from relaygs.errors import InputError
 
 
@@ -26,11 +27,11 @@ _RECORDS: dict[tuple[str, int, int, bool], FileRecord] = {}
 _RECORDS_LOCK = threading.Lock()
 
 
-def file_record(path: Path, *, image: bool = False, what: str = "file") -> FileRecord:
+def file_record(path: Path, *, root: Path, image: bool = False, what: str = "file") -> FileRecord:
     """Hash a file's bytes (and check an image's bytes, read its size) once per (path, size,
-    mtime) per process."""
+    mtime) per process; only a regular file inside the scene folder `root` is read."""
     try:
-        stat = path.stat()
+        stat = regular_file_status(path, what)
     except OSError as error:
         others = _other_extensions(path) if isinstance(error, FileNotFoundError) else []
         reason = (
@@ -39,6 +40,7 @@ def file_record(path: Path, *, image: bool = False, what: str = "file") -> FileR
             else error.strerror
         )
         raise InputError(f"missing {what}: {path} ({reason})") from None
+    check_inside(path, root, what)
     key = (str(path), stat.st_size, stat.st_mtime_ns, image)
     with _RECORDS_LOCK:
         cached = _RECORDS.get(key)

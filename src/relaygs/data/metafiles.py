@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from relaygs.data.effects import parse_effects
+from relaygs.data.sources import regular_file_status
 from relaygs.errors import InputError
 
 SCENE_JSON = "scene.json"
@@ -14,13 +15,13 @@ SCENE_JSON = "scene.json"
 
 def read_text(path: Path) -> str:
     """A UTF-8 text file's contents, without the byte-order mark some Windows editors write;
-    missing, a folder, unreadable or not UTF-8 is an InputError naming the file."""
+    missing, not a regular file (a folder, a FIFO), unreadable or not UTF-8 is an InputError
+    naming the file."""
     try:
+        regular_file_status(path)
         return path.read_text(encoding="utf-8-sig")
     except FileNotFoundError:
         raise InputError(f"missing file: {path}") from None
-    except IsADirectoryError:
-        raise InputError(f"{path}: is a folder, expected a file") from None
     except OSError as error:
         raise InputError(f"cannot read {path} ({error.strerror})") from None
     except UnicodeDecodeError as error:

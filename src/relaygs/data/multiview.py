@@ -65,14 +65,14 @@ def load_multiview(root: Path, options: LoaderOptions) -> Scene:
     folders = camera_folders(root)
     frames = _frame_files(folders)
     model_folder = _find_model(root)
-    model = read_model(model_folder)
     files = {
-        path.relative_to(root).as_posix(): file_record(path).sha256
+        path.relative_to(root).as_posix(): file_record(path, root=root).sha256
         for path in sorted(model_folder.iterdir())
         if path.is_file() and path.stem in ("cameras", "images", "points3D")
     }
+    model = read_model(model_folder)
     if (root / SCENE_JSON).exists():
-        files[SCENE_JSON] = file_record(root / SCENE_JSON).sha256
+        files[SCENE_JSON] = file_record(root / SCENE_JSON, root=root).sha256
     declared = declared_test_cameras(root)
     cameras = _cameras(folders, model, model_folder)
     views = _views(root, folders, frames, cameras, files)
@@ -253,7 +253,7 @@ def _views(
 
 
 def _check_size(path: Path, camera: Camera, files: dict[str, str], root: Path, what: str) -> None:
-    record = file_record(path, image=True, what=f"{what} file")
+    record = file_record(path, root=root, image=True, what=f"{what} file")
     if record.image_size != (camera.width, camera.height):
         width, height = record.image_size
         raise InputError(

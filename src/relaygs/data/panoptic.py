@@ -55,17 +55,17 @@ class PanopticMeta:
 def load_panoptic(root: Path, options: LoaderOptions) -> Scene:
     """Load a PanopticSports-layout scene folder; test cameras from test_meta.json by default,
     which may be absent when the test_cameras option names them."""
+    files = {
+        name: file_record(root / name, root=root).sha256
+        for name in (TRAIN_META, TEST_META, SCENE_JSON, POINTS_FILE)
+        if (root / name).exists()
+    }
     train = read_meta(root / TRAIN_META)
     metas = [train, *_test_meta(root, train, options.test_cameras)]
-    files: dict[str, str] = {}
     cameras: dict[tuple, Camera] = {}
     entries = [view for meta in metas for view in _views(root, meta, files, cameras)]
     train_views, test_views = _split(entries, metas, options)
     points = _read_points(root / POINTS_FILE, options.max_points)
-    files[POINTS_FILE] = file_record(root / POINTS_FILE).sha256
-    for name in (TRAIN_META, TEST_META, SCENE_JSON):
-        if (root / name).exists():
-            files[name] = file_record(root / name).sha256
     effects = declared_effects(root) if options.effects is None else options.effects
     content = digest({"format": "panoptic", "options": options.content_options(), "files": files})
     return assemble_scene(
@@ -261,7 +261,7 @@ def _views(
 def _check_image(
     path: Path, meta: PanopticMeta, files: dict[str, str], root: Path, what: str
 ) -> None:
-    record = file_record(path, image=True, what=f"{what} file")
+    record = file_record(path, root=root, image=True, what=f"{what} file")
     if record.image_size != (meta.width, meta.height):
         width, height = record.image_size
         raise InputError(

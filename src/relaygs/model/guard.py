@@ -34,3 +34,28 @@ def check_finite(stage: str, step: int, tensors: Mapping[str, Tensor]) -> None:
                 f"stage {stage!r} diverged at step {step}: tensor {name!r} has {bad} "
                 f"non-finite value(s) of {tensor.numel()}"
             )
+
+
+def divergence_suspects(parameters: Mapping[str, Tensor], step: int) -> str:
+    """Which parameters a divergence at `step` started from, for its error: those the update of
+    the step before made non-finite (every step checks them, so they were finite before it),
+    else the one holding the largest magnitude (an update too big for it, not yet overflowed)."""
+    non_finite = [
+        name for name, tensor in parameters.items() if not bool(torch.isfinite(tensor).all())
+    ]
+    if non_finite:
+        return (
+            f"the update of step {step - 1} made parameter(s) {', '.join(non_finite)} non-finite "
+            "first: lower their learning rate"
+        )
+    finite = [(name, tensor) for name, tensor in parameters.items() if tensor.numel()]
+    if not finite:
+        return "no parameter is non-finite"
+    name, largest = max(
+        ((name, float(tensor.detach().abs().max())) for name, tensor in finite),
+        key=lambda item: item[1],
+    )
+    return (
+        f"no parameter is non-finite; the largest is {name} (|value| up to {largest:.3g}): "
+        "a learning rate too high for it?"
+    )

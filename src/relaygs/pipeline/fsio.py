@@ -100,6 +100,16 @@ def publish_dir(temp: Path, final: Path) -> None:
     fsync_path(final.parent)
 
 
+def file_identity(path: Path) -> tuple[int, int] | None:
+    """(inode, mtime in ns) of `path`, None when it does not exist: whether a file was written
+    (replaced) since an earlier look."""
+    try:
+        status = path.stat()
+    except FileNotFoundError:
+        return None
+    return status.st_ino, status.st_mtime_ns
+
+
 def remove_tree(path: Path) -> None:
     """Delete a file or folder if it exists (missing paths are fine)."""
     if path.is_dir() and not path.is_symlink():

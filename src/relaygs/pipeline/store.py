@@ -247,12 +247,18 @@ class ArtifactStore:
         return matches[0]
 
     def verify(self) -> list[VerifyProblem]:
-        """Check every artifact folder's hashes; return the bad ones (empty when all good)."""
-        return self._scan(check_hashes=True)[1]
+        """Check every artifact folder's hashes and decode its files; return the bad ones
+        (empty when all good)."""
+        return self.verify_all()[1]
+
+    def verify_all(self) -> tuple[list[StoredArtifact], list[VerifyProblem]]:
+        """`verify`, with the sound artifacts too: together they count every artifact folder."""
+        return self._scan(check_hashes=True)
 
     def _scan(self, check_hashes: bool) -> tuple[list[StoredArtifact], list[VerifyProblem]]:
         """The readable artifacts (sorted as `list` says) and the problem of every other
-        artifact folder; with `check_hashes`, each file's hash is checked too."""
+        artifact folder; with `check_hashes`, each file's hash is checked and its files decoded
+        too."""
         found, problems = [], []
         for folder in key_dirs(self.root):
             outcome = _examine_steady(folder, check_hashes)
@@ -328,10 +334,7 @@ class ArtifactStore:
         if verify:
             check_seal(folder)
         manifest = read_own_manifest(folder)
-        try:
-            return read_artifact_files(folder, stage), manifest
-        except (OSError, ValueError, SafetensorError) as error:
-            raise CorruptArtifactError(f"{folder}: unreadable artifact files ({error})") from error
+        return read_decodable_files(folder, stage), manifest
 
     def _write(
         self, stage: str, key: str, artifact: Artifact, manifest_fields: dict[str, Any]
@@ -403,18 +406,31 @@ def read_own_manifest(folder: Path) -> Manifest:
 
 
 def _examine(folder: Path, check_hashes: bool) -> StoredArtifact | VerifyProblem:
-    """The artifact in `folder`, or its problem (with `check_hashes`, its hashes checked too);
-    a folder this user may not read is one problem, not the end of `ls` or `verify`."""
+    """The artifact in `folder`, or its problem (with `check_hashes`, its hashes checked and
+    its files decoded too: files damaged before they were sealed match their hashes); a folder
+    this user may not read is one problem, not the end of `ls` or `verify`."""
     try:
         if not is_sealed(folder):
             return VerifyProblem(folder, "incomplete (no completion marker)")
         if check_hashes:
             check_seal(folder)
-        return StoredArtifact(folder, read_own_manifest(folder))
+        manifest = read_own_manifest(folder)
+        if check_hashes:
+            read_decodable_files(folder, manifest.stage)
+        return StoredArtifact(folder, manifest)
     except CorruptArtifactError as error:
         return VerifyProblem(folder, str(error))
     except PermissionError as error:
         return VerifyProblem(folder, f"cannot be read ({error.strerror})")
+
+
+def read_decodable_files(folder: Path, stage: str) -> Artifact:
+    """The artifact files in `folder`, or CorruptArtifactError naming the folder when they do
+    not decode (a file damaged before it was sealed, its hashes intact)."""
+    try:
+        return read_artifact_files(folder, stage)
+    except (OSError, ValueError, SafetensorError) as error:
+        raise CorruptArtifactError(f"{folder}: unreadable artifact files ({error})") from error
 
 
 def _examine_steady(folder: Path, check_hashes: bool) -> StoredArtifact | VerifyProblem | None:
@@ -431,13 +447,6 @@ def _examine_steady(folder: Path, check_hashes: bool) -> StoredArtifact | Verify
 
 
 def _is_intact(folder: Path) -> bool:
-    """True when `folder` is a sealed artifact whose hashes all match and whose manifest
-    names it."""
-    if not is_sealed(folder):
-        return False
-    try:
-        check_seal(folder)
-        read_own_manifest(folder)
-    except CorruptArtifactError:
-        return False
-    return True
+    """True when `folder` is a sealed artifact whose hashes all match, whose manifest names it
+    and whose files decode: what a load accepts, so a build replaces anything a load refuses."""
+    return isinstance(_examine(folder, check_hashes=True), StoredArtifact)

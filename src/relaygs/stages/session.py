@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import torch
 from torch import Tensor, nn
 
+from relaygs.errors import DivergenceError
 from relaygs.model import (
     DensifyReport,
     DensifySettings,
@@ -25,6 +26,7 @@ from relaygs.model import (
     check_finite,
     sh_degree_for_step,
 )
+from relaygs.model.guard import divergence_suspects
 from relaygs.pipeline.checkpoint import TrainingState
 from relaygs.stages.render import Render, screen_statistics
 
@@ -123,10 +125,15 @@ class TrainingSession:
         return named
 
     def check_finite(self, stage: str, step: int, loss: Tensor | None = None) -> None:
-        """DivergenceError naming stage, step and tensor if a loss/param/grad is not finite."""
+        """DivergenceError naming stage, step and tensor if a loss/param/grad is not finite, and
+        the parameters the divergence started from."""
+        parameters = self.parameters()
         tensors = {} if loss is None else {"loss": loss.detach()}
-        tensors.update(self.parameters())
-        check_finite(stage, step, tensors)
+        tensors.update(parameters)
+        try:
+            check_finite(stage, step, tensors)
+        except DivergenceError as error:
+            raise DivergenceError(f"{error}; {divergence_suspects(parameters, step)}") from None
 
     def apply_gradients(self, renders: list[Render], step: int) -> list[DensifyReport]:
         """Optimiser steps, then density statistics from `renders` and density control."""

@@ -7,6 +7,7 @@ from relaygs.data.synthetic.generate import (
     MAX_SYNTH_COUNT,
     declared_effects,
     generate,
+    remove_abandoned_staging,
     require_valid_preset,
     rig_cameras,
 )
@@ -19,6 +20,7 @@ __all__ = [
     "PRESETS",
     "declared_effects",
     "generate",
+    "remove_abandoned_staging",
     "require_valid_preset",
     "rig_cameras",
 ]

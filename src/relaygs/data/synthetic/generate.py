@@ -6,6 +6,7 @@ import json
 import os
 import re
 import shutil
+import socket
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -205,11 +206,42 @@ def _staging_folder(out: Path) -> Path:
             )
     require_creatable_folder(out.parent, "synthetic scene folder")
     out.parent.mkdir(parents=True, exist_ok=True)
-    staging = out.parent / f".{out.name}.partial-{os.getpid()}"
+    remove_abandoned_staging(out)
+    writer = f"{socket.gethostname()}-{os.getpid()}"  # who writes it: this machine, process
+    staging = out.parent / f"{_staging_prefix(out)}{writer}"
     if staging.exists():
         shutil.rmtree(staging)
     staging.mkdir()
     return staging
+
+
+def _staging_prefix(out: Path) -> str:
+    return f".{out.name}.partial-"
+
+
+def remove_abandoned_staging(out: Path, *, any_writer: bool = False) -> None:
+    """Delete the hidden staging folders beside `out` that a killed generation left: those of a
+    process of this machine that is no longer running, or, with `any_writer` (the caller holds
+    the lock that every generation of `out` takes), every one."""
+    for staging in out.parent.glob(f"{_staging_prefix(out)}*"):
+        writer = staging.name[len(_staging_prefix(out)) :]
+        if staging.is_dir() and (any_writer or _is_gone(writer)):
+            shutil.rmtree(staging, ignore_errors=True)
+
+
+def _is_gone(writer: str) -> bool:
+    """Whether the `<host>-<pid>` writer of a staging folder is a process of this machine that
+    has ended (one of another machine, or a name of another form, cannot be told: False)."""
+    host, _, pid = writer.rpartition("-")
+    if host != socket.gethostname() or not pid.isdigit():
+        return False
+    try:
+        os.kill(int(pid), 0)
+    except ProcessLookupError:
+        return True
+    except PermissionError:  # alive, another user's
+        return False
+    return False
 
 
 def _foreign_image_files(scene: Path) -> list[str]:
