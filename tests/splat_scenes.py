@@ -89,6 +89,25 @@ def render_and_grads(render_fn, scene: dict, seed: int = 0, **kwargs):
     return colors, alphas, meta, dict(zip(keys, grads, strict=True))
 
 
+def assert_render_matches(got, expected, forward_atol: float, grad_rtol: float) -> None:
+    """Colours and alphas within `forward_atol`; each gradient within `grad_rtol` relative
+    (norm) of the expected one, or equal where that one is zero or absent."""
+    torch.testing.assert_close(got[0], expected[0], rtol=0, atol=forward_atol)
+    torch.testing.assert_close(got[1], expected[1], rtol=0, atol=forward_atol)
+    for key, grad in expected[3].items():
+        mine = got[3][key]
+        if grad is None or mine is None:  # unused (colours in depth mode): no gradient or zero
+            assert all(g is None or torch.all(g == 0) for g in (grad, mine)), key
+            continue
+        assert torch.isfinite(mine).all(), key
+        norm = grad.norm()
+        if norm == 0:
+            assert torch.all(mine == 0), key
+        else:
+            rel = (mine - grad).norm() / norm
+            assert rel < grad_rtol, f"{key}: relative error {rel.item():.3g}"
+
+
 HARD_WIDTH, HARD_HEIGHT = 24, 20
 
 

@@ -23,6 +23,7 @@ from splat_scenes import (
     HARD_WIDTH,
     KEPT,
     LEARNABLE,
+    assert_render_matches,
     camera_rig,
     hard_scene,
     random_scene,
@@ -39,25 +40,6 @@ def test_the_kernels_run_in_the_interpreter():
     from relaygs.splat import triton as gpu
 
     assert gpu.available() and gpu.interpreted()
-
-
-def _assert_matches(got, expected, forward_atol: float, grad_rtol: float) -> None:
-    """Colours and alphas within `forward_atol`; each gradient within `grad_rtol` relative
-    (norm) of the expected one, or equal where that one is zero or absent."""
-    torch.testing.assert_close(got[0], expected[0], rtol=0, atol=forward_atol)
-    torch.testing.assert_close(got[1], expected[1], rtol=0, atol=forward_atol)
-    for key, grad in expected[3].items():
-        mine = got[3][key]
-        if grad is None or mine is None:  # unused (colours in depth mode): no gradient or zero
-            assert all(g is None or torch.all(g == 0) for g in (grad, mine)), key
-            continue
-        assert torch.isfinite(mine).all(), key
-        norm = grad.norm()
-        if norm == 0:
-            assert torch.all(mine == 0), key
-        else:
-            rel = (mine - grad).norm() / norm
-            assert rel < grad_rtol, f"{key}: relative error {rel.item():.3g}"
 
 
 RANDOM_CASES = {
@@ -84,8 +66,8 @@ def test_random_scenes_match_the_reference_and_the_torch_backend(scene_args, opt
     got = render_and_grads(rasterization, scene, backend="triton")
     assert got[2]["backend"] == "triton"
     reference = {k: v for k, v in scene.items() if k != "tile_size"}
-    _assert_matches(got, render_and_grads(rasterization_reference, reference), 1e-5, 1e-4)
-    _assert_matches(got, render_and_grads(rasterization, scene, backend="torch"), 1e-5, 1e-4)
+    assert_render_matches(got, render_and_grads(rasterization_reference, reference), 1e-5, 1e-4)
+    assert_render_matches(got, render_and_grads(rasterization, scene, backend="torch"), 1e-5, 1e-4)
 
 
 def test_float64_matches_the_reference_to_rounding():
@@ -100,7 +82,9 @@ def test_float64_matches_the_reference_to_rounding():
     scene = with_grad({**scene, "colors": sh})
     options = {"sh_degree": 1, "render_mode": "RGB+D"}
     got = render_and_grads(rasterization, scene, backend="triton", **options)
-    _assert_matches(got, render_and_grads(rasterization_reference, scene, **options), 1e-12, 1e-9)
+    assert_render_matches(
+        got, render_and_grads(rasterization_reference, scene, **options), 1e-12, 1e-9
+    )
 
 
 @pytest.mark.parametrize("hard", CULLED.values(), ids=CULLED.keys())
@@ -149,7 +133,7 @@ def test_stacked_opaque_gaussians_stop_early_as_the_reference():
     )
     got = render_and_grads(rasterization, scene, backend="triton")
     assert got[1][0, HARD_HEIGHT // 2, HARD_WIDTH // 2, 0] > 1 - 2e-4
-    _assert_matches(got, render_and_grads(rasterization_reference, scene), 1e-5, 1e-4)
+    assert_render_matches(got, render_and_grads(rasterization_reference, scene), 1e-5, 1e-4)
     unused = got[3]["colors"].abs().sum(-1) == 0
     assert unused.sum() > n // 2
     by_torch = render_and_grads(rasterization, scene, backend="torch")[3]["colors"]
