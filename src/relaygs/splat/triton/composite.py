@@ -13,7 +13,13 @@ from relaygs.splat.composite import FixedLayer, _pack, background_terms, input_g
 from relaygs.splat.tiles import TileBins
 
 MAX_PIXELS = 256  # lanes per program: a larger tile is split over several programs
-BLOCK_ELEMENTS = 4096  # pixels × batch × channel lanes of a program's widest temporary
+# Values in a program's widest temporary ([pixels, batch, channels]). Set from the compiled
+# kernels' registers on sm_90 (8×8 tiles, RGB: forward 122, backward 149, no spills; twice
+# these batches take 206 and 249), not from timings: none were made on a GPU yet.
+FORWARD_ELEMENTS = 4096
+BACKWARD_ELEMENTS = 2048
+# Triton's default, named (its 3.9 warns while it is left unset): multiply-adds fused, as nvcc.
+COMPILE_OPTIONS = {"enable_fp_fusion": True}
 
 
 @dataclass(frozen=True)
@@ -30,13 +36,13 @@ class Launch:
         return {"PIXELS": self.pixels, "BATCH": self.batch, "CHANNELS": self.channels}
 
 
-def launch_for(bins: TileBins, tiles: torch.Tensor, channels: int) -> Launch:
-    """One program per (tile, block of its pixels); batches of Gaussians as wide as the
-    program's [pixels, batch, channels] temporaries allow (4 to 32)."""
+def launch_for(bins: TileBins, tiles: torch.Tensor, channels: int, elements: int) -> Launch:
+    """One program per (tile, block of its pixels); batches of Gaussians as wide as a
+    [pixels, batch, channels] temporary of at most `elements` values allows (4 to 32)."""
     area = bins.tile_size**2
     pixels = min(MAX_PIXELS, _power_of_2_at_least(area))
     padded = _power_of_2_at_least(channels)
-    room = max(1, BLOCK_ELEMENTS // (pixels * padded))
+    room = max(1, elements // (pixels * padded))
     batch = min(32, max(4, 1 << (room.bit_length() - 1)))
     return Launch((tiles.numel(), -(-area // pixels)), pixels, batch, padded)
 
@@ -80,11 +86,12 @@ class TritonCompositeGaussians(torch.autograd.Function):
             out = fixed.colors.detach().to(colors.dtype).contiguous().clone()
             t_final = (1.0 - fixed.alphas.detach().to(colors.dtype))[..., 0].contiguous()
         last = torch.full((c, height, width), -1, dtype=torch.int32, device=colors.device)
-        launch = launch_for(bins, tiles, d)
+        launch = launch_for(bins, tiles, d, FORWARD_ELEMENTS)
         if tiles.numel() > 0:
             composite_forward_kernel[launch.grid](
                 table, flat_colors, bins.pair_gaussian, bins.tile_start, bins.tile_count, tiles,
-                out, t_final, last, *_geometry(bins, width, height), d, **launch.sizes(),
+                out, t_final, last, *_geometry(bins, width, height), d,
+                **launch.sizes(), **COMPILE_OPTIONS,
             )  # fmt: skip
         t_final = t_final[..., None]
         if backgrounds is not None:
@@ -113,15 +120,15 @@ class TritonCompositeGaussians(torch.autograd.Function):
         table = _pack(means2d, conics, opacities, bounds).contiguous()
         flat_colors = colors.reshape(c * n, d).contiguous()
         pixel_k, grad_bg = background_terms(grad_colors, grad_alphas, t_final, backgrounds)
-        grad_table = table.new_zeros(c * n, GRAD_COLUMNS)
+        grad_table = table.new_zeros(c * n, GRAD_COLUMNS.value)
         grad_cols = torch.zeros_like(flat_colors)
-        launch = launch_for(bins, ctx.tiles, d)
+        launch = launch_for(bins, ctx.tiles, d, BACKWARD_ELEMENTS)
         if ctx.tiles.numel() > 0:
             composite_backward_kernel[launch.grid](
                 table, flat_colors, bins.pair_gaussian, bins.tile_start, bins.tile_count,
                 ctx.tiles, grad_colors.contiguous(), pixel_k[..., 0].contiguous(),
                 t_final[..., 0].contiguous(), last, grad_table, grad_cols,
-                *_geometry(bins, width, height), d, **launch.sizes(),
+                *_geometry(bins, width, height), d, **launch.sizes(), **COMPILE_OPTIONS,
             )  # fmt: skip
         return input_gradients(
             grad_table, grad_cols, ctx.fixed, (means2d, conics, opacities, colors), grad_bg

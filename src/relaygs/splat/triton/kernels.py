@@ -19,12 +19,13 @@ from __future__ import annotations
 import triton
 import triton.language as tl
 
-ALPHA_MIN = 1.0 / 255.0
-ALPHA_MAX = 0.99
-T_MIN = 1e-4
-MAX_POWER = 40.0
-COLUMNS = 10  # the packed table of relaygs.splat.composite._pack
-GRAD_COLUMNS = 6  # mean x, mean y, conic A, B, C, opacity
+# Constants the kernels read (Triton takes module globals only as constexpr).
+ALPHA_MIN = tl.constexpr(1.0 / 255.0)
+ALPHA_MAX = tl.constexpr(0.99)
+T_MIN = tl.constexpr(1e-4)
+MAX_POWER = tl.constexpr(40.0)
+COLUMNS = tl.constexpr(10)  # the packed table of relaygs.splat.composite._pack
+GRAD_COLUMNS = tl.constexpr(6)  # mean x, mean y, conic A, B, C, opacity
 
 
 @triton.jit
