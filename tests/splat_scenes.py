@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import torch
 
 from relaygs.data import Camera
@@ -85,6 +87,79 @@ def render_and_grads(render_fn, scene: dict, seed: int = 0, **kwargs):
     loss = (colors * w_c).sum() + (alphas * w_a).sum()
     grads = torch.autograd.grad(loss, [scene[k] for k in keys], allow_unused=True)
     return colors, alphas, meta, dict(zip(keys, grads, strict=True))
+
+
+def assert_render_matches(got, expected, forward_atol: float, grad_rtol: float) -> None:
+    """Colours and alphas within `forward_atol`; each gradient within `grad_rtol` relative
+    (norm) of the expected one, or equal where that one is zero or absent."""
+    torch.testing.assert_close(got[0], expected[0], rtol=0, atol=forward_atol)
+    torch.testing.assert_close(got[1], expected[1], rtol=0, atol=forward_atol)
+    for key, grad in expected[3].items():
+        mine = got[3][key]
+        if grad is None or mine is None:  # unused (colours in depth mode): no gradient or zero
+            assert all(g is None or torch.all(g == 0) for g in (grad, mine)), key
+            continue
+        assert torch.isfinite(mine).all(), key
+        norm = grad.norm()
+        if norm == 0:
+            assert torch.all(mine == 0), key
+        else:
+            rel = (mine - grad).norm() / norm
+            assert rel < grad_rtol, f"{key}: relative error {rel.item():.3g}"
+
+
+HARD_WIDTH, HARD_HEIGHT = 24, 20
+
+
+def hard_scene(hard: dict, dtype=torch.float32) -> dict:
+    """Two ordinary Gaussians plus one hard Gaussian (row 2) described by `hard`."""
+    viewmats, Ks = camera_rig(1, HARD_WIDTH, HARD_HEIGHT, dtype=dtype)
+    viewmats = torch.eye(4, dtype=dtype)[None]
+    scene = {
+        "means": torch.tensor([[0.0, 0.0, 3.0], [0.2, -0.1, 2.5], [0.1, 0.1, 3.0]], dtype=dtype),
+        "quats": torch.tensor([[1.0, 0, 0, 0], [0.9, 0.1, 0.2, 0.3], [1.0, 0, 0, 0]], dtype=dtype),
+        "scales": torch.full((3, 3), 0.15, dtype=dtype),
+        "opacities": torch.tensor([0.7, 0.5, 0.6], dtype=dtype),
+        "colors": torch.tensor([[1.0, 0, 0], [0, 1.0, 0], [0, 0, 1.0]], dtype=dtype),
+        "viewmats": viewmats,
+        "Ks": Ks,
+        "width": HARD_WIDTH,
+        "height": HARD_HEIGHT,
+    }
+    for key, value in hard.items():
+        scene[key] = scene[key].clone()
+        scene[key][2] = torch.as_tensor(value, dtype=dtype)
+    return scene
+
+
+# Hard cases for the Gaussian in row 2 of `hard_scene`: culled ones, and visible ones.
+CULLED = {
+    "at camera centre (z = 0)": {"means": [0.0, 0.0, 0.0]},
+    "behind the camera": {"means": [0.1, 0.1, -2.0]},
+    "just in front of the near plane's far side": {"means": [0.0, 0.0, 0.00999]},
+    "far outside the frustum": {"means": [1e6, 0.0, 3.0]},
+    "far outside, huge": {"means": [1e30, -1e30, 1e30]},
+    "opacity exactly 0": {"opacities": 0.0},
+    "log-scale 18": {"scales": [math.exp(18)] * 3},
+    "log-scale 24": {"scales": [math.exp(24)] * 3},
+    "log-scale 30": {"scales": [math.exp(30)] * 3},
+    "scale 1e20": {"scales": [1e20] * 3},
+    "scale 1e30, one axis": {"scales": [1e30, 1.0, 1.0]},
+    "scale 3e38": {"scales": [3e38] * 3},
+}
+
+
+KEPT = {
+    "exactly on the near plane": {"means": [0.0, 0.0, 0.01]},
+    "zero quaternion": {"quats": [0.0, 0.0, 0.0, 0.0], "scales": [0.3, 0.1, 0.05]},
+    "tiny quaternion": {"quats": [1e-30, 2e-30, 0.0, -1e-30], "scales": [0.3, 0.1, 0.05]},
+    "huge quaternion": {"quats": [1e30, 2e30, 0.0, -1e30], "scales": [0.3, 0.1, 0.05]},
+    "zero scale": {"scales": [0.0, 0.0, 0.0]},
+    "scale 1e-8": {"scales": [1e-8, 1e-8, 1e-8]},
+    "opacity exactly 1": {"opacities": 1.0},
+    "screen-filling splat": {"scales": [50.0, 50.0, 50.0]},
+    "flat disc": {"scales": [0.3, 0.3, 0.0]},
+}
 
 
 def dome_cameras(width: int, height: int) -> list[Camera]:

@@ -90,3 +90,11 @@ def test_an_unknown_backend_is_named_before_any_work(what, monkeypatch, capsys):
     monkeypatch.setattr(bench_train, "bench_scene", lambda *args: pytest.fail("train started"))
     assert bench.main([what, "--backends", "torch,fast"]) == 2
     assert "'fast'" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("device", ["cuda:99", "tpu"])
+def test_train_on_a_device_it_cannot_use_is_named_before_any_work(device, monkeypatch, capsys):
+    monkeypatch.setattr(bench_train, "bench_scene", lambda *args: pytest.fail("train started"))
+    assert bench.main(["train", "--device", device]) == 2
+    err = capsys.readouterr().err
+    assert "--device" in err and repr(device) in err and err.count("\n") == 1

@@ -14,33 +14,22 @@ from relaygs.errors import InputError
 from relaygs.splat import rasterization
 from relaygs.splat.projection import ALPHA_MIN, MAX_SIGMA_MULT, opacity_sigma_multiplier
 from relaygs.splat.reference import rasterization_reference
-from splat_scenes import LEARNABLE, camera_rig, render_and_grads, with_grad
+from splat_scenes import (
+    CULLED,
+    HARD_HEIGHT,
+    HARD_WIDTH,
+    KEPT,
+    LEARNABLE,
+    camera_rig,
+    hard_scene,
+    render_and_grads,
+    with_grad,
+)
 
 # Every test here runs on both backends (the `splat_backend` fixture in conftest).
 pytestmark = pytest.mark.usefixtures("splat_backend")
 
-W, H = 24, 20
-
-
-def _base_scene(hard: dict, dtype=torch.float32) -> dict:
-    """Two ordinary Gaussians plus one hard Gaussian (row 2) described by `hard`."""
-    viewmats, Ks = camera_rig(1, W, H, dtype=dtype)
-    viewmats = torch.eye(4, dtype=dtype)[None]
-    scene = {
-        "means": torch.tensor([[0.0, 0.0, 3.0], [0.2, -0.1, 2.5], [0.1, 0.1, 3.0]], dtype=dtype),
-        "quats": torch.tensor([[1.0, 0, 0, 0], [0.9, 0.1, 0.2, 0.3], [1.0, 0, 0, 0]], dtype=dtype),
-        "scales": torch.full((3, 3), 0.15, dtype=dtype),
-        "opacities": torch.tensor([0.7, 0.5, 0.6], dtype=dtype),
-        "colors": torch.tensor([[1.0, 0, 0], [0, 1.0, 0], [0, 0, 1.0]], dtype=dtype),
-        "viewmats": viewmats,
-        "Ks": Ks,
-        "width": W,
-        "height": H,
-    }
-    for key, value in hard.items():
-        scene[key] = scene[key].clone()
-        scene[key][2] = torch.as_tensor(value, dtype=dtype)
-    return scene
+W, H = HARD_WIDTH, HARD_HEIGHT
 
 
 def _assert_all_finite(colors, alphas, grads):
@@ -49,25 +38,9 @@ def _assert_all_finite(colors, alphas, grads):
         assert grad is not None and torch.isfinite(grad).all(), f"non-finite gradient of {key}"
 
 
-CULLED = {
-    "at camera centre (z = 0)": {"means": [0.0, 0.0, 0.0]},
-    "behind the camera": {"means": [0.1, 0.1, -2.0]},
-    "just in front of the near plane's far side": {"means": [0.0, 0.0, 0.00999]},
-    "far outside the frustum": {"means": [1e6, 0.0, 3.0]},
-    "far outside, huge": {"means": [1e30, -1e30, 1e30]},
-    "opacity exactly 0": {"opacities": 0.0},
-    "log-scale 18": {"scales": [math.exp(18)] * 3},
-    "log-scale 24": {"scales": [math.exp(24)] * 3},
-    "log-scale 30": {"scales": [math.exp(30)] * 3},
-    "scale 1e20": {"scales": [1e20] * 3},
-    "scale 1e30, one axis": {"scales": [1e30, 1.0, 1.0]},
-    "scale 3e38": {"scales": [3e38] * 3},
-}
-
-
 @pytest.mark.parametrize("hard", CULLED.values(), ids=CULLED.keys())
 def test_culled_gaussian_is_finite_and_gets_exactly_zero_gradient(hard):
-    scene = with_grad(_base_scene(hard))
+    scene = with_grad(hard_scene(hard))
     colors, alphas, meta, grads = render_and_grads(rasterization, scene)
     _assert_all_finite(colors, alphas, grads)
     assert meta["radii"][0, 2].tolist() == [0, 0]
@@ -81,7 +54,7 @@ def test_culled_gaussian_is_finite_and_gets_exactly_zero_gradient(hard):
 def test_culled_gaussian_with_sh_colours_and_depth_is_finite_with_zero_gradient(hard, render_mode):
     """The SH view direction of a mean at the camera centre has no length: it must not reach
     the colours or the gradients as NaN, nor must the depth channel's division."""
-    scene = _base_scene(hard)
+    scene = hard_scene(hard)
     scene["colors"] = 0.3 * torch.randn(3, 16, 3, generator=torch.Generator().manual_seed(0))
     scene = with_grad(scene)
     colors, alphas, _, grads = render_and_grads(
@@ -94,7 +67,7 @@ def test_culled_gaussian_with_sh_colours_and_depth_is_finite_with_zero_gradient(
 
 @pytest.mark.parametrize("render_mode", ["RGB", "D", "RGB+D"])
 def test_nothing_in_view_renders_the_background_with_zero_gradient(render_mode):
-    scene = _base_scene({})
+    scene = hard_scene({})
     scene["means"] = scene["means"] * torch.tensor([1.0, 1.0, -1.0])  # all behind the camera
     scene = with_grad(scene)
     background = torch.tensor([[0.2, 0.4, 0.6]])
@@ -108,22 +81,9 @@ def test_nothing_in_view_renders_the_background_with_zero_gradient(render_mode):
         assert grad is None or torch.all(grad == 0), f"gradient on {key} with nothing in view"
 
 
-KEPT = {
-    "exactly on the near plane": {"means": [0.0, 0.0, 0.01]},
-    "zero quaternion": {"quats": [0.0, 0.0, 0.0, 0.0], "scales": [0.3, 0.1, 0.05]},
-    "tiny quaternion": {"quats": [1e-30, 2e-30, 0.0, -1e-30], "scales": [0.3, 0.1, 0.05]},
-    "huge quaternion": {"quats": [1e30, 2e30, 0.0, -1e30], "scales": [0.3, 0.1, 0.05]},
-    "zero scale": {"scales": [0.0, 0.0, 0.0]},
-    "scale 1e-8": {"scales": [1e-8, 1e-8, 1e-8]},
-    "opacity exactly 1": {"opacities": 1.0},
-    "screen-filling splat": {"scales": [50.0, 50.0, 50.0]},
-    "flat disc": {"scales": [0.3, 0.3, 0.0]},
-}
-
-
 @pytest.mark.parametrize("hard", KEPT.values(), ids=KEPT.keys())
 def test_hard_but_visible_gaussian_is_finite_and_matches_reference(hard):
-    scene = with_grad(_base_scene(hard, dtype=torch.float64))
+    scene = with_grad(hard_scene(hard, dtype=torch.float64))
     colors, alphas, meta, grads = render_and_grads(rasterization, scene)
     ref_colors, ref_alphas, _, ref_grads = render_and_grads(rasterization_reference, scene)
     _assert_all_finite(colors, alphas, grads)
@@ -177,7 +137,7 @@ def test_a_long_thin_gaussian_at_an_angle_renders_in_float32_as_in_float64(lengt
 def test_without_the_2d_blur_a_vanishing_gaussian_keeps_finite_gradients(scales):
     """With eps2d = 0 the 2D determinant of a tiny Gaussian underflows in the backward's
     det²: such a Gaussian is culled (zero gradient) rather than given NaN."""
-    scene = with_grad(_base_scene({"scales": scales}))
+    scene = with_grad(hard_scene({"scales": scales}))
     scene["Ks"] = torch.tensor([[[20.0, 0, W / 2], [0, 20.0, H / 2], [0, 0, 1]]])
     colors, alphas, _, grads = render_and_grads(rasterization, scene, eps2d=0.0)
     _assert_all_finite(colors, alphas, grads)
@@ -205,7 +165,7 @@ def test_without_the_2d_blur_a_vanishing_gaussian_keeps_finite_gradients(scales)
 def test_extreme_positions_under_a_long_lens_are_culled_with_zero_gradient(means, near_plane):
     """fx·x/z (or x/z itself) overflows for such a centre: it is culled, its offsets zeroed
     before the division."""
-    scene = with_grad(_base_scene({"means": means}))
+    scene = with_grad(hard_scene({"means": means}))
     scene["Ks"] = torch.tensor([[[1e5, 0, W / 2], [0, 1e5, H / 2], [0, 0, 1]]])
     colors, alphas, meta, grads = render_and_grads(rasterization, scene, near_plane=near_plane)
     _assert_all_finite(colors, alphas, grads)
@@ -216,8 +176,8 @@ def test_extreme_positions_under_a_long_lens_are_culled_with_zero_gradient(means
 @pytest.mark.parametrize("quat", [[1e-30, 2e-30, 0.0, -1e-30], [1e30, 2e30, 0.0, -1e30]])
 def test_quaternion_norm_does_not_change_the_image(quat):
     q = torch.tensor(quat, dtype=torch.float64)
-    odd = _base_scene({"quats": quat, "scales": [0.3, 0.1, 0.05]}, dtype=torch.float64)
-    unit = _base_scene(
+    odd = hard_scene({"quats": quat, "scales": [0.3, 0.1, 0.05]}, dtype=torch.float64)
+    unit = hard_scene(
         {
             "quats": (q / q.abs().max() / torch.linalg.norm(q / q.abs().max())).tolist(),
             "scales": [0.3, 0.1, 0.05],
@@ -231,8 +191,8 @@ def test_quaternion_norm_does_not_change_the_image(quat):
 
 @pytest.mark.parametrize("quat", [[0.0] * 4, [1e-39, -2e-39, 0.0, 0.0]])  # zero, denormal
 def test_vanishing_quaternion_renders_as_identity_with_zero_gradient(quat):
-    zero = with_grad(_base_scene({"quats": quat, "scales": [0.3, 0.1, 0.05]}))
-    ident = _base_scene({"quats": [1.0, 0, 0, 0], "scales": [0.3, 0.1, 0.05]})
+    zero = with_grad(hard_scene({"quats": quat, "scales": [0.3, 0.1, 0.05]}))
+    ident = hard_scene({"quats": [1.0, 0, 0, 0], "scales": [0.3, 0.1, 0.05]})
     colors, _, _, grads = render_and_grads(rasterization, zero)
     torch.testing.assert_close(colors, rasterization(**ident)[0], rtol=0, atol=1e-6)
     assert torch.all(grads["quats"][2] == 0)
@@ -274,7 +234,7 @@ def test_large_motion_across_the_frustum_stays_finite():
     """A Gaussian swept from far left, through the view, to behind the camera."""
     for x in [*torch.linspace(-1e4, 1e4, 9).tolist(), 0.0]:
         for z in (-5.0, 0.0, 0.005, 0.5, 3.0, 1e6):
-            scene = with_grad(_base_scene({"means": [x, 0.3 * x, z], "scales": [2.0, 0.01, 0.5]}))
+            scene = with_grad(hard_scene({"means": [x, 0.3 * x, z], "scales": [2.0, 0.01, 0.5]}))
             colors, alphas, _, grads = render_and_grads(rasterization, scene)
             _assert_all_finite(colors, alphas, grads)
 
@@ -411,7 +371,7 @@ def test_means2d_carries_the_screen_space_gradient():
     ],
 )
 def test_bad_inputs_raise_one_line_errors(change, message):
-    scene = {**_base_scene({}), **change}
+    scene = {**hard_scene({}), **change}
     with pytest.raises(InputError, match=re.escape(message)):
         rasterization(**scene)
 

@@ -318,3 +318,30 @@ def test_kept_scalars_leave_out_values_json_cannot_hold() -> None:
     restored = ScalarHistory()
     restored.load_state(json.loads(json.dumps(history.state())))
     assert restored.records == history.records
+
+
+def test_steps_read_their_loss_from_the_device_only_when_they_log(
+    stage_scene: Scene, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """On a GPU a read waits for every queued kernel; the loss tracker keeps losses on the
+    device, so the reads of a run grow with its logged steps, not with its steps."""
+    reads: list[str] = []
+    for name in ("__float__", "item", "tolist"):
+        original = getattr(torch.Tensor, name)
+
+        def counted(self, *args, _original=original, _name=name, **kwargs):
+            reads.append(_name)
+            return _original(self, *args, **kwargs)
+
+        monkeypatch.setattr(torch.Tensor, name, counted)
+    counts = []
+    for steps in (6, 12):
+        cfg = stage_smoke_cfg(
+            decouple={"steps": steps, "densify": {"densify_until": 0, "opacity_reset_every": 0}},
+            train={"log_every": 1000, "checkpoint_every": 1000},
+        )
+        reads.clear()
+        artifact = _run("decouple", stage_scene, {}, cfg, tmp_path / str(steps))
+        counts.append(len(reads))
+        assert artifact.meta["metrics"]["final_loss"] > 0
+    assert counts[0] == counts[1], counts

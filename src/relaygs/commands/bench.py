@@ -192,9 +192,9 @@ def _print_table(rows: list[dict], backends: list[str]) -> None:
 
 
 def _backends(text: str | None, device: torch.device) -> list[str]:
-    """The --backends list: default torch and native on CPU, torch on CUDA."""
+    """The --backends list: default torch and native on CPU, torch and auto on CUDA."""
     if text is None:
-        return ["torch", "native"] if device.type == "cpu" else ["torch"]
+        return ["torch", "native"] if device.type == "cpu" else ["torch", "auto"]
     return bench_train.backend_names(text)
 
 
@@ -210,8 +210,9 @@ def main(argv: list[str] | None = None) -> int:
     splat.add_argument("--device", default="cpu", help="cpu or cuda")
     splat.add_argument(
         "--backends",
-        help="comma-separated backends timed side by side (default: torch,native on cpu, torch "
-        "on cuda); with two, the table gives the first's forward+backward time over the second's",
+        help="comma-separated backends timed side by side (default: torch,native on cpu, "
+        "torch,auto on cuda); with two, the table gives the first's forward+backward time over "
+        "the second's",
     )
     splat.add_argument(
         "--cases",

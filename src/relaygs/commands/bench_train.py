@@ -31,7 +31,7 @@ from relaygs.cli import int_at_least, path_argument, writable_file
 from relaygs.commands.bench_output import save_json
 from relaygs.data import Scene, load_scene
 from relaygs.data.synthetic import generate
-from relaygs.device import set_threads
+from relaygs.device import set_threads, usable_device
 from relaygs.errors import RelayGSError
 from relaygs.model import GaussianSet
 from relaygs.pipeline.artifact import Artifact
@@ -59,6 +59,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--threads", type=int_at_least(1), help="torch CPU threads (default: torch's default)"
     )
     parser.add_argument(
+        "--device", default="cpu", help="train.device of the timed stages: cpu, cuda or cuda:N"
+    )
+    parser.add_argument(
         "--backends",
         default="torch,auto",
         help="comma-separated splatting backends the stages are timed on (default torch,auto)",
@@ -83,9 +86,11 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
     """The report: scene, per-stage speeds per backend, step-cost ratio and (with --full) the
     pipeline; the process's splatting backend is left as it was."""
     backends = backend_names(args.backends)
+    device = str(usable_device(args.device, "--device"))
     scene = bench_scene(args.cache)
     report: dict[str, Any] = {
         "scene": {**SCENE, "points": len(scene.points), "threads": torch.get_num_threads()},
+        "device": device,
         "backends": backends,
         "stages": {},
     }
@@ -93,10 +98,10 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
     try:
         for name in backends:
             use_backend(name)
-            report["stages"][name] = stage_speeds(scene, args.steps)
-        report["ratio"] = step_cost_ratio(scene, args.steps)
+            report["stages"][name] = stage_speeds(scene, args.steps, device)
+        report["ratio"] = step_cost_ratio(scene, args.steps, device)
         if args.full:
-            report["full"] = full_pipeline(scene)
+            report["full"] = full_pipeline(scene, device)
     finally:
         use_backend(previous)
     return report
@@ -121,21 +126,29 @@ def bench_scene(cache: Path) -> Scene:
     return load_scene(folder)
 
 
-def small_cfg(log_every: int = 10_000, **sections: dict[str, Any]) -> dict[str, Any]:
-    """The `small` budget as a stage cfg (no progress bar), `sections` merged over it."""
+def small_cfg(
+    log_every: int = 10_000, device: str = "cpu", **sections: dict[str, Any]
+) -> dict[str, Any]:
+    """The `small` budget as a stage cfg (no progress bar) training on `device`, `sections`
+    merged over it."""
     cfg: dict[str, Any] = copy.deepcopy(BUDGETS["small"])
     cfg["seed"] = 0
-    cfg["train"] = {"progress": False, "log_every": log_every, "checkpoint_every": 10_000}
+    cfg["train"] = {
+        "progress": False,
+        "log_every": log_every,
+        "checkpoint_every": 10_000,
+        "device": device,
+    }
     for name, values in sections.items():
         cfg[name] = {**cfg.get(name, {}), **values}
     return cfg
 
 
-def stage_speeds(scene: Scene, steps: int) -> list[dict[str, Any]]:
+def stage_speeds(scene: Scene, steps: int, device: str = "cpu") -> list[dict[str, Any]]:
     """Steps/s of each training stage over its first `steps` steps at the small settings;
     relay starts from `flagged_decouple` (a short decouple run finds no movers yet)."""
     short = {name: {"steps": steps} for name in ("warmup", "decouple", "relay", "deform")}
-    cfg = small_cfg(**short)
+    cfg = small_cfg(device=device, **short)
     artifacts: dict[str, Artifact] = {"flagged": flagged_decouple(scene)}
     rows = []
     for stage, upstream in (
@@ -158,14 +171,18 @@ def stage_speeds(scene: Scene, steps: int) -> list[dict[str, Any]]:
     return rows
 
 
-def step_cost_ratio(scene: Scene, steps: int) -> dict[str, Any]:
+def step_cost_ratio(scene: Scene, steps: int, device: str = "cpu") -> dict[str, Any]:
     """Deform vs decouple median step time on the same Gaussians (the small budget's initial
     ones), neither densifying; deform renders all of them at every frame (one fg copy)."""
-    decouple_cfg = small_cfg(log_every=1, decouple={"steps": steps, "densify": NO_DENSITY})
+    decouple_cfg = small_cfg(
+        log_every=1, device=device, decouple={"steps": steps, "densify": NO_DENSITY}
+    )
     decouple_s = median_step_seconds(lambda: STAGES["decouple"](scene, {}, decouple_cfg))
     start = flagged_decouple(scene)
     deform_cfg = small_cfg(
-        log_every=1, deform={"steps": steps, "densify_bg": NO_DENSITY, "densify_fg": NO_DENSITY}
+        log_every=1,
+        device=device,
+        deform={"steps": steps, "densify_bg": NO_DENSITY, "densify_fg": NO_DENSITY},
     )
     deform_s = median_step_seconds(lambda: STAGES["deform"](scene, {"decouple": start}, deform_cfg))
     return {
@@ -176,9 +193,9 @@ def step_cost_ratio(scene: Scene, steps: int) -> dict[str, Any]:
     }
 
 
-def full_pipeline(scene: Scene) -> dict[str, Any]:
+def full_pipeline(scene: Scene, device: str = "cpu") -> dict[str, Any]:
     """Wall time of decouple → relay → deform → evaluation at the small budget."""
-    cfg = small_cfg()
+    cfg = small_cfg(device=device)
     seconds: dict[str, float] = {}
     artifact: dict[str, Artifact] = {}
     for stage, upstream in (("decouple", None), ("relay", "decouple"), ("deform", "relay")):
@@ -241,7 +258,7 @@ def _print(report: dict[str, Any]) -> None:
     scene = report["scene"]
     print(
         f"scene {scene['preset']} {scene['width']}x{scene['height']}, {scene['frames']} frames, "
-        f"{scene['points']} points, {scene['threads']} threads"
+        f"{scene['points']} points, {scene['threads']} threads, on {report['device']}"
     )
     backends = report["backends"]
     header = f"{'stage':<10}{'steps':>7}{'Gaussians':>11}"

@@ -13,6 +13,7 @@ import torch
 
 from relaygs.errors import InputError
 from relaygs.splat import native
+from relaygs.splat import triton as gpu
 from relaygs.splat.composite import CompositeGaussians, FixedLayer
 from relaygs.splat.native.binning import bin_gaussians_native
 from relaygs.splat.native.composite import NativeCompositeGaussians
@@ -29,12 +30,14 @@ from relaygs.splat.tiles import (
     DEFAULT_TILE_SIZE,
     TileBins,
     bin_gaussians,
+    bin_gaussians_all_tiles,
     only_tiles,
     tiles_touched_by,
 )
+from relaygs.splat.triton.composite import TritonCompositeGaussians
 
 RENDER_MODES = ("RGB", "D", "RGB+D")
-BACKENDS = ("auto", "torch", "native")
+BACKENDS = ("auto", "torch", "native", "triton")
 MIN_NEAR_PLANE = 1e-9
 """Smallest near plane: the projection's backward divides by depth², and fx/depth² stays a
 finite float32 for any focal length below 1e20 (scenes' near planes are >= 1.1e-8)."""
@@ -331,6 +334,9 @@ TORCH_BACKEND = Backend("torch", project_gaussians, bin_gaussians, CompositeGaus
 NATIVE_BACKEND = Backend(
     "native", project_gaussians_native, bin_gaussians_native, NativeCompositeGaussians
 )
+TRITON_BACKEND = Backend(
+    "triton", project_gaussians, bin_gaussians_all_tiles, TritonCompositeGaussians
+)
 
 
 _default_backend = "auto"
@@ -347,6 +353,10 @@ def use_backend(backend: str) -> None:
             native.load()
         except native.NativeUnavailableError as err:
             raise InputError(f"splat.backend 'native' is unavailable: {err}") from err
+    _check(
+        backend != "triton" or gpu.available(),
+        "splat.backend 'triton' is unavailable: triton does not import here",
+    )
     _default_backend = backend
 
 
@@ -358,14 +368,19 @@ def default_backend() -> str:
 def select_backend(backend: str, like: torch.Tensor) -> Backend:
     """The backend `backend` names, for tensors like `like`.
 
-    "auto" takes the native kernels for CPU float tensors when they build (the first failure
-    prints one line why) and the torch path otherwise; "native" raises InputError naming
-    the cause where the kernels cannot run.
+    "auto" takes the Triton kernels for CUDA float tensors where triton imports, the native
+    kernels for CPU float tensors when they build (the first failure prints one line why)
+    and the torch path otherwise; "native" and "triton" raise InputError naming the cause
+    where their kernels cannot run.
     """
     _check(backend in BACKENDS, f"backend must be one of {BACKENDS}, got {backend!r}")
     if backend == "torch":
         return TORCH_BACKEND
+    if backend == "triton":
+        return _triton_backend(like)
     if backend == "auto":
+        if like.device.type == "cuda" and gpu.available() and gpu.supports(like):
+            return TRITON_BACKEND
         ok = native.supports(like) and native.available()
         return NATIVE_BACKEND if ok else TORCH_BACKEND
     _check(
@@ -384,6 +399,17 @@ def native_kernels_in_use(like: torch.Tensor) -> bool:
     """Whether the process default backend takes the native kernels for tensors like `like`
     (other native kernels, such as the deformation field's, follow the same switch)."""
     return select_backend(default_backend(), like) is NATIVE_BACKEND
+
+
+def _triton_backend(like: torch.Tensor) -> Backend:
+    """The Triton backend, or InputError naming why it cannot render tensors like `like`."""
+    _check(gpu.available(), "backend 'triton' is unavailable: triton does not import here")
+    _check(
+        gpu.supports(like),
+        f"backend 'triton' renders float32/float64 CUDA tensors (CPU ones in Triton's "
+        f"interpreter), got {like.dtype} on {like.device.type}",
+    )
+    return TRITON_BACKEND
 
 
 def rasterization(
@@ -419,9 +445,10 @@ def rasterization(
     per-camera features. `fixed` (RGB only) gives the render
     of Gaussians that have not changed since it was made: the tiles only they touch are
     copied from it, which skips their compositing and backward (see FixedLayer).
-    `backend` picks projection, binning and compositing: "auto" (the native kernels on CPU
-    where they build, else torch), "torch" or "native" (see `select_backend`); None takes the
-    process default (`use_backend`, "auto" unless set). `meta["backend"]` names the one used.
+    `backend` picks projection, binning and compositing: "auto" (the Triton kernels on CUDA
+    where triton imports, the native kernels on CPU where they build, else torch), "torch",
+    "native" or "triton" (see `select_backend`); None takes the process default
+    (`use_backend`, "auto" unless set). `meta["backend"]` names the one used.
     """
     _check(
         not isinstance(tile_size, bool) and isinstance(tile_size, int) and tile_size >= 1,

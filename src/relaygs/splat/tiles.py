@@ -40,7 +40,8 @@ class TileBins:
     tile_start: torch.Tensor  # [num_tiles] offset of each tile's list in pair_gaussian
     tile_count: torch.Tensor  # [num_tiles] list length
     groups: list[TileGroup]  # tiles processed together, lists of similar length (torch path)
-    busy_tiles: torch.Tensor | None = None  # tiles to composite, longest list first (native)
+    # tiles to composite, longest list first (native, triton)
+    busy_tiles: torch.Tensor | None = None
 
     @property
     def num_tiles(self) -> int:
@@ -62,6 +63,34 @@ def bin_gaussians(
     tile_size: int = DEFAULT_TILE_SIZE,
 ) -> TileBins:
     """Build per-tile front-to-back lists from pixel boxes [C,N,4] (x0, x1, y0, y1)."""
+    bins = _tile_lists(bounds, depths, visible, width, height, tile_size)
+    return replace(bins, groups=_group_tiles(bins.tile_count, tile_size * tile_size))
+
+
+def bin_gaussians_all_tiles(
+    bounds: torch.Tensor,
+    depths: torch.Tensor,
+    visible: torch.Tensor,
+    width: int,
+    height: int,
+    tile_size: int = DEFAULT_TILE_SIZE,
+) -> TileBins:
+    """`bin_gaussians`'s lists with `busy_tiles` holding every tile, longest list first (the
+    empty ones last, so its length is known without a device read), and no groups."""
+    bins = _tile_lists(bounds, depths, visible, width, height, tile_size)
+    busy = torch.argsort(bins.tile_count, descending=True, stable=True)
+    return replace(bins, busy_tiles=busy)
+
+
+def _tile_lists(
+    bounds: torch.Tensor,
+    depths: torch.Tensor,
+    visible: torch.Tensor,
+    width: int,
+    height: int,
+    tile_size: int,
+) -> TileBins:
+    """The per-tile lists alone (no groups, no busy tiles)."""
     num_cameras, n = depths.shape
     device = depths.device
     tiles_x = -(-width // tile_size)
@@ -95,9 +124,8 @@ def bin_gaussians(
     num_tiles = num_cameras * per_camera
     tile_count = torch.bincount(tile_id, minlength=num_tiles)
     tile_start = torch.cumsum(tile_count, 0) - tile_count
-    groups = _group_tiles(tile_count, tile_size * tile_size)
     return TileBins(
-        tile_size, tiles_x, tiles_y, num_cameras, pair_gaussian, tile_start, tile_count, groups
+        tile_size, tiles_x, tiles_y, num_cameras, pair_gaussian, tile_start, tile_count, []
     )
 
 

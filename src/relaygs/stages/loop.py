@@ -9,6 +9,7 @@ from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
+import torch
 from torch import Tensor
 
 from relaygs.errors import Interrupted
@@ -62,23 +63,32 @@ class TrainReport:
 
 
 class LossTracker:
-    """Mean loss of the first and of the latest `window` steps."""
+    """Mean loss of the first and of the latest `window` steps. Losses stay tensors on their
+    device until read (`state`, `means`): a read per step would make each training step wait
+    for a GPU to finish the one before."""
 
     def __init__(self, window: int) -> None:
         """Track windows of `window` steps."""
         self.window = window
-        self.first: list[float] = []
-        self.recent: deque[float] = deque(maxlen=window)
+        self.first: list[float | Tensor] = []
+        self.recent: deque[float | Tensor] = deque(maxlen=window)
 
-    def add(self, loss: float) -> None:
-        """Record one step's loss."""
+    def add(self, loss: Tensor) -> None:
+        """Record one step's loss (a 0-d tensor, not read now)."""
+        loss = loss.detach()
         if len(self.first) < self.window:
             self.first.append(loss)
         self.recent.append(loss)
 
     def state(self) -> dict[str, list[float]]:
-        """JSON-ready state for checkpoints."""
-        return {"first": list(self.first), "recent": list(self.recent)}
+        """JSON-ready state for checkpoints (one read from the device)."""
+        first, recent = _floats(self.first, list(self.recent))
+        return {"first": first, "recent": recent}
+
+    def means(self) -> tuple[float | None, float | None]:
+        """Mean loss of the first and of the latest window (None for no steps)."""
+        first, recent = _floats(self.first, list(self.recent))
+        return _mean(first), _mean(recent)
 
     def load_state(self, state: dict) -> None:
         """Restore what `state` returned."""
@@ -161,10 +171,10 @@ def run_training(
             result.loss.backward()
         session.check_finite(stage, step, result.loss)
         session.apply_gradients(result.renders, step)
-        loss = float(result.loss.detach())
-        tracker.add(loss)
+        tracker.add(result.loss)
         images = _images(result, train, step)
         if step % train.log_every == 0 or step == steps or images is not None:
+            loss = float(result.loss.detach())
             scalars = _scalars(loss, result, rates, counts)
             history.add(step, scalars)
             log.emit(stage, step, scalars, images)
@@ -190,10 +200,11 @@ def run_training(
         raise _interrupted(stage, done, steps, checkpointer) from None
     session.check_finite(stage, steps)
     run_seconds = time.perf_counter() - began
+    initial_loss, final_loss = tracker.means()
     return TrainReport(
         steps=steps,
-        initial_loss=_mean(tracker.first),
-        final_loss=_mean(list(tracker.recent)),
+        initial_loss=initial_loss,
+        final_loss=final_loss,
         train_seconds=previous_seconds + run_seconds,
         run_seconds=run_seconds,
         resumed_from=start,
@@ -242,6 +253,15 @@ def _images(result: StepResult, train: TrainSettings, step: int) -> dict[str, Te
         "render": result.preds[0].detach().clamp(0.0, 1.0).cpu(),
         "target": result.targets[0].detach().cpu(),
     }
+
+
+def _floats(*lists: list[float | Tensor]) -> list[list[float]]:
+    """The lists with their tensors read as floats, all in one read from the device."""
+    tensors = [value for values in lists for value in values if isinstance(value, Tensor)]
+    read = iter(torch.stack(tensors).tolist() if tensors else [])
+    return [
+        [next(read) if isinstance(value, Tensor) else value for value in values] for values in lists
+    ]
 
 
 def _mean(values: list[float]) -> float | None:
