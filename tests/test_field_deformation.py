@@ -47,6 +47,30 @@ def test_shapes_and_identity_at_init(isolate: bool) -> None:
         assert torch.equal(value, torch.zeros_like(value))
 
 
+@pytest.mark.parametrize("heads", [HeadSwitches(), HeadSwitches(dscale=False, dopacity=False)])
+def test_the_single_node_mlp_equals_its_layers(heads: HeadSwitches) -> None:
+    # the depth-0 MLP runs as one autograd node; its values and gradients are the layers'
+    mlp = DeformationMLP(8, width=16, heads=heads).double()
+    randomise_heads(mlp)
+    features = torch.randn(50, 8, dtype=torch.float64)
+    weights = {name: torch.randn(50, width, dtype=torch.float64) for name, width in WIDTHS.items()}
+    results = []
+    for by_layers in (False, True):
+        mlp.zero_grad()
+        x = features.clone().requires_grad_()
+        if by_layers:
+            shared = torch.relu(mlp.trunk(x))
+            deltas = {name: head[1:](shared) for name, head in mlp.heads.items()}
+        else:
+            deltas = {name: getattr(mlp(x), name) for name in mlp.heads}
+        sum((deltas[name] * weights[name]).sum() for name in deltas).backward()
+        results.append([*deltas.values(), x.grad, *(p.grad for p in mlp.parameters())])
+    for got, expected in zip(*results, strict=True):
+        torch.testing.assert_close(got, expected, rtol=1e-12, atol=1e-12)
+    x = features[:6].clone().requires_grad_()
+    assert torch.autograd.gradcheck(lambda x: tuple(mlp(x))[:1], (x,))
+
+
 def test_mlp_default_is_single_trunk_layer_and_four_heads() -> None:
     mlp = DeformationMLP(32)
     linears = [m for m in mlp.trunk if isinstance(m, nn.Linear)]

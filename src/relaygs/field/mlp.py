@@ -7,10 +7,11 @@ The deltas add to the pre-activation Gaussian parameters; there is no SH head.
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import torch
 from torch import Tensor, nn
+from torch.autograd.function import once_differentiable
 
 from relaygs.errors import InputError
 
@@ -81,15 +82,81 @@ class DeformationMLP(nn.Module):
 
     def forward(self, features: Tensor) -> Deltas:
         """Deltas for features [N, feature_dim]; a switched-off head returns zeros."""
-        # Every head starts with ReLU(hidden): apply it once and run the heads' remaining layers
-        # (same values and parameters; saves three of the heads' largest element-wise ops).
-        shared = torch.relu(self.trunk(features))
         count = features.shape[0]
+        if len(self.trunk) == 1 and self.heads:
+            trunk = self.trunk[0]
+            head_params = [
+                t
+                for head in self.heads.values()
+                for t in (*head[1].parameters(), *head[3].parameters())
+            ]
+            outputs = dict(
+                zip(
+                    self.heads,
+                    _SingleLayerMLP.apply(features, trunk.weight, trunk.bias, *head_params),
+                    strict=True,
+                )
+            )
+        else:
+            # Every head starts with ReLU(hidden): apply it once and run the heads' remaining
+            # layers (same values and parameters).
+            shared = torch.relu(self.trunk(features))
+            outputs = {name: head[1:](shared) for name, head in self.heads.items()}
         return Deltas(
             **{
-                name: self.heads[name][1:](shared)
-                if name in self.heads
-                else features.new_zeros(count, out)
+                name: outputs[name] if name in outputs else features.new_zeros(count, out)
                 for name, out in HEAD_WIDTHS.items()
             }
         )
+
+
+class _SingleLayerMLP(torch.autograd.Function):
+    """A depth-0 DeformationMLP as one autograd node: trunk Linear → ReLU, then per head
+    Linear → ReLU → Linear. The ReLUs run in place on the products, and the backward adds the
+    heads' gradients of the shared hidden layer into one buffer by GEMMs (autograd would
+    allocate, mask and add one [N, W] tensor per head); same values, fewer passes over memory.
+    Head parameters come as (w1, b1, w2, b2) per head."""
+
+    @staticmethod
+    def forward(
+        ctx: Any, features: Tensor, trunk_weight: Tensor, trunk_bias: Tensor, *head_params: Tensor
+    ) -> tuple[Tensor, ...]:
+        shared = torch.addmm(trunk_bias, features, trunk_weight.t()).relu_()
+        hidden, outputs = [], []
+        for w1, b1, w2, b2 in _per_head(head_params):
+            h = torch.addmm(b1, shared, w1.t()).relu_()
+            hidden.append(h)
+            outputs.append(torch.addmm(b2, h, w2.t()))
+        ctx.save_for_backward(features, trunk_weight, shared, *head_params, *hidden)
+        ctx.heads = len(hidden)
+        return tuple(outputs)
+
+    @staticmethod
+    @once_differentiable
+    def backward(ctx: Any, *grads: Tensor) -> tuple[Tensor | None, ...]:
+        features, trunk_weight, shared, *rest = ctx.saved_tensors
+        head_params, hidden = rest[: 4 * ctx.heads], rest[4 * ctx.heads :]
+        grad_shared = torch.zeros_like(shared)
+        head_grads: list[Tensor] = []
+        for (w1, _, w2, _), h, grad in zip(_per_head(head_params), hidden, grads, strict=True):
+            grad = h.new_zeros(h.shape[0], w2.shape[0]) if grad is None else grad
+            grad_h = _relu_backward(grad @ w2, h)
+            grad_shared.addmm_(grad_h, w1)
+            head_grads += [grad_h.t() @ shared, grad_h.sum(0), grad.t() @ h, grad.sum(0)]
+        grad_shared = _relu_backward(grad_shared, shared)
+        grad_features = grad_shared @ trunk_weight if ctx.needs_input_grad[0] else None
+        return (
+            grad_features,
+            grad_shared.t() @ features,
+            grad_shared.sum(0),
+            *head_grads,
+        )
+
+
+def _relu_backward(grad: Tensor, result: Tensor) -> Tensor:
+    """grad where the ReLU's `result` is positive, else 0 (ATen's own ReLU backward)."""
+    return torch.ops.aten.threshold_backward(grad, result, 0.0)
+
+
+def _per_head(params: tuple[Tensor, ...] | list[Tensor]) -> list[tuple[Tensor, ...]]:
+    return [tuple(params[i : i + 4]) for i in range(0, len(params), 4)]
