@@ -126,8 +126,8 @@ def test_budget_sweeps_both_pipelines_over_the_multipliers(experiments):
 
 def test_every_job_logs_the_same_hparam_keys(experiments):
     key_sets = []
-    for tb in sorted(experiments["ablation_components"]["sweep"].glob("*/tb")):
-        events = EventAccumulator(str(tb))
+    for result in sorted(experiments["ablation_components"]["sweep"].glob("*/result.json")):
+        events = EventAccumulator(str(result.parent))
         events.Reload()
         content = events.PluginTagToContent("hparams")["_hparams_/session_start_info"]
         key_sets.append(_hparam_keys(content))
