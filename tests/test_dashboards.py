@@ -4,6 +4,8 @@ every declared metric, tag names, labelled previews and the sweep-level run."""
 
 import json
 
+import cv2
+import numpy as np
 import pytest
 from tensorboard import context
 from tensorboard.backend.event_processing.data_provider import MultiplexerDataProvider
@@ -19,8 +21,9 @@ from tensorboard.plugins.hparams import (
 )
 
 from conftest import run_main
+from relaygs.app.captions import CAPTION_HEIGHT
 from relaygs.app.hparams import METRICS, job_hparams, metric_tag
-from relaygs.app.sweep_axes import SweepAxes, sweep_axes
+from relaygs.app.sweep_axes import SweepAxes, recorded_sweep_axes, sweep_axes
 from relaygs.app.tensorboard import TensorBoardLog
 
 SCENE = ["scene.frames=6", "scene.width=16", "scene.height=9"]
@@ -103,6 +106,7 @@ def test_tags_are_named_by_group_and_reused_stages_are_notes(sweep):
         # four frames spread over the six, each a labelled render · truth · error
         previews = events.Images("eval/render_vs_truth")
         assert [image.step for image in previews] == [0, 2, 3, 5]
+        assert _has_caption(previews[0].encoded_image_string)
     assert "train/decouple/loss" in first.Tags()["scalars"]  # job 0 trained decouple
     assert "train/decouple/loss" not in second.Tags()["scalars"]  # job 1 read it back
     assert "reused/decouple/text_summary" in second.Tags()["tensors"]
@@ -114,6 +118,19 @@ def test_the_sweep_run_holds_the_reports_plots_and_table(sweep):
     assert sorted(events.Tags()["images"]) == ["sweep/pareto", "sweep/psnr_by_frame"]
     (table,) = events.Tensors("sweep/summary/text_summary")
     assert table.tensor_proto.string_val[0].decode() == (sweep / "summary.md").read_text()
+
+
+def _has_caption(png: bytes) -> bool:
+    """Whether the image starts with a black band holding white text (a caption)."""
+    pixels = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_GRAYSCALE)
+    band = pixels[:CAPTION_HEIGHT]
+    return bool((band > 200).any()) and float(np.median(band)) == 0.0
+
+
+def test_a_single_run_or_an_unreadable_record_has_no_sweep_axes(tmp_path):
+    assert recorded_sweep_axes(tmp_path, ["relay.k=8"]) == SweepAxes()
+    (tmp_path / "multirun.yaml").write_text("hydra: [")
+    assert recorded_sweep_axes(tmp_path, ["relay.k=8"]) == SweepAxes()
 
 
 def test_sweep_axes_keep_each_values_type():
