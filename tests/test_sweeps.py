@@ -151,7 +151,7 @@ def test_parallel_jobs_share_the_store_and_build_decouple_once(tmp_path):
     sweep = _newest_sweep(tmp_path)
     assert len(pd.read_csv(sweep / "summary.csv")) == 5
     # the jobs print side by side: each status line names its job's folder
-    jobs = {folder.name for folder in sweep.iterdir() if folder.is_dir()}
+    jobs = {result.parent.name for result in sweep.glob("*/result.json")}
     status = [line for line in done.stdout.splitlines() if "] [decouple] " in line]
     assert {line.split("]")[0].lstrip("[") for line in status} == jobs
     assert sum(" built decouple " in line for line in status) == 1
