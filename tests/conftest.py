@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import functools
 import io
 import shutil
 import signal
@@ -12,6 +13,7 @@ from typing import Any
 
 import pytest
 
+from fake_stages import FakeStages
 from relaygs import paths
 from relaygs.data import Scene, load_scene
 from relaygs.data.synthetic import generate
@@ -154,6 +156,29 @@ def stored_deform(stage_deformed: Artifact, tmp_path: Path) -> tuple[ArtifactSto
     key = artifact_key("deform", 1, {"steps": 20}, "juggle", [])
     store.get_or_build("deform", key, lambda: stage_deformed, config={}, lineage=[])
     return store, key
+
+
+@pytest.fixture
+def fakes(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> FakeStages:
+    """Fake stages behind `relaygs.run` (`run_main`), launched from an empty temp folder."""
+    from relaygs.app.task import run_task
+    from relaygs.commands import run as run_module
+
+    fakes = FakeStages()
+    monkeypatch.setattr(run_module, "load_stage_suite", fakes.suite)
+    monkeypatch.setattr(run_module, "run_task", functools.partial(run_task, suite=fakes.suite()))
+    monkeypatch.chdir(tmp_path)
+    return fakes
+
+
+def run_main(args: list[str]) -> int | str | None:
+    """Run `python -m relaygs.run` in-process; its exit status (stderr is checked by callers)."""
+    from relaygs.commands import run as run_module
+
+    try:
+        return run_module.main(args)
+    except SystemExit as stop:
+        return stop.code
 
 
 class WriteRecorder(io.StringIO):

@@ -237,9 +237,11 @@ def test_the_cli_prints_the_table_then_where_the_files_are(sweep, capsys):
     table, files = out.split("\nsummary of 4 job(s):\n")
     assert table.rstrip("\n") == (sweep / "summary.md").read_text().rstrip("\n")
     assert "| k32 | 24.50 | -1.50 | n/a | 0.8000 |" in table
-    assert files.split() == [
+    *written, board = files.strip("\n").splitlines()
+    assert [line.strip() for line in written] == [
         str(sweep / name) for name in ("summary.md", "summary.csv", "pareto.png")
     ]
+    assert board.split()[0] == str(sweep / "sweep") and "TensorBoard run `sweep`" in board
 
 
 def test_no_absent_reference_line_when_the_reference_ran(sweep, capsys):

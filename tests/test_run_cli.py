@@ -3,7 +3,6 @@ multirun, the sweep-summary callback) driven in-process on fake stages."""
 
 import dataclasses
 import errno
-import functools
 import io
 import json
 import os
@@ -19,9 +18,9 @@ import pytest
 import torch
 import yaml
 
-from fake_stages import TINY_SCENE, FakeStages
+from conftest import run_main
+from fake_stages import TINY_SCENE
 from relaygs.app import prelaunch
-from relaygs.app.task import run_task
 from relaygs.cli import script_command
 from relaygs.commands import run as run_module
 from relaygs.commands.artifacts import _parser as artifacts_parser
@@ -31,24 +30,6 @@ from relaygs.paths import config_dir, pipelines_dir
 
 UNUSABLE_GPU = f"cuda:{torch.cuda.device_count()}"
 """One past the last GPU: unusable on every machine, a CPU-only torch included."""
-
-
-@pytest.fixture
-def fakes(monkeypatch, tmp_path):
-    """Fake stages behind `relaygs.run`, launched from an empty temp folder."""
-    fakes = FakeStages()
-    monkeypatch.setattr(run_module, "load_stage_suite", fakes.suite)
-    monkeypatch.setattr(run_module, "run_task", functools.partial(run_task, suite=fakes.suite()))
-    monkeypatch.chdir(tmp_path)
-    return fakes
-
-
-def _main(args):
-    """Run the app in-process; returns (exit status, stderr lines are checked by callers)."""
-    try:
-        return run_module.main(args)
-    except SystemExit as stop:
-        return stop.code
 
 
 @pytest.mark.parametrize(
@@ -104,6 +85,7 @@ def _main(args):
         (["scene.effects=[dynamic_panels]"], "scene.effects: preset 'juggle' cannot simulate"),
         (["tensorboard.preview_frames=abc"], "tensorboard.preview_frames must be an integer"),
         (["+tensorboard.every=3"], "tensorboard: unknown setting(s) ['every']"),
+        (["tensorboard.hparams=some"], "tensorboard.hparams must be one of ['swept', 'all']"),
         (["hydra.run.dir=/proc/relaygs-run"], "hydra.run.dir: cannot write in /proc"),
         # Path("") is the folder the command started in: the run's files would land there
         (["hydra.run.dir="], "hydra.run.dir: expected a path (a non-empty string), got ''"),
@@ -146,7 +128,7 @@ def _main(args):
     ],
 )
 def test_bad_input_is_one_line_before_any_work(fakes, tmp_path, capsys, args, fragment):
-    assert _main(args) == 1
+    assert run_main(args) == 1
     captured = capsys.readouterr()
     lines = captured.err.strip().splitlines()
     assert len(lines) == 1, captured.err
@@ -161,7 +143,7 @@ def test_a_preset_edited_to_test_cameras_beyond_its_rig_is_one_line_before_any_w
     # as `relaygs.synth` refuses it; before, `run` took it
     edited = dataclasses.replace(PRESETS["juggle"], test_cameras=(0, 99))
     monkeypatch.setitem(PRESETS, "juggle", edited)
-    assert _main([*TINY_SCENE]) == 1
+    assert run_main([*TINY_SCENE]) == 1
     lines = capsys.readouterr().err.strip().splitlines()
     assert lines == [
         "error: PRESETS['juggle'].test_cameras (relaygs/data/synthetic/presets.py) [0, 99] must "
@@ -209,14 +191,14 @@ def test_a_preset_edited_to_test_cameras_beyond_its_rig_is_one_line_before_any_w
     ],
 )
 def test_a_key_the_config_lacks_is_named_with_the_nearest_one(fakes, capsys, override, line):
-    assert _main(["seed=1", override]) == 1
+    assert run_main(["seed=1", override]) == 1
     assert capsys.readouterr().err == f"error: {line}\n"
 
 
 def test_only_an_override_line_with_non_ascii_characters_gets_the_quoting_hint(fakes, capsys):
-    assert _main(["relay.k=[1,"]) == 1
+    assert run_main(["relay.k=[1,"]) == 1
     assert "need quotes" not in capsys.readouterr().err
-    assert _main(["relay.k=8", "paths.outputs=/tmp/scène"]) == 1
+    assert run_main(["relay.k=8", "paths.outputs=/tmp/scène"]) == 1
     assert "Hydra's quotes too" in capsys.readouterr().err
 
 
@@ -231,7 +213,7 @@ def test_an_output_path_through_a_file_fails_before_any_work(
     fakes, tmp_path, capsys, override, fragment
 ):
     (tmp_path / "taken").write_text("a file where a folder should be")
-    assert _main([override]) == 1
+    assert run_main([override]) == 1
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 1 and fragment.format(root=tmp_path) in lines[0], lines
     assert fakes.calls == []
@@ -425,7 +407,7 @@ def test_a_deleted_or_null_scene_path_leaves_a_synthetic_scene_its_settings(tmp_
 
 def test_a_slurm_sweep_off_a_cluster_is_one_line_before_any_work(fakes, tmp_path, capsys):
     pytest.importorskip("hydra_plugins.hydra_submitit_launcher")
-    assert _main(["-m", "hydra/launcher=slurm", "relay.k=8,16"]) == 1
+    assert run_main(["-m", "hydra/launcher=slurm", "relay.k=8,16"]) == 1
     assert capsys.readouterr().err.strip() == (
         "error: hydra/launcher: SlurmLauncher submits with sbatch and srun, but this machine "
         "has no sbatch or srun on PATH: run the sweep from the cluster's login node"
@@ -446,7 +428,7 @@ def _interrupt(stage, step, scalars, images=None):
 
 def test_ctrl_c_ends_the_run_with_one_line_and_status_130(fakes, capsys):
     fakes.sinks.append(_interrupt)
-    assert _main(["budget=smoke", *TINY_SCENE]) == run_module.INTERRUPTED_EXIT == 130
+    assert run_main(["budget=smoke", *TINY_SCENE]) == run_module.INTERRUPTED_EXIT == 130
     last = capsys.readouterr().err.strip().splitlines()[-1]
     stopped = "interrupted: decouple stopped after step 3 of 9; run the same command again"
     assert last.startswith(f"{stopped}; add hydra.run.dir=")
@@ -465,7 +447,7 @@ def test_a_stopped_run_is_told_to_rerun_in_its_folder_and_is_credited_with_both_
     # the stopped attempt built to no job
     fakes.sinks.append(_stop_in_relay)
     args = ["budget=smoke", *TINY_SCENE]
-    assert _main(args) == run_module.INTERRUPTED_EXIT
+    assert run_main(args) == run_module.INTERRUPTED_EXIT
     [folder] = (tmp_path / "outputs" / "runs").iterdir()
     last = capsys.readouterr().err.strip().splitlines()[-1]
     suffix = " to the command, so that the run goes on in its folder, not a new one"
@@ -473,7 +455,7 @@ def test_a_stopped_run_is_told_to_rerun_in_its_folder_and_is_credited_with_both_
     [override] = shlex.split(last.removesuffix(suffix).rpartition("; add ")[2])
     assert override == f"hydra.run.dir={folder}"
     fakes.sinks.remove(_stop_in_relay)
-    assert _main([*args, override]) == 0
+    assert run_main([*args, override]) == 0
     assert "already holds a run" not in capsys.readouterr().err
     result = json.loads((folder / "result.json").read_text())
     assert result["cache_hits"] == 1 and fakes.ran("decouple") == 1
@@ -484,7 +466,7 @@ def test_a_stopped_run_is_told_to_rerun_in_its_folder_and_is_credited_with_both_
 def test_sigterm_stops_the_run_as_ctrl_c_does_with_status_143(fakes, capsys):
     fakes.sinks.append(_terminate)
     previous = signal.getsignal(signal.SIGTERM)
-    assert _main(["budget=smoke", *TINY_SCENE]) == run_module.TERMINATED_EXIT == 143
+    assert run_main(["budget=smoke", *TINY_SCENE]) == run_module.TERMINATED_EXIT == 143
     # a stage that cannot say where it stopped (a fake one here, a parallel launcher's worker
     # in a real sweep): the line says what running the command again does
     last = capsys.readouterr().err.strip().splitlines()[-1]
@@ -507,7 +489,7 @@ def test_an_interrupted_sweep_is_told_to_rerun_in_its_own_folder(
     # or space in it inside Hydra's quotes, or the rerun would sweep over it)
     fakes.sinks.append(stop)
     args = ["-m", "relay.k=8,16", "budget=smoke", 'paths.outputs="my out,2"', *TINY_SCENE]
-    assert _main(args) == status
+    assert run_main(args) == status
     [folder] = (tmp_path / "my out,2" / "sweeps").iterdir()
     last = capsys.readouterr().err.strip().splitlines()[-1]
     assert last.startswith(f"interrupted: {stopped}")
@@ -516,7 +498,7 @@ def test_an_interrupted_sweep_is_told_to_rerun_in_its_own_folder(
     [override] = shlex.split(last.removesuffix(suffix).rpartition("; add ")[2])
     assert override == f'hydra.sweep.dir="{folder.relative_to(tmp_path)}"'
     fakes.sinks.remove(stop)
-    assert _main([*args, override]) == 0
+    assert run_main([*args, override]) == 0
     assert (folder / "summary.md").is_file()
     assert list((tmp_path / "my out,2" / "sweeps").iterdir()) == [folder]
 
@@ -527,7 +509,7 @@ def test_an_interrupted_sweep_in_a_folder_the_command_names_is_told_to_rerun_it(
     fakes.sinks.append(_terminate)
     folder = tmp_path / "sweep"
     args = ["-m", "relay.k=8,16", "budget=smoke", f"hydra.sweep.dir={folder}", *TINY_SCENE]
-    assert _main(args) == run_module.TERMINATED_EXIT
+    assert run_main(args) == run_module.TERMINATED_EXIT
     assert capsys.readouterr().err.strip().splitlines()[-1] == f"interrupted: {RERUN_RUN}"
 
 
@@ -550,7 +532,7 @@ def test_a_signal_while_the_command_line_is_checked_is_one_line_not_a_traceback(
     # starts with SIGINT ignored)
     inherited = signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
-        assert _main(["budget=smoke", *TINY_SCENE]) == status
+        assert run_main(["budget=smoke", *TINY_SCENE]) == status
     finally:
         signal.signal(signal.SIGINT, inherited)
     assert capsys.readouterr().err.strip() == "interrupted"
@@ -560,12 +542,12 @@ def test_a_signal_while_the_command_line_is_checked_is_one_line_not_a_traceback(
 
 def test_a_launcher_whose_plugin_is_missing_names_the_package(fakes, monkeypatch, capsys):
     monkeypatch.setattr(prelaunch, "is_installed", lambda module: False)
-    assert _main(["hydra/launcher=joblib", "-m", "relay.k=8,16"]) == 1
+    assert run_main(["hydra/launcher=joblib", "-m", "relay.k=8,16"]) == 1
     assert "pip install hydra-joblib-launcher" in capsys.readouterr().err
 
 
 def test_help_lists_examples_and_experiments_and_does_no_work(fakes, tmp_path, capsys):
-    assert _main(["--help"]) in (0, None)
+    assert run_main(["--help"]) in (0, None)
     shown = capsys.readouterr().out
     assert shown.startswith("python -m relaygs.run: train and evaluate RelayGS")
     assert "python -m relaygs.run +experiment=ablation_k" in shown
@@ -576,12 +558,12 @@ def test_help_lists_examples_and_experiments_and_does_no_work(fakes, tmp_path, c
 
 
 def test_a_single_run_writes_its_result_in_a_run_dir_under_outputs(fakes, tmp_path):
-    assert _main(["budget=smoke", *TINY_SCENE, "seed=3"]) == 0
+    assert run_main(["budget=smoke", *TINY_SCENE, "seed=3"]) == 0
     (result_path,) = tmp_path.glob("outputs/runs/*/result.json")
     result = json.loads(result_path.read_text())
     assert result["seed"] == 3 and result["job"] is None
     assert result["scene.frames"] == 3  # every override is recorded by its dotted key
-    assert (result_path.parent / "tb").is_dir()
+    assert list(result_path.parent.glob("events.out.tfevents.*"))  # TensorBoard's run: the folder
     assert not (result_path.parent / "run.log").exists()  # the app prints: it would stay empty
     assert (tmp_path / "outputs" / "artifacts" / "deform").is_dir()
     assert len(list((tmp_path / "outputs" / "scenes").glob("juggle-*"))) == 1
@@ -589,12 +571,12 @@ def test_a_single_run_writes_its_result_in_a_run_dir_under_outputs(fakes, tmp_pa
 
 def test_printed_commands_paste_as_is_when_paths_hold_spaces_and_accents(fakes, tmp_path, capsys):
     outputs = tmp_path / "out dir ü"
-    assert _main(["budget=smoke", *TINY_SCENE, f'paths.outputs="{outputs}"']) == 0
+    assert run_main(["budget=smoke", *TINY_SCENE, f'paths.outputs="{outputs}"']) == 0
     lines = [line.strip() for line in capsys.readouterr().out.splitlines()]
     (run_dir,) = outputs.glob("runs/*")
     (scene_dir,) = outputs.glob("scenes/juggle-*")
     tensorboard = shlex.split(next(line for line in lines if line.startswith("tensorboard ")))
-    assert tensorboard[1:] == [script_command("tensorboard"), "--logdir", str(run_dir / "tb")]
+    assert tensorboard[1:] == [script_command("tensorboard"), "--logdir", str(run_dir)]
     videos = shlex.split(next(line for line in lines if line.startswith("videos ")))
     assert videos[videos.index("--root") + 1] == str(outputs / "artifacts")
     assert videos[videos.index("--scene") + 1] == str(scene_dir)
@@ -617,7 +599,7 @@ def test_the_printed_render_command_loads_the_scene_as_the_run_did(fakes, tmp_pa
     from relaygs.commands.artifact_models import load_run_scene
     from relaygs.pipeline import ArtifactStore
 
-    assert _main(["budget=smoke", *TINY_SCENE, *loader]) == 0
+    assert run_main(["budget=smoke", *TINY_SCENE, *loader]) == 0
     lines = [line.strip() for line in capsys.readouterr().out.splitlines()]
     videos = shlex.split(next(line for line in lines if line.startswith("videos ")))
     args = artifacts_parser().parse_args(videos[videos.index("relaygs.artifacts") + 1 :])
@@ -643,7 +625,7 @@ class _FlushLog(io.StringIO):
 def test_a_delete_override_or_a_sweep_function_is_no_reason_for_the_quoting_hint(
     fakes, capsys, other
 ):
-    assert _main([other, "relay.p=[1,"]) == 1
+    assert run_main([other, "relay.p=[1,"]) == 1
     err = capsys.readouterr().err
     assert err.startswith("error: cannot parse overrides") and "quotes" not in err
 
@@ -659,33 +641,33 @@ def test_a_delete_override_or_a_sweep_function_is_no_reason_for_the_quoting_hint
     ],
 )
 def test_printing_commands_check_their_overrides_in_one_line(fakes, capsys, args, fragment):
-    assert _main(args) == 1
+    assert run_main(args) == 1
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: ") and fragment in lines[0], lines
 
 
 def test_shell_completion_is_left_to_hydra(fakes, tmp_path, capsys):
-    assert _main(["-sc", "install=bash"]) == 0
+    assert run_main(["-sc", "install=bash"]) == 0
     assert "complete" in capsys.readouterr().out  # the bash completion script
     assert fakes.calls == [] and list(tmp_path.iterdir()) == []
 
 
 def test_cfg_job_prints_the_config_and_does_no_work(fakes, tmp_path, capsys):
-    assert _main(["--cfg", "job", "relay.k=4"]) in (0, None)
+    assert run_main(["--cfg", "job", "relay.k=4"]) in (0, None)
     assert yaml.safe_load(capsys.readouterr().out)["relay"]["k"] == 4
     assert fakes.calls == [] and list(tmp_path.iterdir()) == []
 
 
 def test_multirun_flag_may_follow_the_overrides(fakes, tmp_path):
-    assert _main(["budget=smoke", *TINY_SCENE, "seed=3,4", "-m"]) == 0
+    assert run_main(["budget=smoke", *TINY_SCENE, "seed=3,4", "-m"]) == 0
     (sweep,) = tmp_path.glob("outputs/sweeps/*")
     assert sorted(pd.read_csv(sweep / "summary.csv").seed) == [3, 4]
 
 
 def test_run_flag_runs_one_checked_job_wherever_it_stands(fakes, tmp_path, capsys):
-    assert _main(["relay.k=0", "-r"]) == 1  # checked before any work, as without -r
+    assert run_main(["relay.k=0", "-r"]) == 1  # checked before any work, as without -r
     assert "relay.k" in capsys.readouterr().err and list(tmp_path.iterdir()) == []
-    assert _main(["budget=smoke", *TINY_SCENE, "seed=3", "-r"]) == 0
+    assert run_main(["budget=smoke", *TINY_SCENE, "seed=3", "-r"]) == 0
     (result_path,) = tmp_path.glob("outputs/runs/*/result.json")
     assert json.loads(result_path.read_text())["seed"] == 3
 
@@ -693,7 +675,7 @@ def test_run_flag_runs_one_checked_job_wherever_it_stands(fakes, tmp_path, capsy
 def test_each_stage_line_and_a_jobs_summary_reach_the_log_when_printed(fakes, monkeypatch):
     log = _FlushLog()
     monkeypatch.setattr(sys, "stdout", log)
-    assert _main(["-m", "budget=smoke", *TINY_SCENE, "seed=3,4"]) == 0
+    assert run_main(["-m", "budget=smoke", *TINY_SCENE, "seed=3,4"]) == 0
     ends = [text.rstrip("\n").rsplit("\n", 1)[-1] for text in log.flushed]
     for node in ("decouple", "relay", "deform"):
         assert any(end.startswith(f"[{node}] built {node} artifact") for end in ends), node
@@ -715,7 +697,7 @@ def test_a_full_disk_refusing_hydras_own_files_is_one_line_not_a_traceback(
         raise OSError(errno.ENOSPC, "No space left on device", str(output_dir / filename))
 
     monkeypatch.setattr(hydra.core.utils, "_save_config", full)
-    assert _main(["budget=smoke", *TINY_SCENE, *args]) == 1
+    assert run_main(["budget=smoke", *TINY_SCENE, *args]) == 1
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "Traceback" not in err, err
     assert err.startswith("error: No space left on device writing ") and ".yaml" in err
@@ -724,7 +706,7 @@ def test_a_full_disk_refusing_hydras_own_files_is_one_line_not_a_traceback(
 
 
 def test_ablation_k_sweep_shares_decouple_and_writes_the_summary(fakes, tmp_path):
-    assert _main(["+experiment=ablation_k", "budget=smoke", *TINY_SCENE]) == 0
+    assert run_main(["+experiment=ablation_k", "budget=smoke", *TINY_SCENE]) == 0
     (sweep,) = tmp_path.glob("outputs/sweeps/*")
     table = pd.read_csv(sweep / "summary.csv")
     assert list(table.variant) == ["k8", "k16", "k32", "k64", "k128"]
@@ -737,7 +719,7 @@ def test_ablation_k_sweep_shares_decouple_and_writes_the_summary(fakes, tmp_path
 
 
 def test_components_sweep_builds_each_distinct_upstream_once(fakes, tmp_path):
-    assert _main(["+experiment=ablation_components", "budget=smoke", *TINY_SCENE]) == 0
+    assert run_main(["+experiment=ablation_components", "budget=smoke", *TINY_SCENE]) == 0
     (sweep,) = tmp_path.glob("outputs/sweeps/*")
     table = pd.read_csv(sweep / "summary.csv")
     assert list(table.variant) == [

@@ -65,6 +65,13 @@ def test_checkpoint_interval_does_not_change_any_key(config):
     assert _keys(_plan(config)) == _keys(_plan(config, train__checkpoint_every=7))
 
 
+def test_tensorboard_settings_do_not_change_any_key(config):
+    plain = _plan(config)
+    logged = _plan(config, tensorboard__hparams="all", tensorboard__preview_frames=9)
+    assert (plain.hparams, logged.hparams, logged.preview_frames) == ("swept", "all", 9)
+    assert _keys(plain) == _keys(logged)
+
+
 def test_progress_follows_train_progress(config):
     assert _plan(config).progress
     assert not _plan(config, train__progress=False).progress
@@ -156,6 +163,7 @@ def test_merge_overrides_is_deep_and_rejects_unknown_settings():
         ({"scene__height": 3}, r"scene.height must be an integer >= 4, got 3"),
         ({"scene__effects": ["wind"]}, "scene.effects: unknown effect 'wind'"),
         ({"scene__loader": {"zoom": 2}}, r"scene.loader: unknown option\(s\) \['zoom'\]"),
+        ({"tensorboard__hparams": "some"}, r"tensorboard.hparams must be one of \['swept'"),
     ],
 )
 def test_bad_values_are_one_line_errors_naming_the_field(config, changes, fragment):

@@ -16,10 +16,13 @@ from conftest import WriteRecorder
 from fake_stages import TINY_SCENE, FakeStages, compose_config
 from relaygs import errors
 from relaygs.app import task as task_module
+from relaygs.app.captions import CAPTION_HEIGHT
 from relaygs.app.evaluation import evaluation_config
+from relaygs.app.hparams import flatten_config
 from relaygs.app.result import NO_TEST_VIEWS, RESULT_FILE, format_summary, write_result
+from relaygs.app.sweep_axes import SweepAxes
 from relaygs.app.task import run_task
-from relaygs.app.tensorboard import TensorBoardLog, flatten_config
+from relaygs.app.tensorboard import TensorBoardLog, training_tag
 from relaygs.errors import InputError
 from relaygs.per_view import PER_VIEW, PER_VIEW_FILE, read_per_view
 from relaygs.pipeline import ArtifactStore, CorruptArtifactError
@@ -274,7 +277,7 @@ def test_a_run_writes_per_view_metrics_and_logs_their_frame_means(base_config, t
     assert [(r["frame"], r["camera"]) for r in records] == [(0, 0), (0, 7), (2, 0), (2, 7)]
     assert f"per view     {path}" in capsys.readouterr().out
     assert PER_VIEW not in result  # the result stays flat
-    events = EventAccumulator(str(tmp_path / "a" / "tb"), size_guidance={"scalars": 0})
+    events = EventAccumulator(str(tmp_path / "a"), size_guidance={"scalars": 0})
     events.Reload()
     # the fake's two cameras score psnr + f and psnr + 2f at frame f: their mean is psnr + 1.5 f
     logged = [(e.step, e.value) for e in events.Scalars("eval/psnr_by_frame")]
@@ -378,34 +381,53 @@ def test_tensorboard_gets_stage_scalars_previews_and_hparams(base_config, tmp_pa
     fakes = FakeStages()
     _run(base_config, tmp_path / "run", fakes)
     assert fakes.sinks == []  # the sink is removed after the run
-    events = EventAccumulator(str(tmp_path / "run" / "tb"), size_guidance={"images": 0})
+    events = EventAccumulator(str(tmp_path / "run"), size_guidance={"images": 0})
     events.Reload()
     tags = events.Tags()
-    assert {"decouple/loss", "relay/loss", "deform/loss", "result/psnr"} <= set(tags["scalars"])
+    stages = {f"train/{stage}/loss" for stage in ("decouple", "relay", "deform")}
+    assert stages | {"result/psnr"} <= set(tags["scalars"])
     assert "eval/render_vs_truth" in tags["images"]
     (preview, *_) = events.Images("eval/render_vs_truth")
-    assert (preview.width, preview.height) == (3 * 16, 9)  # render, truth, error of 16×9 views
-    assert "deform/render" in tags["images"]
+    # render, truth and error of 16×9 views, enlarged 18× (to >= 160 rows) under their captions
+    assert (preview.width, preview.height) == (3 * 16 * 18, 9 * 18 + CAPTION_HEIGHT)
+    assert "train/deform/render" in tags["images"]
     plugins = events.PluginTagToContent("hparams")
     assert "_hparams_/experiment" in plugins and "_hparams_/session_start_info" in plugins
 
 
-def test_a_job_that_reuses_stages_shows_their_curves_as_built(base_config, tmp_path):
+def test_training_scalars_are_grouped_so_rates_sort_after_the_fit():
+    assert training_tag("relay", "loss") == "train/relay/loss"
+    assert training_tag("relay", "psnr") == "train/relay/psnr"
+    assert training_tag("relay", "num_fg") == "train_gaussians/relay/num_fg"
+    assert training_tag("relay", "lr/means") == "train_lr/relay/means"
+
+
+def test_a_job_that_reuses_stages_notes_them_instead_of_replaying_their_curves(
+    base_config, tmp_path
+):
     fakes = FakeStages()
     _run(_with(base_config, relay__k=8), tmp_path / "a", fakes)
     _run(_with(base_config, relay__k=32), tmp_path / "b", fakes)  # decouple from the store
-    events = EventAccumulator(str(tmp_path / "b" / "tb"), size_guidance={"scalars": 0})
-    events.Reload()
-    # built here: the live record; reused: the curve the stage stored when it was built
-    assert [(e.step, e.value) for e in events.Scalars("relay/loss")] == [(0, 1.0)]
-    assert [(e.step, e.value) for e in events.Scalars("decouple/loss")] == [(0, 1.0), (5, 0.5)]
-    assert "decouple/render" not in events.Tags()["images"]  # images are not stored
+    built = EventAccumulator(str(tmp_path / "a"), size_guidance={"scalars": 0})
+    built.Reload()
+    reused = EventAccumulator(str(tmp_path / "b"), size_guidance={"scalars": 0, "tensors": 0})
+    reused.Reload()
+    assert "train/decouple/loss" in built.Tags()["scalars"]
+    # built here: the live record; reused: no curve written at this moment, a note instead
+    assert [(e.step, e.value) for e in reused.Scalars("train/relay/loss")] == [(0, 1.0)]
+    assert not any(tag.startswith("train/decouple/") for tag in reused.Tags()["scalars"])
+    (note,) = reused.Tensors("reused/decouple/text_summary")
+    text = note.tensor_proto.string_val[0].decode()
+    (stored,) = (p for p in (tmp_path / "artifacts" / "decouple").iterdir() if p.is_dir())
+    assert "**decouple** (node `decouple`) was read from the artifact store" in text
+    assert f"artifact `{stored.name[:16]}`" in text
+    assert "by run `a`" in text and "step, 5: loss 0.5" in text
+    assert "reused/relay/text_summary" not in reused.Tags()["tensors"]
 
 
-def test_reused_curves_are_logged_under_the_stage_type_whatever_the_node_is_called(
+def test_a_reused_stage_is_noted_under_its_stage_type_whatever_the_node_is_called(
     base_config, tmp_path
 ):
-    # the live records of a stage are tagged `<stage type>/...`; its stored ones must match
     pipeline = tmp_path / "renamed.yaml"
     pipeline.write_text(
         "nodes:\n  first: {stage: decouple}\n  second: {stage: relay, upstream: [first]}\n"
@@ -415,10 +437,10 @@ def test_reused_curves_are_logged_under_the_stage_type_whatever_the_node_is_call
     config = _with(base_config, pipeline__name=str(pipeline))
     _run(_with(config, relay__k=8), tmp_path / "a", fakes)
     _run(_with(config, relay__k=32), tmp_path / "b", fakes)
-    events = EventAccumulator(str(tmp_path / "b" / "tb"), size_guidance={"scalars": 0})
+    events = EventAccumulator(str(tmp_path / "b"), size_guidance={"tensors": 0})
     events.Reload()
-    assert [(e.step, e.value) for e in events.Scalars("decouple/loss")] == [(0, 1.0), (5, 0.5)]
-    assert not any(tag.startswith("first/") for tag in events.Tags()["scalars"])
+    (note,) = events.Tensors("reused/decouple/text_summary")
+    assert "(node `first`)" in note.tensor_proto.string_val[0].decode()
 
 
 def test_the_suites_upstream_types_are_checked_before_any_stage_runs(base_config, tmp_path):
@@ -541,7 +563,8 @@ def test_a_gc_removing_the_model_while_it_is_evaluated_does_not_fail_the_run(
 def test_hparams_metrics_of_zero_are_logged_and_missing_ones_skipped(tmp_path):
     # a job that reused every stage computed for 0 s; a metric it could not measure is None
     log = TensorBoardLog(tmp_path / "tb")
-    log.add_hparams({"relay.k": 8}, {"psnr": 25.0, "train_s_computed": 0.0, "lpips": None})
+    metrics = {"psnr": 25.0, "train_s_computed": 0.0, "lpips": None}
+    log.add_hparams({"relay.k": 8}, metrics, SweepAxes(), "job")
     log.close()
     events = EventAccumulator(str(tmp_path / "tb"))
     events.Reload()
@@ -602,7 +625,8 @@ def test_a_result_write_stopped_part_way_keeps_the_previous_result(
         write_result(run_dir, {**before, "psnr": 1.0})
     monkeypatch.undo()
     assert json.loads((run_dir / RESULT_FILE).read_text()) == before
-    assert sorted(p.name for p in run_dir.iterdir() if p.is_file()) == [PER_VIEW_FILE, RESULT_FILE]
+    files = sorted(p.name for p in run_dir.iterdir() if p.is_file() and ".tfevents." not in p.name)
+    assert files == [PER_VIEW_FILE, RESULT_FILE]
 
 
 def test_the_summary_says_why_a_run_without_test_views_has_no_metrics():

@@ -126,8 +126,8 @@ def test_budget_sweeps_both_pipelines_over_the_multipliers(experiments):
 
 def test_every_job_logs_the_same_hparam_keys(experiments):
     key_sets = []
-    for tb in sorted(experiments["ablation_components"]["sweep"].glob("*/tb")):
-        events = EventAccumulator(str(tb))
+    for result in sorted(experiments["ablation_components"]["sweep"].glob("*/result.json")):
+        events = EventAccumulator(str(result.parent))
         events.Reload()
         content = events.PluginTagToContent("hparams")["_hparams_/session_start_info"]
         key_sets.append(_hparam_keys(content))
@@ -151,7 +151,7 @@ def test_parallel_jobs_share_the_store_and_build_decouple_once(tmp_path):
     sweep = _newest_sweep(tmp_path)
     assert len(pd.read_csv(sweep / "summary.csv")) == 5
     # the jobs print side by side: each status line names its job's folder
-    jobs = {folder.name for folder in sweep.iterdir() if folder.is_dir()}
+    jobs = {result.parent.name for result in sweep.glob("*/result.json")}
     status = [line for line in done.stdout.splitlines() if "] [decouple] " in line]
     assert {line.split("]")[0].lstrip("[") for line in status} == jobs
     assert sum(" built decouple " in line for line in status) == 1

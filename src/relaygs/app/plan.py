@@ -23,8 +23,12 @@ from relaygs.pipeline import Node, Pipeline, load_pipeline
 from relaygs.pipeline.store import ON_CORRUPT_CHOICES
 from relaygs.splat import BACKENDS
 
+HPARAMS_CHOICES = ("swept", "all")
+"""`tensorboard.hparams`: the HParams entry holds the settings the sweep varies (with the
+pipeline and variant), or the whole config besides."""
+
 SECTION_KEYS = {
-    "tensorboard": ("preview_frames",),
+    "tensorboard": ("preview_frames", "hparams"),
     "report": ("reference",),
     "paths": ("outputs", "scenes"),
     "artifacts": ("root", "on_corrupt"),
@@ -67,6 +71,7 @@ class RunPlan:
     preview_frames: int
     threads: int | None = None
     splat_backend: str = "auto"
+    hparams: str = "swept"
 
     @property
     def device(self) -> str:
@@ -154,6 +159,7 @@ def plan_run(
         preview_frames=_preview_frames(cfg),
         threads=threads,
         splat_backend=splat_backend,
+        hparams=_hparams_choice(cfg),
     )
 
 
@@ -331,6 +337,16 @@ def _preview_frames(cfg: Mapping[str, Any]) -> int:
     """`tensorboard.preview_frames`: how many render-vs-truth frames TensorBoard gets (>= 0)."""
     count = _section(cfg, "tensorboard").get("preview_frames")
     return require_int("preview_frames", count, minimum=0, prefix="tensorboard.")
+
+
+def _hparams_choice(cfg: Mapping[str, Any]) -> str:
+    """`tensorboard.hparams`: one of HPARAMS_CHOICES (default `swept`)."""
+    choice = _section(cfg, "tensorboard").get("hparams", "swept")
+    if choice not in HPARAMS_CHOICES:
+        raise InputError(
+            f"tensorboard.hparams must be one of {list(HPARAMS_CHOICES)}, got {choice!r}"
+        )
+    return choice
 
 
 def _budget(budget: Mapping[str, Any]) -> tuple[float, list[str]]:

@@ -148,7 +148,7 @@ def _check_launching_command(
 ) -> None:
     """Every job a running command would launch composes and passes `validate`, a remote
     launcher's submit commands exist, and the run (sweep) folder can be written."""
-    overrides = _parse(args)
+    overrides = parse_overrides(args)
     check_group_choices(overrides, conf_dir)
     groups = [group for group in primary_groups(conf_dir) if "/" not in group]
     with initialize_config_dir(config_dir=str(conf_dir), version_base="1.3", job_name="run"):
@@ -161,11 +161,13 @@ def _check_launching_command(
         if not runs_here:
             _check_submit_commands(launcher)
         jobs = planned_jobs(args, overrides, hydra_cfg, multirun)
-        swept = _swept_keys(jobs)
+        swept = swept_keys(jobs)
         for job in jobs:
             try:
                 check_capture_overrides(job)
-                check_group_choices(_parse(job), conf_dir)  # a choice swept by an experiment
+                check_group_choices(
+                    parse_overrides(job), conf_dir
+                )  # a choice swept by an experiment
                 config = _compose_explained(job, conf_dir)
                 check_group_sections(config, groups, hydra_cfg.runtime.choices.get("experiment"))
                 validate(config, runs_here)
@@ -176,7 +178,7 @@ def _check_launching_command(
         check_output_folder(hydra_cfg, multirun)  # after the jobs' own paths, often its parents
 
 
-def _swept_keys(jobs: Sequence[Sequence[str]]) -> set[str]:
+def swept_keys(jobs: Sequence[Sequence[str]]) -> set[str]:
     """The override keys whose value differs between `jobs` (a sweep's axes): what names a
     job among the others, as `job relay.k=0`."""
     values: dict[str, set[str]] = {}
@@ -192,7 +194,9 @@ def check_capture_overrides(job: Sequence[str]) -> None:
     preset has (the preset, its frame count, image size or generator seed): the capture would
     ignore it, though the result would record it. A deleted (`~scene.path`), null or empty
     path reads none (an empty one is refused as no path later)."""
-    settings = {o.key_or_group: o for o in _parse(job)}  # the last override of a key counts
+    settings = {
+        o.key_or_group: o for o in parse_overrides(job)
+    }  # the last override of a key counts
     path = settings.get("scene.path")
     if path is None or path.is_delete() or path.value() in (None, ""):
         return
@@ -214,7 +218,7 @@ def _is_override(arg: str) -> bool:
 def _check_printing_command(args: list[str], conf_dir: Path) -> None:
     """The overrides of a command that only prints (--cfg, --info, --help) parse, name known
     configs and compose; sweeps are composed with their first value as Hydra would show."""
-    overrides = _parse(args)
+    overrides = parse_overrides(args)
     check_group_choices(overrides, conf_dir)
     plain = [o.input_line for o in overrides if not o.is_sweep_override()]
     with initialize_config_dir(config_dir=str(conf_dir), version_base="1.3", job_name="run"):
@@ -309,7 +313,9 @@ def _check_choices_alone(args: Sequence[str], conf_dir: Path) -> None:
     experiment that sets a group to a value (`scene: court`) makes each override inside that
     group (`scene.frames=8`) fail to compose, which the group's own line explains."""
     groups = [group for group in primary_groups(conf_dir) if "/" not in group]
-    choices = [o.input_line for o in _parse(args) if o.is_add() or o.key_or_group in groups]
+    choices = [
+        o.input_line for o in parse_overrides(args) if o.is_add() or o.key_or_group in groups
+    ]
     try:
         config = _compose(choices, conf_dir, with_hydra=True)
     except InputError:
@@ -348,24 +354,30 @@ def planned_jobs(
         return [plain]
     params = [f"{key}={value}" for key, value in (hydra_cfg.sweeper.get("params") or {}).items()]
     try:
-        batches = BasicSweeper.split_arguments(_parse([*params, *args]), None)
+        batches = BasicSweeper.split_arguments(parse_overrides([*params, *args]), None)
     except HydraException as error:
         raise InputError(one_line(error)) from error
     return batches[0]
 
 
 def recorded_job_count(sweep_dir: Path) -> int | None:
-    """How many jobs the sweep last started in `sweep_dir` planned, from the MULTIRUN_RECORD
-    Hydra writes there; None where that file is missing or unreadable, or its sweeper is not
-    Hydra's basic one (whose jobs this cannot count)."""
+    """How many jobs the sweep last started in `sweep_dir` planned (`recorded_jobs`)."""
+    jobs = recorded_jobs(sweep_dir)
+    return None if jobs is None else len(jobs)
+
+
+def recorded_jobs(sweep_dir: Path) -> list[list[str]] | None:
+    """The override lists of the jobs the sweep last started in `sweep_dir` planned, from the
+    MULTIRUN_RECORD Hydra writes there before its first job; None where that file is missing
+    or unreadable, or its sweeper is not Hydra's basic one (whose jobs this cannot list)."""
     try:
-        hydra_cfg = OmegaConf.load(sweep_dir / MULTIRUN_RECORD).hydra
+        hydra_cfg = OmegaConf.load(Path(sweep_dir) / MULTIRUN_RECORD).hydra
         if hydra_cfg.sweeper.get("_target_") != BASIC_SWEEPER:
             return None
         task = [str(arg) for arg in hydra_cfg.overrides.task]
-        return len(planned_jobs(task, _parse(task), hydra_cfg, multirun=True))
+        return planned_jobs(task, parse_overrides(task), hydra_cfg, multirun=True)
     except (OSError, yaml.YAMLError, OmegaConfBaseException, InputError, TypeError, AttributeError):
-        return None  # a record the count cannot read: the report goes on without it
+        return None  # a record that cannot be read: the caller goes on without it
 
 
 def primary_groups(conf_dir: Path) -> set[str]:
@@ -415,7 +427,7 @@ def _choices(override: Override) -> list[str]:
     return [str(override.value())]
 
 
-def _parse(args: Sequence[str]) -> list[Override]:
+def parse_overrides(args: Sequence[str]) -> list[Override]:
     """Parse override strings; a syntax error becomes one line (with how to quote a value, when
     an override holds characters Hydra reads only inside quotes)."""
     try:
@@ -472,7 +484,7 @@ def _experiment_defaults_error(
     chooses the group), naming the file and the entry to write; None for any other error, and
     for Hydra's own groups. (A `+group=` of a chosen group on the command line, the other cause
     of "Multiple values", is refused before composing: `check_group_choices`.)"""
-    parsed = _parse(overrides)
+    parsed = parse_overrides(overrides)
     experiment = next((o for o in parsed if o.key_or_group == "experiment"), None)
     if experiment is None:
         return None
@@ -536,7 +548,7 @@ def _composition_error(error: Exception, overrides: Sequence[str], conf_dir: Pat
     if found is None:
         return one_line(error)
     key = (found[1] or found[2]).lstrip("+")  # `+key=` and `++key=` name the key
-    parsed = _parse(overrides)
+    parsed = parse_overrides(overrides)
     given = next((o.value() for o in parsed if o.key_or_group == key), None)
     others = [o.input_line for o in parsed if o.key_or_group != key]
     try:

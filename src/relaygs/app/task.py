@@ -21,9 +21,9 @@ from omegaconf import DictConfig
 from relaygs.allocator import keep_freed_memory
 from relaygs.app.config import resolve_config
 from relaygs.app.evaluation import Evaluation, evaluate_through_store, test_set_id
+from relaygs.app.hparams import METRICS, job_hparams
 from relaygs.app.plan import RunPlan, plan_run
 from relaygs.app.result import (
-    METRIC_FIELDS,
     RESULT_FILE,
     Scalar,
     build_failed_result,
@@ -34,7 +34,8 @@ from relaygs.app.result import (
 )
 from relaygs.app.scenes import prepare_scene, scene_provenance
 from relaygs.app.suite import StageSuite, load_stage_suite
-from relaygs.app.tensorboard import TensorBoardLog, flatten_config
+from relaygs.app.sweep_axes import SweepAxes
+from relaygs.app.tensorboard import TensorBoardLog
 from relaygs.cli import python_command, script_command
 from relaygs.data import Scene
 from relaygs.data.fingerprint import digest
@@ -53,10 +54,6 @@ from relaygs.pipeline import (
 from relaygs.pipeline.fsio import file_identity
 from relaygs.progress import job_label, print_labelled
 from relaygs.splat import native, use_backend
-
-TENSORBOARD_DIR = "tb"
-HPARAM_EXCLUDED_SECTIONS = ("paths", "artifacts")
-"""Config sections left out of TensorBoard HParams (where files go, not what was run)."""
 
 
 class _Outcome(NamedTuple):
@@ -79,13 +76,15 @@ def run_task(
     job: int | None = None,
     label: str | None = None,
     suite: StageSuite | None = None,
+    axes: SweepAxes | None = None,
 ) -> dict[str, Scalar]:
     """Run one job and return its result (also written to `<run_dir>/result.json`; `job_s`
     is the job's wall time up to the result: scene, stages and evaluation).
 
     `overrides` are the job's command-line/sweep overrides (recorded in the result), `job` its
     number in a sweep, `label` the name its status lines, bars and closing results and outputs
-    lines carry when jobs run side by side (`job_label`). Bad input raises InputError before
+    lines carry when jobs run side by side (`job_label`), `axes` what its sweep varies (named
+    first in its TensorBoard HParams; none for a single run). Bad input raises InputError before
     anything is written to `run_dir`, and so does bad scene data in a single run (an earlier
     run's result there stays as it was); in a sweep's job (`job` given) a bad scene is that
     job's failure, so the sweep's other jobs, on other scenes, still run. A failure is re-raised
@@ -103,7 +102,9 @@ def run_task(
         try:
             if scene is None:
                 scene = _load_scene(plan)
-            outcome = _execute(config, plan, scene, suite, run_dir, overrides, job)
+            outcome = _execute(
+                config, plan, scene, suite, run_dir, overrides, job, axes or SweepAxes()
+            )
             result = outcome.result
             result["job_s"] = time.perf_counter() - started
             result_path = write_result(run_dir, result)
@@ -157,12 +158,14 @@ def _execute(
     run_dir: Path,
     overrides: Sequence[str],
     job: int | None,
+    axes: SweepAxes,
 ) -> _Outcome:
-    """Run the stages on the scene, evaluate and log."""
+    """Run the stages on the scene, evaluate and log (into the run folder itself, so that
+    TensorBoard names the run after it: a sweep's job folder `0_k8`)."""
     store = ArtifactStore(plan.artifacts_root)
     builder = {BUILT_BY: _job_builder(Path(run_dir), job, plan, scene)}
     _note_earlier_run(Path(run_dir), config, plan, overrides, job)
-    log = TensorBoardLog(Path(run_dir) / TENSORBOARD_DIR)
+    log = TensorBoardLog(Path(run_dir))
     suite.add_sink(log)
     try:
         run = run_pipeline(
@@ -177,7 +180,7 @@ def _execute(
             canonical=suite.canonical,
             provenance={**scene_provenance(plan.scene), **builder},
         )
-        _log_reused_stages(log, suite, run)
+        _note_reused_stages(log, suite, run, Path(run_dir))
         evaluation = evaluate_through_store(
             store, scene, run, plan.eval_config, suite.evaluate, plan.on_corrupt, builder
         )
@@ -192,9 +195,8 @@ def _execute(
         notes = [f"[{report.node}] {note}" for report in run.reports for note in report.notes]
         if notes:
             result["notes"] = " ".join(notes)
-        hparams = {k: v for k, v in config.items() if k not in HPARAM_EXCLUDED_SECTIONS}
-        logged = (*METRIC_FIELDS, "train_s_total", "train_s_computed", "storage_mb")
-        log.add_hparams(flatten_config(hparams), {name: result[name] for name in logged})
+        metrics = {name: result[name] for name, _ in METRICS}
+        log.add_hparams(job_hparams(config, axes, plan.hparams), metrics, axes, Path(run_dir).name)
     finally:
         suite.remove_sink(log)
         log.close()
@@ -222,17 +224,41 @@ def _record_per_view(run_dir: Path, log: TensorBoardLog, evaluation: Evaluation)
         return None
     for metric in METRIC_COLUMNS:
         for frame, value in frame_means(records, metric).items():
-            log("eval", frame, {f"{metric}_by_frame": value})
+            log.add_scalar(f"eval/{metric}_by_frame", value, frame)
     return write_per_view(run_dir / PER_VIEW_FILE, records)
 
 
-def _log_reused_stages(log: TensorBoardLog, suite: StageSuite, run: PipelineRun) -> None:
-    """Log the curves each stage reused from the store recorded when it was built, so every
-    job's TensorBoard shows its whole lineage, not only the stages it computed."""
+def _note_reused_stages(
+    log: TensorBoardLog, suite: StageSuite, run: PipelineRun, run_dir: Path
+) -> None:
+    """Note each stage read from the store (`reused/<stage>`, Markdown): its artifact, what
+    building it took, the run whose curves show it and its last logged values. Its curves are
+    not written again here: replayed now, all their points would carry this moment's time."""
     for report in run.reports:
         if report.cache_hit:
-            for step, scalars in suite.logged_scalars(run.artifacts[report.node]):
-                log(report.stage, step, scalars)
+            records = suite.logged_scalars(run.artifacts[report.node])
+            log.add_text(f"reused/{report.stage}", _reuse_note(report, records, run_dir))
+
+
+def _reuse_note(report: NodeReport, records: Sequence[tuple[int, dict]], run_dir: Path) -> str:
+    """The Markdown note on a stage this job read from the store."""
+    builder = report.built_by.partition("#")[0] if report.built_by else None
+    if builder is None:
+        where = "an earlier run"
+    elif Path(builder).parent == run_dir.resolve().parent:
+        where = f"run `{Path(builder).name}`"  # a job of the same sweep, named as TensorBoard does
+    else:
+        where = f"`{builder}`"
+    note = (
+        f"**{report.stage}** (node `{report.node}`) was read from the artifact store, not "
+        f"trained by this job: artifact `{report.key[:16]}`, built in "
+        f"{report.wall_seconds:.1f} s by {where}, whose TensorBoard run holds its curves."
+    )
+    if records:
+        step, scalars = records[-1]
+        values = ", ".join(f"{name} {value:.4g}" for name, value in scalars.items())
+        note += f" Its last logged step, {step}: {values}."
+    return note
 
 
 def _note_earlier_run(
@@ -248,7 +274,7 @@ def _note_earlier_run(
     interrupted one is told to) is not told to use another folder: nothing is said where the
     folder holds this job's own result, and the curves of a job stopped before its result are
     only named as such."""
-    events = any((run_dir / TENSORBOARD_DIR).glob("events.out.tfevents.*"))
+    events = any(run_dir.glob("events.out.tfevents.*"))
     result = (run_dir / RESULT_FILE).is_file()
     if not result or (job is not None and _is_same_job(run_dir, config, plan, overrides, job)):
         if events and not result:

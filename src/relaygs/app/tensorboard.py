@@ -1,14 +1,15 @@
-"""TensorBoard logging for one job: a sink for the stages' scalars and images, render vs
-ground-truth previews, and the HParams entry that lets `tensorboard --logdir SWEEP` compare jobs.
+"""TensorBoard logging for one job: a sink for the stages' scalars and images, labelled render
+vs ground-truth previews, notes, and the HParams entry that lets `tensorboard --logdir SWEEP`
+compare jobs (`relaygs.app.hparams`).
 
-HParams rules (DESIGN.md): the config is flattened to dotted keys, None is written as "None",
-every job logs the same keys, and the hparams go into the job's own log dir.
+Tags group by their first part, which TensorBoard sorts by name: `eval/` (test metrics and
+previews), `result/` (the final metrics HParams reads), `reused/` (notes), `train/<stage>/`
+(loss and batch PSNR), `train_gaussians/<stage>/` (counts), `train_lr/<stage>/` (rates).
 """
 
 from __future__ import annotations
 
 import contextlib
-import json
 import threading
 from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
@@ -16,12 +17,32 @@ from typing import Any
 
 import torch
 from torch.utils.tensorboard import SummaryWriter
-from torch.utils.tensorboard.summary import hparams
 
-from relaygs.error_map import error_image
+from relaygs.app.captions import captioned_row
+from relaygs.app.hparams import (
+    HParamValue,
+    experiment_summary,
+    metric_tag,
+    session_end_summary,
+    session_start_summary,
+)
+from relaygs.app.sweep_axes import SweepAxes
+from relaygs.error_map import ERROR_FULL_SCALE, error_image
 from relaygs.errors import RERUN_RUN, ResourceError
 
-HParamValue = bool | int | float | str
+COUNT_SCALARS = ("num_bg", "num_fg", "fg_fraction")
+"""Training scalars that count Gaussians rather than measure the fit."""
+
+
+def training_tag(stage: str, name: str) -> str:
+    """Where a stage's training scalar goes: `train_lr/<stage>/<param>` for a learning rate
+    (`lr/<param>`), `train_gaussians/<stage>/<name>` for COUNT_SCALARS, else
+    `train/<stage>/<name>` (the loss, and `psnr`: the training batch's, not the test views')."""
+    if name.startswith("lr/"):
+        return f"train_lr/{stage}/{name.removeprefix('lr/')}"
+    if name in COUNT_SCALARS:
+        return f"train_gaussians/{stage}/{name}"
+    return f"train/{stage}/{name}"
 
 
 class TensorBoardLog:
@@ -63,12 +84,22 @@ class TensorBoardLog:
         scalars: Mapping[str, float],
         images: Mapping[str, torch.Tensor] | None = None,
     ) -> None:
-        """Log a stage's scalars as `<stage>/<name>` and its [H,W,3] images in [0,1]."""
-        with self._writing():
-            for name, value in scalars.items():
-                self.writer.add_scalar(f"{stage}/{name}", float(value), step)
+        """Log a stage's training scalars under `training_tag` and its [H,W,3] images in [0,1]
+        as `train/<stage>/<name>`."""
+        for name, value in scalars.items():
+            self.add_scalar(training_tag(stage, name), value, step)
         for name, image in (images or {}).items():
-            self.add_image(f"{stage}/{name}", image, step)
+            self.add_image(f"train/{stage}/{name}", image, step)
+
+    def add_scalar(self, tag: str, value: float, step: int) -> None:
+        """Log one scalar."""
+        with self._writing():
+            self.writer.add_scalar(tag, float(value), step)
+
+    def add_text(self, tag: str, text: str, step: int = 0) -> None:
+        """Log a Markdown note (TensorBoard's Text tab)."""
+        with self._writing():
+            self.writer.add_text(tag, text, step)
 
     def add_image(self, tag: str, image: torch.Tensor, step: int) -> None:
         """Log one [H,W,3] float image (values clamped to [0,1])."""
@@ -77,26 +108,35 @@ class TensorBoardLog:
             self.writer.add_image(tag, pixels, step, dataformats="HWC")
 
     def add_comparison(
-        self, tag: str, render: torch.Tensor, truth: torch.Tensor, step: int
+        self, tag: str, render: torch.Tensor, truth: torch.Tensor, frame: int
     ) -> None:
         """Log a render, its ground truth and the render's error image (`error_image`) side by
-        side, in that order."""
+        side, each captioned in the image, at step `frame`."""
         render, truth = render.detach().float().cpu(), truth.detach().float().cpu()
-        self.add_image(tag, torch.cat([render, truth, error_image(render, truth)], dim=1), step)
+        panels = [
+            (f"render, frame {frame}", render),
+            ("truth", truth),
+            (f"error (0 to {ERROR_FULL_SCALE:g}+)", error_image(render, truth)),
+        ]
+        self.add_image(tag, captioned_row(panels), frame)
 
     def add_hparams(
-        self, params: Mapping[str, HParamValue], metrics: Mapping[str, float | None]
+        self,
+        params: Mapping[str, HParamValue],
+        metrics: Mapping[str, float | None],
+        axes: SweepAxes,
+        group: str,
     ) -> None:
-        """Write the HParams entry into this job's own log dir, with each metric as a scalar
-        under its own tag (missing metrics are skipped)."""
-        finite = {f"result/{name}": float(v) for name, v in metrics.items() if v is not None}
-        experiment, session_start, session_end = hparams(dict(params), finite)
+        """Write the HParams entry into this job's own log dir as trial `group`, with each
+        metric as the scalar `result/<name>` (missing metrics are skipped)."""
+        finite = {metric_tag(name): float(v) for name, v in metrics.items() if v is not None}
         with self._writing():
             file_writer = self.writer._get_file_writer()
-            for summary in (experiment, session_start, session_end):
-                file_writer.add_summary(summary)
+            file_writer.add_summary(experiment_summary(params, axes))
+            file_writer.add_summary(session_start_summary(params, axes, group))
             for tag, value in finite.items():
                 self.writer.add_scalar(tag, value, 0)
+            file_writer.add_summary(session_end_summary())
 
     def close(self) -> None:
         """Flush and close the event file; after a failed write only release it, so the error
@@ -128,24 +168,3 @@ class _QuietWriterThreads:
         """Put the hook in front of the current one, once."""
         if not isinstance(threading.excepthook, cls):
             threading.excepthook = cls(threading.excepthook)
-
-
-def flatten_config(config: Mapping[str, Any], prefix: str = "") -> dict[str, HParamValue]:
-    """Nested config as {dotted key: value}; None → "None", lists → their JSON text."""
-    flat: dict[str, HParamValue] = {}
-    for key, value in config.items():
-        name = f"{prefix}{key}"
-        if isinstance(value, Mapping):
-            flat.update(flatten_config(value, f"{name}."))
-        else:
-            flat[name] = hparam_value(value)
-    return flat
-
-
-def hparam_value(value: Any) -> HParamValue:
-    """A value TensorBoard's HParams accepts: None → "None", containers → JSON text."""
-    if value is None:
-        return "None"
-    if isinstance(value, bool | int | float | str):
-        return value
-    return json.dumps(value, sort_keys=True, default=str)

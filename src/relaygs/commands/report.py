@@ -1,7 +1,8 @@
 """`python -m relaygs.report SWEEP_DIR`: (re)write a sweep's `summary.csv`, `summary.md`,
-`pareto.png` and `psnr_by_frame.png`, with `summary_mean.csv/md` when jobs differ only in
-their seed and `summary_budget.csv/md` when it varies `budget.multiplier`, from its
-jobs' `result.json` and `per_view.csv` files (the multirun end callback calls the same)."""
+`pareto.png` and `psnr_by_frame.png` (these three also as the TensorBoard run `sweep`), with
+`summary_mean.csv/md` when jobs differ only in their seed and `summary_budget.csv/md` when it
+varies `budget.multiplier`, from its jobs' `result.json` and `per_view.csv` files (the
+multirun end callback calls the same)."""
 
 from __future__ import annotations
 
@@ -26,6 +27,7 @@ from relaygs.app.summary import (
     markdown_table,
     summary_table,
 )
+from relaygs.app.sweep_board import log_sweep_report
 from relaygs.app.unfinished import unfinished_line, unfinished_runs
 from relaygs.cli import OneLineErrorParser, path_argument
 from relaygs.errors import InputError, RelayGSError
@@ -47,7 +49,8 @@ class ReportFiles:
     """The files a report wrote (`pareto` is None when no job has both PSNR and a time,
     `frames` when no job has per-view metrics), `summary.md`'s text as `table`, and the failed
     jobs (each with its `job <n> (<variant>): <error>` line); `mean` and `budget` are written
-    only for sweeps that repeat seeds or vary the step multiplier."""
+    only for sweeps that repeat seeds or vary the step multiplier; `board` is the TensorBoard
+    run holding the plots and the table."""
 
     csv: Path
     markdown: Path
@@ -58,6 +61,7 @@ class ReportFiles:
     mean: Path | None = None
     budget: Path | None = None
     frames: Path | None = None
+    board: Path | None = None
 
 
 def write_reports(sweep_dir: Path) -> ReportFiles:
@@ -116,9 +120,10 @@ def _write_files(table: pd.DataFrame, sweep_dir: Path) -> ReportFiles:
         _remove(sweep_dir / FRAMES_PNG)
     mean = _write_mean(table, sweep_dir, title)
     budget = _write_budget(table, sweep_dir, title)
+    board = log_sweep_report(sweep_dir, [p for p in (pareto, frames) if p is not None], markdown)
     failed = tuple(failed_jobs(table))
     return ReportFiles(
-        csv_path, markdown_path, markdown, pareto, len(table), failed, mean, budget, frames
+        csv_path, markdown_path, markdown, pareto, len(table), failed, mean, budget, frames, board
     )
 
 
@@ -177,6 +182,8 @@ def describe(files: ReportFiles) -> str:
     for table in (files.mean, files.budget):  # each Markdown table beside its CSV
         if table is not None:
             lines += [f"  {table}", f"  {table.with_suffix('.csv')}"]
+    if files.board is not None:
+        lines.append(f"  {files.board}  (TensorBoard run `{files.board.name}`: plots and table)")
     return "\n".join(lines)
 
 

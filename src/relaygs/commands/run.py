@@ -31,6 +31,7 @@ from relaygs.app.plan import plan_run
 from relaygs.app.prelaunch import LAUNCH_FLAGS, JobValidator, check_command_line
 from relaygs.app.result import RESULT_FILE, error_line
 from relaygs.app.suite import StageSuite, load_stage_suite
+from relaygs.app.sweep_axes import recorded_sweep_axes
 from relaygs.app.task import run_task
 from relaygs.cli import INTERRUPTED_EXIT, path_override
 from relaygs.device import usable_device
@@ -143,7 +144,9 @@ def _job_validator(suite: StageSuite) -> JobValidator:
 def run_job(cfg: DictConfig) -> dict[str, Any] | None:
     """Hydra's task function: one job with its run dir, launch dir and overrides.
 
-    A job of a parallel launcher's sweep names its folder (`3_k64`) on its status lines, bars
+    A sweep's job reads what the sweep varies from the record Hydra wrote in the sweep folder
+    (`recorded_sweep_axes`), for its TensorBoard HParams. A job of a parallel launcher's sweep
+    names its folder (`3_k64`) on its status lines, bars
     and closing results and outputs lines, as jobs then print side by side. A RelayGS error
     ends a single run with one line on stderr (exit 1). In a multirun, a job
     whose failure it recorded in its `result.json` (see `run_task`; not a result an earlier
@@ -158,14 +161,17 @@ def run_job(cfg: DictConfig) -> dict[str, Any] | None:
     if not multirun:
         named = names_override(hydra_cfg.overrides.hydra, RUN_DIR)
         STARTED_FOLDERS.append(StartedFolder(run_dir, named, RUN_DIR))
+    overrides = list(hydra_cfg.overrides.task)
+    axes = recorded_sweep_axes(Path(hydra_cfg.sweep.dir), overrides) if multirun else None
     try:
         return run_task(
             cfg,
             run_dir=run_dir,
             original_cwd=Path(hydra_cfg.runtime.cwd),
-            overrides=list(hydra_cfg.overrides.task),
+            overrides=overrides,
             job=hydra_cfg.job.num if multirun else None,
             label=run_dir.name if side_by_side else None,
+            axes=axes,
         )
     except Exception as error:
         recorded = file_identity(run_dir / RESULT_FILE) not in (None, earlier_result)

@@ -1,0 +1,47 @@
+"""The settings a sweep varies (its axes), read back in a job from the record Hydra writes into
+the sweep folder, so the job's TensorBoard HParams can name them first."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from relaygs.app.prelaunch import parse_overrides, recorded_jobs, swept_keys
+
+
+@dataclass(frozen=True)
+class SweepAxes:
+    """Each swept key (as `recorded_overrides` names it: `relay.k`, `component`) with the
+    values the sweep gives it, in job order, and this job's value of each."""
+
+    domains: dict[str, list[Any]] = field(default_factory=dict)
+    values: dict[str, Any] = field(default_factory=dict)
+
+
+def sweep_axes(jobs: Sequence[Sequence[str]], job: Sequence[str]) -> SweepAxes:
+    """The axes of the sweep whose jobs' override lists are `jobs`, for the job whose own
+    overrides are `job` (values typed as Hydra parses them: `relay.k=8` is the int 8)."""
+    swept = swept_keys(jobs)
+    domains: dict[str, list[Any]] = {}
+    for overrides in jobs:
+        for key, value in _swept_values(overrides, swept).items():
+            known = domains.setdefault(key, [])
+            if value not in known:
+                known.append(value)
+    values = _swept_values(job, swept)
+    return SweepAxes({key: domains[key] for key in values}, values)
+
+
+def recorded_sweep_axes(sweep_dir: Path, job: Sequence[str]) -> SweepAxes:
+    """`sweep_axes` of the sweep Hydra recorded in `sweep_dir` (none where the record is
+    missing, unreadable or not the basic sweeper's)."""
+    jobs = recorded_jobs(sweep_dir)
+    return sweep_axes(jobs, job) if jobs else SweepAxes()
+
+
+def _swept_values(overrides: Sequence[str], swept: set[str]) -> dict[str, Any]:
+    """{key without `+`/`~`: parsed value} of the overrides whose key is in `swept`."""
+    chosen = [arg for arg in overrides if arg.partition("=")[0] in swept]
+    return {override.key_or_group: override.value() for override in parse_overrides(chosen)}

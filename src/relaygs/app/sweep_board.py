@@ -1,0 +1,42 @@
+"""The sweep-level TensorBoard run: the sweep report's plots and table beside its jobs' runs, so
+`tensorboard --logdir SWEEP` holds the whole story."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import cv2
+import torch
+
+from relaygs.app.tensorboard import TensorBoardLog
+
+SWEEP_RUN = "sweep"
+"""The run's folder in the sweep folder, and so its name in TensorBoard."""
+EVENT_FILES = "events.out.tfevents.*"
+
+
+def log_sweep_report(sweep_dir: Path, figures: Sequence[Path], table: str) -> Path:
+    """Write the PNG `figures` as images `sweep/<file stem>` and the Markdown `table` as text
+    `sweep/summary` into a fresh event file of run SWEEP_RUN (an earlier report's event files
+    there are removed, so the run shows this report only); returns the run's folder."""
+    folder = Path(sweep_dir) / SWEEP_RUN
+    for old in folder.glob(EVENT_FILES):
+        old.unlink()
+    log = TensorBoardLog(folder)
+    try:
+        for figure in figures:
+            log.add_image(f"sweep/{figure.stem}", _read_png(figure), 0)
+        log.add_text("sweep/summary", table)
+    finally:
+        log.close()
+    return folder
+
+
+def _read_png(path: Path) -> torch.Tensor:
+    """An RGB image file as [H,W,3] float32 in [0,1]."""
+    pixels = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if pixels is None:
+        raise OSError(f"cannot read the image {path}")
+    rgb = cv2.cvtColor(pixels, cv2.COLOR_BGR2RGB)
+    return torch.from_numpy(rgb).float() / 255.0
