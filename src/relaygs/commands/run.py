@@ -73,11 +73,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (OSError, MemoryError) as error:  # Hydra's own writes: config files, multirun.yaml
         failure = resource_error(error)
         if failure is None:
-            raise
+            traceback.print_exc()  # a programming error keeps its traceback, as Hydra's did
+            return 1
         print(f"error: {failure}", file=sys.stderr)
         return 1
     except HydraException as error:
         print(f"error: {one_line(error)}", file=sys.stderr)
+        return 1
+    except Exception:  # a programming error in a job: its traceback, as Hydra printed it
+        traceback.print_exc()
         return 1
     except KeyboardInterrupt as stop:
         started = STARTED_FOLDERS[-1] if STARTED_FOLDERS else None
