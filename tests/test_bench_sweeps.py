@@ -1,10 +1,12 @@
-"""`python -m relaygs.bench sweeps`: the commands it times and how it reports a failing one."""
+"""`python -m relaygs.bench sweeps`: the commands it times and how it reports a failing one;
+the other subcommands' options and `bench field`'s report."""
 
+import json
 import subprocess
 
 import pytest
 
-from relaygs.commands import bench, bench_sweeps, bench_train
+from relaygs.commands import bench, bench_field, bench_sweeps, bench_train
 
 
 def test_commands_run_each_experiment_on_the_tiny_scene(tmp_path):
@@ -84,10 +86,11 @@ def test_bad_options_are_refused_in_one_line_before_any_work(argv, message, monk
     assert err.count("\n") == 1
 
 
-@pytest.mark.parametrize("what", ["splat", "train"])
+@pytest.mark.parametrize("what", ["splat", "train", "field"])
 def test_an_unknown_backend_is_named_before_any_work(what, monkeypatch, capsys):
     monkeypatch.setattr(bench, "bench_splat", lambda *args: pytest.fail("splat started"))
     monkeypatch.setattr(bench_train, "bench_scene", lambda *args: pytest.fail("train started"))
+    monkeypatch.setattr(bench_field, "_field_step", lambda *args: pytest.fail("field started"))
     assert bench.main([what, "--backends", "torch,fast"]) == 2
     assert "'fast'" in capsys.readouterr().err
 
@@ -98,3 +101,18 @@ def test_train_on_a_device_it_cannot_use_is_named_before_any_work(device, monkey
     assert bench.main(["train", "--device", device]) == 2
     err = capsys.readouterr().err
     assert "--device" in err and repr(device) in err and err.count("\n") == 1
+
+
+def test_bench_field_times_each_backend_and_restores_the_process_backend(tmp_path, capsys):
+    from relaygs.splat import default_backend
+
+    before = default_backend()
+    report = tmp_path / "field.json"
+    argv = ["field", "--gaussians", "300", "--repeats", "2", "--threads", "1"]
+    assert bench.main([*argv, "--backends", "torch,auto", "--json", str(report)]) == 0
+    figures = json.loads(report.read_text())
+    assert figures["gaussians"] == 300 and figures["threads"] == 1
+    assert set(figures["fwd_bwd_ms"]) == {"torch", "auto"}
+    assert all(ms > 0 for ms in figures["fwd_bwd_ms"].values())
+    assert "ratio" in capsys.readouterr().out
+    assert default_backend() == before

@@ -13,7 +13,7 @@ import numpy as np
 import torch
 
 from relaygs.cli import OneLineErrorParser, int_at_least, writable_file
-from relaygs.commands import bench_sweeps, bench_train
+from relaygs.commands import bench_field, bench_sweeps, bench_train
 from relaygs.commands.bench_output import save_json
 from relaygs.device import synchronize, usable_device
 from relaygs.errors import InputError, RelayGSError
@@ -223,9 +223,13 @@ def main(argv: list[str] | None = None) -> int:
     bench_train.add_arguments(train)
     sweeps = sub.add_parser("sweeps", help="time the five experiments at the smoke budget")
     bench_sweeps.add_arguments(sweeps)
+    field = sub.add_parser("field", help="time the deform stage's motion field")
+    bench_field.add_arguments(field)
     args = parser.parse_args(argv)
     if args.command == "train":
         return bench_train.run(args)
+    if args.command == "field":
+        return bench_field.run(args)
     if args.command == "sweeps":
         return bench_sweeps.run(args)
     try:

@@ -1,0 +1,106 @@
+"""`python -m relaygs.bench field`: forward+backward time of the deform stage's motion field.
+
+The field at the deform stage's defaults (HexPlane of 16 channels, resolution 64, multires
+[1, 2], 32 time rows; background and foreground MLP sets of width 128) over N Gaussians, the
+first 70 % background as the stages lay them out, timed per backend of `--backends` (the
+native kernels sample the HexPlane; the MLP is the same code on every backend), interleaved
+so a noisy machine slows each alike.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+from collections.abc import Callable
+from typing import Any
+
+import torch
+
+from relaygs.cli import int_at_least, writable_file
+from relaygs.commands.bench_output import save_json
+from relaygs.commands.bench_train import backend_names
+from relaygs.errors import RelayGSError
+from relaygs.field import DeformationField
+from relaygs.splat import default_backend, use_backend
+
+BACKGROUND_SHARE = 0.7
+TIME_ROWS = 32  # ceil(64 frames / 2), the default scene's
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The `field` subcommand's options."""
+    parser.add_argument(
+        "--gaussians", type=int_at_least(1), default=12_800, help="Gaussians the field moves"
+    )
+    parser.add_argument(
+        "--repeats", type=int_at_least(1), default=10, help="timed runs per backend (median)"
+    )
+    parser.add_argument("--threads", type=int_at_least(1), default=2, help="torch CPU threads")
+    parser.add_argument(
+        "--backends", default="torch,native", help="comma-separated backends (default torch,native)"
+    )
+    parser.add_argument("--json", type=writable_file, help="also write the results as JSON here")
+
+
+def _field_step(count: int) -> Callable[[], None]:
+    """One forward+backward of a default-sized field over `count` Gaussians (heads non-zero,
+    so every layer carries gradient)."""
+    generator = torch.Generator().manual_seed(0)
+    field = DeformationField([[-2.0] * 3, [2.0] * 3], TIME_ROWS, isolate_fg_bg=True)
+    with torch.no_grad():
+        for parameter in field.mlp_sets.parameters():
+            parameter.normal_(0.0, 0.05, generator=generator)
+    xyz = (torch.rand(count, 3, generator=generator) * 4 - 2).requires_grad_()
+    background = int(count * BACKGROUND_SHARE)
+
+    def step() -> None:
+        deltas = field.forward_split(xyz, 0.37, background)
+        sum(part.sum() for part in deltas).backward()
+
+    return step
+
+
+def measure(args: argparse.Namespace) -> dict[str, Any]:
+    """Median forward+backward milliseconds per backend; the process backend is restored."""
+    backends = backend_names(args.backends)
+    torch.set_num_threads(args.threads)
+    step = _field_step(args.gaussians)
+    times: dict[str, list[float]] = {name: [] for name in backends}
+    previous = default_backend()
+    try:
+        for name in backends:  # warm-up: kernels built, allocator caches filled
+            use_backend(name)
+            step()
+        for _ in range(args.repeats):
+            for name in backends:
+                use_backend(name)
+                start = time.perf_counter()
+                step()
+                times[name].append((time.perf_counter() - start) * 1e3)
+    finally:
+        use_backend(previous)
+    return {
+        "gaussians": args.gaussians,
+        "threads": torch.get_num_threads(),
+        "fwd_bwd_ms": {name: round(statistics.median(t), 2) for name, t in times.items()},
+    }
+
+
+def run(args: argparse.Namespace) -> int:
+    """Measure, print one line per backend (and the ratio of the first two), write JSON."""
+    try:
+        report = measure(args)
+    except RelayGSError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    ms = report["fwd_bwd_ms"]
+    print(f"deformation field, {report['gaussians']} Gaussians, {report['threads']} threads")
+    for name, value in ms.items():
+        print(f"{name:<8} forward+backward {value:8.1f} ms")
+    if len(ms) >= 2:
+        first, second = list(ms.values())[:2]
+        print(f"ratio    {first / second:.2f}x")
+    save_json(args.json, report)
+    return 0
