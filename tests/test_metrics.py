@@ -169,3 +169,17 @@ def test_mismatched_shapes_are_rejected():
         psnr(torch.rand(4, 4, 3), torch.rand(4, 5, 3))
     with pytest.raises(ValueError, match="mask shape"):
         fg_psnr(torch.rand(4, 4, 3), torch.rand(4, 4, 3), torch.ones(3, 3, dtype=torch.bool))
+
+
+@pytest.mark.parametrize("sizes", [[(9, 12)] * 4, [(9, 12), (7, 12), (9, 12)]])
+def test_the_photometric_loss_is_the_mean_of_each_views_loss(sizes):
+    # views of one size go through as one batch, mixed sizes one by one: the same value
+    from relaygs.stages.loss import photometric_loss
+
+    generator = torch.Generator().manual_seed(5)
+    preds = [torch.rand(h, w, 3, generator=generator, dtype=torch.float64) for h, w in sizes]
+    targets = [torch.rand(h, w, 3, generator=generator, dtype=torch.float64) for h, w in sizes]
+    pairs = zip(preds, targets, strict=True)
+    expected = torch.stack([(p - t).abs().mean() + 0.2 * (1.0 - ssim(p, t)) for p, t in pairs])
+    expected = expected.mean()
+    torch.testing.assert_close(photometric_loss(preds, targets, 0.2), expected)
