@@ -1,4 +1,5 @@
-"""PSNR, foreground PSNR and SSIM against values derived by hand or by a direct formula."""
+"""PSNR, foreground PSNR and SSIM against values derived by hand or by a direct formula, with
+SSIM on both paths (`splat_backend`: torch operations, or the native kernel on CPU)."""
 
 from __future__ import annotations
 
@@ -8,7 +9,10 @@ import numpy as np
 import pytest
 import torch
 
-from relaygs.metrics import fg_psnr, psnr, ssim
+from relaygs.metrics import _ssim_torch, fg_psnr, psnr, ssim
+from relaygs.metrics_native import NativeSSIM
+
+pytestmark = pytest.mark.usefixtures("splat_backend")
 
 # SSIM stabilisers for data range 1 (Wang et al. 2004), written out rather than imported so
 # that the tests check the module's constants instead of reusing them.
@@ -183,3 +187,23 @@ def test_the_photometric_loss_is_the_mean_of_each_views_loss(sizes):
     expected = torch.stack([(p - t).abs().mean() + 0.2 * (1.0 - ssim(p, t)) for p, t in pairs])
     expected = expected.mean()
     torch.testing.assert_close(photometric_loss(preds, targets, 0.2), expected)
+
+
+def test_the_native_ssim_equals_the_torch_ssim_and_its_gradient(splat_backend):
+    if splat_backend != "native":
+        pytest.skip("compares the native kernel with the torch path")
+    generator = torch.Generator().manual_seed(2)
+    x = torch.rand(3, 17, 23, 3, generator=generator, dtype=torch.float64)
+    y = (x + 0.2 * torch.randn(x.shape, generator=generator, dtype=torch.float64)).clamp(0, 1)
+    x[0, :6], y[0, :6] = 0.5, 0.5  # a flat patch: zero variance, the clamp at 0
+    grads = []
+    for fn in (NativeSSIM.apply, _ssim_torch):
+        pred = x.clone().requires_grad_()
+        value = fn(pred, y)
+        value.backward()
+        grads.append((value.detach(), pred.grad))
+    (value, grad), (expected, expected_grad) = grads
+    torch.testing.assert_close(value, expected, rtol=0, atol=1e-14)
+    torch.testing.assert_close(grad, expected_grad, rtol=1e-10, atol=1e-16)
+    small = x[:1, :7, :8].clone().requires_grad_()
+    assert torch.autograd.gradcheck(lambda p: NativeSSIM.apply(p, y[:1, :7, :8]), (small,))

@@ -11,6 +11,9 @@ import math
 import torch
 import torch.nn.functional as F
 
+from relaygs.metrics_native import NativeSSIM
+from relaygs.splat import native_kernels_in_use
+
 MSE_FLOOR = 1e-10
 """Smallest MSE PSNR uses: identical images give 10·log10(1/1e-10) = 100 dB."""
 SSIM_WINDOW = 11
@@ -50,9 +53,17 @@ def ssim(pred: torch.Tensor, gt: torch.Tensor) -> torch.Tensor:
 
     Windows are zero-padded at the borders ('same' output size), as in the 3DGS training and
     evaluation code, so scores compare with published numbers. Differentiable; use 1 − ssim
-    as a loss.
+    as a loss. Where the process backend takes the native kernels (CPU), a kernel computes it.
     """
     pred, gt = _batched(pred, gt)
+    if native_kernels_in_use(pred) and not gt.requires_grad:
+        return NativeSSIM.apply(pred, gt)
+    return _ssim_torch(pred, gt)
+
+
+def _ssim_torch(pred: torch.Tensor, gt: torch.Tensor) -> torch.Tensor:
+    """`ssim` of batches [B,H,W,C] in torch operations (any device; the native kernel's
+    reference)."""
     x = pred.permute(0, 3, 1, 2)
     y = gt.permute(0, 3, 1, 2)
     # the five blurred maps in one depthwise convolution (each channel is blurred alone)

@@ -34,6 +34,7 @@ SOURCES = [
     HERE / "composite.cpp",
     HERE / "projection.cpp",
     HERE / "hexplane.cpp",
+    HERE / "ssim.cpp",
 ]
 HEADERS = [HERE / "kernels.h"]
 # -fopenmp compiles at::parallel_for's OpenMP region (without it the loop runs on one

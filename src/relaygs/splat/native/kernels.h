@@ -55,4 +55,11 @@ std::vector<at::Tensor> hexplane_backward(const at::Tensor& coords, const at::Te
                                           const std::vector<at::Tensor>& time,
                                           const at::Tensor& grad_features);
 
+// {mean SSIM (0-dim), the five blurred maps [5, B*H*W*C]} of channel-last batches x, y.
+std::vector<at::Tensor> ssim_forward(const at::Tensor& x, const at::Tensor& y);
+
+// dL/dx of L = grad · ssim(x, y), from the forward's blurred maps.
+at::Tensor ssim_backward(const at::Tensor& x, const at::Tensor& y, const at::Tensor& blurred,
+                         const at::Tensor& grad);
+
 }  // namespace relaygs
