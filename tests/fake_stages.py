@@ -17,9 +17,11 @@ from relaygs.paths import config_dir
 from relaygs.per_view import PER_VIEW
 from relaygs.pipeline import Artifact
 from relaygs.pipeline.dag import CanonicalFn
+from relaygs.stages import SPECS
 from relaygs.stages.common import LOGGED_SCALARS, logged_scalars
 
-STAGE_TYPES = ("decouple", "relay", "replicate", "warmup", "deform")
+STAGE_TYPES = tuple(SPECS)
+"""The real stage types: the app tests compose conf/config.yaml, which has a section each."""
 FAKE_CURVE = [[0, {"loss": 1.0}], [5, {"loss": 0.5}]]
 """What every fake stage stores as the scalars it logged while it trained."""
 TINY_SCENE = ["scene.frames=3", "scene.width=16", "scene.height=9"]

@@ -106,7 +106,7 @@ def test_a_bad_value_a_pipeline_node_pins_names_its_file(
     config = copy.deepcopy(config)
     config["deform"]["gamma"] = True if named else "maybe"
     with pytest.raises(InputError) as caught:
-        plan_run(config, stages.STAGES, stages.validate_config)
+        plan_run(config, stages.SPECS, stages.validate_config)
     assert str(caught.value).startswith(message)
     assert str(caught.value).endswith(f" (set by {path}: node 'deform' overrides)") == named
 

@@ -20,6 +20,7 @@ from relaygs.app.captions import CAPTION_HEIGHT
 from relaygs.app.evaluation import evaluation_config
 from relaygs.app.hparams import flatten_config
 from relaygs.app.result import NO_TEST_VIEWS, RESULT_FILE, format_summary, write_result
+from relaygs.app.suite import load_stage_suite
 from relaygs.app.sweep_axes import SweepAxes
 from relaygs.app.task import run_task
 from relaygs.app.tensorboard import TensorBoardLog, training_tag
@@ -27,7 +28,6 @@ from relaygs.errors import InputError
 from relaygs.per_view import PER_VIEW, PER_VIEW_FILE, read_per_view
 from relaygs.pipeline import ArtifactStore, CorruptArtifactError
 from relaygs.splat import default_backend, use_backend
-from relaygs.stages import UPSTREAM
 
 REQUIRED_FIELDS = {
     "pipeline",
@@ -447,7 +447,9 @@ def test_the_suites_upstream_types_are_checked_before_any_stage_runs(base_config
     pipeline = tmp_path / "wrong.yaml"
     pipeline.write_text("nodes:\n  a: {stage: warmup}\n  b: {stage: relay, upstream: [a]}\n")
     fakes = FakeStages()
-    suite = dataclasses.replace(fakes.suite(), accepted_upstream=UPSTREAM)
+    suite = dataclasses.replace(
+        fakes.suite(), accepted_upstream=load_stage_suite().accepted_upstream
+    )
     config = _with(base_config, pipeline__name=str(pipeline))
     with pytest.raises(InputError, match=r"node 'b' \(stage 'relay'\) reads one upstream node"):
         run_task(config, run_dir=tmp_path / "run", original_cwd=tmp_path, suite=suite)

@@ -205,7 +205,7 @@ def _check_upstream_types(pipeline: Pipeline, node: Node, accepted: Collection[s
         return
     raise InputError(
         f"{pipeline.path}: node {node.name!r} (stage {node.stage!r}) reads {expected} "
-        f"(relaygs.stages.UPSTREAM), got {', '.join(found) or 'none'}"
+        f"(its StageSpec's upstream), got {', '.join(found) or 'none'}"
     )
 
 
