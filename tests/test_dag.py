@@ -140,8 +140,7 @@ def test_the_shipped_pipelines_read_upstreams_their_stages_accept():
 
 
 def test_unknown_pipeline_name_lists_the_available_ones():
-    # the file it lacks is named: a conf/pipeline/<name>.yaml may choose it without one
-    with pytest.raises(InputError, match=r"unknown pipeline 'nope': no .*pipelines/nope\.yaml \("):
+    with pytest.raises(InputError, match=r"unknown pipeline 'nope': no .*pipeline/nope\.yaml \("):
         load_pipeline("nope")
     with pytest.raises(InputError, match=r"\(available: .*relaygs"):
         load_pipeline("nope")
@@ -299,21 +298,13 @@ def test_schema_version_bump_rebuilds(tmp_path):
     assert [r.cache_hit for r in reports] == [True, False, False]
 
 
-def test_config_and_pipeline_folders_prefer_the_repo_then_the_packaged_copy(tmp_path, monkeypatch):
+def test_the_config_folder_prefers_the_repo_then_the_packaged_copy(tmp_path, monkeypatch):
     repo, packaged = tmp_path / "repo", tmp_path / "packaged"
     monkeypatch.setattr(paths, "REPO_ROOT", repo)
     monkeypatch.setattr(paths, "PACKAGE_DIR", repo / "src" / "relaygs")  # a relaygs checkout
     monkeypatch.setattr(paths, "PACKAGED_DATA_DIR", packaged)
     repo.mkdir()
     (repo / "pyproject.toml").write_text('[project]\nname = "relaygs"\n')
-    with pytest.raises(InputError, match="no usable pipelines/ folder"):
-        paths.pipelines_dir()
-    (packaged / "pipelines").mkdir(parents=True)
-    (packaged / "pipelines" / "relaygs.yaml").write_text("nodes: {}\n")
-    (repo / "pipelines").mkdir(parents=True)
-    assert paths.pipelines_dir() == packaged / "pipelines"  # the repo folder holds no YAML
-    (repo / "pipelines" / "relaygs.yaml").write_text("nodes: {}\n")
-    assert paths.pipelines_dir() == repo / "pipelines"
     (repo / "conf").mkdir()
     with pytest.raises(InputError, match="no usable conf/ folder"):
         paths.config_dir()  # a conf/ without config.yaml does not count

@@ -26,7 +26,7 @@ from relaygs.commands import run as run_module
 from relaygs.commands.artifacts import _parser as artifacts_parser
 from relaygs.data.synthetic import PRESETS
 from relaygs.errors import RERUN_RUN, InputError, Interrupted
-from relaygs.paths import config_dir, pipelines_dir
+from relaygs.paths import config_dir
 
 UNUSABLE_GPU = f"cuda:{torch.cuda.device_count()}"
 """One past the last GPU: unusable on every machine, a CPU-only torch included."""
@@ -281,19 +281,6 @@ def test_an_unknown_choice_an_experiment_sweeps_is_named_with_the_available_ones
     assert str(caught.value) == (
         "job pipeline=nope: unknown pipeline 'nope' (available: 4dgs, no_copies, no_stage2, "
         "relaygs)"
-    )
-
-
-def test_a_pipeline_without_its_conf_file_says_which_file_is_missing(tmp_path, monkeypatch):
-    conf = shutil.copytree(config_dir(), tmp_path / "conf")
-    graphs = shutil.copytree(pipelines_dir(), tmp_path / "pipelines")
-    (graphs / "mine.yaml").write_text((graphs / "4dgs.yaml").read_text())
-    monkeypatch.setattr(prelaunch, "pipelines_dir", lambda: graphs)
-    with pytest.raises(InputError) as caught:
-        prelaunch.check_command_line(["pipeline=mine"], conf, lambda cfg, here: None)
-    assert str(caught.value).endswith(
-        f"; {graphs / 'mine.yaml'} exists, but a pipeline is chosen by its "
-        f"{conf / 'pipeline' / 'mine.yaml'} too (docs/extending.md)"
     )
 
 

@@ -2,17 +2,14 @@
 pipeline files' per-node `overrides`."""
 
 import copy
-import shutil
 
 import pytest
 from omegaconf import OmegaConf
 
-from fake_stages import STAGE_TYPES, compose_config, validate_config
+from fake_stages import STAGE_TYPES, compose_config, pipeline_section, validate_config
 from relaygs import stages
-from relaygs.app import plan as plan_module
 from relaygs.app.plan import merge_overrides, plan_run, scale_steps
 from relaygs.errors import InputError
-from relaygs.paths import pipelines_dir
 from relaygs.pipeline import artifact_key, key_config, load_pipeline
 from relaygs.pipeline import spec as spec_module
 
@@ -26,8 +23,8 @@ def config(tmp_path_factory):
 def _plan(config, **changes):
     config = copy.deepcopy(config)
     for dotted, value in changes.items():
-        section, key = dotted.split("__")
-        config[section][key] = value
+        *section, key = dotted.split("__")
+        (config[section[0]] if section else config)[key] = value
     return plan_run(config, STAGE_TYPES, validate_config)
 
 
@@ -78,7 +75,7 @@ def test_progress_follows_train_progress(config):
 
 
 def test_pipeline_overrides_pin_the_4dgs_deform_settings(config):
-    plan = _plan(config, pipeline__name="4dgs", deform__gamma=True)
+    plan = _plan(config, pipeline=pipeline_section("4dgs"), deform__gamma=True)
     deform = plan.config_for(plan.pipeline.nodes["deform"])["deform"]
     assert (deform["gamma"], deform["isolate_fg_bg"]) == (False, False)
     assert config["deform"]["gamma"] is True  # the input is not modified
@@ -93,7 +90,7 @@ def test_pipeline_overrides_pin_the_4dgs_deform_settings(config):
     ],
 )
 def test_a_bad_value_a_pipeline_node_pins_names_its_file(
-    config, tmp_path, monkeypatch, overrides, message, named
+    config, tmp_path, overrides, message, named
 ):
     # before: "deform.gamma: expected bool, got 'maybe'", which no command line can change
     path = tmp_path / "mine.yaml"
@@ -101,9 +98,8 @@ def test_a_bad_value_a_pipeline_node_pins_names_its_file(
         "nodes:\n  warmup: {stage: warmup}\n"
         f"  deform: {{stage: deform, upstream: [warmup], overrides: {overrides}}}\n"
     )
-    real = plan_module.load_pipeline
-    monkeypatch.setattr(plan_module, "load_pipeline", lambda name, *rest: real(path, *rest))
     config = copy.deepcopy(config)
+    config["pipeline"] = {"name": str(path)}
     config["deform"]["gamma"] = True if named else "maybe"
     with pytest.raises(InputError) as caught:
         plan_run(config, stages.SPECS, stages.validate_config)
@@ -156,7 +152,7 @@ def test_merge_overrides_is_deep_and_rejects_unknown_settings():
         ({"budget__scaled_keys": ["stpes"]}, r"budget.scaled_keys: \['stpes'\] name no setting"),
         ({"relay__k": -2}, "relay.k"),
         ({"deform__steps": -1}, "deform.steps"),
-        ({"warmup__steps": -1, "pipeline__name": "4dgs"}, "warmup.steps"),
+        ({"warmup__steps": -1, "pipeline": pipeline_section("4dgs")}, "warmup.steps"),
         ({"scene__preset": "mars"}, "scene.preset: unknown synthetic preset 'mars'"),
         ({"scene__width": 0}, "scene.width"),
         # generated, it would be refused by the loader: refused before anything is generated
@@ -204,10 +200,10 @@ def test_pipeline_overrides_must_be_a_mapping_of_names(tmp_path, value):
 @pytest.mark.parametrize(
     ("pipeline", "fragment"),
     [
-        ({}, r"pipeline.name: expected the name of a pipelines/<name>.yaml, got None \(each"),
-        ({"name": None}, "pipeline.name: expected the name"),
-        ({"name": ""}, "pipeline.name: expected the name of a pipelines/<name>.yaml, got ''"),
-        ({"name": True}, "pipeline.name: expected the name of a pipelines/<name>.yaml, got True"),
+        ({}, "pipeline.name"),
+        ({"name": None}, "pipeline.name"),
+        ({"name": ""}, "pipeline.name"),
+        ({"name": True}, "pipeline.name"),
         ("4dgs", "pipeline: expected a config section .* or in an experiment file with `defaults"),
     ],
 )
@@ -238,10 +234,19 @@ def test_an_experiment_whose_package_line_lacks_an_underscore_says_so(config):
 
 def test_a_pipeline_name_yaml_reads_as_a_number_names_its_file(config, tmp_path, monkeypatch):
     # `name: 2024` in conf/pipeline/2024.yaml is an integer once YAML has read it
-    shutil.copy(pipelines_dir() / "4dgs.yaml", tmp_path / "2024.yaml")
-    monkeypatch.setattr(spec_module, "pipelines_dir", lambda: tmp_path)
-    config = {**copy.deepcopy(config), "pipeline": {"name": 2024}}
-    assert plan_run(config, STAGE_TYPES, validate_config).pipeline.name == "2024"
+    (tmp_path / "pipeline").mkdir()
+    (tmp_path / "pipeline" / "2024.yaml").write_text("name: 2024\nnodes: {w: {stage: warmup}}\n")
+    monkeypatch.setattr(spec_module, "config_dir", lambda: tmp_path)
+    section = {"name": 2024, "nodes": {"w": {"stage": "warmup"}}}
+    assert _plan(config, pipeline=section).pipeline.name == "2024"
+
+
+def test_nodes_that_differ_from_the_pipelines_file_are_refused(config):
+    # `pipeline.name=4dgs` alone would otherwise run relaygs's nodes labelled 4dgs
+    for changed in ({"name": "4dgs"}, {"nodes": {"w": {"stage": "warmup"}}}):
+        bad = {**copy.deepcopy(config), "pipeline": {**config["pipeline"], **changed}}
+        with pytest.raises(InputError, match=r"^pipeline: .*conf/pipeline/"):
+            plan_run(bad, STAGE_TYPES, validate_config)
 
 
 def test_a_pipeline_whose_stage_does_not_read_its_upstream_fails_in_the_plan(config, tmp_path):

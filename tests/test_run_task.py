@@ -13,7 +13,7 @@ from omegaconf import OmegaConf
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from conftest import WriteRecorder
-from fake_stages import TINY_SCENE, FakeStages, compose_config
+from fake_stages import TINY_SCENE, FakeStages, compose_config, pipeline_section
 from relaygs import errors
 from relaygs.app import task as task_module
 from relaygs.app.captions import CAPTION_HEIGHT
@@ -356,7 +356,7 @@ def test_evaluation_key_names_the_thread_count_only_on_the_cpu():
 
 def test_stages_receive_only_seed_train_and_their_section_with_overrides(base_config, tmp_path):
     fakes = FakeStages()
-    config = _with(base_config, pipeline__name="4dgs", deform__steps=7)
+    config = _with(base_config, pipeline=pipeline_section("4dgs"), deform__steps=7)
     result = _run(config, tmp_path / "run", fakes, overrides=["pipeline=4dgs", "deform.steps=7"])
     deform_cfg = dict(fakes.calls)["deform"]
     assert deform_cfg["deform"]["gamma"] is False

@@ -29,7 +29,7 @@ from omegaconf.errors import OmegaConfBaseException
 
 from relaygs.app.plan import group_value_error
 from relaygs.errors import InputError, one_line
-from relaygs.paths import pipelines_dir, require_creatable_folder
+from relaygs.paths import require_creatable_folder
 
 MULTIRUN_FLAGS = frozenset({"-m", "--multirun"})
 LAUNCH_FLAGS = MULTIRUN_FLAGS | {"-r", "--run"}
@@ -250,7 +250,7 @@ def check_group_choices(overrides: Sequence[Override], conf_dir: Path) -> None:
             if choice not in available:
                 raise InputError(
                     f"unknown {group} {choice!r} (available: {', '.join(available)})"
-                    f"{GROUP_HINTS.get(group, '')}{_half_added_pipeline(group, choice, conf_dir)}"
+                    f"{GROUP_HINTS.get(group, '')}"
                 )
         if group not in primary and not override.is_add():
             raise InputError(
@@ -268,18 +268,6 @@ def _experiment_groups(overrides: Sequence[Override], conf_dir: Path) -> set[str
             for name in _choices(override):
                 groups |= _defaults_entries(conf_dir / "experiment" / f"{name}.yaml").keys()
     return groups
-
-
-def _half_added_pipeline(group: str, choice: Any, conf_dir: Path) -> str:
-    """The hint for a pipeline whose pipelines/<name>.yaml exists without the
-    conf/pipeline/<name>.yaml that makes it a choice; empty otherwise."""
-    graph = pipelines_dir() / f"{choice}.yaml"
-    if group != "pipeline" or not isinstance(choice, str) or not graph.is_file():
-        return ""
-    return (
-        f"; {graph} exists, but a pipeline is chosen by its {conf_dir / group / choice}.yaml "
-        "too (docs/extending.md)"
-    )
 
 
 def check_group_sections(
