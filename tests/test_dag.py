@@ -6,6 +6,7 @@ from dataclasses import dataclass
 import pytest
 import torch
 
+from refusals import refused
 from relaygs import paths
 from relaygs.errors import InputError
 from relaygs.pipeline.artifact import Artifact
@@ -140,7 +141,7 @@ def test_the_shipped_pipelines_read_upstreams_their_stages_accept():
 
 
 def test_unknown_pipeline_name_lists_the_available_ones():
-    with pytest.raises(InputError, match=r"unknown pipeline 'nope': no .*pipeline/nope\.yaml \("):
+    with refused(InputError, "'nope'", "pipeline/nope.yaml"):
         load_pipeline("nope")
     with pytest.raises(InputError, match=r"\(available: .*relaygs"):
         load_pipeline("nope")
@@ -275,7 +276,7 @@ def test_missing_stage_functions_fail_before_any_work(tmp_path):
     store, stages = ArtifactStore(tmp_path), FakeStages()
     table = stages.table()
     del table["deform"]
-    with pytest.raises(InputError, match=r"no stage function for type\(s\) \['deform'\]"):
+    with refused(InputError, "'deform'"):
         run_pipeline(
             load_pipeline("relaygs"), table, FakeScene("s"), lambda n: BASE[n.stage], store
         )
@@ -343,7 +344,7 @@ def test_a_canonical_form_is_what_is_keyed_and_what_the_stage_runs_with(tmp_path
 def test_a_stage_that_returns_no_artifact_is_one_line_naming_it(tmp_path, returned):
     # before: AttributeError ('NoneType' object has no attribute 'stage', ... 'to_cpu_contiguous')
     table = {**FakeStages().table(), "decouple": lambda scene, upstream, cfg: returned}
-    with pytest.raises(InputError, match=r"stage 'decouple' returned a \w+, expected an Artifact"):
+    with refused(InputError, "'decouple'", "Artifact"):
         run_pipeline(
             load_pipeline("relaygs"),
             table,

@@ -12,6 +12,7 @@ import pytest
 import torch
 
 from conftest import stage_smoke_cfg
+from refusals import refused
 from relaygs.data import Scene
 from relaygs.errors import DivergenceError, Interrupted
 from relaygs.metrics import ssim
@@ -162,9 +163,7 @@ def test_non_finite_optimiser_step_stops_before_its_checkpoint(
 
     monkeypatch.setattr(TrainingSession, "apply_gradients", poisoned_at_step_4)
     cfg = stage_smoke_cfg(train={"checkpoint_every": 2})
-    with pytest.raises(
-        DivergenceError, match=r"'decouple' diverged at step 4: tensor 'all.opacity_logits'"
-    ):
+    with refused(DivergenceError, "'decouple'", "step 4", "'all.opacity_logits'"):
         _run("decouple", stage_scene, {}, cfg, tmp_path)
     checkpoints = tmp_path / "decouple" / f"{KEY}.ckpt"
     assert sorted(p.name for p in checkpoints.glob("step-*")) == [f"step-{2:012d}"]
@@ -190,7 +189,7 @@ def test_non_finite_loss_stops_the_stage(
         return loss * float("nan") if len(calls) == 6 else loss
 
     monkeypatch.setattr(relay_module, "photometric_loss", nan_at_sixth_step)
-    with pytest.raises(DivergenceError, match=r"'relay' diverged at step 6: tensor 'loss'"):
+    with refused(DivergenceError, "'relay'", "step 6", "'loss'"):
         SPECS["relay"].run(stage_scene, {"decouple": stage_decoupled}, stage_smoke_cfg())
 
 
