@@ -1,6 +1,7 @@
 """`python -m relaygs.run`: one-line errors before any work, and the Hydra wiring (run dirs,
 multirun, the sweep-summary callback) driven in-process on fake stages."""
 
+import ast
 import dataclasses
 import errno
 import io
@@ -12,6 +13,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pandas as pd
 import pytest
@@ -735,3 +737,32 @@ def test_the_command_line_fails_in_one_line_in_a_fresh_process(tmp_path):
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and "unknown pipeline 'nope'" in lines[0], done.stderr
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize(
+    ("overrides", "jobs"),
+    [
+        (["relay.k=8,16", "seed=0"], [["relay.k=8", "seed=0"], ["relay.k=16", "seed=0"]]),
+        (["seed=range(0,2)", "a=[1,2]"], [["seed=0", "a=[1,2]"], ["seed=1", "a=[1,2]"]]),
+        (
+            ["+c=x,y", "~d", "e='a b'"],
+            [["+c=x", "~d=null", "e='a b'"], ["+c=y", "~d=null", "e='a b'"]],
+        ),
+        (["relay.k=8,16", "relay.k=32"], [["relay.k=32"]]),  # the command line over params
+    ],
+)
+def test_sweep_jobs_are_the_basic_sweepers_combinations(overrides, jobs):
+    assert prelaunch.sweep_jobs(prelaunch.parse_overrides(overrides)) == jobs
+
+
+def test_an_interval_sweep_is_one_line_naming_it():
+    with refused(InputError, "k=interval(0,1)"):
+        prelaunch.sweep_jobs(prelaunch.parse_overrides(["k=interval(0,1)"]))
+
+
+def test_nothing_imports_hydras_private_modules():
+    for path in Path(prelaunch.__file__).parents[1].rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Import | ast.ImportFrom):
+                names = [getattr(node, "module", None) or "", *(alias.name for alias in node.names)]
+                assert not any(name.startswith("hydra._internal") for name in names), path
