@@ -126,27 +126,27 @@ def stage_scene(stage_scene_path: Path) -> Scene:
 def stage_decoupled(stage_scene: Scene) -> Artifact:
     """Decouple long enough to separate the movers, without density control (so each final
     Gaussian is still its initial point, moved a little)."""
-    from relaygs.stages import STAGES
+    from relaygs.stages import SPECS
 
     no_density = {"densify_until": 0, "opacity_reset_every": 0}
     cfg = stage_smoke_cfg(decouple={"steps": STAGE_DECOUPLE_STEPS, "densify": no_density})
-    return STAGES["decouple"](stage_scene, {}, cfg)
+    return SPECS["decouple"].run(stage_scene, {}, cfg)
 
 
 @pytest.fixture(scope="session")
 def stage_relayed(stage_scene: Scene, stage_decoupled: Artifact) -> Artifact:
     """Relay at the smoke budget (S = 2 copies), background frozen."""
-    from relaygs.stages import STAGES
+    from relaygs.stages import SPECS
 
-    return STAGES["relay"](stage_scene, {"decouple": stage_decoupled}, stage_smoke_cfg())
+    return SPECS["relay"].run(stage_scene, {"decouple": stage_decoupled}, stage_smoke_cfg())
 
 
 @pytest.fixture(scope="session")
 def stage_deformed(stage_scene: Scene, stage_relayed: Artifact) -> Artifact:
     """Deform at the smoke budget on the relay output."""
-    from relaygs.stages import STAGES
+    from relaygs.stages import SPECS
 
-    return STAGES["deform"](stage_scene, {"relay": stage_relayed}, stage_smoke_cfg())
+    return SPECS["deform"].run(stage_scene, {"relay": stage_relayed}, stage_smoke_cfg())
 
 
 @pytest.fixture

@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 import torch
+import yaml
 from hydra import compose, initialize_config_dir
 from omegaconf import DictConfig
 
@@ -17,9 +18,12 @@ from relaygs.paths import config_dir
 from relaygs.per_view import PER_VIEW
 from relaygs.pipeline import Artifact
 from relaygs.pipeline.dag import CanonicalFn
+from relaygs.pipeline.spec import pipeline_path
+from relaygs.stages import SPECS
 from relaygs.stages.common import LOGGED_SCALARS, logged_scalars
 
-STAGE_TYPES = ("decouple", "relay", "replicate", "warmup", "deform")
+STAGE_TYPES = tuple(SPECS)
+"""The real stage types: the app tests compose conf/config.yaml, which has a section each."""
 FAKE_CURVE = [[0, {"loss": 1.0}], [5, {"loss": 0.5}]]
 """What every fake stage stores as the scalars it logged while it trained."""
 TINY_SCENE = ["scene.frames=3", "scene.width=16", "scene.height=9"]
@@ -133,6 +137,11 @@ def compose_config(overrides: list[str], outputs: Path) -> DictConfig:
     """The app config composed with `overrides`, writing everything under `outputs`."""
     with initialize_config_dir(config_dir=str(config_dir()), version_base="1.3"):
         return compose("config", overrides=[*overrides, f"paths.outputs={outputs}"])
+
+
+def pipeline_section(name: str) -> dict[str, Any]:
+    """The `pipeline` section that choosing `pipeline=<name>` composes."""
+    return yaml.safe_load(pipeline_path(name).read_text(encoding="utf-8"))
 
 
 def _number(section: Mapping[str, Any]) -> float:

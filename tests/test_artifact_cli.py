@@ -76,7 +76,7 @@ def test_an_artifact_folder_that_cannot_be_read_is_one_problem_not_the_end(
     code, out, _ = _cli(capsys, store.root, "ls")
     assert code == 0 and KEY_A[:16] in out and "1 artifact(s)" in out
     code, out, _ = _cli(capsys, store.root, "verify")
-    assert code == 1 and f"{denied}: cannot be read (Permission denied)" in out
+    assert code == 1 and str(denied) in out and "Permission denied" in out
     assert _cli(capsys, store.root, "show", KEY_A[:8])[0] == 0
 
 
@@ -278,13 +278,9 @@ def test_eval_refuses_a_per_view_path_it_cannot_write_before_any_work(store, tmp
         assert caught.value.code == 2 and "--per-view" in err and str(target) in err
 
 
-def test_eval_names_a_missing_scene_and_a_bad_stride(store, capsys, tmp_path):
+def test_eval_names_a_missing_scene(store, capsys, tmp_path):
     code, _, err = _cli(capsys, store.root, "eval", KEY_A[:8], "--scene", str(tmp_path / "none"))
     assert code == 1 and str(tmp_path / "none") in err
-    with pytest.raises(SystemExit) as stop:
-        _cli(capsys, store.root, "eval", KEY_A[:8], "--scene", ".", "--frame-stride", "0")
-    assert stop.value.code == 2
-    assert "--frame-stride: expected an integer >= 1, got '0'" in capsys.readouterr().err
 
 
 def _stored_evaluation(store, model_key, model_stage):
@@ -406,7 +402,7 @@ def test_eval_refuses_a_scene_of_other_length(stage_decoupled, tiny_synth_scene,
     store, key = _store_model(tmp_path, stage_decoupled)
     code, out, err = _cli(capsys, store.root, "eval", key[:8], "--scene", str(tiny_synth_scene))
     assert code == 1 and out == "" and err.count("\n") == 1
-    assert f"the model was trained on 8 frames but {tiny_synth_scene} has 6" in err
+    assert str(tiny_synth_scene) in err and "8 frames" in err
 
 
 def test_eval_refuses_a_scene_with_other_train_cameras(
@@ -420,7 +416,7 @@ def test_eval_refuses_a_scene_with_other_train_cameras(
     store, key = _store_model(tmp_path, model.to_artifact({}))
     code, out, err = _cli(capsys, store.root, "eval", key[:8], "--scene", str(stage_scene_path))
     assert code == 1 and out == "" and err.count("\n") == 1
-    assert f"the model was trained on 3 train cameras but {stage_scene_path} has 27" in err
+    assert str(stage_scene_path) in err and "3 train cameras" in err
 
 
 @pytest.fixture
@@ -484,7 +480,7 @@ def test_eval_lineage_names_an_upstream_artifact_gc_removed(
     argv = ("eval", keys["deform"][:8], "--scene", str(stage_scene_path), "--lineage")
     code, out, err = _cli(capsys, store.root, *argv)
     assert code == 1 and out == "" and err.count("\n") == 1
-    assert f"needs decouple {keys['decouple'][:16]}, which is no longer in {store.root}" in err
+    assert keys["decouple"][:16] in err and str(store.root) in err
 
 
 def test_eval_lineage_names_a_damaged_upstream_artifact_before_any_output(
@@ -607,7 +603,7 @@ def test_a_model_trained_on_every_camera_is_told_to_load_none_as_test_cameras(
     store, key = _store_model(tmp_path, _model_held_out(stage_decoupled, []))
     argv = ("eval", key[:8], "--scene", str(stage_scene_path), "--frame-stride", "8")
     code, _, err = _cli(capsys, store.root, *argv)
-    assert code == 1 and "it trained on every camera: load the scene with no test cameras" in err
+    assert code == 1 and "every camera" in err and err.count("\n") == 1
     code, out, err = _cli(capsys, store.root, *argv, "--test-cameras", "[ ]")
     assert code == 0 and "(test cameras none)" in out and "num_test_images 0" in out
 
@@ -644,9 +640,7 @@ def test_recorded_test_cameras_the_scene_lacks_are_named_with_the_manifest(
     )
     code, out, err = _cli(capsys, store.root, "eval", key[:8], "--scene", str(stage_scene_path))
     assert code == 1 and out == "" and err.count("\n") == 1
-    assert "cameras [99] are not in the scene" in err
-    assert f"(loaded with the test_cameras that decouple {key[:16]}'s manifest records" in err
-    assert err.endswith("for its run; pass --test-cameras to choose others)\n")
+    assert "[99]" in err and key[:16] in err and "--test-cameras" in err
 
 
 def test_a_scene_error_the_recorded_loading_does_not_cause_is_not_blamed_on_it(
@@ -664,10 +658,7 @@ def test_a_scene_error_the_recorded_loading_does_not_cause_is_not_blamed_on_it(
     assert "does not exist" in err and "manifest" not in err
     code, _, err = _cli(capsys, store.root, "eval", key[:8], "--scene", str(stage_scene_path))
     assert code == 1 and err.count("\n") == 1
-    assert "max_points must be an integer >= 1, got 0" in err
-    assert err.endswith(
-        f"(loaded with the max_points that decouple {key[:16]}'s manifest records for its run)\n"
-    )
+    assert "max_points" in err and key[:16] in err and "manifest" in err
 
 
 def test_eval_renders_on_the_device_given_and_refuses_an_unusable_one(
@@ -696,24 +687,6 @@ def test_a_model_without_a_recorded_scene_gets_no_note(stored_deform, stage_scen
     argv = ("eval", key[:8], "--scene", str(stage_scene_path), "--frame-stride", "8")
     code, _, err = _cli(capsys, store.root, *argv, "--downscale", "2")  # another fingerprint
     assert code == 0 and err == ""
-
-
-@pytest.mark.parametrize("given", ["1,x", "-1", "1;5", "1,,5", "²", "\u0661", "", " "])
-def test_test_cameras_that_are_not_ids_are_a_usage_error(capsys, given, tmp_path):
-    with pytest.raises(SystemExit) as caught:
-        main(["eval", KEY_A[:8], "--scene", str(tmp_path), "--test-cameras", given])
-    out, err = capsys.readouterr()
-    assert caught.value.code == 2 and out == "" and err.count("\n") == 1
-    assert "argument --test-cameras: expected camera ids separated by commas" in err
-
-
-@pytest.mark.parametrize("given", ["0", "-2", "x"])
-def test_a_downscale_below_1_is_a_usage_error_naming_the_flag(capsys, given, tmp_path):
-    with pytest.raises(SystemExit) as caught:
-        main(["eval", KEY_A[:8], "--scene", str(tmp_path), "--downscale", given])
-    out, err = capsys.readouterr()
-    assert caught.value.code == 2 and out == "" and err.count("\n") == 1
-    assert f"argument --downscale: expected an integer >= 1, got '{given}'" in err
 
 
 @pytest.mark.parametrize(
@@ -761,15 +734,6 @@ def test_threads_is_set_before_the_model_loads(store, capsys, monkeypatch, torch
     assert (code, err, seen) == (1, "error: stopped\n", [wanted])
 
 
-@pytest.mark.parametrize("given", ["0", "-2", "x", "1.5", "1025"])
-def test_threads_outside_1_to_1024_is_a_one_line_usage_error(capsys, given):
-    with pytest.raises(SystemExit) as caught:
-        main(["eval", KEY_A[:8], "--scene", "s", "--threads", given])
-    out, err = capsys.readouterr()
-    assert caught.value.code == 2 and out == "" and err.count("\n") == 1
-    assert f"argument --threads: expected an integer in [1, 1024], got '{given}'" in err
-
-
 @pytest.mark.parametrize(
     "argv",
     [
@@ -784,5 +748,20 @@ def test_a_malformed_key_prefix_is_a_usage_error(store, capsys, argv):
     with pytest.raises(SystemExit) as stop:
         main(["--root", str(store.root), *argv])
     err = capsys.readouterr().err
-    assert stop.value.code == 2 and err.count("\n") == 1
-    assert "expected at least 4 hex digits (0-9, a-f)" in err
+    assert stop.value.code == 2 and err.count("\n") == 1 and "hex digits" in err
+
+
+BAD_FLAG_VALUES = [
+    *(("--test-cameras", given) for given in ["1,x", "-1", "1;5", "1,,5", "²", "\u0661", "", " "]),
+    *(("--downscale", given) for given in ["0", "-2", "x"]),
+    *(("--threads", given) for given in ["0", "-2", "x", "1.5", "1025"]),
+    ("--frame-stride", "0"),
+]
+
+
+@pytest.mark.parametrize(("flag", "given"), BAD_FLAG_VALUES)
+def test_a_bad_flag_value_is_a_one_line_usage_error_naming_the_flag(capsys, tmp_path, flag, given):
+    with pytest.raises(SystemExit) as caught:
+        main(["eval", KEY_A[:8], "--scene", str(tmp_path), flag, given])
+    out, err = capsys.readouterr()
+    assert caught.value.code == 2 and out == "" and err.count("\n") == 1 and flag in err

@@ -9,7 +9,7 @@ from conftest import stage_smoke_cfg
 from relaygs.data import Camera
 from relaygs.errors import InputError
 from relaygs.model import GaussianSet
-from relaygs.stages import STAGES
+from relaygs.stages import SPECS
 from relaygs.stages.carve import (
     MAX_REFINED_VOXELS,
     SUBDIVISIONS,
@@ -120,7 +120,7 @@ def test_carved_copies_one_per_segment_capped_and_replica_when_nothing_moves(
     upstream = {"decouple": stage_decoupled}
     relay = {"steps": 1, "seed_copies": "carve", "seed_points": 40, "hull_residual": 0.1}
     carved = SceneModel.from_artifact(
-        STAGES["relay"](stage_scene, upstream, stage_smoke_cfg(relay=relay))
+        SPECS["relay"].run(stage_scene, upstream, stage_smoke_cfg(relay=relay))
     )
     segments = carved.foreground.buffers[SEGMENT]
     per_segment = torch.bincount(segments.long(), minlength=carved.num_segments)
@@ -130,10 +130,10 @@ def test_carved_copies_one_per_segment_capped_and_replica_when_nothing_moves(
     # nothing exceeds a residual of 0.99: every hull is empty and each copy is the replica
     relay = {"steps": 1, "seed_copies": "carve", "hull_residual": 0.99}
     fallback = SceneModel.from_artifact(
-        STAGES["relay"](stage_scene, upstream, stage_smoke_cfg(relay=relay))
+        SPECS["relay"].run(stage_scene, upstream, stage_smoke_cfg(relay=relay))
     )
     replicated = SceneModel.from_artifact(
-        STAGES["relay"](
+        SPECS["relay"].run(
             stage_scene, upstream, stage_smoke_cfg(relay={"steps": 1, "seed_copies": "replicate"})
         )
     )

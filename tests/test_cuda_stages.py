@@ -8,7 +8,7 @@ import torch
 
 from conftest import STAGE_K, stage_smoke_cfg
 from relaygs.renders import RenderSettings, write_renders
-from relaygs.stages import STAGES, relay_seed
+from relaygs.stages import SPECS, relay_seed
 from relaygs.stages.relay import RelayConfig
 from relaygs.stages.scene_model import SEGMENT, SceneModel, core_only
 from relaygs.stages.views import TrainViews
@@ -19,9 +19,9 @@ pytestmark = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUD
 
 def _lineage(scene, device):
     cfg = stage_smoke_cfg(train={"device": device, "progress": False})
-    decoupled = STAGES["decouple"](scene, {}, cfg)
-    relayed = STAGES["relay"](scene, {"decouple": decoupled}, cfg)
-    return [decoupled, relayed, STAGES["deform"](scene, {"relay": relayed}, cfg)]
+    decoupled = SPECS["decouple"].run(scene, {}, cfg)
+    relayed = SPECS["relay"].run(scene, {"decouple": decoupled}, cfg)
+    return [decoupled, relayed, SPECS["deform"].run(scene, {"relay": relayed}, cfg)]
 
 
 def test_the_smoke_lineage_on_the_gpu_matches_the_cpu(stage_scene):

@@ -149,7 +149,8 @@ def test_sweep_axes_keep_each_values_type():
 
 def test_booleans_stay_booleans_and_mixed_axes_become_text(tmp_path):
     axes = SweepAxes({"relay.k": [8, None]}, {"relay.k": None})
-    config = {"deform": {"gamma": True}, "variant": "x", "pipeline": {"name": "relaygs"}}
+    pipeline = {"name": "relaygs", "description": "d", "nodes": {"a": {"stage": "decouple"}}}
+    config = {"deform": {"gamma": True}, "variant": "x", "pipeline": pipeline}
     params = job_hparams({**config, "paths": {"outputs": "/x"}}, axes, "all")
     assert params == {
         "relay.k": "None",

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 import torch
 
+from refusals import refused
 from relaygs.data import Scene, load_scene
 from relaygs.data.colmap import (
     ColmapCamera,
@@ -167,7 +168,7 @@ def test_a_multiview_scene_json_that_is_an_array_is_refused(multiview_copy: Path
 def test_export_refuses_a_source_scene_json_that_is_not_an_object(tiny_synth_copy: Path, tmp_path):
     scene = load_scene(tiny_synth_copy)
     (tiny_synth_copy / "scene.json").write_text("[]")
-    with pytest.raises(InputError, match=r"scene\.json: expected a JSON object with fields"):
+    with refused(InputError, "scene.json"):
         export_multiview(scene, tmp_path / "out")
 
 
@@ -527,7 +528,7 @@ def test_an_images_file_without_its_points2d_lines_is_refused_naming_the_line(tm
 def test_folder_without_a_complete_model_is_refused(tmp_path: Path):
     write_model(tmp_path, _two_image_model(), binary=False)
     (tmp_path / "points3D.txt").unlink()
-    with pytest.raises(InputError, match=r"expected a COLMAP model \(cameras, images, points3D"):
+    with refused(InputError, "COLMAP model"):
         read_model(tmp_path)
 
 
@@ -537,7 +538,7 @@ def test_binary_camera_of_unknown_model_id_is_refused(tmp_path: Path):
     data = bytearray(path.read_bytes())
     data[12:16] = struct.pack("<i", 99)  # after the count (Q) and camera id (i): the model id
     path.write_bytes(bytes(data))
-    with pytest.raises(InputError, match=r"cameras\.bin: camera 1 has unknown model id 99"):
+    with refused(InputError, "cameras.bin", "99"):
         read_model(tmp_path)
 
 
@@ -549,7 +550,7 @@ def _binary_images(name: bytes, observations: int, observation_bytes: int) -> by
 def test_binary_image_name_without_its_nul_is_refused(tmp_path: Path):
     write_model(tmp_path, _two_image_model(), binary=True)
     (tmp_path / "images.bin").write_bytes(_binary_images(b"cam00.png", 0, 0)[:-8])
-    with pytest.raises(InputError, match=r"images\.bin: unterminated image name at byte 72"):
+    with refused(InputError, "images.bin", "byte 72"):
         read_model(tmp_path)
 
 
@@ -557,7 +558,7 @@ def test_binary_image_with_fewer_2d_points_than_declared_is_refused(tmp_path: Pa
     write_model(tmp_path, _two_image_model(), binary=True)
     # 3 observations of 24 bytes declared, 2 present
     (tmp_path / "images.bin").write_bytes(_binary_images(b"cam00.png\x00", 3, 48))
-    with pytest.raises(InputError, match=r"images\.bin: file is truncated at byte 90"):
+    with refused(InputError, "images.bin", "byte 90"):
         read_model(tmp_path)
 
 
@@ -614,14 +615,9 @@ def test_image_whose_size_differs_from_its_colmap_camera_is_refused(multiview_co
 
 
 def test_test_cameras_beyond_the_camera_folders_are_refused(multiview_root: Path):
-    with pytest.raises(
-        InputError,
-        match=r"test_cameras: cameras \[99\] are not in .* 0\.\.30, one per camXX folder\); hold "
-        r"out only cameras it has \(or none\), e.g. scene\.loader\.test_cameras=\[0\] "
-        r"\(artifacts commands: --test-cameras 0\)$",
-    ):
+    with refused(InputError, "[99]", "scene.loader.test_cameras=[0]", "--test-cameras 0"):
         load_scene(multiview_root, test_cameras=[0, 99])
-    with pytest.raises(InputError, match=r"^scene\.loader\.test_cameras: cameras \[99\] are not"):
+    with refused(InputError, "scene.loader.test_cameras", "[99]"):
         load_scene(multiview_root, test_cameras=[99], option_prefix="scene.loader.")
 
 

@@ -13,6 +13,7 @@ import cv2
 import numpy as np
 import pytest
 
+from refusals import refused
 from relaygs.data import load_scene
 from relaygs.data.camera import check_intrinsics, check_rigid
 from relaygs.data.imageio import image_size, read_mask, read_rgb
@@ -274,7 +275,7 @@ def test_jpeg_size_walks_to_the_end_marker(variant: str):
     jpeg = cv2.imencode(".jpg", pixels, params)[1].tobytes()
     assert image_size(jpeg + appended, Path("a.jpg")) == (40, 24)
     for cut in (len(jpeg) - 2, len(jpeg) * 6 // 10, 40):
-        with pytest.raises(InputError, match=r"a\.jpg: damaged image file \(no JPEG end marker"):
+        with refused(InputError, "a.jpg", "JPEG end marker"):
             image_size(jpeg[:cut], Path("a.jpg"))
 
 
@@ -554,9 +555,7 @@ def test_a_batch_of_poses_names_the_first_bad_one_and_non_finite_entries():
     )
     w2c[1, 2] = np.eye(4)
     w2c[0, 1, 3] = [0.0, 0.0, 1.0, 1.0]
-    with pytest.raises(
-        InputError, match=r"^poses at \[0\]\[1\] has last row \[0\.0, 0\.0, 1\.0, 1\.0\];"
-    ):
+    with refused(InputError, "poses at [0][1]", "[0.0, 0.0, 1.0, 1.0]"):
         check_rigid(w2c, "poses")
 
 
@@ -666,7 +665,7 @@ PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
     ids=["cut in IHDR", "no IHDR first"],
 )
 def test_png_without_a_whole_ihdr_header_has_no_size(data: bytes):
-    with pytest.raises(InputError, match=r"a.png: not a readable image \(truncated PNG header\)"):
+    with refused(InputError, "a.png", "truncated PNG header"):
         image_size(data, Path("a.png"))
 
 
@@ -682,5 +681,5 @@ def test_files_opencv_cannot_decode_are_refused_by_the_pixel_readers(tmp_path: P
 def test_float_images_are_refused_not_scaled_as_integers(tmp_path: Path):
     path = tmp_path / "frame.tiff"
     assert cv2.imwrite(str(path), np.full((3, 4, 3), 0.5, np.float32))
-    with pytest.raises(InputError, match="float32 pixels, expected an 8- or 16-bit image"):
+    with refused(InputError, "float32"):
         read_rgb(path, 4, 3)

@@ -8,7 +8,7 @@ from omegaconf import OmegaConf
 from relaygs import paths
 from relaygs.app.plan import scale_steps
 from relaygs.model import paper_schedule
-from relaygs.stages import BUDGETS, CONFIGS, EvalSettings, TrainSettings
+from relaygs.stages import BUDGETS, SPECS, EvalSettings, TrainSettings
 from relaygs.stages.config import json_ready
 
 EXPERIMENTS = ("ablation_k", "ablation_components", "baseline", "budget", "smoke")
@@ -180,8 +180,8 @@ def _defaults(settings_class):
 
 def test_stage_groups_hold_exactly_the_stage_defaults(composer):
     cfg = OmegaConf.to_container(composer(["budget=paper"]), resolve=True)
-    for stage, settings_class in CONFIGS.items():
-        assert cfg[stage] == _defaults(settings_class), stage
+    for stage, spec in SPECS.items():
+        assert cfg[stage] == _defaults(spec.settings), stage
     assert cfg["train"] == _defaults(TrainSettings)
     assert cfg["eval"] == _defaults(EvalSettings)
 

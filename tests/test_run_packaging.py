@@ -1,6 +1,6 @@
-"""conf/, pipelines/ and the native kernels' C++ source ship inside the package: the `_data`
-links and pyproject's package-data globs cover every file, so a regular install finds the same
-configs as the repository and can build the kernels."""
+"""conf/ (the pipelines included) and the native kernels' C++ source ship inside the package:
+the `_data` link and pyproject's package-data globs cover every file, so a regular install
+finds the same configs as the repository and can build the kernels."""
 
 from pathlib import Path
 
@@ -42,7 +42,6 @@ def test_a_checkout_uses_its_own_conf_folder(monkeypatch, tmp_path):
 
 def test_packaged_data_links_point_at_the_repository_folders():
     assert (paths.PACKAGED_DATA_DIR / "conf").resolve() == paths.REPO_ROOT / "conf"
-    assert (paths.PACKAGED_DATA_DIR / "pipelines").resolve() == paths.REPO_ROOT / "pipelines"
 
 
 def test_package_data_globs_cover_every_config_pipeline_and_kernel_source_file(pyproject):
@@ -54,8 +53,7 @@ def test_package_data_globs_cover_every_config_pipeline_and_kernel_source_file(p
     }
     expected = {
         f"_data/{path.relative_to(paths.REPO_ROOT).as_posix()}"
-        for folder in ("conf", "pipelines")
-        for path in Path(paths.REPO_ROOT, folder).rglob("*")
+        for path in Path(paths.REPO_ROOT, "conf").rglob("*")
         if path.is_file()
     }
     native = paths.PACKAGE_DIR / "splat" / "native"

@@ -12,6 +12,7 @@ import pytest
 from omegaconf import OmegaConf
 
 from fake_stages import compose_config
+from refusals import refused
 from relaygs.app import scenes
 from relaygs.app.scenes import prepare_scene, scene_provenance, scene_spec, synthetic_folder
 from relaygs.data import load_scene
@@ -80,7 +81,7 @@ def test_a_preset_description_is_no_generation_parameter(tmp_path, monkeypatch):
 def test_a_preset_function_without_a_stable_name_is_refused_in_one_line(tmp_path, monkeypatch):
     edited = dataclasses.replace(PRESETS["juggle"], build=lambda times, effects, seed: [])
     monkeypatch.setitem(PRESETS, "juggle", edited)
-    with pytest.raises(InputError, match=r"^PRESETS\['juggle'\]\.build: expected a module-level"):
+    with refused(InputError, "PRESETS['juggle'].build"):
         synthetic_folder(scene_spec(TINY), tmp_path)
 
 
@@ -103,7 +104,7 @@ def test_preset_test_cameras_beyond_its_rig_are_refused_before_generation(monkey
     monkeypatch.setitem(
         PRESETS, "juggle", dataclasses.replace(PRESETS["juggle"], test_cameras=(0, 99))
     )
-    with pytest.raises(InputError, match=r"PRESETS\['juggle'\]\.test_cameras .* \[0, 99\] must be"):
+    with refused(InputError, "PRESETS['juggle'].test_cameras", "[0, 99]"):
         scene_spec(TINY)
 
 
@@ -133,7 +134,7 @@ def test_effects_none_is_no_effects_as_in_synth(tmp_path, none):
 
 
 def test_none_among_effect_names_is_refused():
-    with pytest.raises(InputError, match=r"scene\.effects: unknown effect 'none'.*'none' alone"):
+    with refused(InputError, "scene.effects", "'none'"):
         scene_spec({**TINY, "effects": ["none", "nonrigid"]})
 
 
@@ -174,9 +175,9 @@ def test_a_capture_path_is_loaded_in_place(tiny_synth_scene):
 
 def test_loader_errors_of_a_capture_name_the_runs_option(tiny_synth_scene, tmp_path):
     spec = scene_spec({**TINY, "path": str(tiny_synth_scene), "loader": {"test_cameras": [99]}})
-    with pytest.raises(InputError, match=r"^scene\.loader\.test_cameras: cameras \[99\] are not"):
+    with refused(InputError, "scene.loader.test_cameras", "[99]"):
         prepare_scene(spec, tmp_path)
-    with pytest.raises(InputError, match=r"^loader option test_cameras: cameras \[99\] are not"):
+    with refused(InputError, "test_cameras", "[99]"):
         load_scene(tiny_synth_scene, test_cameras=[99])
 
 
@@ -203,7 +204,7 @@ def test_capture_paths_must_exist_and_have_a_known_layout(tmp_path):
     with pytest.raises(InputError, match=r"scene\.path: .*missing does not exist"):
         scene_spec({**TINY, "path": str(tmp_path / "missing")})
     (tmp_path / "frames.txt").write_text("not a scene")
-    with pytest.raises(InputError, match=r"scene\.path: .*frames\.txt is not a folder"):
+    with refused(InputError, "scene.path", "frames.txt"):
         scene_spec({**TINY, "path": str(tmp_path / "frames.txt")})
     with pytest.raises(InputError, match="unknown scene layout"):
         scene_spec({**TINY, "path": str(tmp_path)})
@@ -217,7 +218,7 @@ def test_held_out_cameras_within_the_rig_are_accepted_before_generation():
 
 
 def test_unknown_scene_fields_are_rejected():
-    with pytest.raises(InputError, match=r"scene: unknown field\(s\) \['colour'\]"):
+    with refused(InputError, "scene", "'colour'"):
         scene_spec({**TINY, "colour": "red"})
 
 

@@ -2,16 +2,16 @@
 
 from __future__ import annotations
 
+import importlib
 from dataclasses import replace
 from pathlib import Path
 
 import pytest
 import torch
 
-from relaygs.app.suite import load_stage_suite
 from relaygs.errors import InputError
 from relaygs.model import BACKGROUND_DENSIFY, FOREGROUND_DENSIFY, DensityController, GaussianSet
-from relaygs.stages import BUDGETS, CONFIGS, SCHEMA_VERSIONS, STAGES, budgets, validate_config
+from relaygs.stages import BUDGETS, SPECS, StageSpec, budgets, validate_config
 from relaygs.stages.decouple import DecoupleConfig
 from relaygs.stages.deform import DeformConfig
 from relaygs.stages.relay import RelayConfig
@@ -19,57 +19,30 @@ from relaygs.stages.train_settings import TrainSettings
 from relaygs.stages.warmup import WarmupConfig
 
 
-def test_every_stage_has_function_config_and_schema() -> None:
-    expected = {"decouple", "relay", "deform", "warmup", "replicate"}
-    assert set(STAGES) == set(CONFIGS) == set(SCHEMA_VERSIONS) == expected
-    assert all(isinstance(version, int) and version >= 1 for version in SCHEMA_VERSIONS.values())
-
-
-def _register_mine(monkeypatch: pytest.MonkeyPatch, left_out: list[str], version: object = 2):
-    """Register stage type 'mine' (warm-up's function and settings) in every registry but
-    `left_out`."""
-    from relaygs import stages
-
-    values = {"STAGES": STAGES["warmup"], "CONFIGS": CONFIGS["warmup"], "UPSTREAM": ()}
-    for name in stages.REGISTRIES:
-        if name not in left_out:
-            monkeypatch.setitem(getattr(stages, name), "mine", values.get(name, version))
-
-
-@pytest.mark.parametrize(
-    "registry", ["CONFIGS", "SCHEMA_VERSIONS", "CONFIGS and SCHEMA_VERSIONS", "UPSTREAM", "STAGES"]
-)
-def test_a_stage_type_missing_from_a_registry_is_one_line_before_any_config_is_read(
-    monkeypatch: pytest.MonkeyPatch, registry: str
-) -> None:
-    # before: without SCHEMA_VERSIONS the stage was keyed as version 1 whatever its module
-    # said (a bump kept reusing stale artifacts); without CONFIGS, "unknown stage type";
-    # without UPSTREAM, its pipelines' upstream went unchecked until the stage ran; without
-    # STAGES, its config section was refused as an unknown top-level setting
-    _register_mine(monkeypatch, registry.split(" and "))
-    line = f"stage type 'mine' is not registered in {registry} of"
-    with pytest.raises(InputError, match=line):
-        load_stage_suite()
-    with pytest.raises(InputError, match=line):
-        validate_config("mine", {"mine": {}})
+def test_each_stage_module_declares_the_spec_it_is_listed_under() -> None:
+    for name, spec in SPECS.items():
+        module = importlib.import_module(f"relaygs.stages.{name}")
+        assert module.SPEC is spec and spec.run.__name__ == name
+        assert set(spec.upstream) <= set(SPECS)
 
 
 @pytest.mark.parametrize("version", ["1", 0, True])
-def test_a_schema_version_that_is_no_integer_from_1_is_refused(monkeypatch, version) -> None:
-    _register_mine(monkeypatch, [], version)
-    with pytest.raises(InputError, match="'mine': its SCHEMA_VERSION must be an integer >= 1"):
-        load_stage_suite()
+def test_a_schema_version_that_is_no_integer_from_1_is_refused(version) -> None:
+    # before: a stage left out of SCHEMA_VERSIONS was keyed as version 1 whatever its module
+    # said, so a bump kept reusing stale artifacts
+    with pytest.raises(InputError, match="'mine'"):
+        StageSpec("mine", SPECS["warmup"].run, WarmupConfig, version)
 
 
-def test_a_budget_section_missing_from_sections_is_one_line(
+def test_a_budget_section_that_is_no_stage_type_is_one_line(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     # before: left out of BUDGETS without a word, so tests trained it at its paper steps
     (tmp_path / "budget").mkdir()
     (tmp_path / "budget" / "tiny.yaml").write_text("budget: {name: tiny}\nmine: {steps: 2}\n")
     monkeypatch.setattr(budgets, "config_dir", lambda: tmp_path)
-    with pytest.raises(InputError, match=r"tiny.yaml: section\(s\) \['mine'\] not in SECTIONS"):
-        budgets.load_budget("tiny")
+    with pytest.raises(InputError, match=r"tiny.yaml: section\(s\) \['mine'\]"):
+        budgets.load_budget("tiny", ("train", "warmup"))
 
 
 def test_paper_defaults() -> None:
@@ -80,13 +53,13 @@ def test_paper_defaults() -> None:
     deform = DeformConfig.from_config({})
     assert (deform.steps, deform.isolate_fg_bg, deform.gamma) == (20000, True, True)
     assert (deform.plane_smoothness, deform.time_smoothness, deform.time_l1) == (2e-4, 1e-3, 1e-4)
-    assert CONFIGS["warmup"].from_config({}).steps == 3000
+    assert SPECS["warmup"].settings.from_config({}).steps == 3000
     train = TrainSettings.from_config({})
     assert (train.batch_views, train.ssim_weight) == (4, 0.2)
 
 
 @pytest.mark.parametrize("budget", sorted(BUDGETS))
-@pytest.mark.parametrize("stage", sorted(STAGES))
+@pytest.mark.parametrize("stage", sorted(SPECS))
 def test_budgets_validate(budget: str, stage: str) -> None:
     validate_config(stage, BUDGETS[budget])
 

@@ -14,7 +14,7 @@ from conftest import stage_smoke_cfg
 from relaygs.data import Scene, View
 from relaygs.errors import InputError
 from relaygs.pipeline.artifact import Artifact
-from relaygs.stages import STAGES, SceneModel
+from relaygs.stages import SPECS, SceneModel
 from relaygs.stages.decouple import straight_through_mask
 from relaygs.stages.views import TrainViews
 
@@ -80,14 +80,14 @@ def test_a_decouple_that_marks_no_foreground_says_so(
     stage_scene: Scene, mask_init: float, noted: bool
 ) -> None:
     cfg = stage_smoke_cfg(decouple={"steps": 2, "mask_init": mask_init})
-    artifact = STAGES["decouple"](stage_scene, {}, cfg)
+    artifact = SPECS["decouple"].run(stage_scene, {}, cfg)
     assert (artifact.meta["metrics"]["num_fg"] == 0) == noted
     note = decouple_module.NO_FOREGROUND_NOTE.format(steps=2)
     assert artifact.notes == ((note,) if noted else ())  # said by every run that uses it
 
 
 def test_warmup_is_all_background(stage_scene: Scene) -> None:
-    artifact = STAGES["warmup"](stage_scene, {}, stage_smoke_cfg())
+    artifact = SPECS["warmup"].run(stage_scene, {}, stage_smoke_cfg())
     assert artifact.stage == "warmup"
     assert artifact.meta["counts"]["fg"] == 0
     assert not artifact.tensors["is_fg"].any()
@@ -137,7 +137,7 @@ def test_every_batch_has_frame0_views_rendered_without_the_mask(
         },
         train={"batch_views": batch_views},
     )
-    STAGES["decouple"](stage_scene, {}, cfg)
+    SPECS["decouple"].run(stage_scene, {}, cfg)
     assert len(batches) == steps
     for views, calls in zip(batches, renders, strict=True):
         assert len(views) == batch_views
@@ -158,5 +158,5 @@ def test_a_scene_in_huge_units_is_refused_before_its_sizes_freeze(stage_scene: S
     )
     cfg = stage_smoke_cfg(**{stage: {"steps": 1}})
     with pytest.raises(InputError, match=r"initial points lie more than 2.2e\+04 units from"):
-        STAGES[stage](huge, {}, cfg)
+        SPECS[stage].run(huge, {}, cfg)
     common_module.initial_gaussians(stage_scene, None, 0.1, 0, 0)  # its own units: fine

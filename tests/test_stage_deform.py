@@ -15,7 +15,7 @@ from relaygs.data import Scene, View, load_scene
 from relaygs.field import DeformationField, Deltas
 from relaygs.model import GaussianSet
 from relaygs.pipeline.artifact import Artifact
-from relaygs.stages import STAGES, SceneModel, evaluate
+from relaygs.stages import SPECS, SceneModel, evaluate
 from relaygs.stages.motion import deformed_parts
 from relaygs.stages.scene_model import build_field
 from relaygs.stages.views import TrainViews
@@ -93,8 +93,8 @@ def test_deform_output(stage_deformed: Artifact, stage_scene: Scene) -> None:
 
 def test_four_dgs_baseline_has_one_mlp_set_and_no_gamma(stage_scene: Scene) -> None:
     cfg = stage_smoke_cfg(warmup={"steps": 4}, deform={"isolate_fg_bg": False, "gamma": False})
-    warm = STAGES["warmup"](stage_scene, {}, cfg)
-    deformed = STAGES["deform"](stage_scene, {"warmup": warm}, cfg)
+    warm = SPECS["warmup"].run(stage_scene, {}, cfg)
+    deformed = SPECS["deform"].run(stage_scene, {"warmup": warm}, cfg)
     model = SceneModel.from_artifact(deformed)
     assert list(model.field.mlp_sets) == ["all"]
     assert "gamma" not in model.foreground.params and len(model.foreground) == 0
@@ -105,18 +105,20 @@ def test_colour_affine_only_when_the_scene_asks(
 ) -> None:
     plain = load_scene(stage_scene_path, max_points=500, effects=[])
     cfg = stage_smoke_cfg(deform={"steps": 2})
-    deformed = STAGES["deform"](plain, {"decouple": stage_decoupled}, cfg)
+    deformed = SPECS["deform"].run(plain, {"decouple": stage_decoupled}, cfg)
     assert not any(name.startswith("affine.") for name in deformed.tensors)
     assert deformed.meta["affine_cameras"] == []
     forced = stage_smoke_cfg(deform={"steps": 2, "color_affine": True})
-    assert "affine.offset" in STAGES["deform"](plain, {"decouple": stage_decoupled}, forced).tensors
+    assert (
+        "affine.offset" in SPECS["deform"].run(plain, {"decouple": stage_decoupled}, forced).tensors
+    )
 
 
 def test_no_copies_shows_the_single_copy_at_every_frame(
     stage_scene: Scene, stage_decoupled: Artifact
 ) -> None:
     cfg = stage_smoke_cfg(deform={"steps": 2})
-    model = SceneModel.from_artifact(STAGES["deform"](stage_scene, {"d": stage_decoupled}, cfg))
+    model = SceneModel.from_artifact(SPECS["deform"].run(stage_scene, {"d": stage_decoupled}, cfg))
     for frame in (0, 3, stage_scene.num_frames - 1):
         assert model.foreground_rows(frame).numel() == len(model.foreground) > 0
 
@@ -127,7 +129,7 @@ def test_training_loss_falls(stage_scene: Scene, stage_relayed: Artifact) -> Non
         key: {**smoke[key], "opacity_reset_every": 0} for key in ("densify_bg", "densify_fg")
     }
     cfg = stage_smoke_cfg(deform={"steps": 60, **no_reset})
-    metrics = STAGES["deform"](stage_scene, {"relay": stage_relayed}, cfg).meta["metrics"]
+    metrics = SPECS["deform"].run(stage_scene, {"relay": stage_relayed}, cfg).meta["metrics"]
     assert metrics["final_loss"] < metrics["initial_loss"]
 
 
@@ -142,7 +144,7 @@ def test_test_metrics_are_finite(stage_deformed: Artifact, stage_scene: Scene) -
 
 def test_several_frames_per_step(stage_scene: Scene, stage_relayed: Artifact) -> None:
     cfg = stage_smoke_cfg(deform={"steps": 3, "frames_per_step": 3})
-    deformed = STAGES["deform"](stage_scene, {"relay": stage_relayed}, cfg)
+    deformed = SPECS["deform"].run(stage_scene, {"relay": stage_relayed}, cfg)
     assert deformed.meta["metrics"]["steps"] == 3
     assert torch.isfinite(deformed.tensors["fg.means"]).all()
 
@@ -246,7 +248,7 @@ def deform_spy(stage_scene: Scene, stage_relayed: Artifact) -> _DeformSpy:
         patch.setattr(deform_module, "photometric_loss", photometric_loss)
         patch.setattr(deform_module, "deformed_parts", deformed_parts)
         patch.setattr(DeformationField, "regularisers", regularisers)
-        STAGES["deform"](stage_scene, {"relay": stage_relayed}, cfg)
+        SPECS["deform"].run(stage_scene, {"relay": stage_relayed}, cfg)
     return spy
 
 

@@ -11,7 +11,7 @@ from conftest import STAGE_K, stage_smoke_cfg
 from relaygs.data import Scene, load_scene
 from relaygs.errors import InputError
 from relaygs.pipeline.artifact import Artifact
-from relaygs.stages import STAGES, SceneModel
+from relaygs.stages import SPECS, SceneModel
 from relaygs.stages.segments import SegmentTargets, num_segments, pseudo_frames, segment_frames
 from relaygs.stages.views import TrainViews
 
@@ -100,14 +100,16 @@ def test_relay_shows_each_frames_copy(stage_relayed: Artifact) -> None:
 
 def test_trained_background_changes(stage_scene: Scene, stage_decoupled: Artifact) -> None:
     cfg = stage_smoke_cfg(relay={"steps": 4, "freeze_background": False})
-    relayed = STAGES["relay"](stage_scene, {"decouple": stage_decoupled}, cfg)
+    relayed = SPECS["relay"].run(stage_scene, {"decouple": stage_decoupled}, cfg)
     assert not torch.equal(relayed.tensors["bg.means"], stage_decoupled.tensors["bg.means"])
 
 
 def test_replicate_copies_the_foreground_untrained(
     stage_scene: Scene, stage_decoupled: Artifact
 ) -> None:
-    replicated = STAGES["replicate"](stage_scene, {"decouple": stage_decoupled}, stage_smoke_cfg())
+    replicated = SPECS["replicate"].run(
+        stage_scene, {"decouple": stage_decoupled}, stage_smoke_cfg()
+    )
     n_fg = stage_decoupled.meta["counts"]["fg"]
     assert replicated.meta["counts"]["fg"] == 2 * n_fg
     for copy in range(2):
@@ -121,14 +123,14 @@ def test_replicate_copies_the_foreground_untrained(
 
 def test_relay_needs_a_decouple_upstream(stage_scene: Scene, stage_relayed: Artifact) -> None:
     with pytest.raises(InputError, match="upstream must be one of"):
-        STAGES["relay"](stage_scene, {"x": stage_relayed}, stage_smoke_cfg())
+        SPECS["relay"].run(stage_scene, {"x": stage_relayed}, stage_smoke_cfg())
     with pytest.raises(InputError, match="exactly one upstream"):
-        STAGES["relay"](stage_scene, {}, stage_smoke_cfg())
+        SPECS["relay"].run(stage_scene, {}, stage_smoke_cfg())
 
 
 def test_relay_without_pseudo_views_runs(stage_scene: Scene, stage_decoupled: Artifact) -> None:
     cfg = stage_smoke_cfg(relay={"steps": 3, "pseudo_views": False})
-    relayed = STAGES["relay"](stage_scene, {"decouple": stage_decoupled}, cfg)
+    relayed = SPECS["relay"].run(stage_scene, {"decouple": stage_decoupled}, cfg)
     assert relayed.meta["config"]["section"]["pseudo_views"] is False
     assert torch.isfinite(relayed.tensors["fg.means"]).all()
 
@@ -139,7 +141,7 @@ def test_one_frame_segments_give_a_copy_per_frame(
     """k = 1 (the `small` budget's setting): S = T copies, each frame shows its own, and the
     pseudo-view of a one-frame segment is that frame's image, with or without blending."""
     cfg = stage_smoke_cfg(relay={"steps": 3, "k": 1})
-    relayed = STAGES["relay"](stage_scene, {"decouple": stage_decoupled}, cfg)
+    relayed = SPECS["relay"].run(stage_scene, {"decouple": stage_decoupled}, cfg)
     frames = stage_scene.num_frames
     assert (relayed.meta["k"], relayed.meta["num_segments"]) == (1, frames)
     model = SceneModel.from_artifact(relayed)
@@ -164,7 +166,7 @@ def test_a_step_on_one_segment_leaves_the_other_copies_untouched(
     """Replicated (identical) copies, one relay step: the step renders and fits only the copy
     of the segment it drew, so exactly one copy moves and every other stays bit-identical."""
     cfg = stage_smoke_cfg(relay={"steps": 1, "seed_copies": "replicate"})
-    relayed = STAGES["relay"](stage_scene, {"decouple": stage_decoupled}, cfg)
+    relayed = SPECS["relay"].run(stage_scene, {"decouple": stage_decoupled}, cfg)
     segment = relayed.tensors["fg.buffer.segment"]
     upstream = {
         name: tensor
@@ -203,7 +205,7 @@ def test_stages_refuse_upstreams_they_cannot_use(
     stage_scene: Scene, stage_decoupled: Artifact, tiny_synth_scene
 ) -> None:
     with pytest.raises(InputError, match=r"'decouple': takes no upstream artifact, got \['x'\]"):
-        STAGES["decouple"](stage_scene, {"x": stage_decoupled}, stage_smoke_cfg())
+        SPECS["decouple"].run(stage_scene, {"x": stage_decoupled}, stage_smoke_cfg())
     other = load_scene(tiny_synth_scene)  # 6 frames, the upstream 8
     with pytest.raises(InputError, match="upstream 'decouple' has 8 frames, the scene 6"):
-        STAGES["relay"](other, {"decouple": stage_decoupled}, stage_smoke_cfg())
+        SPECS["relay"].run(other, {"decouple": stage_decoupled}, stage_smoke_cfg())

@@ -12,6 +12,7 @@ import pytest
 import torch
 
 from conftest import stage_smoke_cfg
+from refusals import refused
 from relaygs.data import Scene
 from relaygs.errors import DivergenceError, Interrupted
 from relaygs.metrics import ssim
@@ -19,7 +20,7 @@ from relaygs.pipeline.artifact import Artifact, write_artifact_files
 from relaygs.pipeline.checkpoint import StageCheckpointer
 from relaygs.pipeline.context import BuildContext, building
 from relaygs.pipeline.store import ArtifactStore
-from relaygs.stages import STAGES, log
+from relaygs.stages import SPECS, log
 from relaygs.stages import relay as relay_module
 from relaygs.stages.common import logged_scalars
 from relaygs.stages.loop import ScalarHistory
@@ -55,7 +56,7 @@ def _run(
         log.add_sink(sink)
     try:
         with building(BuildContext(root, stage, KEY)):
-            return STAGES[stage](scene, upstream, cfg)
+            return SPECS[stage].run(scene, upstream, cfg)
     finally:
         if sink is not None:
             log.remove_sink(sink)
@@ -120,7 +121,7 @@ def test_divergence_names_stage_step_tensor_and_stores_nothing(
         store.get_or_build(
             "decouple",
             KEY,
-            lambda: STAGES["decouple"](stage_scene, {}, cfg),
+            lambda: SPECS["decouple"].run(stage_scene, {}, cfg),
             config={},
             lineage=[],
         )
@@ -142,7 +143,7 @@ def test_divergence_names_the_parameter_whose_update_went_non_finite_first(
     # the symptom (a non-finite loss or gradient at step 2) follows from the update of step 1
     cfg = stage_smoke_cfg(decouple={"lr": {group: 1e38}, "steps": 5})
     with pytest.raises(DivergenceError) as caught:
-        STAGES["decouple"](stage_scene, {}, cfg)
+        SPECS["decouple"].run(stage_scene, {}, cfg)
     message = str(caught.value)
     assert message.startswith("stage 'decouple' diverged at step 2: tensor ")
     assert f"the update of step 1 made parameter(s) all.{group} non-finite first" in message
@@ -162,9 +163,7 @@ def test_non_finite_optimiser_step_stops_before_its_checkpoint(
 
     monkeypatch.setattr(TrainingSession, "apply_gradients", poisoned_at_step_4)
     cfg = stage_smoke_cfg(train={"checkpoint_every": 2})
-    with pytest.raises(
-        DivergenceError, match=r"'decouple' diverged at step 4: tensor 'all.opacity_logits'"
-    ):
+    with refused(DivergenceError, "'decouple'", "step 4", "'all.opacity_logits'"):
         _run("decouple", stage_scene, {}, cfg, tmp_path)
     checkpoints = tmp_path / "decouple" / f"{KEY}.ckpt"
     assert sorted(p.name for p in checkpoints.glob("step-*")) == [f"step-{2:012d}"]
@@ -190,8 +189,8 @@ def test_non_finite_loss_stops_the_stage(
         return loss * float("nan") if len(calls) == 6 else loss
 
     monkeypatch.setattr(relay_module, "photometric_loss", nan_at_sixth_step)
-    with pytest.raises(DivergenceError, match=r"'relay' diverged at step 6: tensor 'loss'"):
-        STAGES["relay"](stage_scene, {"decouple": stage_decoupled}, stage_smoke_cfg())
+    with refused(DivergenceError, "'relay'", "step 6", "'loss'"):
+        SPECS["relay"].run(stage_scene, {"decouple": stage_decoupled}, stage_smoke_cfg())
 
 
 def test_sinks_receive_live_metrics(stage_scene: Scene, stage_relayed: Artifact) -> None:
@@ -203,7 +202,7 @@ def test_sinks_receive_live_metrics(stage_scene: Scene, stage_relayed: Artifact)
     cfg = stage_smoke_cfg(train={"log_every": 4, "image_every": 8}, deform={"steps": 8})
     log.add_sink(sink)
     try:
-        deformed = STAGES["deform"](stage_scene, {"relay": stage_relayed}, cfg)
+        deformed = SPECS["deform"].run(stage_scene, {"relay": stage_relayed}, cfg)
     finally:
         log.remove_sink(sink)
     assert [step for _, step, _, _ in records] == [4, 8]
@@ -276,7 +275,7 @@ def test_resumed_run_counts_the_seconds_before_the_kill(
     capsys.readouterr()
     context = BuildContext(tmp_path, "decouple", KEY)
     with building(context):
-        metrics = STAGES["decouple"](stage_scene, {}, cfg).meta["metrics"]
+        metrics = SPECS["decouple"].run(stage_scene, {}, cfg).meta["metrics"]
     assert context.earlier_seconds == before_kill  # the store adds them to the build's time
     assert capsys.readouterr().out == (
         f"[decouple] resuming from the checkpoint of step 2 of 6 ({before_kill:.1f} s of "

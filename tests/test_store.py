@@ -8,6 +8,7 @@ import torch
 from filelock import FileLock
 
 import relaygs
+from refusals import refused
 from relaygs.errors import InputError
 from relaygs.pipeline.artifact import Artifact
 from relaygs.pipeline.context import current_build
@@ -106,10 +107,7 @@ def test_a_changed_byte_is_refused_under_on_corrupt_error(tmp_path):
     store, fake = ArtifactStore(tmp_path), CountingStage()
     _build(store, fake)
     _flip_byte(store.path("decouple", KEY) / "tensors.safetensors")
-    with pytest.raises(
-        CorruptArtifactError,
-        match=r"tensors\.safetensors.*rerun with artifacts\.on_corrupt=rebuild",
-    ):
+    with refused(CorruptArtifactError, "tensors.safetensors", "artifacts.on_corrupt=rebuild"):
         _build(store, fake, on_corrupt="error")
     assert fake.calls == 1
 
@@ -140,7 +138,7 @@ def test_missing_and_malformed_requests_fail_clearly(tmp_path):
     with pytest.raises(InputError, match="labelled 'relay'"):
         store.get_or_build("decouple", KEY, CountingStage("relay"), config={}, lineage=[])
     assert not store.has("decouple", KEY)
-    with pytest.raises(InputError, match="stage 'decouple' returned a dict, expected an Artifact"):
+    with refused(InputError, "'decouple'", "dict"):
         store.get_or_build("decouple", KEY, lambda: {"x": 1}, config={}, lineage=[])
     assert not store.has("decouple", KEY)
 
@@ -222,7 +220,7 @@ def test_gc_keeping_an_unknown_key_removes_nothing(tmp_path):
     _build(store, CountingStage())
     leftover = store.root / "decouple" / f".tmp-{KEY}-killed"
     leftover.mkdir()
-    with pytest.raises(InputError, match=f"no finished artifact with key {CHILD_KEY}"):
+    with refused(InputError, CHILD_KEY):
         store.gc(keep={KEY, CHILD_KEY})
     assert store.has("decouple", KEY) and leftover.exists()
 
@@ -321,7 +319,7 @@ def test_a_key_prefix_under_4_hex_digits_is_refused(tmp_path, prefix):
     store = ArtifactStore(tmp_path)
     _build(store, CountingStage())
     assert store.find(KEY[:4].upper()).key == KEY
-    with pytest.raises(InputError, match=f"^key prefix '{prefix}': expected at least 4 hex digits"):
+    with refused(InputError, f"'{prefix}'", "hex digits"):
         store.find(prefix)
 
 
@@ -331,7 +329,7 @@ def test_metrics_that_are_not_a_mapping_are_refused_and_nothing_is_stored(tmp_pa
     def build():
         return Artifact("decouple", {"xyz": torch.zeros(2, 3)}, {"metrics": [0.5]})
 
-    with pytest.raises(InputError, match=r"decouple artifact meta\['metrics'\] must be a mapping"):
+    with refused(InputError, "decouple", "meta['metrics']"):
         store.get_or_build("decouple", KEY, build, config={}, lineage=[])
     assert not store.has("decouple", KEY) and store.damaged() == []
 

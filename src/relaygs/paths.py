@@ -1,4 +1,4 @@
-"""Locate the config tree and pipeline files for editable and regular installs alike.
+"""Locate the config tree (pipelines included) for editable and regular installs alike.
 
 Rule (DESIGN.md "Config"): use the repository's absolute folder when the package runs from a
 relaygs checkout's `src/` and the folder holds what is expected, else the copy packaged inside
@@ -21,11 +21,6 @@ PACKAGED_DATA_DIR = PACKAGE_DIR / "_data"
 def config_dir() -> Path:
     """Absolute path of the Hydra config tree (the folder holding `config.yaml`)."""
     return _locate("conf", lambda folder: (folder / "config.yaml").is_file())
-
-
-def pipelines_dir() -> Path:
-    """Absolute path of the folder holding the stage-DAG topologies (`<name>.yaml`)."""
-    return _locate("pipelines", lambda folder: any(folder.glob("*.yaml")))
 
 
 def require_folder(path: Path, what: str) -> Path:

@@ -23,6 +23,9 @@ from relaygs.app.sweep_axes import SweepAxes
 HParamValue = bool | int | float | str
 EXCLUDED_SECTIONS = ("paths", "artifacts")
 """Config sections left out of HParams (where files go, not what was run)."""
+EXCLUDED_KEYS = ("pipeline.description", "pipeline.nodes.")
+"""Settings left out of HParams: the pipeline's graph is named by `pipeline.name`, and its
+nodes differ between pipelines, where every job must log the same keys."""
 IDENTITY_KEYS = ("pipeline.name", "variant")
 """What every entry holds besides the swept keys."""
 METRIC_GROUP = "result"
@@ -46,6 +49,7 @@ def job_hparams(config: Mapping[str, Any], axes: SweepAxes, mode: str) -> dict[s
     that is swept (`pipeline`) is not repeated as `<group>.name`."""
     hparams = {key: hparam_value(value) for key, value in axes.values.items()}
     flat = flatten_config({k: v for k, v in config.items() if k not in EXCLUDED_SECTIONS})
+    flat = {key: value for key, value in flat.items() if not key.startswith(EXCLUDED_KEYS)}
     chosen = flat if mode == "all" else {key: flat[key] for key in IDENTITY_KEYS if key in flat}
     for key, value in chosen.items():
         group = key.removesuffix(".name")

@@ -20,6 +20,7 @@ from relaygs.data.options import require_int
 from relaygs.errors import InputError
 from relaygs.paths import require_creatable_folder
 from relaygs.pipeline import Node, Pipeline, load_pipeline
+from relaygs.pipeline.spec import names_a_file, parse_pipeline
 from relaygs.pipeline.store import ON_CORRUPT_CHOICES
 from relaygs.splat import BACKENDS
 
@@ -32,7 +33,7 @@ SECTION_KEYS = {
     "report": ("reference",),
     "paths": ("outputs", "scenes"),
     "artifacts": ("root", "on_corrupt"),
-    "pipeline": ("name",),
+    "pipeline": ("name", "description", "nodes"),
     "budget": ("name", "multiplier", "scaled_keys"),
     "splat": ("backend",),
 }
@@ -116,7 +117,7 @@ def plan_run(
     splat_backend = (_section(cfg, "splat") if "splat" in cfg else {}).get("backend", "auto")
     if splat_backend not in BACKENDS:
         raise InputError(f"splat.backend must be one of {list(BACKENDS)}, got {splat_backend!r}")
-    pipeline = load_pipeline(_pipeline_name(cfg), stage_types, accepted_upstream)
+    pipeline = _pipeline(cfg, stage_types, accepted_upstream)
     for dotted in LABELS:  # after the pipeline: `variant` is `${pipeline.name}` by default
         _require_label(cfg, dotted)
     multiplier, scaled_keys = _budget(cfg.get("budget") or {})
@@ -244,16 +245,28 @@ def group_value_error(group: str, value: Any) -> str:
     )
 
 
-def _pipeline_name(cfg: Mapping[str, Any]) -> str:
-    """`pipeline.name`, which a file of conf/pipeline/ must set: without it the run cannot
-    know which pipelines/<name>.yaml to load."""
-    name = _section(cfg, "pipeline").get("name")
+def _pipeline(
+    cfg: Mapping[str, Any],
+    stage_types: Collection[str],
+    accepted_upstream: Mapping[str, Collection[str]] | None,
+) -> Pipeline:
+    """The pipeline `pipeline.name` names (a file of conf/pipeline/, or a file's path). Nodes
+    are changed in that file: a composed section whose nodes differ from it (`pipeline.name`
+    changed alone, or a node changed on the command line) is refused."""
+    section = _section(cfg, "pipeline")
+    name = section.get("name")
     if isinstance(name, bool) or not isinstance(name, str | int) or name == "":
         raise InputError(
-            f"pipeline.name: expected the name of a pipelines/<name>.yaml, got {name!r} "
-            "(each conf/pipeline/<name>.yaml holds `name: <name>`)"
+            f"pipeline.name: expected the name of a conf/pipeline/<name>.yaml or a pipeline "
+            f"file's path, got {name!r} (each conf/pipeline/<name>.yaml holds `name: <name>`)"
         )
-    return str(name)
+    declared = load_pipeline(str(name), stage_types, accepted_upstream)
+    if names_a_file(str(name)) or parse_pipeline(section, declared.path) == declared:
+        return declared
+    raise InputError(
+        f"pipeline: the config's nodes differ from those of {declared.path}: choose a "
+        f"pipeline with pipeline=<name>, and change its nodes in its file"
+    )
 
 
 def _check_setting_names(cfg: Mapping[str, Any], stage_types: Collection[str]) -> None:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import difflib
 import importlib.util
+import itertools
 import re
 import shutil
 from collections.abc import Callable, Mapping, Sequence
@@ -19,7 +20,6 @@ from typing import Any
 
 import yaml
 from hydra import compose, initialize_config_dir
-from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.core.override_parser.types import Override
 from hydra.errors import HydraException
@@ -29,7 +29,7 @@ from omegaconf.errors import OmegaConfBaseException
 
 from relaygs.app.plan import group_value_error
 from relaygs.errors import InputError, one_line
-from relaygs.paths import pipelines_dir, require_creatable_folder
+from relaygs.paths import require_creatable_folder
 
 MULTIRUN_FLAGS = frozenset({"-m", "--multirun"})
 LAUNCH_FLAGS = MULTIRUN_FLAGS | {"-r", "--run"}
@@ -47,6 +47,7 @@ CONFIG_LOCATION_FLAGS = frozenset(
 )
 """Hydra flags that compose another config than conf/config.yaml (checked by Hydra alone)."""
 BASIC_SWEEPER = "hydra._internal.core_plugins.basic_sweeper.BasicSweeper"
+"""The `_target_` of Hydra's basic sweeper, whose jobs `sweep_jobs` lists (a name, not imported)."""
 MULTIRUN_RECORD = "multirun.yaml"
 """What Hydra writes into a sweep folder: the sweep's config, its overrides included."""
 LAUNCHER_PLUGINS = {
@@ -250,7 +251,7 @@ def check_group_choices(overrides: Sequence[Override], conf_dir: Path) -> None:
             if choice not in available:
                 raise InputError(
                     f"unknown {group} {choice!r} (available: {', '.join(available)})"
-                    f"{GROUP_HINTS.get(group, '')}{_half_added_pipeline(group, choice, conf_dir)}"
+                    f"{GROUP_HINTS.get(group, '')}"
                 )
         if group not in primary and not override.is_add():
             raise InputError(
@@ -268,18 +269,6 @@ def _experiment_groups(overrides: Sequence[Override], conf_dir: Path) -> set[str
             for name in _choices(override):
                 groups |= _defaults_entries(conf_dir / "experiment" / f"{name}.yaml").keys()
     return groups
-
-
-def _half_added_pipeline(group: str, choice: Any, conf_dir: Path) -> str:
-    """The hint for a pipeline whose pipelines/<name>.yaml exists without the
-    conf/pipeline/<name>.yaml that makes it a choice; empty otherwise."""
-    graph = pipelines_dir() / f"{choice}.yaml"
-    if group != "pipeline" or not isinstance(choice, str) or not graph.is_file():
-        return ""
-    return (
-        f"; {graph} exists, but a pipeline is chosen by its {conf_dir / group / choice}.yaml "
-        "too (docs/extending.md)"
-    )
 
 
 def check_group_sections(
@@ -353,11 +342,23 @@ def planned_jobs(
     if hydra_cfg.sweeper.get("_target_") != BASIC_SWEEPER:
         return [plain]
     params = [f"{key}={value}" for key, value in (hydra_cfg.sweeper.get("params") or {}).items()]
-    try:
-        batches = BasicSweeper.split_arguments(parse_overrides([*params, *args]), None)
-    except HydraException as error:
-        raise InputError(one_line(error)) from error
-    return batches[0]
+    return sweep_jobs(parse_overrides([*params, *args]))
+
+
+def sweep_jobs(overrides: Sequence[Override]) -> list[list[str]]:
+    """The jobs Hydra's basic sweeper makes of `overrides`: every combination of the values of
+    each key, in order, a later override of a key replacing an earlier one (the command line
+    over `hydra.sweeper.params`)."""
+    choices: dict[str, list[str]] = {}
+    for override in overrides:
+        key = override.get_key_element()
+        if override.is_interval_sweep():
+            raise InputError(f"{override.input_line}: an interval sweeps nothing here; list values")
+        if override.is_sweep_override():
+            choices[key] = [f"{key}={value}" for value in override.sweep_string_iterator()]
+        else:
+            choices[key] = [f"{key}={override.get_value_element_as_str()}"]
+    return [list(job) for job in itertools.product(*choices.values())]
 
 
 def recorded_job_count(sweep_dir: Path) -> int | None:

@@ -40,21 +40,21 @@ class StageSuite:
 
 
 def load_stage_suite() -> StageSuite:
-    """The real stages from `relaygs.stages`, once their registries are checked complete."""
+    """The real stages, from the specs of `relaygs.stages.SPECS`."""
     from relaygs import stages
     from relaygs.stages import log
     from relaygs.stages.common import logged_scalars
 
-    stages.require_complete_registries()
+    specs = stages.SPECS.values()
     return StageSuite(
-        stages=stages.STAGES,
-        schema_versions=stages.SCHEMA_VERSIONS,
+        stages={spec.name: spec.run for spec in specs},
+        schema_versions={spec.name: spec.schema_version for spec in specs},
         canonical=stages.canonical_config,
         validate=stages.validate_config,
         evaluate=stages.evaluate,
         render_model=stages.render_model,
         add_sink=log.add_sink,
         remove_sink=log.remove_sink,
-        accepted_upstream=stages.UPSTREAM,
+        accepted_upstream={spec.name: spec.upstream for spec in specs},
         logged_scalars=logged_scalars,
     )

@@ -36,7 +36,7 @@ from relaygs.errors import RelayGSError
 from relaygs.model import GaussianSet
 from relaygs.pipeline.artifact import Artifact
 from relaygs.splat import BACKENDS, default_backend, use_backend
-from relaygs.stages import BUDGETS, STAGES, evaluate, log
+from relaygs.stages import BUDGETS, SPECS, evaluate, log
 from relaygs.stages.decouple import DecoupleConfig
 from relaygs.stages.scene_model import SceneModel, foreground_with_segments
 
@@ -158,7 +158,7 @@ def stage_speeds(scene: Scene, steps: int, device: str = "cpu") -> list[dict[str
         ("deform", "relay"),
     ):
         inputs = {upstream: artifacts[upstream]} if upstream else {}
-        artifacts[stage] = STAGES[stage](scene, inputs, cfg)
+        artifacts[stage] = SPECS[stage].run(scene, inputs, cfg)
         metrics = artifacts[stage].meta["metrics"]
         rows.append(
             {
@@ -177,14 +177,16 @@ def step_cost_ratio(scene: Scene, steps: int, device: str = "cpu") -> dict[str, 
     decouple_cfg = small_cfg(
         log_every=1, device=device, decouple={"steps": steps, "densify": NO_DENSITY}
     )
-    decouple_s = median_step_seconds(lambda: STAGES["decouple"](scene, {}, decouple_cfg))
+    decouple_s = median_step_seconds(lambda: SPECS["decouple"].run(scene, {}, decouple_cfg))
     start = flagged_decouple(scene)
     deform_cfg = small_cfg(
         log_every=1,
         device=device,
         deform={"steps": steps, "densify_bg": NO_DENSITY, "densify_fg": NO_DENSITY},
     )
-    deform_s = median_step_seconds(lambda: STAGES["deform"](scene, {"decouple": start}, deform_cfg))
+    deform_s = median_step_seconds(
+        lambda: SPECS["deform"].run(scene, {"decouple": start}, deform_cfg)
+    )
     return {
         "gaussians": start.meta["counts"]["total"],
         "decouple_ms": 1e3 * decouple_s,
@@ -201,7 +203,7 @@ def full_pipeline(scene: Scene, device: str = "cpu") -> dict[str, Any]:
     for stage, upstream in (("decouple", None), ("relay", "decouple"), ("deform", "relay")):
         began = time.perf_counter()
         inputs = {upstream: artifact[upstream]} if upstream else {}
-        artifact[stage] = STAGES[stage](scene, inputs, cfg)
+        artifact[stage] = SPECS[stage].run(scene, inputs, cfg)
         seconds[stage] = time.perf_counter() - began
         print(f"{stage}: {seconds[stage]:.0f} s", file=sys.stderr, flush=True)
     began = time.perf_counter()

@@ -1,7 +1,8 @@
-"""Pipeline topologies (`pipelines/<name>.yaml`): nodes, their stage types and upstreams.
+"""Pipeline topologies (`conf/pipeline/<name>.yaml`): nodes, their stage types and upstreams.
 
-File format::
+File format (also the composed config's `pipeline` section)::
 
+    name: relaygs                                           # the file's name
     description: one line saying what the pipeline is      # optional
     nodes:                                                  # in any order
       decouple: {stage: decouple}
@@ -26,10 +27,10 @@ from typing import Any
 import yaml
 
 from relaygs.errors import InputError
-from relaygs.paths import pipelines_dir
+from relaygs.paths import config_dir
 
 NODE_FIELDS = frozenset({"stage", "upstream", "overrides"})
-PIPELINE_FIELDS = frozenset({"description", "nodes"})
+PIPELINE_FIELDS = frozenset({"name", "description", "nodes"})
 _NAME_RE = re.compile(r"[A-Za-z][A-Za-z0-9_]*")
 
 
@@ -69,9 +70,20 @@ class Pipeline:
         return {node.stage for node in self.nodes.values()}
 
 
+def pipeline_path(name: str) -> Path:
+    """Where pipeline `name` is declared: `conf/pipeline/<name>.yaml`, a config group file."""
+    return config_dir() / "pipeline" / f"{name}.yaml"
+
+
 def available_pipelines() -> list[str]:
-    """Names of the pipelines shipped in `pipelines/`."""
-    return sorted(path.stem for path in pipelines_dir().glob("*.yaml"))
+    """Names of the pipelines shipped in `conf/pipeline/`."""
+    return sorted(path.stem for path in (config_dir() / "pipeline").glob("*.yaml"))
+
+
+def names_a_file(name_or_path: str | Path) -> bool:
+    """Whether `pipeline.name` is a path to a pipeline file rather than a shipped name."""
+    text = str(name_or_path)
+    return "/" in text or text.endswith((".yaml", ".yml"))
 
 
 def load_pipeline(
@@ -79,7 +91,7 @@ def load_pipeline(
     known_stages: Collection[str] | None = None,
     accepted_upstream: Mapping[str, Collection[str]] | None = None,
 ) -> Pipeline:
-    """Load and validate a pipeline by name (`pipelines/<name>.yaml`) or by file path.
+    """Load and validate a pipeline by name (`conf/pipeline/<name>.yaml`) or by file path.
 
     With `known_stages`, stage types outside it are rejected; with `accepted_upstream` (stage
     type → the stage types of the one upstream node it reads, empty for none), so are nodes of
@@ -91,6 +103,17 @@ def load_pipeline(
         raw = yaml.safe_load(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as error:
         raise InputError(f"{path}: cannot read pipeline ({_read_error(error)})") from error
+    return parse_pipeline(raw, path, known_stages, accepted_upstream)
+
+
+def parse_pipeline(
+    raw: Any,
+    path: Path,
+    known_stages: Collection[str] | None = None,
+    accepted_upstream: Mapping[str, Collection[str]] | None = None,
+) -> Pipeline:
+    """Build and check a pipeline from its mapping (a file's content, or the composed config's
+    `pipeline` section) as `load_pipeline` does; errors name `path`, where it is declared."""
     pipeline = _parse(path, raw)
     _check_graph(pipeline, known_stages, accepted_upstream or {})
     return pipeline
@@ -108,12 +131,12 @@ def _read_error(error: Exception) -> str:
 def _resolve(name_or_path: str | Path) -> Path:
     """A path is used as given; a bare name must be one of the shipped pipelines."""
     text = str(name_or_path)
-    if "/" in text or text.endswith((".yaml", ".yml")):
+    if names_a_file(text):
         path = Path(text).expanduser().resolve()
         if not path.is_file():
             raise InputError(f"pipeline file {path} does not exist")
         return path
-    path = pipelines_dir() / f"{text}.yaml"
+    path = pipeline_path(text)
     if not path.is_file():
         available = ", ".join(available_pipelines())
         raise InputError(f"unknown pipeline {text!r}: no {path} (available: {available})")
@@ -205,7 +228,7 @@ def _check_upstream_types(pipeline: Pipeline, node: Node, accepted: Collection[s
         return
     raise InputError(
         f"{pipeline.path}: node {node.name!r} (stage {node.stage!r}) reads {expected} "
-        f"(relaygs.stages.UPSTREAM), got {', '.join(found) or 'none'}"
+        f"(its StageSpec's upstream), got {', '.join(found) or 'none'}"
     )
 
 

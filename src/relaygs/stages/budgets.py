@@ -9,6 +9,7 @@ budget's own `budget:` block (name, multiplier) and run-level keys stay with the
 
 from __future__ import annotations
 
+from collections.abc import Collection
 from typing import Any
 
 from omegaconf import OmegaConf
@@ -16,26 +17,26 @@ from omegaconf import OmegaConf
 from relaygs.errors import InputError
 from relaygs.paths import config_dir
 
-SECTIONS = ("train", "eval", "decouple", "warmup", "relay", "replicate", "deform")
 RUN_KEYS = ("budget", "threads", "tensorboard")
 """Keys of a budget file that the app applies to the run, not to a stage's config."""
 
 
-def load_budget(name: str) -> dict[str, dict[str, Any]]:
-    """The section overrides of `conf/budget/<name>.yaml`; a key that is neither in SECTIONS
-    nor in RUN_KEYS (a new stage's section not added to SECTIONS) is refused, as it would be
-    missing from BUDGETS and tests would train that stage at its paper step counts."""
+def load_budget(name: str, sections: Collection[str]) -> dict[str, dict[str, Any]]:
+    """The section overrides of `conf/budget/<name>.yaml`; a key that is neither one of
+    `sections` (`train`, `eval` and the stage types) nor in RUN_KEYS is refused, as it would
+    otherwise be dropped without a word."""
     path = config_dir() / "budget" / f"{name}.yaml"
     raw = OmegaConf.to_container(OmegaConf.load(path))
-    unknown = sorted(set(raw) - set(SECTIONS) - set(RUN_KEYS))
+    unknown = sorted(set(raw) - set(sections) - set(RUN_KEYS))
     if unknown:
         raise InputError(
-            f"{path}: section(s) {unknown} not in SECTIONS of relaygs/stages/budgets.py; "
-            f"expected some of {[*SECTIONS, *RUN_KEYS]}"
+            f"{path}: section(s) {unknown} are no stage type nor run key; "
+            f"expected some of {[*sections, *RUN_KEYS]}"
         )
-    return {key: value for key, value in raw.items() if key in SECTIONS}
+    return {key: value for key, value in raw.items() if key in sections}
 
 
-BUDGETS: dict[str, dict[str, dict[str, Any]]] = {
-    path.stem: load_budget(path.stem) for path in sorted((config_dir() / "budget").glob("*.yaml"))
-}
+def load_budgets(sections: Collection[str]) -> dict[str, dict[str, dict[str, Any]]]:
+    """Every budget of `conf/budget/` by name (`load_budget`)."""
+    folder = config_dir() / "budget"
+    return {path.stem: load_budget(path.stem, sections) for path in sorted(folder.glob("*.yaml"))}

@@ -46,6 +46,7 @@ from relaygs.stages.loss import photometric_loss
 from relaygs.stages.render import part_of, splat
 from relaygs.stages.scene_model import SceneModel, core_only, foreground_with_segments
 from relaygs.stages.session import SetPlan, TrainingSession
+from relaygs.stages.spec import StageSpec
 from relaygs.stages.train_settings import TrainSettings
 from relaygs.stages.views import TrainViews
 
@@ -216,3 +217,11 @@ def _decouple_step(
         targets += [views.image(view) for view in group]
     loss = photometric_loss(preds, targets, train.ssim_weight)
     return StepResult(loss, renders, preds, targets)
+
+
+SPEC = StageSpec(
+    name=STAGE,
+    run=decouple,
+    settings=DecoupleConfig,
+    schema_version=SCHEMA_VERSION,
+)

@@ -39,6 +39,7 @@ from relaygs.stages.motion import deformed_parts
 from relaygs.stages.render import Render, splat
 from relaygs.stages.scene_model import GAMMA, SceneModel, build_field
 from relaygs.stages.session import ModuleGroup, SetPlan, TrainingSession
+from relaygs.stages.spec import StageSpec
 from relaygs.stages.train_settings import TrainSettings
 from relaygs.stages.views import TrainViews
 
@@ -289,3 +290,12 @@ def _sync(model: SceneModel, session: TrainingSession) -> None:
     model.background = session.sets["bg"]
     if "fg" in session.sets:
         model.foreground = session.sets["fg"]
+
+
+SPEC = StageSpec(
+    name=STAGE,
+    run=deform,
+    settings=DeformConfig,
+    schema_version=SCHEMA_VERSION,
+    upstream=ACCEPTED_UPSTREAM,
+)

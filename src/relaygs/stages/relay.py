@@ -18,6 +18,7 @@ import torch
 from relaygs.data import Scene
 from relaygs.model import GaussianSet, paper_schedule
 from relaygs.pipeline.artifact import Artifact
+from relaygs.stages.canonical import one_segment_at_most
 from relaygs.stages.carve import HullSettings
 from relaygs.stages.common import (
     BACKGROUND_LR,
@@ -40,6 +41,7 @@ from relaygs.stages.render import FrozenRenders, part_of, splat
 from relaygs.stages.scene_model import SEGMENT, SceneModel, core_only, replicate_foreground
 from relaygs.stages.segments import SegmentTargets, num_segments, segment_frames
 from relaygs.stages.session import SetPlan, TrainingSession
+from relaygs.stages.spec import StageSpec
 from relaygs.stages.train_settings import TrainSettings
 from relaygs.stages.views import TrainViews
 
@@ -220,3 +222,13 @@ def _counts(model: SceneModel) -> dict[str, Any]:
         "num_fg": n_fg,
         "fg_per_segment": per_segment.tolist(),
     }
+
+
+SPEC = StageSpec(
+    name=STAGE,
+    run=relay,
+    settings=RelayConfig,
+    schema_version=SCHEMA_VERSION,
+    upstream=ACCEPTED_UPSTREAM,
+    canonical=one_segment_at_most,
+)

@@ -8,10 +8,12 @@ from typing import Any
 
 from relaygs.data import Scene
 from relaygs.pipeline.artifact import Artifact
+from relaygs.stages.canonical import one_segment_at_most
 from relaygs.stages.common import single_upstream, stage_meta, upstream_model
 from relaygs.stages.config import parse_section, require
 from relaygs.stages.scene_model import SceneModel, replicate_foreground
 from relaygs.stages.segments import num_segments
+from relaygs.stages.spec import StageSpec
 from relaygs.stages.train_settings import TrainSettings
 
 STAGE = "replicate"
@@ -52,3 +54,13 @@ def replicate(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, 
     n_bg, n_fg = len(model.background), len(model.foreground)
     metrics = {"num_gaussians": n_bg + n_fg, "num_bg": n_bg, "num_fg": n_fg, "train_seconds": 0.0}
     return model.to_artifact(stage_meta(SCHEMA_VERSION, section, train, None, metrics))
+
+
+SPEC = StageSpec(
+    name=STAGE,
+    run=replicate,
+    settings=ReplicateConfig,
+    schema_version=SCHEMA_VERSION,
+    upstream=ACCEPTED_UPSTREAM,
+    canonical=one_segment_at_most,
+)

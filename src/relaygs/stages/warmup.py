@@ -28,6 +28,7 @@ from relaygs.stages.loss import photometric_loss
 from relaygs.stages.render import part_of, splat
 from relaygs.stages.scene_model import SceneModel, foreground_with_segments
 from relaygs.stages.session import SetPlan
+from relaygs.stages.spec import StageSpec
 from relaygs.stages.train_settings import TrainSettings
 from relaygs.stages.views import TrainViews
 
@@ -108,3 +109,11 @@ def warmup(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, Any
     metrics = {"num_gaussians": len(background), "num_bg": len(background), "num_fg": 0}
     meta = stage_meta(SCHEMA_VERSION, section, train, report, metrics, downscale=training.downscale)
     return model.to_artifact(meta)
+
+
+SPEC = StageSpec(
+    name=STAGE,
+    run=warmup,
+    settings=WarmupConfig,
+    schema_version=SCHEMA_VERSION,
+)
