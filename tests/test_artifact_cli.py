@@ -507,6 +507,11 @@ def test_gap_scores_every_stage_on_train_and_test_views(
         assert cells[5] == f"{test['psnr']:.4f}"
         assert float(cells[8]) == pytest.approx(train["psnr"] - test["psnr"], abs=1e-4)
     assert len(lines) == 5
+    code, out, err = _cli(capsys, store.root, *argv, "--colour-fit")
+    assert code == 0, err
+    first = out.splitlines()[2].split()
+    fitted = error_split(scene, stage_decoupled, "train", frame_stride=4, colour_fit=True)
+    assert "colour-fitted" in out.splitlines()[0] and first[2] == f"{fitted['psnr']:.4f}"
 
 
 def test_eval_lineage_names_an_upstream_artifact_gc_removed(

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import pytest
 import torch
 
@@ -49,3 +51,33 @@ def test_background_and_foreground_pixels_are_scored_apart(
     assert scores["bg_psnr"] == pytest.approx(100.0)
     assert scores["fg_psnr"] < 40.0
     assert torch.isfinite(torch.tensor(scores["psnr"])) and scores["psnr"] < 100.0
+
+
+def _render_as(monkeypatch, scene, split, image_of):
+    """Make every render return `image_of(truth)` for its view's ground truth."""
+    views = {(view.camera.camera_id, view.time): view for view in scene.views_at(0, split)}
+    views |= {
+        (view.camera.camera_id, view.time): view
+        for view in (scene.train_views if split == "train" else scene.test_views)
+    }
+
+    def render(self, cameras, time):
+        return [image_of(scene.image(views[(camera.camera_id, time)])) for camera in cameras]
+
+    monkeypatch.setattr(ModelRenderer, "render", render)
+
+
+def test_colour_fit_undoes_a_camera_response_the_model_cannot_know(
+    stage_scene, stage_decoupled, monkeypatch
+):
+    _render_as(monkeypatch, stage_scene, "test", lambda truth: truth * 0.8 + 0.05)
+    raw = error_split(stage_scene, stage_decoupled, "test", frame_stride=4)
+    fitted = error_split(stage_scene, stage_decoupled, "test", frame_stride=4, colour_fit=True)
+    assert raw["psnr"] < 30.0
+    assert fitted["psnr"] > 60.0 and fitted["images"] == raw["images"]
+
+
+def test_colour_fit_of_a_flat_render_stays_finite(stage_scene, stage_decoupled, monkeypatch):
+    _render_as(monkeypatch, stage_scene, "test", lambda truth: torch.full_like(truth, 0.5))
+    fitted = error_split(stage_scene, stage_decoupled, "test", frame_stride=4, colour_fit=True)
+    assert all(math.isfinite(fitted[name]) for name in ("psnr", "fg_psnr", "bg_psnr"))

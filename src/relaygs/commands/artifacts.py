@@ -154,6 +154,12 @@ def _parser() -> argparse.ArgumentParser:
         metavar="N",
         help="score every N-th frame (default 1)",
     )
+    gap.add_argument(
+        "--colour-fit",
+        action="store_true",
+        help="first map each camera's renders through the per-channel gain and offset that fit "
+        "its images best (what is left once a camera's own colour response is allowed for)",
+    )
     gap.set_defaults(command_fn=run_gap)
     render = commands.add_parser(
         "render",

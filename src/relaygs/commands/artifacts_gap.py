@@ -33,13 +33,15 @@ def run_gap(store: ArtifactStore, args: argparse.Namespace) -> int:
     rows = []
     for entry, model in zip(entries, models, strict=True):
         scores = {
-            split: error_split(scene, model, split, args.frame_stride, device) for split in SPLITS
+            split: error_split(scene, model, split, args.frame_stride, device, args.colour_fit)
+            for split in SPLITS
         }
         cells = [cell(scores[split][name]) for split in SPLITS for name in SPLIT_METRICS]
         train, test = scores["train"]["psnr"], scores["test"]["psnr"]
         gap = None if train is None or test is None else train - test
         rows.append([entry.stage, entry.key[:KEY_COLUMN_WIDTH], *cells, cell(gap)])
-    print(f"{item.stage} {item.key[:KEY_COLUMN_WIDTH]} and its lineage on {args.scene}")
+    fitted = " (renders colour-fitted per camera)" if args.colour_fit else ""
+    print(f"{item.stage} {item.key[:KEY_COLUMN_WIDTH]} and its lineage on {args.scene}{fitted}")
     print(aligned_table(header, rows))
     note_other_scene(entries, scene, args)
     return 0
