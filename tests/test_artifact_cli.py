@@ -780,9 +780,9 @@ def torch_threads():
     torch.set_num_threads(before)
 
 
-@pytest.mark.parametrize("command", ["eval", "render", "ply"])
+@pytest.mark.parametrize("command", ["eval", "gap", "render", "ply"])
 def test_threads_is_set_before_the_model_loads(store, capsys, monkeypatch, torch_threads, command):
-    from relaygs.commands import artifacts_eval
+    from relaygs.commands import artifacts_eval, artifacts_gap
     from relaygs.errors import RelayGSError
 
     seen = []
@@ -791,7 +791,7 @@ def test_threads_is_set_before_the_model_loads(store, capsys, monkeypatch, torch
         seen.append(torch.get_num_threads())
         raise RelayGSError("stopped")
 
-    for module in (artifacts_module, artifacts_eval):
+    for module in (artifacts_module, artifacts_eval, artifacts_gap):
         monkeypatch.setattr(module, "model_artifact", loading)
     wanted = 1 if torch_threads > 1 else 2
     scene = [] if command == "ply" else ["--scene", "s"]
