@@ -472,6 +472,44 @@ def test_eval_lineage_scores_every_stage_of_a_model_upstream_first(
     assert len(lines) == 5
 
 
+def test_gap_scores_every_stage_on_train_and_test_views(
+    stored_lineage, stage_scene_path, stage_decoupled, stage_relayed, stage_deformed, capsys
+):
+    from relaygs.data import load_scene
+    from relaygs.stages.error_split import error_split
+
+    store, keys = stored_lineage
+    argv = ("gap", keys["deform"][:8], "--scene", str(stage_scene_path), "--frame-stride", "4")
+    code, out, err = _cli(capsys, store.root, *argv)
+    assert code == 0, err
+    lines = out.splitlines()
+    assert lines[1].split() == [
+        "stage",
+        "key",
+        *(
+            f"{split}_{name}"
+            for split in ("train", "test")
+            for name in ("psnr", "fg_psnr", "bg_psnr")
+        ),
+        "gap",
+    ]
+    scene = load_scene(stage_scene_path)
+    artifacts = {"decouple": stage_decoupled, "relay": stage_relayed, "deform": stage_deformed}
+    for line, stage in zip(lines[2:], artifacts, strict=True):
+        train = error_split(scene, artifacts[stage], "train", frame_stride=4)
+        test = error_split(scene, artifacts[stage], "test", frame_stride=4)
+        cells = line.split()
+        assert cells[:3] == [stage, keys[stage][:16], f"{train['psnr']:.4f}"]
+        assert cells[5] == f"{test['psnr']:.4f}"
+        assert float(cells[8]) == pytest.approx(train["psnr"] - test["psnr"], abs=1e-4)
+    assert len(lines) == 5
+    code, out, err = _cli(capsys, store.root, *argv, "--colour-fit")
+    assert code == 0, err
+    first = out.splitlines()[2].split()
+    fitted = error_split(scene, stage_decoupled, "train", frame_stride=4, colour_fit=True)
+    assert "colour-fitted" in out.splitlines()[0] and first[2] == f"{fitted['psnr']:.4f}"
+
+
 def test_eval_lineage_names_an_upstream_artifact_gc_removed(
     stored_lineage, stage_scene_path, capsys
 ):
@@ -715,9 +753,9 @@ def torch_threads():
     torch.set_num_threads(before)
 
 
-@pytest.mark.parametrize("command", ["eval", "render", "ply"])
+@pytest.mark.parametrize("command", ["eval", "gap", "render", "ply"])
 def test_threads_is_set_before_the_model_loads(store, capsys, monkeypatch, torch_threads, command):
-    from relaygs.commands import artifacts_eval
+    from relaygs.commands import artifacts_eval, artifacts_gap
     from relaygs.errors import RelayGSError
 
     seen = []
@@ -726,7 +764,7 @@ def test_threads_is_set_before_the_model_loads(store, capsys, monkeypatch, torch
         seen.append(torch.get_num_threads())
         raise RelayGSError("stopped")
 
-    for module in (artifacts_module, artifacts_eval):
+    for module in (artifacts_module, artifacts_eval, artifacts_gap):
         monkeypatch.setattr(module, "model_artifact", loading)
     wanted = 1 if torch_threads > 1 else 2
     scene = [] if command == "ply" else ["--scene", "s"]

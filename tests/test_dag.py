@@ -34,6 +34,14 @@ def test_shipped_pipelines_are_the_documented_chains(name, chain):
     assert pipeline.path.is_absolute()
 
 
+def test_the_decouple_pipeline_is_stage_one_alone():
+    from relaygs.stages import STAGES, UPSTREAM
+
+    pipeline = load_pipeline("decouple", known_stages=STAGES, accepted_upstream=UPSTREAM)
+    assert [node.stage for node in pipeline.topological_order()] == ["decouple"]
+    assert pipeline.output_node.stage == "decouple"
+
+
 def test_available_pipelines_lists_the_shipped_ones():
     assert set(SHIPPED) <= set(available_pipelines())
 

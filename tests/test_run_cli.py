@@ -39,7 +39,7 @@ UNUSABLE_GPU = f"cuda:{torch.cuda.device_count()}"
     ("args", "fragment"),
     [
         (["+experiment=nope"], "unknown experiment 'nope' (available: ablation_components,"),
-        (["pipeline=nope"], "unknown pipeline 'nope' (available: 4dgs, no_copies,"),
+        (["pipeline=nope"], "unknown pipeline 'nope' (available: 4dgs, decouple, no_copies,"),
         (["scene=mars"], "unknown scene 'mars' (available: court, juggle, static); or set"),
         (["experiment=smoke"], "write +experiment=smoke"),
         (["relay.k=0"], "relay.k"),
@@ -282,8 +282,8 @@ def test_an_unknown_choice_an_experiment_sweeps_is_named_with_the_available_ones
     with pytest.raises(InputError) as caught:
         prelaunch.check_command_line(["+experiment=plain"], conf, lambda cfg, here: None)
     assert str(caught.value) == (
-        "job pipeline=nope: unknown pipeline 'nope' (available: 4dgs, no_copies, no_stage2, "
-        "relaygs)"
+        "job pipeline=nope: unknown pipeline 'nope' (available: 4dgs, decouple, no_copies, "
+        "no_stage2, relaygs)"
     )
 
 

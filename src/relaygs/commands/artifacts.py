@@ -31,6 +31,7 @@ from relaygs.commands.artifact_models import (
     note_other_scene,
 )
 from relaygs.commands.artifacts_eval import run_eval
+from relaygs.commands.artifacts_gap import run_gap
 from relaygs.device import set_threads, usable_device
 from relaygs.errors import RERUN_COMMAND, InputError, RelayGSError, UsageError, resource_error
 from relaygs.paths import require_creatable_folder
@@ -137,6 +138,29 @@ def _parser() -> argparse.ArgumentParser:
         help="score every stage's model in its lineage too, one row each (what each stage adds)",
     )
     score.set_defaults(command_fn=run_eval)
+    gap = commands.add_parser(
+        "gap",
+        help="score a model and its lineage on the train and the test views, foreground and "
+        "background apart (the train/test gap per stage)",
+    )
+    gap.add_argument("key", type=_key_prefix, help=KEY_HELP)
+    add_scene_arguments(gap)
+    add_device_argument(gap)
+    add_threads_argument(gap)
+    gap.add_argument(
+        "--frame-stride",
+        type=int_at_least(1),
+        default=1,
+        metavar="N",
+        help="score every N-th frame (default 1)",
+    )
+    gap.add_argument(
+        "--colour-fit",
+        action="store_true",
+        help="first map each camera's renders through the per-channel gain and offset that fit "
+        "its images best (what is left once a camera's own colour response is allowed for)",
+    )
+    gap.set_defaults(command_fn=run_gap)
     render = commands.add_parser(
         "render",
         help="render one artifact's model over time: a PNG per frame and an MP4 per camera",

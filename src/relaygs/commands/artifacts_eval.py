@@ -34,7 +34,7 @@ def run_eval(store: ArtifactStore, args: argparse.Namespace) -> int:
     tests = ", ".join(str(camera.camera_id) for camera in scene.test_cameras) or "none"
     where = f"on {args.scene} (test cameras {tests})"
     if args.lineage:
-        entries = _lineage(store, item)
+        entries = lineage_entries(store, item)
         models = [store.load(entry.stage, entry.key) for entry in entries]  # damaged: before output
         print(f"{item.stage} {item.key[:KEY_COLUMN_WIDTH]} and its lineage {where}")
         rows = [
@@ -48,7 +48,7 @@ def run_eval(store: ArtifactStore, args: argparse.Namespace) -> int:
     print(f"{item.stage} {item.key[:KEY_COLUMN_WIDTH]} {where}")
     for name, value in metrics.items():
         if isinstance(value, float | int) or value is None:
-            print(f"  {name:<16}{_cell(value)}")
+            print(f"  {name:<16}{cell(value)}")
     if args.per_view is not None:
         written = write_per_view(args.per_view, metrics[PER_VIEW])
         print(f"  per-view metrics of {len(metrics[PER_VIEW])} image(s) in {written}")
@@ -65,7 +65,7 @@ def _scores(
     return metrics
 
 
-def _lineage(store: ArtifactStore, item: StoredArtifact) -> list[StoredArtifact]:
+def lineage_entries(store: ArtifactStore, item: StoredArtifact) -> list[StoredArtifact]:
     """`item` and every artifact upstream of it, each once, upstream ones first."""
     ordered: dict[str, StoredArtifact] = {}
 
@@ -89,24 +89,29 @@ def _lineage(store: ArtifactStore, item: StoredArtifact) -> list[StoredArtifact]
 
 def _lineage_table(entries: list[StoredArtifact], rows: list[dict[str, Any]]) -> str:
     """One line per artifact: stage, key prefix and its LINEAGE_COLUMNS (n/a where missing)."""
-    header = ["stage", "key", *LINEAGE_COLUMNS]
     cells = [
         [
             entry.stage,
             entry.key[:KEY_COLUMN_WIDTH],
-            *(_cell(row.get(name)) for name in LINEAGE_COLUMNS),
+            *(cell(row.get(name)) for name in LINEAGE_COLUMNS),
         ]
         for entry, row in zip(entries, rows, strict=True)
     ]
-    widths = [max(len(line[column]) for line in [header, *cells]) for column in range(len(header))]
+    return aligned_table(["stage", "key", *LINEAGE_COLUMNS], cells)
+
+
+def aligned_table(header: list[str], rows: list[list[str]]) -> str:
+    """The header and rows as left-aligned, two-space-indented text columns."""
+    lines = [header, *rows]
+    widths = [max(len(line[column]) for line in lines) for column in range(len(header))]
     return "\n".join(
         "  "
         + "  ".join(text.ljust(width) for text, width in zip(line, widths, strict=True)).rstrip()
-        for line in [header, *cells]
+        for line in lines
     )
 
 
-def _cell(value: Any) -> str:
+def cell(value: Any) -> str:
     """A metric as `eval` prints it: floats to 4 decimals, None as n/a."""
     if value is None:
         return "n/a"

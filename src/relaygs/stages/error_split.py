@@ -1,0 +1,88 @@
+"""Where a model's error lies: PSNR over the foreground and the background pixels apart, on the
+train or the test views, so that a model's fit to seen views can be set against unseen ones;
+optionally after fitting each camera's colour response, which no model can know for a held-out
+camera of a scene whose cameras each record colour their own way."""
+
+from __future__ import annotations
+
+from collections import defaultdict
+
+import torch
+
+from relaygs.data import Scene, View
+from relaygs.metrics import psnr
+from relaygs.pipeline.artifact import Artifact
+from relaygs.stages.evaluate import require_its_scene
+from relaygs.stages.model_render import ModelRenderer
+from relaygs.stages.scene_model import SceneModel
+
+SPLIT_METRICS = ("psnr", "fg_psnr", "bg_psnr")
+"""Mean per-image PSNR over all pixels, ground-truth foreground pixels, background pixels."""
+
+
+def error_split(
+    scene: Scene,
+    artifact: Artifact,
+    split: str,
+    frame_stride: int = 1,
+    device: torch.device | None = None,
+    colour_fit: bool = False,
+) -> dict[str, float | None]:
+    """SPLIT_METRICS of the artifact's model over `split`'s views ("train" or "test") at every
+    `frame_stride`-th frame, plus their count; fg/bg are None where no view has such pixels.
+    With `colour_fit`, each camera's renders first pass through `colour_fitted`."""
+    device = device or torch.device("cpu")
+    model = SceneModel.from_artifact(artifact)
+    require_its_scene(model, scene)
+    renderer = ModelRenderer(model.to(device))
+    renders: list[tuple[View, torch.Tensor]] = []
+    for frame in range(0, scene.num_frames, frame_stride):
+        views = scene.views_at(frame, split)
+        if views:
+            images = renderer.render([view.camera for view in views], views[0].time)
+            renders += [(view, image.cpu()) for view, image in zip(views, images, strict=True)]
+    if colour_fit:
+        renders = colour_fitted(scene, renders)
+    scores: dict[str, list[float]] = {name: [] for name in SPLIT_METRICS}
+    for view, pred in renders:
+        target = scene.image(view)
+        scores["psnr"].append(float(psnr(pred, target)))
+        mask = scene.mask(view)
+        if mask is None:
+            continue
+        for name, pixels in (("fg_psnr", mask), ("bg_psnr", ~mask)):
+            if bool(pixels.any()):
+                scores[name].append(float(psnr(pred, target, pixels)))
+    result: dict[str, float | None] = {
+        name: sum(values) / len(values) if values else None for name, values in scores.items()
+    }
+    result["images"] = len(scores["psnr"])
+    return result
+
+
+def colour_fitted(
+    scene: Scene, renders: list[tuple[View, torch.Tensor]]
+) -> list[tuple[View, torch.Tensor]]:
+    """Each render mapped through a per-channel gain and offset, fit by least squares to all of
+    its camera's images at once (6 numbers per camera), and clipped to [0, 1]."""
+    by_camera: dict[int, list[tuple[View, torch.Tensor]]] = defaultdict(list)
+    for view, image in renders:
+        by_camera[view.camera.camera_id].append((view, image.clamp(0.0, 1.0)))
+    fitted = []
+    for items in by_camera.values():
+        pred = torch.stack([image for _, image in items]).reshape(-1, 3)
+        target = torch.stack([scene.image(view) for view, _ in items]).reshape(-1, 3)
+        gain, offset = _channel_fit(pred, target)
+        fitted += [(view, (image * gain + offset).clamp(0.0, 1.0)) for view, image in items]
+    return fitted
+
+
+def _channel_fit(pred: torch.Tensor, target: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Per-channel least-squares gain and offset mapping pred [N,3] onto target [N,3]; a flat
+    channel (no variance) keeps gain 1."""
+    mean_pred, mean_target = pred.mean(dim=0), target.mean(dim=0)
+    variance = (pred - mean_pred).square().mean(dim=0)
+    covariance = ((pred - mean_pred) * (target - mean_target)).mean(dim=0)
+    flat = variance <= 1e-12
+    gain = torch.where(flat, torch.ones_like(variance), covariance / variance.clamp_min(1e-12))
+    return gain, mean_target - gain * mean_pred
