@@ -35,9 +35,10 @@ def test_shipped_pipelines_are_the_documented_chains(name, chain):
 
 
 def test_the_decouple_pipeline_is_stage_one_alone():
-    from relaygs.stages import STAGES, UPSTREAM
+    from relaygs.stages import SPECS
 
-    pipeline = load_pipeline("decouple", known_stages=STAGES, accepted_upstream=UPSTREAM)
+    upstream = {spec.name: spec.upstream for spec in SPECS.values()}
+    pipeline = load_pipeline("decouple", known_stages=SPECS, accepted_upstream=upstream)
     assert [node.stage for node in pipeline.topological_order()] == ["decouple"]
     assert pipeline.output_node.stage == "decouple"
 
