@@ -9,7 +9,14 @@ from typing import Any
 
 import torch
 
-from relaygs.splat.composite import FixedLayer, _pack, background_terms, input_gradients
+from relaygs.splat.composite import FixedLayer, input_gradients
+from relaygs.splat.kernel_io import (
+    backward_inputs,
+    finish_forward,
+    forward_buffers,
+    geometry,
+    kernel_inputs,
+)
 from relaygs.splat.tiles import TileBins
 
 MAX_PIXELS = 256  # lanes per program: a larger tile is split over several programs
@@ -51,10 +58,6 @@ def _power_of_2_at_least(value: int) -> int:
     return 1 << max(0, value - 1).bit_length()
 
 
-def _geometry(bins: TileBins, width: int, height: int) -> tuple[int, ...]:
-    return bins.tile_size, bins.tiles_x, bins.tiles_y, width, height
-
-
 class TritonCompositeGaussians(torch.autograd.Function):
     """colors [C,H,W,D] and alphas [C,H,W,1], composited by the Triton kernels."""
 
@@ -75,34 +78,19 @@ class TritonCompositeGaussians(torch.autograd.Function):
         """Composite `bins.busy_tiles`; other tiles keep the fixed layer's render (or nothing)."""
         from relaygs.splat.triton.kernels import composite_forward_kernel
 
-        c, n, d = colors.shape
-        table = _pack(means2d.detach(), conics.detach(), opacities.detach(), bounds).contiguous()
-        flat_colors = colors.detach().reshape(c * n, d).contiguous()
-        tiles = bins.busy_tiles
-        if fixed is None:
-            out = colors.new_zeros(c, height, width, d)
-            t_final = colors.new_ones(c, height, width)
-        else:
-            out = fixed.colors.detach().to(colors.dtype).contiguous().clone()
-            t_final = (1.0 - fixed.alphas.detach().to(colors.dtype))[..., 0].contiguous()
-        last = torch.full((c, height, width), -1, dtype=torch.int32, device=colors.device)
+        inputs = kernel_inputs(means2d, conics, opacities, colors, bounds)
+        out, t_final, last = forward_buffers(colors, width, height, fixed)
+        tiles = ctx.tiles = bins.busy_tiles
+        d = colors.shape[2]
         launch = launch_for(bins, tiles, d, FORWARD_ELEMENTS)
         if tiles.numel() > 0:
             composite_forward_kernel[launch.grid](
-                table, flat_colors, bins.pair_gaussian, bins.tile_start, bins.tile_count, tiles,
-                out, t_final, last, *_geometry(bins, width, height), d,
+                inputs.table, inputs.colors, bins.pair_gaussian, bins.tile_start,
+                bins.tile_count, tiles, out, t_final, last, *geometry(bins, width, height), d,
                 **launch.sizes(), **COMPILE_OPTIONS,
             )  # fmt: skip
-        t_final = t_final[..., None]
-        if backgrounds is not None:
-            out = out + t_final * backgrounds[:, None, None, :]
-        ctx.bins = bins
-        ctx.tiles = tiles
-        ctx.fixed = None if fixed is None else fixed.mask
-        ctx.save_for_backward(
-            means2d, conics, opacities, colors, backgrounds, bounds, t_final, last
-        )
-        return out, 1.0 - t_final
+        saved = (means2d, conics, opacities, colors, bounds)
+        return finish_forward(ctx, out, t_final, last, saved, backgrounds, bins, fixed)
 
     @staticmethod
     @torch.autograd.function.once_differentiable
@@ -113,22 +101,20 @@ class TritonCompositeGaussians(torch.autograd.Function):
         the additions, and so the last bits of the sums, may differ between runs on a GPU)."""
         from relaygs.splat.triton.kernels import GRAD_COLUMNS, composite_backward_kernel
 
-        means2d, conics, opacities, colors, backgrounds, bounds, t_final, last = ctx.saved_tensors
+        saved, inputs, pixel_k, grad_bg = backward_inputs(ctx, grad_colors, grad_alphas)
+        means2d, conics, opacities, colors, _, t_final, last = saved
         bins: TileBins = ctx.bins
-        c, n, d = colors.shape
+        d = colors.shape[2]
         height, width = grad_colors.shape[1:3]
-        table = _pack(means2d, conics, opacities, bounds).contiguous()
-        flat_colors = colors.reshape(c * n, d).contiguous()
-        pixel_k, grad_bg = background_terms(grad_colors, grad_alphas, t_final, backgrounds)
-        grad_table = table.new_zeros(c * n, GRAD_COLUMNS.value)
-        grad_cols = torch.zeros_like(flat_colors)
+        grad_table = inputs.table.new_zeros(inputs.table.shape[0], GRAD_COLUMNS.value)
+        grad_cols = torch.zeros_like(inputs.colors)
         launch = launch_for(bins, ctx.tiles, d, BACKWARD_ELEMENTS)
         if ctx.tiles.numel() > 0:
             composite_backward_kernel[launch.grid](
-                table, flat_colors, bins.pair_gaussian, bins.tile_start, bins.tile_count,
-                ctx.tiles, grad_colors.contiguous(), pixel_k[..., 0].contiguous(),
+                inputs.table, inputs.colors, bins.pair_gaussian, bins.tile_start,
+                bins.tile_count, ctx.tiles, grad_colors.contiguous(), pixel_k,
                 t_final[..., 0].contiguous(), last, grad_table, grad_cols,
-                *_geometry(bins, width, height), d, **launch.sizes(), **COMPILE_OPTIONS,
+                *geometry(bins, width, height), d, **launch.sizes(), **COMPILE_OPTIONS,
             )  # fmt: skip
         return input_gradients(
             grad_table, grad_cols, ctx.fixed, (means2d, conics, opacities, colors), grad_bg
