@@ -228,6 +228,23 @@ void check_inputs(const at::Tensor& means, const at::Tensor& factors,
 
 constexpr int64_t kGrain = 256;
 
+// Calls visit(i, c, row, pair) for every visible (camera c, Gaussian i) pair, row = c·N + i;
+// one Gaussian per task with its cameras in order, so a visit may accumulate into row i.
+template <typename T, typename Visit>
+void for_each_visible_pair(const std::vector<Camera<T>>& cam, const T* mean, const T* f,
+                           const T* opacity, int64_t n, const Settings& s, const Visit& visit) {
+  const int64_t cams = static_cast<int64_t>(cam.size());
+  at::parallel_for(0, n, kGrain, [&](int64_t begin, int64_t end) {
+    for (int64_t i = begin; i < end; ++i) {
+      const T mult = sigma_multiplier(opacity[i]);
+      for (int64_t c = 0; c < cams; ++c) {
+        const auto p = project_pair(cam[c], mean + 3 * i, f + 9 * i, mult, s);
+        if (p.visible) visit(i, c, c * n + i, p);
+      }
+    }
+  });
+}
+
 }  // namespace
 
 std::vector<at::Tensor> project_forward(const at::Tensor& means, const at::Tensor& factors,
@@ -256,25 +273,18 @@ std::vector<at::Tensor> project_forward(const at::Tensor& means, const at::Tenso
     int32_t* out_radius = radii.data_ptr<int32_t>();
     bool* out_visible = visible.data_ptr<bool>();
     int32_t* out_box = bounds.data_ptr<int32_t>();
-    at::parallel_for(0, n, kGrain, [&](int64_t begin, int64_t end) {
-      for (int64_t i = begin; i < end; ++i) {
-        const T mult = sigma_multiplier(opacity[i]);
-        for (int64_t c = 0; c < cams; ++c) {
-          const auto p = project_pair(cam[c], mean + 3 * i, f + 9 * i, mult, s);
-          if (!p.visible) continue;
-          const int64_t row = c * n + i;
-          out2d[2 * row] = p.mx;
-          out2d[2 * row + 1] = p.my;
-          out_conic[3 * row] = p.c / p.det;
-          out_conic[3 * row + 1] = -p.b / p.det;
-          out_conic[3 * row + 2] = p.a / p.det;
-          out_depth[row] = p.z;
-          out_radius[2 * row] = p.radius[0];
-          out_radius[2 * row + 1] = p.radius[1];
-          out_visible[row] = true;
-          for (int k = 0; k < 4; ++k) out_box[4 * row + k] = p.box[k];
-        }
-      }
+    for_each_visible_pair(cam, mean, f, opacity, n, s, [&](int64_t, int64_t, int64_t row,
+                                                           const PairProjection<T>& p) {
+      out2d[2 * row] = p.mx;
+      out2d[2 * row + 1] = p.my;
+      out_conic[3 * row] = p.c / p.det;
+      out_conic[3 * row + 1] = -p.b / p.det;
+      out_conic[3 * row + 2] = p.a / p.det;
+      out_depth[row] = p.z;
+      out_radius[2 * row] = p.radius[0];
+      out_radius[2 * row + 1] = p.radius[1];
+      out_visible[row] = true;
+      for (int k = 0; k < 4; ++k) out_box[4 * row + k] = p.box[k];
     });
   });
   return {means2d, conics, depths, radii, visible, bounds};
@@ -308,17 +318,10 @@ std::vector<at::Tensor> project_backward(const at::Tensor& means, const at::Tens
     const T* gdepth = grad_depths.data_ptr<T>();
     T* gmean = grad_means.data_ptr<T>();
     T* gf = grad_factors.data_ptr<T>();
-    at::parallel_for(0, n, kGrain, [&](int64_t begin, int64_t end) {
-      for (int64_t i = begin; i < end; ++i) {
-        const T mult = sigma_multiplier(opacity[i]);
-        for (int64_t c = 0; c < cams; ++c) {
-          const auto p = project_pair(cam[c], mean + 3 * i, f + 9 * i, mult, s);
-          if (!p.visible) continue;
-          const int64_t row = c * n + i;
-          pair_backward(cam[c], p, f + 9 * i, s, g2d + 2 * row, gconic + 3 * row, gdepth[row],
-                        gmean + 3 * i, gf + 9 * i);
-        }
-      }
+    for_each_visible_pair(cam, mean, f, opacity, n, s, [&](int64_t i, int64_t c, int64_t row,
+                                                           const PairProjection<T>& p) {
+      pair_backward(cam[c], p, f + 9 * i, s, g2d + 2 * row, gconic + 3 * row, gdepth[row],
+                    gmean + 3 * i, gf + 9 * i);
     });
   });
   return {grad_means, grad_factors};
