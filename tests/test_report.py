@@ -61,7 +61,7 @@ def test_reports_have_one_row_per_job_with_delta_vs_reference(sweep):
     assert "relay.k" in table.columns
     markdown = files.markdown.read_text()
     assert markdown.startswith("# ablation_k on juggle")
-    assert "| k32 | 24.50 | -1.50 | n/a | 0.8000 |" in markdown
+    assert "| k32 | 24.50 | -1.50 | n/a | n/a | 0.8000 |" in markdown
     assert markdown.count("\n| k") == 4
     assert files.pareto.read_bytes().startswith(PNG_SIGNATURE)
 
@@ -236,7 +236,7 @@ def test_the_cli_prints_the_table_then_where_the_files_are(sweep, capsys):
     out = capsys.readouterr().out
     table, files = out.split("\nsummary of 4 job(s):\n")
     assert table.rstrip("\n") == (sweep / "summary.md").read_text().rstrip("\n")
-    assert "| k32 | 24.50 | -1.50 | n/a | 0.8000 |" in table
+    assert "| k32 | 24.50 | -1.50 | n/a | n/a | 0.8000 |" in table
     *written, board = files.strip("\n").splitlines()
     assert [line.strip() for line in written] == [
         str(sweep / name) for name in ("summary.md", "summary.csv", "pareto.png")
@@ -432,8 +432,8 @@ def test_a_sweep_resumed_in_place_counts_what_its_jobs_built_before_the_interrup
     text = report.write_reports(tmp_path).markdown.read_text()
     assert "Stage time: 40 s computed by this sweep, 60 s if every job built" in text
     assert "With evaluation: 46 s against 66 s (ratio 0.70)." in text
-    assert "| k8 | 24.00 | +1.00 | n/a | 0.8000 | 20.0 | 20.0 |" in text
-    assert "| k16 | 23.00 | +0.00 | n/a | 0.8000 | 20.0 | 10.0 |" in text
+    assert "| k8 | 24.00 | +1.00 | n/a | n/a | 0.8000 | 20.0 | 20.0 |" in text
+    assert "| k16 | 23.00 | +0.00 | n/a | n/a | 0.8000 | 20.0 | 10.0 |" in text
     summary = pd.read_csv(tmp_path / "summary.csv")
     assert summary.train_s_computed.tolist() == [0.0, 0.0, 10.0]  # the CSV keeps the fields
     _job(tmp_path, 3, "k64", 23.0, 20.0, train_s_built_by_job="x")

@@ -17,6 +17,7 @@ from relaygs.app.summary import is_number, markdown_cell
 METRICS = (
     ("PSNR ↑", "psnr", 2),
     ("Δ PSNR", "delta_psnr", 2),
+    ("PSNR cf ↑", "psnr_cf", 2),
     ("fg-PSNR ↑", "fg_psnr", 2),
     ("SSIM ↑", "ssim", 4),
     ("Train (s)", "train_s_total", 1),

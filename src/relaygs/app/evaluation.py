@@ -26,7 +26,7 @@ from relaygs.pipeline.manifest import built_by
 from relaygs.pipeline.store import OnCorrupt
 
 EVAL_STAGE = "eval"
-EVAL_SCHEMA_VERSION = 2
+EVAL_SCHEMA_VERSION = 3
 
 EvaluateFn = Callable[[Any, Artifact, dict[str, Any]], Mapping[str, Any]]
 

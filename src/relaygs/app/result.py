@@ -15,7 +15,7 @@ from relaygs.pipeline import PipelineRun
 from relaygs.pipeline.fsio import publish_text
 
 RESULT_FILE = "result.json"
-METRIC_FIELDS = ("psnr", "ssim", "fg_psnr", "render_fps", "num_gaussians")
+METRIC_FIELDS = ("psnr", "psnr_cf", "ssim", "fg_psnr", "render_fps", "num_gaussians")
 ALWAYS_RECORDED = (
     "relay.k",
     "relay.pseudo_views",
@@ -137,6 +137,7 @@ def format_summary(result: Mapping[str, Scalar]) -> str:
     no test view was scored)."""
     rows = [
         ("PSNR", _fmt(result.get("psnr"), ".2f", " dB")),
+        ("  colour-fitted", _fmt(result.get("psnr_cf"), ".2f", " dB")),
         ("SSIM", _fmt(result.get("ssim"), ".4f")),
         ("fg-PSNR", _fmt(result.get("fg_psnr"), ".2f", " dB")),
         ("train time", _fmt(result.get("train_s_total"), ".1f", " s")),

@@ -9,6 +9,7 @@ from collections import defaultdict
 
 import torch
 
+from relaygs.colour_fit import channel_fit, channel_moments
 from relaygs.data import Scene, View
 from relaygs.metrics import psnr
 from relaygs.pipeline.artifact import Artifact
@@ -63,26 +64,17 @@ def error_split(
 def colour_fitted(
     scene: Scene, renders: list[tuple[View, torch.Tensor]]
 ) -> list[tuple[View, torch.Tensor]]:
-    """Each render mapped through a per-channel gain and offset, fit by least squares to all of
-    its camera's images at once (6 numbers per camera), and clipped to [0, 1]."""
+    """Each render (clamped to [0, 1]) mapped through its camera's per-channel gain and offset
+    (`relaygs.colour_fit`, fit to all of the camera's images at once), unclipped, so that the
+    PSNR over all pixels equals the evaluation's `psnr_cf`."""
     by_camera: dict[int, list[tuple[View, torch.Tensor]]] = defaultdict(list)
     for view, image in renders:
         by_camera[view.camera.camera_id].append((view, image.clamp(0.0, 1.0)))
     fitted = []
     for items in by_camera.values():
-        pred = torch.stack([image for _, image in items]).reshape(-1, 3)
-        target = torch.stack([scene.image(view) for view, _ in items]).reshape(-1, 3)
-        gain, offset = _channel_fit(pred, target)
-        fitted += [(view, (image * gain + offset).clamp(0.0, 1.0)) for view, image in items]
+        pred = torch.stack([image for _, image in items])
+        target = torch.stack([scene.image(view) for view, _ in items])
+        gain, offset = channel_fit(channel_moments(pred, target), pred[..., 0].numel())
+        gain, offset = gain.to(pred.dtype), offset.to(pred.dtype)
+        fitted += [(view, image * gain + offset) for view, image in items]
     return fitted
-
-
-def _channel_fit(pred: torch.Tensor, target: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Per-channel least-squares gain and offset mapping pred [N,3] onto target [N,3]; a flat
-    channel (no variance) keeps gain 1."""
-    mean_pred, mean_target = pred.mean(dim=0), target.mean(dim=0)
-    variance = (pred - mean_pred).square().mean(dim=0)
-    covariance = ((pred - mean_pred) * (target - mean_target)).mean(dim=0)
-    flat = variance <= 1e-12
-    gain = torch.where(flat, torch.ones_like(variance), covariance / variance.clamp_min(1e-12))
-    return gain, mean_target - gain * mean_pred

@@ -1,7 +1,9 @@
 """Evaluation: render every test camera at every frame (or every `frame_stride`-th) and score.
 
 PSNR and SSIM are per image, averaged; fg-PSNR runs over ground-truth foreground pixels of
-the images that have a non-empty mask (None when the scene has no masks); render FPS counts
+the images that have a non-empty mask (None when the scene has no masks); `psnr_cf` is the
+PSNR after each test camera's colour response is fit (`relaygs.colour_fit`: what a model
+scores when a held-out camera's own gains, which it cannot know, are not counted); render FPS counts
 rendering only (no metric time). `per_view` lists every scored image's own metrics, so a run
 can show where in time (at which motion) quality drops. Storage is the store's to report
 (`Manifest.size_mb`).
@@ -16,6 +18,7 @@ from typing import Any
 
 import torch
 
+from relaygs.colour_fit import ColourFittedPSNR
 from relaygs.data import Scene, View
 from relaygs.device import synchronize
 from relaygs.errors import InputError
@@ -54,6 +57,7 @@ def evaluate(scene: Scene, artifact: Artifact, cfg: Mapping[str, Any]) -> dict[s
     model = model.to(device)
     renderer = ModelRenderer(model)
     per_view: list[ViewRecord] = []
+    colour_fitted = ColourFittedPSNR()
     rendered, render_seconds = 0, 0.0
     for frame in range(0, scene.num_frames, settings.frame_stride):
         views = scene.views_at(frame, "test")
@@ -64,13 +68,13 @@ def evaluate(scene: Scene, artifact: Artifact, cfg: Mapping[str, Any]) -> dict[s
         synchronize(device)  # render FPS counts the GPU's work, not only its launch
         render_seconds += time.perf_counter() - began
         rendered += len(images)
-        per_view += [
-            view_metrics(scene, view, image.cpu())
-            for view, image in zip(views, images, strict=True)
-        ]
+        for view, image in zip(views, images, strict=True):
+            per_view.append(view_metrics(scene, view, image.cpu()))
+            colour_fitted.add(view.camera.camera_id, image.cpu(), scene.image(view))
     n_bg, n_fg = len(model.background), len(model.foreground)
     return {
         **{name: _mean(per_view, name) for name in METRIC_COLUMNS},
+        "psnr_cf": colour_fitted.value(),
         "render_fps": rendered / render_seconds if render_seconds > 0 else None,
         "num_gaussians": n_bg + n_fg,
         "num_bg": n_bg,

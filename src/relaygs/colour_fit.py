@@ -1,0 +1,80 @@
+"""Colour-fitted PSNR: a camera's renders scored after the per-channel gain and offset that map
+them best onto its images (least squares over all of its images, 6 numbers per camera).
+
+A held-out camera of a scene whose cameras each record colour their own way (Panoptic's, or a
+synthetic scene with `color_inconsistency`) has a response no model can learn from the other
+cameras; the fit removes it and nothing else, since 6 numbers cannot fit image content
+(docs/results.md, section 7b). The fitted values are not clipped, so the score follows in closed
+form from per-image channel moments and the renders need not be kept.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+
+import torch
+
+from relaygs.metrics import MSE_FLOOR
+
+_SUM_P, _SUM_T, _SUM_PP, _SUM_TT, _SUM_PT = range(5)
+
+
+def channel_moments(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Per-channel sums [5, C] in float64 over the pixels of `pred` and `target` ([..., C]):
+    Σp, Σt, Σp², Σt², Σp·t."""
+    p = pred.detach().reshape(-1, pred.shape[-1]).to(torch.float64)
+    t = target.detach().reshape(-1, target.shape[-1]).to(torch.float64)
+    return torch.stack([p.sum(0), t.sum(0), (p * p).sum(0), (t * t).sum(0), (p * t).sum(0)])
+
+
+def channel_fit(moments: torch.Tensor, count: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Least-squares gain and offset per channel from `channel_moments` over `count` pixels; a
+    flat channel (no variance in the renders) keeps gain 1."""
+    mean_p, mean_t = moments[_SUM_P] / count, moments[_SUM_T] / count
+    variance = moments[_SUM_PP] / count - mean_p.square()
+    covariance = moments[_SUM_PT] / count - mean_p * mean_t
+    flat = variance <= 1e-12
+    gain = torch.where(flat, torch.ones_like(variance), covariance / variance.clamp_min(1e-12))
+    return gain, mean_t - gain * mean_p
+
+
+def fitted_mse(
+    moments: torch.Tensor, count: int, gain: torch.Tensor, offset: torch.Tensor
+) -> float:
+    """Mean squared error of gain·pred + offset against the target, over the pixels and channels
+    the moments sum (expanded from the sums; rounding below zero is clamped)."""
+    sp, st, spp, stt, spt = moments
+    per_channel = (
+        gain.square() * spp
+        + 2 * gain * offset * sp
+        + count * offset.square()
+        - 2 * gain * spt
+        - 2 * offset * st
+        + stt
+    )
+    return max(float(per_channel.sum()) / (count * moments.shape[1]), 0.0)
+
+
+class ColourFittedPSNR:
+    """Accumulates scored images by camera; `value()` is the mean per-image PSNR after each
+    camera's colour fit (renders clamped to [0, 1] first, as the raw PSNR's are displayed)."""
+
+    def __init__(self) -> None:
+        self._images: dict[int, list[tuple[torch.Tensor, int]]] = defaultdict(list)
+
+    def add(self, camera: int, pred: torch.Tensor, target: torch.Tensor) -> None:
+        """Record one image of `camera` ([H,W,C] render and ground truth)."""
+        moments = channel_moments(pred.clamp(0.0, 1.0), target)
+        self._images[camera].append((moments, pred.numel() // pred.shape[-1]))
+
+    def value(self) -> float | None:
+        """Mean colour-fitted PSNR in dB over every added image; None when none was added."""
+        scores = []
+        for images in self._images.values():
+            total = torch.stack([moments for moments, _ in images]).sum(0)
+            gain, offset = channel_fit(total, sum(count for _, count in images))
+            for moments, count in images:
+                mse = max(fitted_mse(moments, count, gain, offset), MSE_FLOOR)
+                scores.append(-10.0 * math.log10(mse))
+        return sum(scores) / len(scores) if scores else None

@@ -1,0 +1,58 @@
+"""Colour-fitted PSNR: a camera's renders scored after its best per-channel gain and offset."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from relaygs.colour_fit import ColourFittedPSNR, channel_fit, channel_moments
+from relaygs.metrics import psnr
+from relaygs.stages import evaluate
+from relaygs.stages.error_split import error_split
+
+
+def _images(seed: int, count: int) -> list[tuple[torch.Tensor, torch.Tensor]]:
+    generator = torch.Generator().manual_seed(seed)
+    pairs = []
+    for _ in range(count):
+        pred = torch.rand(6, 5, 3, generator=generator)
+        pairs.append((pred, (pred * 0.7 + 0.1 + 0.05 * torch.rand(6, 5, 3, generator=generator))))
+    return pairs
+
+
+def test_closed_form_equals_fitting_the_images_and_scoring_them():
+    cameras = {3: _images(0, 4), 8: _images(1, 2)}
+    accumulator = ColourFittedPSNR()
+    explicit = []
+    for camera, pairs in cameras.items():
+        for pred, target in pairs:
+            accumulator.add(camera, pred, target)
+        preds = torch.stack([p for p, _ in pairs]).double()
+        targets = torch.stack([t for _, t in pairs]).double()
+        gain, offset = channel_fit(channel_moments(preds, targets), preds[..., 0].numel())
+        explicit += [float(psnr(p * gain + offset, t)) for p, t in zip(preds, targets, strict=True)]
+    assert accumulator.value() == pytest.approx(sum(explicit) / len(explicit), abs=1e-6)
+
+
+def test_a_camera_gain_and_offset_cost_nothing_but_content_errors_do():
+    pairs = _images(2, 3)
+    exact, wrong = ColourFittedPSNR(), ColourFittedPSNR()
+    for pred, _ in pairs:
+        exact.add(0, pred, pred * torch.tensor([0.9, 1.1, 1.0]) + 0.03)
+        wrong.add(0, pred, pred.flip(0))  # other content: no gain or offset fits it
+    assert exact.value() == pytest.approx(100.0)  # the MSE floor of `psnr`
+    assert wrong.value() < 20.0
+    assert ColourFittedPSNR().value() is None
+
+
+def test_flat_renders_keep_gain_one_and_stay_finite():
+    accumulator = ColourFittedPSNR()
+    accumulator.add(0, torch.full((4, 4, 3), 0.5), torch.rand(4, 4, 3))
+    assert 0.0 < accumulator.value() < 100.0
+
+
+def test_evaluation_reports_what_the_gap_tool_scores(stage_scene, stage_decoupled):
+    metrics = evaluate(stage_scene, stage_decoupled, {"eval": {"frame_stride": 4}})
+    fitted = error_split(stage_scene, stage_decoupled, "test", frame_stride=4, colour_fit=True)
+    assert metrics["psnr_cf"] == pytest.approx(fitted["psnr"], abs=1e-4)
+    assert metrics["psnr_cf"] >= metrics["psnr"] - 1e-4  # the fit includes gain 1, offset 0
