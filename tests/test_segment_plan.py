@@ -7,19 +7,26 @@ from types import SimpleNamespace
 import pytest
 import torch
 
+from conftest import stage_smoke_cfg
 from relaygs.errors import InputError
+from relaygs.stages import SPECS, SceneModel
+from relaygs.stages.canonical import uniform_unless_adaptive
 from relaygs.stages.segment_plan import SegmentPlan, frame_motion
-from relaygs.stages.segments import num_segments, segment_frames
 
 
-@pytest.mark.parametrize(("num_frames", "k"), [(64, 1), (64, 16), (10, 4), (7, 7), (5, 9)])
-def test_uniform_plan_is_the_k_frame_segments(num_frames, k):
+@pytest.mark.parametrize(
+    ("num_frames", "k", "count"),
+    [(70, 16, 5), (64, 16, 4), (64, 1, 64), (1, 16, 1), (17, 16, 2), (7, 7, 1), (5, 9, 1)],
+)
+def test_uniform_plan_is_ceil_t_over_k_segments_of_k_frames(num_frames, k, count):
     plan = SegmentPlan.uniform(num_frames, k)
-    assert plan.count == num_segments(num_frames, k)
-    for segment in range(plan.count):
-        assert plan.frames(segment) == segment_frames(segment, k, num_frames)
+    assert plan.count == count and plan.uniform_length == min(k, num_frames)
+    covered = [frame for segment in range(count) for frame in plan.frames(segment)]
+    assert covered == list(range(num_frames))  # every frame once, the last segment shorter
+    for segment in range(count):
+        assert plan.frames(segment) == range(segment * k, min((segment + 1) * k, num_frames))
         assert all(plan.segment_of(frame) == segment for frame in plan.frames(segment))
-    assert plan.segment_of(num_frames + 3) == plan.count - 1
+    assert plan.segment_of(num_frames + 3) == count - 1
 
 
 def _still_then_fast_scene(num_frames: int = 32, cameras: int = 3) -> SimpleNamespace:
@@ -49,6 +56,7 @@ def test_boundaries_follow_the_motion():
     assert plan.starts[0] == 0 and plan.count == 4
     assert all(start >= 16 for start in plan.starts[1:])  # every boundary in the fast half
     assert plan.lengths()[0] >= 16  # the still half is one long segment
+    assert plan.uniform_length is None
 
 
 def test_without_motion_segments_are_even_and_every_frame_is_covered():
@@ -60,7 +68,7 @@ def test_without_motion_segments_are_even_and_every_frame_is_covered():
 
 @pytest.mark.parametrize("segments", [0, 9])
 def test_a_segment_budget_outside_the_frames_is_refused(segments):
-    with pytest.raises(InputError, match=r"relay\.copies"):
+    with pytest.raises(InputError, match=r"relay\.k"):
         SegmentPlan.by_motion(torch.ones(7), segments)
 
 
@@ -68,3 +76,31 @@ def test_a_segment_budget_outside_the_frames_is_refused(segments):
 def test_malformed_starts_are_refused(starts):
     with pytest.raises(InputError):
         SegmentPlan(starts, num_frames=8)
+
+
+def test_an_adaptive_relay_keeps_its_segments_through_the_artifact(stage_scene, stage_decoupled):
+    cfg = stage_smoke_cfg(relay={"k": 2, "segments": "adaptive", "seed_copies": "replicate"})
+    relayed = SPECS["relay"].run(stage_scene, {"decouple": stage_decoupled}, cfg)
+    expected = SegmentPlan.by_motion(frame_motion(stage_scene), 4)  # S = ceil(8 / 2)
+    assert relayed.meta["segment_starts"] == list(expected.starts)
+    assert relayed.meta["metrics"]["segment_lengths"] == expected.lengths()
+    model = SceneModel.from_artifact(relayed)
+    assert model.segments == expected
+    for frame in range(stage_scene.num_frames):
+        rows = model.foreground_rows(frame)
+        assert (model.foreground.buffers["segment"][rows] == expected.segment_of(frame)).all()
+
+
+@pytest.mark.parametrize(
+    ("section", "kept"),
+    [
+        ({"k": 4}, False),
+        ({"k": 4, "segments": "uniform"}, False),  # the key of a uniform relay is unchanged
+        ({"k": 1, "segments": "adaptive"}, False),  # one frame a segment either way
+        ({"k": 99, "segments": "adaptive"}, False),  # one segment either way
+        ({"k": 4, "segments": "adaptive"}, True),
+    ],
+)
+def test_segments_enter_the_key_only_where_they_change_the_run(section, kept):
+    canonical = uniform_unless_adaptive(section, SimpleNamespace(num_frames=64))
+    assert ("segments" in canonical) == kept

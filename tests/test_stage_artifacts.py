@@ -20,6 +20,7 @@ from relaygs.stages.scene_model import (
     foreground_with_segments,
     replicate_foreground,
 )
+from relaygs.stages.segment_plan import SegmentPlan
 
 
 def _round_trip(artifact: Artifact, folder: Path) -> Artifact:
@@ -85,8 +86,7 @@ def _tiny_deformed() -> Artifact:
         stage="deform",
         background=gaussians,
         foreground=foreground_with_segments(gaussians, torch.zeros(4)),
-        num_frames=2,
-        segment_length=2,
+        segments=SegmentPlan.uniform(2, 2),
         field=build_field(settings),
         field_settings=settings,
         affine=ColorAffine(2),
@@ -100,6 +100,8 @@ def _tiny_deformed() -> Artifact:
     [
         (lambda meta, tensors: ([1], tensors), "meta is a list"),
         (lambda meta, tensors: ({**meta, "k": 0}, tensors), "meta 'k' missing or not an int >= 1"),
+        (lambda meta, tensors: ({**meta, "segment_starts": [0, 5]}, tensors), "segment starts"),
+        (lambda meta, tensors: ({**meta, "segment_starts": "0"}, tensors), "'segment_starts'"),
         (lambda meta, tensors: ({**meta, "field": "x"}, tensors), "its field does not match"),
         (
             lambda meta, tensors: ({**meta, "field": {**meta["field"], "width": 5}}, tensors),

@@ -12,22 +12,9 @@ from relaygs.data import Scene, load_scene
 from relaygs.errors import InputError
 from relaygs.pipeline.artifact import Artifact
 from relaygs.stages import SPECS, SceneModel
-from relaygs.stages.segments import SegmentTargets, num_segments, pseudo_frames, segment_frames
+from relaygs.stages.segment_plan import SegmentPlan
+from relaygs.stages.segments import SegmentTargets, pseudo_frames
 from relaygs.stages.views import TrainViews
-
-
-def test_segments_cover_every_frame_once() -> None:
-    frames = [f for s in range(math.ceil(70 / 16)) for f in segment_frames(s, 16, 70)]
-    assert frames == list(range(70))
-
-
-@pytest.mark.parametrize(
-    ("num_frames", "k", "count"), [(70, 16, 5), (64, 16, 4), (1, 16, 1), (5, 1, 5), (17, 16, 2)]
-)
-def test_num_segments_counts_a_short_last_segment(num_frames: int, k: int, count: int) -> None:
-    assert num_segments(num_frames, k) == count
-    covered = [f for s in range(count) for f in segment_frames(s, k, num_frames)]
-    assert covered == list(range(num_frames))
 
 
 @pytest.mark.parametrize(
@@ -44,14 +31,16 @@ def test_num_segments_counts_a_short_last_segment(num_frames: int, k: int, count
 def test_pseudo_frames_spread_over_the_segment(
     segment: int, k: int, num_frames: int, p: int, expected: list[int]
 ) -> None:
-    assert pseudo_frames(segment, k, num_frames, p) == expected
+    assert pseudo_frames(SegmentPlan.uniform(num_frames, k).frames(segment), p) == expected
 
 
 def test_pseudo_view_targets_are_the_blends(stage_scene: Scene) -> None:
     views = TrainViews(stage_scene, torch.device("cpu"))
     camera = stage_scene.train_cameras[2].camera_id
     generator = torch.Generator().manual_seed(0)
-    targets = SegmentTargets(views, k=STAGE_K, p=3, pseudo_views=True)
+    targets = SegmentTargets(
+        views, SegmentPlan.uniform(stage_scene.num_frames, STAGE_K), p=3, pseudo_views=True
+    )
     for segment in range(2):
         first = segment * STAGE_K
         frames = (first, first + 2, first + STAGE_K - 1)  # linspace(first, last, 3), rounded
@@ -64,7 +53,9 @@ def test_pseudo_view_targets_are_the_blends(stage_scene: Scene) -> None:
 def test_single_frame_targets_without_pseudo_views(stage_scene: Scene) -> None:
     views = TrainViews(stage_scene, torch.device("cpu"))
     camera = stage_scene.train_cameras[0].camera_id
-    targets = SegmentTargets(views, k=STAGE_K, p=3, pseudo_views=False)
+    targets = SegmentTargets(
+        views, SegmentPlan.uniform(stage_scene.num_frames, STAGE_K), p=3, pseudo_views=False
+    )
     generator = torch.Generator().manual_seed(1)
     segment_images = [stage_scene.image(views.view(f, camera)) for f in range(STAGE_K, 2 * STAGE_K)]
     for _ in range(6):
@@ -152,8 +143,8 @@ def test_one_frame_segments_give_a_copy_per_frame(
     views = TrainViews(stage_scene, torch.device("cpu"))
     camera = stage_scene.train_cameras[1].camera_id
     generator = torch.Generator().manual_seed(0)
-    blended = SegmentTargets(views, k=1, p=3, pseudo_views=True)
-    single = SegmentTargets(views, k=1, p=3, pseudo_views=False)
+    blended = SegmentTargets(views, SegmentPlan.uniform(frames, 1), p=3, pseudo_views=True)
+    single = SegmentTargets(views, SegmentPlan.uniform(frames, 1), p=3, pseudo_views=False)
     for frame in (0, frames - 1):
         image = stage_scene.image(views.view(frame, camera))
         assert torch.equal(blended.target(camera, frame, generator), image)

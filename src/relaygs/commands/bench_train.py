@@ -39,6 +39,7 @@ from relaygs.splat import BACKENDS, default_backend, use_backend
 from relaygs.stages import BUDGETS, SPECS, evaluate, log
 from relaygs.stages.decouple import DecoupleConfig
 from relaygs.stages.scene_model import SceneModel, foreground_with_segments
+from relaygs.stages.segment_plan import SegmentPlan
 
 DEFAULT_CACHE = Path("outputs") / "cache" / "bench"
 SCENE = {"preset": "juggle", "frames": 64, "width": 160, "height": 90, "seed": 0}
@@ -234,8 +235,7 @@ def flagged_decouple(scene: Scene) -> Artifact:
         foreground=foreground_with_segments(
             foreground, torch.zeros(len(foreground), dtype=torch.int32)
         ),
-        num_frames=scene.num_frames,
-        segment_length=scene.num_frames,
+        segments=SegmentPlan.uniform(scene.num_frames, scene.num_frames),
     )
     return model.to_artifact({})
 

@@ -24,3 +24,15 @@ def one_segment_at_most(section: Mapping[str, Any], scene: Scene) -> dict[str, A
     if isinstance(k, int) and not isinstance(k, bool) and k > scene.num_frames:
         canonical["k"] = scene.num_frames
     return canonical
+
+
+def uniform_unless_adaptive(section: Mapping[str, Any], scene: Scene) -> dict[str, Any]:
+    """`one_segment_at_most`, and `segments` left out where it is uniform or where adaptive
+    placement has no choice (k = 1: a segment per frame; k >= T: one segment), so the keys of
+    uniform relays stay those they had before the setting existed."""
+    canonical = one_segment_at_most(section, scene)
+    k = canonical.get("k")
+    no_choice = isinstance(k, int) and k in (1, scene.num_frames)
+    if canonical.get("segments", "uniform") == "uniform" or no_choice:
+        canonical.pop("segments", None)
+    return canonical

@@ -45,6 +45,7 @@ from relaygs.stages.loop import StepResult, run_training
 from relaygs.stages.loss import photometric_loss
 from relaygs.stages.render import part_of, splat
 from relaygs.stages.scene_model import SceneModel, core_only, foreground_with_segments
+from relaygs.stages.segment_plan import SegmentPlan
 from relaygs.stages.session import SetPlan, TrainingSession
 from relaygs.stages.spec import StageSpec
 from relaygs.stages.train_settings import TrainSettings
@@ -161,8 +162,7 @@ def decouple(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, A
         stage=STAGE,
         background=core_only(final.subset(~is_fg)),
         foreground=foreground,
-        num_frames=scene.num_frames,
-        segment_length=scene.num_frames,
+        segments=SegmentPlan.uniform(scene.num_frames, scene.num_frames),
     )
     n_fg = int(is_fg.sum())
     metrics = {

@@ -237,8 +237,7 @@ def _starting_model(
         stage=STAGE,
         background=source.background,
         foreground=foreground,
-        num_frames=scene.num_frames,
-        segment_length=source.segment_length,
+        segments=source.segments,
         field=build_field(settings, seed),
         field_settings=settings,
     )

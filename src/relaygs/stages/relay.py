@@ -1,5 +1,9 @@
 """Stage 2, relay: S = ceil(T/k) copies of the decoupled foreground, copy s fitted to segment s.
 
+Segments are k frames each (`segments: uniform`, the paper's) or, with `segments: adaptive`,
+the same S segments placed by motion (`SegmentPlan.by_motion`): short where the foreground
+moves fast, long where it is still.
+
 Each step draws one segment s and `batch_views` train cameras; the background plus copy s is
 rendered and compared with the pseudo-views of those cameras (the mean of p frames spread over
 the segment) or, with `pseudo_views: false`, with one random frame of the segment. The
@@ -18,7 +22,7 @@ import torch
 from relaygs.data import Scene
 from relaygs.model import GaussianSet, paper_schedule
 from relaygs.pipeline.artifact import Artifact
-from relaygs.stages.canonical import one_segment_at_most
+from relaygs.stages.canonical import uniform_unless_adaptive
 from relaygs.stages.carve import HullSettings
 from relaygs.stages.common import (
     BACKGROUND_LR,
@@ -39,13 +43,15 @@ from relaygs.stages.loss import photometric_loss
 from relaygs.stages.relay_seed import SEED_MODES, carved_copies
 from relaygs.stages.render import FrozenRenders, part_of, splat
 from relaygs.stages.scene_model import SEGMENT, SceneModel, core_only, replicate_foreground
-from relaygs.stages.segments import SegmentTargets, num_segments, segment_frames
+from relaygs.stages.segment_plan import SegmentPlan, frame_motion
+from relaygs.stages.segments import SegmentTargets
 from relaygs.stages.session import SetPlan, TrainingSession
 from relaygs.stages.spec import StageSpec
 from relaygs.stages.train_settings import TrainSettings
 from relaygs.stages.views import TrainViews
 
 STAGE = "relay"
+SEGMENT_MODES = ("uniform", "adaptive")
 SCHEMA_VERSION = 2  # 2: density control ends before the stage's last step
 ACCEPTED_UPSTREAM = ("decouple",)
 
@@ -62,6 +68,7 @@ class RelayConfig(PerSetSections):
     stage: ClassVar[str] = STAGE
     steps: int = 14000
     k: int = 16
+    segments: str = "uniform"
     pseudo_views: bool = True
     p: int = 3
     freeze_background: bool = True
@@ -81,6 +88,8 @@ class RelayConfig(PerSetSections):
         """Check every value (errors name `relay.<key>`)."""
         require_steps("relay.steps", self.steps)
         require(self.k >= 1, "relay.k", self.k, "an int >= 1")
+        modes = list(SEGMENT_MODES)
+        require(self.segments in modes, "relay.segments", self.segments, f"one of {modes}")
         require(self.p >= 1, "relay.p", self.p, "an int >= 1")
         require(self.sh_every >= 0, "relay.sh_every", self.sh_every, "an int >= 0")
         mode = self.seed_copies
@@ -107,6 +116,13 @@ class RelayConfig(PerSetSections):
             plans["bg"] = SetPlan(self.set_rates("bg"), self.set_densify("bg"), self.sh_every)
         return plans
 
+    def segment_plan(self, scene: Scene) -> SegmentPlan:
+        """The segments over `scene`: k frames each, or ceil(T / k) placed by its motion."""
+        uniform = SegmentPlan.uniform(scene.num_frames, self.k)
+        if self.segments == "uniform" or uniform.count in (1, scene.num_frames):
+            return uniform
+        return SegmentPlan.by_motion(frame_motion(scene), uniform.count)
+
     def hull(self) -> HullSettings:
         """Visual-hull settings of `seed_copies: carve`."""
         return HullSettings(self.hull_residual, self.hull_voxels, self.hull_misses)
@@ -120,30 +136,32 @@ def relay(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, Any]
     seed = int(cfg.get("seed", 0))
     device = train.torch_device()
     source = upstream_model(artifact, scene, STAGE).to(device)
-    segments = num_segments(scene.num_frames, section.k)
     training = training_scene(scene, train, early_stage=True)
+    segments = section.segment_plan(training)
     if section.seed_copies == "carve":
         copies = carved_copies(
             TrainViews(training, device),
             source.background,
             core_only(source.foreground),
             section,
+            segments,
             seed,
         ).to(device)
     else:
-        copies = replicate_foreground(source.foreground, segments).to(device)
+        copies = replicate_foreground(source.foreground, segments.count).to(device)
     trainable = {"fg": copies} if len(copies) else {}
     if not section.freeze_background:
         trainable["bg"] = source.background
     report = None
     if trainable:  # nothing to train without foreground when the background is frozen
-        trainable, report = _train(training, source, trainable, section, train, seed, device)
+        trainable, report = _train(
+            training, source, trainable, segments, section, train, seed, device
+        )
     model = SceneModel(
         stage=STAGE,
         background=trainable.get("bg", source.background),
         foreground=trainable.get("fg", copies),
-        num_frames=scene.num_frames,
-        segment_length=section.k,
+        segments=segments,
     ).to("cpu")
     meta = stage_meta(
         SCHEMA_VERSION,
@@ -160,6 +178,7 @@ def _train(
     scene: Scene,
     source: SceneModel,
     sets: dict[str, GaussianSet],
+    segments: SegmentPlan,
     section: RelayConfig,
     train: TrainSettings,
     seed: int,
@@ -176,8 +195,7 @@ def _train(
         device=device,
     )
     views = TrainViews(scene, device)
-    targets = SegmentTargets(views, section.k, section.p, section.pseudo_views)
-    segments = num_segments(scene.num_frames, section.k)
+    targets = SegmentTargets(views, segments, section.p, section.pseudo_views)
     empty = source.foreground.subset(torch.zeros(0, dtype=torch.int64))
     # A frozen background looks the same at every step: render it once per camera.
     frozen = FrozenRenders() if section.freeze_background else None
@@ -187,8 +205,8 @@ def _train(
 
     def step_fn(step: int) -> StepResult:
         generator = session.generator
-        segment = int(torch.randint(segments, (1,), generator=generator))
-        first = segment_frames(segment, section.k, scene.num_frames)[0]
+        segment = int(torch.randint(segments.count, (1,), generator=generator))
+        first = segments.frames(segment)[0]
         batch = views.random_views_at(first, train.batch_views, generator)
         background, foreground = current()
         degree = max(background.active_sh_degree, foreground.active_sh_degree)
@@ -211,7 +229,7 @@ def _train(
 
 
 def _counts(model: SceneModel) -> dict[str, Any]:
-    """Gaussian counts, with the number of copies per segment."""
+    """Gaussian counts, with the number of copies per segment and the segments' lengths."""
     per_segment = torch.bincount(
         model.foreground.buffers[SEGMENT].long(), minlength=model.num_segments
     )
@@ -221,6 +239,7 @@ def _counts(model: SceneModel) -> dict[str, Any]:
         "num_bg": n_bg,
         "num_fg": n_fg,
         "fg_per_segment": per_segment.tolist(),
+        "segment_lengths": model.segments.lengths(),
     }
 
 
@@ -230,5 +249,5 @@ SPEC = StageSpec(
     settings=RelayConfig,
     schema_version=SCHEMA_VERSION,
     upstream=ACCEPTED_UPSTREAM,
-    canonical=one_segment_at_most,
+    canonical=uniform_unless_adaptive,
 )

@@ -15,7 +15,8 @@ from relaygs.model import GaussianSet
 from relaygs.stages.carve import residual_masks, visual_hull
 from relaygs.stages.render import FrozenRenders, part_of
 from relaygs.stages.scene_model import foreground_with_segments
-from relaygs.stages.segments import num_segments, pseudo_frames
+from relaygs.stages.segment_plan import SegmentPlan
+from relaygs.stages.segments import pseudo_frames
 from relaygs.stages.views import TrainViews
 
 if TYPE_CHECKING:
@@ -30,6 +31,7 @@ def carved_copies(
     background: GaussianSet,
     replica: GaussianSet,
     section: RelayConfig,
+    segments: SegmentPlan,
     seed: int,
 ) -> GaussianSet:
     """One copy per segment from the hull at its pseudo frames (at most `section.seed_points`
@@ -40,8 +42,8 @@ def carved_copies(
     generator = torch.Generator().manual_seed(seed)
     renders = BackgroundRenders(background)
     copies = []
-    for segment in range(num_segments(scene.num_frames, section.k)):
-        frames = pseudo_frames(segment, section.k, scene.num_frames, section.p)
+    for segment in range(segments.count):
+        frames = pseudo_frames(segments.frames(segment), section.p)
         hulls = [_hull_at(views, renders, frame, bounds, section, generator) for frame in frames]
         hulls = [hull for hull in hulls if hull is not None]
         xyz = torch.cat([points for points, _, _ in hulls]) if hulls else torch.zeros(0, 3)

@@ -12,7 +12,7 @@ from relaygs.stages.canonical import one_segment_at_most
 from relaygs.stages.common import single_upstream, stage_meta, upstream_model
 from relaygs.stages.config import parse_section, require
 from relaygs.stages.scene_model import SceneModel, replicate_foreground
-from relaygs.stages.segments import num_segments
+from relaygs.stages.segment_plan import SegmentPlan
 from relaygs.stages.spec import StageSpec
 from relaygs.stages.train_settings import TrainSettings
 
@@ -43,13 +43,12 @@ def replicate(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, 
     section = ReplicateConfig.from_config(cfg.get(STAGE))
     train = TrainSettings.from_config(cfg.get("train"))
     source = upstream_model(artifact, scene, STAGE)
-    segments = num_segments(scene.num_frames, section.k)
+    segments = SegmentPlan.uniform(scene.num_frames, section.k)
     model = SceneModel(
         stage=STAGE,
         background=source.background,
-        foreground=replicate_foreground(source.foreground, segments),
-        num_frames=scene.num_frames,
-        segment_length=section.k,
+        foreground=replicate_foreground(source.foreground, segments.count),
+        segments=segments,
     )
     n_bg, n_fg = len(model.background), len(model.foreground)
     metrics = {"num_gaussians": n_bg + n_fg, "num_bg": n_bg, "num_fg": n_fg, "train_seconds": 0.0}

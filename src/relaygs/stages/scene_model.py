@@ -5,11 +5,12 @@ foreground carries the buffer `segment` (int32, the relay copy each row belongs 
 deform with γ, the parameter `gamma`. `is_fg` [N] bool and `segment` [N] int32 (−1 for the
 background) describe the concatenation bg‖fg. A deformed model adds `field.<state_dict key>` and,
 with a colour affine, `affine.log_gain` / `affine.offset`. Metadata holds what is needed to
-rebuild it (frames, segment length k, field settings, affine camera ids).
+rebuild it (frames, the segment length k, or `segment_starts` for segments placed by motion,
+field settings, affine camera ids).
 
 Which foreground rows are visible at frame f: a decouple model shows its foreground only at
-frame 0 (the decoupled movers); every other model shows the copy of segment f // k, so each
-frame belongs to exactly one segment.
+frame 0 (the decoupled movers); every other model shows the copy of the segment holding f
+(f // k for uniform segments), so each frame belongs to exactly one segment.
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ from relaygs.errors import InputError, one_line
 from relaygs.field import ColorAffine, DeformationField
 from relaygs.model import GaussianSet
 from relaygs.pipeline.artifact import Artifact
-from relaygs.stages.segments import num_segments
+from relaygs.stages.segment_plan import SegmentPlan
 
 SEGMENT = "segment"
 GAMMA = "gamma"
@@ -38,7 +39,7 @@ DECOUPLE = "decouple"
 
 @dataclass
 class SceneModel:
-    """Background + foreground Gaussian sets, the segment length, and optional motion modules.
+    """Background + foreground Gaussian sets, their segments, and optional motion modules.
 
     `field_settings` are the DeformationField keyword arguments plus `aabb` and
     `time_resolution`; `affine_cameras` lists the train camera ids in ColorAffine row order.
@@ -47,22 +48,21 @@ class SceneModel:
     stage: str
     background: GaussianSet
     foreground: GaussianSet
-    num_frames: int
-    segment_length: int
+    segments: SegmentPlan
     field: DeformationField | None = None
     field_settings: dict[str, Any] | None = None
     affine: ColorAffine | None = None
     affine_cameras: list[int] = dataclasses.field(default_factory=list)
 
     @property
-    def num_segments(self) -> int:
-        """S = ceil(T / k)."""
-        return num_segments(self.num_frames, self.segment_length)
+    def num_frames(self) -> int:
+        """T, the scene's frame count."""
+        return self.segments.num_frames
 
-    def segment_of(self, frame: int) -> int:
-        """The segment that frame `frame` belongs to (frame // k; frames past the last count as
-        the last)."""
-        return min(frame, self.num_frames - 1) // self.segment_length
+    @property
+    def num_segments(self) -> int:
+        """S, the number of segments (ceil(T / k) for uniform ones)."""
+        return self.segments.count
 
     def foreground_rows(self, frame: int) -> Tensor:
         """Indices of the foreground rows rendered at `frame`."""
@@ -71,7 +71,7 @@ class SceneModel:
             if frame == 0:
                 return torch.arange(segments.shape[0], device=segments.device)
             return torch.zeros(0, dtype=torch.int64, device=segments.device)
-        return (segments == self.segment_of(frame)).nonzero().squeeze(1)
+        return (segments == self.segments.segment_of(frame)).nonzero().squeeze(1)
 
     def to_artifact(self, meta: Mapping[str, Any]) -> Artifact:
         """This model as an Artifact; `meta` adds stage-specific metadata (config, metrics)."""
@@ -94,7 +94,12 @@ class SceneModel:
                 tensors[AFFINE_PREFIX + key] = value.detach().clone()
         body = {
             "num_frames": self.num_frames,
-            "k": self.segment_length,
+            "k": self.segments.uniform_length,
+            **(
+                {}
+                if self.segments.uniform_length
+                else {"segment_starts": list(self.segments.starts)}
+            ),
             "num_segments": self.num_segments,
             "counts": {"bg": n_bg, "fg": n_fg, "total": n_bg + n_fg},
             "field": self.field_settings,
@@ -109,11 +114,7 @@ class SceneModel:
         meta, tensors = artifact.meta, artifact.tensors
         if not isinstance(meta, Mapping):
             raise InputError(f"{artifact.stage} artifact: meta is a {type(meta).__name__}")
-        for key in ("num_frames", "k"):
-            if not isinstance(meta.get(key), int) or meta[key] < 1:
-                raise InputError(
-                    f"{artifact.stage} artifact: meta {key!r} missing or not an int >= 1"
-                )
+        segments = _segment_plan(artifact.stage, meta)
         background = GaussianSet.from_tensors(_with_prefix(tensors, "bg."), "bg.")
         foreground = GaussianSet.from_tensors(_with_prefix(tensors, "fg."), "fg.")
         if SEGMENT not in foreground.buffers:
@@ -122,8 +123,7 @@ class SceneModel:
             stage=artifact.stage,
             background=background,
             foreground=foreground,
-            num_frames=meta["num_frames"],
-            segment_length=meta["k"],
+            segments=segments,
             field_settings=meta.get("field"),
             affine_cameras=list(meta.get("affine_cameras") or []),
         )
@@ -205,6 +205,23 @@ def core_only(gaussians: GaussianSet) -> GaussianSet:
         key: value for key, value in tensors.items() if not key.startswith(("param.", "buffer."))
     }
     return GaussianSet.from_tensors(kept)
+
+
+def _segment_plan(stage: str, meta: Mapping[str, Any]) -> SegmentPlan:
+    """The segments a model's meta records: its start frames or (artifacts from before
+    adaptive segments) the uniform length k."""
+    for key in ("num_frames", *(() if "segment_starts" in meta else ("k",))):
+        if not isinstance(meta.get(key), int) or meta[key] < 1:
+            raise InputError(f"{stage} artifact: meta {key!r} missing or not an int >= 1")
+    starts = meta.get("segment_starts")
+    if starts is None:
+        return SegmentPlan.uniform(meta["num_frames"], meta["k"])
+    if not isinstance(starts, list) or not all(isinstance(s, int) for s in starts):
+        raise InputError(f"{stage} artifact: meta 'segment_starts' is not a list of ints")
+    try:
+        return SegmentPlan(tuple(starts), meta["num_frames"])
+    except InputError as error:
+        raise InputError(f"{stage} artifact: meta {error}") from None
 
 
 def _with_prefix(tensors: Mapping[str, Tensor], prefix: str, strip: bool = False) -> dict:

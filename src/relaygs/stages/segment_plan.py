@@ -49,7 +49,7 @@ class SegmentPlan:
         (`motion[i]` between frames i and i+1); equal lengths where nothing moves."""
         num_frames = motion.numel() + 1
         if not 1 <= segments <= num_frames:
-            raise InputError(f"relay.copies: expected 1..{num_frames} segments, got {segments}")
+            raise InputError(f"relay.k: expected 1..{num_frames} segments, got {segments}")
         # a floor spreads boundaries evenly through stretches with no motion at all
         steps = motion.double().clamp_min(0.0) + 1e-6 * float(motion.double().abs().mean() + 1e-9)
         cumulative = torch.cat([steps.new_zeros(1), steps.cumsum(0)]).tolist()
@@ -76,6 +76,12 @@ class SegmentPlan:
     def segment_of(self, frame: int) -> int:
         """The segment holding `frame` (frames past the end belong to the last)."""
         return bisect.bisect_right(self.starts, min(frame, self.num_frames - 1)) - 1
+
+    @property
+    def uniform_length(self) -> int | None:
+        """k when the plan is the uniform k-frame one, else None."""
+        k = self.starts[1] if self.count > 1 else self.num_frames
+        return k if self == SegmentPlan.uniform(self.num_frames, k) else None
 
     def lengths(self) -> list[int]:
         """Frames per segment."""

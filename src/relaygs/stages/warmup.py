@@ -27,6 +27,7 @@ from relaygs.stages.loop import StepResult, run_training
 from relaygs.stages.loss import photometric_loss
 from relaygs.stages.render import part_of, splat
 from relaygs.stages.scene_model import SceneModel, foreground_with_segments
+from relaygs.stages.segment_plan import SegmentPlan
 from relaygs.stages.session import SetPlan
 from relaygs.stages.spec import StageSpec
 from relaygs.stages.train_settings import TrainSettings
@@ -103,8 +104,7 @@ def warmup(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, Any
         stage=STAGE,
         background=background,
         foreground=foreground_with_segments(empty, torch.zeros(0, dtype=torch.int32)),
-        num_frames=scene.num_frames,
-        segment_length=scene.num_frames,
+        segments=SegmentPlan.uniform(scene.num_frames, scene.num_frames),
     )
     metrics = {"num_gaussians": len(background), "num_bg": len(background), "num_fg": 0}
     meta = stage_meta(SCHEMA_VERSION, section, train, report, metrics, downscale=training.downscale)
