@@ -11,6 +11,7 @@ from relaygs.renders import RenderSettings, write_renders
 from relaygs.stages import SPECS, relay_seed
 from relaygs.stages.relay import RelayConfig
 from relaygs.stages.scene_model import SEGMENT, SceneModel, core_only
+from relaygs.stages.segment_plan import SegmentPlan
 from relaygs.stages.views import TrainViews
 
 DEVICE = "cuda"
@@ -63,6 +64,7 @@ def test_carved_copies_join_hull_seeds_and_replicas_on_the_gpu(
         source.background,
         replica,
         RelayConfig(k=STAGE_K),
+        SegmentPlan.uniform(stage_scene.num_frames, STAGE_K),
         seed=0,
     )
     for name, tensor in copies.to_tensors().items():
