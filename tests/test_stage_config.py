@@ -11,12 +11,13 @@ import torch
 
 from relaygs.errors import InputError
 from relaygs.model import BACKGROUND_DENSIFY, FOREGROUND_DENSIFY, DensityController, GaussianSet
-from relaygs.stages import BUDGETS, SPECS, StageSpec, budgets, validate_config
+from relaygs.stages import BUDGETS, SPECS, StageSpec, validate_config
 from relaygs.stages.decouple import DecoupleConfig
 from relaygs.stages.deform import DeformConfig
 from relaygs.stages.relay import RelayConfig
 from relaygs.stages.train_settings import TrainSettings
 from relaygs.stages.warmup import WarmupConfig
+from relaygs.train import budgets
 
 
 def test_each_stage_module_declares_the_spec_it_is_listed_under() -> None:

@@ -16,7 +16,7 @@ from relaygs.errors import InputError
 from relaygs.pipeline.artifact import Artifact
 from relaygs.stages import SPECS, SceneModel
 from relaygs.stages.decouple import straight_through_mask
-from relaygs.stages.views import TrainViews
+from relaygs.train.views import TrainViews
 
 # On the test scene, after 200 steps: ≥ 60 % of the cloud's mover points end nearest to a
 # Gaussian marked foreground, ≥ 85 % of its static (floor, wall, props) points nearest to

@@ -12,8 +12,8 @@ from relaygs.data import Scene, load_scene
 from relaygs.errors import InputError
 from relaygs.pipeline.artifact import Artifact
 from relaygs.stages import SPECS, SceneModel
-from relaygs.stages.segments import SegmentTargets, num_segments, pseudo_frames, segment_frames
-from relaygs.stages.views import TrainViews
+from relaygs.train.segments import SegmentTargets, num_segments, pseudo_frames, segment_frames
+from relaygs.train.views import TrainViews
 
 
 def test_segments_cover_every_frame_once() -> None:

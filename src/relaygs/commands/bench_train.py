@@ -36,9 +36,10 @@ from relaygs.errors import RelayGSError
 from relaygs.model import GaussianSet
 from relaygs.pipeline.artifact import Artifact
 from relaygs.splat import BACKENDS, default_backend, use_backend
-from relaygs.stages import BUDGETS, SPECS, evaluate, log
+from relaygs.stages import BUDGETS, SPECS, evaluate
 from relaygs.stages.decouple import DecoupleConfig
-from relaygs.stages.scene_model import SceneModel, foreground_with_segments
+from relaygs.train import log
+from relaygs.train.scene_model import SceneModel, foreground_with_segments
 
 DEFAULT_CACHE = Path("outputs") / "cache" / "bench"
 SCENE = {"preset": "juggle", "frames": 64, "width": 160, "height": 90, "seed": 0}

@@ -13,10 +13,10 @@ from relaygs.errors import InputError
 from relaygs.model import MAX_LOG_SCALE, GaussianSet
 from relaygs.pipeline.artifact import Artifact
 from relaygs.stages.config import json_ready
-from relaygs.stages.loop import TrainReport
-from relaygs.stages.scene_model import SceneModel
-from relaygs.stages.session import SetPlan, TrainingSession
 from relaygs.stages.train_settings import TrainSettings
+from relaygs.train.loop import TrainReport
+from relaygs.train.scene_model import SceneModel
+from relaygs.train.session import SetPlan, TrainingSession
 
 LOGGED_SCALARS = "logged_scalars"
 """Artifact meta key of the scalars a stage emitted while it trained (`ScalarHistory`)."""

@@ -41,14 +41,14 @@ from relaygs.stages.config import (
     require_steps,
     schedule,
 )
-from relaygs.stages.loop import StepResult, run_training
-from relaygs.stages.loss import photometric_loss
-from relaygs.stages.render import part_of, splat
-from relaygs.stages.scene_model import SceneModel, core_only, foreground_with_segments
-from relaygs.stages.session import SetPlan, TrainingSession
 from relaygs.stages.spec import StageSpec
 from relaygs.stages.train_settings import TrainSettings
-from relaygs.stages.views import TrainViews
+from relaygs.train.loop import StepResult, run_training
+from relaygs.train.loss import photometric_loss
+from relaygs.train.render import part_of, splat
+from relaygs.train.scene_model import SceneModel, core_only, foreground_with_segments
+from relaygs.train.session import SetPlan, TrainingSession
+from relaygs.train.views import TrainViews
 
 STAGE = "decouple"
 SCHEMA_VERSION = 2  # 2: density control ends before the stage's last step

@@ -23,9 +23,9 @@ from relaygs.metrics import fg_psnr, psnr, ssim
 from relaygs.per_view import METRIC_COLUMNS, PER_VIEW, ViewRecord
 from relaygs.pipeline.artifact import Artifact
 from relaygs.stages.config import parse_section, require
-from relaygs.stages.model_render import ModelRenderer
-from relaygs.stages.scene_model import SceneModel
 from relaygs.stages.train_settings import TrainSettings
+from relaygs.train.model_render import ModelRenderer
+from relaygs.train.scene_model import SceneModel
 
 
 @dataclass(frozen=True)

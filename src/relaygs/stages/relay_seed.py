@@ -13,10 +13,10 @@ from torch import Tensor
 from relaygs.data import Camera
 from relaygs.model import GaussianSet
 from relaygs.stages.carve import residual_masks, visual_hull
-from relaygs.stages.render import FrozenRenders, part_of
-from relaygs.stages.scene_model import foreground_with_segments
-from relaygs.stages.segments import num_segments, pseudo_frames
-from relaygs.stages.views import TrainViews
+from relaygs.train.render import FrozenRenders, part_of
+from relaygs.train.scene_model import foreground_with_segments
+from relaygs.train.segments import num_segments, pseudo_frames
+from relaygs.train.views import TrainViews
 
 if TYPE_CHECKING:
     from relaygs.stages.relay import RelayConfig

@@ -9,7 +9,7 @@ import torch
 from torch import Tensor
 
 from relaygs.errors import InputError
-from relaygs.stages.views import TrainViews
+from relaygs.train.views import TrainViews
 
 
 def num_segments(num_frames: int, k: int) -> int:

@@ -27,7 +27,7 @@ from relaygs.errors import InputError, one_line
 from relaygs.field import ColorAffine, DeformationField
 from relaygs.model import GaussianSet
 from relaygs.pipeline.artifact import Artifact
-from relaygs.stages.segments import num_segments
+from relaygs.train.segments import num_segments
 
 SEGMENT = "segment"
 GAMMA = "gamma"
