@@ -19,7 +19,7 @@ from relaygs.train.model_render import ModelRenderer
 
 STRIDE = 3
 # the module (the package's `evaluate` attribute is the function of the same name)
-evaluate_module = importlib.import_module("relaygs.stages.evaluate")
+evaluate_module = importlib.import_module("relaygs.train.evaluate")
 
 
 class _TickingClock:

@@ -27,7 +27,7 @@ from relaygs.data.scene import frame_time
 from relaygs.error_map import error_image
 from relaygs.errors import InputError, RelayGSError
 from relaygs.progress import progress_bar
-from relaygs.stages.evaluate import require_its_scene
+from relaygs.train.evaluate import require_its_scene
 from relaygs.train.model_render import ModelRenderer
 from relaygs.train.scene_model import SceneModel
 

@@ -12,7 +12,7 @@ import torch
 from relaygs.data import Scene, View
 from relaygs.metrics import psnr
 from relaygs.pipeline.artifact import Artifact
-from relaygs.stages.evaluate import require_its_scene
+from relaygs.train.evaluate import require_its_scene
 from relaygs.train.model_render import ModelRenderer
 from relaygs.train.scene_model import SceneModel
 
