@@ -7,6 +7,7 @@ all a new stage type adds here. `evaluate` scores a final artifact on the test v
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Mapping
 from typing import Any
 
@@ -24,8 +25,13 @@ SPECS: dict[str, StageSpec] = {
     spec.name: spec
     for spec in (decouple.SPEC, relay.SPEC, deform.SPEC, warmup.SPEC, replicate.SPEC)
 }
-BUDGETS = load_budgets(("train", "eval", *SPECS))
-"""The named step budgets of `conf/budget/` (`relaygs.train.budgets`)."""
+
+
+@functools.cache
+def step_budgets() -> dict[str, dict[str, dict[str, Any]]]:
+    """The named step budgets of `conf/budget/` (`relaygs.train.budgets`), read on first use
+    rather than on import, so importing the stages reads no file."""
+    return load_budgets(("train", "eval", *SPECS))
 
 
 def canonical_config(stage: str, cfg: Mapping[str, Any], scene: Scene) -> dict[str, Any]:
@@ -48,7 +54,6 @@ def validate_config(stage: str, cfg: Mapping[str, Any]) -> None:
 
 
 __all__ = [
-    "BUDGETS",
     "SPECS",
     "EvalSettings",
     "ModelRenderer",
@@ -58,5 +63,6 @@ __all__ = [
     "canonical_config",
     "evaluate",
     "render_model",
+    "step_budgets",
     "validate_config",
 ]
