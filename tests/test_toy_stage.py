@@ -21,10 +21,11 @@ from relaygs.app.task import run_task
 from relaygs.data import Scene
 from relaygs.errors import InputError
 from relaygs.pipeline.artifact import Artifact
-from relaygs.stages.common import initial_gaussians, no_upstream, stage_meta
+from relaygs.stages.common import no_upstream, stage_meta
 from relaygs.stages.config import parse_section, require
 from relaygs.stages.spec import StageSpec
 from relaygs.stages.train_settings import TrainSettings
+from relaygs.train.initial import initial_gaussians
 from relaygs.train.scene_model import SceneModel, foreground_with_segments
 
 STAGE = "points"

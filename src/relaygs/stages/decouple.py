@@ -30,7 +30,6 @@ from relaygs.stages.common import (
     BACKGROUND_LR,
     no_upstream,
     stage_meta,
-    static_session,
     training_scene,
 )
 from relaygs.stages.config import (
@@ -43,6 +42,7 @@ from relaygs.stages.config import (
 )
 from relaygs.stages.spec import StageSpec
 from relaygs.stages.train_settings import TrainSettings
+from relaygs.train.initial import static_session
 from relaygs.train.loop import StepResult, run_training
 from relaygs.train.loss import photometric_loss
 from relaygs.train.render import part_of, splat

@@ -18,13 +18,13 @@ from relaygs.stages.common import (
     GAUSSIAN_LR,
     no_upstream,
     stage_meta,
-    static_session,
     training_scene,
 )
 from relaygs.stages.config import densify_settings, learning_rates, parse_section, require_steps
 from relaygs.stages.decouple import check_static_settings
 from relaygs.stages.spec import StageSpec
 from relaygs.stages.train_settings import TrainSettings
+from relaygs.train.initial import static_session
 from relaygs.train.loop import StepResult, run_training
 from relaygs.train.loss import photometric_loss
 from relaygs.train.render import part_of, splat
