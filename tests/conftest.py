@@ -98,9 +98,9 @@ STAGE_DECOUPLE_STEPS = 200
 def stage_smoke_cfg(**sections: dict) -> dict:
     """The `smoke` budget as a stage cfg (seed 0, no progress bar, k = STAGE_K), with
     `sections` merged over it key by key."""
-    from relaygs.stages import BUDGETS
+    from relaygs.stages import step_budgets
 
-    cfg = copy.deepcopy(BUDGETS["smoke"])
+    cfg = copy.deepcopy(step_budgets()["smoke"])
     cfg["seed"] = 0
     cfg["train"] = {**cfg.get("train", {}), "progress": False}
     cfg["relay"] = {**cfg["relay"], "k": STAGE_K}

@@ -409,7 +409,7 @@ def test_eval_refuses_a_scene_with_other_train_cameras(
     stage_decoupled, stage_scene_path, tmp_path, capsys
 ):
     from relaygs.field import ColorAffine
-    from relaygs.stages.scene_model import SceneModel
+    from relaygs.train.scene_model import SceneModel
 
     model = SceneModel.from_artifact(stage_decoupled)
     model.affine_cameras, model.affine = [1, 2, 3], ColorAffine(3)  # as deform fits it
@@ -476,7 +476,7 @@ def test_gap_scores_every_stage_on_train_and_test_views(
     stored_lineage, stage_scene_path, stage_decoupled, stage_relayed, stage_deformed, capsys
 ):
     from relaygs.data import load_scene
-    from relaygs.stages.error_split import error_split
+    from relaygs.train.error_split import error_split
 
     store, keys = stored_lineage
     argv = ("gap", keys["deform"][:8], "--scene", str(stage_scene_path), "--frame-stride", "4")
@@ -546,7 +546,7 @@ def _model_held_out(stage_decoupled, held_out):
     """The decouple model as deform would store it after training on every camera of the
     stage scene but `held_out` (its colour affine is fit to those train cameras)."""
     from relaygs.field import ColorAffine
-    from relaygs.stages.scene_model import SceneModel
+    from relaygs.train.scene_model import SceneModel
 
     model = SceneModel.from_artifact(stage_decoupled)
     model.affine_cameras = [camera for camera in range(31) if camera not in held_out]

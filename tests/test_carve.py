@@ -18,8 +18,8 @@ from relaygs.stages.carve import (
     visual_hull,
 )
 from relaygs.stages.relay_seed import BackgroundRenders
-from relaygs.stages.render import part_of, splat
-from relaygs.stages.scene_model import SEGMENT, SceneModel
+from relaygs.train.render import part_of, splat
+from relaygs.train.scene_model import SEGMENT, SceneModel
 from splat_scenes import dome_cameras
 
 WIDTH, HEIGHT = 80, 45

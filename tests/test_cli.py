@@ -13,7 +13,8 @@ import pytest
 
 import relaygs
 from relaygs.__main__ import COMMANDS
-from relaygs.cli import BROKEN_PIPE_EXIT, INTERRUPTED_EXIT, python_command, start_tool
+from relaygs.cli import BROKEN_PIPE_EXIT, INTERRUPTED_EXIT, start_tool
+from relaygs.shell import python_command
 
 LONG_OUTPUT = (
     "import sys; from relaygs.cli import run_tool; sys.exit(run_tool(lambda: print('x' * 99)))"

@@ -8,7 +8,7 @@ import torch
 from relaygs.colour_fit import ColourFittedPSNR, channel_fit, channel_moments
 from relaygs.metrics import psnr
 from relaygs.stages import evaluate
-from relaygs.stages.error_split import error_split
+from relaygs.train.error_split import error_split
 
 
 def _images(seed: int, count: int) -> list[tuple[torch.Tensor, torch.Tensor]]:

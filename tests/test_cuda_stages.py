@@ -10,9 +10,9 @@ from conftest import STAGE_K, stage_smoke_cfg
 from relaygs.renders import RenderSettings, write_renders
 from relaygs.stages import SPECS, relay_seed
 from relaygs.stages.relay import RelayConfig
-from relaygs.stages.scene_model import SEGMENT, SceneModel, core_only
-from relaygs.stages.segment_plan import SegmentPlan
-from relaygs.stages.views import TrainViews
+from relaygs.train.scene_model import SEGMENT, SceneModel, core_only
+from relaygs.train.segment_plan import SegmentPlan
+from relaygs.train.views import TrainViews
 
 DEVICE = "cuda"
 pytestmark = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")

@@ -18,7 +18,7 @@ from relaygs.data import Camera, Scene, View, detect_format, load_scene
 from relaygs.data.effects import COLOR_INCONSISTENCY, SENSOR_NOISE
 from relaygs.errors import InputError
 from relaygs.model import GaussianSet
-from relaygs.stages.render import part_of, splat
+from relaygs.train.render import part_of, splat
 
 
 @pytest.fixture(scope="module")

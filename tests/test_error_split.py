@@ -8,8 +8,8 @@ import pytest
 import torch
 
 from relaygs.stages import evaluate
-from relaygs.stages.error_split import error_split
-from relaygs.stages.model_render import ModelRenderer
+from relaygs.train.error_split import error_split
+from relaygs.train.model_render import ModelRenderer
 
 
 def test_test_split_scores_as_the_evaluator_does(stage_scene, stage_decoupled):

@@ -12,7 +12,6 @@ import numpy as np
 import pytest
 from hydra.core.override_parser.overrides_parser import OverridesParser
 
-from relaygs.cli import python_command
 from relaygs.commands import frames as frames_command
 from relaygs.data import load_scene
 from relaygs.data import video_frames as video_frames_module
@@ -20,6 +19,7 @@ from relaygs.data.export import export_multiview
 from relaygs.data.synthetic import generate
 from relaygs.data.video_frames import FrameSelection
 from relaygs.errors import InputError
+from relaygs.shell import python_command
 
 
 def _video(path: Path, images: list[np.ndarray], fps: float = 30.0) -> Path:

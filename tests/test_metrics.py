@@ -178,7 +178,7 @@ def test_mismatched_shapes_are_rejected():
 @pytest.mark.parametrize("sizes", [[(9, 12)] * 4, [(9, 12), (7, 12), (9, 12)]])
 def test_the_photometric_loss_is_the_mean_of_each_views_loss(sizes):
     # views of one size go through as one batch, mixed sizes one by one: the same value
-    from relaygs.stages.loss import photometric_loss
+    from relaygs.train.loss import photometric_loss
 
     generator = torch.Generator().manual_seed(5)
     preds = [torch.rand(h, w, 3, generator=generator, dtype=torch.float64) for h, w in sizes]

@@ -10,9 +10,9 @@ from relaygs.errors import InputError, RelayGSError
 from relaygs.model import MAX_LOG_SCALE
 from relaygs.pipeline import ArtifactStore, artifact_key
 from relaygs.ply import ply_columns, write_frame_plys
-from relaygs.stages.model_render import ModelRenderer
-from relaygs.stages.render import Part, splat
-from relaygs.stages.scene_model import SceneModel
+from relaygs.train.model_render import ModelRenderer
+from relaygs.train.render import Part, splat
+from relaygs.train.scene_model import SceneModel
 
 END_HEADER = b"end_header\n"
 

@@ -16,8 +16,8 @@ from relaygs.error_map import error_image
 from relaygs.errors import InputError
 from relaygs.pipeline.keys import artifact_key
 from relaygs.renders import RenderSettings, write_renders
-from relaygs.stages.model_render import ModelRenderer
-from relaygs.stages.scene_model import SceneModel
+from relaygs.train.model_render import ModelRenderer
+from relaygs.train.scene_model import SceneModel
 
 
 def _render_cli(capsys, store, key, scene, *args):

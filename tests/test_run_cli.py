@@ -24,12 +24,12 @@ from conftest import run_main
 from fake_stages import TINY_SCENE
 from refusals import refused
 from relaygs.app import prelaunch
-from relaygs.cli import script_command
 from relaygs.commands import run as run_module
 from relaygs.commands.artifacts import _parser as artifacts_parser
 from relaygs.data.synthetic import PRESETS
 from relaygs.errors import RERUN_RUN, InputError, Interrupted
 from relaygs.paths import config_dir
+from relaygs.shell import script_command
 
 UNUSABLE_GPU = f"cuda:{torch.cuda.device_count()}"
 """One past the last GPU: unusable on every machine, a CPU-only torch included."""

@@ -8,7 +8,7 @@ from omegaconf import OmegaConf
 from relaygs import paths
 from relaygs.app.plan import scale_steps
 from relaygs.model import paper_schedule
-from relaygs.stages import BUDGETS, SPECS, EvalSettings, TrainSettings
+from relaygs.stages import SPECS, EvalSettings, TrainSettings, step_budgets
 from relaygs.stages.config import json_ready
 
 EXPERIMENTS = ("ablation_k", "ablation_components", "baseline", "budget", "smoke")
@@ -189,5 +189,5 @@ def test_stage_groups_hold_exactly_the_stage_defaults(composer):
 @pytest.mark.parametrize("budget", ["paper", "small", "smoke"])
 def test_budget_files_set_the_stages_budgets(composer, budget):
     cfg = OmegaConf.to_container(composer([f"budget={budget}"]), resolve=True)
-    for section, values in BUDGETS[budget].items():
+    for section, values in step_budgets()[budget].items():
         assert {key: cfg[section][key] for key in values} == values, section

@@ -10,8 +10,8 @@ import torch
 from conftest import stage_smoke_cfg
 from relaygs.errors import InputError
 from relaygs.stages import SPECS, SceneModel
-from relaygs.stages.canonical import uniform_unless_adaptive
-from relaygs.stages.segment_plan import SegmentPlan, frame_motion
+from relaygs.train.canonical import uniform_unless_adaptive
+from relaygs.train.segment_plan import SegmentPlan, frame_motion
 
 
 @pytest.mark.parametrize(

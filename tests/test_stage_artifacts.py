@@ -13,14 +13,14 @@ from relaygs.field import ColorAffine
 from relaygs.model import CORE_PARAMS, GaussianSet
 from relaygs.pipeline.artifact import Artifact, read_artifact_files, write_artifact_files
 from relaygs.stages import SceneModel, render_model
-from relaygs.stages.model_render import ModelRenderer
-from relaygs.stages.scene_model import (
+from relaygs.train.model_render import ModelRenderer
+from relaygs.train.scene_model import (
     SEGMENT,
     build_field,
     foreground_with_segments,
     replicate_foreground,
 )
-from relaygs.stages.segment_plan import SegmentPlan
+from relaygs.train.segment_plan import SegmentPlan
 
 
 def _round_trip(artifact: Artifact, folder: Path) -> Artifact:

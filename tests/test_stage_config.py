@@ -11,12 +11,13 @@ import torch
 
 from relaygs.errors import InputError
 from relaygs.model import BACKGROUND_DENSIFY, FOREGROUND_DENSIFY, DensityController, GaussianSet
-from relaygs.stages import BUDGETS, SPECS, StageSpec, budgets, validate_config
+from relaygs.stages import SPECS, StageSpec, step_budgets, validate_config
 from relaygs.stages.decouple import DecoupleConfig
 from relaygs.stages.deform import DeformConfig
 from relaygs.stages.relay import RelayConfig
 from relaygs.stages.train_settings import TrainSettings
 from relaygs.stages.warmup import WarmupConfig
+from relaygs.train import budgets
 
 
 def test_each_stage_module_declares_the_spec_it_is_listed_under() -> None:
@@ -58,10 +59,10 @@ def test_paper_defaults() -> None:
     assert (train.batch_views, train.ssim_weight) == (4, 0.2)
 
 
-@pytest.mark.parametrize("budget", sorted(BUDGETS))
+@pytest.mark.parametrize("budget", sorted(step_budgets()))
 @pytest.mark.parametrize("stage", sorted(SPECS))
 def test_budgets_validate(budget: str, stage: str) -> None:
-    validate_config(stage, BUDGETS[budget])
+    validate_config(stage, step_budgets()[budget])
 
 
 @pytest.mark.parametrize("config", [RelayConfig, DeformConfig])

@@ -8,7 +8,6 @@ from typing import Any
 import pytest
 import torch
 
-import relaygs.stages.common as common_module
 import relaygs.stages.decouple as decouple_module
 from conftest import stage_smoke_cfg
 from relaygs.data import Scene, View
@@ -16,7 +15,8 @@ from relaygs.errors import InputError
 from relaygs.pipeline.artifact import Artifact
 from relaygs.stages import SPECS, SceneModel
 from relaygs.stages.decouple import straight_through_mask
-from relaygs.stages.views import TrainViews
+from relaygs.train.initial import initial_gaussians
+from relaygs.train.views import TrainViews
 
 # On the test scene, after 200 steps: ≥ 60 % of the cloud's mover points end nearest to a
 # Gaussian marked foreground, ≥ 85 % of its static (floor, wall, props) points nearest to
@@ -159,4 +159,4 @@ def test_a_scene_in_huge_units_is_refused_before_its_sizes_freeze(stage_scene: S
     cfg = stage_smoke_cfg(**{stage: {"steps": 1}})
     with pytest.raises(InputError, match=r"initial points lie more than 2.2e\+04 units from"):
         SPECS[stage].run(huge, {}, cfg)
-    common_module.initial_gaussians(stage_scene, None, 0.1, 0, 0)  # its own units: fine
+    initial_gaussians(stage_scene, None, 0.1, 0, 0)  # its own units: fine

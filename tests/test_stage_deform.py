@@ -16,9 +16,9 @@ from relaygs.field import DeformationField, Deltas
 from relaygs.model import GaussianSet
 from relaygs.pipeline.artifact import Artifact
 from relaygs.stages import SPECS, SceneModel, evaluate
-from relaygs.stages.motion import deformed_parts
-from relaygs.stages.scene_model import build_field
-from relaygs.stages.views import TrainViews
+from relaygs.train.motion import deformed_parts
+from relaygs.train.scene_model import build_field
+from relaygs.train.views import TrainViews
 
 
 def _random_set(count: int, generator: torch.Generator) -> GaussianSet:

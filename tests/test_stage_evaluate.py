@@ -15,11 +15,11 @@ from relaygs.metrics import psnr, ssim
 from relaygs.per_view import METRIC_COLUMNS, PER_VIEW
 from relaygs.pipeline.artifact import Artifact
 from relaygs.stages import SceneModel, evaluate
-from relaygs.stages.model_render import ModelRenderer
+from relaygs.train.model_render import ModelRenderer
 
 STRIDE = 3
 # the module (the package's `evaluate` attribute is the function of the same name)
-evaluate_module = importlib.import_module("relaygs.stages.evaluate")
+evaluate_module = importlib.import_module("relaygs.train.evaluate")
 
 
 class _TickingClock:

@@ -12,9 +12,9 @@ from relaygs.data import Scene, load_scene
 from relaygs.errors import InputError
 from relaygs.pipeline.artifact import Artifact
 from relaygs.stages import SPECS, SceneModel
-from relaygs.stages.segment_plan import SegmentPlan
-from relaygs.stages.segments import SegmentTargets, pseudo_frames
-from relaygs.stages.views import TrainViews
+from relaygs.train.segment_plan import SegmentPlan
+from relaygs.train.segments import SegmentTargets, pseudo_frames
+from relaygs.train.views import TrainViews
 
 
 @pytest.mark.parametrize(

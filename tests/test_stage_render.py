@@ -6,7 +6,7 @@ import torch
 
 from relaygs.data import Camera
 from relaygs.model import GaussianSet
-from relaygs.stages.render import FrozenRenders, part_of, screen_statistics, splat
+from relaygs.train.render import FrozenRenders, part_of, screen_statistics, splat
 from splat_scenes import dome_cameras
 
 WIDTH, HEIGHT = 64, 36

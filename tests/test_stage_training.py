@@ -20,12 +20,13 @@ from relaygs.pipeline.artifact import Artifact, write_artifact_files
 from relaygs.pipeline.checkpoint import StageCheckpointer
 from relaygs.pipeline.context import BuildContext, building
 from relaygs.pipeline.store import ArtifactStore
-from relaygs.stages import SPECS, log
+from relaygs.stages import SPECS
 from relaygs.stages import relay as relay_module
 from relaygs.stages.common import logged_scalars
-from relaygs.stages.loop import ScalarHistory
-from relaygs.stages.loss import batch_psnr, photometric_loss
-from relaygs.stages.session import TrainingSession
+from relaygs.train import log
+from relaygs.train.loop import ScalarHistory
+from relaygs.train.loss import batch_psnr, photometric_loss
+from relaygs.train.session import TrainingSession
 
 KEY = "ab" * 32
 

@@ -24,9 +24,9 @@ from relaygs.model import MAX_LOG_SCALE, normalize_quats
 from relaygs.pipeline.fsio import publish_bytes
 from relaygs.progress import progress_bar
 from relaygs.splat.sh import num_sh_bases
-from relaygs.stages.model_render import ModelRenderer
-from relaygs.stages.render import Part
-from relaygs.stages.scene_model import SceneModel
+from relaygs.train.model_render import ModelRenderer
+from relaygs.train.render import Part
+from relaygs.train.scene_model import SceneModel
 
 PLY_DTYPE = "<f4"  # every property is a little-endian float32, as 3DGS writes them
 

@@ -27,9 +27,9 @@ from relaygs.data.scene import frame_time
 from relaygs.error_map import error_image
 from relaygs.errors import InputError, RelayGSError
 from relaygs.progress import progress_bar
-from relaygs.stages.evaluate import require_its_scene
-from relaygs.stages.model_render import ModelRenderer
-from relaygs.stages.scene_model import SceneModel
+from relaygs.train.evaluate import require_its_scene
+from relaygs.train.model_render import ModelRenderer
+from relaygs.train.scene_model import SceneModel
 
 VIDEO_CODEC = "mp4v"  # MPEG-4 part 2: the encoder every OpenCV wheel carries
 PATH_NAME = "path"  # a camera path's PNG folder and video are <out>/path and <out>/path.mp4

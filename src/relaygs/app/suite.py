@@ -42,8 +42,8 @@ class StageSuite:
 def load_stage_suite() -> StageSuite:
     """The real stages, from the specs of `relaygs.stages.SPECS`."""
     from relaygs import stages
-    from relaygs.stages import log
     from relaygs.stages.common import logged_scalars
+    from relaygs.train import log
 
     specs = stages.SPECS.values()
     return StageSuite(

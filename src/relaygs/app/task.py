@@ -36,7 +36,6 @@ from relaygs.app.scenes import prepare_scene, scene_provenance
 from relaygs.app.suite import StageSuite, load_stage_suite
 from relaygs.app.sweep_axes import SweepAxes
 from relaygs.app.tensorboard import TensorBoardLog
-from relaygs.cli import python_command, script_command
 from relaygs.data import Scene
 from relaygs.data.fingerprint import digest
 from relaygs.device import set_threads
@@ -53,6 +52,7 @@ from relaygs.pipeline import (
 )
 from relaygs.pipeline.fsio import file_identity
 from relaygs.progress import job_label, print_labelled
+from relaygs.shell import python_command, script_command
 from relaygs.splat import native, use_backend
 
 

@@ -46,7 +46,7 @@ from relaygs.pipeline.store import (
 )
 from relaygs.ply import write_frame_plys
 from relaygs.renders import PathSettings, RenderSettings, write_path_render, write_renders
-from relaygs.stages.scene_model import SceneModel
+from relaygs.train.scene_model import SceneModel
 
 DEFAULT_ROOT = "outputs/artifacts"
 RENDERS_FOLDER = "renders"

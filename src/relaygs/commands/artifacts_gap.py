@@ -14,7 +14,7 @@ from relaygs.commands.artifact_models import (
 from relaygs.commands.artifacts_eval import aligned_table, cell, lineage_entries
 from relaygs.device import set_threads, usable_device
 from relaygs.pipeline.store import ArtifactStore
-from relaygs.stages.error_split import SPLIT_METRICS, error_split
+from relaygs.train.error_split import SPLIT_METRICS, error_split
 
 SPLITS = ("train", "test")
 

@@ -36,10 +36,11 @@ from relaygs.errors import RelayGSError
 from relaygs.model import GaussianSet
 from relaygs.pipeline.artifact import Artifact
 from relaygs.splat import BACKENDS, default_backend, use_backend
-from relaygs.stages import BUDGETS, SPECS, evaluate, log
+from relaygs.stages import SPECS, evaluate, step_budgets
 from relaygs.stages.decouple import DecoupleConfig
-from relaygs.stages.scene_model import SceneModel, foreground_with_segments
-from relaygs.stages.segment_plan import SegmentPlan
+from relaygs.train import log
+from relaygs.train.scene_model import SceneModel, foreground_with_segments
+from relaygs.train.segment_plan import SegmentPlan
 
 DEFAULT_CACHE = Path("outputs") / "cache" / "bench"
 SCENE = {"preset": "juggle", "frames": 64, "width": 160, "height": 90, "seed": 0}
@@ -132,7 +133,7 @@ def small_cfg(
 ) -> dict[str, Any]:
     """The `small` budget as a stage cfg (no progress bar) training on `device`, `sections`
     merged over it."""
-    cfg: dict[str, Any] = copy.deepcopy(BUDGETS["small"])
+    cfg: dict[str, Any] = copy.deepcopy(step_budgets()["small"])
     cfg["seed"] = 0
     cfg["train"] = {
         "progress": False,

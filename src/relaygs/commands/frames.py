@@ -14,8 +14,6 @@ from relaygs.cli import (
     OneLineErrorParser,
     int_at_least,
     path_argument,
-    path_override,
-    python_command,
 )
 from relaygs.data.video_frames import (
     COLMAP_LIST,
@@ -27,6 +25,7 @@ from relaygs.data.video_frames import (
     rates_agree,
 )
 from relaygs.errors import RERUN_COMMAND, RelayGSError, resource_error
+from relaygs.shell import path_override, python_command
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -33,11 +33,12 @@ from relaygs.app.result import RESULT_FILE, error_line
 from relaygs.app.suite import StageSuite, load_stage_suite
 from relaygs.app.sweep_axes import recorded_sweep_axes
 from relaygs.app.task import run_task
-from relaygs.cli import INTERRUPTED_EXIT, path_override
+from relaygs.cli import INTERRUPTED_EXIT
 from relaygs.device import usable_device
 from relaygs.errors import RERUN_RUN, RelayGSError, one_line, resource_error
 from relaygs.paths import config_dir
 from relaygs.pipeline.fsio import file_identity
+from relaygs.shell import path_override
 
 TERMINATED_EXIT = 143  # a command stopped by SIGTERM (`kill PID`, a scheduler): 128 + SIGTERM
 HYDRA_FULL_ERROR = "HYDRA_FULL_ERROR"

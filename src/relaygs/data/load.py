@@ -6,7 +6,6 @@ import shlex
 from collections.abc import Iterable
 from pathlib import Path
 
-from relaygs.cli import python_command
 from relaygs.data.multiview import camera_folders, load_multiview
 from relaygs.data.options import (
     DEFAULT_CACHE_MB,
@@ -19,6 +18,7 @@ from relaygs.data.scene import Scene
 from relaygs.data.video_frames import VIDEO_SUFFIXES
 from relaygs.errors import InputError
 from relaygs.paths import require_folder
+from relaygs.shell import python_command
 
 
 def detect_format(root: Path) -> str:

@@ -21,11 +21,11 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from relaygs.cli import path_override, python_command
 from relaygs.data.multiview import CAMERA_FOLDER
 from relaygs.errors import InputError
 from relaygs.paths import require_creatable_folder, require_folder
 from relaygs.progress import progress_bar
+from relaygs.shell import path_override, python_command
 
 VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm")
 FRAME_FORMATS = ("jpg", "png")

@@ -2,30 +2,36 @@
 
 Each stage module declares one `StageSpec` (`SPEC`); `SPECS` lists them by stage type, and is
 all a new stage type adds here. `evaluate` scores a final artifact on the test views;
-`render_model` renders any artifact. Live metrics go through `relaygs.stages.log` sinks.
+`render_model` renders any artifact. Live metrics go through `relaygs.train.log` sinks.
 """
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Mapping
 from typing import Any
 
 from relaygs.data import Scene
 from relaygs.errors import InputError
 from relaygs.stages import decouple, deform, relay, replicate, warmup
-from relaygs.stages.budgets import load_budgets
 from relaygs.stages.evaluate import EvalSettings, evaluate
-from relaygs.stages.model_render import ModelRenderer, render_model
-from relaygs.stages.scene_model import SceneModel
 from relaygs.stages.spec import StageSpec
 from relaygs.stages.train_settings import TrainSettings
+from relaygs.train.budgets import load_budgets
+from relaygs.train.model_render import ModelRenderer, render_model
+from relaygs.train.scene_model import SceneModel
 
 SPECS: dict[str, StageSpec] = {
     spec.name: spec
     for spec in (decouple.SPEC, relay.SPEC, deform.SPEC, warmup.SPEC, replicate.SPEC)
 }
-BUDGETS = load_budgets(("train", "eval", *SPECS))
-"""The named step budgets of `conf/budget/` (`relaygs.stages.budgets`)."""
+
+
+@functools.cache
+def step_budgets() -> dict[str, dict[str, dict[str, Any]]]:
+    """The named step budgets of `conf/budget/` (`relaygs.train.budgets`), read on first use
+    rather than on import, so importing the stages reads no file."""
+    return load_budgets(("train", "eval", *SPECS))
 
 
 def canonical_config(stage: str, cfg: Mapping[str, Any], scene: Scene) -> dict[str, Any]:
@@ -48,7 +54,6 @@ def validate_config(stage: str, cfg: Mapping[str, Any]) -> None:
 
 
 __all__ = [
-    "BUDGETS",
     "SPECS",
     "EvalSettings",
     "ModelRenderer",
@@ -58,5 +63,6 @@ __all__ = [
     "canonical_config",
     "evaluate",
     "render_model",
+    "step_budgets",
     "validate_config",
 ]

@@ -1,22 +1,17 @@
-"""Pieces the stage functions share: upstream lookup, initial Gaussians, training scene, meta."""
+"""Pieces the stage functions share: upstream checks, training resolution, artifact meta, rates."""
 
 from __future__ import annotations
 
-import math
 from collections.abc import Collection, Mapping
 from typing import Any
 
-import torch
-
 from relaygs.data import Scene
 from relaygs.errors import InputError
-from relaygs.model import MAX_LOG_SCALE, GaussianSet
 from relaygs.pipeline.artifact import Artifact
 from relaygs.stages.config import json_ready
-from relaygs.stages.loop import TrainReport
-from relaygs.stages.scene_model import SceneModel
-from relaygs.stages.session import SetPlan, TrainingSession
 from relaygs.stages.train_settings import TrainSettings
+from relaygs.train.loop import TrainReport
+from relaygs.train.scene_model import SceneModel
 
 LOGGED_SCALARS = "logged_scalars"
 """Artifact meta key of the scalars a stage emitted while it trained (`ScalarHistory`)."""
@@ -73,70 +68,6 @@ def training_scene(scene: Scene, train: TrainSettings, early_stage: bool) -> Sce
     width = max(view.camera.width for view in scene.train_views)
     factor = train.downscale_for(width, early_stage)
     return scene if factor == 1 else scene.rescaled(scene.downscale * factor)
-
-
-def initial_gaussians(
-    scene: Scene,
-    init_points: int | None,
-    init_opacity: float,
-    sh_degree: int,
-    seed: int,
-) -> GaussianSet:
-    """3DGS initialisation from the scene's point cloud, randomly thinned to `init_points`.
-
-    The cloud's fg flag is not used: foreground is what the stages learn.
-    """
-    xyz, rgb = scene.points.xyz, scene.points.rgb
-    if init_points is not None and xyz.shape[0] > init_points:
-        generator = torch.Generator().manual_seed(seed)
-        keep = torch.randperm(xyz.shape[0], generator=generator)[:init_points].sort().values
-        xyz, rgb = xyz[keep], rgb[keep]
-    gaussians = GaussianSet.from_points(
-        xyz, rgb, max_sh_degree=sh_degree, init_opacity=init_opacity
-    )
-    _require_sizes_below_the_cap(scene, gaussians)
-    return gaussians
-
-
-def _require_sizes_below_the_cap(scene: Scene, gaussians: GaussianSet) -> None:
-    """One line when most initial Gaussians (sized by their neighbours' distance) are larger
-    than the renderer's cap e^MAX_LOG_SCALE: their sizes would get no gradient and stay
-    frozen, and the scene would train to nothing. A scene in huge units, to be rescaled."""
-    log_scales = gaussians.params["log_scales"].detach()[:, 0]
-    over = int((log_scales > MAX_LOG_SCALE).sum())
-    if 2 * over > len(log_scales):
-        raise InputError(
-            f"{scene.root}: {over} of the {len(log_scales)} initial points lie more than "
-            f"{math.exp(MAX_LOG_SCALE):.2g} units from their neighbours, the largest Gaussian "
-            "the renderer draws; expected a scene in units near metres (rescale the poses' "
-            "translations and the point cloud alike)"
-        )
-
-
-def static_session(
-    name: str,
-    scene: Scene,
-    section: Any,
-    plan: SetPlan,
-    seed: int,
-    device: torch.device,
-    extras: Mapping[str, float] | None = None,
-) -> TrainingSession:
-    """The session of a stage that fits one Gaussian set from the scene's point cloud
-    (decouple, warmup): `section` gives init_points, init_opacity and sh_degree; `extras`
-    adds trainable per-Gaussian scalars at an initial value (decouple's mask logit)."""
-    gaussians = initial_gaussians(
-        scene, section.init_points, section.init_opacity, section.sh_degree, seed
-    )
-    for param, value in (extras or {}).items():
-        gaussians.add_param(param, torch.full((len(gaussians),), value))
-    return TrainingSession(
-        sets={name: gaussians.to(device)},
-        plans={name: plan},
-        extent=scene.extent,
-        seed=seed,
-        device=device,
-    )
 
 
 def stage_meta(

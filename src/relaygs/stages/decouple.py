@@ -30,7 +30,6 @@ from relaygs.stages.common import (
     BACKGROUND_LR,
     no_upstream,
     stage_meta,
-    static_session,
     training_scene,
 )
 from relaygs.stages.config import (
@@ -41,15 +40,16 @@ from relaygs.stages.config import (
     require_steps,
     schedule,
 )
-from relaygs.stages.loop import StepResult, run_training
-from relaygs.stages.loss import photometric_loss
-from relaygs.stages.render import part_of, splat
-from relaygs.stages.scene_model import SceneModel, core_only, foreground_with_segments
-from relaygs.stages.segment_plan import SegmentPlan
-from relaygs.stages.session import SetPlan, TrainingSession
 from relaygs.stages.spec import StageSpec
 from relaygs.stages.train_settings import TrainSettings
-from relaygs.stages.views import TrainViews
+from relaygs.train.initial import static_session
+from relaygs.train.loop import StepResult, run_training
+from relaygs.train.loss import photometric_loss
+from relaygs.train.render import part_of, splat
+from relaygs.train.scene_model import SceneModel, core_only, foreground_with_segments
+from relaygs.train.segment_plan import SegmentPlan
+from relaygs.train.session import SetPlan, TrainingSession
+from relaygs.train.views import TrainViews
 
 STAGE = "decouple"
 SCHEMA_VERSION = 2  # 2: density control ends before the stage's last step

@@ -33,15 +33,15 @@ from relaygs.stages.config import (
     require_steps,
     schedule,
 )
-from relaygs.stages.loop import StepResult, run_training
-from relaygs.stages.loss import photometric_loss
-from relaygs.stages.motion import deformed_parts
-from relaygs.stages.render import Render, splat
-from relaygs.stages.scene_model import GAMMA, SceneModel, build_field
-from relaygs.stages.session import ModuleGroup, SetPlan, TrainingSession
 from relaygs.stages.spec import StageSpec
 from relaygs.stages.train_settings import TrainSettings
-from relaygs.stages.views import TrainViews
+from relaygs.train.loop import StepResult, run_training
+from relaygs.train.loss import photometric_loss
+from relaygs.train.motion import deformed_parts
+from relaygs.train.render import Render, splat
+from relaygs.train.scene_model import GAMMA, SceneModel, build_field
+from relaygs.train.session import ModuleGroup, SetPlan, TrainingSession
+from relaygs.train.views import TrainViews
 
 STAGE = "deform"
 SCHEMA_VERSION = 2  # 2: density control ends before the stage's last step

@@ -22,7 +22,6 @@ import torch
 from relaygs.data import Scene
 from relaygs.model import GaussianSet, paper_schedule
 from relaygs.pipeline.artifact import Artifact
-from relaygs.stages.canonical import uniform_unless_adaptive
 from relaygs.stages.carve import HullSettings
 from relaygs.stages.common import (
     BACKGROUND_LR,
@@ -38,17 +37,18 @@ from relaygs.stages.config import (
     require,
     require_steps,
 )
-from relaygs.stages.loop import StepResult, TrainReport, run_training
-from relaygs.stages.loss import photometric_loss
 from relaygs.stages.relay_seed import SEED_MODES, carved_copies
-from relaygs.stages.render import FrozenRenders, part_of, splat
-from relaygs.stages.scene_model import SEGMENT, SceneModel, core_only, replicate_foreground
-from relaygs.stages.segment_plan import SegmentPlan, frame_motion
-from relaygs.stages.segments import SegmentTargets
-from relaygs.stages.session import SetPlan, TrainingSession
 from relaygs.stages.spec import StageSpec
 from relaygs.stages.train_settings import TrainSettings
-from relaygs.stages.views import TrainViews
+from relaygs.train.canonical import uniform_unless_adaptive
+from relaygs.train.loop import StepResult, TrainReport, run_training
+from relaygs.train.loss import photometric_loss
+from relaygs.train.render import FrozenRenders, part_of, splat
+from relaygs.train.scene_model import SEGMENT, SceneModel, core_only, replicate_foreground
+from relaygs.train.segment_plan import SegmentPlan, frame_motion
+from relaygs.train.segments import SegmentTargets
+from relaygs.train.session import SetPlan, TrainingSession
+from relaygs.train.views import TrainViews
 
 STAGE = "relay"
 SEGMENT_MODES = ("uniform", "adaptive")

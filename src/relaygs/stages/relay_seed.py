@@ -5,24 +5,34 @@ pseudo frames (for movers that travel further in a segment than their own size).
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import torch
 from torch import Tensor
 
 from relaygs.data import Camera
 from relaygs.model import GaussianSet
-from relaygs.stages.carve import residual_masks, visual_hull
-from relaygs.stages.render import FrozenRenders, part_of
-from relaygs.stages.scene_model import foreground_with_segments
-from relaygs.stages.segment_plan import SegmentPlan
-from relaygs.stages.segments import pseudo_frames
-from relaygs.stages.views import TrainViews
-
-if TYPE_CHECKING:
-    from relaygs.stages.relay import RelayConfig
+from relaygs.stages.carve import HullSettings, residual_masks, visual_hull
+from relaygs.train.render import FrozenRenders, part_of
+from relaygs.train.scene_model import foreground_with_segments
+from relaygs.train.segment_plan import SegmentPlan
+from relaygs.train.segments import pseudo_frames
+from relaygs.train.views import TrainViews
 
 SEED_MODES = ("replicate", "carve")
+
+
+class SeedSettings(Protocol):
+    """What seeding reads of the relay section (`RelayConfig`); declared here so this module
+    does not import the stage that imports it."""
+
+    @property
+    def p(self) -> int: ...
+    @property
+    def seed_points(self) -> int: ...
+    @property
+    def seed_opacity(self) -> float: ...
+    def hull(self) -> HullSettings: ...
 
 
 @torch.no_grad()
@@ -30,7 +40,7 @@ def carved_copies(
     views: TrainViews,
     background: GaussianSet,
     replica: GaussianSet,
-    section: RelayConfig,
+    section: SeedSettings,
     segments: SegmentPlan,
     seed: int,
 ) -> GaussianSet:
@@ -88,7 +98,7 @@ def _hull_at(
     renders: BackgroundRenders,
     frame: int,
     bounds: Tensor,
-    section: RelayConfig,
+    section: SeedSettings,
     generator: torch.Generator,
 ) -> tuple[Tensor, Tensor, float] | None:
     """Hull points, colours and voxel size of what the background misses at `frame` in every

@@ -8,13 +8,13 @@ from typing import Any
 
 from relaygs.data import Scene
 from relaygs.pipeline.artifact import Artifact
-from relaygs.stages.canonical import one_segment_at_most
 from relaygs.stages.common import single_upstream, stage_meta, upstream_model
 from relaygs.stages.config import parse_section, require
-from relaygs.stages.scene_model import SceneModel, replicate_foreground
-from relaygs.stages.segment_plan import SegmentPlan
 from relaygs.stages.spec import StageSpec
 from relaygs.stages.train_settings import TrainSettings
+from relaygs.train.canonical import one_segment_at_most
+from relaygs.train.scene_model import SceneModel, replicate_foreground
+from relaygs.train.segment_plan import SegmentPlan
 
 STAGE = "replicate"
 SCHEMA_VERSION = 1

@@ -9,7 +9,7 @@ from typing import Any, Protocol
 from relaygs.data import Scene
 from relaygs.errors import InputError
 from relaygs.pipeline.dag import StageFn
-from relaygs.stages.canonical import SectionCanonical
+from relaygs.train.canonical import SectionCanonical
 
 
 class StageSettings(Protocol):

@@ -28,7 +28,7 @@ from relaygs.errors import InputError, one_line
 from relaygs.field import ColorAffine, DeformationField
 from relaygs.model import GaussianSet
 from relaygs.pipeline.artifact import Artifact
-from relaygs.stages.segment_plan import SegmentPlan
+from relaygs.train.segment_plan import SegmentPlan
 
 SEGMENT = "segment"
 GAMMA = "gamma"

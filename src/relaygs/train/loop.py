@@ -8,6 +8,7 @@ import time
 from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import torch
 from torch import Tensor
@@ -16,11 +17,10 @@ from relaygs.errors import Interrupted
 from relaygs.pipeline.checkpoint import StageCheckpointer
 from relaygs.pipeline.context import current_build
 from relaygs.progress import print_labelled, progress_bar
-from relaygs.stages import log
-from relaygs.stages.loss import batch_psnr
-from relaygs.stages.render import Render
-from relaygs.stages.session import TrainingSession
-from relaygs.stages.train_settings import TrainSettings
+from relaygs.train import log
+from relaygs.train.loss import batch_psnr
+from relaygs.train.render import Render
+from relaygs.train.session import TrainingSession
 
 LOSS_WINDOW = 50  # steps averaged for the reported initial and final training loss (at most
 # a quarter of the run, so the two windows never overlap)
@@ -97,6 +97,20 @@ class LossTracker:
         self.recent.extend(state["recent"])
 
 
+class LoopSettings(Protocol):
+    """What the loop reads of the `train` section (the stages' `TrainSettings`); declared here
+    so the training machinery needs nothing from the stages that use it."""
+
+    @property
+    def log_every(self) -> int: ...
+    @property
+    def image_every(self) -> int: ...
+    @property
+    def checkpoint_every(self) -> int: ...
+    @property
+    def progress(self) -> bool: ...
+
+
 ScalarRecord = tuple[int, dict[str, float]]
 """One emitted record's step and scalars."""
 
@@ -131,7 +145,7 @@ def run_training(
     stage: str,
     session: TrainingSession,
     steps: int,
-    train: TrainSettings,
+    train: LoopSettings,
     step_fn: Callable[[int], StepResult],
     counts: CountsFn,
 ) -> TrainReport:
@@ -246,7 +260,7 @@ def _scalars(
     return scalars
 
 
-def _images(result: StepResult, train: TrainSettings, step: int) -> dict[str, Tensor] | None:
+def _images(result: StepResult, train: LoopSettings, step: int) -> dict[str, Tensor] | None:
     if train.image_every <= 0 or step % train.image_every != 0:
         return None
     return {

@@ -7,8 +7,8 @@ import torch
 from torch import Tensor
 
 from relaygs.errors import InputError
-from relaygs.stages.segment_plan import SegmentPlan
-from relaygs.stages.views import TrainViews
+from relaygs.train.segment_plan import SegmentPlan
+from relaygs.train.views import TrainViews
 
 
 def pseudo_frames(frames: range, p: int) -> list[int]:

@@ -10,9 +10,9 @@ from torch import Tensor
 from relaygs.data import Camera
 from relaygs.errors import InputError
 from relaygs.pipeline.artifact import Artifact
-from relaygs.stages.motion import deformed_parts
-from relaygs.stages.render import Part, part_of, splat
-from relaygs.stages.scene_model import SceneModel
+from relaygs.train.motion import deformed_parts
+from relaygs.train.render import Part, part_of, splat
+from relaygs.train.scene_model import SceneModel
 
 
 class ModelRenderer:

@@ -12,8 +12,8 @@ from torch import Tensor
 
 from relaygs.field import DeformationField, relay_position
 from relaygs.model import GaussianSet
-from relaygs.stages.render import Part, part_of
-from relaygs.stages.scene_model import GAMMA
+from relaygs.train.render import Part, part_of
+from relaygs.train.scene_model import GAMMA
 
 
 def deformed_parts(

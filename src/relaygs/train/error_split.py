@@ -13,9 +13,9 @@ from relaygs.colour_fit import channel_fit, channel_moments
 from relaygs.data import Scene, View
 from relaygs.metrics import psnr
 from relaygs.pipeline.artifact import Artifact
-from relaygs.stages.evaluate import require_its_scene
-from relaygs.stages.model_render import ModelRenderer
-from relaygs.stages.scene_model import SceneModel
+from relaygs.train.evaluate import require_its_scene
+from relaygs.train.model_render import ModelRenderer
+from relaygs.train.scene_model import SceneModel
 
 SPLIT_METRICS = ("psnr", "fg_psnr", "bg_psnr")
 """Mean per-image PSNR over all pixels, ground-truth foreground pixels, background pixels."""

@@ -28,7 +28,7 @@ from relaygs.model import (
 )
 from relaygs.model.guard import divergence_suspects
 from relaygs.pipeline.checkpoint import TrainingState
-from relaygs.stages.render import Render, screen_statistics
+from relaygs.train.render import Render, screen_statistics
 
 GENERATOR_KEY = "generator"
 DENSITY_GENERATOR_KEY = "density_generator"

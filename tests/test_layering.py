@@ -1,0 +1,140 @@
+"""The package's layers, checked from the source (ast: no import, milliseconds) and, for files
+read at import time, by importing every stage and the training machinery in a fresh Python."""
+
+from __future__ import annotations
+
+import ast
+import json
+import subprocess
+import sys
+from functools import cache
+from pathlib import Path
+
+import pytest
+
+import relaygs
+
+PACKAGE = Path(relaygs.__file__).parent
+
+
+@cache
+def modules() -> dict[str, Path]:
+    """Every module of relaygs by dotted name (a package by its own name)."""
+    found = {}
+    for path in PACKAGE.rglob("*.py"):
+        parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
+        found[".".join(part for part in parts if part != "__init__")] = path
+    return found
+
+
+def imported(name: str) -> set[str]:
+    """The relaygs modules `name` imports anywhere in its source (top level, functions and
+    `TYPE_CHECKING` blocks alike: a hidden circle is a circle), with their parent packages,
+    which Python runs first. Its own parent packages count only when it takes names from them."""
+    path = modules()[name]
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    found: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            targets = [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                anchor = package.split(".")[: len(package.split(".")) - node.level + 1]
+                base = ".".join([*anchor, base] if base else anchor)
+            submodules = [f"{base}.{alias.name}" for alias in node.names]
+            targets = [full for full in submodules if full in modules()]
+            if len(targets) < len(submodules):
+                found.add(base)  # names taken from `base` itself: its __init__ must be done
+        else:
+            continue
+        for target in targets:
+            parts = target.split(".")
+            found.update(
+                ".".join(parts[:end])
+                for end in range(2, len(parts) + 1)
+                if not name.startswith(".".join(parts[:end]) + ".")
+            )
+    return {module for module in found if module in modules() and module != name}
+
+
+def test_no_module_imports_itself_back_through_others():
+    # Tarjan's strongly connected components: any of more than one module is a circle
+    graph = {name: imported(name) for name in modules()}
+    order: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    circles = []
+
+    def visit(node: str) -> None:
+        order[node] = low[node] = len(order)
+        stack.append(node)
+        for target in graph[node]:
+            if target not in order:
+                visit(target)
+                low[node] = min(low[node], low[target])
+            elif target in stack:
+                low[node] = min(low[node], order[target])
+        if low[node] == order[node]:
+            component = stack[stack.index(node) :]
+            del stack[stack.index(node) :]
+            if len(component) > 1:
+                circles.append(sorted(component))
+
+    for name in graph:
+        if name not in order:
+            visit(name)
+    assert circles == []
+
+
+LOWER_LAYERS = [
+    ("relaygs.data", ("cli", "app", "commands", "stages", "train")),
+    ("relaygs.train", ("cli", "app", "commands", "stages")),
+    ("relaygs.stages", ("cli", "app", "commands")),
+    ("relaygs.pipeline", ("cli", "app", "commands", "stages", "train")),
+]
+
+
+@pytest.mark.parametrize(("layer", "above"), LOWER_LAYERS)
+def test_a_layer_imports_nothing_above_it(layer, above):
+    forbidden = tuple(f"relaygs.{package}" for package in above)
+    upward = {
+        name: sorted(target for target in imported(name) if target.startswith(forbidden))
+        for name in modules()
+        if name == layer or name.startswith(layer + ".")
+    }
+    assert {name: targets for name, targets in upward.items() if targets} == {}
+
+
+def test_the_layer_check_sees_a_hidden_circle(tmp_path, monkeypatch):
+    # the relay ↔ relay_seed circle this guards against was kept alive by TYPE_CHECKING
+    (tmp_path / "one.py").write_text("from relaygs.two import x\n")
+    guarded = "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from relaygs.one import y\n"
+    (tmp_path / "two.py").write_text(guarded)
+    fake = {**modules(), "relaygs.one": tmp_path / "one.py", "relaygs.two": tmp_path / "two.py"}
+    monkeypatch.setattr(sys.modules[__name__], "modules", lambda: fake)
+    assert imported("relaygs.one") == {"relaygs.two"}
+    assert imported("relaygs.two") == {"relaygs.one"}
+    with pytest.raises(AssertionError):
+        test_no_module_imports_itself_back_through_others()
+
+
+READS_AT_IMPORT = """
+import builtins, io, json, sys
+opened = []
+real_open = builtins.open
+def spy(file, *args, **kwargs):
+    opened.append(str(file))
+    return real_open(file, *args, **kwargs)
+builtins.open = io.open = spy
+import relaygs.stages, relaygs.train.budgets, relaygs.train.error_split, relaygs.app.suite
+print(json.dumps([path for path in opened if path.endswith((".yaml", ".yml", ".json"))]))
+"""
+
+
+def test_importing_the_stages_reads_no_config_file():
+    # budgets used to read conf/budget/*.yaml when relaygs.stages was imported
+    ran = subprocess.run(
+        [sys.executable, "-c", READS_AT_IMPORT], capture_output=True, text=True, check=True
+    )
+    assert json.loads(ran.stdout.splitlines()[-1]) == []
