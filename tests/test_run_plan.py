@@ -108,6 +108,14 @@ def test_a_bad_value_a_pipeline_node_pins_names_its_file(
     assert str(caught.value).endswith(f" (set by {path}: node 'deform' overrides)") == named
 
 
+@pytest.mark.parametrize(("group", "value"), [("pipeline", "4dgs"), ("budget", "smoke")])
+def test_a_group_an_experiment_sets_to_a_value_is_told_to_choose_its_file(config, group, value):
+    # an experiment file's `pipeline: 4dgs` replaces the group's section: before, a traceback
+    # for the budget
+    with refused(InputError, group, f"override /{group}: {value}"):
+        _plan(config, **{group: value})
+
+
 def test_budget_multiplier_scales_steps_of_every_node(config):
     plan = _plan(config, budget__multiplier=0.25)
     for node in plan.pipeline.nodes.values():
