@@ -19,6 +19,7 @@ import pandas as pd
 import pytest
 import torch
 import yaml
+from hydra.errors import HydraException
 
 from conftest import run_main
 from fake_stages import TINY_SCENE
@@ -36,106 +37,96 @@ UNUSABLE_GPU = f"cuda:{torch.cuda.device_count()}"
 
 
 @pytest.mark.parametrize(
-    ("args", "fragment"),
+    ("args", "named"),
     [
-        (["+experiment=nope"], "unknown experiment 'nope' (available: ablation_components,"),
-        (["pipeline=nope"], "unknown pipeline 'nope' (available: 4dgs, decouple, no_copies,"),
-        (["scene=mars"], "unknown scene 'mars' (available: court, juggle, static); or set"),
-        (["experiment=smoke"], "write +experiment=smoke"),
-        (["relay.k=0"], "relay.k"),
-        (["-m", "variant=../../x", "relay.k=8,16"], "variant: '../../x' holds a path separator"),
-        (["relay.k=-3"], "relay.k"),
-        (["decouple.steps=-5"], "decouple.steps"),
-        (["scene.path=/no/such/capture"], "scene.path: /no/such/capture does not exist"),
+        # Hydra's and OmegaConf's own refusals, passed on in one line
+        (["+experiment=nope"], ["experiment/nope"]),
+        (["pipeline=nope"], ["pipeline/nope"]),
+        (["scene=mars"], ["scene/mars"]),
+        (["train=nope"], ["train/nope"]),
+        (["hydra/launcher=nope"], ["hydra/launcher/nope"]),
+        (["experiment=smoke"], ["+experiment=smoke"]),
+        (["+pipeline=4dgs"], ["pipeline"]),
+        (["relay.k=8,16"], ["relay.k=8,16", "--multirun"]),
+        (["relay.kk=3"], ["relay.kk"]),
+        (["-m", "relay.kk=1,2"], ["relay.kk"]),
+        (["relay.k=x"], ["relay.k=x"]),
+        (["relay.k=[1,"], ["[1,"]),
+        (["paths.outputs=/tmp/scène"], ["paths.outputs"]),
+        (["deform.multires={a:1}"], ["deform.multires"]),
+        (["decouple.densify=[1]"], ["decouple.densify"]),
+        (["scene.loader={zoom:2}"], ["scene.loader"]),
+        (["+relay={kk:2}"], ["kk"]),
+        (["--cfg", "job", "scene=mars"], ["scene/mars"]),
+        (["--cfg", "job", "nosuch=1"], ["nosuch"]),
+        (["--info", "defaults", "relay.k=[1,"], ["[1,"]),
+        (["-m", "relay.k=8,16", "--cfg", "job"], ["--cfg", "--multirun"]),
+        (["-r", "-c", "job"], ["--cfg", "--run"]),
+        # value ranges, and what only the run knows, planned for every job before any starts
+        (["relay.k=0"], ["relay.k"]),
+        (["decouple.steps=-5"], ["decouple.steps"]),
+        (["-m", "variant=../../x", "relay.k=8,16"], ["variant", "../../x"]),
+        (["scene.path=/no/such/capture"], ["scene.path", "/no/such/capture"]),
         # a capture has its own frames and size: a preset's setting beside it would be ignored
-        (["scene.path=/data/cap", "scene.frames=4"], "scene.frames=4 sets a synthetic scene, but"),
-        (["scene=court", "scene.path=/data/cap"], "scene=court sets a synthetic scene"),
-        (["scene.path=", "scene.frames=4"], "scene.path: expected a path (a non-empty string)"),
-        (["-m", "scene.path=/data/cap", "scene.width=8,16"], "job scene.width=8: scene.width="),
-        (["-m", "relay.k=16,0"], "job relay.k=0: relay.k"),
+        (["scene.path=/data/cap", "scene.frames=4"], ["scene.frames=4", "scene.path"]),
+        (["scene=court", "scene.path=/data/cap"], ["scene=court", "scene.path"]),
+        (["scene.path=", "scene.frames=4"], ["scene.path"]),
+        (["-m", "scene.path=/data/cap", "scene.width=8,16"], ["job scene.width=8", "scene.path"]),
         # a job is named by what tells it from the others: the swept overrides
-        (["-m", "budget=smoke", "relay.k=8,0", "seed=3"], "error: job relay.k=0: relay.k:"),
-        (["-m", "relay.k=8,0", "seed=1,2", "budget=smoke"], "error: job relay.k=0 seed=1: relay"),
-        (["+experiment=ablation_k", "relay.k=0"], "error: job relay.k=0 +experiment=ablation_k: "),
-        (["+experiment=budget", "budget.multiplier=0.5,-1"], "budget.multiplier"),
-        (["relay.k=8,16"], "add --multirun"),
-        (["relay.kk=3"], "relay.kk"),
-        (["-m", "relay.kk=1,2"], "job relay.kk=1: relay.kk: relay has no setting 'kk'; did you"),
-        (["hydra/launcher=nope"], "Could not find 'hydra/launcher/nope'"),
-        (["relay.k=[1,"], "cannot parse overrides"),
-        (["paths.outputs=/tmp/scène"], """non-ASCII characters or any of ~!#&;<>^` Hydra's"""),
-        (["scene.path=~/data"], """Hydra's quotes too: 'scene.path="~/data/scène"'"""),
-        (["scene.path=/data/my", "scene"], "'<EOF>'; a value with spaces needs shell quotes"),
-        (["scene.test_cameras=[1,2]"], "did you mean scene.loader.test_cameras?"),
-        (["+scene.downscale=2"], "(did you mean scene.loader.downscale?)"),
-        # Hydra's "Error merging override" and its advice to append a key inside a mapping
-        (["deform.multires={a:1}"], "deform.multires: expected a list, as in the config, got {"),
-        (["decouple.densify=[1]"], "decouple.densify: expected a section of settings, as in"),
-        (["scene.loader={zoom:2}"], "scene.loader.zoom: scene.loader has no setting 'zoom' (it"),
-        (["hydra.job={foo:x}"], "Could not override 'hydra.job'. To append to your config use"),
-        (["+deform.multires={a:1}"], "deform.multires: expected a list, as in the config, got"),
-        # before: Hydra's "Multiple values for pipeline. To override a value use 'override ..."
-        (["+pipeline=4dgs"], "pipeline is chosen already (by the main config or the experi"),
-        (["+experiment=smoke", "+pipeline=4dgs"], ": write pipeline=4dgs (without the +)"),
-        (["+hydra/launcher=joblib"], "hydra/launcher is chosen already (by the main config or"),
-        (["+hydra/hydra_logging=disabled"], "write hydra/hydra_logging=disabled (without the +)"),
-        # as typed, not as Hydra parses it
-        (["-m", "+pipeline=relaygs,4dgs"], "write pipeline=relaygs,4dgs (without the +)"),
-        (["+relay={kk:2}"], "unknown relay \"{'kk': 2}\""),
-        (["train=nope"], "train: expected a config section (a mapping), got 'nope'"),
-        (["relay.k=${nope}"], "cannot resolve the config: Interpolation key 'nope' not found"),
-        (["scene.loader=abc"], "scene.loader must be a mapping of loader options"),
-        (["scene.effects=[dynamic_panels]"], "scene.effects: preset 'juggle' cannot simulate"),
-        (["tensorboard.preview_frames=abc"], "tensorboard.preview_frames must be an integer"),
-        (["+tensorboard.every=3"], "tensorboard: unknown setting(s) ['every']"),
-        (["tensorboard.hparams=some"], "tensorboard.hparams must be one of ['swept', 'all']"),
-        (["hydra.run.dir=/proc/relaygs-run"], "hydra.run.dir: cannot write in /proc"),
+        (["-m", "relay.k=16,0"], ["job relay.k=0: relay.k"]),
+        (["-m", "budget=smoke", "relay.k=8,0", "seed=3"], ["job relay.k=0: relay.k"]),
+        (["-m", "relay.k=8,0", "seed=1,2", "budget=smoke"], ["job relay.k=0 seed=1: relay.k"]),
+        (["+experiment=ablation_k", "relay.k=0"], ["job relay.k=0 +experiment=ablation_k: "]),
+        (["+experiment=budget", "budget.multiplier=0.5,-1"], ["budget.multiplier"]),
+        (["relay.k=${nope}"], ["nope"]),
+        (["scene.loader=abc"], ["scene.loader"]),
+        (["scene.effects=[dynamic_panels]"], ["scene.effects", "juggle"]),
+        (["tensorboard.preview_frames=abc"], ["tensorboard.preview_frames"]),
+        (["+tensorboard.every=3"], ["tensorboard", "every"]),
+        (["tensorboard.hparams=some"], ["tensorboard.hparams"]),
+        (["hydra.run.dir=/proc/relaygs-run"], ["hydra.run.dir", "/proc"]),
         # Path("") is the folder the command started in: the run's files would land there
-        (["hydra.run.dir="], "hydra.run.dir: expected a path (a non-empty string), got ''"),
-        (["-m", "hydra.sweep.dir=' '"], "hydra.sweep.dir: expected a path (a non-empty string)"),
+        (["hydra.run.dir="], ["hydra.run.dir"]),
+        (["-m", "hydra.sweep.dir=' '"], ["hydra.sweep.dir"]),
+        (["-m", "hydra.sweep.dir=/proc/relaygs-sweep"], ["hydra.sweep.dir", "/proc"]),
+        (["artifacts.root=/proc/relaygs-store"], ["artifacts.root", "/proc"]),
         # torch takes no seed past int64: a traceback in the first stage before
-        (["seed=100000000000000000000"], "seed must be an integer <= 9223372036854775807"),
-        (["scene.width=100000000000000000000"], "scene.width must be an integer <= 100000, got"),
-        (["-m", "hydra.sweep.dir=/proc/relaygs-sweep"], "hydra.sweep.dir: cannot write in /proc"),
-        (["artifacts.root=/proc/relaygs-store"], "artifacts.root: cannot write in /proc"),
-        ([f"train.device={UNUSABLE_GPU}"], f"train.device: cannot use '{UNUSABLE_GPU}' here ("),
-        (["train.device=tpu"], "train.device: expected 'cpu', 'cuda' or 'cuda:N', got 'tpu'"),
+        (["seed=100000000000000000000"], ["seed"]),
+        (["scene.width=100000000000000000000"], ["scene.width"]),
+        ([f"train.device={UNUSABLE_GPU}"], ["train.device", UNUSABLE_GPU]),
+        (["train.device=tpu"], ["train.device", "tpu"]),
         # values that failed with a traceback, or were taken and broke the job only later
-        (["paths.outputs=null"], "paths.outputs: expected a path (a non-empty string), got None"),
-        (["artifacts.root=[a]"], "artifacts.root: expected a path (a non-empty string), got"),
-        (["~artifacts"], "artifacts: expected a config section (a mapping), got None"),
-        (["scene.preset=[a]"], "scene.preset: unknown synthetic preset ['a']"),
-        (["scene.effects=3"], "scene.effects: expected an effect name or a list of them, got 3"),
-        (["scene.loader.test_cameras=3"], "scene.loader.test_cameras must be a list of ids, got"),
-        (["scene.loader.downscale=0"], "error: scene.loader.downscale must be an integer >= 1"),
-        (["scene.loader.test_cameras=[1,-2]"], "scene.loader.test_cameras entry must be an"),
-        (
-            ["scene.loader.test_cameras=[2,31,40]"],
-            "scene.loader.test_cameras: cameras [31, 40] are not in preset 'juggle' (camera "
-            "ids 0..30)",
-        ),
+        (["paths.outputs=null"], ["paths.outputs"]),
+        (["artifacts.root=[a]"], ["artifacts.root"]),
+        (["~artifacts"], ["artifacts"]),
+        (["scene.preset=[a]"], ["scene.preset"]),
+        (["scene.effects=3"], ["scene.effects"]),
+        (["scene.loader.test_cameras=3"], ["scene.loader.test_cameras"]),
+        (["scene.loader.downscale=0"], ["scene.loader.downscale"]),
+        (["scene.loader.test_cameras=[1,-2]"], ["scene.loader.test_cameras"]),
+        (["scene.loader.test_cameras=[2,31,40]"], ["scene.loader.test_cameras", "[31, 40]"]),
         (
             [f"scene.loader.test_cameras=[{','.join(map(str, range(34)))}]", "scene=court"],
-            "scene.loader.test_cameras: it holds out every camera of preset 'court'",
+            ["scene.loader.test_cameras", "court"],
         ),
-        (["budget.multiplier=1e307"], "budget.multiplier must keep every step count finite"),
-        (["experiment_name=nan"], "experiment_name: expected a string, a number or null, got nan"),
-        (["report.reference=[1]"], "report.reference: expected a string, a number or null"),
-        (["variant=null"], "variant: expected a string or a number, got None"),
+        (["budget.multiplier=1e307"], ["budget.multiplier"]),
+        (["experiment_name=nan"], ["experiment_name"]),
+        (["report.reference=[1]"], ["report.reference"]),
+        (["variant=null"], ["variant"]),
         # a typo added with `+` in a section that is not a stage's
-        (["+budget.multipler=2"], "budget: unknown setting(s) ['multipler']"),
-        (["+paths.output=x"], "paths: unknown setting(s) ['output']"),
-        (["+sed=1"], "top level: unknown setting(s) ['sed']"),
-        (["threads=100000"], "threads must be an integer in [1, 1024] or null, got 100000"),
-        (["splat.backend=fast"], "splat.backend"),
+        (["+budget.multipler=2"], ["budget", "multipler"]),
+        (["+paths.output=x"], ["paths", "output"]),
+        (["+sed=1"], ["sed"]),
+        (["threads=100000"], ["threads"]),
+        (["splat.backend=fast"], ["splat.backend"]),
     ],
 )
-def test_bad_input_is_one_line_before_any_work(fakes, tmp_path, capsys, args, fragment):
+def test_bad_input_is_one_line_before_any_work(fakes, tmp_path, capsys, args, named):
     assert run_main(args) == 1
     captured = capsys.readouterr()
     lines = captured.err.strip().splitlines()
-    assert len(lines) == 1, captured.err
-    assert lines[0].startswith("error: ") and fragment in lines[0]
+    assert len(lines) == 1 and lines[0].startswith("error: "), captured.err
+    assert [name for name in named if name not in lines[0]] == [], lines[0]
     assert fakes.calls == []
     assert list(tmp_path.iterdir()) == []  # no run dir, no store, no scene
 
@@ -147,62 +138,9 @@ def test_a_preset_edited_to_test_cameras_beyond_its_rig_is_one_line_before_any_w
     edited = dataclasses.replace(PRESETS["juggle"], test_cameras=(0, 99))
     monkeypatch.setitem(PRESETS, "juggle", edited)
     assert run_main([*TINY_SCENE]) == 1
-    lines = capsys.readouterr().err.strip().splitlines()
-    assert lines == [
-        "error: PRESETS['juggle'].test_cameras (relaygs/data/synthetic/presets.py) [0, 99] must "
-        "be distinct indices into its rig of 31 cameras (0..30), at least one, leaving some to "
-        "train on"
-    ]
+    [line] = capsys.readouterr().err.strip().splitlines()
+    assert line.startswith("error: ") and "PRESETS['juggle'].test_cameras" in line
     assert fakes.calls == [] and list(tmp_path.iterdir()) == []
-
-
-@pytest.mark.parametrize(
-    ("override", "line"),
-    [
-        (
-            "scene.loader.downscal=2",
-            "scene.loader.downscal: scene.loader has no setting 'downscal'; "
-            "did you mean scene.loader.downscale?",
-        ),
-        ("relay.kk=8", "relay.kk: relay has no setting 'kk'; did you mean relay.k?"),
-        ("relay.k.x=3", "relay.k.x: relay.k is a value, not a section"),
-        (
-            "train.devcie=cpu",
-            "train.devcie: train has no setting 'devcie'; did you mean train.device?",
-        ),
-        (
-            "scene.loadr.downscale=2",
-            "scene.loadr.downscale: scene has no setting 'loadr'; "
-            "did you mean scene.loader.downscale?",
-        ),
-        ("device=cuda", "device: the config has no setting 'device'; did you mean train.device?"),
-        (
-            "train.zzzz=1",
-            "train.zzzz: train has no setting 'zzzz' (it has batch_views, checkpoint_every, "
-            "device, downscale, half_res_width, image_every, log_every, progress, ssim_weight)",
-        ),
-        (
-            "hydra.job.chdri=true",
-            "hydra.job.chdri: hydra.job has no setting 'chdri'; did you mean hydra.job.chdir?",
-        ),
-        # appending is what a new key of an open Hydra mapping needs
-        (
-            "hydra.job.env_set.X=1",
-            "Could not override 'hydra.job.env_set.X'. "
-            "To append to your config use +hydra.job.env_set.X=1",
-        ),
-    ],
-)
-def test_a_key_the_config_lacks_is_named_with_the_nearest_one(fakes, capsys, override, line):
-    assert run_main(["seed=1", override]) == 1
-    assert capsys.readouterr().err == f"error: {line}\n"
-
-
-def test_only_an_override_line_with_non_ascii_characters_gets_the_quoting_hint(fakes, capsys):
-    assert run_main(["relay.k=[1,"]) == 1
-    assert "need quotes" not in capsys.readouterr().err
-    assert run_main(["relay.k=8", "paths.outputs=/tmp/scène"]) == 1
-    assert "Hydra's quotes too" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize(
@@ -229,7 +167,8 @@ def test_an_output_path_through_a_file_fails_before_any_work(
 def test_the_device_is_checked_here_unless_the_launcher_sends_jobs_elsewhere(
     tmp_path, monkeypatch, launcher, runs_here
 ):
-    pytest.importorskip(prelaunch.LAUNCHER_PLUGINS.get(launcher, ("hydra",))[0])
+    plugins = {"joblib": "hydra_joblib_launcher", "slurm": "hydra_submitit_launcher"}
+    pytest.importorskip(f"hydra_plugins.{plugins.get(launcher, 'hydra_joblib_launcher')}")
     monkeypatch.setattr(prelaunch.shutil, "which", lambda name: f"/usr/bin/{name}")
     seen = []
     args = ["-m", f"hydra/launcher={launcher}", "relay.k=8,16", f"hydra.sweep.dir={tmp_path}"]
@@ -239,80 +178,16 @@ def test_the_device_is_checked_here_unless_the_launcher_sends_jobs_elsewhere(
     assert seen == [(8, runs_here), (16, runs_here)]
 
 
-@pytest.mark.parametrize(("group", "value"), [("pipeline", "4dgs"), ("budget", "smoke")])
-def test_an_experiment_setting_a_group_to_a_value_is_told_to_override_it(tmp_path, group, value):
-    conf = shutil.copytree(config_dir(), tmp_path / "conf")
-    experiment = conf / "experiment" / "plain.yaml"
-    experiment.write_text(f"# @package _global_\n{group}: {value}\n")
-    seen = []
-    with pytest.raises(InputError) as caught:
-        prelaunch.check_command_line(["+experiment=plain"], conf, lambda cfg, here: seen.append(1))
-    assert str(caught.value) == (
-        f"{group}: expected a config section (a mapping), got '{value}': {group} is a config "
-        f"group, choose its file with {group}={value} on the command line, or in an experiment "
-        f"file with `defaults: [override /{group}: {value}]` (the experiment chosen: "
-        "conf/experiment/plain.yaml)"
-    )
-    assert seen == []
-    experiment.write_text(f"# @package _global_\ndefaults: [override /{group}: {value}]\n")
-    prelaunch.check_command_line(
-        ["+experiment=plain"], conf, lambda cfg, here: seen.append(cfg[group].name)
-    )
-    assert seen == [value]  # the form the message gives chooses the group's file
-
-
-@pytest.mark.parametrize(
-    "args", [["scene.frames=8"], ["-m", "scene.width=48,64"], ["--cfg", "job", "scene.frames=8"]]
-)
-def test_a_group_set_to_a_value_is_named_also_when_the_command_sets_keys_inside_it(tmp_path, args):
-    # before: "scene.frames: scene is a value, not a section", naming no experiment file
-    conf = shutil.copytree(config_dir(), tmp_path / "conf")
-    (conf / "experiment" / "plain.yaml").write_text("# @package _global_\nscene: court\n")
-    with refused(InputError, "scene", "conf/experiment/plain.yaml"):
-        prelaunch.check_command_line(["+experiment=plain", *args], conf, lambda cfg, here: None)
-
-
-def test_an_unknown_choice_an_experiment_sweeps_is_named_with_the_available_ones(tmp_path):
-    # before: Hydra's "Could not find 'pipeline/nope' ... Config search path: ..."
+def test_an_unknown_choice_an_experiment_sweeps_is_found_before_any_job(tmp_path):
     conf = shutil.copytree(config_dir(), tmp_path / "conf")
     (conf / "experiment" / "plain.yaml").write_text(
         "# @package _global_\nhydra:\n  mode: MULTIRUN\n  sweeper:\n    params:\n"
         "      pipeline: relaygs,nope\n"
     )
-    with pytest.raises(InputError) as caught:
-        prelaunch.check_command_line(["+experiment=plain"], conf, lambda cfg, here: None)
-    assert str(caught.value) == (
-        "job pipeline=nope: unknown pipeline 'nope' (available: 4dgs, decouple, no_copies, "
-        "no_stage2, relaygs)"
-    )
-
-
-@pytest.mark.parametrize(
-    ("entry", "fix"),
-    [
-        ("pipeline: 4dgs", "override /pipeline: 4dgs"),  # read as conf/experiment/pipeline/
-        ("/pipeline: 4dgs", "override /pipeline: 4dgs"),  # a second choice of the group
-        ("override pipeline: 4dgs", "override /pipeline: 4dgs"),  # no such group in experiment/
-        ("scene: court", "override /scene: court"),
-        ("component: no_gamma", "/component: no_gamma"),  # a group the main config lacks
-    ],
-)
-def test_an_experiment_choosing_a_group_the_wrong_way_is_told_the_entry(tmp_path, entry, fix):
-    # before: Hydra's "Could not find 'experiment/pipeline/4dgs' Config search path: ...",
-    # "Multiple values for pipeline" or "Could not override 'experiment/pipeline@pipeline'"
-    conf = shutil.copytree(config_dir(), tmp_path / "conf")
-    experiment = conf / "experiment" / "plain.yaml"
-    experiment.write_text(f"# @package _global_\ndefaults:\n  - {entry}\n")
-    with pytest.raises(InputError) as caught:
-        prelaunch.check_command_line(["+experiment=plain"], conf, lambda cfg, here: None)
-    group = fix.split("/")[1].split(":")[0]
-    override = ", and one the main config chooses needs `override`" if "override" in fix else ""
-    assert str(caught.value) == (
-        f"conf/experiment/plain.yaml: its defaults list must choose the {group} group as "
-        f"`- {fix}` (a group of conf/ is named with a leading slash{override})"
-    )
-    experiment.write_text(f"# @package _global_\ndefaults:\n  - {fix}\n")
-    prelaunch.check_command_line(["+experiment=plain"], conf, lambda cfg, here: None)  # the fix
+    seen = []
+    with pytest.raises(HydraException, match="pipeline/nope"):
+        prelaunch.check_command_line(["+experiment=plain"], conf, lambda cfg, h: seen.append(1))
+    assert seen == [1]  # the first job, relaygs, composed
 
 
 def _experiment(tmp_path, text):
@@ -323,57 +198,13 @@ def _experiment(tmp_path, text):
 
 
 def test_a_group_an_experiment_adds_is_changed_without_a_plus(tmp_path):
-    # before: `component=no_stage2` was refused ("write +component=..."), and the `+` form
-    # failed in Hydra with "Multiple values for component"
     conf = _experiment(tmp_path, "defaults:\n  - /component: no_gamma\n")
     seen = []
     args = ["+experiment=plain", "component=no_stage2"]
     prelaunch.check_command_line(args, conf, lambda cfg, here: seen.append(cfg.variant))
     assert seen == ["no_stage2"]
-    with refused(InputError, "component", "component=no_stage2"):
+    with pytest.raises(HydraException, match="component"):
         prelaunch.check_command_line(["+experiment=plain", "+component=no_stage2"], conf, print)
-
-
-def test_a_broken_defaults_entry_elsewhere_is_not_blamed_on_the_experiment(tmp_path):
-    conf = _experiment(tmp_path, "seed: 3\n")
-    court = conf / "scene" / "court.yaml"
-    court.write_text(court.read_text().replace("/base/synthetic_scene@_here_", "/base: nothere"))
-    with pytest.raises(InputError) as caught:
-        prelaunch.check_command_line(["scene=court", "+experiment=plain"], conf, print)
-    assert "conf/experiment" not in str(caught.value) and "nothere" in str(caught.value)
-
-
-# before: with `pipeline=relaygs` too, "/pipeline" gave Hydra's "pipeline appears more than
-# once in the final defaults list", naming no file
-@pytest.mark.parametrize("entry", ["pipeline: 4dgs", "/pipeline: 4dgs"])
-def test_a_defaults_entry_of_the_experiment_is_blamed_on_it_whatever_else_is_set(tmp_path, entry):
-    conf = _experiment(tmp_path, f"defaults:\n  - {entry}\n")
-    with refused(InputError, "plain.yaml", "override /pipeline: 4dgs"):
-        prelaunch.check_command_line(["+experiment=plain", "pipeline=relaygs"], conf, print)
-
-
-def test_an_override_of_a_group_the_main_config_lacks_is_told_the_slash_entry(tmp_path):
-    # before: Hydra's "Could not override 'component'. No match in the defaults list."
-    conf = _experiment(tmp_path, "defaults:\n  - override /component: no_gamma\n")
-    with refused(InputError, "plain.yaml", "- /component: no_gamma"):
-        prelaunch.check_command_line(["+experiment=plain"], conf, print)
-
-
-@pytest.mark.parametrize("entry", ["override /scene: courtt", "pipeline: 4dgz"])
-def test_an_experiment_choosing_an_unknown_file_of_a_group_names_the_available_ones(
-    tmp_path, entry
-):
-    # before: Hydra's "Could not find 'scene/courtt' ... Config search path: ..."; a typo
-    # with the slash missing was told to add it, then failed again
-    conf = shutil.copytree(config_dir(), tmp_path / "conf")
-    (conf / "experiment" / "plain.yaml").write_text(f"# @package _global_\ndefaults: [{entry}]\n")
-    with pytest.raises(InputError) as caught:
-        prelaunch.check_command_line(["+experiment=plain"], conf, lambda cfg, here: None)
-    group, choice = entry.split("/")[-1].split(": ")
-    assert str(caught.value).startswith(
-        f"conf/experiment/plain.yaml: its defaults list chooses an unknown {group} {choice!r} "
-        "(available: "
-    )
 
 
 @pytest.mark.parametrize(
@@ -398,10 +229,8 @@ def test_a_deleted_or_null_scene_path_leaves_a_synthetic_scene_its_settings(tmp_
 def test_a_slurm_sweep_off_a_cluster_is_one_line_before_any_work(fakes, tmp_path, capsys):
     pytest.importorskip("hydra_plugins.hydra_submitit_launcher")
     assert run_main(["-m", "hydra/launcher=slurm", "relay.k=8,16"]) == 1
-    assert capsys.readouterr().err.strip() == (
-        "error: hydra/launcher: SlurmLauncher submits with sbatch and srun, but this machine "
-        "has no sbatch or srun on PATH: run the sweep from the cluster's login node"
-    )
+    [line] = capsys.readouterr().err.strip().splitlines()
+    assert line.startswith("error: hydra/launcher: ") and "sbatch" in line
     assert list(tmp_path.iterdir()) == []
 
 
@@ -530,18 +359,13 @@ def test_a_signal_while_the_command_line_is_checked_is_one_line_not_a_traceback(
     assert list(tmp_path.iterdir()) == []
 
 
-def test_a_launcher_whose_plugin_is_missing_names_the_package(fakes, monkeypatch, capsys):
-    monkeypatch.setattr(prelaunch, "is_installed", lambda module: False)
-    assert run_main(["hydra/launcher=joblib", "-m", "relay.k=8,16"]) == 1
-    assert "pip install hydra-joblib-launcher" in capsys.readouterr().err
-
-
 def test_help_lists_examples_and_experiments_and_does_no_work(fakes, tmp_path, capsys):
     assert run_main(["--help"]) in (0, None)
     shown = capsys.readouterr().out
     assert shown.startswith("python -m relaygs.run: train and evaluate RelayGS")
-    assert "python -m relaygs.run +experiment=ablation_k" in shown
-    assert "experiment: ablation_components, ablation_k, baseline, budget, smoke" in shown
+    assert "relaygs.run +experiment=ablation_k" in shown
+    experiments = sorted(path.stem for path in (config_dir() / "experiment").glob("*.yaml"))
+    assert f"experiment: {', '.join(experiments)}" in shown
     commands = next(a for a in artifacts_parser()._actions if a.dest == "command").choices
     assert f"python -m relaygs.artifacts {' | '.join(commands)}\n" in shown  # every command
     assert not (tmp_path / "outputs").exists()
@@ -609,31 +433,6 @@ class _FlushLog(io.StringIO):
 
     def flush(self) -> None:
         self.flushed.append(self.getvalue())
-
-
-@pytest.mark.parametrize("other", ["~relay.k", "relay.k=choice(1,2)"])
-def test_a_delete_override_or_a_sweep_function_is_no_reason_for_the_quoting_hint(
-    fakes, capsys, other
-):
-    assert run_main([other, "relay.p=[1,"]) == 1
-    err = capsys.readouterr().err
-    assert err.startswith("error: cannot parse overrides") and "quotes" not in err
-
-
-@pytest.mark.parametrize(
-    ("args", "fragment"),
-    [
-        (["--cfg", "job", "scene=mars"], "unknown scene 'mars'"),
-        (["--cfg", "job", "nosuch=1"], "nosuch: the config has no setting 'nosuch' (it has "),
-        (["--info", "defaults", "relay.k=[1,"], "cannot parse overrides"),
-        (["-m", "relay.k=8,16", "--cfg", "job"], "--cfg and --multirun cannot be combined"),
-        (["-r", "-c", "job"], "--cfg and --run cannot be combined: Hydra takes one of --run,"),
-    ],
-)
-def test_printing_commands_check_their_overrides_in_one_line(fakes, capsys, args, fragment):
-    assert run_main(args) == 1
-    lines = capsys.readouterr().err.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("error: ") and fragment in lines[0], lines
 
 
 def test_shell_completion_is_left_to_hydra(fakes, tmp_path, capsys):
@@ -735,7 +534,7 @@ def test_the_command_line_fails_in_one_line_in_a_fresh_process(tmp_path):
     )
     assert done.returncode == 1
     lines = done.stderr.strip().splitlines()
-    assert len(lines) == 1 and "unknown pipeline 'nope'" in lines[0], done.stderr
+    assert len(lines) == 1 and "pipeline/nope" in lines[0], done.stderr
     assert list(tmp_path.iterdir()) == []
 
 
@@ -765,4 +564,5 @@ def test_nothing_imports_hydras_private_modules():
         for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
             if isinstance(node, ast.Import | ast.ImportFrom):
                 names = [getattr(node, "module", None) or "", *(alias.name for alias in node.names)]
-                assert not any(name.startswith("hydra._internal") for name in names), path
+                private = [name for name in names if name.split(".")[:2] == ["hydra", "_internal"]]
+                assert not private, path

@@ -321,8 +321,7 @@ def test_jobs_in_nested_folders_count_as_started(monkeypatch, tmp_path, capsys):
 @pytest.mark.parametrize(
     "record",
     [
-        "hydra: {sweeper: {_target_: hydra._internal.core_plugins.basic_sweeper.BasicSweeper}, "
-        "overrides: {task: null}}",
+        "hydra: {sweeper: {_target_: plugins.BasicSweeper}, overrides: {task: null}}",
         "hydra: {sweeper: basic, overrides: {task: [seed=0]}}",
         "hydra: [1, 2]",
         "{{not yaml",

@@ -33,15 +33,15 @@ STAGE = "points"
 SCHEMA_VERSION = 1
 
 
-@dataclass(frozen=True)
+@dataclass
 class PointsConfig:
     """`cfg["points"]`: the scene's point cloud as static Gaussians, thinned to `init_points`."""
 
     init_points: int = 40
     init_opacity: float = 0.5
 
-    def __post_init__(self) -> None:
-        """Check every value (errors name `points.<key>`)."""
+    def validate(self) -> None:
+        """Check every value range (errors name `points.<key>`), once, when the run is planned."""
         require(self.init_points >= 1, "points.init_points", self.init_points, "an int >= 1")
         require(0 < self.init_opacity < 1, "points.init_opacity", self.init_opacity, "(0, 1)")
 

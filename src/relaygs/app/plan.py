@@ -46,6 +46,8 @@ TOP_LEVEL_KEYS = frozenset(
 MAX_THREADS = 1024
 """Most torch CPU threads a job may ask for: more fails in the OpenMP runtime at job start
 (16384 could not be created here, 100000 crashed the process), after the scene is ready."""
+CONFIG_GROUPS = ("pipeline", "budget")
+"""Config groups whose section a run reads here: a value there was meant to choose a file."""
 LABELS = ("variant", "experiment_name", "report.reference", "scene.name", "budget.name")
 """Settings that only label a run in its result (null allowed but for `variant`)."""
 
@@ -120,7 +122,7 @@ def plan_run(
     pipeline = _pipeline(cfg, stage_types, accepted_upstream)
     for dotted in LABELS:  # after the pipeline: `variant` is `${pipeline.name}` by default
         _require_label(cfg, dotted)
-    multiplier, scaled_keys = _budget(cfg.get("budget") or {})
+    multiplier, scaled_keys = _budget(_section(cfg, "budget") if "budget" in cfg else {})
     _require_stage_setting_names(cfg, stage_types, scaled_keys)
     eval_config = {"seed": seed, "train": _section(cfg, "train"), "eval": _section(cfg, "eval")}
     for what, path in (
@@ -228,7 +230,7 @@ def _section(cfg: Mapping[str, Any], name: str) -> dict[str, Any]:
     """A copy of the config section `name`, which must be a mapping."""
     section = cfg.get(name)
     if not isinstance(section, Mapping):
-        if name == "pipeline":  # the group that a run's config reaches here without prelaunch
+        if name in CONFIG_GROUPS:  # `pipeline: 4dgs` in an experiment file
             raise InputError(group_value_error(name, section))
         raise InputError(f"{name}: expected a config section (a mapping), got {section!r}")
     return dict(section)

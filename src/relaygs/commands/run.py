@@ -3,8 +3,9 @@ synthetic scene (once), runs the `relaygs` pipeline at the `small` budget, evalu
 prints the results and where the outputs are. `+experiment=NAME` runs an experiment (sweeps
 are multiruns). See docs/experiments.md.
 
-This module is a thin wrapper: the command line is checked up front (one-line errors), then
-Hydra composes the config and calls `relaygs.app.task.run_task` for each job.
+This module is a thin wrapper: every job the command line would launch is composed and planned
+up front (one-line errors, Hydra's and OmegaConf's in their own words), then Hydra composes it
+and calls `relaygs.app.task.run_task` for each job.
 """
 
 from __future__ import annotations
@@ -24,18 +25,24 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.errors import HydraException
 from hydra.types import RunMode
 from omegaconf import DictConfig
+from omegaconf.errors import OmegaConfBaseException
 
 from relaygs.app.callbacks import STARTED_FOLDERS, StartedFolder, names_override
 from relaygs.app.config import resolve_config
 from relaygs.app.plan import plan_run
-from relaygs.app.prelaunch import LAUNCH_FLAGS, JobValidator, check_command_line
+from relaygs.app.prelaunch import (
+    LAUNCH_FLAGS,
+    JobValidator,
+    check_command_line,
+    library_error_line,
+)
 from relaygs.app.result import RESULT_FILE, error_line
 from relaygs.app.suite import StageSuite, load_stage_suite
 from relaygs.app.sweep_axes import recorded_sweep_axes
 from relaygs.app.task import run_task
 from relaygs.cli import INTERRUPTED_EXIT
 from relaygs.device import usable_device
-from relaygs.errors import RERUN_RUN, RelayGSError, one_line, resource_error
+from relaygs.errors import RERUN_RUN, RelayGSError, resource_error
 from relaygs.paths import config_dir
 from relaygs.pipeline.fsio import file_identity
 from relaygs.shell import path_override
@@ -71,15 +78,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     except RelayGSError as error:  # the command line (a job's own errors end in run_job)
         print(f"error: {error}", file=sys.stderr)
         return 1
+    except (HydraException, OmegaConfBaseException) as error:  # before OSError: Hydra's
+        # MissingConfigException is one; the libraries' own message, in one line
+        print(f"error: {library_error_line(error)}", file=sys.stderr)
+        return 1
     except (OSError, MemoryError) as error:  # Hydra's own writes: config files, multirun.yaml
         failure = resource_error(error)
         if failure is None:
             traceback.print_exc()  # a programming error keeps its traceback, as Hydra's did
             return 1
         print(f"error: {failure}", file=sys.stderr)
-        return 1
-    except HydraException as error:
-        print(f"error: {one_line(error)}", file=sys.stderr)
         return 1
     except Exception:  # a programming error in a job: its traceback, as Hydra printed it
         traceback.print_exc()

@@ -14,6 +14,7 @@ from typing import Any
 from relaygs.data import Scene
 from relaygs.errors import InputError
 from relaygs.stages import decouple, deform, relay, replicate, warmup
+from relaygs.stages.config import register_schemas
 from relaygs.stages.evaluate import EvalSettings, evaluate
 from relaygs.stages.spec import StageSpec
 from relaygs.stages.train_settings import TrainSettings
@@ -25,6 +26,7 @@ SPECS: dict[str, StageSpec] = {
     spec.name: spec
     for spec in (decouple.SPEC, relay.SPEC, deform.SPEC, warmup.SPEC, replicate.SPEC)
 }
+register_schemas({"train": TrainSettings, **{name: spec.settings for name, spec in SPECS.items()}})
 
 
 @functools.cache
@@ -48,8 +50,8 @@ def validate_config(stage: str, cfg: Mapping[str, Any]) -> None:
     its own section, the shared `train` section and, when present, `eval`."""
     if stage not in SPECS:
         raise InputError(f"unknown stage type {stage!r}; expected one of {sorted(SPECS)}")
-    SPECS[stage].settings.from_config(cfg.get(stage))
-    TrainSettings.from_config(cfg.get("train"))
+    SPECS[stage].settings.from_config(cfg.get(stage)).validate()
+    TrainSettings.from_config(cfg.get("train")).validate()
     EvalSettings.from_config(cfg.get("eval"))
 
 

@@ -1,21 +1,25 @@
-"""Stage settings: frozen dataclasses parsed from plain dicts; unknown keys and bad values fail.
+"""Stage settings: dataclasses that are Hydra's structured configs, and their range checks.
 
 Each stage section (and the shared `train` section) is one dataclass whose defaults are the
-paper's settings; `parse_section` checks every key and type so a runner can validate a whole
-configuration before any work starts. Errors are one-line `InputError`s naming `section.key`.
+paper's settings, registered with Hydra's ConfigStore (`register_schemas`): Hydra and OmegaConf
+check keys and types while composing, `parse_section` builds the dataclass from a plain dict,
+and each class's `validate()` checks value ranges once, when the run is planned. Errors are
+one-line `InputError`s naming `section.key`.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-import types
-import typing
 from collections.abc import Mapping
 from typing import Any, ClassVar, TypeVar
 
+from hydra.core.config_store import ConfigStore
+from omegaconf import OmegaConf
+from omegaconf.errors import OmegaConfBaseException
+
 from relaygs.data.options import INT64_MAX
-from relaygs.errors import InputError
+from relaygs.errors import InputError, one_line
 from relaygs.model import (
     BACKGROUND_DENSIFY,
     CORE_PARAMS,
@@ -29,75 +33,26 @@ T = TypeVar("T")
 
 
 def parse_section(cls: type[T], data: Mapping[str, Any] | None, section: str) -> T:
-    """Build dataclass `cls` from `data` (missing keys keep defaults); unknown keys are errors.
-
-    Nested mappings (fields typed `dict`) are merged key by key over the field's default.
-    """
-    data = {} if data is None else data
-    if not isinstance(data, Mapping):
-        raise InputError(f"{section}: expected a mapping, got {type(data).__name__}")
-    fields = {f.name: f for f in dataclasses.fields(cls)}
-    unknown = sorted(set(data) - set(fields))
-    if unknown:
-        raise InputError(f"{section}: unknown key(s) {unknown}; expected some of {sorted(fields)}")
-    hints = typing.get_type_hints(cls)
-    values = {}
-    for name, value in data.items():
-        where = f"{section}.{name}"
-        coerced = coerce(value, hints[name], where)
-        if isinstance(coerced, dict) and fields[name].default_factory is not dataclasses.MISSING:
-            coerced = {**fields[name].default_factory(), **coerced}
-        values[name] = coerced
-    return cls(**values)
+    """Build dataclass `cls` from `data` (missing keys keep defaults, mappings merge key by key
+    over the field's default); OmegaConf refuses unknown keys and values of the wrong type."""
+    try:
+        parsed = OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(cls), data or {}))
+    except OmegaConfBaseException as error:
+        where = ".".join(filter(None, (section, str(getattr(error, "full_key", "") or ""))))
+        raise InputError(f"{where}: {one_line(error)}") from error
+    for name, value in dataclasses.asdict(parsed).items():
+        # torch and numpy take no int beyond int64 (a traceback deep in a stage otherwise)
+        big = isinstance(value, int) and abs(value) > INT64_MAX
+        require(not big, f"{section}.{name}", value, f"an int <= {INT64_MAX}")
+    return parsed
 
 
-def coerce(value: Any, hint: Any, where: str) -> Any:
-    """`value` checked against the type `hint` (bool, int, float, str, unions, tuples, dicts)."""
-    origin = typing.get_origin(hint)
-    if origin in (typing.Union, types.UnionType):
-        options = typing.get_args(hint)
-        if value is None and type(None) in options:
-            return None
-        for option in options:
-            if option is not type(None) and _matches(value, option):
-                return coerce(value, option, where)
-        raise _type_error(where, value, hint)
-    if origin is tuple:
-        if not isinstance(value, list | tuple):
-            raise _type_error(where, value, hint)
-        item_hint = typing.get_args(hint)[0]
-        return tuple(coerce(item, item_hint, f"{where}[{i}]") for i, item in enumerate(value))
-    if origin is dict or hint is dict:
-        if not isinstance(value, Mapping):
-            raise _type_error(where, value, hint)
-        return {str(key): item for key, item in value.items()}
-    if not _matches(value, hint):
-        raise _type_error(where, value, hint)
-    # torch and numpy take no int beyond int64 (a traceback deep in a stage otherwise)
-    require(hint is not int or abs(value) <= INT64_MAX, where, value, f"an int <= {INT64_MAX}")
-    return float(value) if hint is float else value
-
-
-def _matches(value: Any, hint: Any) -> bool:
-    if hint is bool:
-        return isinstance(value, bool)
-    if hint is int:
-        return isinstance(value, int) and not isinstance(value, bool)
-    if hint is float:
-        return isinstance(value, int | float) and not isinstance(value, bool)
-    if hint is str:
-        return isinstance(value, str)
-    origin = typing.get_origin(hint) or hint
-    if origin is tuple:
-        return isinstance(value, list | tuple)
-    if origin is dict:
-        return isinstance(value, Mapping)
-    return False
-
-
-def _type_error(where: str, value: Any, hint: Any) -> InputError:
-    expected = getattr(hint, "__name__", None) or str(hint).replace("typing.", "")
-    return InputError(f"{where}: expected {expected}, got {value!r}")
+def register_schemas(sections: Mapping[str, type]) -> None:
+    """Store each section's dataclass in Hydra's ConfigStore as `<section>/schema`, the first
+    entry of the section's defaults list, so that Hydra checks its keys and types on compose."""
+    store = ConfigStore.instance()
+    for name, cls in sections.items():
+        store.store(group=name, name="schema", node=cls)
 
 
 def require(condition: bool, where: str, value: Any, expected: str) -> None:
@@ -130,7 +85,8 @@ def learning_rates(config: Mapping[str, Any], steps: int, where: str) -> SetLear
         for name, value in config.items()
         if name != "extras"
     }
-    extras = coerce(config.get("extras") or {}, dict, f"{where}.extras")
+    extras = config.get("extras") or {}
+    require(isinstance(extras, Mapping), f"{where}.extras", extras, "a mapping of rates")
     checked["extras"] = {
         name: _rate_config(value, f"{where}.extras.{name}") for name, value in extras.items()
     }
@@ -179,11 +135,11 @@ def _rate_config(value: Any, where: str) -> float | dict[str, Any]:
     LRSchedule.from_config trusts its input: a string, list or null would fail later with a
     traceback, and a bool would pass as the rate 1. Ranges are checked by `_check_schedule`.
     """
-    value = coerce(value, float | dict[str, Any], where)
-    if not isinstance(value, dict):
-        return value
-    require("init" in value, where, value, "a number or a mapping with an 'init' rate")
-    return dataclasses.asdict(parse_section(LRSchedule, value, where))
+    if isinstance(value, Mapping) and "init" in value:
+        return dataclasses.asdict(parse_section(LRSchedule, value, where))
+    number = isinstance(value, int | float) and not isinstance(value, bool)
+    require(number, where, value, "a number or a mapping with an 'init' rate")
+    return float(value)
 
 
 def _resolved(parsed: LRSchedule, steps: int, where: str) -> LRSchedule:

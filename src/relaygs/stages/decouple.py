@@ -57,7 +57,7 @@ MASK = "mask_logit"
 SET = "all"
 
 
-@dataclass(frozen=True)
+@dataclass
 class DecoupleConfig:
     """Settings of the decouple stage (`cfg["decouple"]`); defaults follow the paper.
 
@@ -84,8 +84,8 @@ class DecoupleConfig:
     lr: dict[str, Any] = field(default_factory=lambda: dict(BACKGROUND_LR))
     densify: dict[str, Any] = field(default_factory=paper_schedule)
 
-    def __post_init__(self) -> None:
-        """Check every value (errors name `decouple.<key>`)."""
+    def validate(self) -> None:
+        """Check every value range (errors name `decouple.<key>`), once, when the run is planned."""
         require_steps("decouple.steps", self.steps)
         # the logits are float32: NaN, ±inf or 1e300 would stop the training at step 1 (diverged)
         logit, largest = self.mask_init, torch.finfo(torch.float32).max

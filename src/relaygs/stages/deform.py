@@ -51,7 +51,7 @@ GRID_LR = {"init": 1.6e-3, "final": 1.6e-4}  # 4D-GS, × scene extent
 MLP_LR = {"init": 1.6e-4, "final": 1.6e-5}  # 4D-GS, × scene extent
 
 
-@dataclass(frozen=True)
+@dataclass
 class DeformConfig(PerSetSections):
     """Settings of the deform stage (`cfg["deform"]`); defaults follow the paper and 4D-GS.
 
@@ -78,8 +78,8 @@ class DeformConfig(PerSetSections):
     sh_every: int = 1000
     lr_bg: dict[str, Any] = field(default_factory=lambda: dict(GAUSSIAN_LR))
     lr_fg: dict[str, Any] = field(default_factory=lambda: dict(GAUSSIAN_LR))
-    lr_grid: float | dict[str, Any] = field(default_factory=lambda: dict(GRID_LR))
-    lr_mlp: float | dict[str, Any] = field(default_factory=lambda: dict(MLP_LR))
+    lr_grid: Any = field(default_factory=lambda: dict(GRID_LR))
+    lr_mlp: Any = field(default_factory=lambda: dict(MLP_LR))
     lr_gamma: float = 5e-3
     lr_affine: float = 1e-3
     plane_smoothness: float = 2e-4
@@ -88,8 +88,8 @@ class DeformConfig(PerSetSections):
     densify_bg: dict[str, Any] = field(default_factory=paper_schedule)
     densify_fg: dict[str, Any] = field(default_factory=paper_schedule)
 
-    def __post_init__(self) -> None:
-        """Check every value (errors name `deform.<key>`)."""
+    def validate(self) -> None:
+        """Check every value range (errors name `deform.<key>`), once, when the run is planned."""
         require_steps("deform.steps", self.steps)
         require(self.frames_per_step >= 1, "deform.frames_per_step", self.frames_per_step, ">= 1")
         require(

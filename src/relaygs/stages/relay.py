@@ -56,7 +56,7 @@ SCHEMA_VERSION = 2  # 2: density control ends before the stage's last step
 ACCEPTED_UPSTREAM = ("decouple",)
 
 
-@dataclass(frozen=True)
+@dataclass
 class RelayConfig(PerSetSections):
     """Settings of the relay stage (`cfg["relay"]`); defaults follow the paper.
 
@@ -84,8 +84,8 @@ class RelayConfig(PerSetSections):
     densify_fg: dict[str, Any] = field(default_factory=paper_schedule)
     densify_bg: dict[str, Any] = field(default_factory=paper_schedule)
 
-    def __post_init__(self) -> None:
-        """Check every value (errors name `relay.<key>`)."""
+    def validate(self) -> None:
+        """Check every value range (errors name `relay.<key>`), once, when the run is planned."""
         require_steps("relay.steps", self.steps)
         require(self.k >= 1, "relay.k", self.k, "an int >= 1")
         modes = list(SEGMENT_MODES)

@@ -21,14 +21,14 @@ SCHEMA_VERSION = 1
 ACCEPTED_UPSTREAM = ("decouple",)
 
 
-@dataclass(frozen=True)
+@dataclass
 class ReplicateConfig:
     """Settings of the replicate stage (`cfg["replicate"]`): the segment length k."""
 
     k: int = 16
 
-    def __post_init__(self) -> None:
-        """k must be a positive frame count."""
+    def validate(self) -> None:
+        """k must be a positive frame count (called once, when the run is planned)."""
         require(self.k >= 1, "replicate.k", self.k, "an int >= 1")
 
     @classmethod

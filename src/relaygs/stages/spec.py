@@ -13,10 +13,13 @@ from relaygs.train.canonical import SectionCanonical
 
 
 class StageSettings(Protocol):
-    """A stage's settings dataclass: `from_config` parses and checks its config section."""
+    """A stage's settings dataclass (its Hydra structured config): `from_config` parses its
+    config section, `validate` checks the value ranges."""
 
     @classmethod
     def from_config(cls, data: Mapping[str, Any] | None) -> Any: ...
+
+    def validate(self) -> None: ...
 
 
 @dataclass(frozen=True)

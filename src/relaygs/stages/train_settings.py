@@ -12,7 +12,7 @@ from relaygs.device import parse_device, usable_device
 from relaygs.stages.config import parse_section, require
 
 
-@dataclass(frozen=True)
+@dataclass
 class TrainSettings:
     """Settings every stage reads from `cfg["train"]`.
 
@@ -32,8 +32,8 @@ class TrainSettings:
     progress: bool = True
     device: str = "cpu"
 
-    def __post_init__(self) -> None:
-        """Reject values no run could use."""
+    def validate(self) -> None:
+        """Reject values no run could use (called once, when the run is planned)."""
         require(self.batch_views >= 1, "train.batch_views", self.batch_views, "an int >= 1")
         require(0.0 <= self.ssim_weight <= 1.0, "train.ssim_weight", self.ssim_weight, "[0, 1]")
         require(

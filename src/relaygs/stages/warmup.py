@@ -38,7 +38,7 @@ SCHEMA_VERSION = 2  # 2: density control ends before the stage's last step
 SET = "bg"
 
 
-@dataclass(frozen=True)
+@dataclass
 class WarmupConfig:
     """Settings of the static warm-up (`cfg["warmup"]`): 4D-GS's coarse stage, 3000 steps,
     3DGS learning rates and density control. The position lr decays over these steps (to
@@ -52,8 +52,8 @@ class WarmupConfig:
     lr: dict[str, Any] = field(default_factory=lambda: dict(GAUSSIAN_LR))
     densify: dict[str, Any] = field(default_factory=paper_schedule)
 
-    def __post_init__(self) -> None:
-        """Check every value (errors name `warmup.<key>`)."""
+    def validate(self) -> None:
+        """Check every value range (errors name `warmup.<key>`), once, when the run is planned."""
         require_steps("warmup.steps", self.steps)
         check_static_settings(self, STAGE)
         self.learning_rates()
