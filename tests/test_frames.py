@@ -83,7 +83,8 @@ def test_frames_are_written_in_natural_order_cut_to_the_shortest_video(videos, t
     first = (out / "colmap_images.txt").read_text().split()
     assert first == [f"{camera}/frame_00000.png" for camera in sources]
     assert printed.startswith(f"wrote 4 frame(s) at 15 fps of 3 camera(s) into {out}")
-    assert "note: every camera keeps 4 frame(s), all that cam02 gave; cam00 had more\n" in (printed)
+    (note,) = [line for line in printed.splitlines() if line.startswith("note: every camera")]
+    assert "4 frame(s)" in note and "cam02" in note and "cam00" in note
     assert f"then train: {python_command()} -m relaygs.run scene.path={out}\n" in printed + "\n"
 
 
@@ -195,7 +196,7 @@ def test_bad_options_are_usage_errors(videos, tmp_path, capsys, argv):
 def test_a_selection_past_every_frame_names_the_video(videos, tmp_path, capsys):
     code, _, err = _main(capsys, videos, tmp_path / "scene", "--start", 50)
     assert code == 1  # the shortest video is decoded first
-    assert "side_10.mp4: no frame to write (decoded 8, none at or after frame 50)" in err
+    assert err.count("\n") == 1 and all(name in err for name in ("side_10.mp4", "8", "50"))
 
 
 def test_frame_selection_refuses_impossible_values():
@@ -236,7 +237,8 @@ def test_videos_at_different_rates_are_noted(tmp_path, capsys):
         _video(folder / name, [np.full((18, 32, 3), 40 * i, np.uint8) for i in range(3)], fps)
     code, printed, _ = _main(capsys, folder, tmp_path / "scene")
     assert code == 0 and " fps " not in printed.splitlines()[0]
-    assert "note: the videos' frame rates differ (cam00 30, cam01 25 fps)" in printed
+    (note,) = [line for line in printed.splitlines() if line.startswith("note: ")]
+    assert "cam00 30" in note and "cam01 25" in note
     assert json.loads((tmp_path / "scene" / "frames.json").read_text())["fps"] is None
 
 
