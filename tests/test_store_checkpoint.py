@@ -159,13 +159,11 @@ def test_a_non_finite_optimizer_moment_stops_the_stage_before_anything_is_writte
     optimizer.step()
     ckpt.save(2, {"param": param}, {"adam": optimizer})  # finite: written
     optimizer.state[param]["exp_avg_sq"][1] = float("inf")  # a squared gradient overflowed
-    with pytest.raises(DivergenceError) as caught:
+    moment = "optimizers['adam']['state'][0]['exp_avg_sq']"
+    with refused(DivergenceError, "'relay'", "step 4", moment):
         ckpt.save(4, {"param": param}, {"adam": optimizer})
-    message = str(caught.value)
-    assert "stage 'relay' diverged at step 4" in message
-    assert "optimizers['adam']['state'][0]['exp_avg_sq']" in message
     assert [path.name for path in ckpt.folder.iterdir()] == ["step-000000000002"]
-    with pytest.raises(DivergenceError, match=r"extras\['history'\]\[1\]"):
+    with refused(DivergenceError, "extras['history'][1]"):
         ckpt.save(4, {"param": param}, None, {"history": [torch.zeros(2), torch.tensor(np.nan)]})
 
 
