@@ -2,6 +2,7 @@
 
 import pytest
 
+from refusals import refused
 from relaygs.errors import InputError
 from relaygs.pipeline.keys import artifact_key, canonical_json, is_non_key_name, key_config
 
@@ -79,13 +80,13 @@ def test_canonical_json_is_compact_sorted_and_keeps_int_float_distinct():
 
 
 @pytest.mark.parametrize(
-    ("cfg", "fragment"),
+    ("cfg", "named"),
     [
-        ({"k": {1, 2}}, r"^relay config\.k is a set"),
-        ({"k": object()}, r"config\.k is a object"),
-        ({"sub": {3: "x"}}, r"key 3 must be a string"),
+        ({"k": {1, 2}}, ["relay", "config.k", "set"]),
+        ({"k": object()}, ["config.k", "object"]),
+        ({"sub": {3: "x"}}, ["key 3"]),
     ],
 )
-def test_values_without_a_stable_form_are_refused_in_one_line(cfg, fragment):
-    with pytest.raises(InputError, match=fragment):
+def test_values_without_a_stable_form_are_refused_in_one_line(cfg, named):
+    with refused(InputError, *named):
         _key(cfg=cfg)

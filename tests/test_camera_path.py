@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 import torch
 
+from refusals import refused
 from relaygs.camera_path import PATH_CAMERA_ID, path_cameras
 from relaygs.data import Camera
 from relaygs.data.synthetic.rig import look_at
@@ -105,7 +106,7 @@ def test_one_camera_is_a_still_path_and_bad_requests_are_one_line():
     path = path_cameras(cameras, 3, CENTRE)
     assert all(torch.allclose(view.w2c, cameras[0].w2c, atol=1e-5) for view in path)
     assert len(path_cameras([_camera(0, 0), _camera(1, 90)], 1, CENTRE)) == 1
-    with pytest.raises(InputError, match="camera path: expected at least 1 view, got 0"):
+    with refused(InputError, "camera path", "got 0"):
         path_cameras(cameras, 0, CENTRE)
     with pytest.raises(InputError, match="camera path: no cameras to go round"):
         path_cameras([], 3, CENTRE)
@@ -118,5 +119,5 @@ def test_cameras_right_above_the_centre_have_no_orbit_and_say_so():
         eye = np.array([0.0, 0.0, 2.0 + index])
         w2c = look_at(eye, eye + np.array([5.0, 0.0, 0.0]))
         cameras.append(Camera(index, K, torch.tensor(w2c, dtype=torch.float32), 32, 18))
-    with pytest.raises(InputError, match="sit on the vertical through the scene's centre"):
+    with refused(InputError, "camera path", "vertical"):
         path_cameras(cameras, 5, CENTRE)

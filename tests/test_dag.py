@@ -65,79 +65,62 @@ def test_topological_order_puts_upstreams_first_whatever_the_file_order(tmp_path
 
 
 @pytest.mark.parametrize(
-    ("text", "fragment"),
+    ("text", "named"),
     [
-        ("nodes:\n  a: {stage: decouple, upstream: [zz]}\n", "unknown upstream 'zz'"),
+        ("nodes:\n  a: {stage: decouple, upstream: [zz]}\n", ["'zz'"]),
         (
             "nodes:\n  a: {stage: decouple, upstream: [b]}\n  b: {stage: relay, upstream: [a]}\n"
             "  c: {stage: deform, upstream: [b]}\n",
-            "cycle (a -> b -> a|b -> a -> b)",
+            ["cycle", "a -> b"],
         ),
-        ("nodes:\n  a: {stage: decouple, upstream: [a]}\n", "cycle a -> a"),
-        ("nodes:\n  a: {stage: teleport}\n", "unknown stage type 'teleport'"),
-        ("nodes:\n  a: {stage: decouple, inputs: []}\n", r"unknown field\(s\) \['inputs'\]"),
-        ("nodes:\n  a: {upstream: []}\n", "'stage' must be a stage type name"),
-        ("nodes:\n  a: {stage: relay, upstream: b}\n", "'upstream' must be a list"),
-        (
-            "nodes:\n  a: {stage: decouple}\n  b: {stage: relay, upstream: [a, a]}\n",
-            r"node 'b': 'upstream' lists a node twice: \['a', 'a'\]",
-        ),
-        ("nodes: {}\n", "'nodes' must be a non-empty mapping"),
-        ("steps: 3\nnodes:\n  a: {stage: decouple}\n", r"unknown field\(s\) \['steps'\]"),
-        ("description: [x]\nnodes:\n  a: {stage: decouple}\n", "'description' must be a string"),
-        ("nodes:\n  a.b: {stage: decouple}\n", "node 'a.b': node names must match"),
-        ("nodes:\n  a: decouple\n", "node 'a': expected a mapping with 'stage' and 'upstream'"),
-        ("- a\n- b\n", "expected a mapping with 'nodes'"),
-        ("nodes: [unclosed\n", "cannot read pipeline"),
+        ("nodes:\n  a: {stage: decouple, upstream: [a]}\n", ["cycle", "a -> a"]),
+        ("nodes:\n  a: {stage: teleport}\n", ["'teleport'"]),
+        ("nodes:\n  a: {stage: decouple, inputs: []}\n", ["['inputs']"]),
+        ("nodes:\n  a: {upstream: []}\n", ["'a'", "'stage'"]),
+        ("nodes:\n  a: {stage: relay, upstream: b}\n", ["'a'", "'upstream'"]),
+        ("nodes:\n  a: {stage: decouple}\n  b: {stage: relay, upstream: [a, a]}\n", ["['a', 'a']"]),
+        ("nodes: {}\n", ["'nodes'"]),
+        ("steps: 3\nnodes:\n  a: {stage: decouple}\n", ["['steps']"]),
+        ("description: [x]\nnodes:\n  a: {stage: decouple}\n", ["'description'"]),
+        ("nodes:\n  a.b: {stage: decouple}\n", ["'a.b'"]),
+        ("nodes:\n  a: decouple\n", ["'a'", "'stage'"]),
+        ("- a\n- b\n", ["'nodes'"]),
+        ("nodes: [unclosed\n", ["line 2"]),
         # before: "(while parsing a flow mapping)", with no line
-        (
-            "nodes:\n  a: {stage: decouple\n  b: {stage: relay}\n",
-            r"cannot read pipeline \(expected ',' or '}', but got ':' at line 3, column 4\)",
-        ),
-        ("nodes:\n  a: {stage: decouple}\n  b: {stage: relay}\n", "exactly one output node"),
+        ("nodes:\n  a: {stage: decouple\n  b: {stage: relay}\n", ["line 3, column 4"]),
+        ("nodes:\n  a: {stage: decouple}\n  b: {stage: relay}\n", ["output node"]),
     ],
 )
-def test_invalid_pipelines_fail_in_one_line_naming_the_file(tmp_path, text, fragment):
+def test_invalid_pipelines_fail_in_one_line_naming_the_file(tmp_path, text, named):
     path = _write(tmp_path, text)
-    with pytest.raises(InputError, match=fragment) as caught:
+    with refused(InputError, str(path), *named):
         load_pipeline(path, known_stages=KNOWN_STAGES)
-    assert str(path) in str(caught.value) and "\n" not in str(caught.value)
 
 
 ACCEPTS = {"decouple": (), "relay": ("decouple",), "deform": ("relay", "warmup")}
 
 
 @pytest.mark.parametrize(
-    ("text", "fragment"),
+    ("text", "named"),
     [
         (
             "nodes:\n  a: {stage: warmup}\n  b: {stage: relay, upstream: [a]}\n",
-            "node 'b' \\(stage 'relay'\\) reads one upstream node of stage type decouple .*"
-            "got node 'a' of type 'warmup'",
+            ["'b'", "'relay'", "decouple", "'a'", "'warmup'"],
         ),
-        (
-            "nodes:\n  a: {stage: decouple}\n  b: {stage: decouple, upstream: [a]}\n",
-            "node 'b' \\(stage 'decouple'\\) reads no upstream node .*got node 'a'",
-        ),
-        (
-            "nodes:\n  a: {stage: deform}\n",
-            "reads one upstream node of stage type relay or warmup .*got none$",
-        ),
+        ("nodes:\n  a: {stage: decouple}\n  b: {stage: decouple, upstream: [a]}\n", ["'b'", "'a'"]),
+        ("nodes:\n  a: {stage: deform}\n", ["'a'", "relay or warmup", "none"]),
         (
             "nodes:\n  a: {stage: warmup}\n  b: {stage: decouple}\n"
             "  c: {stage: deform, upstream: [a, b]}\n",
-            "node 'c' .* got node 'a' of type 'warmup', node 'b' of type 'decouple'",
+            ["'c'", "'a' of type 'warmup'", "'b' of type 'decouple'"],
         ),
     ],
 )
-def test_an_upstream_a_stage_type_does_not_read_fails_before_any_stage_runs(
-    tmp_path, text, fragment
-):
+def test_an_upstream_a_stage_type_does_not_read_fails_before_any_stage_runs(tmp_path, text, named):
     # before: found only when the stage ran, after its upstreams had trained
     path = _write(tmp_path, text)
-    with pytest.raises(InputError, match=fragment) as caught:
+    with refused(InputError, str(path), *named):
         load_pipeline(path, known_stages=KNOWN_STAGES, accepted_upstream=ACCEPTS)
-    assert str(path) in str(caught.value) and "\n" not in str(caught.value)
     load_pipeline(path, known_stages=KNOWN_STAGES)  # not checked without `accepted_upstream`
 
 
@@ -150,11 +133,9 @@ def test_the_shipped_pipelines_read_upstreams_their_stages_accept():
 
 
 def test_unknown_pipeline_name_lists_the_available_ones():
-    with refused(InputError, "'nope'", "pipeline/nope.yaml"):
+    with refused(InputError, "'nope'", "pipeline/nope.yaml", "relaygs"):
         load_pipeline("nope")
-    with pytest.raises(InputError, match=r"\(available: .*relaygs"):
-        load_pipeline("nope")
-    with pytest.raises(InputError, match="does not exist"):
+    with refused(InputError, "/no/such/pipeline.yaml"):
         load_pipeline("/no/such/pipeline.yaml")
 
 
@@ -183,17 +164,15 @@ class FakeStages:
         return {stage: self.fn(stage) for stage in KNOWN_STAGES}
 
 
-def _run(store, stages, cfgs, pipeline="relaygs", scene="scene-a"):
-    return run_pipeline(
-        load_pipeline(pipeline),
-        stages.table(),
-        FakeScene(scene),
-        lambda node: cfgs[node.stage],
-        store,
-    )
-
-
 BASE = {"decouple": {"scale": 1.0}, "relay": {"scale": 2.0, "k": 4}, "deform": {"scale": 3.0}}
+
+
+def _run(store, stages, cfgs=BASE, pipeline="relaygs", scene="scene-a", **options):
+    """Run a shipped pipeline on FakeStages (or a table of stage functions) with `cfgs`."""
+    table = stages if isinstance(stages, dict) else stages.table()
+    return run_pipeline(
+        load_pipeline(pipeline), table, FakeScene(scene), lambda n: cfgs[n.stage], store, **options
+    )
 
 
 def test_run_builds_each_stage_once_then_hits_the_cache(tmp_path):
@@ -226,14 +205,7 @@ def test_lineage_is_recorded_and_seconds_add_up(tmp_path):
 def test_given_provenance_is_recorded_beside_the_runners_own_entries(tmp_path):
     store = ArtifactStore(tmp_path)
     extra = {"test_cameras": [1, 5], "node": "not this"}
-    run = run_pipeline(
-        load_pipeline("relaygs"),
-        FakeStages().table(),
-        FakeScene("scene-a"),
-        lambda node: BASE[node.stage],
-        store,
-        provenance=extra,
-    )
+    run = _run(store, FakeStages(), provenance=extra)
     for report in run.reports:
         provenance = store.manifest(report.stage, report.key).provenance
         assert provenance["test_cameras"] == [1, 5]
@@ -261,13 +233,9 @@ def test_paths_and_logging_do_not_rebuild_but_the_stage_still_sees_them(tmp_path
 
     table["decouple"] = recording_decouple
     noisy = {**BASE, "decouple": {"scale": 1.0, "paths": {"out": "/x"}, "logging": {"every": 1}}}
-    run = run_pipeline(
-        load_pipeline("relaygs"), table, FakeScene("scene-a"), lambda node: noisy[node.stage], store
-    )
+    run = _run(store, table, noisy)
     assert all(r.cache_hit for r in run.reports) and seen == []
-    other_scene = run_pipeline(
-        load_pipeline("relaygs"), table, FakeScene("scene-b"), lambda node: noisy[node.stage], store
-    )
+    other_scene = _run(store, table, noisy, scene="scene-b")
     assert not any(r.cache_hit for r in other_scene.reports)
     assert seen == [noisy["decouple"]]
 
@@ -286,9 +254,7 @@ def test_missing_stage_functions_fail_before_any_work(tmp_path):
     table = stages.table()
     del table["deform"]
     with refused(InputError, "'deform'"):
-        run_pipeline(
-            load_pipeline("relaygs"), table, FakeScene("s"), lambda n: BASE[n.stage], store
-        )
+        _run(store, table)
     assert stages.calls == {} and store.list() == []
 
 
@@ -296,15 +262,7 @@ def test_schema_version_bump_rebuilds(tmp_path):
     store, stages = ArtifactStore(tmp_path), FakeStages()
     _run(store, stages, BASE)
     reports = []
-    run_pipeline(
-        load_pipeline("relaygs"),
-        stages.table(),
-        FakeScene("scene-a"),
-        lambda node: BASE[node.stage],
-        store,
-        schema_versions={"relay": 2},
-        on_node_done=reports.append,
-    )
+    _run(store, stages, schema_versions={"relay": 2}, on_node_done=reports.append)
     assert [r.cache_hit for r in reports] == [True, False, False]
 
 
@@ -316,7 +274,7 @@ def test_the_config_folder_prefers_the_repo_then_the_packaged_copy(tmp_path, mon
     repo.mkdir()
     (repo / "pyproject.toml").write_text('[project]\nname = "relaygs"\n')
     (repo / "conf").mkdir()
-    with pytest.raises(InputError, match="no usable conf/ folder"):
+    with refused(InputError, "conf"):
         paths.config_dir()  # a conf/ without config.yaml does not count
     (repo / "conf" / "config.yaml").write_text("seed: 0\n")
     assert paths.config_dir() == repo / "conf"
@@ -336,14 +294,7 @@ def test_a_canonical_form_is_what_is_keyed_and_what_the_stage_runs_with(tmp_path
 
     table["relay"] = recording_relay
     wide = {**BASE, "relay": {"scale": 2.0, "k": 16}}
-    run = run_pipeline(
-        load_pipeline("relaygs"),
-        table,
-        FakeScene("scene-a"),
-        lambda node: wide[node.stage],
-        ArtifactStore(tmp_path / "canonical"),
-        canonical=cap_k,
-    )
+    run = _run(ArtifactStore(tmp_path / "canonical"), table, wide, canonical=cap_k)
     assert seen == [BASE["relay"]]  # built (no cache) with k capped to 4
     plain = _run(ArtifactStore(tmp_path / "plain"), FakeStages(), BASE)
     assert [r.key for r in run.reports] == [r.key for r in plain.reports]
@@ -354,10 +305,4 @@ def test_a_stage_that_returns_no_artifact_is_one_line_naming_it(tmp_path, return
     # before: AttributeError ('NoneType' object has no attribute 'stage', ... 'to_cpu_contiguous')
     table = {**FakeStages().table(), "decouple": lambda scene, upstream, cfg: returned}
     with refused(InputError, "'decouple'", "Artifact"):
-        run_pipeline(
-            load_pipeline("relaygs"),
-            table,
-            FakeScene("s"),
-            lambda n: BASE[n.stage],
-            ArtifactStore(tmp_path),
-        )
+        _run(ArtifactStore(tmp_path), table)

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from hydra.core.override_parser.overrides_parser import OverridesParser
 
+from refusals import refused
 from relaygs.commands import frames as frames_command
 from relaygs.data import load_scene
 from relaygs.data import video_frames as video_frames_module
@@ -83,26 +84,28 @@ def test_frames_are_written_in_natural_order_cut_to_the_shortest_video(videos, t
     first = (out / "colmap_images.txt").read_text().split()
     assert first == [f"{camera}/frame_00000.png" for camera in sources]
     assert printed.startswith(f"wrote 4 frame(s) at 15 fps of 3 camera(s) into {out}")
-    assert "note: every camera keeps 4 frame(s), all that cam02 gave; cam00 had more\n" in (printed)
+    (note,) = [line for line in printed.splitlines() if line.startswith("note: every camera")]
+    assert "4 frame(s)" in note and "cam02" in note and "cam00" in note
     assert f"then train: {python_command()} -m relaygs.run scene.path={out}\n" in printed + "\n"
 
 
-def test_frames_stop_at_the_count_asked_for(videos, tmp_path, capsys):
-    out = tmp_path / "scene"
-    code, printed, _ = _main(capsys, videos, out, "--frames", 3)
-    assert code == 0 and "note:" not in printed  # the count asked for, not a short video
-    assert sorted(path.name for path in (out / "cam02").iterdir()) == [
-        f"frame_{n:05d}.jpg" for n in range(3)
-    ]
-
-
-def test_videos_of_one_length_get_no_note(tmp_path, capsys):
+@pytest.mark.parametrize(
+    ("lengths", "options", "frames"),
+    [
+        ((9, 8, 10), ["--frames", 3], 3),  # the count asked for, not a short video
+        ((5, 5, 5), [], 5),
+        ((10, 9), ["--stride", 2], 5),  # frames 0, 2, 4, 6, 8 of both: five each
+    ],
+)
+def test_a_count_every_video_gives_gets_no_note(tmp_path, capsys, lengths, options, frames):
     folder = tmp_path / "videos"
     folder.mkdir()
-    for name in ("a.mp4", "b.mp4", "c.mp4"):
-        _grey_video(folder / name, 5)
-    code, printed, _ = _main(capsys, folder, tmp_path / "scene")
-    assert code == 0 and printed.startswith("wrote 5 frame(s)") and "note:" not in printed
+    for camera, count in enumerate(lengths):
+        _grey_video(folder / f"{camera}.mp4", count)
+    code, printed, _ = _main(capsys, folder, tmp_path / "scene", *options)
+    assert code == 0 and printed.startswith(f"wrote {frames} frame(s)") and "note:" not in printed
+    written = sorted(path.name for path in (tmp_path / "scene" / "cam00").iterdir())
+    assert written == [f"frame_{n:05d}.jpg" for n in range(frames)]
 
 
 def test_the_written_folder_loads_as_a_multiview_scene_once_posed(tmp_path, capsys):
@@ -195,11 +198,11 @@ def test_bad_options_are_usage_errors(videos, tmp_path, capsys, argv):
 def test_a_selection_past_every_frame_names_the_video(videos, tmp_path, capsys):
     code, _, err = _main(capsys, videos, tmp_path / "scene", "--start", 50)
     assert code == 1  # the shortest video is decoded first
-    assert "side_10.mp4: no frame to write (decoded 8, none at or after frame 50)" in err
+    assert err.count("\n") == 1 and all(name in err for name in ("side_10.mp4", "8", "50"))
 
 
 def test_frame_selection_refuses_impossible_values():
-    with pytest.raises(ValueError, match="stride 0"):
+    with refused(ValueError, "stride 0"):
         FrameSelection(stride=0)
 
 
@@ -236,7 +239,8 @@ def test_videos_at_different_rates_are_noted(tmp_path, capsys):
         _video(folder / name, [np.full((18, 32, 3), 40 * i, np.uint8) for i in range(3)], fps)
     code, printed, _ = _main(capsys, folder, tmp_path / "scene")
     assert code == 0 and " fps " not in printed.splitlines()[0]
-    assert "note: the videos' frame rates differ (cam00 30, cam01 25 fps)" in printed
+    (note,) = [line for line in printed.splitlines() if line.startswith("note: ")]
+    assert "cam00 30" in note and "cam01 25" in note
     assert json.loads((tmp_path / "scene" / "frames.json").read_text())["fps"] is None
 
 
@@ -276,20 +280,11 @@ def test_a_scene_folder_or_a_videos_folder_given_to_the_wrong_command_says_which
     assert str(caught.value).endswith(f"for one video per camera, run {frames}")
 
 
-def test_a_stride_that_keeps_as_many_of_each_video_gets_no_note(tmp_path, capsys):
-    folder = tmp_path / "videos"
-    folder.mkdir()
-    _grey_video(folder / "a.mp4", 10)
-    _grey_video(folder / "b.mp4", 9)  # frames 0, 2, 4, 6, 8 of both: five each
-    code, printed, _ = _main(capsys, folder, tmp_path / "scene", "--stride", 2)
-    assert code == 0 and printed.startswith("wrote 5 frame(s)") and "note:" not in printed
-
-
 def test_a_video_that_does_not_open_is_refused_before_any_is_decoded(videos, tmp_path, monkeypatch):
     (videos / "side_99.mp4").write_bytes(b"\0" * 64)  # sorts last
     decoded = []
     monkeypatch.setattr(video_frames_module, "_write_camera", lambda *args: decoded.append(args))
-    with pytest.raises(InputError, match=r"side_99\.mp4: cannot open it as a video"):
+    with refused(InputError, "side_99.mp4"):
         video_frames_module.extract_frames(
             video_frames_module.camera_videos(videos), tmp_path / "scene", progress=False
         )

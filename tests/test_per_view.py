@@ -2,11 +2,11 @@
 per-frame means, and the sweep's PSNR-by-frame plot averaged over seeds."""
 
 import json
-import re
 from types import SimpleNamespace
 
 import pytest
 
+from refusals import refused
 from relaygs.app import frame_curves as frame_curves_module
 from relaygs.app.evaluation import evaluate_through_store
 from relaygs.app.frame_curves import frame_curves
@@ -46,22 +46,21 @@ def test_frame_means_average_each_frames_views_that_have_the_metric():
 
 
 @pytest.mark.parametrize(
-    ("content", "message"),
+    ("content", "named"),
     [
-        ("frame,camera,psnr\n0,1,2\n", "expected the header frame,camera,psnr,ssim,fg_psnr"),
-        ("", "expected the header"),
-        ("frame,camera,psnr,ssim,fg_psnr\n0,1,2,3\n", ":2: expected 5 values, got 4"),
-        ("frame,camera,psnr,ssim,fg_psnr\n0,1,x,3,\n", ":2: expected numbers, got 0,1,x,3,"),
-        ("frame,camera,psnr,ssim,fg_psnr\n0,1,2,3,\n0,1,nan,3,\n", ":3: expected finite"),
-        ("frame,camera,psnr,ssim,fg_psnr\n0.5,1,2,3,\n", ":2: expected numbers"),
+        ("frame,camera,psnr\n0,1,2\n", ["frame,camera,psnr,ssim,fg_psnr"]),
+        ("", ["frame,camera,psnr,ssim,fg_psnr"]),
+        ("frame,camera,psnr,ssim,fg_psnr\n0,1,2,3\n", [":2:", "5", "4"]),
+        ("frame,camera,psnr,ssim,fg_psnr\n0,1,x,3,\n", [":2:", "0,1,x,3,"]),
+        ("frame,camera,psnr,ssim,fg_psnr\n0,1,2,3,\n0,1,nan,3,\n", [":3:", "finite"]),
+        ("frame,camera,psnr,ssim,fg_psnr\n0.5,1,2,3,\n", [":2:", "0.5"]),
     ],
 )
-def test_a_damaged_file_is_named_with_its_line(tmp_path, content, message):
+def test_a_damaged_file_is_named_with_its_line(tmp_path, content, named):
     path = tmp_path / PER_VIEW_FILE
     path.write_text(content)
-    with pytest.raises(InputError, match=message) as caught:
+    with refused(InputError, str(path), *named):
         read_per_view(path)
-    assert str(path) in str(caught.value)
 
 
 def _job(sweep, number, variant, seed, per_frame, scene="juggle", status="ok", **extra):
@@ -174,19 +173,19 @@ def test_a_damaged_per_view_file_fails_the_report_in_one_line_before_it_writes(t
 
 
 @pytest.mark.parametrize(
-    ("record", "message"),
+    ("record", "named"),
     [
-        ({"frame": 0, "camera": 1, "psnr": 20.0, "ssim": 0.5}, "record 0 lacks fg_psnr"),
-        ({**RECORDS[0], "frame": 0.0}, "record 0: frame and camera must be ints"),
-        ({**RECORDS[0], "camera": True}, "record 0: frame and camera must be ints"),
-        ({**RECORDS[0], "psnr": float("nan")}, "(frame 0, camera 3): psnr must be a finite"),
-        ({**RECORDS[0], "ssim": float("inf")}, "ssim must be a finite number or None, got inf"),
-        ({**RECORDS[0], "fg_psnr": "18"}, "fg_psnr must be a finite number or None, got '18'"),
+        ({"frame": 0, "camera": 1, "psnr": 20.0, "ssim": 0.5}, ["record 0", "fg_psnr"]),
+        ({**RECORDS[0], "frame": 0.0}, ["record 0", "frame"]),
+        ({**RECORDS[0], "camera": True}, ["record 0", "camera"]),
+        ({**RECORDS[0], "psnr": float("nan")}, ["frame 0, camera 3", "psnr", "nan"]),
+        ({**RECORDS[0], "ssim": float("inf")}, ["ssim", "inf"]),
+        ({**RECORDS[0], "fg_psnr": "18"}, ["fg_psnr", "'18'"]),
     ],
 )
-def test_records_an_evaluation_gives_are_checked_before_they_are_stored(tmp_path, record, message):
+def test_records_an_evaluation_gives_are_checked_before_they_are_stored(tmp_path, record, named):
     for store in (to_tensors, lambda records: write_per_view(tmp_path / "v.csv", records)):
-        with pytest.raises(InputError, match=re.escape(message)):
+        with refused(InputError, *named):
             store([record])
     assert not (tmp_path / "v.csv").exists()
 
@@ -199,10 +198,10 @@ def test_records_from_a_generator_are_stored_whole():
 def test_stored_columns_of_unequal_length_are_refused():
     tensors = to_tensors(RECORDS)
     tensors["per_view.ssim"] = tensors["per_view.ssim"][:2]
-    with pytest.raises(InputError, match="incomplete or unequal"):
+    with refused(InputError, "per_view"):
         from_tensors(tensors)
     del tensors["per_view.ssim"]
-    with pytest.raises(InputError, match="incomplete or unequal"):
+    with refused(InputError, "per_view"):
         from_tensors(tensors)
 
 

@@ -189,21 +189,6 @@ def test_a_stages_note_is_said_by_every_run_of_its_artifact_and_kept_in_the_resu
     assert "notes" not in _run(base_config, tmp_path / "quiet" / "c", FakeStages())  # own store
 
 
-def test_a_run_folder_used_again_is_noted(base_config, tmp_path, capsys):
-    # a pinned hydra.run.dir used twice: the result is replaced and TensorBoard mixes the runs
-    fakes = FakeStages()
-    _run(base_config, tmp_path / "a", fakes)
-    assert "already holds a run" not in capsys.readouterr().err
-    _run(_with(base_config, relay__k=32), tmp_path / "a", fakes)
-    err = capsys.readouterr().err
-    assert f"note: {tmp_path / 'a'} already holds a run: its result.json is replaced" in err
-    (tmp_path / "a" / RESULT_FILE).unlink()  # a killed run's folder: only its curves
-    _run(base_config, tmp_path / "a", fakes)  # resumed there, as a stopped run is told to
-    err = capsys.readouterr().err
-    assert "already holds a run" not in err
-    assert f"note: {tmp_path / 'a'} holds the TensorBoard curves of a run stopped before" in err
-
-
 def test_a_sweep_job_resumed_in_its_folder_is_not_noted_but_another_run_there_is(
     base_config, tmp_path, capsys
 ):
@@ -225,6 +210,8 @@ def test_a_sweep_job_resumed_in_its_folder_is_not_noted_but_another_run_there_is
     _run(k16, folder, fakes, overrides=["relay.k=16"], job=0)  # another sweep's job 0
     assert note in capsys.readouterr().err
     _run(k16, folder, fakes, overrides=["relay.k=16"], job=1)  # another job of a sweep
+    assert note in capsys.readouterr().err
+    _run(k16, folder, fakes)  # a pinned hydra.run.dir used again by a single run
     assert note in capsys.readouterr().err
 
 
@@ -303,18 +290,30 @@ def test_an_evaluation_without_per_view_metrics_leaves_no_file(base_config, tmp_
     assert "per view" not in capsys.readouterr().out
 
 
-def test_another_cpu_thread_count_is_another_evaluation(base_config, tmp_path):
+def test_the_runs_thread_count_keys_its_evaluation_and_its_printed_commands(
+    base_config, tmp_path, capsys
+):
     """Render FPS depends on the thread count, so a stored evaluation is reused only at the
-    thread count it was measured with; the trained artifacts are reused whatever it is."""
+    thread count it was measured with; the trained artifacts are reused whatever it is. The
+    printed commands use as many threads: with torch's default instead, a render on a loaded
+    2-core machine ran 25 times slower."""
     fakes = FakeStages()
     threads = torch.get_num_threads()
     try:
         _run(_with(base_config, threads=1), tmp_path / "a", fakes)
-        _run(_with(base_config, threads=2), tmp_path / "b", fakes)
+        result = _run(_with(base_config, threads=2), tmp_path / "b", fakes)
+        two = capsys.readouterr().out
         _run(_with(base_config, threads=2), tmp_path / "c", fakes)
+        assert fakes.evaluations == 2 and fakes.ran("deform") == 1
+        capsys.readouterr()
+        _run(_with(base_config, threads=None), tmp_path / "default", fakes)
+        default = capsys.readouterr().out
     finally:
         torch.set_num_threads(threads)
-    assert fakes.evaluations == 2 and fakes.ran("deform") == 1
+    key = result["output_key"][:16]
+    assert f" ply {key} --threads 2\n" in two and " --truth --error --threads 2\n" in two
+    assert f" ply {key}\n" in default and " --truth --error\n" in default
+    assert "--threads" not in default
 
 
 def test_the_runs_splat_backend_is_the_jobs_default(base_config, tmp_path):
@@ -325,26 +324,6 @@ def test_the_runs_splat_backend_is_the_jobs_default(base_config, tmp_path):
         assert default_backend() == "auto"
     finally:
         use_backend("auto")
-
-
-def test_the_printed_ply_and_render_commands_take_the_runs_thread_count(
-    base_config, tmp_path, capsys
-):
-    """A run that set `threads` (a share of a busy machine) prints commands that use as many:
-    with torch's default instead, a render on a loaded 2-core machine ran 25 times slower."""
-    fakes = FakeStages()
-    threads = torch.get_num_threads()
-    try:
-        result = _run(_with(base_config, threads=2), tmp_path / "two", fakes)
-        two = capsys.readouterr().out
-        _run(_with(base_config, threads=None), tmp_path / "default", fakes)
-        default = capsys.readouterr().out
-    finally:
-        torch.set_num_threads(threads)
-    key = result["output_key"][:16]
-    assert f" ply {key} --threads 2\n" in two and " --truth --error --threads 2\n" in two
-    assert f" ply {key}\n" in default and " --truth --error\n" in default
-    assert "--threads" not in default
 
 
 def test_evaluation_key_names_the_thread_count_only_on_the_cpu():
@@ -420,7 +399,7 @@ def test_a_job_that_reuses_stages_notes_them_instead_of_replaying_their_curves(
     (note,) = reused.Tensors("reused/decouple/text_summary")
     text = note.tensor_proto.string_val[0].decode()
     (stored,) = (p for p in (tmp_path / "artifacts" / "decouple").iterdir() if p.is_dir())
-    assert "**decouple** (node `decouple`) was read from the artifact store" in text
+    assert "**decouple**" in text and "(node `decouple`)" in text and "artifact store" in text
     assert f"artifact `{stored.name[:16]}`" in text
     assert "by run `a`" in text and "step, 5: loss 0.5" in text
     assert "reused/relay/text_summary" not in reused.Tags()["tensors"]
@@ -457,39 +436,41 @@ def test_the_suites_upstream_types_are_checked_before_any_stage_runs(base_config
     assert fakes.calls == []
 
 
-def test_the_printed_render_command_keeps_the_scenes_downscale(base_config, tmp_path, capsys):
-    _run(_with(base_config, scene__loader__downscale=2), tmp_path / "run", FakeStages())
-    videos = next(line for line in capsys.readouterr().out.splitlines() if "videos" in line)
-    assert videos.endswith(" --downscale 2 --truth --error --threads 1")  # smoke: threads=1
-
-
-def test_the_printed_render_command_renders_where_the_run_trained(base_config, tmp_path, capsys):
-    _run(_with(base_config, train__device="cuda:1"), tmp_path / "run", FakeStages())
-    videos = next(line for line in capsys.readouterr().out.splitlines() if "videos" in line)
-    assert videos.endswith(" --truth --error --device cuda:1 --threads 1")
-
-
-@pytest.mark.parametrize(("held_out", "printed"), [([4, 1], "1,4"), ([], "'[]'")])
-def test_the_printed_render_command_keeps_the_runs_test_cameras(
-    base_config, tmp_path, capsys, held_out, printed
+@pytest.mark.parametrize(
+    ("key", "value", "printed"),
+    [
+        ("scene__loader__downscale", 2, " --downscale 2 --truth --error --threads 1"),
+        ("train__device", "cuda:1", " --truth --error --device cuda:1 --threads 1"),
+        ("scene__loader__test_cameras", [4, 1], " --test-cameras 1,4 --truth --error --threads 1"),
+        ("scene__loader__test_cameras", [], " --test-cameras '[]' --truth --error --threads 1"),
+    ],
+)
+def test_the_printed_render_command_keeps_the_runs_settings(
+    base_config, tmp_path, capsys, key, value, printed
 ):
-    _run(_with(base_config, scene__loader__test_cameras=held_out), tmp_path / "run", FakeStages())
+    # the scene's downscale, the training device and the held-out cameras (smoke: threads=1)
+    _run(_with(base_config, **{key: value}), tmp_path / "run", FakeStages())
     videos = next(line for line in capsys.readouterr().out.splitlines() if "videos" in line)
-    assert videos.endswith(f" --test-cameras {printed} --truth --error --threads 1")
+    assert videos.endswith(printed)
 
 
-def test_bad_values_fail_before_any_stage_runs(base_config, tmp_path):
+@pytest.mark.parametrize(
+    ("changed", "named"),
+    [
+        ({"relay__k": 0}, "relay.k"),
+        ({"decouple__steps": -1}, "decouple.steps"),
+        ({"pipeline__name": "nope"}, "'nope'"),
+        ({"scene__path": "missing"}, "scene.path"),
+        ({"seed": -3}, "seed"),
+        ({"artifacts__on_corrupt": "ignore"}, "artifacts.on_corrupt"),
+    ],
+)
+def test_bad_values_fail_before_any_stage_runs(base_config, tmp_path, changed, named):
     fakes = FakeStages()
-    for config, fragment in [
-        (_with(base_config, relay__k=0), "relay.k"),
-        (_with(base_config, decouple__steps=-1), "decouple.steps"),
-        (_with(base_config, pipeline__name="nope"), "unknown pipeline 'nope'"),
-        (_with(base_config, scene__path=str(tmp_path / "missing")), "scene.path"),
-        (_with(base_config, seed=-3), "seed"),
-        (_with(base_config, artifacts__on_corrupt="ignore"), "artifacts.on_corrupt"),
-    ]:
-        with pytest.raises(InputError, match=fragment):
-            _run(config, tmp_path / "run", fakes)
+    if "scene__path" in changed:
+        changed = {"scene__path": str(tmp_path / changed["scene__path"])}
+    with refused(InputError, named):
+        _run(_with(base_config, **changed), tmp_path / "run", fakes)
     assert fakes.calls == []
     assert not (tmp_path / "run").exists()
 
@@ -501,7 +482,7 @@ def test_bad_scene_data_fails_before_the_run_folder_is_touched(base_config, tmp_
     good = (tmp_path / "run" / RESULT_FILE).read_text()
     capture = tmp_path / "capture"
     (capture / "cam00").mkdir(parents=True)
-    with pytest.raises(InputError, match=str(capture)):
+    with refused(InputError, str(capture)):
         _run(_with(base_config, scene__path=str(capture)), tmp_path / "run", fakes)
     assert (tmp_path / "run" / RESULT_FILE).read_text() == good
     assert fakes.ran("decouple") == 1
@@ -515,9 +496,8 @@ def test_a_corrupted_artifact_is_rebuilt_or_refused(base_config, tmp_path, capsy
     data[-1] ^= 0xFF
     tensors.write_bytes(bytes(data))
     refusing = _with(base_config, artifacts__on_corrupt="error")
-    with pytest.raises(CorruptArtifactError, match="on_corrupt=error") as caught:
+    with refused(CorruptArtifactError, "on_corrupt=error", str(tensors)):
         _run(refusing, tmp_path / "b", fakes)
-    assert "\n" not in str(caught.value)
     assert fakes.ran("decouple") == 1
     capsys.readouterr()
     result = _run(base_config, tmp_path / "c", fakes)
@@ -525,7 +505,7 @@ def test_a_corrupted_artifact_is_rebuilt_or_refused(base_config, tmp_path, capsy
     (line,) = [line for line in capsys.readouterr().out.splitlines() if "failed" in line]
     assert line.startswith("[decouple] built decouple artifact ")
     reason = f"{tensors}: sha256 mismatch (recorded "
-    assert f", replacing the stored one, which failed its check: {reason}" in line
+    assert "replacing the stored one" in line and reason in line
 
 
 def test_a_corrupted_stored_evaluation_is_redone_and_said_so(base_config, tmp_path, capsys):
@@ -537,7 +517,7 @@ def test_a_corrupted_stored_evaluation_is_redone_and_said_so(base_config, tmp_pa
     _run(base_config, tmp_path / "b", fakes)
     (line,) = [line for line in capsys.readouterr().out.splitlines() if line.startswith("[eval]")]
     assert line.startswith("[eval] evaluated the test views in ")
-    assert ", replacing the stored one, which failed its check: " in line and "manifest" in line
+    assert "replacing the stored one" in line and "manifest" in line
 
 
 def test_a_gc_removing_the_model_while_it_is_evaluated_does_not_fail_the_run(
@@ -655,19 +635,13 @@ def _disk_full(*args, **kwargs):
     raise OSError(errno.ENOSPC, "No space left on device", "/runs/x/.result.json.partial")
 
 
-def test_a_full_disk_refusing_the_result_is_one_resource_error(base_config, tmp_path, monkeypatch):
-    monkeypatch.setattr(task_module, "write_result", _disk_full)
-    with refused(errors.ResourceError, "No space left on device", "/runs/x/"):
-        _run(base_config, tmp_path / "run", FakeStages())
-
-
-def test_a_job_the_full_disk_fails_after_its_per_view_leaves_neither_file(
+def test_a_full_disk_refusing_the_result_is_one_error_and_leaves_neither_file(
     base_config, tmp_path, monkeypatch
 ):
     # the disk had room for per_view.csv, then refused result.json (and the failed one too)
     monkeypatch.setattr(task_module, "write_result", _disk_full)
     run_dir = tmp_path / "run"
-    with pytest.raises(errors.ResourceError, match=r"^No space left on device writing "):
+    with refused(errors.ResourceError, "No space left on device", "/runs/x/"):
         _run(base_config, run_dir, FakeStages())
     assert not (run_dir / PER_VIEW_FILE).exists() and not (run_dir / RESULT_FILE).exists()
 
@@ -681,6 +655,6 @@ def test_a_failed_result_the_full_disk_refuses_does_not_hide_why_the_run_failed(
         return False
 
     monkeypatch.setattr(task_module, "write_result", _disk_full)
-    with pytest.raises(errors.ResourceError, match=r"^stage relay: out of memory") as raised:
+    with refused(errors.ResourceError, "relay", "out of memory") as raised:
         _run(base_config, tmp_path / "run", FakeStages(fail_when=no_memory))
     assert isinstance(raised.value.__cause__, MemoryError)

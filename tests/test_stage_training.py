@@ -101,13 +101,9 @@ def test_ctrl_c_names_the_step_and_the_checkpoint_a_rerun_resumes_from(
     stage_scene: Scene, tmp_path: Path
 ) -> None:
     cfg = stage_smoke_cfg(train={"checkpoint_every": 5, "log_every": 1})
-    with pytest.raises(Interrupted) as caught:
-        _run("decouple", stage_scene, {}, cfg, tmp_path, kill_at=13, error=KeyboardInterrupt)
     steps = cfg["decouple"]["steps"]
-    assert str(caught.value) == (
-        f"decouple stopped after step 12 of {steps}; run the same command again to resume it "
-        "from its checkpoint of step 10"
-    )
+    with refused(Interrupted, "decouple", f"step 12 of {steps}", "step 10") as caught:
+        _run("decouple", stage_scene, {}, cfg, tmp_path, kill_at=13, error=KeyboardInterrupt)
     assert isinstance(caught.value, KeyboardInterrupt)
     resumed = _run("decouple", stage_scene, {}, cfg, tmp_path)
     assert resumed.meta["metrics"]["resumed_from"] == 10
@@ -143,11 +139,8 @@ def test_divergence_names_the_parameter_whose_update_went_non_finite_first(
 ) -> None:
     # the symptom (a non-finite loss or gradient at step 2) follows from the update of step 1
     cfg = stage_smoke_cfg(decouple={"lr": {group: 1e38}, "steps": 5})
-    with pytest.raises(DivergenceError) as caught:
+    with refused(DivergenceError, "'decouple'", "step 2", "step 1", f"all.{group}"):
         SPECS["decouple"].run(stage_scene, {}, cfg)
-    message = str(caught.value)
-    assert message.startswith("stage 'decouple' diverged at step 2: tensor ")
-    assert f"the update of step 1 made parameter(s) all.{group} non-finite first" in message
 
 
 def test_non_finite_optimiser_step_stops_before_its_checkpoint(

@@ -84,58 +84,74 @@ def test_lineage_is_recorded(tmp_path):
     assert store.manifest("relay", CHILD_KEY).lineage == lineage
 
 
-def _flip_byte(path):
-    data = bytearray(path.read_bytes())
-    data[len(data) // 2] ^= 0x01
-    path.write_bytes(bytes(data))
+def _flip_byte(name):
+    def damage(folder):
+        data = bytearray((folder / name).read_bytes())
+        data[len(data) // 2] ^= 0x01
+        (folder / name).write_bytes(bytes(data))
+
+    return damage
 
 
-@pytest.mark.parametrize("victim", ["tensors.safetensors", "meta.json", "manifest.json"])
-def test_a_changed_byte_is_detected_and_rebuilt(tmp_path, victim):
+def _write(name, text):
+    return lambda folder: (folder / name).write_text(text)
+
+
+def _sealed(name, text):
+    # hashes that match undecodable bytes: a file damaged before it was sealed (safetensors
+    # raises its own SafetensorError, which escaped as a traceback)
+    return lambda folder: ((folder / name).write_text(text), seal(folder))
+
+
+def _deleted(name):
+    return lambda folder: (folder / name).unlink()
+
+
+@pytest.mark.parametrize(
+    ("damage", "named"),
+    [
+        (_flip_byte("tensors.safetensors"), ["tensors.safetensors"]),
+        (_flip_byte("meta.json"), ["meta.json"]),
+        (_flip_byte("manifest.json"), ["manifest.json"]),
+        (_write(MARKER_FILE, "{not json"), [MARKER_FILE]),
+        (_write(MARKER_FILE, json.dumps({"sha256": ["x"]})), ["marker"]),
+        (_deleted("tensors.safetensors"), ["tensors.safetensors", "missing"]),
+        (_deleted("meta.json"), ["meta.json", "missing"]),
+        (_sealed("meta.json", "{not json"), ["unreadable"]),
+        (_sealed("tensors.safetensors", "{not json"), ["unreadable"]),
+    ],
+)
+def test_a_damaged_artifact_is_named_refused_under_error_and_rebuilt(tmp_path, damage, named):
     store, fake = ArtifactStore(tmp_path), CountingStage()
     _build(store, fake)
-    _flip_byte(store.path("decouple", KEY) / victim)
-    with pytest.raises(CorruptArtifactError, match=victim):
+    damage(store.path("decouple", KEY))
+    assert [problem.path.name for problem in store.verify()] == [KEY]
+    with refused(CorruptArtifactError, *named):
         store.load("decouple", KEY)
-    artifact, info = _build(store, fake)
-    assert fake.calls == 2 and not info.cache_hit and info.replaced_corrupt
-    assert store.load("decouple", KEY).meta["calls"] == 2
-    assert artifact.meta["calls"] == 2
-
-
-def test_a_changed_byte_is_refused_under_on_corrupt_error(tmp_path):
-    store, fake = ArtifactStore(tmp_path), CountingStage()
-    _build(store, fake)
-    _flip_byte(store.path("decouple", KEY) / "tensors.safetensors")
-    with refused(CorruptArtifactError, "tensors.safetensors", "artifacts.on_corrupt=rebuild"):
+    with refused(CorruptArtifactError, *named, "on_corrupt=rebuild"):
         _build(store, fake, on_corrupt="error")
     assert fake.calls == 1
-
-
-def test_a_damaged_marker_is_detected(tmp_path):
-    store = ArtifactStore(tmp_path)
-    _build(store, CountingStage())
-    (store.path("decouple", KEY) / MARKER_FILE).write_text("{not json")
-    with pytest.raises(CorruptArtifactError, match=MARKER_FILE):
-        store.load("decouple", KEY)
-    assert [p.path.name for p in store.verify()] == [KEY]
+    artifact, info = _build(store, fake)
+    assert fake.calls == 2 and not info.cache_hit and info.replaced_corrupt
+    assert store.load("decouple", KEY).meta["calls"] == artifact.meta["calls"] == 2
+    assert store.verify() == []
 
 
 def test_missing_and_malformed_requests_fail_clearly(tmp_path):
     store = ArtifactStore(tmp_path)
-    with pytest.raises(MissingArtifactError, match=f"no artifact decouple/{KEY}"):
+    with refused(MissingArtifactError, f"decouple/{KEY}"):
         store.load("decouple", KEY)
-    with pytest.raises(InputError, match="64 lowercase hex"):
+    with refused(InputError, "'../etc'"):
         store.has("decouple", "../etc")
-    with pytest.raises(InputError, match="stage name"):
+    with refused(InputError, "'../x'"):
         store.has("../x", KEY)
-    with pytest.raises(InputError, match="on_corrupt"):
+    with refused(InputError, "on_corrupt", "'ignore'"):
         _build(store, CountingStage(), on_corrupt="ignore")
     fake = CountingStage()
-    with pytest.raises(InputError, match=r"^decouple config\.seeds is a set"):
+    with refused(InputError, "decouple", "seeds", "set"):
         _build(store, fake, config={"seeds": {1, 2}})
     assert fake.calls == 0
-    with pytest.raises(InputError, match="labelled 'relay'"):
+    with refused(InputError, "'relay'", "'decouple'"):
         store.get_or_build("decouple", KEY, CountingStage("relay"), config={}, lineage=[])
     assert not store.has("decouple", KEY)
     with refused(InputError, "'decouple'", "dict"):
@@ -234,30 +250,6 @@ def test_the_next_build_of_a_key_clears_its_killed_builds_temp_dirs(tmp_path):
     assert not leftover.exists() and store.verify() == []
 
 
-@pytest.mark.parametrize("victim", ["tensors.safetensors", "meta.json"])
-def test_a_deleted_file_is_named_by_verify_and_rebuilt(tmp_path, victim):
-    store, fake = ArtifactStore(tmp_path), CountingStage()
-    _build(store, fake)
-    (store.path("decouple", KEY) / victim).unlink()
-    problems = store.verify()
-    assert [p.path.name for p in problems] == [KEY]
-    assert victim in problems[0].message and "missing" in problems[0].message
-    with pytest.raises(CorruptArtifactError, match=rf"{victim}: file listed in .* is missing"):
-        store.load("decouple", KEY)
-    artifact, info = _build(store, fake)
-    assert fake.calls == 2 and not info.cache_hit and info.replaced_corrupt
-    assert artifact.meta["calls"] == 2 and store.verify() == []
-
-
-def test_a_deleted_file_is_refused_under_on_corrupt_error(tmp_path):
-    store, fake = ArtifactStore(tmp_path), CountingStage()
-    _build(store, fake)
-    (store.path("decouple", KEY) / "meta.json").unlink()
-    with pytest.raises(CorruptArtifactError, match=r"meta\.json.*missing.*on_corrupt=rebuild"):
-        _build(store, fake, on_corrupt="error")
-    assert fake.calls == 1
-
-
 def test_a_folder_copied_under_another_key_is_not_loaded_as_that_key(tmp_path):
     # The copy's files match their own hashes, but its manifest names KEY, not OTHER.
     store, fake = ArtifactStore(tmp_path), CountingStage()
@@ -265,11 +257,11 @@ def test_a_folder_copied_under_another_key_is_not_loaded_as_that_key(tmp_path):
     other = artifact_key("decouple", 1, {"steps": 4}, "scene", [])
     shutil.copytree(store.path("decouple", KEY), store.path("decouple", other))
     assert store.has("decouple", other)
-    with pytest.raises(CorruptArtifactError, match=f"manifest names decouple/{KEY}, not"):
+    with refused(CorruptArtifactError, f"decouple/{KEY}", other):
         store.load("decouple", other)
     assert [problem.path.name for problem in store.verify()] == [other]
     assert [item.key for item in store.list()] == [KEY]
-    with pytest.raises(CorruptArtifactError, match="manifest names"):
+    with refused(CorruptArtifactError, f"decouple/{KEY}", "on_corrupt"):
         _build(store, fake, key=other, on_corrupt="error")
     assert fake.calls == 1
     rebuild = CountingStage(offset=1)
@@ -334,21 +326,6 @@ def test_metrics_that_are_not_a_mapping_are_refused_and_nothing_is_stored(tmp_pa
     assert not store.has("decouple", KEY) and store.damaged() == []
 
 
-@pytest.mark.parametrize("name", ["meta.json", "tensors.safetensors"])
-def test_sealed_files_that_do_not_decode_are_corrupt_not_a_traceback(tmp_path, name):
-    # hashes that match undecodable bytes: a file damaged before it was sealed (safetensors
-    # raises its own SafetensorError, which escaped as a traceback)
-    store, fake = ArtifactStore(tmp_path), CountingStage()
-    _build(store, fake)
-    folder = store.path("decouple", KEY)
-    (folder / name).write_text("{not json")
-    seal(folder)
-    with pytest.raises(CorruptArtifactError, match="unreadable artifact files"):
-        store.load("decouple", KEY)
-    _, info = _build(store, fake)
-    assert fake.calls == 2 and info.replaced_corrupt
-
-
 def test_an_artifact_whose_hashes_match_but_whose_tensors_do_not_decode_is_replaced(tmp_path):
     # a dtype changed in the safetensors header, manifest and marker rehashed to match: the
     # rebuild must replace the folder on disk, not only build beside it on every run
@@ -363,15 +340,6 @@ def test_an_artifact_whose_hashes_match_but_whose_tensors_do_not_decode_is_repla
     assert torch.equal(store.load("decouple", KEY).tensors["xyz"], torch.arange(12.0).reshape(4, 3))
     _, third = _build(store, fake)
     assert fake.calls == 2 and third.cache_hit
-
-
-def test_a_marker_without_a_hash_table_is_damaged(tmp_path):
-    store = ArtifactStore(tmp_path)
-    _build(store, CountingStage())
-    (store.path("decouple", KEY) / MARKER_FILE).write_text(json.dumps({"sha256": ["x"]}))
-    with pytest.raises(CorruptArtifactError, match="completion marker holds no file hashes"):
-        store.load("decouple", KEY)
-    assert [problem.path.name for problem in store.verify()] == [KEY]
 
 
 def test_a_resumed_build_costs_the_seconds_before_its_checkpoint_too(tmp_path):

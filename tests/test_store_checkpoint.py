@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 import torch
 
+from refusals import refused
 from relaygs.errors import DivergenceError, InputError
 from relaygs.pipeline.artifact import Artifact
 from relaygs.pipeline.checkpoint import STATE_FILE, StageCheckpointer
@@ -117,17 +118,33 @@ def test_resume_without_restoring_rng_would_differ(tmp_path):
     assert not torch.equal(param.detach(), reference)
 
 
-def test_only_the_newest_checkpoints_are_kept_and_damage_falls_back(tmp_path):
+def _flip_byte(folder: Path) -> None:
+    data = bytearray((folder / TENSORS_FILE).read_bytes())
+    data[len(data) // 2] ^= 0x01
+    (folder / TENSORS_FILE).write_bytes(bytes(data))
+
+
+def _sealed(name: str, text: str):
+    return lambda folder: ((folder / name).write_text(text), seal(folder))
+
+
+@pytest.mark.parametrize(
+    ("damage", "warned"),
+    [
+        (_flip_byte, "damaged checkpoint"),
+        (_sealed(STATE_FILE, json.dumps({"step": 4})), "unreadable checkpoint"),  # no tensors...
+        # safetensors' own SafetensorError escaped as a traceback
+        (_sealed(TENSORS_FILE, "junk"), "unreadable checkpoint"),
+    ],
+)
+def test_only_the_newest_checkpoints_are_kept_and_damage_falls_back(tmp_path, damage, warned):
     ckpt = StageCheckpointer(tmp_path, "train", KEY, every_n_steps=2, keep_last=2)
     for step in (2, 4, 6):
         ckpt.save(step, {"x": torch.full((3,), float(step))})
     steps = sorted(p.name for p in ckpt.folder.iterdir())
     assert steps == ["step-000000000004", "step-000000000006"]
-    newest = ckpt.folder / "step-000000000006" / "tensors.safetensors"
-    data = bytearray(newest.read_bytes())
-    data[len(data) // 2] ^= 0x01
-    newest.write_bytes(bytes(data))
-    with pytest.warns(UserWarning, match="damaged checkpoint"):
+    damage(ckpt.folder / "step-000000000006")
+    with pytest.warns(UserWarning, match=warned):
         state = ckpt.load()
     assert state.step == 4 and torch.equal(state.tensors["x"], torch.full((3,), 4.0))
     ckpt.clear()
@@ -142,20 +159,18 @@ def test_a_non_finite_optimizer_moment_stops_the_stage_before_anything_is_writte
     optimizer.step()
     ckpt.save(2, {"param": param}, {"adam": optimizer})  # finite: written
     optimizer.state[param]["exp_avg_sq"][1] = float("inf")  # a squared gradient overflowed
-    with pytest.raises(DivergenceError) as caught:
+    moment = "optimizers['adam']['state'][0]['exp_avg_sq']"
+    with refused(DivergenceError, "'relay'", "step 4", moment):
         ckpt.save(4, {"param": param}, {"adam": optimizer})
-    message = str(caught.value)
-    assert "stage 'relay' diverged at step 4" in message
-    assert "optimizers['adam']['state'][0]['exp_avg_sq']" in message
     assert [path.name for path in ckpt.folder.iterdir()] == ["step-000000000002"]
-    with pytest.raises(DivergenceError, match=r"extras\['history'\]\[1\]"):
+    with refused(DivergenceError, "extras['history'][1]"):
         ckpt.save(4, {"param": param}, None, {"history": [torch.zeros(2), torch.tensor(np.nan)]})
 
 
 def test_bad_checkpoint_settings_are_refused(tmp_path):
-    with pytest.raises(InputError, match="every_n_steps"):
+    with refused(InputError, "every_n_steps", "0"):
         StageCheckpointer(tmp_path, "train", KEY, every_n_steps=0)
-    with pytest.raises(InputError, match="must be an int"):
+    with refused(InputError, "every_n_steps", "2.5"):
         StageCheckpointer(tmp_path, "train", KEY, every_n_steps=2.5)
 
 
@@ -210,22 +225,3 @@ def test_a_run_killed_with_sigkill_resumes_from_its_checkpoint(tmp_path):
     reference, _ = train(None, total_steps=total)
     assert torch.equal(artifact.tensors["param"], reference)
     assert not ckpt_dir.exists()
-
-
-@pytest.mark.parametrize(
-    ("name", "text"),
-    [
-        (STATE_FILE, json.dumps({"step": 4})),  # no tensors/optimizers/rng
-        (TENSORS_FILE, "junk"),  # safetensors' own SafetensorError escaped as a traceback
-    ],
-)
-def test_a_sealed_checkpoint_whose_state_does_not_decode_falls_back(tmp_path, name, text):
-    ckpt = StageCheckpointer(tmp_path, "train", KEY, every_n_steps=2, keep_last=2)
-    for step in (2, 4):
-        ckpt.save(step, {"x": torch.full((3,), float(step))})
-    newest = ckpt.folder / "step-000000000004"
-    (newest / name).write_text(text)
-    seal(newest)
-    with pytest.warns(UserWarning, match="unreadable checkpoint"):
-        state = ckpt.load()
-    assert state.step == 2 and torch.equal(state.tensors["x"], torch.full((3,), 2.0))

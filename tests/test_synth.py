@@ -6,6 +6,7 @@ import dataclasses
 import hashlib
 import json
 import re
+from collections.abc import Callable
 from pathlib import Path
 
 import cv2
@@ -221,28 +222,26 @@ def _limb_offsets(primitives: list) -> np.ndarray:
     return np.stack(offsets)
 
 
-def test_limbs_swing_only_when_nonrigid_is_declared():
-    rigid = _limb_offsets(_foreground("court", {LARGE_MOTION}))
+@pytest.mark.parametrize(("preset", "swing"), [("court", 0.2), ("juggle", 0.05)])
+def test_limbs_swing_only_when_nonrigid_is_declared(preset: str, swing: float):
+    rigid = _limb_offsets(_foreground(preset, {LARGE_MOTION}))
     assert np.ptp(rigid, axis=1).max() < 1e-9
-    swinging = _limb_offsets(_foreground("court", {LARGE_MOTION, NONRIGID}))
-    assert np.ptp(swinging, axis=1).max() > 0.2
+    moving = _limb_offsets(_foreground(preset, {LARGE_MOTION, NONRIGID}))
+    assert np.ptp(moving, axis=1).max() > swing
 
 
-def test_jugglers_arms_move_only_when_nonrigid_is_declared():
-    rigid = _limb_offsets(_foreground("juggle", {LARGE_MOTION}))
-    assert np.ptp(rigid, axis=1).max() < 1e-9
-    juggling = _limb_offsets(_foreground("juggle", {LARGE_MOTION, NONRIGID}))
-    assert np.ptp(juggling, axis=1).max() > 0.05
-
-
-def test_a_single_effect_name_is_one_effect_not_its_letters():
-    assert parse_effects(SENSOR_NOISE, source="x") == frozenset({SENSOR_NOISE})
-    assert parse_effects([SENSOR_NOISE, NONRIGID], source="x") == {SENSOR_NOISE, NONRIGID}
-
-
-@pytest.mark.parametrize("none", ["none", ["none"], []])
-def test_none_alone_declares_no_effects(none):
-    assert parse_effects(none, source="x") == frozenset()
+@pytest.mark.parametrize(
+    ("declared", "effects"),
+    [
+        (SENSOR_NOISE, {SENSOR_NOISE}),  # one name, not its letters
+        ([SENSOR_NOISE, NONRIGID], {SENSOR_NOISE, NONRIGID}),
+        ("none", set()),
+        (["none"], set()),
+        ([], set()),
+    ],
+)
+def test_parse_effects_reads_a_name_a_list_or_none(declared, effects: set[str]):
+    assert parse_effects(declared, source="x") == frozenset(effects)
 
 
 def test_fast_objects_exist_only_when_declared_and_move_fast():
@@ -295,21 +294,21 @@ def test_other_sizes_work(tmp_path: Path):
 
 
 @pytest.mark.parametrize(
-    ("preset", "kwargs", "message"),
+    ("preset", "kwargs", "named"),
     [
-        ("nope", {}, "unknown preset 'nope'"),
-        ("juggle", {"effects": ["wobble"]}, "unknown effect 'wobble'"),
-        ("static", {"effects": [LARGE_MOTION]}, "cannot simulate large_motion"),
-        ("juggle", {"frames": 0}, "frames must be an integer >= 1"),
-        ("juggle", {"width": -4}, "width must be an integer >= 4"),
-        ("juggle", {"height": 0}, "height must be an integer >= 4"),
+        ("nope", {}, ["'nope'"]),
+        ("juggle", {"effects": ["wobble"]}, ["'wobble'"]),
+        ("static", {"effects": [LARGE_MOTION]}, ["static", LARGE_MOTION]),
+        ("juggle", {"frames": 0}, ["frames", "1"]),
+        ("juggle", {"width": -4}, ["width", "4"]),
+        ("juggle", {"height": 0}, ["height", "4"]),
         # an image no loader takes (under 4 pixels a side) is refused before it is rendered
-        ("juggle", {"width": 3}, "width must be an integer >= 4, got 3"),
-        ("juggle", {"seed": -1}, "seed must be an integer >= 0"),
+        ("juggle", {"width": 3}, ["width", "4", "3"]),
+        ("juggle", {"seed": -1}, ["seed", "0"]),
     ],
 )
-def test_bad_generator_input_is_rejected(tmp_path: Path, preset: str, kwargs: dict, message: str):
-    with pytest.raises(InputError, match=message):
+def test_bad_generator_input_is_rejected(tmp_path: Path, preset: str, kwargs: dict, named: list):
+    with refused(InputError, *named):
         generate(preset, tmp_path / "out", **kwargs)
     assert not (tmp_path / "out").exists()
 
@@ -319,88 +318,84 @@ def none_builder(times, effects, seed):
 
 
 @pytest.mark.parametrize(
-    ("changes", "message"),
+    ("changes", "named"),
     [
         # before: IndexError (list index out of range) while writing the metadata
-        (
-            {"test_cameras": (0, 31)},
-            r"PRESETS\['mine'\]\.test_cameras \(relaygs/data/synthetic/presets\.py\) \[0, 31\] "
-            "must be distinct indices into its rig",
-        ),
-        ({"test_cameras": (0, 0)}, "must be distinct"),
-        ({"test_cameras": (-1,)}, r"presets\.py\) \[-1\] must be distinct indices into its rig"),
-        ({"test_cameras": tuple(range(31))}, "leaving some to train on"),
+        ({"test_cameras": (0, 31)}, ["test_cameras", "presets.py", "[0, 31]"]),
+        ({"test_cameras": (0, 0)}, ["test_cameras", "[0, 0]"]),
+        ({"test_cameras": (-1,)}, ["test_cameras", "[-1]"]),
+        ({"test_cameras": tuple(range(31))}, ["test_cameras"]),
         # before: written without a word, scene.json declaring an effect the world lacks
-        ({"default_effects": frozenset({DYNAMIC_PANELS})}, r"PRESETS\['mine'\].default_effects"),
+        ({"default_effects": frozenset({DYNAMIC_PANELS})}, ["default_effects", DYNAMIC_PANELS]),
         # before: each written without a word, then refused or mislabelled by `run`
-        ({"test_cameras": ()}, r"\[\] must be distinct indices into its rig .* at least one"),
-        ({"name": "static"}, r"PRESETS\['mine'\]\.name \(.*\) is 'static'; expected 'mine'"),
-        (
-            {"supported_effects": frozenset({"large_motoin"})},
-            r"PRESETS\['mine'\]\.supported_effects \(.*\): unknown effect\(s\) \['large_motoin'\]",
-        ),
-        ({"default_effects": set()}, r"default_effects \(.*\): expected a frozenset .* got a set"),
+        ({"test_cameras": ()}, ["test_cameras", "[]"]),
+        ({"name": "static"}, [".name", "'static'", "'mine'"]),
+        ({"supported_effects": frozenset({"large_motoin"})}, ["supported_effects", "large_motoin"]),
+        ({"default_effects": set()}, ["default_effects", "frozenset"]),
         # before: a TypeError traceback
-        ({"build": none_builder}, r"PRESETS\['mine'\]\.build \(.*\) returned NoneType; expected"),
+        ({"build": none_builder}, [".build", "NoneType"]),
     ],
 )
 def test_a_new_preset_that_does_not_fit_its_rig_or_effects_is_one_line(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, changes: dict, message: str
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, changes: dict, named: list
 ):
     preset = dataclasses.replace(PRESETS["static"], **{"name": "mine", **changes})
     monkeypatch.setitem(PRESETS, "mine", preset)
-    with pytest.raises(InputError, match=message) as caught:
+    with refused(InputError, "PRESETS['mine']", *named):
         generate("mine", tmp_path / "out", frames=1, width=8, height=6)
-    assert "\n" not in str(caught.value)
     assert not (tmp_path / "out").exists()
 
 
-def test_refuses_to_overwrite_a_folder_that_is_not_a_generated_scene(tmp_path: Path):
+def _folder_of_notes(tmp_path: Path) -> tuple[Path, list[Path]]:
     (tmp_path / "notes").mkdir()
-    (tmp_path / "notes" / "keep.txt").write_text("mine")
-    with pytest.raises(InputError, match="refusing to overwrite"):
-        generate("static", tmp_path / "notes", frames=1, width=8, height=6)
-    assert (tmp_path / "notes" / "keep.txt").read_text() == "mine"
+    return tmp_path / "notes", [tmp_path / "notes" / "keep.txt"]
 
 
-def test_refuses_to_replace_a_file_with_a_scene(tmp_path: Path):
-    (tmp_path / "scene").write_text("mine")
-    with refused(InputError, "scene", "not a folder"):
-        generate("static", tmp_path / "scene", frames=1, width=8, height=6)
-    assert (tmp_path / "scene").read_text() == "mine"
+def _a_file(tmp_path: Path) -> tuple[Path, list[Path]]:
+    return tmp_path / "scene", [tmp_path / "scene"]
 
 
-def test_refuses_to_overwrite_a_generated_scene_that_holds_other_files(tmp_path: Path):
+def _under_a_file(tmp_path: Path) -> tuple[Path, list[Path]]:
+    return tmp_path / "taken" / "scene", [tmp_path / "taken"]
+
+
+def _scene_holding(*names: str) -> Callable[[Path], tuple[Path, list[Path]]]:
+    def make(tmp_path: Path) -> tuple[Path, list[Path]]:
+        scene = generate("static", tmp_path / "scene", frames=1, width=8, height=6)
+        return scene, [scene / name for name in names]
+
+    return make
+
+
+@pytest.mark.parametrize(
+    ("make", "named"),
+    [
+        (_folder_of_notes, ["notes"]),
+        (_a_file, ["scene", "not a folder"]),
+        (_under_a_file, ["taken", "not a folder"]),
+        (_scene_holding("my_results/notes.txt"), ["'my_results'"]),
+        (
+            _scene_holding("ims/mine/notes.txt", "seg/README", "seg/0/000000.jpg"),
+            ["['ims/mine/notes.txt', 'seg/0/000000.jpg', 'seg/README']"],
+        ),
+    ],
+)
+def test_refuses_to_overwrite_what_is_not_a_generated_scene(
+    tmp_path: Path, make: Callable, named: list
+):
+    target, kept = make(tmp_path)
+    for path in kept:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(f"mine: {path.name}")
+    with refused(InputError, *named):
+        generate("static", target, frames=2, width=8, height=6)
+    assert all(path.read_text() == f"mine: {path.name}" for path in kept)
+
+
+def test_a_generated_scene_holding_only_its_own_files_is_replaced(tmp_path: Path):
     scene = generate("static", tmp_path / "scene", frames=1, width=8, height=6)
-    (scene / "my_results").mkdir()
-    (scene / "my_results" / "notes.txt").write_text("mine")
-    with refused(InputError, "'my_results'"):
-        generate("static", scene, frames=2, width=8, height=6)
-    assert (scene / "my_results" / "notes.txt").read_text() == "mine"
-
-
-def test_refuses_to_overwrite_a_scene_with_files_of_its_own_inside_ims_or_seg(tmp_path: Path):
-    scene = generate("static", tmp_path / "scene", frames=1, width=8, height=6)
-    (scene / "ims" / "mine").mkdir()
-    (scene / "ims" / "mine" / "notes.txt").write_text("mine")
-    (scene / "seg" / "README").write_text("mine too")
-    (scene / "seg" / "0" / "000000.jpg").write_text("not the generator's")
-    with pytest.raises(InputError) as caught:
-        generate("static", scene, frames=2, width=8, height=6)
-    held = "['ims/mine/notes.txt', 'seg/0/000000.jpg', 'seg/README']"
-    assert f"besides a generated scene it holds {held}" in str(caught.value)
-    assert (scene / "ims" / "mine" / "notes.txt").read_text() == "mine"
-    assert (scene / "seg" / "README").read_text() == "mine too"
-    for name in ("ims/mine/notes.txt", "seg/README", "seg/0/000000.jpg"):
-        (scene / name).unlink()
-    generate("static", scene, frames=2, width=8, height=6)  # only its own files: replaced
+    generate("static", scene, frames=2, width=8, height=6)
     assert sorted(path.name for path in (scene / "ims" / "0").iterdir()) == [
         "000000.png",
         "000001.png",
     ]
-
-
-def test_an_unwritable_target_is_one_line(tmp_path: Path):
-    (tmp_path / "taken").write_text("a file")
-    with pytest.raises(InputError, match="is not a folder"):
-        generate("static", tmp_path / "taken" / "scene", frames=1, width=8, height=6)

@@ -1,6 +1,6 @@
 """What the store's model commands (`artifacts eval`, `render`, `ply`) share: the stored model a
 key names, the scene it was trained on loaded as the run loaded it (with a note when it was
-not), and the `--device` and `--threads` options."""
+not), and the `--device`, `--threads` and `--frame-stride` options."""
 
 from __future__ import annotations
 
@@ -60,6 +60,17 @@ def _device_name(text: str) -> str:
     except InputError:
         raise argparse.ArgumentTypeError(f"expected cpu, cuda or cuda:N, got {text!r}") from None
     return text
+
+
+def add_frame_stride_argument(parser: argparse.ArgumentParser, verb: str, note: str = "") -> None:
+    """`--frame-stride N`: the command `verb`s (scores, renders, exports) every N-th frame."""
+    parser.add_argument(
+        "--frame-stride",
+        type=int_at_least(1),
+        default=1,
+        metavar="N",
+        help=f"{verb} every N-th frame (default 1{note})",
+    )
 
 
 def add_threads_argument(parser: argparse.ArgumentParser) -> None:

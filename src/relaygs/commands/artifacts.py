@@ -24,6 +24,7 @@ from relaygs.cli import (
 from relaygs.commands.artifact_models import (
     KEY_COLUMN_WIDTH,
     add_device_argument,
+    add_frame_stride_argument,
     add_scene_arguments,
     add_threads_argument,
     load_run_scene,
@@ -118,13 +119,7 @@ def _parser() -> argparse.ArgumentParser:
     add_scene_arguments(score)
     add_device_argument(score)
     add_threads_argument(score)
-    score.add_argument(
-        "--frame-stride",
-        type=int_at_least(1),
-        default=1,
-        metavar="N",
-        help="score every N-th frame (default 1; a run scores every eval.frame_stride-th)",
-    )
+    add_frame_stride_argument(score, "score", "; a run scores every eval.frame_stride-th")
     outputs = score.add_mutually_exclusive_group()
     outputs.add_argument(
         "--per-view",
@@ -147,13 +142,7 @@ def _parser() -> argparse.ArgumentParser:
     add_scene_arguments(gap)
     add_device_argument(gap)
     add_threads_argument(gap)
-    gap.add_argument(
-        "--frame-stride",
-        type=int_at_least(1),
-        default=1,
-        metavar="N",
-        help="score every N-th frame (default 1)",
-    )
+    add_frame_stride_argument(gap, "score")
     gap.add_argument(
         "--colour-fit",
         action="store_true",
@@ -174,13 +163,7 @@ def _parser() -> argparse.ArgumentParser:
         metavar="ID",
         help="camera id to render (repeat for more; default: the test cameras)",
     )
-    render.add_argument(
-        "--frame-stride",
-        type=int_at_least(1),
-        default=1,
-        metavar="N",
-        help="render every N-th frame",
-    )
+    add_frame_stride_argument(render, "render")
     render.add_argument(
         "--beside",
         type=_key_prefix,
@@ -229,13 +212,7 @@ def _parser() -> argparse.ArgumentParser:
         metavar="F",
         help="frame to export (repeat for more; default: every --frame-stride-th frame)",
     )
-    ply.add_argument(
-        "--frame-stride",
-        type=int_at_least(1),
-        default=1,
-        metavar="N",
-        help="export every N-th frame",
-    )
+    add_frame_stride_argument(ply, "export")
     add_threads_argument(ply)
     ply.add_argument(
         "--out",
