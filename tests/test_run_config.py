@@ -11,11 +11,19 @@ from relaygs.model import paper_schedule
 from relaygs.stages import SPECS, EvalSettings, TrainSettings, step_budgets
 from relaygs.stages.config import json_ready
 
-EXPERIMENTS = ("ablation_k", "ablation_components", "baseline", "budget", "smoke")
+EXPERIMENTS = (
+    "ablation_k",
+    "ablation_segments",
+    "ablation_components",
+    "baseline",
+    "budget",
+    "smoke",
+)
 SUBMITIT = "hydra_plugins.hydra_submitit_launcher.submitit_launcher"
 JOBLIB = "hydra_plugins.hydra_joblib_launcher.joblib_launcher.JoblibLauncher"
 SWEEPS = {
     "ablation_k": {"relay.k": "8,16,32,64,128"},
+    "ablation_segments": {"relay.k": "4,8,16", "relay.segments": "uniform,adaptive"},
     "ablation_components": {
         "+component": "full,no_copies,no_stage2,no_pseudo_views,no_isolation,no_gamma"
     },
@@ -146,6 +154,8 @@ def test_components_change_exactly_their_setting(composer, component, changes):
 
 def test_variant_labels_follow_the_swept_values(composer):
     assert composer(["+experiment=ablation_k", "relay.k=32"]).variant == "k32"
+    cfg = composer(["+experiment=ablation_segments", "relay.k=8", "relay.segments=adaptive"])
+    assert cfg.variant == "k8_adaptive"
     cfg = composer(["+experiment=budget", "pipeline=4dgs", "budget.multiplier=0.5"])
     assert cfg.variant == "4dgs_x0.5"
     assert composer(["+experiment=baseline", "pipeline=4dgs"]).variant == "4dgs"
