@@ -28,8 +28,8 @@ def test_a_failing_experiment_is_named_and_exits_non_zero(tmp_path, monkeypatch,
 @pytest.mark.parametrize("what", ["splat", "train", "sweeps"])
 def test_an_unwritable_json_path_stops_before_any_work(what, tmp_path, monkeypatch, capsys):
     # A file where the report's folder should be: argparse refuses it before anything runs.
-    monkeypatch.setattr(bench_sweeps, "run", lambda args: pytest.fail("sweeps started"))
-    monkeypatch.setattr(bench_train, "run", lambda args: pytest.fail("train started"))
+    monkeypatch.setattr(bench_sweeps, "time_experiments", lambda *a: pytest.fail("sweeps started"))
+    monkeypatch.setattr(bench_train, "bench_scene", lambda *args: pytest.fail("train started"))
     monkeypatch.setattr(bench, "bench_splat", lambda *args: pytest.fail("splat started"))
     blocker = tmp_path / "taken"
     blocker.write_text("")
@@ -50,7 +50,7 @@ def test_a_failing_experiment_is_reported_with_its_error_line_not_hydras_hint(
     )
     failed = subprocess.CompletedProcess([], 1, stdout="", stderr=stderr)
     monkeypatch.setattr(bench_sweeps.subprocess, "run", lambda *args, **kwargs: failed)
-    assert bench_sweeps.measure(tmp_path) is None
+    assert bench_sweeps.time_experiments(tmp_path) is None
     assert capsys.readouterr().err == (
         "error: experiment 'smoke' exited 1: paths.outputs: cannot create /proc/x\n"
     )
@@ -77,7 +77,7 @@ def test_without_an_error_line_the_last_line_that_is_not_hydras_hint_is_kept(std
     ],
 )
 def test_bad_options_are_refused_in_one_line_before_any_work(argv, message, monkeypatch, capsys):
-    monkeypatch.setattr(bench_train, "run", lambda args: pytest.fail("train started"))
+    monkeypatch.setattr(bench_train, "bench_scene", lambda *args: pytest.fail("train started"))
     monkeypatch.setattr(bench, "bench_splat", lambda *args: pytest.fail("splat started"))
     with pytest.raises(SystemExit) as stopped:
         bench.main(argv)

@@ -1,8 +1,10 @@
-"""`python -m relaygs.bench splat|train|sweeps [--json PATH]`: benchmarks, not tests."""
+"""`python -m relaygs.bench splat|train|field|sweeps [--json PATH]`: benchmarks, not tests."""
 
 from __future__ import annotations
 
+import argparse
 import gc
+import json
 import statistics
 import sys
 import time
@@ -14,9 +16,8 @@ import torch
 
 from relaygs.cli import OneLineErrorParser, int_at_least, writable_file
 from relaygs.commands import bench_field, bench_sweeps, bench_train
-from relaygs.commands.bench_output import save_json
 from relaygs.device import synchronize, usable_device
-from relaygs.errors import InputError, RelayGSError
+from relaygs.errors import RelayGSError
 from relaygs.paths import REPO_ROOT
 from relaygs.splat import rasterization
 
@@ -171,7 +172,9 @@ def bench_splat(
     return results
 
 
-def _print_table(rows: list[dict], backends: list[str]) -> None:
+def _print_splat(report: dict) -> None:
+    """One line per case: each backend's forward and forward+backward times and peak memory."""
+    rows, backends = report["cases"], report["backends"]
     header = f"{'case':<16}{'N':>8}{'cams':>5}{'size':>9}"
     for b in backends:
         header += f"{b + ' fwd':>13}{b + ' f+b':>13}{'MB':>6}"
@@ -198,12 +201,8 @@ def _backends(text: str | None, device: torch.device) -> list[str]:
     return bench_train.backend_names(text)
 
 
-def main(argv: list[str] | None = None) -> int:
-    """CLI entry."""
-    parser = OneLineErrorParser(prog="python -m relaygs.bench", description=__doc__)
-    sub = parser.add_subparsers(dest="command", required=True)
-    splat = sub.add_parser("splat", help="time the splatting core")
-    splat.add_argument("--json", type=writable_file, help="also write the results as JSON here")
+def _add_splat_arguments(splat: argparse.ArgumentParser) -> None:
+    """The `splat` subcommand's options."""
     splat.add_argument(
         "--repeats", type=int_at_least(1), default=5, help="timed runs per case (median)"
     )
@@ -219,29 +218,69 @@ def main(argv: list[str] | None = None) -> int:
         default="random-2k-256,random-10k-256,random-50k-256,garden",
         help="comma-separated case names",
     )
-    train = sub.add_parser("train", help="time the training stages on the default scene")
-    bench_train.add_arguments(train)
-    sweeps = sub.add_parser("sweeps", help="time the five experiments at the smoke budget")
-    bench_sweeps.add_arguments(sweeps)
-    field = sub.add_parser("field", help="time the deform stage's motion field")
-    bench_field.add_arguments(field)
+
+
+def _measure_splat(args: argparse.Namespace) -> dict:
+    """The `splat` report: device, threads, backends and one row per case."""
+    device = usable_device(args.device, "--device")
+    if device.type == "cpu":
+        torch.set_num_threads(2)
+    backends = _backends(args.backends, device)
+    rows = bench_splat(args.repeats, device, args.cases.split(","), backends)
+    return {
+        "device": str(device),
+        "threads": torch.get_num_threads(),
+        "backends": backends,
+        "cases": rows,
+    }
+
+
+SUBCOMMANDS = {
+    "splat": ("time the splatting core", _add_splat_arguments, _measure_splat, _print_splat),
+    "train": (
+        "time the training stages on the default scene",
+        bench_train.add_arguments,
+        bench_train.measure,
+        bench_train.print_report,
+    ),
+    "sweeps": (
+        "time the five experiments at the smoke budget",
+        bench_sweeps.add_arguments,
+        bench_sweeps.measure,
+        bench_sweeps.print_report,
+    ),
+    "field": (
+        "time the deform stage's motion field",
+        bench_field.add_arguments,
+        bench_field.measure,
+        bench_field.print_report,
+    ),
+}
+"""Each subcommand: its help, how it adds its options, measures (a report, or None after
+saying why it failed) and prints."""
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Measure, print the table and write the JSON report; 2 on bad input, 1 on a failure."""
+    parser = OneLineErrorParser(prog="python -m relaygs.bench", description=__doc__)
+    sub = parser.add_subparsers(dest="command", required=True)
+    for name, (help_text, add_arguments, measure, print_report) in SUBCOMMANDS.items():
+        command = sub.add_parser(name, help=help_text)
+        add_arguments(command)
+        command.add_argument(
+            "--json", type=writable_file, help="also write the results as JSON here"
+        )
+        command.set_defaults(measure=measure, print_report=print_report)
     args = parser.parse_args(argv)
-    if args.command == "train":
-        return bench_train.run(args)
-    if args.command == "field":
-        return bench_field.run(args)
-    if args.command == "sweeps":
-        return bench_sweeps.run(args)
     try:
-        device = usable_device(args.device, "--device")
-        if device.type == "cpu":
-            torch.set_num_threads(2)
-        backends = _backends(args.backends, device)
-        rows = bench_splat(args.repeats, device, args.cases.split(","), backends)
-    except (RelayGSError, InputError) as err:
-        print(f"error: {err}", file=sys.stderr)
+        report = args.measure(args)
+    except RelayGSError as error:
+        print(f"error: {error}", file=sys.stderr)
         return 2
-    _print_table(rows, backends)
-    report = {"device": str(device), "threads": torch.get_num_threads(), "cases": rows}
-    save_json(args.json, report)
+    if report is None:
+        return 1
+    args.print_report(report)
+    if args.json is not None:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(report, indent=2))
     return 0

@@ -27,8 +27,7 @@ from typing import Any
 import torch
 
 from relaygs.allocator import keep_freed_memory
-from relaygs.cli import int_at_least, path_argument, writable_file
-from relaygs.commands.bench_output import save_json
+from relaygs.cli import int_at_least, path_argument
 from relaygs.data import Scene, load_scene
 from relaygs.data.synthetic import generate
 from relaygs.device import set_threads, usable_device
@@ -56,7 +55,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--cache", type=path_argument, default=DEFAULT_CACHE, help="scene cache folder"
     )
-    parser.add_argument("--json", type=writable_file, help="also write the results as JSON here")
     parser.add_argument(
         "--threads", type=int_at_least(1), help="torch CPU threads (default: torch's default)"
     )
@@ -70,23 +68,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def run(args: argparse.Namespace) -> int:
-    """Run the measurements, print a table, optionally write JSON; returns the exit code."""
-    set_threads(args.threads)
-    keep_freed_memory()  # as a run does
-    try:
-        report = measure(args)
-    except RelayGSError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
-    _print(report)
-    save_json(args.json, report)
-    return 0
-
-
 def measure(args: argparse.Namespace) -> dict[str, Any]:
     """The report: scene, per-stage speeds per backend, step-cost ratio and (with --full) the
     pipeline; the process's splatting backend is left as it was."""
+    set_threads(args.threads)
+    keep_freed_memory()  # as a run does
     backends = backend_names(args.backends)
     device = str(usable_device(args.device, "--device"))
     scene = bench_scene(args.cache)
@@ -257,7 +243,9 @@ def median_step_seconds(build: Callable[[], Artifact]) -> float:
     return statistics.median(b - a for a, b in itertools.pairwise(stamps))
 
 
-def _print(report: dict[str, Any]) -> None:
+def print_report(report: dict[str, Any]) -> None:
+    """The scene, a row per stage with its speed per backend, the step-cost ratio and the
+    pipeline's time."""
     scene = report["scene"]
     print(
         f"scene {scene['preset']} {scene['width']}x{scene['height']}, {scene['frames']} frames, "
