@@ -17,6 +17,7 @@ from relaygs.app.evaluation import EVAL_STAGE
 from relaygs.cli import (
     OneLineErrorParser,
     int_at_least,
+    one_line_failures,
     path_argument,
     positive_float,
     writable_file,
@@ -34,7 +35,7 @@ from relaygs.commands.artifact_models import (
 from relaygs.commands.artifacts_eval import run_eval
 from relaygs.commands.artifacts_gap import run_gap
 from relaygs.device import set_threads, usable_device
-from relaygs.errors import RERUN_COMMAND, InputError, RelayGSError, UsageError, resource_error
+from relaygs.errors import InputError, RelayGSError, UsageError
 from relaygs.paths import require_creatable_folder
 from relaygs.pipeline.integrity import CorruptArtifactError
 from relaygs.pipeline.layout import LOCKS_DIR, TENSORS_FILE
@@ -58,26 +59,21 @@ STORE_FOLDER = "artifacts"  # a run's store: <paths.outputs>/artifacts
 def main(argv: Sequence[str] | None = None) -> int:
     """Parse the command line, run one command, and return the process exit status."""
     args = _parser().parse_args(argv)
+    return one_line_failures(lambda: _run(args))
+
+
+def _run(args: argparse.Namespace) -> int:
+    """Run the chosen command on the store; contradicting options exit 2 as argparse's do."""
     store = ArtifactStore(args.root)
+    if not store.root.is_dir():
+        raise RelayGSError(f"no artifact store at {store.root} (pass --root DIR)")
     try:
-        if not store.root.is_dir():
-            raise RelayGSError(f"no artifact store at {store.root} (pass --root DIR)")
         return args.command_fn(store, args)
-    except UsageError as error:  # options that contradict each other, as argparse reports
+    except UsageError as error:
         print(f"error: {error} (see {_parser().prog} {args.command} --help)", file=sys.stderr)
         return 2
     except CorruptArtifactError as error:
-        print(f"error: {error}; {REPAIR_HINT}", file=sys.stderr)
-        return 1
-    except RelayGSError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 1
-    except (OSError, MemoryError, RuntimeError) as error:  # out of disk or memory: one line
-        failure = resource_error(error, rerun=RERUN_COMMAND)
-        if failure is None:
-            raise
-        print(f"error: {failure}", file=sys.stderr)
-        return 1
+        raise CorruptArtifactError(f"{error}; {REPAIR_HINT}") from error
 
 
 REPAIR_HINT = (

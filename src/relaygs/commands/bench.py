@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from relaygs.cli import OneLineErrorParser, int_at_least, writable_file
+from relaygs.cli import OneLineErrorParser, int_at_least, one_line_failures, writable_file
 from relaygs.commands import bench_field, bench_sweeps, bench_train
 from relaygs.device import synchronize, usable_device
 from relaygs.errors import RelayGSError
@@ -272,11 +272,12 @@ def main(argv: list[str] | None = None) -> int:
         )
         command.set_defaults(measure=measure, print_report=print_report)
     args = parser.parse_args(argv)
-    try:
-        report = args.measure(args)
-    except RelayGSError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
+    return one_line_failures(lambda: _measure_and_report(args), bad_input_exit=2)
+
+
+def _measure_and_report(args: argparse.Namespace) -> int:
+    """Measure, print the table and write the JSON report (1 when the measure failed)."""
+    report = args.measure(args)
     if report is None:
         return 1
     args.print_report(report)

@@ -6,7 +6,6 @@ multirun end callback calls the same)."""
 
 from __future__ import annotations
 
-import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,8 +28,8 @@ from relaygs.app.summary import (
 )
 from relaygs.app.sweep_board import log_sweep_report
 from relaygs.app.unfinished import unfinished_line, unfinished_runs
-from relaygs.cli import OneLineErrorParser, path_argument
-from relaygs.errors import InputError, RelayGSError
+from relaygs.cli import OneLineErrorParser, one_line_failures, path_argument
+from relaygs.errors import InputError
 from relaygs.paths import require_folder
 from relaygs.pipeline.fsio import publish_text
 
@@ -162,13 +161,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "sweep_dir", type=path_argument, help="a multirun folder holding job folders"
     )
     args = parser.parse_args(argv)
-    try:
-        files = write_reports(args.sweep_dir)
-    except RelayGSError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 1
-    print(describe(files))
-    return 0
+    return one_line_failures(lambda: print(describe(write_reports(args.sweep_dir))))
 
 
 def describe(files: ReportFiles) -> str:

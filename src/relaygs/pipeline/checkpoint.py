@@ -20,7 +20,6 @@ import torch
 from safetensors import SafetensorError
 from safetensors.torch import load_file
 
-from relaygs.errors import InputError
 from relaygs.model.guard import check_finite
 from relaygs.pipeline.fsio import publish_dir, remove_tree, save_tensors
 from relaygs.pipeline.integrity import CorruptArtifactError, check_seal, is_sealed, seal
@@ -53,15 +52,8 @@ class StageCheckpointer:
     def __init__(
         self, store_root: Path | str, stage: str, key: str, every_n_steps: int, keep_last: int = 1
     ) -> None:
-        """Checkpoints of artifact `key` of `stage` every `every_n_steps` steps, the newest
-        `keep_last` of them kept; bad settings are an InputError."""
-        if isinstance(every_n_steps, bool) or not isinstance(every_n_steps, int):
-            raise InputError(f"checkpoint every_n_steps must be an int, got {every_n_steps!r}")
-        if every_n_steps < 1 or keep_last < 1:
-            raise InputError(
-                f"checkpoint every_n_steps and keep_last must be >= 1, "
-                f"got {every_n_steps} and {keep_last}"
-            )
+        """Checkpoints of artifact `key` of `stage` every `every_n_steps` (>= 1, as
+        `train.checkpoint_every` is checked) steps, the newest `keep_last` of them kept."""
         self.folder = checkpoint_dir(Path(store_root).expanduser().resolve(), stage, key)
         self.stage = stage
         self.every_n_steps = every_n_steps

@@ -163,8 +163,6 @@ class ArtifactStore:
         A corrupted artifact is rebuilt, or refused with CorruptArtifactError when
         `on_corrupt="error"`. `build` runs with `current_build()` set, so it can checkpoint.
         """
-        if on_corrupt not in ON_CORRUPT_CHOICES:
-            raise InputError(f"on_corrupt must be one of {ON_CORRUPT_CHOICES}, got {on_corrupt!r}")
         manifest_fields = {
             "config": json.loads(canonical_json(config, f"{stage} config")),
             "lineage": list(lineage),
