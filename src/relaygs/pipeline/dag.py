@@ -16,21 +16,8 @@ from relaygs.errors import InputError, resource_error
 from relaygs.pipeline.artifact import Artifact
 from relaygs.pipeline.keys import artifact_key, key_config
 from relaygs.pipeline.manifest import LineageEntry, built_by
-from relaygs.pipeline.spec import Node, Pipeline, available_pipelines, load_pipeline
+from relaygs.pipeline.spec import Node, Pipeline
 from relaygs.pipeline.store import ArtifactStore, OnCorrupt
-
-__all__ = [
-    "DEFAULT_SCHEMA_VERSION",
-    "CanonicalFn",
-    "Node",
-    "NodeReport",
-    "Pipeline",
-    "PipelineRun",
-    "StageFn",
-    "available_pipelines",
-    "load_pipeline",
-    "run_pipeline",
-]
 
 DEFAULT_SCHEMA_VERSION = 1
 

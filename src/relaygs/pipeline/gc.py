@@ -123,7 +123,7 @@ def _kept_keys(root: Path, keep: Collection[str], annotations: Collection[str]) 
 
 
 @contextmanager
-def _lock_if_free(lock_file: Path) -> Iterator[bool]:
+def lock_if_free(lock_file: Path) -> Iterator[bool]:
     """Hold `lock_file` for the block if nobody else does; yields whether it is held."""
     lock = FileLock(str(lock_file))
     try:
@@ -145,7 +145,7 @@ def _remove_if_free(
     another gc removed it."""
     lock_file = lock_path(root, path.parent.name, key)
     lock_file.parent.mkdir(parents=True, exist_ok=True)
-    with _lock_if_free(lock_file) as free:
+    with lock_if_free(lock_file) as free:
         if not free:
             report.busy.append(path)
             return
@@ -174,7 +174,7 @@ def _remove_free_locks(root: Path, dry_run: bool, report: GcReport) -> None:
     if not locks.is_dir():
         return
     for lock_file in sorted(locks.glob("*.lock")):
-        with _lock_if_free(lock_file) as free:
+        with lock_if_free(lock_file) as free:
             if not free:
                 report.busy.append(lock_file)
                 continue

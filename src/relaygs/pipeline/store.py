@@ -14,14 +14,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
-from filelock import FileLock, Timeout
+from filelock import FileLock
 from safetensors import SafetensorError
 
 from relaygs.errors import RERUN_COMMAND, InputError, RelayGSError
 from relaygs.pipeline.artifact import Artifact, read_artifact_files, write_artifact_files
 from relaygs.pipeline.context import BuildContext, building
 from relaygs.pipeline.fsio import publish_dir, remove_tree
-from relaygs.pipeline.gc import GcReport, collect_garbage
+from relaygs.pipeline.gc import GcReport, collect_garbage, lock_if_free
 from relaygs.pipeline.integrity import (
     CorruptArtifactError,
     check_seal,
@@ -198,18 +198,7 @@ class ArtifactStore:
             fields = {**manifest_fields, "wall_seconds": wall_seconds}
             manifest = self._write(stage, key, stored, fields)
             remove_tree(checkpoint_dir(self.root, stage, key))
-        path = self.path(stage, key)
-        info = BuildInfo(
-            stage,
-            key,
-            False,
-            wall_seconds,
-            path,
-            manifest.size_mb,
-            replaced_corrupt,
-            manifest.provenance,
-        )
-        return stored, info
+        return stored, self._info(manifest, cache_hit=False, replaced_corrupt=replaced_corrupt)
 
     def list(self) -> list[StoredArtifact]:
         """Every finished artifact, sorted by stage then creation time; temp folders are
@@ -296,17 +285,23 @@ class ArtifactStore:
                     "artifacts.on_corrupt=rebuild)"
                 ) from error
             return None, str(error)
-        path = self.path(stage, key)
-        info = BuildInfo(
-            stage,
-            key,
-            True,
+        return (artifact, self._info(manifest, cache_hit=True)), None
+
+    def _info(
+        self, manifest: Manifest, cache_hit: bool, replaced_corrupt: str | None = None
+    ) -> BuildInfo:
+        """The BuildInfo of a stored artifact, its cost and size as its manifest records them."""
+        path = self.path(manifest.stage, manifest.key)
+        return BuildInfo(
+            manifest.stage,
+            manifest.key,
+            cache_hit,
             manifest.wall_seconds,
             path,
             manifest.size_mb,
-            provenance=manifest.provenance,
+            replaced_corrupt,
+            manifest.provenance,
         )
-        return (artifact, info), None
 
     def _load_unchanged(self, stage: str, key: str, verify: bool) -> tuple[Artifact, Manifest]:
         """`_load_with_manifest`, whose failure becomes ArtifactChangedError when the folder was
@@ -370,15 +365,9 @@ class ArtifactStore:
         if not folder.exists():
             return
         lock_file.parent.mkdir(parents=True, exist_ok=True)
-        lock = FileLock(str(lock_file))
-        try:
-            lock.acquire(timeout=0)
-        except Timeout:
-            return
-        try:
-            remove_tree(folder)
-        finally:
-            lock.release()
+        with lock_if_free(lock_file) as free:
+            if free:
+                remove_tree(folder)
 
     def _remove_own_temps(self, stage: str, key: str) -> None:
         """Delete temp folders a killed build of this key left (the caller holds its lock)."""
