@@ -1,11 +1,5 @@
-"""In-stage checkpoints, so a stage killed mid-way resumes where it was instead of at step 0.
-
-Each checkpoint is a sealed folder `<root>/<stage>/<key>.ckpt/step-<n>/` holding
-`tensors.safetensors` (model tensors and every tensor inside optimizer / RNG states) and
-`state.json` (the rest of that state, the step, the extras). It is written in a temp
-folder and renamed in, so a kill never leaves half a checkpoint. The store deletes the
-whole `.ckpt` folder once the artifact is complete.
-"""
+"""In-stage checkpoints, so a stage killed mid-way resumes where it was, not at step 0: sealed
+`<key>.ckpt/step-<n>/` folders (tensors and state.json) renamed in whole (docs/artifacts.md)."""
 
 from __future__ import annotations
 
@@ -74,9 +68,8 @@ class StageCheckpointer:
         optimizers: Mapping[str, torch.optim.Optimizer] | None = None,
         extras: Mapping[str, Any] | None = None,
     ) -> Path:
-        """Write a checkpoint of the state after `step` completed steps (RNG captured now).
-        A non-finite tensor anywhere in it (an Adam moment, a density statistic) stops the
-        stage with a DivergenceError naming it, before anything is written."""
+        """Write a checkpoint after `step` completed steps (RNG captured now); a non-finite
+        tensor anywhere in it raises DivergenceError naming it before anything is written."""
         stored: dict[str, torch.Tensor] = {}
         places: dict[str, str] = {}
         optimizer_states = {name: opt.state_dict() for name, opt in (optimizers or {}).items()}

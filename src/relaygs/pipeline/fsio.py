@@ -40,9 +40,8 @@ _OS_ERROR_NUMBER = re.compile(r"\(os error (\d+)\)")
 
 
 def save_tensors(tensors: Mapping[str, torch.Tensor], path: Path) -> None:
-    """Write a safetensors file; an I/O failure (a full or read-only disk) is raised as the
-    OSError it is, with its errno and this path, not as safetensors' own error type, so
-    callers can tell a full disk from a bug (`relaygs.errors.resource_error`)."""
+    """Write a safetensors file; an I/O failure is raised as the OSError (errno, this path) it
+    is, so `resource_error` tells a full disk from a bug."""
     try:
         save_file(dict(tensors), str(path))
     except SafetensorError as error:
@@ -59,10 +58,8 @@ def publish_text(path: Path, text: str) -> None:
 
 
 def publish_bytes(path: Path, data: bytes) -> None:
-    """Write `path` whole or not at all: the data goes to a hidden file beside it, is flushed
-    to disk and renamed in, so a kill mid-write leaves the previous file (or none) and a
-    reader, or a second writer, never sees part of one. An error names `path`, not the
-    hidden file."""
+    """Write `path` whole or not at all (a flushed hidden file renamed in), so no reader sees
+    part of one; an error names `path`, not the hidden file."""
     partial = path.with_name(f".{path.name}.{os.getpid()}.partial")
     try:
         partial.write_bytes(data)

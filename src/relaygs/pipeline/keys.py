@@ -42,9 +42,8 @@ def key_config(cfg: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def canonical_json(value: Any, where: str = "value") -> str:
-    """Canonical JSON: sorted keys, no whitespace, tuples as lists, floats by shortest repr
-    (non-finite floats as NaN/Infinity), so equal configs always give equal text. `where`
-    names the value in the one-line InputError raised for types without a stable form."""
+    """Canonical JSON (sorted keys, no whitespace, tuples as lists, shortest floats), so equal
+    configs give equal text; a type without a stable form is an InputError naming `where`."""
     return json.dumps(
         _normalise(value, where),
         sort_keys=True,
@@ -61,10 +60,8 @@ def artifact_key(
     scene_fingerprint: str,
     upstream_keys: Sequence[str],
 ) -> str:
-    """The artifact's key: sha256 hex of the canonical JSON of its inputs.
-
-    `stage_cfg` is passed through `key_config` first; `upstream_keys` keep their order.
-    """
+    """The artifact's key: sha256 hex of the canonical JSON of its inputs (`stage_cfg`
+    through `key_config`, `upstream_keys` in order)."""
     payload = {
         "stage": stage_type,
         "schema_version": schema_version,

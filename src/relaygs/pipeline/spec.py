@@ -91,13 +91,8 @@ def load_pipeline(
     known_stages: Collection[str] | None = None,
     accepted_upstream: Mapping[str, Collection[str]] | None = None,
 ) -> Pipeline:
-    """Load and validate a pipeline by name (`conf/pipeline/<name>.yaml`) or by file path.
-
-    With `known_stages`, stage types outside it are rejected; with `accepted_upstream` (stage
-    type → the stage types of the one upstream node it reads, empty for none), so are nodes of
-    a listed type whose upstream does not fit, before any stage runs. Errors are one-line
-    InputErrors.
-    """
+    """Load and check a pipeline by name or file path: unknown stage types and, with
+    `accepted_upstream` (type → upstream types it reads), misfit upstreams are InputErrors."""
     path = _resolve(name_or_path)
     try:
         raw = yaml.safe_load(path.read_text(encoding="utf-8"))
