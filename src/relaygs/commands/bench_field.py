@@ -1,11 +1,5 @@
-"""`python -m relaygs.bench field`: forward+backward time of the deform stage's motion field.
-
-The field at the deform stage's defaults (HexPlane of 16 channels, resolution 64, multires
-[1, 2], 32 time rows; background and foreground MLP sets of width 128) over N Gaussians, the
-first 70 % background as the stages lay them out, timed per backend of `--backends` (the
-native kernels sample the HexPlane; the MLP is the same code on every backend), interleaved
-so a noisy machine slows each alike.
-"""
+"""`python -m relaygs.bench field`: forward+backward time of the deform stage's motion field at
+its defaults over N Gaussians (70 % background), per backend, interleaved against noise."""
 
 from __future__ import annotations
 

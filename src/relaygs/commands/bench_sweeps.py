@@ -1,10 +1,5 @@
-"""`python -m relaygs.bench sweeps`: wall time of the five experiments at the smoke budget.
-
-Each experiment runs as a user runs it (`python -m relaygs.run +experiment=NAME`, one process
-per command) on a tiny scene, in order, sharing one output folder, so later sweeps reuse what
-earlier ones built. The target is ≤ 300 s for all five on the 2-core CPU machine; the test
-suite runs the same commands (tests/test_sweeps.py) but asserts behaviour, not time.
-"""
+"""`python -m relaygs.bench sweeps`: wall time of the five experiments at the smoke budget, each
+run as a user runs it on a tiny scene, in order, in one output folder (target ≤ 300 s)."""
 
 from __future__ import annotations
 

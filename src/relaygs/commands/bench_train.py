@@ -1,15 +1,5 @@
-"""`python -m relaygs.bench train`: training speed of every stage on the default synthetic scene.
-
-Three measurements, all at the `small` budget's settings on the 160×90, 64-frame `juggle` scene
-(generated into a cache folder on first use):
-- stages: steps/s of warmup, decouple, relay and deform over `--steps` steps each (the first
-  steps, so before the budget's densification has grown the model), once per splatting backend
-  of `--backends` (default torch, then auto), with the speed-up of the last over the first;
-- ratio: a deform step and a decouple step on the same N Gaussians (no densification), the
-  deform/decouple step-time ratio (target ≤ 1.5), on the last backend;
-- full (`--full`): the whole default pipeline decouple → relay → deform at `small`, plus
-  evaluation, timed end to end on the last backend (target ≤ 15 minutes on 2 CPU cores).
-"""
+"""`python -m relaygs.bench train`: at the `small` budget on the default scene, each stage's
+steps/s per backend, the deform/decouple step-cost ratio and (`--full`) the whole pipeline."""
 
 from __future__ import annotations
 

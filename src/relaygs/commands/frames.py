@@ -94,9 +94,8 @@ def describe(scene: ExtractedScene, seconds: float) -> str:
 
 
 def _notes(scene: ExtractedScene) -> list[str]:
-    """Killed runs' staging folders removed, which cameras' videos ended first, which decoded
-    fewer frames than they state, and frame rates that differ (frame n of each camera would
-    not show one moment)."""
+    """Staging folders of killed runs removed, videos that ended first or decoded fewer frames
+    than they state, and frame rates that differ."""
     cameras = scene.cameras.items()
     notes = [
         f"note: removed {folder}, left unfinished by a run that was killed"

@@ -1,8 +1,5 @@
-"""`python -m relaygs.synth NAME OUT_DIR`: write a synthetic scene (Panoptic layout + scene.json).
-
-A thin command-line wrapper around `relaygs.data.synthetic.generate`; bad input exits with
-status 2 and one line on stderr, a full disk or memory with 1.
-"""
+"""`python -m relaygs.synth NAME OUT_DIR`: write a synthetic scene (Panoptic layout + scene.json);
+bad input exits 2 with one line on stderr, a full disk or memory 1."""
 
 from __future__ import annotations
 
