@@ -35,11 +35,6 @@ class Artifact:
         notes = self.meta.get(NOTES, [])
         return tuple(str(note) for note in notes) if isinstance(notes, list) else ()
 
-    @property
-    def nbytes(self) -> int:
-        """Total size of the tensors' data in bytes."""
-        return sum(t.numel() * t.element_size() for t in self.tensors.values())
-
     def to_cpu_contiguous(self) -> Artifact:
         """This artifact with detached CPU tensors that each own their storage (as safetensors
         needs); a non-tensor, a non-finite value or inexact JSON meta is an InputError."""

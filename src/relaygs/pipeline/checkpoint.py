@@ -4,12 +4,14 @@
 from __future__ import annotations
 
 import json
+import random
 import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 from safetensors import SafetensorError
 from safetensors.torch import load_file
@@ -18,7 +20,6 @@ from relaygs.model.guard import check_finite
 from relaygs.pipeline.fsio import publish_dir, remove_tree, save_tensors
 from relaygs.pipeline.integrity import CorruptArtifactError, check_seal, is_sealed, seal
 from relaygs.pipeline.layout import TEMP_PREFIX, TENSORS_FILE, checkpoint_dir, make_temp_dir
-from relaygs.pipeline.rngstate import capture_rng_state, restore_rng_state
 from relaygs.pipeline.statecodec import decode_tree, encode_tree
 
 STEP_PREFIX = "step-"
@@ -143,3 +144,24 @@ def _read_state(folder: Path) -> TrainingState:
         )
     except (OSError, ValueError, KeyError, TypeError, SafetensorError) as error:
         raise CorruptArtifactError(f"{folder}: unreadable checkpoint ({error})") from error
+
+
+def capture_rng_state() -> dict[str, Any]:
+    """Snapshot of every global RNG a training loop may draw from."""
+    state: dict[str, Any] = {
+        "python": random.getstate(),
+        "numpy": np.random.get_state(legacy=False),
+        "torch": torch.get_rng_state(),
+    }
+    if torch.cuda.is_available() and torch.cuda.is_initialized():
+        state["cuda"] = torch.cuda.get_rng_state_all()
+    return state
+
+
+def restore_rng_state(state: dict[str, Any]) -> None:
+    """Put back the RNG states captured by `capture_rng_state`."""
+    random.setstate(state["python"])
+    np.random.set_state(state["numpy"])
+    torch.set_rng_state(state["torch"])
+    if "cuda" in state and torch.cuda.is_available():
+        torch.cuda.set_rng_state_all(state["cuda"])

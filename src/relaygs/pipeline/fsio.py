@@ -27,14 +27,6 @@ def fsync_path(path: Path) -> None:
         os.close(descriptor)
 
 
-def fsync_tree(folder: Path) -> None:
-    """Flush every file directly in `folder`, then the folder itself."""
-    for path in folder.iterdir():
-        if path.is_file():
-            fsync_path(path)
-    fsync_path(folder)
-
-
 _OS_ERROR_NUMBER = re.compile(r"\(os error (\d+)\)")
 """How safetensors' Rust writer reports an I/O failure in its message: `(os error 28)`."""
 
@@ -73,20 +65,15 @@ def publish_bytes(path: Path, data: bytes) -> None:
         partial.unlink(missing_ok=True)  # nothing left to remove once renamed in
 
 
-def make_readable(folder: Path) -> None:
-    """Give a private temp folder (mkdtemp makes 0700) and its files ordinary permissions,
-    so a store shared between users or jobs can be read by all of them."""
-    folder.chmod(PUBLISHED_DIR_MODE)
-    for path in folder.iterdir():
-        if path.is_file():
-            path.chmod(PUBLISHED_FILE_MODE)
-
-
 def publish_dir(temp: Path, final: Path) -> None:
     """Atomically make `temp` appear as `final`, readable like any other output; an existing
     `final` is moved aside first (a rename cannot overwrite a non-empty folder), then deleted."""
-    make_readable(temp)
-    fsync_tree(temp)
+    temp.chmod(PUBLISHED_DIR_MODE)  # mkdtemp makes 0700: a shared store is read by all
+    for path in temp.iterdir():
+        if path.is_file():
+            path.chmod(PUBLISHED_FILE_MODE)
+            fsync_path(path)
+    fsync_path(temp)
     if final.exists():
         trash = trash_path(final.parent, final.name)
         os.replace(final, trash)

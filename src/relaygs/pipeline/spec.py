@@ -1,20 +1,5 @@
-"""Pipeline topologies (`conf/pipeline/<name>.yaml`): nodes, their stage types and upstreams.
-
-File format (also the composed config's `pipeline` section)::
-
-    name: relaygs                                           # the file's name
-    description: one line saying what the pipeline is      # optional
-    nodes:                                                  # in any order
-      decouple: {stage: decouple}
-      relay:    {stage: relay, upstream: [decouple]}
-      deform:   {stage: deform, upstream: [relay], overrides: {gamma: false}}
-
-`overrides` (optional) are merged over the node's stage config section by the app, so a
-pipeline can pin settings that define it (e.g. the 4D-GS baseline's deform has no γ).
-
-The evaluation step is not a node: the runner applies it to `Pipeline.output_node`,
-the single node nothing else depends on.
-"""
+"""Pipeline topologies (`conf/pipeline/<name>.yaml`, format in docs/artifacts.md): nodes, their
+stage types, upstreams and `overrides`; evaluation reads the one output node."""
 
 from __future__ import annotations
 

@@ -7,12 +7,14 @@ import json
 import time
 from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass, field
+from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Literal
 
 from filelock import FileLock
 from safetensors import SafetensorError
 
+import relaygs
 from relaygs.errors import RERUN_COMMAND, InputError, RelayGSError
 from relaygs.pipeline.artifact import Artifact, read_artifact_files, write_artifact_files
 from relaygs.pipeline.context import BuildContext, building
@@ -38,9 +40,7 @@ from relaygs.pipeline.manifest import (
     LineageEntry,
     Manifest,
     describe_files,
-    package_version,
     read_manifest,
-    utc_now_iso,
     write_manifest,
 )
 
@@ -326,8 +326,8 @@ class ArtifactStore:
                 key=key,
                 stage=stage,
                 metrics=metrics,
-                created=utc_now_iso(),
-                package_version=package_version(),
+                created=datetime.now(timezone.utc).isoformat(timespec="seconds"),
+                package_version=relaygs.__version__,
                 files=describe_files(temp, names),
                 **manifest_fields,
             )
