@@ -31,8 +31,7 @@ from relaygs.commands.artifact_models import (
     model_artifact,
     note_other_scene,
 )
-from relaygs.commands.artifacts_eval import run_eval
-from relaygs.commands.artifacts_gap import run_gap
+from relaygs.commands.artifacts_eval import run_eval, run_gap
 from relaygs.device import set_threads, usable_device
 from relaygs.errors import RelayGSError, UsageError
 from relaygs.paths import require_creatable_folder
