@@ -7,7 +7,6 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Sequence
-from typing import Any
 
 from relaygs.app.evaluation import EVAL_STAGE
 from relaygs.app.plan import MAX_THREADS
@@ -119,48 +118,16 @@ def model_artifact(store: ArtifactStore, key_prefix: str) -> tuple[StoredArtifac
     return item, store.load(item.stage, item.key)
 
 
-def note_other_scene(
-    items: Sequence[StoredArtifact], scene: Scene, args: argparse.Namespace
-) -> None:
-    """A stderr note, saying why, for each model whose manifest's scene fingerprint is not this
-    scene's as loaded here: its test views, and scores, may not be the run's."""
+def note_other_scene(items: Sequence[StoredArtifact], scene: Scene) -> None:
+    """A stderr note for each model whose manifest's scene fingerprint is not this scene's as
+    loaded here: its test views, and so its scores, may not be the run's."""
     for item in items:
         trained_on = item.manifest.provenance.get("scene")
         if trained_on is not None and trained_on != scene.fingerprint:
             print(
                 f"note: {item.stage} {item.key[:KEY_COLUMN_WIDTH]} was not trained on "
-                f"{scene.root} as loaded here ({_why_other_scene(item, args)}",
+                f"{scene.root} as loaded here (its files, or the --downscale or --test-cameras "
+                "given here, differ from its run's), so its test views, and scores, may not "
+                "be the run's",
                 file=sys.stderr,
             )
-
-
-def _why_other_scene(item: StoredArtifact, args: argparse.Namespace) -> str:
-    """What differs from `item`'s run, a closing bracket and what that means: the loader
-    options given here, else (the run's options were used) the scene's files."""
-    recorded = recorded_loading(item.manifest.provenance)
-    if not recorded:  # written before manifests recorded the run's loader options
-        return (
-            "its files or loader options differ), so its test views may not be the run's: "
-            "pass the run's --downscale and --test-cameras"
-        )
-    given = {name: getattr(args, name) for name in FLAGGED_LOADING}
-    run_flags = {name: _as_typed(value) for name, value in recorded.items()}
-    changed = [
-        f"--{name.replace('_', '-')} (the run's: {run_flags.get(name, 'the default')})"
-        for name, value in given.items()
-        if value is not None and _as_typed(value) != run_flags.get(name)
-    ]
-    if changed:
-        return f"given here: {', '.join(changed)}), so its test views are not the run's"
-    return (
-        "its run's loader options were used, so its files differ from those the run read: "
-        "another copy of the scene, or an edited one), and its scores may not be the run's"
-    )
-
-
-def _as_typed(value: Any) -> str:
-    """A loader option's value as its flag is typed, camera ids as the set they are (`1,5`, or
-    `[]` for none), so that the same cameras in another order or repeated count as the same."""
-    if isinstance(value, list | tuple):
-        return ",".join(str(item) for item in sorted(set(value))) or "[]"
-    return str(value)

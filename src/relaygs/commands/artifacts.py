@@ -276,7 +276,7 @@ def _render(store: ArtifactStore, args: argparse.Namespace) -> int:
         video = f", video {renders.video}" if renders.video is not None else ""
         what = "path" if renders.camera_id is None else f"camera {renders.camera_id}"
         print(f"  {what}: {len(renders.frames)} frame(s) in {renders.folder}{video}")
-    note_other_scene(entries, scene, args)
+    note_other_scene(entries, scene)
     return 0
 
 

@@ -45,7 +45,7 @@ def run_eval(store: ArtifactStore, args: argparse.Namespace) -> int:
             for entry, model in zip(entries, models, strict=True)
         ]
         print(_lineage_table(entries, rows))
-        note_other_scene(entries, scene, args)
+        note_other_scene(entries, scene)
         return 0
     metrics = _scores(item, artifact, scene, settings)
     print(f"{item.stage} {item.key[:KEY_COLUMN_WIDTH]} {where}")
@@ -55,7 +55,7 @@ def run_eval(store: ArtifactStore, args: argparse.Namespace) -> int:
     if args.per_view is not None:
         written = write_per_view(args.per_view, metrics[PER_VIEW])
         print(f"  per-view metrics of {len(metrics[PER_VIEW])} image(s) in {written}")
-    note_other_scene([item], scene, args)
+    note_other_scene([item], scene)
     return 0
 
 
@@ -145,5 +145,5 @@ def run_gap(store: ArtifactStore, args: argparse.Namespace) -> int:
     fitted = " (renders colour-fitted per camera)" if args.colour_fit else ""
     print(f"{item.stage} {item.key[:KEY_COLUMN_WIDTH]} and its lineage on {args.scene}{fitted}")
     print(aligned_table(header, rows))
-    note_other_scene(entries, scene, args)
+    note_other_scene(entries, scene)
     return 0
