@@ -6,7 +6,7 @@ import subprocess
 
 import pytest
 
-from relaygs.commands import bench, bench_field, bench_sweeps, bench_train
+from relaygs.commands import bench, bench_field, bench_splat, bench_sweeps, bench_train
 
 
 def test_commands_run_each_experiment_on_the_tiny_scene(tmp_path):
@@ -21,7 +21,7 @@ def test_an_unwritable_json_path_stops_before_any_work(what, tmp_path, monkeypat
     # A file where the report's folder should be: argparse refuses it before anything runs.
     monkeypatch.setattr(bench_sweeps, "time_experiments", lambda *a: pytest.fail("sweeps started"))
     monkeypatch.setattr(bench_train, "bench_scene", lambda *args: pytest.fail("train started"))
-    monkeypatch.setattr(bench, "bench_splat", lambda *args: pytest.fail("splat started"))
+    monkeypatch.setattr(bench_splat, "bench_splat", lambda *args: pytest.fail("splat started"))
     blocker = tmp_path / "taken"
     blocker.write_text("")
     with pytest.raises(SystemExit) as stopped:
@@ -71,7 +71,7 @@ def test_without_an_error_line_the_last_line_that_is_not_hydras_hint_is_kept(std
 )
 def test_bad_options_are_refused_in_one_line_before_any_work(argv, message, monkeypatch, capsys):
     monkeypatch.setattr(bench_train, "bench_scene", lambda *args: pytest.fail("train started"))
-    monkeypatch.setattr(bench, "bench_splat", lambda *args: pytest.fail("splat started"))
+    monkeypatch.setattr(bench_splat, "bench_splat", lambda *args: pytest.fail("splat started"))
     with pytest.raises(SystemExit) as stopped:
         bench.main(argv)
     err = capsys.readouterr().err
@@ -81,7 +81,7 @@ def test_bad_options_are_refused_in_one_line_before_any_work(argv, message, monk
 
 @pytest.mark.parametrize("what", ["splat", "train", "field"])
 def test_an_unknown_backend_is_named_before_any_work(what, monkeypatch, capsys):
-    monkeypatch.setattr(bench, "bench_splat", lambda *args: pytest.fail("splat started"))
+    monkeypatch.setattr(bench_splat, "bench_splat", lambda *args: pytest.fail("splat started"))
     monkeypatch.setattr(bench_train, "bench_scene", lambda *args: pytest.fail("train started"))
     monkeypatch.setattr(bench_field, "_field_step", lambda *args: pytest.fail("field started"))
     assert bench.main([what, "--backends", "torch,fast"]) == 2

@@ -16,6 +16,7 @@ from relaygs.commands.bench_train import backend_names
 from relaygs.field import DeformationField
 from relaygs.splat import default_backend, use_backend
 
+HELP = "time the deform stage's motion field"
 BACKGROUND_SHARE = 0.7
 TIME_ROWS = 32  # ceil(64 frames / 2), the default scene's
 

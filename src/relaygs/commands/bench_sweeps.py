@@ -13,6 +13,7 @@ from typing import Any
 
 from relaygs.cli import path_argument
 
+HELP = "time the five experiments at the smoke budget"
 TINY_SCENE = ("budget=smoke", "scene.frames=8", "scene.width=48", "scene.height=27")
 EXPERIMENTS = ("smoke", "ablation_k", "ablation_components", "baseline", "budget")
 TARGET_S = 300.0

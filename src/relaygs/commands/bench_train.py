@@ -31,6 +31,7 @@ from relaygs.train import log
 from relaygs.train.scene_model import SceneModel, foreground_with_segments
 from relaygs.train.segment_plan import SegmentPlan
 
+HELP = "time the training stages on the default scene"
 DEFAULT_CACHE = Path("outputs") / "cache" / "bench"
 SCENE = {"preset": "juggle", "frames": 64, "width": 160, "height": 90, "seed": 0}
 NO_DENSITY = {"densify_until": 0, "opacity_reset_every": 0}
