@@ -205,17 +205,6 @@ def test_missing_store_is_one_line_error(tmp_path, capsys):
     _refused(capsys, tmp_path / "nowhere", "ls", named=[str(tmp_path / "nowhere")])
 
 
-def test_module_entry_point_runs_as_a_process(store):
-    done = subprocess.run(
-        [sys.executable, "-m", "relaygs.artifacts", "--root", str(store.root), "verify"],
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
-    assert done.returncode == 0, done.stderr
-    assert "0 problem(s) among 2 artifact(s)" in done.stdout
-
-
 def test_eval_scores_a_stored_model_like_the_evaluator(stage_scene_path, stage_decoupled, tmp_path):
     from relaygs.data import load_scene
     from relaygs.stages import evaluate

@@ -40,8 +40,20 @@ class Pipeline:
     nodes: dict[str, Node]
 
     def topological_order(self) -> list[Node]:
-        """Nodes with every upstream before its consumers; ties keep file order."""
-        return _topological_order(self)
+        """Nodes with every upstream before its consumers, ties in file order (Kahn's
+        algorithm); a cycle raises an InputError that names it."""
+        remaining = dict(self.nodes)
+        done: set[str] = set()
+        order: list[Node] = []
+        while remaining:
+            ready = [node for node in remaining.values() if set(node.upstream) <= done]
+            if not ready:
+                raise InputError(f"{self.path}: cycle {_find_cycle(remaining)}")
+            for node in ready:
+                order.append(node)
+                done.add(node.name)
+                del remaining[node.name]
+        return order
 
     @property
     def output_node(self) -> Node:
@@ -187,7 +199,7 @@ def _check_graph(
             )
         if node.stage in accepted_upstream:
             _check_upstream_types(pipeline, node, accepted_upstream[node.stage])
-    _topological_order(pipeline)
+    pipeline.topological_order()  # refuses a cycle
     consumed = {name for node in pipeline.nodes.values() for name in node.upstream}
     outputs = [name for name in pipeline.nodes if name not in consumed]
     if len(outputs) != 1:
@@ -210,22 +222,6 @@ def _check_upstream_types(pipeline: Pipeline, node: Node, accepted: Collection[s
         f"{pipeline.path}: node {node.name!r} (stage {node.stage!r}) reads {expected} "
         f"(its StageSpec's upstream), got {', '.join(found) or 'none'}"
     )
-
-
-def _topological_order(pipeline: Pipeline) -> list[Node]:
-    """Kahn's algorithm in file order; a cycle raises an InputError that names it."""
-    remaining = dict(pipeline.nodes)
-    done: set[str] = set()
-    order: list[Node] = []
-    while remaining:
-        ready = [node for node in remaining.values() if set(node.upstream) <= done]
-        if not ready:
-            raise InputError(f"{pipeline.path}: cycle {_find_cycle(remaining)}")
-        for node in ready:
-            order.append(node)
-            done.add(node.name)
-            del remaining[node.name]
-    return order
 
 
 def _find_cycle(nodes: dict[str, Node]) -> str:
