@@ -75,15 +75,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         # MissingConfigException is one; the libraries' own message, in one line
         print(f"error: {library_error_line(error)}", file=sys.stderr)
         return 1
-    except (OSError, MemoryError) as error:  # Hydra's own writes: config files, multirun.yaml
-        failure = resource_error(error)
+    except Exception as error:  # a full disk under Hydra's own writes (multirun.yaml) is one
+        failure = resource_error(error)  # line; a programming error keeps its traceback
         if failure is None:
-            traceback.print_exc()  # a programming error keeps its traceback, as Hydra's did
-            return 1
-        print(f"error: {failure}", file=sys.stderr)
-        return 1
-    except Exception:  # a programming error in a job: its traceback, as Hydra printed it
-        traceback.print_exc()
+            traceback.print_exc()
+        else:
+            print(f"error: {failure}", file=sys.stderr)
         return 1
     except KeyboardInterrupt as stop:
         started = STARTED_FOLDERS[-1] if STARTED_FOLDERS else None
