@@ -40,11 +40,12 @@ def run_eval(store: ArtifactStore, args: argparse.Namespace) -> int:
         entries = lineage_entries(store, item)
         models = [store.load(entry.stage, entry.key) for entry in entries]  # damaged: before output
         print(f"{item.stage} {item.key[:KEY_COLUMN_WIDTH]} and its lineage {where}")
-        rows = [
-            _scores(entry, model, scene, settings)
-            for entry, model in zip(entries, models, strict=True)
-        ]
-        print(_lineage_table(entries, rows))
+        rows = []
+        for entry, model in zip(entries, models, strict=True):
+            scores = _scores(entry, model, scene, settings)
+            cells = [cell(scores.get(name)) for name in LINEAGE_COLUMNS]
+            rows.append([entry.stage, entry.key[:KEY_COLUMN_WIDTH], *cells])
+        print(aligned_table(["stage", "key", *LINEAGE_COLUMNS], rows))
         note_other_scene(entries, scene)
         return 0
     metrics = _scores(item, artifact, scene, settings)
@@ -88,19 +89,6 @@ def lineage_entries(store: ArtifactStore, item: StoredArtifact) -> list[StoredAr
 
     visit(item)
     return list(ordered.values())
-
-
-def _lineage_table(entries: list[StoredArtifact], rows: list[dict[str, Any]]) -> str:
-    """One line per artifact: stage, key prefix and its LINEAGE_COLUMNS (n/a where missing)."""
-    cells = [
-        [
-            entry.stage,
-            entry.key[:KEY_COLUMN_WIDTH],
-            *(cell(row.get(name)) for name in LINEAGE_COLUMNS),
-        ]
-        for entry, row in zip(entries, rows, strict=True)
-    ]
-    return aligned_table(["stage", "key", *LINEAGE_COLUMNS], cells)
 
 
 def aligned_table(header: list[str], rows: list[list[str]]) -> str:

@@ -38,7 +38,7 @@ def is_non_key_name(name: str) -> bool:
 
 def key_config(cfg: Mapping[str, Any]) -> dict[str, Any]:
     """A plain-dict copy of `cfg` without the entries that never enter a key (module docstring)."""
-    return _strip(cfg, "config")
+    return _strip(cfg)
 
 
 def canonical_json(value: Any, where: str = "value") -> str:
@@ -72,16 +72,16 @@ def artifact_key(
     return hashlib.sha256(canonical_json(payload).encode("ascii")).hexdigest()
 
 
-def _strip(value: Any, where: str) -> Any:
+def _strip(value: Any) -> Any:
     """Recursively drop non-key entries from mappings; sequences are walked too."""
     if isinstance(value, Mapping):
         return {
-            key: _strip(item, f"{where}.{key}")
+            key: _strip(item)
             for key, item in value.items()
             if not (isinstance(key, str) and is_non_key_name(key))
         }
     if isinstance(value, Sequence) and not isinstance(value, str | bytes):
-        return [_strip(item, f"{where}[{index}]") for index, item in enumerate(value)]
+        return [_strip(item) for item in value]
     return value
 
 
