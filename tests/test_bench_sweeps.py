@@ -6,7 +6,7 @@ import subprocess
 
 import pytest
 
-from relaygs.commands import bench, bench_field, bench_sweeps, bench_train
+from relaygs.commands import bench, bench_field, bench_splat, bench_sweeps, bench_train
 
 
 def test_commands_run_each_experiment_on_the_tiny_scene(tmp_path):
@@ -16,21 +16,12 @@ def test_commands_run_each_experiment_on_the_tiny_scene(tmp_path):
     assert line[-2:] == ["seed=3", f"paths.outputs={tmp_path}"]
 
 
-def test_a_failing_experiment_is_named_and_exits_non_zero(tmp_path, monkeypatch, capsys):
-    monkeypatch.setattr(bench_sweeps, "EXPERIMENTS", ("no_such_experiment",))
-    report = tmp_path / "report.json"
-    code = bench.main(["sweeps", "--outputs", str(tmp_path / "out"), "--json", str(report)])
-    assert code == 1
-    assert "experiment 'no_such_experiment' exited" in capsys.readouterr().err
-    assert not report.exists()
-
-
 @pytest.mark.parametrize("what", ["splat", "train", "sweeps"])
 def test_an_unwritable_json_path_stops_before_any_work(what, tmp_path, monkeypatch, capsys):
     # A file where the report's folder should be: argparse refuses it before anything runs.
-    monkeypatch.setattr(bench_sweeps, "run", lambda args: pytest.fail("sweeps started"))
-    monkeypatch.setattr(bench_train, "run", lambda args: pytest.fail("train started"))
-    monkeypatch.setattr(bench, "bench_splat", lambda *args: pytest.fail("splat started"))
+    monkeypatch.setattr(bench_sweeps, "time_experiments", lambda *a: pytest.fail("sweeps started"))
+    monkeypatch.setattr(bench_train, "bench_scene", lambda *args: pytest.fail("train started"))
+    monkeypatch.setattr(bench_splat, "bench_splat", lambda *args: pytest.fail("splat started"))
     blocker = tmp_path / "taken"
     blocker.write_text("")
     with pytest.raises(SystemExit) as stopped:
@@ -50,10 +41,12 @@ def test_a_failing_experiment_is_reported_with_its_error_line_not_hydras_hint(
     )
     failed = subprocess.CompletedProcess([], 1, stdout="", stderr=stderr)
     monkeypatch.setattr(bench_sweeps.subprocess, "run", lambda *args, **kwargs: failed)
-    assert bench_sweeps.measure(tmp_path) is None
+    report = tmp_path / "report.json"
+    assert bench.main(["sweeps", "--outputs", str(tmp_path / "out"), "--json", str(report)]) == 1
     assert capsys.readouterr().err == (
         "error: experiment 'smoke' exited 1: paths.outputs: cannot create /proc/x\n"
     )
+    assert not report.exists()
 
 
 @pytest.mark.parametrize(
@@ -77,8 +70,8 @@ def test_without_an_error_line_the_last_line_that_is_not_hydras_hint_is_kept(std
     ],
 )
 def test_bad_options_are_refused_in_one_line_before_any_work(argv, message, monkeypatch, capsys):
-    monkeypatch.setattr(bench_train, "run", lambda args: pytest.fail("train started"))
-    monkeypatch.setattr(bench, "bench_splat", lambda *args: pytest.fail("splat started"))
+    monkeypatch.setattr(bench_train, "bench_scene", lambda *args: pytest.fail("train started"))
+    monkeypatch.setattr(bench_splat, "bench_splat", lambda *args: pytest.fail("splat started"))
     with pytest.raises(SystemExit) as stopped:
         bench.main(argv)
     err = capsys.readouterr().err
@@ -88,7 +81,7 @@ def test_bad_options_are_refused_in_one_line_before_any_work(argv, message, monk
 
 @pytest.mark.parametrize("what", ["splat", "train", "field"])
 def test_an_unknown_backend_is_named_before_any_work(what, monkeypatch, capsys):
-    monkeypatch.setattr(bench, "bench_splat", lambda *args: pytest.fail("splat started"))
+    monkeypatch.setattr(bench_splat, "bench_splat", lambda *args: pytest.fail("splat started"))
     monkeypatch.setattr(bench_train, "bench_scene", lambda *args: pytest.fail("train started"))
     monkeypatch.setattr(bench_field, "_field_step", lambda *args: pytest.fail("field started"))
     assert bench.main([what, "--backends", "torch,fast"]) == 2

@@ -6,7 +6,7 @@ from types import SimpleNamespace
 import pytest
 import torch
 
-from relaygs.commands import bench
+from relaygs.commands import bench, bench_splat
 from relaygs.device import synchronize, usable_device
 from relaygs.errors import InputError
 
@@ -31,7 +31,7 @@ def test_an_unusable_cuda_device_is_named_with_the_reason() -> None:
 
 
 def test_bench_refuses_a_bad_device_before_timing(monkeypatch, capsys) -> None:
-    monkeypatch.setattr(bench, "bench_splat", lambda *args: pytest.fail("benchmark started"))
+    monkeypatch.setattr(bench_splat, "bench_splat", lambda *args: pytest.fail("benchmark started"))
     assert bench.main(["splat", "--device", "meta"]) == 2
     assert capsys.readouterr().err.strip() == (
         "error: --device: expected 'cpu', 'cuda' or 'cuda:N', got 'meta'"
@@ -48,8 +48,8 @@ def test_synchronize_waits_for_a_cuda_device_only(monkeypatch) -> None:
 
 def test_bench_times_each_run_until_the_device_has_finished(monkeypatch) -> None:
     events: list[str] = []
-    monkeypatch.setattr(bench, "synchronize", lambda device: events.append(f"sync {device}"))
+    monkeypatch.setattr(bench_splat, "synchronize", lambda device: events.append(f"sync {device}"))
     clock = SimpleNamespace(perf_counter=lambda: events.append("clock") or 0.0)
-    monkeypatch.setattr(bench, "time", clock)
-    bench._median_ms(lambda: events.append("run"), 2, torch.device("cpu"))
+    monkeypatch.setattr(bench_splat, "time", clock)
+    bench_splat._median_ms(lambda: events.append("run"), 2, torch.device("cpu"))
     assert events == ["run"] + ["sync cpu", "clock", "run", "sync cpu", "clock"] * 2

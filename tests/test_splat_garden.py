@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from relaygs.commands.bench import GARDEN_PATH, garden_case
+from relaygs.commands.bench_splat import GARDEN_PATH, garden_case
 from relaygs.splat import rasterization
 from relaygs.splat.projection import covariance_factor, project_gaussians
 from relaygs.splat.reference import rasterization_reference

@@ -57,9 +57,8 @@ def test_root_is_absolute_and_layout_manifest_and_marker_are_written(tmp_path, m
     assert manifest["created"].endswith("+00:00")
     assert manifest["provenance"] == {"node": "decouple"}
     assert set(manifest["files"]) == {"meta.json", "tensors.safetensors"}
-    assert store.manifest("decouple", KEY).size_bytes == sum(
-        (folder / name).stat().st_size for name in manifest["files"]
-    )
+    on_disk = sum((folder / name).stat().st_size for name in manifest["files"])
+    assert store.manifest("decouple", KEY).size_mb == pytest.approx(on_disk / 1e6)
     assert not list((store.root / "decouple").glob(".tmp-*"))
 
 
@@ -145,8 +144,6 @@ def test_missing_and_malformed_requests_fail_clearly(tmp_path):
         store.has("decouple", "../etc")
     with refused(InputError, "'../x'"):
         store.has("../x", KEY)
-    with refused(InputError, "on_corrupt", "'ignore'"):
-        _build(store, CountingStage(), on_corrupt="ignore")
     fake = CountingStage()
     with refused(InputError, "decouple", "seeds", "set"):
         _build(store, fake, config={"seeds": {1, 2}})
@@ -200,8 +197,10 @@ def test_leftover_temp_dirs_are_ignored_by_list_and_removed_by_gc(tmp_path):
     stale_ckpt.mkdir()
     assert [item.key for item in store.list()] == [KEY]
     assert not store.has("decouple", CHILD_KEY)
+    locks = sorted((store.root / ".locks").iterdir())
     dry = store.gc(dry_run=True)
-    assert leftover.exists() and set(dry.removed) >= {leftover, incomplete, stale_ckpt}
+    assert set(dry.removed) >= {leftover, incomplete, stale_ckpt, *locks}
+    assert leftover.exists() and locks and all(lock.exists() for lock in locks)
     report = store.gc()
     assert not leftover.exists() and not incomplete.exists() and not stale_ckpt.exists()
     assert not list((store.root / ".locks").iterdir())
@@ -272,20 +271,6 @@ def test_a_folder_copied_under_another_key_is_not_loaded_as_that_key(tmp_path):
     assert store.manifest("decouple", other).key == other and store.verify() == []
     _, again = _build(store, rebuild, key=other)
     assert again.cache_hit and rebuild.calls == 1
-
-
-def test_a_dry_run_gc_reports_but_removes_nothing_not_even_free_locks(tmp_path):
-    store = ArtifactStore(tmp_path)
-    _build(store, CountingStage())
-    leftover = store.root / "decouple" / f".tmp-{KEY}-killed"
-    leftover.mkdir()
-    lock_file = store.root / ".locks" / f"decouple.{KEY}.lock"
-    lock_file.parent.mkdir(exist_ok=True)
-    lock_file.touch()
-    report = store.gc(dry_run=True)
-    assert {leftover, lock_file} <= set(report.removed)
-    assert leftover.exists() and lock_file.exists()
-    assert store.has("decouple", KEY)
 
 
 def test_gc_keeps_only_annotations_whose_upstreams_are_all_kept(tmp_path):

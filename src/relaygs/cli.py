@@ -15,7 +15,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import NoReturn
 
-from relaygs.errors import InputError
+from relaygs.errors import RERUN_COMMAND, InputError, RelayGSError, resource_error
 from relaygs.paths import require_creatable_folder
 
 BROKEN_PIPE_EXIT = 141
@@ -134,3 +134,21 @@ def run_tool(main: Callable[[], int]) -> int:
         # the interpreter flushes stdout again when it exits: give it somewhere to go
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return BROKEN_PIPE_EXIT
+
+
+def one_line_failures(
+    work: Callable[[], int | None], bad_input_exit: int = 1, where: str = ""
+) -> int:
+    """`work()`'s exit status (None: 0); bad input (a RelayGSError) ends with one `error:` line and
+    `bad_input_exit`, a full disk or failed allocation with one line naming `where` and 1."""
+    try:
+        return work() or 0
+    except RelayGSError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return bad_input_exit
+    except (OSError, MemoryError, RuntimeError) as error:
+        failure = resource_error(error, where, rerun=RERUN_COMMAND)
+        if failure is None:
+            raise  # a bug keeps its traceback
+        print(f"error: {failure}", file=sys.stderr)
+        return 1

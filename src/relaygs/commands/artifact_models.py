@@ -1,13 +1,12 @@
-"""What the store's model commands (`artifacts eval`, `render`, `ply`) share: the stored model a
-key names, the scene it was trained on loaded as the run loaded it (with a note when it was
-not), and the `--device`, `--threads` and `--frame-stride` options."""
+"""What the store's model commands (`artifacts eval`, `gap`, `render`, `ply`) share: the stored
+model a key names, the scene it was trained on loaded as the run loaded it (with a note when it
+was not), and their options."""
 
 from __future__ import annotations
 
 import argparse
 import sys
 from collections.abc import Sequence
-from typing import Any
 
 from relaygs.app.evaluation import EVAL_STAGE
 from relaygs.app.plan import MAX_THREADS
@@ -17,44 +16,68 @@ from relaygs.data import Scene, load_scene
 from relaygs.device import parse_device
 from relaygs.errors import InputError, RelayGSError
 from relaygs.pipeline.artifact import Artifact
-from relaygs.pipeline.store import ArtifactStore, StoredArtifact
+from relaygs.pipeline.store import ArtifactStore, StoredArtifact, checked_key_prefix
 
 KEY_COLUMN_WIDTH = 16
+KEY_HELP = "full key or a unique prefix (at least 4 hex digits)"
 FLAGGED_LOADING = ("downscale", "test_cameras")
 """The recorded loader options the model commands take on the command line (`--downscale`,
 `--test-cameras`); a run's max_points and effects are always taken from its manifest."""
 
 
-def add_scene_arguments(parser: argparse.ArgumentParser) -> None:
-    """`--scene` and the loader options that decide its views as the run loaded them."""
+def key_prefix(text: str) -> str:
+    """argparse type of a key argument: a malformed prefix is a usage error (exit 2)."""
+    try:
+        checked_key_prefix(text)
+    except InputError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+    return text
+
+
+def add_model_arguments(
+    parser: argparse.ArgumentParser, verb: str, scene: bool = True, stride_note: str = ""
+) -> None:
+    """KEY; with `scene`, `--scene` and the loader options that load it as the run did, and
+    `--device`; then `--threads` and `--frame-stride` (the command `verb`s every N-th frame)."""
+    parser.add_argument("key", type=key_prefix, help=KEY_HELP)
+    if scene:
+        parser.add_argument(
+            "--scene", type=path_argument, required=True, help="the scene folder it was trained on"
+        )
+        parser.add_argument(
+            "--downscale",
+            type=int_at_least(1),
+            help="the run's scene.loader.downscale (default: the one the model's manifest "
+            "records, else 1)",
+        )
+        parser.add_argument(
+            "--test-cameras",
+            type=camera_ids,
+            metavar="IDS",
+            help="test camera ids, e.g. 1,5 (default: those the model's run chose, when its "
+            "manifest records them, else the scene's own)",
+        )
+        parser.add_argument(
+            "--device", default="cpu", type=_device_name, help="cpu, cuda or cuda:N (default cpu)"
+        )
     parser.add_argument(
-        "--scene", type=path_argument, required=True, help="the scene folder it was trained on"
+        "--threads",
+        type=int_at_least(1, MAX_THREADS),
+        metavar="N",
+        help="torch CPU threads (default: torch's default; 1 is fastest on a busy machine)",
     )
     parser.add_argument(
-        "--downscale",
+        "--frame-stride",
         type=int_at_least(1),
-        help="the run's scene.loader.downscale (default: the one the model's manifest records, "
-        "else 1)",
-    )
-    parser.add_argument(
-        "--test-cameras",
-        type=camera_ids,
-        metavar="IDS",
-        help="test camera ids, e.g. 1,5 (default: those the model's run chose, when its "
-        "manifest records them, else the scene's own)",
-    )
-
-
-def add_device_argument(parser: argparse.ArgumentParser) -> None:
-    """`--device`, where the model renders: a device name, or a usage error; whether this
-    machine can use it is checked with `usable_device` before any work."""
-    parser.add_argument(
-        "--device", default="cpu", type=_device_name, help="cpu, cuda or cuda:N (default cpu)"
+        default=1,
+        metavar="N",
+        help=f"{verb} every N-th frame (default 1{stride_note})",
     )
 
 
 def _device_name(text: str) -> str:
-    """argparse type of `--device`: `text` when it names a device (`parse_device`)."""
+    """argparse type of `--device`: `text` when it names a device (`parse_device`); whether
+    this machine can use it is checked with `usable_device` before any work."""
     try:
         parse_device(text, "--device")
     except InputError:
@@ -62,32 +85,9 @@ def _device_name(text: str) -> str:
     return text
 
 
-def add_frame_stride_argument(parser: argparse.ArgumentParser, verb: str, note: str = "") -> None:
-    """`--frame-stride N`: the command `verb`s (scores, renders, exports) every N-th frame."""
-    parser.add_argument(
-        "--frame-stride",
-        type=int_at_least(1),
-        default=1,
-        metavar="N",
-        help=f"{verb} every N-th frame (default 1{note})",
-    )
-
-
-def add_threads_argument(parser: argparse.ArgumentParser) -> None:
-    """`--threads N`, torch's CPU thread count for the command (a run's `threads`), set with
-    `set_threads` before any work."""
-    parser.add_argument(
-        "--threads",
-        type=int_at_least(1, MAX_THREADS),
-        metavar="N",
-        help="torch CPU threads (default: torch's default; 1 is fastest on a busy machine)",
-    )
-
-
 def load_run_scene(args: argparse.Namespace, item: StoredArtifact) -> Scene:
-    """The `--scene` folder loaded as `item`'s run loaded it: with the loader options its
-    manifest records, those given on the command line taking their place. An error that only
-    the recorded options cause names them and the manifest."""
+    """`--scene` loaded with the loader options `item`'s manifest records, those given here
+    taking their place; an error only the recorded ones cause names them and the manifest."""
     recorded = recorded_loading(item.manifest.provenance)
     given = {
         name: getattr(args, name) for name in FLAGGED_LOADING if getattr(args, name) is not None
@@ -118,50 +118,16 @@ def model_artifact(store: ArtifactStore, key_prefix: str) -> tuple[StoredArtifac
     return item, store.load(item.stage, item.key)
 
 
-def note_other_scene(
-    items: Sequence[StoredArtifact], scene: Scene, args: argparse.Namespace
-) -> None:
-    """A stderr note for each model that was not trained on this scene as loaded here (the
-    fingerprint in its manifest differs), saying why where the manifest tells: its test views,
-    and so its scores, may not be the run's."""
+def note_other_scene(items: Sequence[StoredArtifact], scene: Scene) -> None:
+    """A stderr note for each model whose manifest's scene fingerprint is not this scene's as
+    loaded here: its test views, and so its scores, may not be the run's."""
     for item in items:
         trained_on = item.manifest.provenance.get("scene")
         if trained_on is not None and trained_on != scene.fingerprint:
             print(
                 f"note: {item.stage} {item.key[:KEY_COLUMN_WIDTH]} was not trained on "
-                f"{scene.root} as loaded here ({_why_other_scene(item, args)}",
+                f"{scene.root} as loaded here (its files, or the --downscale or --test-cameras "
+                "given here, differ from its run's), so its test views, and scores, may not "
+                "be the run's",
                 file=sys.stderr,
             )
-
-
-def _why_other_scene(item: StoredArtifact, args: argparse.Namespace) -> str:
-    """What differs from `item`'s run, a closing bracket, and what that means: the loader
-    options given here, else (its manifest records the run's options, and they were used)
-    the scene's files."""
-    recorded = recorded_loading(item.manifest.provenance)
-    if not recorded:  # written before manifests recorded the run's loader options
-        return (
-            "its files or loader options differ), so its test views may not be the run's: "
-            "pass the run's --downscale and --test-cameras"
-        )
-    given = {name: getattr(args, name) for name in FLAGGED_LOADING}
-    run_flags = {name: _as_typed(value) for name, value in recorded.items()}
-    changed = [
-        f"--{name.replace('_', '-')} (the run's: {run_flags.get(name, 'the default')})"
-        for name, value in given.items()
-        if value is not None and _as_typed(value) != run_flags.get(name)
-    ]
-    if changed:
-        return f"given here: {', '.join(changed)}), so its test views are not the run's"
-    return (
-        "its run's loader options were used, so its files differ from those the run read: "
-        "another copy of the scene, or an edited one), and its scores may not be the run's"
-    )
-
-
-def _as_typed(value: Any) -> str:
-    """A loader option's value as its flag is typed, camera ids as the set they are (`1,5`, or
-    `[]` for none), so that the same cameras in another order or repeated count as the same."""
-    if isinstance(value, list | tuple):
-        return ",".join(str(item) for item in sorted(set(value))) or "[]"
-    return str(value)

@@ -17,24 +17,23 @@ from relaygs.app.evaluation import EVAL_STAGE
 from relaygs.cli import (
     OneLineErrorParser,
     int_at_least,
+    one_line_failures,
     path_argument,
     positive_float,
     writable_file,
 )
 from relaygs.commands.artifact_models import (
     KEY_COLUMN_WIDTH,
-    add_device_argument,
-    add_frame_stride_argument,
-    add_scene_arguments,
-    add_threads_argument,
+    KEY_HELP,
+    add_model_arguments,
+    key_prefix,
     load_run_scene,
     model_artifact,
     note_other_scene,
 )
-from relaygs.commands.artifacts_eval import run_eval
-from relaygs.commands.artifacts_gap import run_gap
+from relaygs.commands.artifacts_eval import run_eval, run_gap
 from relaygs.device import set_threads, usable_device
-from relaygs.errors import RERUN_COMMAND, InputError, RelayGSError, UsageError, resource_error
+from relaygs.errors import RelayGSError, UsageError
 from relaygs.paths import require_creatable_folder
 from relaygs.pipeline.integrity import CorruptArtifactError
 from relaygs.pipeline.layout import LOCKS_DIR, TENSORS_FILE
@@ -43,7 +42,6 @@ from relaygs.pipeline.store import (
     ArtifactStore,
     MissingArtifactError,
     StoredArtifact,
-    checked_key_prefix,
 )
 from relaygs.ply import write_frame_plys
 from relaygs.renders import PathSettings, RenderSettings, write_path_render, write_renders
@@ -58,44 +56,27 @@ STORE_FOLDER = "artifacts"  # a run's store: <paths.outputs>/artifacts
 def main(argv: Sequence[str] | None = None) -> int:
     """Parse the command line, run one command, and return the process exit status."""
     args = _parser().parse_args(argv)
+    return one_line_failures(lambda: _run(args))
+
+
+def _run(args: argparse.Namespace) -> int:
+    """Run the chosen command on the store; contradicting options exit 2 as argparse's do."""
     store = ArtifactStore(args.root)
+    if not store.root.is_dir():
+        raise RelayGSError(f"no artifact store at {store.root} (pass --root DIR)")
     try:
-        if not store.root.is_dir():
-            raise RelayGSError(f"no artifact store at {store.root} (pass --root DIR)")
         return args.command_fn(store, args)
-    except UsageError as error:  # options that contradict each other, as argparse reports
+    except UsageError as error:
         print(f"error: {error} (see {_parser().prog} {args.command} --help)", file=sys.stderr)
         return 2
     except CorruptArtifactError as error:
-        print(f"error: {error}; {REPAIR_HINT}", file=sys.stderr)
-        return 1
-    except RelayGSError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 1
-    except (OSError, MemoryError, RuntimeError) as error:  # out of disk or memory: one line
-        failure = resource_error(error, rerun=RERUN_COMMAND)
-        if failure is None:
-            raise
-        print(f"error: {failure}", file=sys.stderr)
-        return 1
+        raise CorruptArtifactError(f"{error}; {REPAIR_HINT}") from error
 
 
 REPAIR_HINT = (
     "a run that needs a damaged artifact rebuilds it (artifacts.on_corrupt=rebuild, the "
     "default), or delete its folder"
 )
-
-
-KEY_HELP = "full key or a unique prefix (at least 4 hex digits)"
-
-
-def _key_prefix(text: str) -> str:
-    """argparse type of a key argument: a malformed prefix is a usage error (exit 2)."""
-    try:
-        checked_key_prefix(text)
-    except InputError as error:
-        raise argparse.ArgumentTypeError(str(error)) from None
-    return text
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -110,16 +91,12 @@ def _parser() -> argparse.ArgumentParser:
     commands = parser.add_subparsers(dest="command", required=True)
     commands.add_parser("ls", help="list finished artifacts").set_defaults(command_fn=_ls)
     show = commands.add_parser("show", help="print one artifact's manifest and tensors")
-    show.add_argument("key", type=_key_prefix, help=KEY_HELP)
+    show.add_argument("key", type=key_prefix, help=KEY_HELP)
     show.set_defaults(command_fn=_show)
     score = commands.add_parser(
         "eval", help="score one artifact's model on a scene's test views (any stage's output)"
     )
-    score.add_argument("key", type=_key_prefix, help=KEY_HELP)
-    add_scene_arguments(score)
-    add_device_argument(score)
-    add_threads_argument(score)
-    add_frame_stride_argument(score, "score", "; a run scores every eval.frame_stride-th")
+    add_model_arguments(score, "score", stride_note="; a run scores every eval.frame_stride-th")
     outputs = score.add_mutually_exclusive_group()
     outputs.add_argument(
         "--per-view",
@@ -138,11 +115,7 @@ def _parser() -> argparse.ArgumentParser:
         help="score a model and its lineage on the train and the test views, foreground and "
         "background apart (the train/test gap per stage)",
     )
-    gap.add_argument("key", type=_key_prefix, help=KEY_HELP)
-    add_scene_arguments(gap)
-    add_device_argument(gap)
-    add_threads_argument(gap)
-    add_frame_stride_argument(gap, "score")
+    add_model_arguments(gap, "score")
     gap.add_argument(
         "--colour-fit",
         action="store_true",
@@ -154,8 +127,7 @@ def _parser() -> argparse.ArgumentParser:
         "render",
         help="render one artifact's model over time: a PNG per frame and an MP4 per camera",
     )
-    render.add_argument("key", type=_key_prefix, help=KEY_HELP)
-    add_scene_arguments(render)
+    add_model_arguments(render, "render")
     render.add_argument(
         "--camera",
         type=int,
@@ -163,10 +135,9 @@ def _parser() -> argparse.ArgumentParser:
         metavar="ID",
         help="camera id to render (repeat for more; default: the test cameras)",
     )
-    add_frame_stride_argument(render, "render")
     render.add_argument(
         "--beside",
-        type=_key_prefix,
+        type=key_prefix,
         action="append",
         metavar="KEY",
         help="also render this model (trained on the same scene) to the right, e.g. a baseline "
@@ -192,19 +163,12 @@ def _parser() -> argparse.ArgumentParser:
         "--fps", type=positive_float, default=15.0, help="video frame rate (default 15)"
     )
     render.add_argument("--no-video", action="store_true", help="write PNG frames only")
-    add_device_argument(render)
-    add_threads_argument(render)
-    render.add_argument(
-        "--out",
-        type=path_argument,
-        help=f"output folder (default <outputs>/{RENDERS_FOLDER}/<stage>-<key>: beside a run's "
-        "artifacts folder, else ./outputs)",
-    )
+    _add_out_argument(render, RENDERS_FOLDER)
     render.set_defaults(command_fn=_render)
     ply = commands.add_parser(
         "ply", help="export one artifact's model as 3DGS PLY files, one per frame, for viewers"
     )
-    ply.add_argument("key", type=_key_prefix, help=KEY_HELP)
+    add_model_arguments(ply, "export", scene=False)
     ply.add_argument(
         "--frame",
         type=int,
@@ -212,21 +176,14 @@ def _parser() -> argparse.ArgumentParser:
         metavar="F",
         help="frame to export (repeat for more; default: every --frame-stride-th frame)",
     )
-    add_frame_stride_argument(ply, "export")
-    add_threads_argument(ply)
-    ply.add_argument(
-        "--out",
-        type=path_argument,
-        help=f"output folder (default <outputs>/{PLY_FOLDER}/<stage>-<key>: beside a run's "
-        "artifacts folder, else ./outputs)",
-    )
+    _add_out_argument(ply, PLY_FOLDER)
     ply.set_defaults(command_fn=_ply)
     verify = commands.add_parser("verify", help="check every artifact's hashes (exit 1 if bad)")
     verify.set_defaults(command_fn=_verify)
     gc = commands.add_parser("gc", help="remove leftovers of killed builds and stale locks")
     gc.add_argument(
         "--keep",
-        type=_key_prefix,
+        type=key_prefix,
         nargs="+",
         metavar="KEY",
         help="also remove every artifact that is neither one of these (full keys or unique "
@@ -235,6 +192,16 @@ def _parser() -> argparse.ArgumentParser:
     gc.add_argument("--dry-run", action="store_true", help="only print what would be removed")
     gc.set_defaults(command_fn=_gc)
     return parser
+
+
+def _add_out_argument(parser: argparse.ArgumentParser, kind: str) -> None:
+    """`--out`, the folder a `kind` export goes to (`_output_folder`)."""
+    parser.add_argument(
+        "--out",
+        type=path_argument,
+        help=f"output folder (default <outputs>/{kind}/<stage>-<key>: beside a run's "
+        "artifacts folder, else ./outputs)",
+    )
 
 
 def _ls(store: ArtifactStore, args: argparse.Namespace) -> int:
@@ -268,9 +235,8 @@ def _show(store: ArtifactStore, args: argparse.Namespace) -> int:
 
 
 def _tensor_lines(item: StoredArtifact) -> list[str]:
-    """`tensor <name>: <dtype> <shape>` per stored tensor, read from the file's header; a file
-    that cannot be parsed is reported as a damaged artifact, one that a gc removed meanwhile as
-    removed."""
+    """`tensor <name>: <dtype> <shape>` per stored tensor from the file's header; an unparsable
+    file is a damaged artifact, one a gc removed meanwhile a removed one."""
     path = item.path / TENSORS_FILE
     try:
         with safe_open(str(path), framework="pt") as tensors:
@@ -310,7 +276,7 @@ def _render(store: ArtifactStore, args: argparse.Namespace) -> int:
         video = f", video {renders.video}" if renders.video is not None else ""
         what = "path" if renders.camera_id is None else f"camera {renders.camera_id}"
         print(f"  {what}: {len(renders.frames)} frame(s) in {renders.folder}{video}")
-    note_other_scene(entries, scene, args)
+    note_other_scene(entries, scene)
     return 0
 
 
@@ -348,10 +314,8 @@ def _ply(store: ArtifactStore, args: argparse.Namespace) -> int:
 def _output_folder(
     given: Path | None, kind: str, item: StoredArtifact, store: ArtifactStore
 ) -> Path:
-    """`--out` as an absolute folder that can be written, by default
-    <outputs>/`kind`/<stage>-<key prefix>: <outputs> is the folder holding the store when the
-    store is a run's `artifacts` folder (so exports land beside the run's other outputs), else
-    ./outputs."""
+    """`--out` as a writable absolute folder, by default <outputs>/`kind`/<stage>-<key>, beside
+    the run's other outputs when the store is a run's `artifacts` folder, else ./outputs."""
     outputs = store.root.parent if store.root.name == STORE_FOLDER else Path("outputs")
     default = outputs / kind / f"{item.stage}-{item.key[:KEY_COLUMN_WIDTH]}"
     return require_creatable_folder((given or default).absolute(), "--out")

@@ -1,5 +1,6 @@
 """`python -m relaygs.artifacts eval KEY --scene DIR [--lineage]`: score a stored model (and,
-with `--lineage`, every model upstream of it) on the scene's test views."""
+with `--lineage`, every model upstream of it) on the scene's test views; `gap KEY`: each model
+of its lineage on the train and the test views, over all, foreground and background pixels."""
 
 from __future__ import annotations
 
@@ -19,8 +20,10 @@ from relaygs.per_view import PER_VIEW, write_per_view
 from relaygs.pipeline.artifact import Artifact
 from relaygs.pipeline.store import ArtifactStore, MissingArtifactError, StoredArtifact
 from relaygs.stages import evaluate
+from relaygs.train.error_split import SPLIT_METRICS, error_split
 
 LINEAGE_COLUMNS = ("psnr", "ssim", "fg_psnr", "num_gaussians", "storage_mb")
+SPLITS = ("train", "test")
 
 
 def run_eval(store: ArtifactStore, args: argparse.Namespace) -> int:
@@ -37,12 +40,13 @@ def run_eval(store: ArtifactStore, args: argparse.Namespace) -> int:
         entries = lineage_entries(store, item)
         models = [store.load(entry.stage, entry.key) for entry in entries]  # damaged: before output
         print(f"{item.stage} {item.key[:KEY_COLUMN_WIDTH]} and its lineage {where}")
-        rows = [
-            _scores(entry, model, scene, settings)
-            for entry, model in zip(entries, models, strict=True)
-        ]
-        print(_lineage_table(entries, rows))
-        note_other_scene(entries, scene, args)
+        rows = []
+        for entry, model in zip(entries, models, strict=True):
+            scores = _scores(entry, model, scene, settings)
+            cells = [cell(scores.get(name)) for name in LINEAGE_COLUMNS]
+            rows.append([entry.stage, entry.key[:KEY_COLUMN_WIDTH], *cells])
+        print(aligned_table(["stage", "key", *LINEAGE_COLUMNS], rows))
+        note_other_scene(entries, scene)
         return 0
     metrics = _scores(item, artifact, scene, settings)
     print(f"{item.stage} {item.key[:KEY_COLUMN_WIDTH]} {where}")
@@ -52,7 +56,7 @@ def run_eval(store: ArtifactStore, args: argparse.Namespace) -> int:
     if args.per_view is not None:
         written = write_per_view(args.per_view, metrics[PER_VIEW])
         print(f"  per-view metrics of {len(metrics[PER_VIEW])} image(s) in {written}")
-    note_other_scene([item], scene, args)
+    note_other_scene([item], scene)
     return 0
 
 
@@ -87,19 +91,6 @@ def lineage_entries(store: ArtifactStore, item: StoredArtifact) -> list[StoredAr
     return list(ordered.values())
 
 
-def _lineage_table(entries: list[StoredArtifact], rows: list[dict[str, Any]]) -> str:
-    """One line per artifact: stage, key prefix and its LINEAGE_COLUMNS (n/a where missing)."""
-    cells = [
-        [
-            entry.stage,
-            entry.key[:KEY_COLUMN_WIDTH],
-            *(cell(row.get(name)) for name in LINEAGE_COLUMNS),
-        ]
-        for entry, row in zip(entries, rows, strict=True)
-    ]
-    return aligned_table(["stage", "key", *LINEAGE_COLUMNS], cells)
-
-
 def aligned_table(header: list[str], rows: list[list[str]]) -> str:
     """The header and rows as left-aligned, two-space-indented text columns."""
     lines = [header, *rows]
@@ -116,3 +107,31 @@ def cell(value: Any) -> str:
     if value is None:
         return "n/a"
     return f"{value:.4f}" if isinstance(value, float) else str(value)
+
+
+def run_gap(store: ArtifactStore, args: argparse.Namespace) -> int:
+    """Print one row per model of the artifact's lineage (upstream first): SPLIT_METRICS on the
+    train views and on the test views, and the train − test gap of the whole-image PSNR."""
+    device = usable_device(args.device, "--device")
+    set_threads(args.threads)
+    item, _ = model_artifact(store, args.key)
+    scene = load_run_scene(args, item)
+    entries = lineage_entries(store, item)
+    models = [store.load(entry.stage, entry.key) for entry in entries]  # damaged: before output
+    header = ["stage", "key"]
+    header += [f"{split}_{name}" for split in SPLITS for name in SPLIT_METRICS] + ["gap"]
+    rows = []
+    for entry, model in zip(entries, models, strict=True):
+        scores = {
+            split: error_split(scene, model, split, args.frame_stride, device, args.colour_fit)
+            for split in SPLITS
+        }
+        cells = [cell(scores[split][name]) for split in SPLITS for name in SPLIT_METRICS]
+        train, test = scores["train"]["psnr"], scores["test"]["psnr"]
+        gap = None if train is None or test is None else train - test
+        rows.append([entry.stage, entry.key[:KEY_COLUMN_WIDTH], *cells, cell(gap)])
+    fitted = " (renders colour-fitted per camera)" if args.colour_fit else ""
+    print(f"{item.stage} {item.key[:KEY_COLUMN_WIDTH]} and its lineage on {args.scene}{fitted}")
+    print(aligned_table(header, rows))
+    note_other_scene(entries, scene)
+    return 0

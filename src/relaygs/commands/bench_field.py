@@ -1,30 +1,22 @@
-"""`python -m relaygs.bench field`: forward+backward time of the deform stage's motion field.
-
-The field at the deform stage's defaults (HexPlane of 16 channels, resolution 64, multires
-[1, 2], 32 time rows; background and foreground MLP sets of width 128) over N Gaussians, the
-first 70 % background as the stages lay them out, timed per backend of `--backends` (the
-native kernels sample the HexPlane; the MLP is the same code on every backend), interleaved
-so a noisy machine slows each alike.
-"""
+"""`python -m relaygs.bench field`: forward+backward time of the deform stage's motion field at
+its defaults over N Gaussians (70 % background), per backend, interleaved against noise."""
 
 from __future__ import annotations
 
 import argparse
 import statistics
-import sys
 import time
 from collections.abc import Callable
 from typing import Any
 
 import torch
 
-from relaygs.cli import int_at_least, writable_file
-from relaygs.commands.bench_output import save_json
+from relaygs.cli import int_at_least
 from relaygs.commands.bench_train import backend_names
-from relaygs.errors import RelayGSError
 from relaygs.field import DeformationField
 from relaygs.splat import default_backend, use_backend
 
+HELP = "time the deform stage's motion field"
 BACKGROUND_SHARE = 0.7
 TIME_ROWS = 32  # ceil(64 frames / 2), the default scene's
 
@@ -41,7 +33,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--backends", default="torch,native", help="comma-separated backends (default torch,native)"
     )
-    parser.add_argument("--json", type=writable_file, help="also write the results as JSON here")
 
 
 def _field_step(count: int) -> Callable[[], None]:
@@ -88,13 +79,8 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
     }
 
 
-def run(args: argparse.Namespace) -> int:
-    """Measure, print one line per backend (and the ratio of the first two), write JSON."""
-    try:
-        report = measure(args)
-    except RelayGSError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
+def print_report(report: dict[str, Any]) -> None:
+    """One line per backend, and the ratio of the first two."""
     ms = report["fwd_bwd_ms"]
     print(f"deformation field, {report['gaussians']} Gaussians, {report['threads']} threads")
     for name, value in ms.items():
@@ -102,5 +88,3 @@ def run(args: argparse.Namespace) -> int:
     if len(ms) >= 2:
         first, second = list(ms.values())[:2]
         print(f"ratio    {first / second:.2f}x")
-    save_json(args.json, report)
-    return 0

@@ -1,10 +1,5 @@
-"""`python -m relaygs.bench sweeps`: wall time of the five experiments at the smoke budget.
-
-Each experiment runs as a user runs it (`python -m relaygs.run +experiment=NAME`, one process
-per command) on a tiny scene, in order, sharing one output folder, so later sweeps reuse what
-earlier ones built. The target is ≤ 300 s for all five on the 2-core CPU machine; the test
-suite runs the same commands (tests/test_sweeps.py) but asserts behaviour, not time.
-"""
+"""`python -m relaygs.bench sweeps`: wall time of the five experiments at the smoke budget, each
+run as a user runs it on a tiny scene, in order, in one output folder (target ≤ 300 s)."""
 
 from __future__ import annotations
 
@@ -16,9 +11,9 @@ import time
 from pathlib import Path
 from typing import Any
 
-from relaygs.cli import path_argument, writable_file
-from relaygs.commands.bench_output import save_json
+from relaygs.cli import path_argument
 
+HELP = "time the five experiments at the smoke budget"
 TINY_SCENE = ("budget=smoke", "scene.frames=8", "scene.width=48", "scene.height=27")
 EXPERIMENTS = ("smoke", "ablation_k", "ablation_components", "baseline", "budget")
 TARGET_S = 300.0
@@ -44,24 +39,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--outputs", type=path_argument, help="output folder (default: a temporary one)"
     )
-    parser.add_argument("--json", type=writable_file, help="also write the results as JSON here")
 
 
-def run(args: argparse.Namespace) -> int:
-    """Time the five experiments in order; print a table, optionally write JSON."""
-    if args.outputs is None:
-        with tempfile.TemporaryDirectory(prefix="relaygs-bench-sweeps-") as folder:
-            report = measure(Path(folder))
-    else:
-        report = measure(args.outputs.resolve())
-    if report is None:
-        return 1
-    _print(report)
-    save_json(args.json, report)
-    return 0
+def measure(args: argparse.Namespace) -> dict[str, Any] | None:
+    """Time the five experiments in order, in `--outputs` or a temporary folder."""
+    if args.outputs is not None:
+        return time_experiments(args.outputs.resolve())
+    with tempfile.TemporaryDirectory(prefix="relaygs-bench-sweeps-") as folder:
+        return time_experiments(Path(folder))
 
 
-def measure(outputs: Path) -> dict[str, Any] | None:
+def time_experiments(outputs: Path) -> dict[str, Any] | None:
     """Seconds per experiment and in total (None, after printing why, when one fails)."""
     seconds: dict[str, float] = {}
     for name in EXPERIMENTS:
@@ -86,6 +74,7 @@ def failure_line(stderr: str) -> str:
     return (errors or others or ["(no output)"])[-1]
 
 
-def _print(report: dict[str, Any]) -> None:
+def print_report(report: dict[str, Any]) -> None:
+    """The total against the target (each experiment's line is printed as it finishes)."""
     verdict = "met" if report["met"] else "MISSED"
     print(f"{'total':<22}{report['total_s']:>8.1f} s  (target ≤ {TARGET_S:.0f} s: {verdict})")

@@ -1,15 +1,5 @@
-"""`python -m relaygs.bench train`: training speed of every stage on the default synthetic scene.
-
-Three measurements, all at the `small` budget's settings on the 160×90, 64-frame `juggle` scene
-(generated into a cache folder on first use):
-- stages: steps/s of warmup, decouple, relay and deform over `--steps` steps each (the first
-  steps, so before the budget's densification has grown the model), once per splatting backend
-  of `--backends` (default torch, then auto), with the speed-up of the last over the first;
-- ratio: a deform step and a decouple step on the same N Gaussians (no densification), the
-  deform/decouple step-time ratio (target ≤ 1.5), on the last backend;
-- full (`--full`): the whole default pipeline decouple → relay → deform at `small`, plus
-  evaluation, timed end to end on the last backend (target ≤ 15 minutes on 2 CPU cores).
-"""
+"""`python -m relaygs.bench train`: at the `small` budget on the default scene, each stage's
+steps/s per backend, the deform/decouple step-cost ratio and (`--full`) the whole pipeline."""
 
 from __future__ import annotations
 
@@ -27,8 +17,7 @@ from typing import Any
 import torch
 
 from relaygs.allocator import keep_freed_memory
-from relaygs.cli import int_at_least, path_argument, writable_file
-from relaygs.commands.bench_output import save_json
+from relaygs.cli import int_at_least, path_argument
 from relaygs.data import Scene, load_scene
 from relaygs.data.synthetic import generate
 from relaygs.device import set_threads, usable_device
@@ -42,6 +31,7 @@ from relaygs.train import log
 from relaygs.train.scene_model import SceneModel, foreground_with_segments
 from relaygs.train.segment_plan import SegmentPlan
 
+HELP = "time the training stages on the default scene"
 DEFAULT_CACHE = Path("outputs") / "cache" / "bench"
 SCENE = {"preset": "juggle", "frames": 64, "width": 160, "height": 90, "seed": 0}
 NO_DENSITY = {"densify_until": 0, "opacity_reset_every": 0}
@@ -56,7 +46,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--cache", type=path_argument, default=DEFAULT_CACHE, help="scene cache folder"
     )
-    parser.add_argument("--json", type=writable_file, help="also write the results as JSON here")
     parser.add_argument(
         "--threads", type=int_at_least(1), help="torch CPU threads (default: torch's default)"
     )
@@ -70,23 +59,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def run(args: argparse.Namespace) -> int:
-    """Run the measurements, print a table, optionally write JSON; returns the exit code."""
-    set_threads(args.threads)
-    keep_freed_memory()  # as a run does
-    try:
-        report = measure(args)
-    except RelayGSError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
-    _print(report)
-    save_json(args.json, report)
-    return 0
-
-
 def measure(args: argparse.Namespace) -> dict[str, Any]:
     """The report: scene, per-stage speeds per backend, step-cost ratio and (with --full) the
     pipeline; the process's splatting backend is left as it was."""
+    set_threads(args.threads)
+    keep_freed_memory()  # as a run does
     backends = backend_names(args.backends)
     device = str(usable_device(args.device, "--device"))
     scene = bench_scene(args.cache)
@@ -257,7 +234,9 @@ def median_step_seconds(build: Callable[[], Artifact]) -> float:
     return statistics.median(b - a for a, b in itertools.pairwise(stamps))
 
 
-def _print(report: dict[str, Any]) -> None:
+def print_report(report: dict[str, Any]) -> None:
+    """The scene, a row per stage with its speed per backend, the step-cost ratio and the
+    pipeline's time."""
     scene = report["scene"]
     print(
         f"scene {scene['preset']} {scene['width']}x{scene['height']}, {scene['frames']} frames, "

@@ -6,15 +6,10 @@ from __future__ import annotations
 import argparse
 import os
 import shlex
-import sys
 import time
 from collections.abc import Sequence
 
-from relaygs.cli import (
-    OneLineErrorParser,
-    int_at_least,
-    path_argument,
-)
+from relaygs.cli import OneLineErrorParser, int_at_least, one_line_failures, path_argument
 from relaygs.data.video_frames import (
     COLMAP_LIST,
     FRAME_FORMATS,
@@ -24,7 +19,6 @@ from relaygs.data.video_frames import (
     extract_frames,
     rates_agree,
 )
-from relaygs.errors import RERUN_COMMAND, RelayGSError, resource_error
 from relaygs.shell import path_override, python_command
 
 
@@ -63,22 +57,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     # FFmpeg's own log lines ("moov atom not found") would come before ours, which names the file
     os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
+    return one_line_failures(lambda: _extract(args), where=f"frames into {args.out_dir}")
+
+
+def _extract(args: argparse.Namespace) -> None:
+    """Write the frames and print what was written and what to run next."""
     started = time.perf_counter()
-    try:
-        videos = camera_videos(args.videos_dir)
-        selection = FrameSelection(args.start, args.stride, args.frames)
-        scene = extract_frames(videos, args.out_dir, selection, args.format)
-    except RelayGSError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 1
-    except OSError as error:  # a full or read-only disk: one line; other OSErrors are bugs
-        failure = resource_error(error, f"frames into {args.out_dir}", rerun=RERUN_COMMAND)
-        if failure is None:
-            raise
-        print(f"error: {failure}", file=sys.stderr)
-        return 1
+    videos = camera_videos(args.videos_dir)
+    selection = FrameSelection(args.start, args.stride, args.frames)
+    scene = extract_frames(videos, args.out_dir, selection, args.format)
     print(describe(scene, time.perf_counter() - started))
-    return 0
 
 
 def describe(scene: ExtractedScene, seconds: float) -> str:
@@ -106,9 +94,8 @@ def describe(scene: ExtractedScene, seconds: float) -> str:
 
 
 def _notes(scene: ExtractedScene) -> list[str]:
-    """Killed runs' staging folders removed, which cameras' videos ended first, which decoded
-    fewer frames than they state, and frame rates that differ (frame n of each camera would
-    not show one moment)."""
+    """Staging folders of killed runs removed, videos that ended first or decoded fewer frames
+    than they state, and frame rates that differ."""
     cameras = scene.cameras.items()
     notes = [
         f"note: removed {folder}, left unfinished by a run that was killed"

@@ -6,7 +6,6 @@ multirun end callback calls the same)."""
 
 from __future__ import annotations
 
-import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,8 +28,8 @@ from relaygs.app.summary import (
 )
 from relaygs.app.sweep_board import log_sweep_report
 from relaygs.app.unfinished import unfinished_line, unfinished_runs
-from relaygs.cli import OneLineErrorParser, path_argument
-from relaygs.errors import InputError, RelayGSError
+from relaygs.cli import OneLineErrorParser, one_line_failures, path_argument
+from relaygs.errors import InputError
 from relaygs.paths import require_folder
 from relaygs.pipeline.fsio import publish_text
 
@@ -46,11 +45,8 @@ BUDGET_MD = "summary_budget.md"
 
 @dataclass(frozen=True)
 class ReportFiles:
-    """The files a report wrote (`pareto` is None when no job has both PSNR and a time,
-    `frames` when no job has per-view metrics), `summary.md`'s text as `table`, and the failed
-    jobs (each with its `job <n> (<variant>): <error>` line); `mean` and `budget` are written
-    only for sweeps that repeat seeds or vary the step multiplier; `board` is the TensorBoard
-    run holding the plots and the table."""
+    """The files a report wrote (None where one does not apply), `summary.md`'s text as
+    `table`, and the failed jobs."""
 
     csv: Path
     markdown: Path
@@ -78,9 +74,8 @@ def write_reports(sweep_dir: Path) -> ReportFiles:
 
 
 def _require_sweep_folder(sweep_dir: Path) -> Path:
-    """`sweep_dir` if it is a folder that is not one run's own folder (a run holds its
-    `result.json` itself, a sweep in job folders below; the report would land among the run's
-    files and describe only it)."""
+    """`sweep_dir` if it is a folder but not one run's own (which holds `result.json` itself:
+    a report there would land among the run's files)."""
     sweep_dir = require_folder(sweep_dir, "sweep folder")
     if (sweep_dir / RESULT_FILE).exists():
         raise InputError(
@@ -128,9 +123,8 @@ def _write_files(table: pd.DataFrame, sweep_dir: Path) -> ReportFiles:
 
 
 def _write_mean(table: pd.DataFrame, sweep_dir: Path, title: str) -> Path | None:
-    """`summary_mean.{csv,md}` (mean ± std over the jobs that differ only in their seed) when
-    some such group has finished jobs at two or more seeds; else nothing, and an earlier
-    report's files, which would describe other jobs, are removed."""
+    """`summary_mean.{csv,md}` (mean ± std over jobs differing only in seed) when some group has
+    two or more seeds; else an earlier report's files are removed."""
     mean = aggregate_table(table) if {"scene", "variant"} <= set(table.columns) else None
     if mean is None or mean.empty or not (mean["seeds"] > 1).any():
         _remove(sweep_dir / MEAN_CSV, sweep_dir / MEAN_MD)
@@ -162,13 +156,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "sweep_dir", type=path_argument, help="a multirun folder holding job folders"
     )
     args = parser.parse_args(argv)
-    try:
-        files = write_reports(args.sweep_dir)
-    except RelayGSError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 1
-    print(describe(files))
-    return 0
+    return one_line_failures(lambda: print(describe(write_reports(args.sweep_dir))))
 
 
 def describe(files: ReportFiles) -> str:

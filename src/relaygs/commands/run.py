@@ -1,12 +1,5 @@
-"""`python -m relaygs.run [OVERRIDES]`: the Hydra app. With no arguments it generates the default
-synthetic scene (once), runs the `relaygs` pipeline at the `small` budget, evaluates, and
-prints the results and where the outputs are. `+experiment=NAME` runs an experiment (sweeps
-are multiruns). See docs/experiments.md.
-
-This module is a thin wrapper: every job the command line would launch is composed and planned
-up front (one-line errors, Hydra's and OmegaConf's in their own words), then Hydra composes it
-and calls `relaygs.app.task.run_task` for each job.
-"""
+"""`python -m relaygs.run [OVERRIDES]`: the Hydra app (docs/experiments.md). Every job the command
+line would launch is planned up front (one-line errors), then Hydra runs `run_task` for each."""
 
 from __future__ import annotations
 
@@ -82,15 +75,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         # MissingConfigException is one; the libraries' own message, in one line
         print(f"error: {library_error_line(error)}", file=sys.stderr)
         return 1
-    except (OSError, MemoryError) as error:  # Hydra's own writes: config files, multirun.yaml
-        failure = resource_error(error)
+    except Exception as error:  # a full disk under Hydra's own writes (multirun.yaml) is one
+        failure = resource_error(error)  # line; a programming error keeps its traceback
         if failure is None:
-            traceback.print_exc()  # a programming error keeps its traceback, as Hydra's did
-            return 1
-        print(f"error: {failure}", file=sys.stderr)
-        return 1
-    except Exception:  # a programming error in a job: its traceback, as Hydra printed it
-        traceback.print_exc()
+            traceback.print_exc()
+        else:
+            print(f"error: {failure}", file=sys.stderr)
         return 1
     except KeyboardInterrupt as stop:
         started = STARTED_FOLDERS[-1] if STARTED_FOLDERS else None
@@ -104,9 +94,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 @contextmanager
 def _hydra_errors_raised() -> Iterator[None]:
-    """Let an error out of Hydra rather than have it print a traceback and exit: Hydra writes
-    each job's `.hydra/` configs (and a sweep's multirun.yaml) itself, so a full disk there
-    reaches `main` and ends in one line. Hydra reads HYDRA_FULL_ERROR when an error occurs."""
+    """Let an error out of Hydra (HYDRA_FULL_ERROR) instead of a printed traceback, so a full
+    disk under Hydra's own `.hydra/` writes reaches `main` and ends in one line."""
     before = os.environ.get(HYDRA_FULL_ERROR)
     os.environ[HYDRA_FULL_ERROR] = "1"
     try:
@@ -121,11 +110,8 @@ def _hydra_errors_raised() -> Iterator[None]:
 def _interrupted_line(
     stop: KeyboardInterrupt, launched: bool, started: StartedFolder | None
 ) -> str:
-    """The line a stopped command ends with: the stage's own account of where it stopped, else
-    (a parallel launcher's workers cannot report theirs) what running it again does, once jobs
-    had started. A sweep or run whose folder the command did not name (a timestamped one) is
-    told to name it in the rerun, which would otherwise go on in a new folder (and credit the
-    stopped attempt's work to no job)."""
+    """The line a stopped command ends with: where the stage stopped, else what a rerun does,
+    and, for a folder the command did not name, the override that reruns in it."""
     if str(stop):
         line = f"interrupted: {stop}"
     elif launched:
@@ -155,17 +141,8 @@ def _job_validator(suite: StageSuite) -> JobValidator:
 
 
 def run_job(cfg: DictConfig) -> dict[str, Any] | None:
-    """Hydra's task function: one job with its run dir, launch dir and overrides.
-
-    A sweep's job reads what the sweep varies from the record Hydra wrote in the sweep folder
-    (`recorded_sweep_axes`), for its TensorBoard HParams. A job of a parallel launcher's sweep
-    names its folder (`3_k64`) on its status lines, bars
-    and closing results and outputs lines, as jobs then print side by side. A RelayGS error
-    ends a single run with one line on stderr (exit 1). In a multirun, a job
-    whose failure it recorded in its `result.json` (see `run_task`; not a result an earlier
-    sweep left in its folder) reports it and returns None, so the other jobs still run; the
-    sweep summary lists it and the command exits 1.
-    """
+    """Hydra's task function: one job. A single run's RelayGS error ends it in one line (exit
+    1); a sweep job whose failure it recorded in `result.json` returns None, so others run."""
     hydra_cfg = HydraConfig.get()
     multirun = hydra_cfg.mode == RunMode.MULTIRUN
     run_dir = Path(hydra_cfg.runtime.output_dir)

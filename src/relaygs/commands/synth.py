@@ -1,19 +1,14 @@
-"""`python -m relaygs.synth NAME OUT_DIR`: write a synthetic scene (Panoptic layout + scene.json).
-
-A thin command-line wrapper around `relaygs.data.synthetic.generate`; bad input exits with
-status 2 and one line on stderr.
-"""
+"""`python -m relaygs.synth NAME OUT_DIR`: write a synthetic scene (Panoptic layout + scene.json);
+bad input exits 2 with one line on stderr, a full disk or memory 1."""
 
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 
-from relaygs.cli import OneLineErrorParser, path_argument
+from relaygs.cli import OneLineErrorParser, one_line_failures, path_argument
 from relaygs.data.effects import ALL_EFFECTS
 from relaygs.data.synthetic import PRESETS, generate
-from relaygs.errors import RERUN_COMMAND, RelayGSError, resource_error
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -54,33 +49,21 @@ def parse_effect_list(values: list[str] | None) -> list[str] | None:
 def main(argv: list[str] | None = None) -> int:
     """Run the command; returns the process exit status."""
     args = build_parser().parse_args(argv)
+    size = f"{args.width}x{args.height}"
+    return one_line_failures(lambda: _generate(args), 2, f"rendering {size} images")
+
+
+def _generate(args: argparse.Namespace) -> None:
+    """Write the scene and say where and how long it took."""
     started = time.perf_counter()
-    try:
-        out = generate(
-            args.name,
-            args.out_dir,
-            frames=args.frames,
-            width=args.width,
-            height=args.height,
-            seed=args.seed,
-            effects=parse_effect_list(args.effects),
-            progress=True,
-        )
-    except RelayGSError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
-    except MemoryError:
-        size = f"{args.width}x{args.height}"
-        print(
-            f"error: not enough memory to render {size} images: ask for fewer pixels",
-            file=sys.stderr,
-        )
-        return 1
-    except OSError as error:  # a full or read-only disk: one line; other OSErrors are bugs
-        failure = resource_error(error, rerun=RERUN_COMMAND)
-        if failure is None:
-            raise
-        print(f"error: {failure}", file=sys.stderr)
-        return 1
+    out = generate(
+        args.name,
+        args.out_dir,
+        frames=args.frames,
+        width=args.width,
+        height=args.height,
+        seed=args.seed,
+        effects=parse_effect_list(args.effects),
+        progress=True,
+    )
     print(f"wrote {out} in {time.perf_counter() - started:.1f} s")
-    return 0

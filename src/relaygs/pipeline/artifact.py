@@ -21,11 +21,8 @@ NOTES = "notes"  # meta key of the artifact's notes (`Artifact.notes`)
 
 @dataclass
 class Artifact:
-    """What a stage returns: tensors (saved via safetensors) and JSON-serialisable metadata.
-
-    `meta["metrics"]`, when present, is copied into the store's manifest; `meta["notes"]`, a
-    list of lines, says what a user of the artifact should know (`notes`).
-    """
+    """What a stage returns: tensors (saved via safetensors) and JSON metadata; the store's
+    manifest copies `meta["metrics"]`, and `meta["notes"]` lists what a user should know."""
 
     stage: str
     tensors: dict[str, torch.Tensor] = field(default_factory=dict)
@@ -38,15 +35,9 @@ class Artifact:
         notes = self.meta.get(NOTES, [])
         return tuple(str(note) for note in notes) if isinstance(notes, list) else ()
 
-    @property
-    def nbytes(self) -> int:
-        """Total size of the tensors' data in bytes."""
-        return sum(t.numel() * t.element_size() for t in self.tensors.values())
-
     def to_cpu_contiguous(self) -> Artifact:
-        """This artifact with detached contiguous CPU tensors that each own their whole
-        storage (what safetensors needs); tensors already in that form are not copied. A value
-        that is no tensor, a non-finite one or meta that is not exact JSON is an InputError."""
+        """This artifact with detached CPU tensors that each own their storage (as safetensors
+        needs); a non-tensor, a non-finite value or inexact JSON meta is an InputError."""
         seen_storages: set[int] = set()
         tensors = {
             name: _cpu_owned(name, tensor, seen_storages) for name, tensor in self.tensors.items()
@@ -100,9 +91,8 @@ def _meta_json(artifact: Artifact) -> str:
 
 
 def check_json_exact(value: Any, where: str) -> None:
-    """Raise InputError unless `value` survives a JSON round trip unchanged (no tuples, no
-    non-string keys, no NaN or infinity, no numpy/torch objects); `where` names the value in
-    the message."""
+    """Raise InputError naming `where` unless `value` survives a JSON round trip unchanged (no
+    tuples, non-string keys, NaN, infinity or numpy/torch objects)."""
     if isinstance(value, dict):
         for key, item in value.items():
             if not isinstance(key, str):

@@ -1,31 +1,25 @@
-"""In-stage checkpoints, so a stage killed mid-way resumes where it was instead of at step 0.
-
-Each checkpoint is a sealed folder `<root>/<stage>/<key>.ckpt/step-<n>/` holding
-`tensors.safetensors` (model tensors and every tensor inside optimizer / RNG states) and
-`state.json` (the rest of that state, the step, the extras). It is written in a temp
-folder and renamed in, so a kill never leaves half a checkpoint. The store deletes the
-whole `.ckpt` folder once the artifact is complete.
-"""
+"""In-stage checkpoints, so a stage killed mid-way resumes where it was, not at step 0: sealed
+`<key>.ckpt/step-<n>/` folders (tensors and state.json) renamed in whole (docs/artifacts.md)."""
 
 from __future__ import annotations
 
 import json
+import random
 import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 from safetensors import SafetensorError
 from safetensors.torch import load_file
 
-from relaygs.errors import InputError
 from relaygs.model.guard import check_finite
 from relaygs.pipeline.fsio import publish_dir, remove_tree, save_tensors
 from relaygs.pipeline.integrity import CorruptArtifactError, check_seal, is_sealed, seal
 from relaygs.pipeline.layout import TEMP_PREFIX, TENSORS_FILE, checkpoint_dir, make_temp_dir
-from relaygs.pipeline.rngstate import capture_rng_state, restore_rng_state
 from relaygs.pipeline.statecodec import decode_tree, encode_tree
 
 STEP_PREFIX = "step-"
@@ -53,15 +47,8 @@ class StageCheckpointer:
     def __init__(
         self, store_root: Path | str, stage: str, key: str, every_n_steps: int, keep_last: int = 1
     ) -> None:
-        """Checkpoints of artifact `key` of `stage` every `every_n_steps` steps, the newest
-        `keep_last` of them kept; bad settings are an InputError."""
-        if isinstance(every_n_steps, bool) or not isinstance(every_n_steps, int):
-            raise InputError(f"checkpoint every_n_steps must be an int, got {every_n_steps!r}")
-        if every_n_steps < 1 or keep_last < 1:
-            raise InputError(
-                f"checkpoint every_n_steps and keep_last must be >= 1, "
-                f"got {every_n_steps} and {keep_last}"
-            )
+        """Checkpoints of artifact `key` of `stage` every `every_n_steps` (>= 1, as
+        `train.checkpoint_every` is checked) steps, the newest `keep_last` of them kept."""
         self.folder = checkpoint_dir(Path(store_root).expanduser().resolve(), stage, key)
         self.stage = stage
         self.every_n_steps = every_n_steps
@@ -82,9 +69,8 @@ class StageCheckpointer:
         optimizers: Mapping[str, torch.optim.Optimizer] | None = None,
         extras: Mapping[str, Any] | None = None,
     ) -> Path:
-        """Write a checkpoint of the state after `step` completed steps (RNG captured now).
-        A non-finite tensor anywhere in it (an Adam moment, a density statistic) stops the
-        stage with a DivergenceError naming it, before anything is written."""
+        """Write a checkpoint after `step` completed steps (RNG captured now); a non-finite
+        tensor anywhere in it raises DivergenceError naming it before anything is written."""
         stored: dict[str, torch.Tensor] = {}
         places: dict[str, str] = {}
         optimizer_states = {name: opt.state_dict() for name, opt in (optimizers or {}).items()}
@@ -158,3 +144,24 @@ def _read_state(folder: Path) -> TrainingState:
         )
     except (OSError, ValueError, KeyError, TypeError, SafetensorError) as error:
         raise CorruptArtifactError(f"{folder}: unreadable checkpoint ({error})") from error
+
+
+def capture_rng_state() -> dict[str, Any]:
+    """Snapshot of every global RNG a training loop may draw from."""
+    state: dict[str, Any] = {
+        "python": random.getstate(),
+        "numpy": np.random.get_state(legacy=False),
+        "torch": torch.get_rng_state(),
+    }
+    if torch.cuda.is_available() and torch.cuda.is_initialized():
+        state["cuda"] = torch.cuda.get_rng_state_all()
+    return state
+
+
+def restore_rng_state(state: dict[str, Any]) -> None:
+    """Put back the RNG states captured by `capture_rng_state`."""
+    random.setstate(state["python"])
+    np.random.set_state(state["numpy"])
+    torch.set_rng_state(state["torch"])
+    if "cuda" in state and torch.cuda.is_available():
+        torch.cuda.set_rng_state_all(state["cuda"])

@@ -1,8 +1,5 @@
-"""The build in progress, visible to stage code so it can write in-stage checkpoints.
-
-`ArtifactStore.get_or_build` sets it around the build call; stage functions keep their
-`(scene, upstream, cfg)` signature and ask `current_build()` where to checkpoint.
-"""
+"""The build in progress (set by `ArtifactStore.get_or_build`), so stage code can ask
+`current_build()` where to write in-stage checkpoints."""
 
 from __future__ import annotations
 
@@ -17,9 +14,8 @@ from relaygs.pipeline.checkpoint import StageCheckpointer
 
 @dataclass
 class BuildContext:
-    """Which artifact is being built, and in which store; `earlier_seconds` is the work done
-    before the checkpoint the build resumed from (0 for a fresh build), which the artifact's
-    build time includes."""
+    """Which artifact is being built, in which store; `earlier_seconds`, the work before the
+    checkpoint it resumed from, counts in its build time."""
 
     store_root: Path
     stage: str

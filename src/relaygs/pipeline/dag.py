@@ -1,8 +1,5 @@
-"""Run a pipeline's stages in order through the artifact store, reusing what is stored.
-
-Independent of Hydra and of the real stages: a scene is any object with a `fingerprint`
-attribute, a stage config is a plain mapping, and stage functions are looked up by type.
-"""
+"""Run a pipeline's stages in order through the artifact store, reusing what is stored;
+independent of Hydra and of the real stages (a scene needs only a `fingerprint`)."""
 
 from __future__ import annotations
 
@@ -16,21 +13,8 @@ from relaygs.errors import InputError, resource_error
 from relaygs.pipeline.artifact import Artifact
 from relaygs.pipeline.keys import artifact_key, key_config
 from relaygs.pipeline.manifest import LineageEntry, built_by
-from relaygs.pipeline.spec import Node, Pipeline, available_pipelines, load_pipeline
+from relaygs.pipeline.spec import Node, Pipeline
 from relaygs.pipeline.store import ArtifactStore, OnCorrupt
-
-__all__ = [
-    "DEFAULT_SCHEMA_VERSION",
-    "CanonicalFn",
-    "Node",
-    "NodeReport",
-    "Pipeline",
-    "PipelineRun",
-    "StageFn",
-    "available_pipelines",
-    "load_pipeline",
-    "run_pipeline",
-]
 
 DEFAULT_SCHEMA_VERSION = 1
 
@@ -52,12 +36,8 @@ artifact, and its content matches its key)."""
 
 @dataclass(frozen=True)
 class NodeReport:
-    """What happened at one node: its key, whether the store had it, and its cost.
-
-    `wall_seconds` is the node's own build time (from the manifest on a cache hit);
-    `lineage_seconds` adds every distinct ancestor's build time; `size_mb` is the artifact's
-    size from its manifest, read when it was built or loaded.
-    """
+    """One node's key, whether the store had it, its own build time (the manifest's on a hit),
+    that plus every ancestor's (`lineage_seconds`) and its size from its manifest."""
 
     node: str
     stage: str
@@ -114,16 +94,8 @@ def run_pipeline(
     canonical: CanonicalFn | None = None,
     provenance: Mapping[str, Any] | None = None,
 ) -> PipelineRun:
-    """Walk the nodes in topological order, loading each artifact from `store` or building it.
-
-    A node's key comes from its stage type, schema version (`schema_versions`, default
-    `DEFAULT_SCHEMA_VERSION`), config (`cfg_for(node)` with non-key entries stripped; the
-    stage function gets it whole), the scene fingerprint and its upstream keys in listed
-    order. `canonical`, when given, first maps each node's config to its canonical form (what
-    is keyed and what the stage gets). `on_node_done` sees each node's report as soon as it
-    is done. `provenance` entries (JSON values, e.g. the scene's test cameras) go into the
-    manifest of every artifact built, beside the node, schema version and scene fingerprint.
-    """
+    """Load or build each node's artifact in topological order, keyed by stage type, schema
+    version, (`canonical`) config, scene fingerprint and upstream keys (docs/artifacts.md)."""
     missing = sorted(pipeline.stage_types - set(stage_fns))
     if missing:
         raise InputError(f"pipeline {pipeline.name!r}: no stage function for type(s) {missing}")

@@ -27,22 +27,13 @@ def fsync_path(path: Path) -> None:
         os.close(descriptor)
 
 
-def fsync_tree(folder: Path) -> None:
-    """Flush every file directly in `folder`, then the folder itself."""
-    for path in folder.iterdir():
-        if path.is_file():
-            fsync_path(path)
-    fsync_path(folder)
-
-
 _OS_ERROR_NUMBER = re.compile(r"\(os error (\d+)\)")
 """How safetensors' Rust writer reports an I/O failure in its message: `(os error 28)`."""
 
 
 def save_tensors(tensors: Mapping[str, torch.Tensor], path: Path) -> None:
-    """Write a safetensors file; an I/O failure (a full or read-only disk) is raised as the
-    OSError it is, with its errno and this path, not as safetensors' own error type, so
-    callers can tell a full disk from a bug (`relaygs.errors.resource_error`)."""
+    """Write a safetensors file; an I/O failure is raised as the OSError (errno, this path) it
+    is, so `resource_error` tells a full disk from a bug."""
     try:
         save_file(dict(tensors), str(path))
     except SafetensorError as error:
@@ -59,10 +50,8 @@ def publish_text(path: Path, text: str) -> None:
 
 
 def publish_bytes(path: Path, data: bytes) -> None:
-    """Write `path` whole or not at all: the data goes to a hidden file beside it, is flushed
-    to disk and renamed in, so a kill mid-write leaves the previous file (or none) and a
-    reader, or a second writer, never sees part of one. An error names `path`, not the
-    hidden file."""
+    """Write `path` whole or not at all (a flushed hidden file renamed in), so no reader sees
+    part of one; an error names `path`, not the hidden file."""
     partial = path.with_name(f".{path.name}.{os.getpid()}.partial")
     try:
         partial.write_bytes(data)
@@ -76,20 +65,15 @@ def publish_bytes(path: Path, data: bytes) -> None:
         partial.unlink(missing_ok=True)  # nothing left to remove once renamed in
 
 
-def make_readable(folder: Path) -> None:
-    """Give a private temp folder (mkdtemp makes 0700) and its files ordinary permissions,
-    so a store shared between users or jobs can be read by all of them."""
-    folder.chmod(PUBLISHED_DIR_MODE)
-    for path in folder.iterdir():
-        if path.is_file():
-            path.chmod(PUBLISHED_FILE_MODE)
-
-
 def publish_dir(temp: Path, final: Path) -> None:
     """Atomically make `temp` appear as `final`, readable like any other output; an existing
     `final` is moved aside first (a rename cannot overwrite a non-empty folder), then deleted."""
-    make_readable(temp)
-    fsync_tree(temp)
+    temp.chmod(PUBLISHED_DIR_MODE)  # mkdtemp makes 0700: a shared store is read by all
+    for path in temp.iterdir():
+        if path.is_file():
+            path.chmod(PUBLISHED_FILE_MODE)
+            fsync_path(path)
+    fsync_path(temp)
     if final.exists():
         trash = trash_path(final.parent, final.name)
         os.replace(final, trash)

@@ -1,8 +1,5 @@
-"""Garbage collection of an artifact store: what killed builds and finished runs leave behind.
-
-A folder is only removed while its key's file lock can be taken without waiting, so a
-build in progress in another process is never disturbed.
-"""
+"""Garbage collection of an artifact store: what killed builds and finished runs leave behind,
+each removed only while its key's lock is free, so no build in progress is disturbed."""
 
 from __future__ import annotations
 
@@ -44,12 +41,8 @@ def collect_garbage(
     dry_run: bool,
     annotations: Collection[str] = (),
 ) -> GcReport:
-    """Remove temp/trash folders, incomplete artifacts, checkpoints of finished (or, with
-    `keep`, unkept) artifacts, unkept artifacts when `keep` is given, and free lock files.
-
-    Entries of an `annotations` stage (e.g. stored evaluations) are kept with what they
-    describe: when every one of their upstreams is kept. A kept key that names no finished
-    artifact (a typo would otherwise keep nothing) fails before anything is removed."""
+    """Remove temp/trash folders, incomplete artifacts, stale checkpoints, free locks and, with
+    `keep`, all not kept (an `annotations` entry stays while its upstreams are all kept)."""
     report = GcReport()
     kept = _kept_keys(root, keep, annotations) if keep is not None else None
     owned = [(path, _owning_key(path)) for path in store_entries(root)]
@@ -68,9 +61,8 @@ def collect_garbage(
 
 
 def _is_store(root: Path) -> bool:
-    """Whether `root` shows what every store that built something has: its lock folder, or a
-    finished artifact. Folders named like keys alone are no sign (other tools name folders by
-    a sha256 too, Docker's overlay2 for one)."""
+    """Whether `root` has a lock folder or a finished artifact (other tools, Docker's overlay2
+    for one, name folders by a sha256 too)."""
     return (root / LOCKS_DIR).is_dir() or any(is_sealed(folder) for folder in key_dirs(root))
 
 
@@ -123,7 +115,7 @@ def _kept_keys(root: Path, keep: Collection[str], annotations: Collection[str]) 
 
 
 @contextmanager
-def _lock_if_free(lock_file: Path) -> Iterator[bool]:
+def lock_if_free(lock_file: Path) -> Iterator[bool]:
     """Hold `lock_file` for the block if nobody else does; yields whether it is held."""
     lock = FileLock(str(lock_file))
     try:
@@ -140,12 +132,11 @@ def _lock_if_free(lock_file: Path) -> Iterator[bool]:
 def _remove_if_free(
     root: Path, key: str, path: Path, kept: set[str] | None, dry_run: bool, report: GcReport
 ) -> None:
-    """Remove `path` while holding its key's lock, or note it as busy. Whether it is garbage
-    is asked again under the lock: before it, a build may have finished and cleared it, or
-    another gc removed it."""
+    """Remove `path` under its key's lock, or note it as busy; whether it is garbage is asked
+    again under the lock (a build or another gc may have acted meanwhile)."""
     lock_file = lock_path(root, path.parent.name, key)
     lock_file.parent.mkdir(parents=True, exist_ok=True)
-    with _lock_if_free(lock_file) as free:
+    with lock_if_free(lock_file) as free:
         if not free:
             report.busy.append(path)
             return
@@ -157,9 +148,8 @@ def _remove_if_free(
 
 
 def _hide_and_remove(path: Path, key: str) -> None:
-    """Delete a store entry so that a kill part-way leaves no half-deleted artifact: a folder
-    under its own name (an artifact, a checkpoint folder) is first renamed to a trash name,
-    which `ls` and `verify` ignore and the next gc removes."""
+    """Delete a store entry, renamed to a trash name first (which the next gc removes), so a
+    kill part-way leaves no half-deleted artifact under its own name."""
     if key_of_temp_name(path.name) is None:
         trash = trash_path(path.parent, key)
         os.replace(path, trash)
@@ -174,7 +164,7 @@ def _remove_free_locks(root: Path, dry_run: bool, report: GcReport) -> None:
     if not locks.is_dir():
         return
     for lock_file in sorted(locks.glob("*.lock")):
-        with _lock_if_free(lock_file) as free:
+        with lock_if_free(lock_file) as free:
             if not free:
                 report.busy.append(lock_file)
                 continue

@@ -1,8 +1,5 @@
-"""Seal a finished folder with the sha256 of every file, and check the seal on load.
-
-The completion marker is written last and lists each file's hash, so a folder without
-it is unfinished and any changed, missing or extra byte in a listed file is detected.
-"""
+"""Seal a finished folder with a completion marker, written last, listing every file's sha256;
+check it on load, so an unfinished folder or a changed byte is detected."""
 
 from __future__ import annotations
 

@@ -38,13 +38,12 @@ def is_non_key_name(name: str) -> bool:
 
 def key_config(cfg: Mapping[str, Any]) -> dict[str, Any]:
     """A plain-dict copy of `cfg` without the entries that never enter a key (module docstring)."""
-    return _strip(cfg, "config")
+    return _strip(cfg)
 
 
 def canonical_json(value: Any, where: str = "value") -> str:
-    """Canonical JSON: sorted keys, no whitespace, tuples as lists, floats by shortest repr
-    (non-finite floats as NaN/Infinity), so equal configs always give equal text. `where`
-    names the value in the one-line InputError raised for types without a stable form."""
+    """Canonical JSON (sorted keys, no whitespace, tuples as lists, shortest floats), so equal
+    configs give equal text; a type without a stable form is an InputError naming `where`."""
     return json.dumps(
         _normalise(value, where),
         sort_keys=True,
@@ -61,10 +60,8 @@ def artifact_key(
     scene_fingerprint: str,
     upstream_keys: Sequence[str],
 ) -> str:
-    """The artifact's key: sha256 hex of the canonical JSON of its inputs.
-
-    `stage_cfg` is passed through `key_config` first; `upstream_keys` keep their order.
-    """
+    """The artifact's key: sha256 hex of the canonical JSON of its inputs (`stage_cfg`
+    through `key_config`, `upstream_keys` in order)."""
     payload = {
         "stage": stage_type,
         "schema_version": schema_version,
@@ -75,16 +72,16 @@ def artifact_key(
     return hashlib.sha256(canonical_json(payload).encode("ascii")).hexdigest()
 
 
-def _strip(value: Any, where: str) -> Any:
+def _strip(value: Any) -> Any:
     """Recursively drop non-key entries from mappings; sequences are walked too."""
     if isinstance(value, Mapping):
         return {
-            key: _strip(item, f"{where}.{key}")
+            key: _strip(item)
             for key, item in value.items()
             if not (isinstance(key, str) and is_non_key_name(key))
         }
     if isinstance(value, Sequence) and not isinstance(value, str | bytes):
-        return [_strip(item, f"{where}[{index}]") for index, item in enumerate(value)]
+        return [_strip(item) for item in value]
     return value
 
 

@@ -76,19 +76,15 @@ def key_of_temp_name(name: str) -> str | None:
     return None
 
 
-def stage_dirs(root: Path) -> list[Path]:
-    """Stage folders under the root (hidden folders such as `.locks` excluded)."""
-    if not root.is_dir():
-        return []
-    return sorted(p for p in root.iterdir() if p.is_dir() and not p.name.startswith("."))
-
-
 def key_dirs(root: Path) -> list[Path]:
     """Folders named like a key under every stage folder (finished or not)."""
     return [p for p in store_entries(root) if is_key(p.name)]
 
 
 def store_entries(root: Path) -> list[Path]:
-    """The folders in every stage folder: what the store writes there is only ever a folder,
-    so a file (say a content-addressed blob of some other tool's cache) is none of its own."""
-    return [p for stage in stage_dirs(root) for p in sorted(stage.iterdir()) if p.is_dir()]
+    """The folders in every stage folder (hidden ones such as `.locks` are none): the store
+    writes only folders there, so a file (another tool's blob) is none of its own."""
+    if not root.is_dir():
+        return []
+    stages = sorted(p for p in root.iterdir() if p.is_dir() and not p.name.startswith("."))
+    return [p for stage in stages for p in sorted(stage.iterdir()) if p.is_dir()]

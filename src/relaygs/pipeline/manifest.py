@@ -5,11 +5,9 @@ from __future__ import annotations
 import json
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
-from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
-import relaygs
 from relaygs.pipeline.integrity import CorruptArtifactError, file_sha256
 
 MANIFEST_FILE = "manifest.json"
@@ -67,14 +65,9 @@ class Manifest:
     format: int = MANIFEST_FORMAT
 
     @property
-    def size_bytes(self) -> int:
-        """Bytes of the artifact's data files (tensors and meta)."""
-        return sum(int(entry["bytes"]) for entry in self.files.values())
-
-    @property
     def size_mb(self) -> float:
-        """The artifact's size on disk in MB (10^6 bytes): the storage every table reports."""
-        return self.size_bytes / 1e6
+        """The data files' size on disk in MB (10^6 bytes): the storage every table reports."""
+        return sum(int(entry["bytes"]) for entry in self.files.values()) / 1e6
 
 
 def describe_files(folder: Path, names: list[str]) -> dict[str, dict[str, Any]]:
@@ -83,16 +76,6 @@ def describe_files(folder: Path, names: list[str]) -> dict[str, dict[str, Any]]:
         name: {"sha256": file_sha256(folder / name), "bytes": (folder / name).stat().st_size}
         for name in names
     }
-
-
-def utc_now_iso() -> str:
-    """Current UTC time as an ISO-8601 string with an explicit offset."""
-    return datetime.now(timezone.utc).isoformat(timespec="seconds")
-
-
-def package_version() -> str:
-    """The relaygs version recorded in manifests."""
-    return relaygs.__version__
 
 
 def write_manifest(folder: Path, manifest: Manifest) -> None:

@@ -1,20 +1,5 @@
-"""Pipeline topologies (`conf/pipeline/<name>.yaml`): nodes, their stage types and upstreams.
-
-File format (also the composed config's `pipeline` section)::
-
-    name: relaygs                                           # the file's name
-    description: one line saying what the pipeline is      # optional
-    nodes:                                                  # in any order
-      decouple: {stage: decouple}
-      relay:    {stage: relay, upstream: [decouple]}
-      deform:   {stage: deform, upstream: [relay], overrides: {gamma: false}}
-
-`overrides` (optional) are merged over the node's stage config section by the app, so a
-pipeline can pin settings that define it (e.g. the 4D-GS baseline's deform has no γ).
-
-The evaluation step is not a node: the runner applies it to `Pipeline.output_node`,
-the single node nothing else depends on.
-"""
+"""Pipeline topologies (`conf/pipeline/<name>.yaml`, format in docs/artifacts.md): nodes, their
+stage types, upstreams and `overrides`; evaluation reads the one output node."""
 
 from __future__ import annotations
 
@@ -55,8 +40,20 @@ class Pipeline:
     nodes: dict[str, Node]
 
     def topological_order(self) -> list[Node]:
-        """Nodes with every upstream before its consumers; ties keep file order."""
-        return _topological_order(self)
+        """Nodes with every upstream before its consumers, ties in file order (Kahn's
+        algorithm); a cycle raises an InputError that names it."""
+        remaining = dict(self.nodes)
+        done: set[str] = set()
+        order: list[Node] = []
+        while remaining:
+            ready = [node for node in remaining.values() if set(node.upstream) <= done]
+            if not ready:
+                raise InputError(f"{self.path}: cycle {_find_cycle(remaining)}")
+            for node in ready:
+                order.append(node)
+                done.add(node.name)
+                del remaining[node.name]
+        return order
 
     @property
     def output_node(self) -> Node:
@@ -91,13 +88,8 @@ def load_pipeline(
     known_stages: Collection[str] | None = None,
     accepted_upstream: Mapping[str, Collection[str]] | None = None,
 ) -> Pipeline:
-    """Load and validate a pipeline by name (`conf/pipeline/<name>.yaml`) or by file path.
-
-    With `known_stages`, stage types outside it are rejected; with `accepted_upstream` (stage
-    type → the stage types of the one upstream node it reads, empty for none), so are nodes of
-    a listed type whose upstream does not fit, before any stage runs. Errors are one-line
-    InputErrors.
-    """
+    """Load and check a pipeline by name or file path: unknown stage types and, with
+    `accepted_upstream` (type → upstream types it reads), misfit upstreams are InputErrors."""
     path = _resolve(name_or_path)
     try:
         raw = yaml.safe_load(path.read_text(encoding="utf-8"))
@@ -207,7 +199,7 @@ def _check_graph(
             )
         if node.stage in accepted_upstream:
             _check_upstream_types(pipeline, node, accepted_upstream[node.stage])
-    _topological_order(pipeline)
+    pipeline.topological_order()  # refuses a cycle
     consumed = {name for node in pipeline.nodes.values() for name in node.upstream}
     outputs = [name for name in pipeline.nodes if name not in consumed]
     if len(outputs) != 1:
@@ -230,22 +222,6 @@ def _check_upstream_types(pipeline: Pipeline, node: Node, accepted: Collection[s
         f"{pipeline.path}: node {node.name!r} (stage {node.stage!r}) reads {expected} "
         f"(its StageSpec's upstream), got {', '.join(found) or 'none'}"
     )
-
-
-def _topological_order(pipeline: Pipeline) -> list[Node]:
-    """Kahn's algorithm in file order; a cycle raises an InputError that names it."""
-    remaining = dict(pipeline.nodes)
-    done: set[str] = set()
-    order: list[Node] = []
-    while remaining:
-        ready = [node for node in remaining.values() if set(node.upstream) <= done]
-        if not ready:
-            raise InputError(f"{pipeline.path}: cycle {_find_cycle(remaining)}")
-        for node in ready:
-            order.append(node)
-            done.add(node.name)
-            del remaining[node.name]
-    return order
 
 
 def _find_cycle(nodes: dict[str, Node]) -> str:

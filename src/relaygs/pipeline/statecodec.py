@@ -25,9 +25,8 @@ def encode_tree(
     where: str,
     places: dict[str, str] | None = None,
 ) -> Any:
-    """JSON-able skeleton of `value`; its tensors are added to `tensors` as `<prefix><n>`
-    (detached contiguous CPU copies). `where` names the value in error messages; `places`,
-    when given, gets each stored name's `where` (e.g. `optimizers['mlp']['state'][0]`)."""
+    """JSON-able skeleton of `value`, its tensors added to `tensors` as `<prefix><n>` (CPU
+    copies); `places` gets each one's `where` (e.g. `optimizers['mlp']['state'][0]`)."""
     if isinstance(value, torch.Tensor):
         name = f"{prefix}{len(tensors)}"
         tensors[name] = value.detach().to("cpu").clone(memory_format=torch.contiguous_format)

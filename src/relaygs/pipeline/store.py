@@ -1,9 +1,5 @@
-"""The content-addressed artifact store: build each artifact once, load it verified.
-
-See docs/artifacts.md for the layout and guarantees. Writes go to a temp folder beside
-the final one and are renamed in; a file lock per key makes concurrent processes that
-need the same missing artifact build it once; every load checks the recorded hashes.
-"""
+"""The content-addressed artifact store: build each artifact once (a file lock per key, temp
+folders renamed in), load it verified (docs/artifacts.md)."""
 
 from __future__ import annotations
 
@@ -11,17 +7,19 @@ import json
 import time
 from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass, field
+from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Literal
 
-from filelock import FileLock, Timeout
+from filelock import FileLock
 from safetensors import SafetensorError
 
+import relaygs
 from relaygs.errors import RERUN_COMMAND, InputError, RelayGSError
 from relaygs.pipeline.artifact import Artifact, read_artifact_files, write_artifact_files
 from relaygs.pipeline.context import BuildContext, building
 from relaygs.pipeline.fsio import publish_dir, remove_tree
-from relaygs.pipeline.gc import GcReport, collect_garbage
+from relaygs.pipeline.gc import GcReport, collect_garbage, lock_if_free
 from relaygs.pipeline.integrity import (
     CorruptArtifactError,
     check_seal,
@@ -42,9 +40,7 @@ from relaygs.pipeline.manifest import (
     LineageEntry,
     Manifest,
     describe_files,
-    package_version,
     read_manifest,
-    utc_now_iso,
     write_manifest,
 )
 
@@ -75,14 +71,8 @@ class ArtifactChangedError(MissingArtifactError):
 
 @dataclass(frozen=True)
 class BuildInfo:
-    """How `get_or_build` satisfied a request: a cache hit or a fresh build.
-
-    `wall_seconds` is the build's duration, read from the manifest on a hit, so the full
-    cost of a lineage can be summed whether or not this run computed it. `size_mb` is the
-    artifact's size as its manifest records it, so a caller need not read the store again (a
-    concurrent `gc --keep` may have removed the artifact by then). `provenance` is the
-    manifest's, so a caller can tell which run built a hit (`BUILT_BY`).
-    """
+    """How `get_or_build` satisfied a request (a hit or a build), with the build time, size
+    and provenance its manifest records, so callers need not read the store again."""
 
     stage: str
     key: str
@@ -141,9 +131,8 @@ class ArtifactStore:
         return read_manifest(self.path(stage, key))
 
     def load(self, stage: str, key: str, verify: bool = True) -> Artifact:
-        """Load an artifact; with `verify`, every file's sha256 is checked first and a
-        mismatch raises CorruptArtifactError naming the folder and file. A read that another
-        process's gc or rebuild cut short raises ArtifactChangedError, not a corruption."""
+        """Load an artifact, with `verify` its hashes checked (CorruptArtifactError); one another
+        process's gc or rebuild cut short raises ArtifactChangedError."""
         return self._load_unchanged(stage, key, verify)[0]
 
     def get_or_build(
@@ -157,14 +146,8 @@ class ArtifactStore:
         provenance: Mapping[str, Any] | None = None,
         on_corrupt: OnCorrupt = "rebuild",
     ) -> tuple[Artifact, BuildInfo]:
-        """Load artifact `key` of `stage`, building and storing it first if it is missing.
-
-        Concurrent callers for the same key build it once (the others wait, then load).
-        A corrupted artifact is rebuilt, or refused with CorruptArtifactError when
-        `on_corrupt="error"`. `build` runs with `current_build()` set, so it can checkpoint.
-        """
-        if on_corrupt not in ON_CORRUPT_CHOICES:
-            raise InputError(f"on_corrupt must be one of {ON_CORRUPT_CHOICES}, got {on_corrupt!r}")
+        """Load artifact `key` of `stage`, building it once (others wait) if missing or corrupt
+        (or refusing with `on_corrupt="error"`); `build` runs with `current_build()` set."""
         manifest_fields = {
             "config": json.loads(canonical_json(config, f"{stage} config")),
             "lineage": list(lineage),
@@ -200,18 +183,7 @@ class ArtifactStore:
             fields = {**manifest_fields, "wall_seconds": wall_seconds}
             manifest = self._write(stage, key, stored, fields)
             remove_tree(checkpoint_dir(self.root, stage, key))
-        path = self.path(stage, key)
-        info = BuildInfo(
-            stage,
-            key,
-            False,
-            wall_seconds,
-            path,
-            manifest.size_mb,
-            replaced_corrupt,
-            manifest.provenance,
-        )
-        return stored, info
+        return stored, self._info(manifest, cache_hit=False, replaced_corrupt=replaced_corrupt)
 
     def list(self) -> list[StoredArtifact]:
         """Every finished artifact, sorted by stage then creation time; temp folders are
@@ -256,9 +228,8 @@ class ArtifactStore:
         return self._scan(check_hashes=True)
 
     def _scan(self, check_hashes: bool) -> tuple[list[StoredArtifact], list[VerifyProblem]]:
-        """The readable artifacts (sorted as `list` says) and the problem of every other
-        artifact folder; with `check_hashes`, each file's hash is checked and its files decoded
-        too."""
+        """The readable artifacts (sorted as `list` says) and every other folder's problem;
+        with `check_hashes`, hashes checked and files decoded too."""
         found, problems = [], []
         for folder in key_dirs(self.root):
             outcome = _examine_steady(folder, check_hashes)
@@ -275,18 +246,15 @@ class ArtifactStore:
         dry_run: bool = False,
         annotations: Collection[str] = (),
     ) -> GcReport:
-        """Remove leftovers of killed builds, stale locks and incomplete folders; with `keep`,
-        also every artifact that is neither kept nor an ancestor of a kept one, except entries
-        of an `annotations` stage whose upstreams are all kept."""
+        """Remove leftovers of killed builds, stale locks and incomplete folders, and with `keep`
+        what is not kept (`collect_garbage`)."""
         return collect_garbage(self.root, keep, dry_run, annotations)
 
     def _try_load(
         self, stage: str, key: str, on_corrupt: OnCorrupt
     ) -> tuple[tuple[Artifact, BuildInfo] | None, str | None]:
-        """(a verified cache hit, None); or (None, what is wrong) when the artifact is
-        (rebuildably) corrupt; or (None, None) when it is missing or was removed or replaced by
-        another process while it was read (the caller then asks again under the key's lock,
-        which every removal and replacement holds)."""
+        """(a verified hit, None), (None, what is wrong) when it is rebuildably corrupt, or (None,
+        None) when missing or moved meanwhile (asked again under the key's lock)."""
         try:
             artifact, manifest = self._load_unchanged(stage, key, verify=True)
         except MissingArtifactError:  # ArtifactChangedError included
@@ -298,17 +266,23 @@ class ArtifactStore:
                     "artifacts.on_corrupt=rebuild)"
                 ) from error
             return None, str(error)
-        path = self.path(stage, key)
-        info = BuildInfo(
-            stage,
-            key,
-            True,
+        return (artifact, self._info(manifest, cache_hit=True)), None
+
+    def _info(
+        self, manifest: Manifest, cache_hit: bool, replaced_corrupt: str | None = None
+    ) -> BuildInfo:
+        """The BuildInfo of a stored artifact, its cost and size as its manifest records them."""
+        path = self.path(manifest.stage, manifest.key)
+        return BuildInfo(
+            manifest.stage,
+            manifest.key,
+            cache_hit,
             manifest.wall_seconds,
             path,
             manifest.size_mb,
-            provenance=manifest.provenance,
+            replaced_corrupt,
+            manifest.provenance,
         )
-        return (artifact, info), None
 
     def _load_unchanged(self, stage: str, key: str, verify: bool) -> tuple[Artifact, Manifest]:
         """`_load_with_manifest`, whose failure becomes ArtifactChangedError when the folder was
@@ -352,8 +326,8 @@ class ArtifactStore:
                 key=key,
                 stage=stage,
                 metrics=metrics,
-                created=utc_now_iso(),
-                package_version=package_version(),
+                created=datetime.now(timezone.utc).isoformat(timespec="seconds"),
+                package_version=relaygs.__version__,
                 files=describe_files(temp, names),
                 **manifest_fields,
             )
@@ -372,15 +346,9 @@ class ArtifactStore:
         if not folder.exists():
             return
         lock_file.parent.mkdir(parents=True, exist_ok=True)
-        lock = FileLock(str(lock_file))
-        try:
-            lock.acquire(timeout=0)
-        except Timeout:
-            return
-        try:
-            remove_tree(folder)
-        finally:
-            lock.release()
+        with lock_if_free(lock_file) as free:
+            if free:
+                remove_tree(folder)
 
     def _remove_own_temps(self, stage: str, key: str) -> None:
         """Delete temp folders a killed build of this key left (the caller holds its lock)."""
@@ -406,9 +374,8 @@ def read_own_manifest(folder: Path) -> Manifest:
 
 
 def _examine(folder: Path, check_hashes: bool) -> StoredArtifact | VerifyProblem:
-    """The artifact in `folder`, or its problem (with `check_hashes`, its hashes checked and
-    its files decoded too: files damaged before they were sealed match their hashes); a folder
-    this user may not read is one problem, not the end of `ls` or `verify`."""
+    """The artifact in `folder`, or its problem (an unreadable folder is one too); with
+    `check_hashes`, hashes checked and files decoded (damage before sealing matches)."""
     try:
         if not is_sealed(folder):
             return VerifyProblem(folder, "incomplete (no completion marker)")
