@@ -2,6 +2,7 @@
 
 import pytest
 from hydra import compose, initialize_config_dir
+from hydra.errors import HydraException
 from hydra.types import RunMode
 from omegaconf import OmegaConf
 
@@ -50,7 +51,7 @@ def test_defaults_are_the_main_job(composer):
     assert cfg.budget.name == "small" and cfg.budget.multiplier == 1.0
     assert cfg.relay.k == cfg.replicate.k == 1 and cfg.relay.pseudo_views is True
     assert cfg.deform.gamma is True and cfg.deform.isolate_fg_bg is True
-    assert cfg.seed == 0 and cfg.artifacts.on_corrupt == "rebuild"
+    assert cfg.seed == 0 and cfg.artifacts.on_corrupt.name == "rebuild"
     assert cfg.artifacts.root == "outputs/artifacts"
 
 
@@ -191,3 +192,14 @@ def test_budget_files_set_the_stages_budgets(composer, budget):
     cfg = OmegaConf.to_container(composer([f"budget={budget}"]), resolve=True)
     for section, values in step_budgets()[budget].items():
         assert {key: cfg[section][key] for key in values} == values, section
+
+
+@pytest.mark.parametrize(
+    "override",
+    ["tensorboard.preview_frames=many", "report.reference=[a]", "artifacts.on_corrupt=null"],
+)
+def test_the_other_sections_types_are_checked_by_hydra(composer, override):
+    # the sections' dataclasses (relaygs.app.plan.SECTIONS) are their Hydra schemas
+    with pytest.raises(HydraException) as caught:
+        composer([override])
+    assert override.partition("=")[0] in str(caught.value)
