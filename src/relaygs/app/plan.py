@@ -334,22 +334,12 @@ def _require_stage_setting_names(
 ) -> None:
     """Each of `budget.scaled_keys` names a setting of some stage section, at any depth: a
     misspelt name (`stpes`) would leave the step counts it meant unscaled without a word."""
-    names: set[str] = set()
-    for stage in stage_types:
-        if isinstance(cfg.get(stage), Mapping):
-            names |= _setting_names(cfg[stage])
-    unknown = sorted(set(scaled_keys) - names)
-    if unknown:
-        raise InputError(
-            f"budget.scaled_keys: {unknown} name no setting of any stage section "
-            "(expected step-count settings such as 'steps' or 'densify_every')"
-        )
+    sections = [cfg[stage] for stage in stage_types if isinstance(cfg.get(stage), Mapping)]
+    unknown = sorted(set(scaled_keys) - set().union(*map(_setting_names, sections)))
+    _require(not unknown, "budget.scaled_keys", unknown, "names of stage settings ('steps')")
 
 
 def _setting_names(section: Mapping[str, Any]) -> set[str]:
     """Every key of `section` and of the mappings nested in it."""
-    names = set(section)
-    for value in section.values():
-        if isinstance(value, Mapping):
-            names |= _setting_names(value)
-    return names
+    nested = (_setting_names(value) for value in section.values() if isinstance(value, Mapping))
+    return set(section).union(*nested)
