@@ -134,9 +134,7 @@ def test_merge_overrides_is_deep_and_rejects_unknown_settings():
         ({"scene__effects": ["wind"]}, ["scene.effects", "'wind'"]),
         ({"scene__loader": {"zoom": 2}}, ["scene.loader", "'zoom'"]),
         ({"tensorboard__preview_frames": -1}, ["tensorboard.preview_frames"]),
-        ({"artifacts__on_corrupt": "ignore"}, ["artifacts.on_corrupt"]),
         ({"threads": 0}, ["threads"]),
-        ({"seed": -1}, ["seed"]),
         # a sweep names each job's folder <job>_<variant>: a separator would put it elsewhere
         ({"variant": "a/b"}, ["variant", "'a/b'"]),
         ({"variant": ["a"]}, ["variant"]),
