@@ -6,7 +6,7 @@ import copy
 import pytest
 from omegaconf import OmegaConf
 
-from fake_stages import STAGE_TYPES, compose_config, pipeline_section, validate_config
+from fake_stages import STAGE_TYPES, compose_config, pipeline_section, validate_config, with_values
 from refusals import refused
 from relaygs.app.plan import merge_overrides, plan_run, scale_steps
 from relaygs.errors import InputError
@@ -21,11 +21,7 @@ def config(tmp_path_factory):
 
 
 def _plan(config, **changes):
-    config = copy.deepcopy(config)
-    for dotted, value in changes.items():
-        *section, key = dotted.split("__")
-        (config[section[0]] if section else config)[key] = value
-    return plan_run(config, STAGE_TYPES, validate_config)
+    return plan_run(with_values(config, **changes), STAGE_TYPES, validate_config)
 
 
 def _keys(plan):
