@@ -165,16 +165,6 @@ class RunPlan:
     hparams: str = "swept"
 
     @property
-    def seed(self) -> int:
-        """The run's `seed`."""
-        return self.run.seed
-
-    @property
-    def threads(self) -> int | None:
-        """The run's torch CPU `threads` (None: torch's default)."""
-        return self.run.threads
-
-    @property
     def device(self) -> str:
         """`train.device`, where every stage trains and the evaluation renders."""
         return str(self.eval_config["train"].get("device", "cpu"))

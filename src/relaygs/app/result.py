@@ -173,7 +173,7 @@ def _identity(plan: RunPlan, job: int | None) -> dict[str, Scalar]:
         "job": job,
         "pipeline": plan.pipeline.name,
         "scene": plan.scene.name,
-        "seed": plan.seed,
+        "seed": plan.run.seed,
     }
 
 
