@@ -190,7 +190,8 @@ def plan_run(
     `validate` checks each node's stage config (the output node's with `eval` added);
     `accepted_upstream` the pipeline's upstream node types (`load_pipeline`)."""
     unknown = sorted(set(cfg) - TOP_LEVEL_KEYS - set(stage_types))
-    _require(not unknown, "top level", unknown, f"no settings but {sorted(TOP_LEVEL_KEYS)}")
+    if unknown:  # an experiment file without `# @package _global_` lands under `experiment`
+        raise InputError(f"top level: unknown setting(s) {unknown}")
     pipeline = _pipeline(cfg, stage_types, accepted_upstream)
     run = _settings(RunSettings, cfg, "")
     paths = _settings(PathSettings, cfg, "paths")
