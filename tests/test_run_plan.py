@@ -124,6 +124,7 @@ def test_merge_overrides_is_deep_and_rejects_unknown_settings():
         ({"deform__steps": -1}, ["deform.steps"]),
         ({"warmup__steps": -1, "pipeline": pipeline_section("4dgs")}, ["warmup.steps"]),
         ({"scene__preset": "mars"}, ["scene.preset", "'mars'"]),
+        ({"scene__name": ["a"]}, ["scene.name"]),
         ({"scene__width": 0}, ["scene.width"]),
         # generated, it would be refused by the loader: refused before anything is generated
         ({"scene__height": 3}, ["scene.height", "3"]),

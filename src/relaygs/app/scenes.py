@@ -72,6 +72,9 @@ def scene_spec(section: Mapping[str, Any]) -> SceneSpec:
     synthetic preset. Every error is one InputError naming the `scene.*` field.
     """
     _require_known(section, SCENE_FIELDS, "scene")
+    label = section.get("name")
+    if isinstance(label, bool | list | Mapping):  # str() would label the scene with its text
+        raise InputError(f"scene.name: expected a string, got {label!r}")
     effects = section.get("effects")
     if effects is not None:
         effects = tuple(sorted(parse_effects(effects, source="scene.effects")))
