@@ -13,7 +13,7 @@ from __future__ import annotations
 import copy
 import math
 from collections.abc import Callable, Collection, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from enum import Enum
 from pathlib import Path
 from typing import Any, TypeVar
@@ -244,8 +244,8 @@ def _settings(cls: type[T], cfg: Mapping[str, Any], name: str) -> T:
     where it has one."""
     from relaygs.stages.config import parse_section  # loaded with the stages a run plans for
 
-    fields = cls.__dataclass_fields__  # type: ignore[attr-defined]
-    data = _section(cfg, name) if name else {k: v for k, v in cfg.items() if k in fields}
+    names = {each.name for each in fields(cls)}
+    data = _section(cfg, name) if name else {k: v for k, v in cfg.items() if k in names}
     settings = parse_section(cls, data, name)
     if hasattr(settings, "validate"):
         settings.validate()
