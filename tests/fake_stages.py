@@ -3,6 +3,8 @@ reads only `seed`, `train` and its own section; artifacts carry a score evaluati
 
 from __future__ import annotations
 
+import copy
+import functools
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
@@ -137,6 +139,15 @@ def compose_config(overrides: list[str], outputs: Path) -> DictConfig:
     """The app config composed with `overrides`, writing everything under `outputs`."""
     with initialize_config_dir(config_dir=str(config_dir()), version_base="1.3"):
         return compose("config", overrides=[*overrides, f"paths.outputs={outputs}"])
+
+
+def with_values(config: Mapping[str, Any], **dotted: Any) -> dict[str, Any]:
+    """A deep copy of `config` with each value set at its key path (`relay__k=8`: relay.k)."""
+    config = copy.deepcopy(dict(config))
+    for key, value in dotted.items():
+        *parents, leaf = key.split("__")
+        functools.reduce(lambda section, part: section[part], parents, config)[leaf] = value
+    return config
 
 
 def pipeline_section(name: str) -> dict[str, Any]:

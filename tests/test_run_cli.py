@@ -98,7 +98,7 @@ UNUSABLE_GPU = f"cuda:{torch.cuda.device_count()}"
         # values that failed with a traceback, or were taken and broke the job only later
         (["paths.outputs=null"], ["paths.outputs"]),
         (["artifacts.root=[a]"], ["artifacts.root"]),
-        (["~artifacts"], ["artifacts"]),
+        (["~artifacts.root"], ["artifacts.root"]),
         (["scene.preset=[a]"], ["scene.preset"]),
         (["scene.effects=3"], ["scene.effects"]),
         (["scene.loader.test_cameras=3"], ["scene.loader.test_cameras"]),
@@ -110,7 +110,7 @@ UNUSABLE_GPU = f"cuda:{torch.cuda.device_count()}"
             ["scene.loader.test_cameras", "court"],
         ),
         (["budget.multiplier=1e307"], ["budget.multiplier"]),
-        (["experiment_name=nan"], ["experiment_name"]),
+        (["experiment_name=[a]"], ["experiment_name"]),
         (["report.reference=[1]"], ["report.reference"]),
         (["variant=null"], ["variant"]),
         # a typo added with `+` in a section that is not a stage's

@@ -58,7 +58,7 @@ def test_defaults_are_the_main_job(composer):
     assert cfg.budget.name == "small" and cfg.budget.multiplier == 1.0
     assert cfg.relay.k == cfg.replicate.k == 1 and cfg.relay.pseudo_views is True
     assert cfg.deform.gamma is True and cfg.deform.isolate_fg_bg is True
-    assert cfg.seed == 0 and cfg.artifacts.on_corrupt == "rebuild"
+    assert cfg.seed == 0 and cfg.artifacts.on_corrupt.name == "rebuild"
     assert cfg.artifacts.root == "outputs/artifacts"
 
 

@@ -1,6 +1,5 @@
 """The job function end to end on fake stages: result.json, shared artifacts, TensorBoard."""
 
-import copy
 import dataclasses
 import errno
 import json
@@ -13,7 +12,7 @@ from omegaconf import OmegaConf
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from conftest import WriteRecorder
-from fake_stages import TINY_SCENE, FakeStages, compose_config, pipeline_section
+from fake_stages import TINY_SCENE, FakeStages, compose_config, pipeline_section, with_values
 from refusals import refused
 from relaygs import errors
 from relaygs.app import task as task_module
@@ -54,20 +53,9 @@ def base_config(tmp_path_factory):
     return OmegaConf.to_container(cfg, resolve=True)
 
 
-def _with(config, **dotted):
-    changed = copy.deepcopy(config)
-    for key, value in dotted.items():
-        *parents, leaf = key.split("__")
-        section = changed
-        for part in parents:
-            section = section[part]
-        section[leaf] = value
-    return changed
-
-
 def _run(config, run_dir, fakes, overrides=(), label=None, job=None):
     """Run with a store beside the run dir (runs in one test share it, tests do not)."""
-    config = _with(config, artifacts__root=str(run_dir.parent / "artifacts"))
+    config = with_values(config, artifacts__root=str(run_dir.parent / "artifacts"))
     return run_task(
         config,
         run_dir=run_dir,
@@ -89,7 +77,7 @@ def test_a_run_writes_a_flat_result_with_every_required_field(base_config, tmp_p
         "paths.outputs=/x",
         "hydra.verbose=true",
     ]
-    config = _with(base_config, scene__loader__test_cameras=[0, 2])
+    config = with_values(base_config, scene__loader__test_cameras=[0, 2])
     result = _run(config, tmp_path / "run", fakes, overrides=overrides)
     written = json.loads((tmp_path / "run" / RESULT_FILE).read_text())
     assert written == result
@@ -114,9 +102,9 @@ def test_a_run_writes_a_flat_result_with_every_required_field(base_config, tmp_p
 
 def test_changing_k_reuses_decouple_and_rebuilds_relay_and_deform(base_config, tmp_path, capsys):
     fakes = FakeStages()
-    first = _run(_with(base_config, relay__k=8), tmp_path / "a", fakes)
-    second = _run(_with(base_config, relay__k=32), tmp_path / "b", fakes)
-    again = _run(_with(base_config, relay__k=32), tmp_path / "c", fakes)
+    first = _run(with_values(base_config, relay__k=8), tmp_path / "a", fakes)
+    second = _run(with_values(base_config, relay__k=32), tmp_path / "b", fakes)
+    again = _run(with_values(base_config, relay__k=32), tmp_path / "c", fakes)
     assert (fakes.ran("decouple"), fakes.ran("relay"), fakes.ran("deform")) == (1, 2, 2)
     assert (first["cache_hits"], second["cache_hits"], again["cache_hits"]) == (0, 1, 3)
     assert again["train_s_computed"] == 0
@@ -168,9 +156,11 @@ def test_a_labelled_jobs_lines_each_go_out_whole_with_their_newline(
 def test_a_result_names_the_images_it_was_scored_on(base_config, tmp_path):
     fakes = FakeStages()
     first = _run(base_config, tmp_path / "a", fakes)
-    again = _run(_with(base_config, relay__k=32), tmp_path / "b", fakes)
-    halved = _run(_with(base_config, scene__loader__downscale=2), tmp_path / "c", fakes)
-    held_out = _run(_with(base_config, scene__loader__test_cameras=[2]), tmp_path / "d", fakes)
+    again = _run(with_values(base_config, relay__k=32), tmp_path / "b", fakes)
+    halved = _run(with_values(base_config, scene__loader__downscale=2), tmp_path / "c", fakes)
+    held_out = _run(
+        with_values(base_config, scene__loader__test_cameras=[2]), tmp_path / "d", fakes
+    )
     assert len(first["test_set"]) == 12
     assert first["test_set"] == again["test_set"]  # another model, the same test images
     assert len({first["test_set"], halved["test_set"], held_out["test_set"]}) == 3
@@ -183,7 +173,7 @@ def test_a_stages_note_is_said_by_every_run_of_its_artifact_and_kept_in_the_resu
     line = "note: [decouple] decouple marked no Gaussian as foreground"
     built = _run(base_config, tmp_path / "a", fakes)
     assert capsys.readouterr().err.count(line) == 1
-    reused = _run(_with(base_config, relay__k=32), tmp_path / "b", fakes)
+    reused = _run(with_values(base_config, relay__k=32), tmp_path / "b", fakes)
     assert capsys.readouterr().err.count(line) == 1 and fakes.ran("decouple") == 1
     assert built["notes"] == reused["notes"] == line.removeprefix("note: ")
     assert "notes" not in _run(base_config, tmp_path / "quiet" / "c", FakeStages())  # own store
@@ -196,7 +186,7 @@ def test_a_sweep_job_resumed_in_its_folder_is_not_noted_but_another_run_there_is
     # job's own result: no advice to give it another folder
     fakes = FakeStages()
     folder = tmp_path / "sweep" / "0_relaygs"
-    k8, k16 = _with(base_config, relay__k=8), _with(base_config, relay__k=16)
+    k8, k16 = with_values(base_config, relay__k=8), with_values(base_config, relay__k=16)
     overrides = ["relay.k=8", "+component=full", "budget=smoke"]
     _run(k8, folder, fakes, overrides=overrides, job=0)
     _run(k8, folder, fakes, overrides=overrides, job=0)
@@ -229,7 +219,7 @@ def test_a_job_rerun_in_its_folder_still_counts_what_it_built_there(base_config,
     assert again["train_s_built_by_job"] == pytest.approx(first["train_s_computed"])
     assert again["eval_s_built_by_job"] == pytest.approx(first["eval_s_computed"])
     # resumed with settings that build nothing differently: still the same job
-    quiet = _with(base_config, train__progress=False, train__checkpoint_every=7)
+    quiet = with_values(base_config, train__progress=False, train__checkpoint_every=7)
     assert _run(quiet, folder, fakes, job=0)["train_s_built_by_job"] == pytest.approx(
         first["train_s_computed"]
     )
@@ -237,7 +227,7 @@ def test_a_job_rerun_in_its_folder_still_counts_what_it_built_there(base_config,
     assert (other["train_s_built_by_job"], other["eval_s_built_by_job"]) == (0, 0)
     assert fakes.ran("deform") == 1 and fakes.evaluations == 1
     # another sweep's job 0 in the same folder built only what its own setting changed
-    k2 = _run(_with(base_config, relay__k=2), folder, fakes, overrides=["relay.k=2"], job=0)
+    k2 = _run(with_values(base_config, relay__k=2), folder, fakes, overrides=["relay.k=2"], job=0)
     built_now = (k2["train_s_computed"], k2["eval_s_computed"])
     assert built_now == (k2["train_s_built_by_job"], k2["eval_s_built_by_job"])
     assert k2["cache_hits"] == 1 and fakes.ran("deform") == 2
@@ -253,7 +243,7 @@ def test_an_evaluated_model_is_not_evaluated_again(base_config, tmp_path, capsys
     assert (first["eval_s_computed"], again["eval_s_computed"]) == (first["eval_s_total"], 0.0)
     assert "[eval] reused evaluation" in capsys.readouterr().out
     # another frame stride is another evaluation of the same model
-    _run(_with(base_config, eval__frame_stride=1), tmp_path / "c", fakes)
+    _run(with_values(base_config, eval__frame_stride=1), tmp_path / "c", fakes)
     assert fakes.evaluations == 2 and fakes.ran("deform") == 1
 
 
@@ -284,7 +274,7 @@ def test_an_evaluation_without_per_view_metrics_leaves_no_file(base_config, tmp_
     fakes = FakeStages()
     whole = fakes._evaluate
     fakes._evaluate = lambda *args: {k: v for k, v in whole(*args).items() if k != PER_VIEW}
-    _run(_with(base_config, seed=1), tmp_path / "a", fakes)  # a new model, the same folder
+    _run(with_values(base_config, seed=1), tmp_path / "a", fakes)  # a new model, the same folder
     assert fakes.evaluations == 1
     assert not (tmp_path / "a" / PER_VIEW_FILE).exists()  # the earlier run's is gone
     assert "per view" not in capsys.readouterr().out
@@ -300,13 +290,13 @@ def test_the_runs_thread_count_keys_its_evaluation_and_its_printed_commands(
     fakes = FakeStages()
     threads = torch.get_num_threads()
     try:
-        _run(_with(base_config, threads=1), tmp_path / "a", fakes)
-        result = _run(_with(base_config, threads=2), tmp_path / "b", fakes)
+        _run(with_values(base_config, threads=1), tmp_path / "a", fakes)
+        result = _run(with_values(base_config, threads=2), tmp_path / "b", fakes)
         two = capsys.readouterr().out
-        _run(_with(base_config, threads=2), tmp_path / "c", fakes)
+        _run(with_values(base_config, threads=2), tmp_path / "c", fakes)
         assert fakes.evaluations == 2 and fakes.ran("deform") == 1
         capsys.readouterr()
-        _run(_with(base_config, threads=None), tmp_path / "default", fakes)
+        _run(with_values(base_config, threads=None), tmp_path / "default", fakes)
         default = capsys.readouterr().out
     finally:
         torch.set_num_threads(threads)
@@ -318,7 +308,7 @@ def test_the_runs_thread_count_keys_its_evaluation_and_its_printed_commands(
 
 def test_the_runs_splat_backend_is_the_jobs_default(base_config, tmp_path):
     try:
-        _run(_with(base_config, splat__backend="torch"), tmp_path / "a", FakeStages())
+        _run(with_values(base_config, splat__backend="torch"), tmp_path / "a", FakeStages())
         assert default_backend() == "torch"
         _run(base_config, tmp_path / "b", FakeStages())
         assert default_backend() == "auto"
@@ -336,7 +326,7 @@ def test_evaluation_key_names_the_thread_count_only_on_the_cpu():
 
 def test_stages_receive_only_seed_train_and_their_section_with_overrides(base_config, tmp_path):
     fakes = FakeStages()
-    config = _with(base_config, pipeline=pipeline_section("4dgs"), deform__steps=7)
+    config = with_values(base_config, pipeline=pipeline_section("4dgs"), deform__steps=7)
     result = _run(config, tmp_path / "run", fakes, overrides=["pipeline=4dgs", "deform.steps=7"])
     deform_cfg = dict(fakes.calls)["deform"]
     assert deform_cfg["deform"]["gamma"] is False
@@ -350,7 +340,7 @@ def test_stages_receive_only_seed_train_and_their_section_with_overrides(base_co
 
 def test_budget_multiplier_scales_the_steps_stages_receive(base_config, tmp_path):
     fakes = FakeStages()
-    config = _with(base_config, budget__multiplier=2.0)
+    config = with_values(base_config, budget__multiplier=2.0)
     _run(config, tmp_path / "run", fakes)
     steps = {stage: cfg[stage]["steps"] for stage, cfg in fakes.calls}
     smoke = {stage: base_config[stage]["steps"] for stage in steps}
@@ -386,8 +376,8 @@ def test_a_job_that_reuses_stages_notes_them_instead_of_replaying_their_curves(
     base_config, tmp_path
 ):
     fakes = FakeStages()
-    _run(_with(base_config, relay__k=8), tmp_path / "a", fakes)
-    _run(_with(base_config, relay__k=32), tmp_path / "b", fakes)  # decouple from the store
+    _run(with_values(base_config, relay__k=8), tmp_path / "a", fakes)
+    _run(with_values(base_config, relay__k=32), tmp_path / "b", fakes)  # decouple from the store
     built = EventAccumulator(str(tmp_path / "a"), size_guidance={"scalars": 0})
     built.Reload()
     reused = EventAccumulator(str(tmp_path / "b"), size_guidance={"scalars": 0, "tensors": 0})
@@ -414,9 +404,9 @@ def test_a_reused_stage_is_noted_under_its_stage_type_whatever_the_node_is_calle
         "  model: {stage: deform, upstream: [second]}\n"
     )
     fakes = FakeStages()
-    config = _with(base_config, pipeline__name=str(pipeline))
-    _run(_with(config, relay__k=8), tmp_path / "a", fakes)
-    _run(_with(config, relay__k=32), tmp_path / "b", fakes)
+    config = with_values(base_config, pipeline__name=str(pipeline))
+    _run(with_values(config, relay__k=8), tmp_path / "a", fakes)
+    _run(with_values(config, relay__k=32), tmp_path / "b", fakes)
     events = EventAccumulator(str(tmp_path / "b"), size_guidance={"tensors": 0})
     events.Reload()
     (note,) = events.Tensors("reused/decouple/text_summary")
@@ -430,7 +420,7 @@ def test_the_suites_upstream_types_are_checked_before_any_stage_runs(base_config
     suite = dataclasses.replace(
         fakes.suite(), accepted_upstream=load_stage_suite().accepted_upstream
     )
-    config = _with(base_config, pipeline__name=str(pipeline))
+    config = with_values(base_config, pipeline__name=str(pipeline))
     with refused(InputError, "'b'", "'relay'"):
         run_task(config, run_dir=tmp_path / "run", original_cwd=tmp_path, suite=suite)
     assert fakes.calls == []
@@ -449,7 +439,7 @@ def test_the_printed_render_command_keeps_the_runs_settings(
     base_config, tmp_path, capsys, key, value, printed
 ):
     # the scene's downscale, the training device and the held-out cameras (smoke: threads=1)
-    _run(_with(base_config, **{key: value}), tmp_path / "run", FakeStages())
+    _run(with_values(base_config, **{key: value}), tmp_path / "run", FakeStages())
     videos = next(line for line in capsys.readouterr().out.splitlines() if "videos" in line)
     assert videos.endswith(printed)
 
@@ -470,7 +460,7 @@ def test_bad_values_fail_before_any_stage_runs(base_config, tmp_path, changed, n
     if "scene__path" in changed:
         changed = {"scene__path": str(tmp_path / changed["scene__path"])}
     with refused(InputError, named):
-        _run(_with(base_config, **changed), tmp_path / "run", fakes)
+        _run(with_values(base_config, **changed), tmp_path / "run", fakes)
     assert fakes.calls == []
     assert not (tmp_path / "run").exists()
 
@@ -483,7 +473,7 @@ def test_bad_scene_data_fails_before_the_run_folder_is_touched(base_config, tmp_
     capture = tmp_path / "capture"
     (capture / "cam00").mkdir(parents=True)
     with refused(InputError, str(capture)):
-        _run(_with(base_config, scene__path=str(capture)), tmp_path / "run", fakes)
+        _run(with_values(base_config, scene__path=str(capture)), tmp_path / "run", fakes)
     assert (tmp_path / "run" / RESULT_FILE).read_text() == good
     assert fakes.ran("decouple") == 1
 
@@ -495,7 +485,7 @@ def test_a_corrupted_artifact_is_rebuilt_or_refused(base_config, tmp_path, capsy
     data = bytearray(tensors.read_bytes())
     data[-1] ^= 0xFF
     tensors.write_bytes(bytes(data))
-    refusing = _with(base_config, artifacts__on_corrupt="error")
+    refusing = with_values(base_config, artifacts__on_corrupt="error")
     with refused(CorruptArtifactError, "on_corrupt=error", str(tensors)):
         _run(refusing, tmp_path / "b", fakes)
     assert fakes.ran("decouple") == 1

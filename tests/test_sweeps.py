@@ -12,7 +12,6 @@ import pytest
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 from tensorboard.plugins.hparams import plugin_data_pb2
 
-from relaygs.app.prelaunch import is_installed
 from relaygs.commands.bench_sweeps import EXPERIMENTS, command
 
 pytestmark = pytest.mark.sweep
@@ -140,11 +139,8 @@ def _hparam_keys(content: bytes) -> set[str]:
     return set(data.session_start_info.hparams)
 
 
-@pytest.mark.skipif(
-    not is_installed("hydra_plugins.hydra_joblib_launcher"),
-    reason="hydra-joblib-launcher is not installed",
-)
 def test_parallel_jobs_share_the_store_and_build_decouple_once(tmp_path):
+    pytest.importorskip("hydra_plugins.hydra_joblib_launcher")
     done = _launch(tmp_path, "ablation_k", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2")
     counts = _artifact_counts(tmp_path)
     assert (counts["decouple"], counts["relay"]) == (1, 1)  # every k >= 8 frames: one segment
@@ -166,11 +162,8 @@ def test_parallel_jobs_share_the_store_and_build_decouple_once(tmp_path):
     assert all(after.startswith(f"{label}  result ") for label, after in blocks)
 
 
-@pytest.mark.skipif(
-    not is_installed("hydra_plugins.hydra_submitit_launcher"),
-    reason="hydra-submitit-launcher (the slurm extra) is not installed",
-)
 def test_a_sweep_through_submitit_gives_the_basic_launchers_summary(experiments, tmp_path):
+    pytest.importorskip("hydra_plugins.hydra_submitit_launcher")  # the slurm extra
     # submitit's local executor is the Slurm launcher's code path: each job pickled into a
     # process of its own, the jobs sharing one store and its locks, the results gathered back
     _launch(tmp_path, "ablation_k", "hydra/launcher=submitit_local")

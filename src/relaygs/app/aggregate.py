@@ -7,7 +7,7 @@ summary's `delta_psnr`), then averaged, so seed-to-seed scene difficulty cancels
 
 from __future__ import annotations
 
-import math
+import statistics
 
 import pandas as pd
 
@@ -48,8 +48,9 @@ def aggregate_table(summary: pd.DataFrame) -> pd.DataFrame:
         row["seeds"] = group["seed"].nunique() if "seed" in group else len(group)
         for _, column, _ in METRICS:
             values = [float(v) for v in group.get(column, []) if is_number(v)]
-            row[f"{column}_mean"] = sum(values) / len(values) if values else None
-            row[f"{column}_std"] = _std(values)
+            row[f"{column}_mean"] = statistics.fmean(values) if values else None
+            # the sample std; one run has no spread
+            row[f"{column}_std"] = statistics.stdev(values) if len(values) > 1 else None
         rows.append(row)
     return pd.DataFrame(rows)
 
@@ -83,14 +84,6 @@ def aggregate_markdown(table: pd.DataFrame, title: str) -> str:
             cells.append(_mean_std(row[f"{column}_mean"], row[f"{column}_std"], digits))
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
-
-
-def _std(values: list[float]) -> float | None:
-    """Sample standard deviation (None for fewer than two values: one run has no spread)."""
-    if len(values) < 2:
-        return None
-    mean = sum(values) / len(values)
-    return math.sqrt(sum((v - mean) ** 2 for v in values) / (len(values) - 1))
 
 
 def _mean_std(mean: object, std: object, digits: int) -> str:

@@ -8,7 +8,7 @@ import time
 import traceback
 from collections.abc import Iterable
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, NoReturn
 
 from filelock import FileLock, Timeout
 from hydra.experimental.callback import Callback
@@ -73,13 +73,10 @@ class SweepFolderLock(Callback):
         try:
             lock.acquire(timeout=0)
         except Timeout:
-            print(
+            _stop(
                 f"error: another sweep is running in {sweep_dir}: wait for it to end, or give "
-                "this one its own hydra.sweep.dir",
-                file=sys.stderr,
+                "this one its own hydra.sweep.dir"
             )
-            # Hydra turns a callback's exception into a warning; SystemExit ends the command.
-            raise SystemExit(1) from None
         self._lock = lock
         given = OmegaConf.select(config, "hydra.overrides.hydra", default=None) or []
         STARTED_FOLDERS.append(StartedFolder(sweep_dir, names_override(given, "hydra.sweep.dir")))
@@ -110,9 +107,7 @@ class SweepSummary(Callback):
             if not isinstance(error, RelayGSError):
                 traceback.print_exc()
             detail = error if isinstance(error, RelayGSError) else error_line(error)
-            print(f"error: no sweep summary: {detail}", file=sys.stderr)
-            # Hydra turns a callback's exception into a warning; SystemExit ends the command.
-            raise SystemExit(1) from None
+            _stop(f"error: no sweep summary: {detail}")
         print(describe(files))
         earlier = results_written_before(sweep_dir, self.started)
         if earlier:
@@ -124,10 +119,12 @@ class SweepSummary(Callback):
             )
         failed = [job.line for job in files.failed if job.run_dir not in earlier]
         if failed:
-            print(
-                f"error: {len(failed)} of {files.jobs - len(earlier)} job(s) failed: "
-                f"{'; '.join(failed)}",
-                file=sys.stderr,
-            )
-            # Hydra turns a callback's exception into a warning; SystemExit ends the command.
-            raise SystemExit(1)
+            total = files.jobs - len(earlier)
+            _stop(f"error: {len(failed)} of {total} job(s) failed: {'; '.join(failed)}")
+
+
+def _stop(line: str) -> NoReturn:
+    """Say `line` on stderr and end the command with status 1: Hydra turns a callback's
+    exception into a warning, but not SystemExit."""
+    print(line, file=sys.stderr)
+    raise SystemExit(1)

@@ -28,7 +28,7 @@ def resolve_config(cfg: DictConfig | Mapping[str, Any], base_dir: Path) -> dict[
     that is no text, is one line."""
     if isinstance(cfg, DictConfig):
         try:
-            config = OmegaConf.to_container(cfg, resolve=True)
+            config = OmegaConf.to_container(cfg, resolve=True, enum_to_str=True)
         except OmegaConfBaseException as error:  # e.g. relay.k=${nope}
             raise InputError(f"cannot resolve the config: {one_line(error)}") from error
     else:

@@ -133,7 +133,4 @@ def _text_box(note: Annotation, renderer: RendererAgg) -> Bbox:
 
 def _label_steps() -> list[int]:
     """Label offsets to try, in steps, nearest first: 0, 1, -1, 2, -2, ..."""
-    steps = [0]
-    for step in range(1, MAX_LABEL_STEPS + 1):
-        steps += [step, -step]
-    return steps
+    return [0, *(sign * step for step in range(1, MAX_LABEL_STEPS + 1) for sign in (1, -1))]

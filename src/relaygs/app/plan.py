@@ -3,20 +3,25 @@
 A stage receives `{"seed": ..., "train": <train section>, "<stage type>": <its section>}`: the
 section is the config group's values with the pipeline node's `overrides` merged over them and
 the budget multiplier applied to its step counts. Nothing else reaches a stage (or its key).
+The sections that are not a stage's are small dataclasses: Hydra checks their keys and types on
+compose (registered below as `<section>/schema`), `plan_run` parses them again from a plain dict
+and checks their value ranges.
 """
 
 from __future__ import annotations
 
 import copy
 import math
-import re
 from collections.abc import Callable, Collection, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field, fields
+from enum import Enum
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
+
+from hydra.core.config_store import ConfigStore
+from omegaconf import MISSING
 
 from relaygs.app.scenes import SceneSpec, scene_spec
-from relaygs.data.options import require_int
 from relaygs.errors import InputError
 from relaygs.paths import require_creatable_folder
 from relaygs.pipeline import Node, Pipeline, load_pipeline
@@ -24,55 +29,138 @@ from relaygs.pipeline.spec import names_a_file, parse_pipeline
 from relaygs.pipeline.store import ON_CORRUPT_CHOICES
 from relaygs.splat import BACKENDS
 
-HPARAMS_CHOICES = ("swept", "all")
+HParams = Enum("HParams", {"swept": "swept", "all": "all"})
 """`tensorboard.hparams`: the HParams entry holds the settings the sweep varies (with the
 pipeline and variant), or the whole config besides."""
-
-SECTION_KEYS = {
-    "tensorboard": ("preview_frames", "hparams"),
-    "report": ("reference",),
-    "paths": ("outputs", "scenes"),
-    "artifacts": ("root", "on_corrupt"),
-    "pipeline": ("name", "description", "nodes"),
-    "budget": ("name", "multiplier", "scaled_keys"),
-    "splat": ("backend",),
-}
-"""The settings of the config sections that are not a stage's (stage sections, `train`,
-`eval` and `scene` are checked by their own parsers): a `+budget.multipler=2` is refused."""
-TOP_LEVEL_KEYS = frozenset(
-    {"seed", "variant", "experiment_name", "threads", "train", "eval", "scene", *SECTION_KEYS}
-)
-"""Top-level keys of a run config besides one section per stage type."""
+OnCorrupt = Enum("OnCorrupt", {name: name for name in ON_CORRUPT_CHOICES})
+Backend = Enum("Backend", {name: name for name in BACKENDS})
 MAX_THREADS = 1024
 """Most torch CPU threads a job may ask for: more fails in the OpenMP runtime at job start
 (16384 could not be created here, 100000 crashed the process), after the scene is ready."""
-CONFIG_GROUPS = ("pipeline", "budget")
-"""Config groups whose section a run reads here: a value there was meant to choose a file."""
-LABELS = ("variant", "experiment_name", "report.reference", "scene.name", "budget.name")
-"""Settings that only label a run in its result (null allowed but for `variant`)."""
 
 StageValidator = Callable[[str, Mapping[str, Any]], None]
 """Checks the config a stage type receives (its section, `train`, and `eval` when present);
 raises a one-line InputError naming the bad key."""
+T = TypeVar("T")
+
+
+def _require(condition: bool, where: str, value: Any, expected: str) -> None:
+    """Raise a one-line InputError `where: expected <expected>, got <value>` unless `condition`."""
+    if not condition:
+        raise InputError(f"{where}: expected {expected}, got {value!r}")
+
+
+@dataclass
+class RunSettings:
+    """The top-level settings of a run besides its sections."""
+
+    seed: int = 0
+    variant: str = MISSING
+    experiment_name: str | None = None
+    threads: int | None = None
+
+    def validate(self) -> None:
+        """Ranges; a variant names a sweep job's folder `<job>_<variant>`, so holds no path
+        separator (its folder would land elsewhere)."""
+        _require(self.seed >= 0, "seed", self.seed, "an int >= 0")
+        fits = self.threads is None or 1 <= self.threads <= MAX_THREADS
+        _require(fits, "threads", self.threads, f"null or an int in [1, {MAX_THREADS}]")
+        plain = not any(separator in self.variant for separator in "/\\")
+        _require(plain, "variant", self.variant, "a plain name (no / or \\)")
+
+
+@dataclass
+class TensorBoardSettings:
+    """`tensorboard`: what a job logs for TensorBoard; never enters a key."""
+
+    preview_frames: int = 4
+    hparams: HParams = HParams.swept
+
+    def validate(self) -> None:
+        """A frame count >= 0."""
+        frames = self.preview_frames
+        _require(frames >= 0, "tensorboard.preview_frames", frames, "an int >= 0")
+
+
+@dataclass
+class ReportSettings:
+    """`report`: the variant the Δ column compares against (null: job 0's)."""
+
+    reference: str | None = None
+
+
+@dataclass
+class PathSettings:
+    """`paths`: where runs and the scene cache go."""
+
+    outputs: str = MISSING
+    scenes: str = MISSING
+
+
+@dataclass
+class ArtifactSettings:
+    """`artifacts`: the store's folder and what a corrupt artifact does."""
+
+    root: str = MISSING
+    on_corrupt: OnCorrupt = OnCorrupt.rebuild
+
+
+@dataclass
+class SplatSettings:
+    """`splat`: the splatting core's backend; never enters a key."""
+
+    backend: Backend = Backend.auto
+
+
+@dataclass
+class BudgetSettings:
+    """`budget`: a name, and the multiplier of the step counts its `scaled_keys` name."""
+
+    name: str | None = None
+    multiplier: float = 1.0
+    scaled_keys: list[str] = field(default_factory=lambda: ["steps"])
+
+    def validate(self) -> None:
+        """The multiplier is a finite number > 0."""
+        value = self.multiplier
+        _require(0 < value < math.inf, "budget.multiplier", value, "a finite number > 0")
+
+
+SECTIONS: dict[str, type] = {
+    "tensorboard": TensorBoardSettings,
+    "report": ReportSettings,
+    "paths": PathSettings,
+    "artifacts": ArtifactSettings,
+    "splat": SplatSettings,
+}
+"""Sections of conf/config.yaml checked by Hydra through their schema (`<name>/schema`, first in
+the defaults list); `budget` is set by the budget group's files, so only `plan_run` checks it."""
+TOP_LEVEL_KEYS = frozenset(
+    {"seed", "variant", "experiment_name", "threads", "train", "eval", "scene", "pipeline"}
+    | {"budget", *SECTIONS}
+)
+"""Top-level keys of a run config besides one section per stage type."""
+for _name, _schema in SECTIONS.items():
+    ConfigStore.instance().store(group=_name, name="schema", node=_schema)
 
 
 @dataclass(frozen=True)
 class RunPlan:
-    """Everything a run needs, validated: the pipeline, each node's stage config, the scene.
-
-    `stage_types` are all implemented stage types, whether or not this pipeline runs them."""
+    """Everything a run needs, validated: the pipeline, each node's stage config, the scene,
+    the run's labels (`run`, `reference`: what its result records). `stage_types` are all
+    implemented stage types, whether or not this pipeline runs them."""
 
     pipeline: Pipeline
     stage_types: frozenset[str]
     node_configs: dict[str, dict[str, Any]]
     scene: SceneSpec
-    seed: int
+    run: RunSettings
+    reference: str | None
     on_corrupt: str
     artifacts_root: Path
     scenes_dir: Path
     eval_config: dict[str, Any]
     preview_frames: int
-    threads: int | None = None
     splat_backend: str = "auto"
     hparams: str = "swept"
 
@@ -101,69 +189,67 @@ def plan_run(
     one-line InputErrors naming the field. `stage_types` are the implemented stage types;
     `validate` checks each node's stage config (the output node's with `eval` added);
     `accepted_upstream` the pipeline's upstream node types (`load_pipeline`)."""
-    _check_setting_names(cfg, stage_types)
-    seed = require_int("seed", cfg.get("seed"), minimum=0, prefix="")
-    artifacts, paths = _section(cfg, "artifacts"), _section(cfg, "paths")
-    if artifacts.get("on_corrupt") not in ON_CORRUPT_CHOICES:
-        raise InputError(
-            f"artifacts.on_corrupt must be one of {list(ON_CORRUPT_CHOICES)}, "
-            f"got {artifacts.get('on_corrupt')!r}"
-        )
-    threads = cfg.get("threads")
-    if threads is not None and (
-        isinstance(threads, bool) or not isinstance(threads, int) or not 1 <= threads <= MAX_THREADS
-    ):
-        raise InputError(
-            f"threads must be an integer in [1, {MAX_THREADS}] or null, got {threads!r}"
-        )
-    splat_backend = (_section(cfg, "splat") if "splat" in cfg else {}).get("backend", "auto")
-    if splat_backend not in BACKENDS:
-        raise InputError(f"splat.backend must be one of {list(BACKENDS)}, got {splat_backend!r}")
+    unknown = sorted(set(cfg) - TOP_LEVEL_KEYS - set(stage_types))
+    if unknown:  # an experiment file without `# @package _global_` lands under `experiment`
+        raise InputError(f"top level: unknown setting(s) {unknown}")
     pipeline = _pipeline(cfg, stage_types, accepted_upstream)
-    for dotted in LABELS:  # after the pipeline: `variant` is `${pipeline.name}` by default
-        _require_label(cfg, dotted)
-    multiplier, scaled_keys = _budget(_section(cfg, "budget") if "budget" in cfg else {})
-    _require_stage_setting_names(cfg, stage_types, scaled_keys)
-    eval_config = {"seed": seed, "train": _section(cfg, "train"), "eval": _section(cfg, "eval")}
+    run = _settings(RunSettings, cfg, "")
+    paths = _settings(PathSettings, cfg, "paths")
+    artifacts = _settings(ArtifactSettings, cfg, "artifacts")
+    tensorboard = _settings(TensorBoardSettings, cfg, "tensorboard")
+    splat = _settings(SplatSettings, cfg, "splat")
+    report = _settings(ReportSettings, cfg, "report")
+    budget = _settings(BudgetSettings, cfg, "budget")
+    _require_stage_setting_names(cfg, stage_types, budget.scaled_keys)
+    eval_config = {"seed": run.seed, "train": _section(cfg, "train"), "eval": _section(cfg, "eval")}
     for what, path in (
-        ("paths.outputs", paths["outputs"]),
-        ("paths.scenes", paths["scenes"]),
-        ("artifacts.root", artifacts["root"]),
+        ("paths.outputs", paths.outputs),
+        ("paths.scenes", paths.scenes),
+        ("artifacts.root", artifacts.root),
     ):
         require_creatable_folder(Path(path), what)
     node_configs = {}
     for node in pipeline.topological_order():
-        section = cfg.get(node.stage)
-        if not isinstance(section, Mapping):
-            raise InputError(f"config has no '{node.stage}' section for node {node.name!r}")
+        section = _section(cfg, node.stage)
         where = f"{pipeline.path}: node {node.name!r} overrides"
-        merged = merge_overrides(dict(section), node.overrides, where)
-        scaled = scale_steps(merged, multiplier, scaled_keys)
+        merged = merge_overrides(section, node.overrides, where)
+        scaled = scale_steps(merged, budget.multiplier, budget.scaled_keys)
         node_configs[node.name] = {
-            "seed": seed,
+            "seed": run.seed,
             "train": copy.deepcopy(eval_config["train"]),
             node.stage: scaled,
         }
         evaluated = node is pipeline.output_node
-        try:
-            validate(node.stage, {**node_configs[node.name], **(eval_config if evaluated else {})})
-        except InputError as error:
-            raise InputError(f"{error}{_pinned_by(node, str(error), where)}") from error
+        validate(node.stage, {**node_configs[node.name], **(eval_config if evaluated else {})})
     return RunPlan(
         pipeline=pipeline,
         stage_types=frozenset(stage_types),
         node_configs=node_configs,
         scene=scene_spec(_section(cfg, "scene")),
-        seed=seed,
-        on_corrupt=artifacts["on_corrupt"],
-        artifacts_root=Path(artifacts["root"]),
-        scenes_dir=Path(paths["scenes"]),
+        run=run,
+        reference=report.reference,
+        on_corrupt=artifacts.on_corrupt.name,
+        artifacts_root=Path(artifacts.root),
+        scenes_dir=Path(paths.scenes),
         eval_config=eval_config,
-        preview_frames=_preview_frames(cfg),
-        threads=threads,
-        splat_backend=splat_backend,
-        hparams=_hparams_choice(cfg),
+        preview_frames=tensorboard.preview_frames,
+        splat_backend=splat.backend.name,
+        hparams=tensorboard.hparams.name,
     )
+
+
+def _settings(cls: type[T], cfg: Mapping[str, Any], name: str) -> T:
+    """Section `name` of `cfg` (its top-level fields for "") as dataclass `cls` (OmegaConf
+    refuses unknown keys and values of the wrong type), its ranges checked by its `validate()`
+    where it has one."""
+    from relaygs.stages.config import parse_section  # loaded with the stages a run plans for
+
+    names = {each.name for each in fields(cls)}
+    data = _section(cfg, name) if name else {k: v for k, v in cfg.items() if k in names}
+    settings = parse_section(cls, data, name)
+    if hasattr(settings, "validate"):
+        settings.validate()
+    return settings
 
 
 def merge_overrides(
@@ -180,27 +266,6 @@ def merge_overrides(
         else:
             merged[key] = copy.deepcopy(value)
     return merged
-
-
-def _pinned_by(node: Node, message: str, where: str) -> str:
-    """` (set by <where>)` when `message` is about a setting that the pipeline node pins in its
-    `overrides` (e.g. `deform.gamma: ...`), whose value the command line cannot change; else
-    empty."""
-    pinned = [f"{node.stage}.{key}" for key in _dotted_keys(node.overrides)]
-    if any(re.match(rf"{re.escape(key)}\b", message) for key in pinned):
-        return f" (set by {where})"
-    return ""
-
-
-def _dotted_keys(section: Mapping[str, Any]) -> list[str]:
-    """The dotted paths of every leaf of a nested mapping."""
-    keys = []
-    for key, value in section.items():
-        if isinstance(value, Mapping) and value:
-            keys += [f"{key}.{inner}" for inner in _dotted_keys(value)]
-        else:
-            keys.append(str(key))
-    return keys
 
 
 def scale_steps(
@@ -227,24 +292,11 @@ def scale_steps(
 
 
 def _section(cfg: Mapping[str, Any], name: str) -> dict[str, Any]:
-    """A copy of the config section `name`, which must be a mapping."""
+    """A copy of the config section `name`, which must be a mapping (an experiment file's
+    `pipeline: 4dgs` would set the group's section to a value instead of choosing its file)."""
     section = cfg.get(name)
-    if not isinstance(section, Mapping):
-        if name in CONFIG_GROUPS:  # `pipeline: 4dgs` in an experiment file
-            raise InputError(group_value_error(name, section))
-        raise InputError(f"{name}: expected a config section (a mapping), got {section!r}")
-    return dict(section)
-
-
-def group_value_error(group: str, value: Any) -> str:
-    """The line for a config group that holds a value, not a section: `pipeline: 4dgs` in an
-    experiment file replaces the group's settings with that text instead of choosing its file."""
-    name = value if isinstance(value, str) and value else "NAME"
-    return (
-        f"{group}: expected a config section (a mapping), got {value!r}: {group} is a config "
-        f"group, choose its file with {group}={name} on the command line, or in an experiment "
-        f"file with `defaults: [override /{group}: {name}]`"
-    )
+    _require(isinstance(section, Mapping), name, section, "a config section (a mapping)")
+    return copy.deepcopy(dict(section))
 
 
 def _pipeline(
@@ -257,11 +309,8 @@ def _pipeline(
     changed alone, or a node changed on the command line) is refused."""
     section = _section(cfg, "pipeline")
     name = section.get("name")
-    if isinstance(name, bool) or not isinstance(name, str | int) or name == "":
-        raise InputError(
-            f"pipeline.name: expected the name of a conf/pipeline/<name>.yaml or a pipeline "
-            f"file's path, got {name!r} (each conf/pipeline/<name>.yaml holds `name: <name>`)"
-        )
+    named = not isinstance(name, bool) and isinstance(name, str | int) and name != ""
+    _require(named, "pipeline.name", name, "a conf/pipeline/<name>.yaml's name or a file's path")
     declared = load_pipeline(str(name), stage_types, accepted_upstream)
     if names_a_file(str(name)) or parse_pipeline(section, declared.path) == declared:
         return declared
@@ -271,110 +320,17 @@ def _pipeline(
     )
 
 
-def _check_setting_names(cfg: Mapping[str, Any], stage_types: Collection[str]) -> None:
-    """No top-level setting but TOP_LEVEL_KEYS and the stage sections, and none in a section
-    of SECTION_KEYS but its own."""
-    if isinstance(cfg.get("experiment"), Mapping):
-        raise InputError(
-            f"top level: unknown setting 'experiment' (holding {sorted(cfg['experiment'])}): "
-            "an experiment file in conf/experiment/ must start with the line "
-            "`# @package _global_`, else its settings land under `experiment.`"
-        )
-    if isinstance(cfg.get("_global"), Mapping):  # `# @package _global`, one underscore short
-        raise InputError(
-            f"top level: unknown setting '_global' (holding {sorted(cfg['_global'])}): an "
-            "experiment file's first line must be `# @package _global_`, with the trailing "
-            "underscore"
-        )
-    _require_known_keys(cfg, "top level", TOP_LEVEL_KEYS | set(stage_types))
-    for name, keys in SECTION_KEYS.items():
-        if name in cfg:  # a missing section is reported where it is read
-            _require_known_keys(_section(cfg, name), name, keys)
-
-
-def _require_known_keys(section: Mapping[str, Any], name: str, known: Collection[str]) -> None:
-    """Refuse settings of `section` (called `name`) outside `known`: a typo added with `+`
-    (`+budget.multipler=2`) would otherwise be ignored without a word."""
-    unknown = sorted(set(section) - set(known))
-    if unknown:
-        raise InputError(f"{name}: unknown setting(s) {unknown}; expected {sorted(known)}")
-
-
 def _require_stage_setting_names(
     cfg: Mapping[str, Any], stage_types: Collection[str], scaled_keys: Collection[str]
 ) -> None:
     """Each of `budget.scaled_keys` names a setting of some stage section, at any depth: a
     misspelt name (`stpes`) would leave the step counts it meant unscaled without a word."""
-    names: set[str] = set()
-    for stage in stage_types:
-        if isinstance(cfg.get(stage), Mapping):
-            names |= _setting_names(cfg[stage])
-    unknown = sorted(set(scaled_keys) - names)
-    if unknown:
-        raise InputError(
-            f"budget.scaled_keys: {unknown} name no setting of any stage section "
-            "(expected step-count settings such as 'steps' or 'densify_every')"
-        )
+    sections = [cfg[stage] for stage in stage_types if isinstance(cfg.get(stage), Mapping)]
+    unknown = sorted(set(scaled_keys) - set().union(*map(_setting_names, sections)))
+    _require(not unknown, "budget.scaled_keys", unknown, "names of stage settings ('steps')")
 
 
 def _setting_names(section: Mapping[str, Any]) -> set[str]:
     """Every key of `section` and of the mappings nested in it."""
-    names = set(section)
-    for value in section.values():
-        if isinstance(value, Mapping):
-            names |= _setting_names(value)
-    return names
-
-
-def _require_label(cfg: Mapping[str, Any], dotted: str) -> None:
-    """A label setting (LABELS) is a string, a finite number or, but for `variant`, null: a
-    list or mapping would make `result.json` one that the sweep report refuses, and NaN one
-    that cannot be written, both only once the job has trained. A variant, which names a sweep
-    job's folder, holds no path separator (its folder would land elsewhere)."""
-    section, _, key = dotted.rpartition(".")
-    values = cfg.get(section) if section else cfg
-    if not isinstance(values, Mapping) or key not in values:
-        return  # a missing section is reported where it is read
-    value = values[key]
-    number = isinstance(value, int | float) and math.isfinite(value)
-    nullable = value is None and dotted != "variant"
-    if not (isinstance(value, str) or number or nullable):
-        kind = "a string or a number" if dotted == "variant" else "a string, a number or null"
-        raise InputError(f"{dotted}: expected {kind}, got {value!r}")
-    if dotted == "variant" and any(separator in str(value) for separator in ("/", "\\")):
-        raise InputError(
-            f"variant: {value!r} holds a path separator; a sweep names each job's folder "
-            "<job>_<variant> inside the sweep folder, so a variant is a plain name (no / or \\)"
-        )
-
-
-def _preview_frames(cfg: Mapping[str, Any]) -> int:
-    """`tensorboard.preview_frames`: how many render-vs-truth frames TensorBoard gets (>= 0)."""
-    count = _section(cfg, "tensorboard").get("preview_frames")
-    return require_int("preview_frames", count, minimum=0, prefix="tensorboard.")
-
-
-def _hparams_choice(cfg: Mapping[str, Any]) -> str:
-    """`tensorboard.hparams`: one of HPARAMS_CHOICES (default `swept`)."""
-    choice = _section(cfg, "tensorboard").get("hparams", "swept")
-    if choice not in HPARAMS_CHOICES:
-        raise InputError(
-            f"tensorboard.hparams must be one of {list(HPARAMS_CHOICES)}, got {choice!r}"
-        )
-    return choice
-
-
-def _budget(budget: Mapping[str, Any]) -> tuple[float, list[str]]:
-    """The budget's step multiplier (a finite number > 0) and the keys it scales."""
-    multiplier = budget.get("multiplier", 1.0)
-    if (
-        isinstance(multiplier, bool)
-        or not isinstance(multiplier, int | float)
-        or not math.isfinite(multiplier)
-        or multiplier <= 0
-    ):
-        raise InputError(f"budget.multiplier must be a number > 0, got {multiplier!r}")
-    keys = budget.get("scaled_keys", ["steps"])
-    if not isinstance(keys, list) or not all(isinstance(key, str) for key in keys):
-        raise InputError(f"budget.scaled_keys must be a list of setting names, got {keys!r}")
-    return float(multiplier), keys
+    nested = (_setting_names(value) for value in section.values() if isinstance(value, Mapping))
+    return set(section).union(*nested)

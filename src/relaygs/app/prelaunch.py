@@ -9,7 +9,6 @@ command would launch (the command-line sweeps times the basic sweeper's
 
 from __future__ import annotations
 
-import importlib.util
 import itertools
 import shutil
 from collections.abc import Callable, Sequence
@@ -203,14 +202,6 @@ def _check_submit_commands(launcher: str) -> None:
             f"{' and '.join(REMOTE_LAUNCHERS[launcher])}, but this machine has no "
             f"{' or '.join(missing)} on PATH: run the sweep from the cluster's login node"
         )
-
-
-def is_installed(module: str) -> bool:
-    """True when `module` (dotted) can be imported; a missing parent package counts as not."""
-    try:
-        return importlib.util.find_spec(module) is not None
-    except ModuleNotFoundError:
-        return False
 
 
 def parse_overrides(args: Sequence[str]) -> list[Override]:

@@ -55,7 +55,7 @@ def build_result(
     The `*_built_by_job` seconds count what job `builder` (a `BUILT_BY` value) built, before an
     interruption too, so a sweep resumed in place still shows what it computed."""
     metrics = evaluation.metrics
-    result = _identity(cfg, plan, job)
+    result = _identity(plan, job)
     result["status"] = STATUS_OK
     result.update({name: _scalar(metrics.get(name)) for name in METRIC_FIELDS})
     result.update(
@@ -87,7 +87,7 @@ def build_failed_result(
 ) -> dict[str, Scalar]:
     """The result of a run that raised `error`: its identity and parameters, status
     `failed`, the error's one-line description and no metrics."""
-    result = _identity(cfg, plan, job)
+    result = _identity(plan, job)
     result.update({"status": STATUS_FAILED, "error": error_line(error)})
     result.update({name: None for name in METRIC_FIELDS})
     _add_parameters(result, cfg, plan, overrides)
@@ -164,16 +164,16 @@ def _run_label(result: Mapping[str, Scalar]) -> str:
     return f"{variant} ({pipeline})"
 
 
-def _identity(cfg: Mapping[str, Any], plan: RunPlan, job: int | None) -> dict[str, Scalar]:
+def _identity(plan: RunPlan, job: int | None) -> dict[str, Scalar]:
     """The fields that say which run this is (experiment, variant, job, pipeline, scene, seed)."""
     return {
-        "experiment": cfg.get("experiment_name"),
-        "variant": str(cfg.get("variant")),
-        "reference_variant": (cfg.get("report") or {}).get("reference"),
+        "experiment": plan.run.experiment_name,
+        "variant": plan.run.variant,
+        "reference_variant": plan.reference,
         "job": job,
         "pipeline": plan.pipeline.name,
         "scene": plan.scene.name,
-        "seed": plan.seed,
+        "seed": plan.run.seed,
     }
 
 

@@ -5,7 +5,7 @@ or load a capture folder."""
 from __future__ import annotations
 
 import hashlib
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -71,28 +71,18 @@ def scene_spec(section: Mapping[str, Any]) -> SceneSpec:
     A set `path` must be an existing folder in a known layout; otherwise `preset` must name a
     synthetic preset. Every error is one InputError naming the `scene.*` field.
     """
-    unknown = sorted(set(section) - SCENE_FIELDS)
-    if unknown:
-        loader = [f"scene.loader.{name}" for name in unknown if name in LOADER_OPTIONS]
-        hint = f" (did you mean {', '.join(loader)}?)" if loader else ""
-        raise InputError(
-            f"scene: unknown field(s) {unknown}; expected {sorted(SCENE_FIELDS)}{hint}"
-        )
+    _require_known(section, SCENE_FIELDS, "scene")
+    label = section.get("name")
+    if isinstance(label, bool | list | Mapping):  # str() would label the scene with its text
+        raise InputError(f"scene.name: expected a string, got {label!r}")
     effects = section.get("effects")
     if effects is not None:
         effects = tuple(sorted(parse_effects(effects, source="scene.effects")))
     loader = section.get("loader") or {}
     if not isinstance(loader, Mapping):
-        raise InputError(
-            f"scene.loader must be a mapping of loader options {list(LOADER_OPTIONS)}, "
-            f"got {loader!r}"
-        )
+        raise InputError(f"scene.loader: expected a mapping of loader options, got {loader!r}")
     loader = dict(loader)
-    unknown = sorted(set(loader) - set(LOADER_OPTIONS))
-    if unknown:
-        raise InputError(
-            f"scene.loader: unknown option(s) {unknown}; expected {list(LOADER_OPTIONS)}"
-        )
+    _require_known(loader, LOADER_OPTIONS, "scene.loader")
     options = make_options(**loader, prefix=LOADER_PREFIX)
     counts = {
         name: require_int(
@@ -119,6 +109,13 @@ def scene_spec(section: Mapping[str, Any]) -> SceneSpec:
     _check_held_out(preset, options.test_cameras, len(rig))
     name = str(section.get("name") or preset)
     return SceneSpec(name, preset, None, **counts, seed=seed, effects=effects, loader=loader)
+
+
+def _require_known(section: Mapping[str, Any], known: Collection[str], where: str) -> None:
+    """Refuse keys of `section` (named `where`) outside `known`, in one line."""
+    unknown = sorted(set(section) - set(known))
+    if unknown:
+        raise InputError(f"{where}: unknown setting(s) {unknown}; expected {sorted(known)}")
 
 
 def synthetic_folder(spec: SceneSpec, scenes_dir: Path) -> Path:

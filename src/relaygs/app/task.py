@@ -126,7 +126,7 @@ def run_task(
 def _load_scene(plan: RunPlan) -> Scene:
     """The run's scene, loaded (generated first, for a synthetic one) with the run's threads;
     a disk or memory failure as a one-line ResourceError."""
-    set_threads(plan.threads)
+    set_threads(plan.run.threads)
     use_backend(plan.splat_backend)
     if plan.splat_backend == "auto" and plan.device == "cpu":
         native.available()  # a first build (or why there is none) is said before any bar
@@ -377,7 +377,7 @@ def _where(plan: RunPlan, outcome: _Outcome, result_path: Path) -> str:
         ids = ",".join(str(camera.camera_id) for camera in scene.test_cameras) or "[]"
         loader += f" --test-cameras {shlex.quote(ids)}"
     device = f" --device {shlex.quote(plan.device)}" if plan.device != "cpu" else ""
-    threads = f" --threads {plan.threads}" if plan.threads is not None else ""
+    threads = f" --threads {plan.run.threads}" if plan.run.threads is not None else ""
     root, scene_dir = shlex.quote(str(plan.artifacts_root)), shlex.quote(str(scene.root))
     artifacts = f"{python_command()} -m relaygs.artifacts --root {root}"
     lines = [
