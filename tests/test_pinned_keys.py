@@ -19,35 +19,35 @@ SCENE = SimpleNamespace(fingerprint="pinned-scene", num_frames=64)
 PINNED = {
     "pipeline=relaygs": {
         "decouple": "051ff8a87afd150e",
-        "relay": "6e71326cb478a082",
-        "deform": "7094fd83ea820932",
+        "relay": "cc73fc461c391de2",
+        "deform": "e3add94dfa70c10e",
     },
-    "pipeline=4dgs": {"warmup": "950e91bf2d07be4a", "deform": "fa9f4efe3753970d"},
+    "pipeline=4dgs": {"warmup": "950e91bf2d07be4a", "deform": "3c12c832529165b5"},
     "pipeline=no_stage2": {
         "decouple": "051ff8a87afd150e",
         "replicate": "aaae1cf4be8b3f0f",
-        "deform": "52de62357eee271e",
+        "deform": "14795ab5fa6d8ed8",
     },
-    "pipeline=no_copies": {"decouple": "051ff8a87afd150e", "deform": "b18eaeea932cf6f3"},
+    "pipeline=no_copies": {"decouple": "051ff8a87afd150e", "deform": "f2f8a819abd75b65"},
     "+component=no_gamma": {
         "decouple": "051ff8a87afd150e",
-        "relay": "6e71326cb478a082",
-        "deform": "43981c9c90b20030",
+        "relay": "cc73fc461c391de2",
+        "deform": "22e82322d66adb1a",
     },
     "+component=no_isolation": {
         "decouple": "051ff8a87afd150e",
-        "relay": "6e71326cb478a082",
-        "deform": "6cddd7dd0431b4ff",
+        "relay": "cc73fc461c391de2",
+        "deform": "f0e743e26eb09d3a",
     },
     "+component=no_pseudo_views": {
         "decouple": "051ff8a87afd150e",
-        "relay": "466a7ee2687dcc8c",
-        "deform": "f85b78f8859ccbba",
+        "relay": "42f2d6e3326f4ab7",
+        "deform": "c44eabf98c3cf287",
     },
     "relay.k=128": {
         "decouple": "051ff8a87afd150e",
-        "relay": "a9f2ce76eea176f2",
-        "deform": "4c462740689eae9c",
+        "relay": "f98e199347621d0d",
+        "deform": "031a0c25fe349b74",
     },
 }
 """Each node's key (its first 16 hex digits) at the default scene settings and `small` budget;
