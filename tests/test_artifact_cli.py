@@ -228,7 +228,8 @@ def test_eval_scores_a_stored_model_like_the_evaluator(stage_scene_path, stage_d
     stored_mb = store.manifest("decouple", key).size_mb  # what result.json reports
     assert f"storage_mb      {stored_mb:.4f}" in done.stdout
     written = read_per_view(views_csv)
-    assert written == [pytest.approx(record) for record in expected[PER_VIEW]]
+    # another process's float32 render may differ in its last bits: scores agree to 1e-4
+    assert written == [pytest.approx(record, rel=1e-4) for record in expected[PER_VIEW]]
     views = len(expected[PER_VIEW])
     assert f"per-view metrics of {views} image(s) in {views_csv}" in done.stdout
 
