@@ -45,7 +45,7 @@ from relaygs.train.loop import StepResult, TrainReport, run_training
 from relaygs.train.loss import photometric_loss
 from relaygs.train.render import FrozenRenders, part_of, splat
 from relaygs.train.scene_model import SEGMENT, SceneModel, core_only, replicate_foreground
-from relaygs.train.segment_plan import SegmentPlan, frame_motion
+from relaygs.train.segment_plan import SegmentPlan, boundaries_fixed, frame_motion
 from relaygs.train.segments import SegmentTargets
 from relaygs.train.session import SetPlan, TrainingSession
 from relaygs.train.views import TrainViews
@@ -119,7 +119,7 @@ class RelayConfig(PerSetSections):
     def segment_plan(self, scene: Scene) -> SegmentPlan:
         """The segments over `scene`: k frames each, or ceil(T / k) placed by its motion."""
         uniform = SegmentPlan.uniform(scene.num_frames, self.k)
-        if self.segments == "uniform" or uniform.count in (1, scene.num_frames):
+        if self.segments == "uniform" or boundaries_fixed(scene.num_frames, self.k):
             return uniform
         return SegmentPlan.by_motion(frame_motion(scene), uniform.count)
 

@@ -11,6 +11,7 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 from relaygs.data import Scene
+from relaygs.train.segment_plan import boundaries_fixed
 
 SectionCanonical = Callable[[Mapping[str, Any], Scene], dict[str, Any]]
 """`(stage section, scene) -> canonical section`."""
@@ -32,7 +33,7 @@ def uniform_unless_adaptive(section: Mapping[str, Any], scene: Scene) -> dict[st
     uniform relays stay those they had before the setting existed."""
     canonical = one_segment_at_most(section, scene)
     k = canonical.get("k")
-    no_choice = isinstance(k, int) and k in (1, scene.num_frames)
-    if canonical.get("segments", "uniform") == "uniform" or no_choice:
+    fixed = isinstance(k, int) and k >= 1 and boundaries_fixed(scene.num_frames, k)
+    if canonical.get("segments", "uniform") == "uniform" or fixed:
         canonical.pop("segments", None)
     return canonical

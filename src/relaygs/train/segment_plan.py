@@ -88,6 +88,12 @@ class SegmentPlan:
         return [len(self.frames(segment)) for segment in range(self.count)]
 
 
+def boundaries_fixed(num_frames: int, k: int) -> bool:
+    """Whether S = ceil(T / k) segments leave no choice of boundaries (one frame each, or one
+    segment of all frames): adaptive placement then is the uniform plan."""
+    return math.ceil(num_frames / k) in (1, num_frames)
+
+
 def frame_motion(scene: Scene, cameras: int = MOTION_CAMERAS) -> Tensor:
     """Mean absolute image change between consecutive frames [T - 1], over up to `cameras`
     train cameras spread over the rig (each pair scored where the camera has both images),
