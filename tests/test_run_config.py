@@ -196,7 +196,7 @@ def test_stage_groups_hold_exactly_the_stage_defaults(composer):
     assert cfg["eval"] == _defaults(EvalSettings)
 
 
-@pytest.mark.parametrize("budget", ["paper", "small", "smoke"])
+@pytest.mark.parametrize("budget", ["paper", "medium", "small", "smoke"])
 def test_budget_files_set_the_stages_budgets(composer, budget):
     cfg = OmegaConf.to_container(composer([f"budget={budget}"]), resolve=True)
     for section, values in step_budgets()[budget].items():
