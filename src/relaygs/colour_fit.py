@@ -1,12 +1,6 @@
-"""Colour-fitted PSNR: a camera's renders scored after the per-channel gain and offset that map
-them best onto its images (least squares over all of its images, 6 numbers per camera).
-
-A held-out camera of a scene whose cameras each record colour their own way (Panoptic's, or a
-synthetic scene with `color_inconsistency`) has a response no model can learn from the other
-cameras; the fit removes it and nothing else, since 6 numbers cannot fit image content
-(docs/results.md, section 7b). The fitted values are not clipped, so the score follows in closed
-form from per-image channel moments and the renders need not be kept.
-"""
+"""Colour-fitted PSNR: each camera's renders scored after the channel gain and offset that fit them
+best to its images, removing a held-out camera's own colour response (docs/results.md, 7b); in
+closed form from per-image channel moments, so renders need not be kept."""
 
 from __future__ import annotations
 

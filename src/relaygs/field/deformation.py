@@ -18,12 +18,8 @@ ISOLATED_SETS = ("background", "foreground")
 
 
 class DeformationField(nn.Module):
-    """Motion field of the deform stage and the 4D-GS baseline: (xyz, t, group) → Deltas.
-
-    With `isolate_fg_bg` the background (group 0) and foreground (group 1) Gaussians go
-    through separate MLP sets, as the paper's "separate MLPs"; both read one shared HexPlane
-    (the paper separates only the MLPs, and one grid keeps the field's cost and memory flat).
-    """
+    """Motion field (xyz, t, group) → Deltas; with `isolate_fg_bg` background (group 0) and
+    foreground (1) go through separate MLP sets (the paper's) reading one shared HexPlane."""
 
     def __init__(
         self,
@@ -59,11 +55,8 @@ class DeformationField(nn.Module):
         )
 
     def forward(self, xyz: Tensor, t: float | Tensor, group: Tensor | None = None) -> Deltas:
-        """Deltas of Gaussians at `xyz` [N, 3], time `t` in [0, 1] (scalar or [N]).
-
-        `group` [N] (0 = background, 1 = foreground) is required with isolated MLP sets and
-        ignored otherwise.
-        """
+        """Deltas of Gaussians at `xyz` [N, 3], time `t` in [0, 1] (scalar or [N]); `group` [N]
+        is required with isolated MLP sets and ignored otherwise."""
         features = self.hexplane(xyz, t)
         if not self.isolate_fg_bg:
             return self.mlp_sets[SHARED_SET](features)

@@ -13,10 +13,7 @@ GAMMA_LIMIT = 10.0
 
 
 def relay_factor(gamma: Tensor, is_relay: Tensor) -> Tensor:
-    """Per-Gaussian motion factor [N, 3]: 1 + e^clamp(γ) on relay rows, exactly 1 elsewhere.
-
-    γ = 0 gives factor 2, as the paper's formula does at initialisation.
-    """
+    """Per-Gaussian motion factor [N, 3]: 1 + e^clamp(γ) on relay rows (2 at γ = 0), 1 elsewhere."""
     if gamma.dim() != 2 or gamma.shape[1] != 3:
         raise InputError(f"relay gamma: expected shape [N, 3], got {list(gamma.shape)}")
     if is_relay.shape != (gamma.shape[0],) or is_relay.dtype != torch.bool:

@@ -1,10 +1,5 @@
-"""The Gaussian parameter set: raw learnable tensors, their activations and row bookkeeping.
-
-A `GaussianSet` holds the six core per-Gaussian parameters plus a registry of extra
-per-Gaussian parameters (learned, e.g. `mask_logit`, `gamma`) and buffers (not learned,
-e.g. `is_fg`, `segment`). Every row operation (subset, concat, reindex) treats core
-parameters, extras and buffers alike, so they can never fall out of step.
-"""
+"""The Gaussian parameter set: raw learnable tensors, their activations and row operations that
+treat core parameters, extras (e.g. `gamma`) and buffers (e.g. `segment`) alike."""
 
 from __future__ import annotations
 
@@ -54,21 +49,16 @@ def normalize_quats(quats: Tensor) -> Tensor:
 
 
 def _init_sq_dist_floor(xyz: Tensor) -> Tensor:
-    """MIN_INIT_SQ_DIST in the cloud's units: scaled by the square of its bounding-box diagonal
-    when that is under 1, so a scene in millimetres does not start with Gaussians larger than
-    itself (one point, or all at one place: unscaled); never below float32's smallest normal
-    number, whose log is finite. A 0-d tensor on the points' device (no host read)."""
+    """MIN_INIT_SQ_DIST × the squared bounding-box diagonal when under 1 (a scene in mm does not
+    start with Gaussians larger than itself); at least float32's tiny; 0-d on the points' device."""
     size = torch.linalg.vector_norm(xyz.amax(dim=0) - xyz.amin(dim=0))
     unit = torch.where((size > 0.0) & (size < 1.0), size, torch.ones_like(size))
     return (MIN_INIT_SQ_DIST * unit * unit).clamp_min(torch.finfo(torch.float32).tiny)
 
 
 class GaussianSet:
-    """Raw per-Gaussian parameters (nn.Parameters) and buffers, with 3DGS activations.
-
-    Core parameters: means [N,3], log_scales [N,3], quats [N,4] (wxyz, any norm),
-    opacity_logits [N], sh_dc [N,1,3], sh_rest [N,(d+1)²−1,3] for max SH degree d.
-    """
+    """Raw per-Gaussian parameters and buffers with 3DGS activations: means, log_scales [N,3],
+    quats [N,4] (wxyz), opacity_logits [N], sh_dc [N,1,3], sh_rest [N,(d+1)²−1,3]."""
 
     def __init__(
         self,
@@ -96,11 +86,7 @@ class GaussianSet:
 
     @classmethod
     def from_points(
-        cls,
-        xyz: Tensor,
-        rgb: Tensor,
-        max_sh_degree: int = 3,
-        init_opacity: float = 0.1,
+        cls, xyz: Tensor, rgb: Tensor, max_sh_degree: int = 3, init_opacity: float = 0.1
     ) -> GaussianSet:
         """3DGS initialisation from a coloured point cloud (xyz [N,3], rgb [N,3] in [0,1]), on
         the points' device."""
@@ -251,11 +237,8 @@ class GaussianSet:
         )
 
     def reindex_rows_(self, source: Tensor, overrides: Mapping[str, Tensor] | None = None) -> None:
-        """In place: row i becomes old row source[i]; `overrides` give whole new tensors by name.
-
-        Parameters are replaced by new nn.Parameter objects (an optimiser must be told; see
-        `GaussianOptimizer.reindex_rows`).
-        """
+        """In place: row i becomes old row source[i], `overrides` give whole tensors by name; new
+        nn.Parameters replace the old (tell the optimiser: `GaussianOptimizer.reindex_rows`)."""
         overrides = overrides or {}
         index = as_row_index(source, len(self))
         m = index.shape[0]

@@ -1,14 +1,6 @@
-"""One Adam over named per-parameter groups of one or more Gaussian sets, with lr schedules.
-
-Foreground/background position learning rates: Adam is invariant to gradient scale, so
-scaling gradients per row cannot give rows different step sizes. Instead foreground and
-background are two separate `GaussianSet`s (concatenated only at render time), each with its
-own `SetLearningRates`; group names are "<set>.<param>" (e.g. "fg.means", "bg.log_scales").
-Densification then works per set on whole tensors, exactly as in 3DGS.
-
-Position learning rates are multiplied by `spatial_lr_scale` (the scene extent), as 3DGS and
-4D-GS do for means, for every set; all other rates are used as given.
-"""
+"""One Adam over named "<set>.<param>" groups of one or more Gaussian sets, with lr schedules:
+foreground and background are separate sets, as Adam cannot give rows of one tensor their own
+step sizes; position rates are × `spatial_lr_scale` (the scene extent), as in 3DGS."""
 
 from __future__ import annotations
 
@@ -34,11 +26,8 @@ def log_linear(
     delay_steps: int = 0,
     delay_mult: float = 1.0,
 ) -> float:
-    """3DGS `get_expon_lr_func`: log-linear from lr_init to lr_final over max_steps.
-
-    An optional delay scales the rate by delay_mult rising to 1 (sine ease) over delay_steps.
-    max_steps ≤ 0 means the schedule is already complete (lr_final).
-    """
+    """3DGS `get_expon_lr_func`: log-linear lr_init → lr_final over max_steps (≤ 0: done), times
+    delay_mult rising to 1 (sine ease) over delay_steps."""
     if lr_init == 0.0 and lr_final == 0.0:
         return 0.0
     if lr_init <= 0.0 or lr_final <= 0.0:
@@ -131,9 +120,8 @@ class SetLearningRates:
 
 @functools.cache
 def has_fused_adam(device: torch.device) -> bool:
-    """Whether this torch has a fused Adam kernel for DEVICE, found by one step on a probe
-    there (the CPU's came in torch 2.4; older versions refuse fused=True when the optimiser is
-    built, newer ones when it steps)."""
+    """Whether this torch has a fused Adam kernel for DEVICE, by one step on a probe (older
+    versions refuse fused=True when the optimiser is built, newer ones when it steps)."""
     probe = torch.zeros(1, device=device, requires_grad=True)
     probe.grad = torch.zeros_like(probe)
     try:
@@ -144,9 +132,8 @@ def has_fused_adam(device: torch.device) -> bool:
 
 
 def adam(groups: list[dict]) -> torch.optim.Adam:
-    """Adam with eps 1e-15 over param groups, as one fused kernel per step where torch has one
-    for the params' device (the per-tensor loop costs several times more on the CPU), else as
-    the multi-tensor (foreach) step; the update is the same."""
+    """Adam with eps 1e-15 over param groups, fused where torch has the kernel for the params'
+    device (the per-tensor loop costs several times more on the CPU), else foreach."""
     fused = has_fused_adam(groups[0]["params"][0].device)
     kernel = {"fused": True} if fused else {"foreach": True}
     return torch.optim.Adam(groups, lr=0.0, eps=ADAM_EPS, **kernel)
@@ -189,18 +176,6 @@ class GaussianOptimizer:
             rates[group["name"]] = lr
         return rates
 
-    def learning_rate(self, group_name: str) -> float:
-        """Current lr of the named group."""
-        return self._group(group_name)["lr"]
-
-    def zero_grad(self) -> None:
-        """Drop all gradients (set to None)."""
-        self.adam.zero_grad(set_to_none=True)
-
-    def step(self) -> None:
-        """One Adam step over all groups."""
-        self.adam.step()
-
     def reindex_rows(
         self,
         gaussians: GaussianSet,
@@ -208,10 +183,8 @@ class GaussianOptimizer:
         fresh_state: Tensor | None = None,
         overrides: Mapping[str, Tensor] | None = None,
     ) -> None:
-        """Row remap of a managed set: row i takes old row source[i] (values and Adam state).
-
-        Rows where `fresh_state` is True get zero Adam moments; `overrides` replace values.
-        """
+        """Row remap of a managed set: row i takes old row source[i] (values and Adam state), with
+        zero moments where `fresh_state`; `overrides` replace values."""
         old_params = gaussians.params
         index = as_row_index(source, len(gaussians))
         gaussians.reindex_rows_(index, overrides)
@@ -232,12 +205,6 @@ class GaussianOptimizer:
     def state_of(self, param: nn.Parameter) -> dict[str, Tensor]:
         """The Adam state tensors of `param` (empty before its first step)."""
         return dict(self.adam.state.get(param, {}))
-
-    def _group(self, group_name: str) -> dict:
-        for group in self.adam.param_groups:
-            if group["name"] == group_name:
-                return group
-        raise InputError(f"optimizer: no param group {group_name!r}")
 
     def _swap_param(
         self, old: nn.Parameter, new: nn.Parameter, index: Tensor, fresh: Tensor | None

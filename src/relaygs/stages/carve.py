@@ -1,13 +1,5 @@
-"""Where the movers are at a frame: a visual hull of what the frozen background cannot explain.
-
-After decouple the background explains every static pixel of every frame, so at any frame
-the residual |image − background render| marks the foreground in each train camera. A point
-is foreground when it projects into the residual of (nearly) every train camera that sees it.
-The relay stage seeds a segment's copy from the hull at its pseudo frames when the foreground
-has travelled out of reach of the frame-0 replica (gradients only move Gaussians that already
-overlap their target). Two passes: coarse voxels against dilated residuals, then their
-sub-voxels against the residuals themselves.
-"""
+"""Where the movers are at a frame: the visual hull of what the frozen background render misses
+in (nearly) every train camera, coarse voxels then sub-voxels (docs/method.md, Carved copies)."""
 
 from __future__ import annotations
 
@@ -21,9 +13,8 @@ from relaygs.data import Camera
 from relaygs.errors import InputError
 
 SUBDIVISIONS = 4  # sub-voxels per axis of a kept coarse voxel
-# Kept coarse voxels refined at most. A mover fills a few hundred; tens of thousands mean the
-# residual is no silhouette (an unconverged background), and refining all of them would cost
-# seconds per frame for seeds that are thinned to a few thousand anyway.
+# coarse voxels refined at most: a mover fills a few hundred, more mean no silhouette (an
+# unconverged background) and would cost seconds per frame for seeds thinned anyway
 MAX_REFINED_VOXELS = 4096
 MIN_CAMERAS = 3  # a point seen by fewer train cameras cannot be triangulated
 
@@ -39,12 +30,8 @@ class HullSettings:
 
 
 def residual_masks(renders: Tensor, images: Tensor, threshold: float) -> Tensor:
-    """[C,H,W] bool: pixels the background render misses by more than `threshold` in some channel.
-
-    A per-camera, per-channel gain is matched first (least squares over the whole image,
-    dominated by the background) so cameras with a colour response of their own do not light
-    up everywhere.
-    """
+    """[C,H,W] bool: pixels the background render misses by more than `threshold` in a channel,
+    after a least-squares gain per camera and channel (a camera's own colour response)."""
     numerator = (renders * images).sum(dim=(1, 2))
     denominator = (renders * renders).sum(dim=(1, 2))
     safe = torch.where(denominator > 1e-8, denominator, torch.ones_like(denominator))

@@ -5,30 +5,26 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 from relaygs.data import Scene
 from relaygs.pipeline.artifact import Artifact
-from relaygs.stages.config import parse_section, require
+from relaygs.stages.config import Section, require
 from relaygs.stages.train_settings import TrainSettings
 from relaygs.train.evaluate import score_model
 from relaygs.train.scene_model import SceneModel
 
 
 @dataclass(frozen=True)
-class EvalSettings:
+class EvalSettings(Section):
     """`cfg["eval"]`: evaluate frames 0, stride, 2·stride, …"""
 
+    section: ClassVar[str] = "eval"
     frame_stride: int = 1
 
     def __post_init__(self) -> None:
         """The stride is a positive frame count."""
         require(self.frame_stride >= 1, "eval.frame_stride", self.frame_stride, "an int >= 1")
-
-    @classmethod
-    def from_config(cls, data: Mapping[str, Any] | None) -> EvalSettings:
-        """Parse `cfg["eval"]` (missing keys keep defaults)."""
-        return parse_section(cls, data, "eval")
 
 
 def evaluate(scene: Scene, artifact: Artifact, cfg: Mapping[str, Any]) -> dict[str, Any]:

@@ -1,15 +1,5 @@
-"""Stage 2, relay: S = ceil(T/k) copies of the decoupled foreground, copy s fitted to segment s.
-
-Segments are k frames each (`segments: uniform`, the paper's) or, with `segments: adaptive`,
-the same S segments placed by motion (`SegmentPlan.by_motion`): short where the foreground
-moves fast, long where it is still.
-
-Each step draws one segment s and `batch_views` train cameras; the background plus copy s is
-rendered and compared with the pseudo-views of those cameras (the mean of p frames spread over
-the segment) or, with `pseudo_views: false`, with one random frame of the segment. The
-background is frozen by default: the pseudo-views blur the movers, and a background trained on
-them would absorb that blur; it already fits every frame after decouple.
-"""
+"""Stage 2, relay: S = ceil(T/k) copies of the decoupled foreground, copy s fitted to segment
+s's pseudo-views over a frozen background (segments uniform or placed by motion: docs/method.md)."""
 
 from __future__ import annotations
 
@@ -31,12 +21,7 @@ from relaygs.stages.common import (
     training_scene,
     upstream_model,
 )
-from relaygs.stages.config import (
-    PerSetSections,
-    parse_section,
-    require,
-    require_steps,
-)
+from relaygs.stages.config import PerSetSections, require, require_steps
 from relaygs.stages.relay_seed import SEED_MODES, carved_copies
 from relaygs.stages.spec import StageSpec
 from relaygs.stages.train_settings import TrainSettings
@@ -58,14 +43,10 @@ ACCEPTED_UPSTREAM = ("decouple",)
 
 @dataclass
 class RelayConfig(PerSetSections):
-    """Settings of the relay stage (`cfg["relay"]`); defaults follow the paper.
+    """`cfg["relay"]`: the paper's foreground rates and density control for the copies; `lr_bg`,
+    `densify_bg` only matter with `freeze_background: false`."""
 
-    Foreground copies use the paper's foreground settings (position lr 1e-3, densify gradient
-    threshold 1e-4, clone/split size threshold 0.1× the background's); `lr_bg` / `densify_bg`
-    only matter with `freeze_background: false`.
-    """
-
-    stage: ClassVar[str] = STAGE
+    section: ClassVar[str] = STAGE
     steps: int = 14000
     k: int = 16
     segments: str = "uniform"
@@ -104,11 +85,6 @@ class RelayConfig(PerSetSections):
             self.set_rates(name)
             self.set_densify(name)
 
-    @classmethod
-    def from_config(cls, data: Mapping[str, Any] | None) -> RelayConfig:
-        """Parse `cfg["relay"]`."""
-        return parse_section(cls, data, STAGE)
-
     def plans(self) -> dict[str, SetPlan]:
         """Training plan of the foreground copies and (when trained) the background."""
         plans = {"fg": SetPlan(self.set_rates("fg"), self.set_densify("fg"), self.sh_every)}
@@ -138,63 +114,57 @@ def relay(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, Any]
     source = upstream_model(artifact, scene, STAGE).to(device)
     training = training_scene(scene, train, early_stage=True)
     segments = section.segment_plan(training)
+    views = TrainViews(training, device)
     if section.seed_copies == "carve":
-        copies = carved_copies(
-            TrainViews(training, device),
-            source.background,
-            core_only(source.foreground),
-            section,
-            segments,
-            seed,
-        ).to(device)
+        replica = core_only(source.foreground)
+        copies = carved_copies(views, source.background, replica, section, segments, seed)
+        copies = copies.to(device)
     else:
         copies = replicate_foreground(source.foreground, segments.count).to(device)
-    trainable = {"fg": copies} if len(copies) else {}
+    sets = {"fg": copies} if len(copies) else {}
     if not section.freeze_background:
-        trainable["bg"] = source.background
+        sets["bg"] = source.background
     report = None
-    if trainable:  # nothing to train without foreground when the background is frozen
-        trainable, report = _train(
-            training, source, trainable, segments, section, train, seed, device
-        )
+    if sets:  # nothing to train without foreground when the background is frozen
+        sets, report = _train(training, views, source, sets, segments, section, train, seed)
     model = SceneModel(
         stage=STAGE,
-        background=trainable.get("bg", source.background),
-        foreground=trainable.get("fg", copies),
+        background=sets.get("bg", source.background),
+        foreground=sets.get("fg", copies),
         segments=segments,
     ).to("cpu")
-    meta = stage_meta(
-        SCHEMA_VERSION,
-        section,
-        train,
-        report,
-        _counts(model),
-        downscale=training.downscale,
+    per_segment = torch.bincount(
+        model.foreground.buffers[SEGMENT].long(), minlength=model.num_segments
     )
+    metrics = {
+        **model.gaussian_counts(),
+        "fg_per_segment": per_segment.tolist(),
+        "segment_lengths": model.segments.lengths(),
+    }
+    meta = stage_meta(SCHEMA_VERSION, section, train, report, metrics, downscale=training.downscale)
     return model.to_artifact(meta)
 
 
 def _train(
     scene: Scene,
+    views: TrainViews,
     source: SceneModel,
     sets: dict[str, GaussianSet],
     segments: SegmentPlan,
     section: RelayConfig,
     train: TrainSettings,
     seed: int,
-    device: torch.device,
 ) -> tuple[dict[str, GaussianSet], TrainReport]:
-    """Fit copy s (and a trainable background) to segment s's targets on `device`; returns the
-    trained sets and the training report."""
+    """Fit copy s (and a trainable background) to segment s's targets; returns the trained sets
+    and the training report."""
     plans = section.plans()
     session = TrainingSession(
         sets=sets,
         plans={name: plans[name] for name in sets},
         extent=scene.extent,
         seed=seed,
-        device=device,
+        device=views.device,
     )
-    views = TrainViews(scene, device)
     targets = SegmentTargets(views, segments, section.p, section.pseudo_views)
     empty = source.foreground.subset(torch.zeros(0, dtype=torch.int64))
     # A frozen background looks the same at every step: render it once per camera.
@@ -228,26 +198,6 @@ def _train(
     return session.sets, report
 
 
-def _counts(model: SceneModel) -> dict[str, Any]:
-    """Gaussian counts, with the number of copies per segment and the segments' lengths."""
-    per_segment = torch.bincount(
-        model.foreground.buffers[SEGMENT].long(), minlength=model.num_segments
-    )
-    n_bg, n_fg = len(model.background), len(model.foreground)
-    return {
-        "num_gaussians": n_bg + n_fg,
-        "num_bg": n_bg,
-        "num_fg": n_fg,
-        "fg_per_segment": per_segment.tolist(),
-        "segment_lengths": model.segments.lengths(),
-    }
-
-
 SPEC = StageSpec(
-    name=STAGE,
-    run=relay,
-    settings=RelayConfig,
-    schema_version=SCHEMA_VERSION,
-    upstream=ACCEPTED_UPSTREAM,
-    canonical=uniform_unless_adaptive,
+    STAGE, relay, RelayConfig, SCHEMA_VERSION, ACCEPTED_UPSTREAM, uniform_unless_adaptive
 )

@@ -1,6 +1,5 @@
-"""Starting copies of the relay stage: the frame-0 foreground replicated (the paper), or each
-segment's copy seeded from the visual hull of the background's residuals at the segment's
-pseudo frames (for movers that travel further in a segment than their own size)."""
+"""The relay stage's carved starting copies: each segment's seeded from the visual hull of the
+background's residuals at its pseudo frames (movers that travel further than their size)."""
 
 from __future__ import annotations
 
@@ -23,8 +22,7 @@ SEED_MODES = ("replicate", "carve")
 
 
 class SeedSettings(Protocol):
-    """What seeding reads of the relay section (`RelayConfig`); declared here so this module
-    does not import the stage that imports it."""
+    """What seeding reads of `RelayConfig` (declared here: the stage imports this module)."""
 
     @property
     def p(self) -> int: ...
@@ -44,9 +42,8 @@ def carved_copies(
     segments: SegmentPlan,
     seed: int,
 ) -> GaussianSet:
-    """One copy per segment from the hull at its pseudo frames (at most `section.seed_points`
-    Gaussians, randomly thinned); a segment whose hull is empty keeps the replica. The copies
-    are on the replica's device."""
+    """One copy per segment, on the replica's device, from the hull at its pseudo frames (thinned
+    to `seed_points` at random); a segment whose hull is empty keeps the replica."""
     scene = views.scene
     bounds = _bounds(scene.points.xyz)
     generator = torch.Generator().manual_seed(seed)
@@ -64,7 +61,6 @@ def carved_copies(
         if len(xyz) > section.seed_points:
             keep = torch.randperm(len(xyz), generator=generator)[: section.seed_points]
             xyz, rgb = xyz[keep], rgb[keep]
-        # the hull is carved on the CPU; the seeds join the replica's copies on its device
         seeds = GaussianSet.from_points(
             xyz, rgb.clamp(0.0, 1.0), replica.max_sh_degree, section.seed_opacity
         ).to(replica.means.device)
@@ -101,8 +97,8 @@ def _hull_at(
     section: SeedSettings,
     generator: torch.Generator,
 ) -> tuple[Tensor, Tensor, float] | None:
-    """Hull points, colours and voxel size of what the background misses at `frame` in every
-    train camera (None when the frame has no train view)."""
+    """Hull points, colours and voxel size of what the background misses at `frame` (None when
+    the frame has no train view)."""
     frame_views = views.by_frame.get(frame, [])
     if not frame_views:
         return None

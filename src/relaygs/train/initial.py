@@ -16,16 +16,10 @@ from relaygs.train.session import SetPlan, TrainingSession
 
 
 def initial_gaussians(
-    scene: Scene,
-    init_points: int | None,
-    init_opacity: float,
-    sh_degree: int,
-    seed: int,
+    scene: Scene, init_points: int | None, init_opacity: float, sh_degree: int, seed: int
 ) -> GaussianSet:
-    """3DGS initialisation from the scene's point cloud, randomly thinned to `init_points`.
-
-    The cloud's fg flag is not used: foreground is what the stages learn.
-    """
+    """3DGS initialisation from the scene's point cloud, randomly thinned to `init_points` (its
+    fg flag unused: foreground is what the stages learn)."""
     xyz, rgb = scene.points.xyz, scene.points.rgb
     if init_points is not None and xyz.shape[0] > init_points:
         generator = torch.Generator().manual_seed(seed)
@@ -39,9 +33,8 @@ def initial_gaussians(
 
 
 def _require_sizes_below_the_cap(scene: Scene, gaussians: GaussianSet) -> None:
-    """One line when most initial Gaussians (sized by their neighbours' distance) are larger
-    than the renderer's cap e^MAX_LOG_SCALE: their sizes would get no gradient and stay
-    frozen, and the scene would train to nothing. A scene in huge units, to be rescaled."""
+    """Refuse a scene whose initial Gaussians mostly exceed the renderer's size cap (huge units):
+    their sizes would get no gradient and it would train to nothing."""
     log_scales = gaussians.params["log_scales"].detach()[:, 0]
     over = int((log_scales > MAX_LOG_SCALE).sum())
     if 2 * over > len(log_scales):
@@ -62,9 +55,8 @@ def static_session(
     device: torch.device,
     extras: Mapping[str, float] | None = None,
 ) -> TrainingSession:
-    """The session of a stage that fits one Gaussian set from the scene's point cloud
-    (decouple, warmup): `section` gives init_points, init_opacity and sh_degree; `extras`
-    adds trainable per-Gaussian scalars at an initial value (decouple's mask logit)."""
+    """The session of a stage fitting one set from the point cloud (`section`'s init_points,
+    init_opacity, sh_degree); `extras`: trainable per-Gaussian scalars at their initial value."""
     gaussians = initial_gaussians(
         scene, section.init_points, section.init_opacity, section.sh_degree, seed
     )

@@ -22,14 +22,12 @@ from relaygs.train.loss import batch_psnr
 from relaygs.train.render import Render
 from relaygs.train.session import TrainingSession
 
-LOSS_WINDOW = 50  # steps averaged for the reported initial and final training loss (at most
-# a quarter of the run, so the two windows never overlap)
+LOSS_WINDOW = 50  # steps averaged for the initial and final loss (at most a quarter of the run)
 
 
 @dataclass
 class StepResult:
-    """One forward pass: the loss to minimise, the renders (for density statistics), and the
-    predicted and target images (for batch PSNR and image logging)."""
+    """One forward pass: loss, renders (density statistics), predicted and target images."""
 
     loss: Tensor
     renders: list[Render]
@@ -63,18 +61,15 @@ class TrainReport:
 
 
 class LossTracker:
-    """Mean loss of the first and of the latest `window` steps. Losses stay tensors on their
-    device until read (`state`, `means`): a read per step would make each training step wait
-    for a GPU to finish the one before."""
+    """Mean loss of the first and of the latest `window` steps, kept as tensors until read (a
+    read per step would make each step wait for a GPU to finish the one before)."""
 
     def __init__(self, window: int) -> None:
-        """Track windows of `window` steps."""
         self.window = window
         self.first: list[float | Tensor] = []
         self.recent: deque[float | Tensor] = deque(maxlen=window)
 
     def add(self, loss: Tensor) -> None:
-        """Record one step's loss (a 0-d tensor, not read now)."""
         loss = loss.detach()
         if len(self.first) < self.window:
             self.first.append(loss)
@@ -98,8 +93,7 @@ class LossTracker:
 
 
 class LoopSettings(Protocol):
-    """What the loop reads of the `train` section (the stages' `TrainSettings`); declared here
-    so the training machinery needs nothing from the stages that use it."""
+    """What the loop reads of the stages' `TrainSettings` (declared here: stages import this)."""
 
     @property
     def log_every(self) -> int: ...
@@ -111,21 +105,17 @@ class LoopSettings(Protocol):
     def progress(self) -> bool: ...
 
 
-ScalarRecord = tuple[int, dict[str, float]]
-"""One emitted record's step and scalars."""
+ScalarRecord = tuple[int, dict[str, float]]  # one emitted record's step and scalars
 
 
 class ScalarHistory:
-    """Every record of scalars a stage emitted, kept in its artifact's meta
-    (`common.LOGGED_SCALARS`) and its in-stage checkpoints, so a run that reuses or resumes the
-    stage shows its whole curves too. Non-finite values are left out (JSON has no NaN)."""
+    """Every scalar record a stage emitted, finite values only, kept in its artifact's meta and
+    checkpoints, so a run that reuses or resumes the stage shows its whole curves."""
 
     def __init__(self) -> None:
-        """Start with no records."""
         self.records: list[ScalarRecord] = []
 
     def add(self, step: int, scalars: Mapping[str, float]) -> None:
-        """Record one emitted step."""
         finite = {name: float(value) for name, value in scalars.items() if math.isfinite(value)}
         self.records.append((step, finite))
 
@@ -149,11 +139,8 @@ def run_training(
     step_fn: Callable[[int], StepResult],
     counts: CountsFn,
 ) -> TrainReport:
-    """Run steps 1..`steps` of `step_fn` on `session`, resuming from a checkpoint if present.
-
-    `counts()` gives the current (background, foreground) Gaussian counts for logging.
-    Raises DivergenceError (and saves nothing further) at the first non-finite value.
-    """
+    """Run steps 1..`steps` of `step_fn` on `session`, resuming from a checkpoint if present;
+    DivergenceError at the first non-finite value. `counts()`: (bg, fg) counts to log."""
     build = current_build()
     checkpointer = build.checkpointer(train.checkpoint_every) if build is not None else None
     tracker = LossTracker(max(1, min(LOSS_WINDOW, steps // 4)))

@@ -1,9 +1,5 @@
-"""Splat parts of Gaussian sets into cameras, and map screen-space gradients back to each set.
-
-A render concatenates `Part`s: rows of one set given as raw (pre-activation) parameters, so a
-stage can pass deformed values or a per-row opacity factor (decouple's mask). Cameras are
-rendered in groups of equal image size (the splatting core needs one size per call).
-"""
+"""Splat `Part`s of Gaussian sets (raw parameters, so stages can pass deformed values or an
+opacity factor) into cameras, grouped by image size, and map screen gradients back to each set."""
 
 from __future__ import annotations
 
@@ -79,16 +75,10 @@ class Render:
 
 
 class FrozenRenders:
-    """Per camera, the frozen parts rendered alone: image, alphas, projection and colours.
-
-    Frozen parts do not change during a stage and a fixed rig sees them the same at every
-    step, so each camera is rendered once (again if its calibration or the SH degree changes).
-    With it, `splat` copies the tiles only frozen Gaussians touch and reuses their projection
-    (splat.FixedLayer).
-    """
+    """Per camera (and SH degree), the frozen parts rendered alone once, for `splat` to copy the
+    tiles only frozen Gaussians touch and reuse their projection (splat.FixedLayer)."""
 
     def __init__(self) -> None:
-        """An empty cache; renders are made on first request."""
         self._cache: dict[tuple[int, int], tuple[Camera, dict[str, Tensor]]] = {}
 
     def layer(self, parts: list[Part], cameras: list[Camera], sh_degree: int) -> FixedLayer:
@@ -131,16 +121,10 @@ class FrozenRenders:
 
 
 def splat(
-    parts: list[Part],
-    cameras: list[Camera],
-    sh_degree: int,
-    frozen: FrozenRenders | None = None,
+    parts: list[Part], cameras: list[Camera], sh_degree: int, frozen: FrozenRenders | None = None
 ) -> Render:
-    """Render the concatenated parts into every camera on a black background (unclamped).
-
-    With `frozen` and a mix of frozen and trainable parts, tiles that only frozen Gaussians
-    touch are taken from its renders (same image, far less work when little is trainable).
-    """
+    """Render the concatenated parts into every camera on black (unclamped); with `frozen` and a
+    mix of frozen and trainable parts, its renders give the tiles only frozen Gaussians touch."""
     means = torch.cat([p.means for p in parts])
     scales = torch.exp(torch.cat([p.log_scales for p in parts]).clamp(max=MAX_LOG_SCALE))
     quats = normalize_quats(torch.cat([p.quats for p in parts]))

@@ -1,17 +1,5 @@
-"""The model every stage hands on: background and foreground Gaussians, segments, motion field.
-
-Artifact layout (tensors): `bg.*` and `fg.*` are `GaussianSet.to_tensors` of the two sets; the
-foreground carries the buffer `segment` (int32, the relay copy each row belongs to) and, after
-deform with γ, the parameter `gamma`. `is_fg` [N] bool and `segment` [N] int32 (−1 for the
-background) describe the concatenation bg‖fg. A deformed model adds `field.<state_dict key>` and,
-with a colour affine, `affine.log_gain` / `affine.offset`. Metadata holds what is needed to
-rebuild it (frames, the segment length k, or `segment_starts` for segments placed by motion,
-field settings, affine camera ids).
-
-Which foreground rows are visible at frame f: a decouple model shows its foreground only at
-frame 0 (the decoupled movers); every other model shows the copy of the segment holding f
-(f // k for uniform segments), so each frame belongs to exactly one segment.
-"""
+"""The model every stage hands on: background and foreground Gaussians, segments, motion field,
+and its artifact form (layout in docs/method.md, Artifacts)."""
 
 from __future__ import annotations
 
@@ -39,11 +27,8 @@ DECOUPLE = "decouple"
 
 @dataclass
 class SceneModel:
-    """Background + foreground Gaussian sets, their segments, and optional motion modules.
-
-    `field_settings` are the DeformationField keyword arguments plus `aabb` and
-    `time_resolution`; `affine_cameras` lists the train camera ids in ColorAffine row order.
-    """
+    """Background + foreground sets, their segments, and optional motion modules; `affine_cameras`
+    lists the train camera ids in ColorAffine row order."""
 
     stage: str
     background: GaussianSet
@@ -64,8 +49,14 @@ class SceneModel:
         """S, the number of segments (ceil(T / k) for uniform ones)."""
         return self.segments.count
 
+    def gaussian_counts(self) -> dict[str, int]:
+        """The Gaussian counts every stage's metrics report."""
+        n_bg, n_fg = len(self.background), len(self.foreground)
+        return {"num_gaussians": n_bg + n_fg, "num_bg": n_bg, "num_fg": n_fg}
+
     def foreground_rows(self, frame: int) -> Tensor:
-        """Indices of the foreground rows rendered at `frame`."""
+        """Indices of the foreground rows rendered at `frame`: a decouple model shows its
+        foreground at frame 0 only, any other the copy of the segment holding `frame`."""
         segments = self.foreground.buffers[SEGMENT]
         if self.stage == DECOUPLE:
             if frame == 0:

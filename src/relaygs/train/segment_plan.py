@@ -1,10 +1,5 @@
-"""Where the relay stage's segments start: k frames each (the paper's), or placed by motion.
-
-Motion-adaptive segments spend a budget of S copies where the foreground moves: boundaries
-split the scene's cumulative frame-to-frame motion into S equal parts, so a fast stretch gets
-short segments and a still one a long segment (the paper's limitations ask for this; fixed k
-gives a fast mover the same k frames to carry as a still one).
-"""
+"""Where the relay stage's segments start: k frames each (the paper's), or placed so that each
+holds an equal share of the scene's frame-to-frame motion (short where it moves fast)."""
 
 from __future__ import annotations
 
@@ -19,8 +14,7 @@ from torch import Tensor
 from relaygs.data import Scene
 from relaygs.errors import InputError
 
-MOTION_CAMERAS = 8
-"""Train cameras whose image differences measure the motion (spread over the rig)."""
+MOTION_CAMERAS = 8  # train cameras, spread over the rig, whose image changes measure motion
 
 
 @dataclass(frozen=True)
@@ -95,9 +89,8 @@ def boundaries_fixed(num_frames: int, k: int) -> bool:
 
 
 def frame_motion(scene: Scene, cameras: int = MOTION_CAMERAS) -> Tensor:
-    """Mean absolute image change between consecutive frames [T - 1], over up to `cameras`
-    train cameras spread over the rig (each pair scored where the camera has both images),
-    less its smallest value: the change that sensor noise alone gives the stillest pair."""
+    """Mean absolute image change between consecutive frames [T - 1] over up to `cameras` train
+    cameras, less its smallest value (what sensor noise alone gives the stillest pair)."""
     camera_ids = sorted({view.camera.camera_id for view in scene.train_views})
     picked = [camera_ids[i] for i in _spread(len(camera_ids), cameras)]
     by_key = {(view.frame, view.camera.camera_id): view for view in scene.train_views}
