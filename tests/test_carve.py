@@ -1,7 +1,5 @@
 """Visual hull of residual masks, and the relay stage's carved starting copies."""
 
-from __future__ import annotations
-
 import pytest
 import torch
 
@@ -17,7 +15,7 @@ from relaygs.stages.carve import (
     residual_masks,
     visual_hull,
 )
-from relaygs.stages.relay_seed import BackgroundRenders
+from relaygs.stages.relay import BackgroundRenders
 from relaygs.train.render import part_of, splat
 from relaygs.train.scene_model import SEGMENT, SceneModel
 from splat_scenes import dome_cameras

@@ -19,8 +19,7 @@ TOP_PAD_BYTES = 64 << 20  # extra grown with each heap extension
 
 @functools.cache
 def keep_freed_memory() -> bool:
-    """Raise glibc's mmap and trim thresholds once per process; False where there is no glibc
-    (nothing changes then)."""
+    """Raise glibc's mmap and trim thresholds once per process; False without glibc."""
     if not sys.platform.startswith("linux"):
         return False
     try:

@@ -72,8 +72,7 @@ class DeformationField(nn.Module):
         return _scatter_rows(xyz.shape[0], parts)
 
     def forward_split(self, xyz: Tensor, t: float | Tensor, num_background: int) -> Deltas:
-        """`forward` for rows laid out as the stages do, the first `num_background` background
-        and the rest foreground: given on the host, so no group is read back from the device."""
+        """`forward` for background-first rows, their count given on the host (no device read)."""
         if not 0 <= num_background <= xyz.shape[0]:
             raise InputError(
                 f"DeformationField num_background: expected 0..{xyz.shape[0]}, got {num_background}"
@@ -84,8 +83,7 @@ class DeformationField(nn.Module):
         return self._split(features, num_background)
 
     def _split(self, features: Tensor, num_background: int) -> Deltas:
-        """The background MLPs' deltas of the first `num_background` rows, then the
-        foreground MLPs' of the rest (slices, not gathers)."""
+        """Background MLPs' deltas of the first `num_background` rows, foreground's of the rest."""
         halves = (
             self.mlp_sets["background"](features[:num_background]),
             self.mlp_sets["foreground"](features[num_background:]),

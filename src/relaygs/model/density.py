@@ -1,6 +1,5 @@
-"""3DGS adaptive density control of one Gaussian set: clone, split, prune, opacity reset
-(schedule in docs/method.md). Screen gradients are taken to NDC (× W/2, H/2) and × C cameras, as
-gsplat does; only split children get zero Adam moments. Call `step()` after the optimiser's."""
+"""3DGS density control of one set (docs/method.md); screen gradients go to NDC × C cameras
+as in gsplat, only split children get zero Adam moments. `step()` after the optimiser's."""
 
 from __future__ import annotations
 
@@ -43,8 +42,7 @@ SCHEDULE_KEYS = ("densify_from", "densify_every", "densify_until", "opacity_rese
 
 
 def paper_schedule() -> dict[str, int]:
-    """The presets' (3DGS) schedule, every stage's `densify*` default (so `budget.multiplier`
-    scales it with the stage's steps)."""
+    """The presets' (3DGS) schedule: every stage's `densify*` default, scaled by budgets."""
     return {key: getattr(BACKGROUND_DENSIFY, key) for key in SCHEDULE_KEYS}
 
 

@@ -1,6 +1,5 @@
-"""Exact nearest-neighbour distances in bounded memory: blocks of points along a Morton curve,
-each searched within its box grown by a radius bounding its k-th distances (cdist screening,
-exact recomputation of the best few candidates)."""
+"""Exact nearest-neighbour distances in bounded memory: blocks along a Morton curve, each
+searched in its box grown by a bound on its k-th distances (cdist, exact recheck)."""
 
 from __future__ import annotations
 

@@ -1,6 +1,5 @@
-"""One Adam over named "<set>.<param>" groups of one or more Gaussian sets, with lr schedules:
-foreground and background are separate sets, as Adam cannot give rows of one tensor their own
-step sizes; position rates are × `spatial_lr_scale` (the scene extent), as in 3DGS."""
+"""One Adam over "<set>.<param>" groups with lr schedules; fg and bg are separate sets, as
+Adam cannot step rows of one tensor apart; positions × the scene extent, as 3DGS."""
 
 from __future__ import annotations
 
@@ -65,17 +64,9 @@ class LRSchedule:
         )
 
     @classmethod
-    def from_config(cls, value: float | Mapping[str, float], where: str) -> LRSchedule:
-        """Build from a number (constant) or a mapping of this class's fields."""
-        if isinstance(value, int | float):
-            return cls(float(value))
-        allowed = {f.name for f in fields(cls)}
-        unknown = sorted(set(value) - allowed)
-        if unknown or "init" not in value:
-            raise InputError(
-                f"{where}: learning rate needs 'init' and only {sorted(allowed)}, got {dict(value)}"
-            )
-        return cls(**dict(value))
+    def from_config(cls, value: float | Mapping[str, float]) -> LRSchedule:
+        """From a number (constant) or a mapping of fields (`relaygs.stages.config` checks both)."""
+        return cls(float(value)) if isinstance(value, int | float) else cls(**dict(value))
 
 
 @dataclass(frozen=True)
@@ -106,14 +97,13 @@ class SetLearningRates:
         if unknown:
             raise InputError(f"{where}: unknown learning-rate keys {unknown}")
         core = {
-            name: LRSchedule.from_config(value, f"{where}.{name}")
+            name: LRSchedule.from_config(value)
             for name, value in config.items()
             if name != "extras"
         }
         extras_config = config.get("extras") or {}
         extras = {
-            name: LRSchedule.from_config(value, f"{where}.extras.{name}")
-            for name, value in dict(extras_config).items()
+            name: LRSchedule.from_config(value) for name, value in dict(extras_config).items()
         }
         return cls(**core, extras=extras)
 
@@ -149,9 +139,6 @@ class GaussianOptimizer:
         spatial_lr_scale: float = 1.0,
     ) -> None:
         """Build groups for every parameter of every set; extras must have a schedule."""
-        missing = sorted(set(sets) - set(learning_rates))
-        if missing:
-            raise InputError(f"optimizer: no learning rates for Gaussian set(s) {missing}")
         self.sets = dict(sets)
         self.spatial_lr_scale = spatial_lr_scale
         self._schedules: dict[str, LRSchedule] = {}
@@ -183,24 +170,18 @@ class GaussianOptimizer:
         fresh_state: Tensor | None = None,
         overrides: Mapping[str, Tensor] | None = None,
     ) -> None:
-        """Row remap of a managed set: row i takes old row source[i] (values and Adam state), with
-        zero moments where `fresh_state`; `overrides` replace values."""
+        """Row i takes old row source[i], values and Adam state (zeroed where `fresh_state`)."""
         old_params = gaussians.params
         index = as_row_index(source, len(gaussians))
         gaussians.reindex_rows_(index, overrides)
         for name, old in old_params.items():
             self._swap_param(old, gaussians.params[name], index, fresh_state)
 
-    def reset_state(self, param: nn.Parameter, rows: Tensor | None = None) -> None:
-        """Zero the Adam moments of `param` (all rows, or the selected rows)."""
-        state = self.adam.state.get(param, {})
-        for key, value in state.items():
-            if key == "step" or not torch.is_tensor(value):
-                continue
-            if rows is None:
+    def reset_state(self, param: nn.Parameter) -> None:
+        """Zero the Adam moments of `param`."""
+        for key, value in self.adam.state.get(param, {}).items():
+            if key != "step" and torch.is_tensor(value):
                 value.zero_()
-            else:
-                value[rows] = 0.0
 
     def state_of(self, param: nn.Parameter) -> dict[str, Tensor]:
         """The Adam state tensors of `param` (empty before its first step)."""

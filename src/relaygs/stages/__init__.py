@@ -1,5 +1,4 @@
-"""The method's stages, functions `(scene, upstream artifacts, cfg) -> Artifact` each declared
-by its module's `SPEC`; `SPECS` lists them by stage type (all a new stage type adds here)."""
+"""The method's stages, each declared by its module's `SPEC`; `SPECS` lists them by type."""
 
 from __future__ import annotations
 
@@ -40,8 +39,7 @@ def canonical_config(stage: str, cfg: Mapping[str, Any], scene: Scene) -> dict[s
 
 
 def validate_config(stage: str, cfg: Mapping[str, Any]) -> None:
-    """InputError naming the key unless `cfg` is valid for stage type `stage`: its own section,
-    `train` and `eval`."""
+    """InputError naming the key unless `cfg` fits stage type `stage` (with `train`, `eval`)."""
     if stage not in SPECS:
         raise InputError(f"unknown stage type {stage!r}; expected one of {sorted(SPECS)}")
     SPECS[stage].settings.from_config(cfg.get(stage)).validate()

@@ -21,8 +21,7 @@ MIN_CAMERAS = 3  # a point seen by fewer train cameras cannot be triangulated
 
 @dataclass(frozen=True)
 class HullSettings:
-    """Residual threshold (per channel, after a per-camera gain match), coarse voxels along the
-    longest axis of the bounds, and the fraction of cameras that may disagree."""
+    """Residual threshold, coarse voxels along the longest axis, tolerated miss fraction."""
 
     residual: float = 0.15
     coarse_voxels: int = 48
@@ -48,9 +47,8 @@ def visual_hull(
     settings: HullSettings,
     generator: torch.Generator | None = None,
 ) -> tuple[Tensor, Tensor, float]:
-    """Points [M,3] inside the hull of `masks` [C,H,W] within `bounds` [2,3], their colours
-    [M,3] (mean image colour over the cameras that agree) and the fine voxel size. Beyond
-    MAX_REFINED_VOXELS kept coarse voxels, a random subset (drawn from `generator`) is refined."""
+    """Points [M,3] in the hull of `masks` within `bounds`, their mean colours and the fine voxel
+    size; beyond MAX_REFINED_VOXELS coarse voxels a random subset is refined."""
     if masks.shape[0] != len(cameras) or images.shape[:3] != masks.shape:
         raise InputError(f"visual_hull: {len(cameras)} cameras, masks {tuple(masks.shape)}")
     lower, upper = bounds[0], bounds[1]

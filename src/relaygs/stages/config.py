@@ -28,8 +28,7 @@ S = TypeVar("S", bound="Section")
 
 
 def parse_section(cls: type[T], data: Mapping[str, Any] | None, section: str) -> T:
-    """Dataclass `cls` from `data` merged over its defaults; OmegaConf refuses unknown keys and
-    values of the wrong type."""
+    """Dataclass `cls` from `data` over its defaults; OmegaConf refuses bad keys and types."""
     try:
         parsed = OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(cls), data or {}))
     except OmegaConfBaseException as error:
@@ -54,8 +53,7 @@ class Section:
 
 
 def register_schemas(sections: Mapping[str, type]) -> None:
-    """Store each section's dataclass in Hydra's ConfigStore as `<section>/schema` (first in its
-    defaults list), so that Hydra checks its keys and types on compose."""
+    """Store each section's dataclass as Hydra's `<section>/schema`, checked on compose."""
     store = ConfigStore.instance()
     for name, cls in sections.items():
         store.store(group=name, name="schema", node=cls)
@@ -68,7 +66,6 @@ def require(condition: bool, where: str, value: Any, expected: str) -> None:
 
 
 def require_steps(where: str, value: int) -> None:
-    """A step count: an int >= 0."""
     require(value >= 0, where, value, "a step count >= 0")
 
 
@@ -125,7 +122,7 @@ class PerSetSections(Section):
 
 def schedule(value: float | Mapping[str, Any], steps: int, where: str) -> LRSchedule:
     """One learning rate (number or {init, final, ...}); decays over `steps` unless told."""
-    return _resolved(LRSchedule.from_config(_rate_config(value, where), where), steps, where)
+    return _resolved(LRSchedule.from_config(_rate_config(value, where)), steps, where)
 
 
 def _rate_config(value: Any, where: str) -> float | dict[str, Any]:

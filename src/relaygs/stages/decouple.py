@@ -20,12 +20,7 @@ from relaygs.model import (
     paper_schedule,
 )
 from relaygs.pipeline.artifact import Artifact
-from relaygs.stages.common import (
-    BACKGROUND_LR,
-    no_upstream,
-    stage_meta,
-    training_scene,
-)
+from relaygs.stages.common import BACKGROUND_LR, no_upstream, stage_meta, training_scene
 from relaygs.stages.config import (
     Section,
     densify_settings,
@@ -53,8 +48,7 @@ SET = "all"
 
 @dataclass
 class DecoupleConfig(Section):
-    """`cfg["decouple"]`: the paper's defaults; docs/method.md gives the reasons for ε
-    (mask_threshold), mask_lr and frame0_views, which the paper leaves open."""
+    """`cfg["decouple"]`: the paper's; ε, mask_lr, frame0_views are ours (docs/method.md)."""
 
     section: ClassVar[str] = STAGE
     steps: int = 3000

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, ClassVar
 
 import torch
@@ -13,7 +13,7 @@ import torch
 from relaygs.data import Scene, frame_time
 from relaygs.data.effects import COLOR_INCONSISTENCY
 from relaygs.field import ColorAffine
-from relaygs.model import CORE_PARAMS, SetLearningRates, paper_schedule
+from relaygs.model import paper_schedule
 from relaygs.pipeline.artifact import Artifact
 from relaygs.stages.common import GAUSSIAN_LR, single_upstream, stage_meta, upstream_model
 from relaygs.stages.config import PerSetSections, require, require_steps, schedule
@@ -37,9 +37,7 @@ MLP_LR = {"init": 1.6e-4, "final": 1.6e-5}  # 4D-GS, × scene extent
 
 @dataclass
 class DeformConfig(PerSetSections):
-    """`cfg["deform"]`: the paper's and 4D-GS's settings (time_resolution None: ceil(T/2)); lr_gamma
-    and lr_affine are ours; color_affine "auto" is on where the scene declares colour
-    inconsistency."""
+    """`cfg["deform"]`: the paper's and 4D-GS's settings; lr_gamma, lr_affine are ours."""
 
     section: ClassVar[str] = STAGE
     steps: int = 20000
@@ -92,10 +90,7 @@ class DeformConfig(PerSetSections):
         fg_rates = self.set_rates("fg")
         if self.gamma:
             gamma = schedule(self.lr_gamma, self.steps, f"{STAGE}.lr_gamma")
-            fg_rates = SetLearningRates(
-                **{name: fg_rates.for_param(name) for name in CORE_PARAMS},
-                extras={**fg_rates.extras, GAMMA: gamma},
-            )
+            fg_rates = replace(fg_rates, extras={**fg_rates.extras, GAMMA: gamma})
         return {
             "bg": SetPlan(self.set_rates("bg"), self.set_densify("bg"), self.sh_every),
             "fg": SetPlan(fg_rates, self.set_densify("fg"), self.sh_every),
@@ -108,12 +103,6 @@ class DeformConfig(PerSetSections):
             "mlp": schedule(self.lr_mlp, self.steps, f"{STAGE}.lr_mlp"),
             "affine": schedule(self.lr_affine, self.steps, f"{STAGE}.lr_affine"),
         }
-
-    def uses_affine(self, scene: Scene) -> bool:
-        """Whether the colour affine is on for `scene`."""
-        if self.color_affine == "auto":
-            return COLOR_INCONSISTENCY in scene.effects
-        return bool(self.color_affine)
 
     def field_settings(self, scene: Scene) -> dict[str, Any]:
         """DeformationField settings: the grid spans the scene's initial point cloud."""
@@ -206,7 +195,8 @@ def _starting_model(
         field=build_field(settings, seed),
         field_settings=settings,
     )
-    if section.uses_affine(scene):
+    affine = section.color_affine  # "auto": on where the scene declares colour inconsistency
+    if (COLOR_INCONSISTENCY in scene.effects) if affine == "auto" else affine:
         model.affine_cameras = sorted({v.camera.camera_id for v in scene.train_views})
         model.affine = ColorAffine(len(model.affine_cameras))
     return model

@@ -1,5 +1,4 @@
-"""The `eval` section and the evaluation of a final artifact with it: every test camera at
-every frame (or every `frame_stride`-th), scored by `relaygs.train.evaluate.score_model`."""
+"""The `eval` section, and the evaluation of a final artifact with it (`score_model`)."""
 
 from __future__ import annotations
 
@@ -23,13 +22,11 @@ class EvalSettings(Section):
     frame_stride: int = 1
 
     def __post_init__(self) -> None:
-        """The stride is a positive frame count."""
         require(self.frame_stride >= 1, "eval.frame_stride", self.frame_stride, "an int >= 1")
 
 
 def evaluate(scene: Scene, artifact: Artifact, cfg: Mapping[str, Any]) -> dict[str, Any]:
-    """Test metrics of the artifact's model on `scene` (`score_model`) with the run's `eval`
-    and `train` sections."""
+    """Test metrics (`score_model`) of the artifact's model on `scene` with `cfg`'s eval."""
     settings = EvalSettings.from_config(cfg.get("eval"))
     device = TrainSettings.from_config(cfg.get("train")).torch_device()
     model = SceneModel.from_artifact(artifact)

@@ -29,7 +29,6 @@ class ReplicateConfig(Section):
     k: int = 16
 
     def validate(self) -> None:
-        """k must be a positive frame count (called once, when the run is planned)."""
         require(self.k >= 1, "replicate.k", self.k, "an int >= 1")
 
 

@@ -40,8 +40,7 @@ class TrainSettings(Section):
         parse_device(self.device, "train.device")  # usable here is checked where the job runs
 
     def torch_device(self) -> torch.device:
-        """The device to train on, once this machine is known to allocate there (one line
-        naming `train.device` if not)."""
+        """The training device, once this machine is known to allocate there."""
         return usable_device(self.device, "train.device")
 
     def downscale_for(self, image_width: int, early_stage: bool) -> int:

@@ -1,5 +1,4 @@
-"""The 4D-GS baseline's coarse stage: one static 3DGS fitted to every frame, no mask; every
-Gaussian is background (an empty foreground)."""
+"""The 4D-GS baseline's coarse stage: one static 3DGS fitted to every frame, all background."""
 
 from __future__ import annotations
 
@@ -33,8 +32,7 @@ SET = "bg"
 
 @dataclass
 class WarmupConfig(Section):
-    """`cfg["warmup"]`: 4D-GS's coarse stage, 3DGS rates and density control (the position lr
-    decays over the stage's steps, not 4D-GS's 20000: docs/method.md)."""
+    """`cfg["warmup"]`: 4D-GS's coarse stage, 3DGS rates and density control (docs/method.md)."""
 
     section: ClassVar[str] = STAGE
     steps: int = 3000
@@ -53,11 +51,9 @@ class WarmupConfig(Section):
         self.densify_settings()
 
     def learning_rates(self) -> SetLearningRates:
-        """Per-parameter schedules."""
         return learning_rates(self.lr, self.steps, f"{STAGE}.lr")
 
     def densify_settings(self) -> DensifySettings:
-        """3DGS density control."""
         return densify_settings(self.densify, BACKGROUND_DENSIFY, f"{STAGE}.densify", self.steps)
 
 

@@ -1,5 +1,4 @@
-"""Named step budgets (`paper`, `small`, `smoke`), read from `conf/budget/*.yaml` so the numbers
-are written once: each maps a section (`train`, a stage type, ...) to its overrides."""
+"""Named step budgets (`paper`, `small`, `smoke`): section overrides from `conf/budget/`."""
 
 from __future__ import annotations
 
@@ -19,8 +18,7 @@ RUN_KEYS = (
 
 
 def load_budget(name: str, sections: Collection[str]) -> dict[str, dict[str, Any]]:
-    """The section overrides of `conf/budget/<name>.yaml`; a key neither in `sections` nor in
-    RUN_KEYS is refused (it would otherwise be dropped without a word)."""
+    """Section overrides of `conf/budget/<name>.yaml`; keys neither sections nor RUN_KEYS fail."""
     path = config_dir() / "budget" / f"{name}.yaml"
     raw = OmegaConf.to_container(OmegaConf.load(path))
     unknown = sorted(set(raw) - set(sections) - set(RUN_KEYS))

@@ -13,8 +13,7 @@ SectionCanonical = Callable[[Mapping[str, Any], Scene], dict[str, Any]]  # (sect
 
 
 def one_segment_at_most(section: Mapping[str, Any], scene: Scene) -> dict[str, Any]:
-    """Segment length `k` capped at the scene's frame count T: every k >= T is one segment of
-    all frames (S = ceil(T / k) = 1, segment 0 = frames [0, T)), spelled k = T."""
+    """Segment length `k` capped at T: every k >= T is one segment of all frames."""
     canonical = dict(section)
     k = canonical.get("k")
     if isinstance(k, int) and not isinstance(k, bool) and k > scene.num_frames:

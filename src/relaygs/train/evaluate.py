@@ -1,5 +1,4 @@
-"""Evaluation: render every test camera at every (`frame_stride`-th) frame and score it; the
-metrics are listed in docs/method.md (Evaluation); FPS counts rendering only."""
+"""Evaluation: score every test camera at every (`frame_stride`-th) frame (docs/method.md)."""
 
 from __future__ import annotations
 
@@ -67,8 +66,7 @@ def view_metrics(scene: Scene, view: View, pred: torch.Tensor) -> ViewRecord:
 
 
 def require_its_scene(model: SceneModel, scene: Scene) -> None:
-    """Refuse a scene the model cannot have been trained on (another frame count, or other train
-    cameras than its colour affine was fit to): its scores would mean nothing."""
+    """Refuse a scene the model was not trained on (frame count, affine cameras)."""
     if model.num_frames != scene.num_frames:
         raise InputError(
             f"the model was trained on {model.num_frames} frames but {scene.root} has "

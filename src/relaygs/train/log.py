@@ -1,5 +1,4 @@
-"""Live training metrics: stages `emit` scalars (and images) to the sinks the app attaches
-(callables `(stage, step, scalars, images)`), knowing nothing of TensorBoard or progress bars."""
+"""Live training metrics: stages `emit` scalars and images to the sinks the app attaches."""
 
 from __future__ import annotations
 

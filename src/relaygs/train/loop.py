@@ -1,5 +1,4 @@
-"""The training loop every stage shares: steps, divergence guard, density control, logging,
-progress bar, and in-stage checkpoints (resume where a killed build stopped)."""
+"""The training loop every stage shares, with divergence guard, logging and checkpoints."""
 
 from __future__ import annotations
 
@@ -37,8 +36,7 @@ class StepResult:
 
 @dataclass
 class TrainReport:
-    """Summary of a finished training run: `train_seconds` includes the seconds before a
-    resume, `run_seconds` only this run's (steps from `resumed_from` on)."""
+    """Summary of a training run; `train_seconds` includes those before a resume."""
 
     steps: int
     initial_loss: float | None  # None when the stage ran no steps
@@ -49,7 +47,6 @@ class TrainReport:
     history: list[ScalarRecord] = field(default_factory=list)
 
     def metrics(self) -> dict[str, float | int | None]:
-        """As JSON-ready artifact metrics."""
         return {
             "steps": self.steps,
             "initial_loss": self.initial_loss,
@@ -86,7 +83,6 @@ class LossTracker:
         return _mean(first), _mean(recent)
 
     def load_state(self, state: dict) -> None:
-        """Restore what `state` returned."""
         self.first = list(state["first"])
         self.recent.clear()
         self.recent.extend(state["recent"])
@@ -124,7 +120,6 @@ class ScalarHistory:
         return [[step, dict(scalars)] for step, scalars in self.records]
 
     def load_state(self, state: list[list]) -> None:
-        """Restore what `state` returned."""
         self.records = [(int(step), dict(scalars)) for step, scalars in state]
 
 
@@ -173,10 +168,23 @@ def run_training(
         session.check_finite(stage, step, result.loss)
         session.apply_gradients(result.renders, step)
         tracker.add(result.loss)
-        images = _images(result, train, step)
+        images = None
+        if train.image_every > 0 and step % train.image_every == 0:
+            images = {
+                "render": result.preds[0].detach().clamp(0.0, 1.0).cpu(),
+                "target": result.targets[0].detach().cpu(),
+            }
         if step % train.log_every == 0 or step == steps or images is not None:
             loss = float(result.loss.detach())
-            scalars = _scalars(loss, result, rates, counts)
+            n_bg, n_fg = counts()
+            scalars = {
+                "loss": loss,
+                "psnr": batch_psnr(result.preds, result.targets),
+                "num_bg": float(n_bg),
+                "num_fg": float(n_fg),
+                "fg_fraction": n_fg / max(n_bg + n_fg, 1),
+                **{f"lr/{name}": lr for name, lr in rates.items()},
+            }
             history.add(step, scalars)
             log.emit(stage, step, scalars, images)
             bar.set_postfix(loss=f"{loss:.4f}", psnr=f"{scalars['psnr']:.2f}", refresh=False)
@@ -230,30 +238,6 @@ def _interrupted(
     return Interrupted(
         f"{where}; run the same command again to resume it from its checkpoint of step {last}"
     )
-
-
-def _scalars(
-    loss: float, result: StepResult, rates: dict[str, float], counts: CountsFn
-) -> dict[str, float]:
-    n_bg, n_fg = counts()
-    scalars = {
-        "loss": loss,
-        "psnr": batch_psnr(result.preds, result.targets),
-        "num_bg": float(n_bg),
-        "num_fg": float(n_fg),
-        "fg_fraction": n_fg / max(n_bg + n_fg, 1),
-    }
-    scalars.update({f"lr/{name}": lr for name, lr in rates.items()})
-    return scalars
-
-
-def _images(result: StepResult, train: LoopSettings, step: int) -> dict[str, Tensor] | None:
-    if train.image_every <= 0 or step % train.image_every != 0:
-        return None
-    return {
-        "render": result.preds[0].detach().clamp(0.0, 1.0).cpu(),
-        "target": result.targets[0].detach().cpu(),
-    }
 
 
 def _floats(*lists: list[float | Tensor]) -> list[list[float]]:

@@ -20,8 +20,7 @@ def deformed_parts(
     time: float,
     sh_degree: int,
 ) -> list[Part]:
-    """Background and foreground Parts at `time` in [0, 1]; γ is used when the foreground has
-    a `gamma` parameter."""
+    """Background and foreground Parts at `time` in [0, 1], with γ where the set has it."""
     bg = part_of("bg", background, sh_degree)
     fg = part_of("fg", foreground, sh_degree, rows=foreground_rows)
     n_bg = bg.count

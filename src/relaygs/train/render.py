@@ -32,7 +32,6 @@ class Part:
 
     @property
     def count(self) -> int:
-        """Number of Gaussians in the part."""
         return self.means.shape[0]
 
 
@@ -47,13 +46,8 @@ def part_of(
     are empty sets (nothing to learn, and autograd warns about their zero-size gradients)."""
     frozen = frozen or len(gaussians) == 0
     params = gaussians.params
-    values = [
-        params["means"],
-        params["log_scales"],
-        params["quats"],
-        params["opacity_logits"],
-        gaussians.colors(sh_degree),
-    ]
+    values = [params[name] for name in ("means", "log_scales", "quats", "opacity_logits")]
+    values.append(gaussians.colors(sh_degree))
     if frozen:
         values = [value.detach() for value in values]
     if rows is not None:
@@ -108,13 +102,9 @@ class FrozenRenders:
         )
 
     def _cached(self, camera: Camera, sh_degree: int) -> bool:
-        entry = self._cache.get((camera.camera_id, sh_degree))
-        if entry is None:
-            return False
-        known = entry[0]
-        return (
-            known.width == camera.width
-            and known.height == camera.height
+        known = self._cache.get((camera.camera_id, sh_degree), (None,))[0]
+        return known is not None and (
+            (known.width, known.height) == (camera.width, camera.height)
             and torch.equal(known.K, camera.K)
             and torch.equal(known.w2c, camera.w2c)
         )

@@ -1,5 +1,4 @@
-"""What a training stage optimises, as one object: Gaussian sets and modules with their Adam and
-density control, the sampling RNG, and their state for in-stage checkpoints."""
+"""What a training stage optimises, as one object, and its state for in-stage checkpoints."""
 
 from __future__ import annotations
 
@@ -50,8 +49,7 @@ class ModuleGroup:
 
 @dataclass
 class TrainingSession:
-    """The trainable state of a stage, with its optimisers built on construction (`build`
-    again after the sets or modules change; `restore` rebuilds from a checkpoint)."""
+    """A stage's trainable state; `build` the optimisers again after the sets change."""
 
     sets: dict[str, GaussianSet]
     plans: dict[str, SetPlan]
@@ -114,8 +112,7 @@ class TrainingSession:
         return named
 
     def check_finite(self, stage: str, step: int, loss: Tensor | None = None) -> None:
-        """DivergenceError naming stage, step and tensor if a loss/param/grad is not finite, and
-        the parameters the divergence started from."""
+        """DivergenceError naming a non-finite loss, parameter or gradient, and the suspects."""
         parameters = self.parameters()
         tensors = {} if loss is None else {"loss": loss.detach()}
         tensors.update(parameters)
@@ -134,7 +131,8 @@ class TrainingSession:
             stats = [screen_statistics(r, name, len(self.sets[name])) for r in renders]
             stats = [s for s in stats if s is not None]
             if stats:
-                width, height = _render_size(renders)
+                meta = renders[0].groups[0][1]  # the training scene has one camera size
+                width, height = int(meta["width"]), int(meta["height"])
                 grads = torch.cat([grad for grad, _ in stats])
                 radii = torch.cat([radius for _, radius in stats])
                 controller.accumulate(grads, radii, width, height)
@@ -184,9 +182,3 @@ class TrainingSession:
         self.generator.set_state(tensors[GENERATOR_KEY])
         self.density_generator.set_state(tensors[DENSITY_GENERATOR_KEY])
         state.restore_rng()
-
-
-def _render_size(renders: list[Render]) -> tuple[int, int]:
-    """Image width and height of the renders (the training scene has one camera size)."""
-    meta = renders[0].groups[0][1]
-    return int(meta["width"]), int(meta["height"])
