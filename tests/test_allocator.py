@@ -1,8 +1,6 @@
 """keep_freed_memory: a freed large temporary stays in the heap for the next one instead of
 going back to the kernel (to be faulted in again), on Linux with glibc."""
 
-from __future__ import annotations
-
 import ctypes
 import subprocess
 import sys
@@ -10,10 +8,8 @@ import textwrap
 
 import pytest
 
-# The top of the heap that glibc keeps after a 16 MB tensor is made and freed once:
-# mallinfo2().keepcost, the releasable space it has not released. Once, because glibc's
-# defaults raise their mmap threshold after the first such free, so that later 16 MB tensors
-# stay in the heap by default too (the first one, and larger or varying sizes, do not).
+# The releasable heap top glibc keeps (mallinfo2().keepcost) after one 16 MB tensor is freed:
+# once, as glibc's defaults raise their mmap threshold after the first such free.
 KEPT_TOP = textwrap.dedent(
     """
     import ctypes, sys

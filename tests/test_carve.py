@@ -1,7 +1,5 @@
 """Visual hull of residual masks, and the relay stage's carved starting copies."""
 
-from __future__ import annotations
-
 import pytest
 import torch
 
@@ -17,16 +15,13 @@ from relaygs.stages.carve import (
     residual_masks,
     visual_hull,
 )
-from relaygs.stages.relay_seed import BackgroundRenders
+from relaygs.stages.relay import BackgroundRenders
 from relaygs.train.render import part_of, splat
 from relaygs.train.scene_model import SEGMENT, SceneModel
 from splat_scenes import dome_cameras
 
 WIDTH, HEIGHT = 80, 45
-
-
-def _cameras() -> list[Camera]:
-    return dome_cameras(WIDTH, HEIGHT)
+BOUNDS = torch.tensor([[-3.0, -3.0, 0.0], [3.0, 3.0, 2.5]])
 
 
 def _sphere_masks(cameras: list[Camera], center: torch.Tensor, radius: float) -> torch.Tensor:
@@ -47,13 +42,12 @@ def _sphere_masks(cameras: list[Camera], center: torch.Tensor, radius: float) ->
 
 
 def test_hull_of_a_sphere_lies_on_the_sphere() -> None:
-    cameras = _cameras()
+    cameras = dome_cameras(WIDTH, HEIGHT)
     center, radius = torch.tensor([0.8, -0.4, 1.0]), 0.35
     masks = _sphere_masks(cameras, center, radius)
     images = torch.zeros(len(cameras), HEIGHT, WIDTH, 3)
     images[masks] = torch.tensor([0.9, 0.2, 0.1])
-    bounds = torch.tensor([[-3.0, -3.0, 0.0], [3.0, 3.0, 2.5]])
-    points, colors, size = visual_hull(masks, images, cameras, bounds, HullSettings(misses=0.0))
+    points, colors, size = visual_hull(masks, images, cameras, BOUNDS, HullSettings(misses=0.0))
     assert len(points) > 50
     distance = (points - center).norm(dim=1)
     # a visual hull contains the object and hugs it within a pixel's footprint or so
@@ -64,32 +58,30 @@ def test_hull_of_a_sphere_lies_on_the_sphere() -> None:
 
 
 def test_hull_is_empty_without_residual_and_tolerates_one_wrong_camera() -> None:
-    cameras = _cameras()
-    bounds = torch.tensor([[-3.0, -3.0, 0.0], [3.0, 3.0, 2.5]])
+    cameras = dome_cameras(WIDTH, HEIGHT)
     images = torch.zeros(len(cameras), HEIGHT, WIDTH, 3)
     empty = torch.zeros(len(cameras), HEIGHT, WIDTH, dtype=torch.bool)
-    assert len(visual_hull(empty, images, cameras, bounds, HullSettings())[0]) == 0
+    assert len(visual_hull(empty, images, cameras, BOUNDS, HullSettings())[0]) == 0
     masks = _sphere_masks(cameras, torch.tensor([0.0, 0.0, 1.0]), 0.3)
     masks[0] = False  # one camera misses the object (e.g. an occluder)
-    strict = visual_hull(masks, images, cameras, bounds, HullSettings(misses=0.0))[0]
-    tolerant = visual_hull(masks, images, cameras, bounds, HullSettings(misses=0.15))[0]
+    strict = visual_hull(masks, images, cameras, BOUNDS, HullSettings(misses=0.0))[0]
+    tolerant = visual_hull(masks, images, cameras, BOUNDS, HullSettings(misses=0.15))[0]
     assert len(tolerant) > max(len(strict), 20)
 
 
 def test_hull_of_an_all_residual_view_refines_a_bounded_random_subset() -> None:
-    cameras = _cameras()
-    bounds = torch.tensor([[-3.0, -3.0, 0.0], [3.0, 3.0, 2.5]])
+    cameras = dome_cameras(WIDTH, HEIGHT)
     images = torch.zeros(len(cameras), HEIGHT, WIDTH, 3)
     everything = torch.ones(len(cameras), HEIGHT, WIDTH, dtype=torch.bool)
     settings = HullSettings(coarse_voxels=64)
-    first = visual_hull(everything, images, cameras, bounds, settings, torch.Generator())[0]
-    again = visual_hull(everything, images, cameras, bounds, settings, torch.Generator())[0]
+    first = visual_hull(everything, images, cameras, BOUNDS, settings, torch.Generator())[0]
+    again = visual_hull(everything, images, cameras, BOUNDS, settings, torch.Generator())[0]
     assert MAX_REFINED_VOXELS < len(first) <= MAX_REFINED_VOXELS * SUBDIVISIONS**3
     assert torch.equal(first, again)
 
 
 def test_background_renders_each_camera_once_and_match_a_direct_render() -> None:
-    cameras = _cameras()[:3]
+    cameras = dome_cameras(WIDTH, HEIGHT)[:3]
     background = GaussianSet.from_points(
         torch.rand(200, 3) * 2 - 1, torch.rand(200, 3), max_sh_degree=0, init_opacity=0.5
     )
@@ -141,23 +133,19 @@ def test_carved_copies_one_per_segment_capped_and_replica_when_nothing_moves(
     assert torch.equal(fallback.foreground.buffers[SEGMENT], replicated.foreground.buffers[SEGMENT])
 
 
-def test_hull_of_masks_that_do_not_match_the_cameras_is_refused() -> None:
-    cameras = _cameras()
-    bounds = torch.tensor([[-3.0, -3.0, 0.0], [3.0, 3.0, 2.5]])
-    masks = torch.ones(len(cameras) - 1, HEIGHT, WIDTH, dtype=torch.bool)
-    images = torch.zeros(len(cameras) - 1, HEIGHT, WIDTH, 3)
-    with pytest.raises(InputError, match=f"visual_hull: {len(cameras)} cameras, masks"):
-        visual_hull(masks, images, cameras, bounds, HullSettings())
-
-
 @pytest.mark.parametrize(
-    "bounds",
-    [[[1.0, 1.0, 1.0], [1.0, 1.0, 1.0]], [[0.0, 0.0, 0.0], [float("nan"), 1.0, 1.0]]],
-    ids=["a point", "nan"],
+    ("short", "bounds"),
+    [
+        (True, BOUNDS),
+        (False, [[1.0, 1.0, 1.0], [1.0, 1.0, 1.0]]),
+        (False, [[0.0, 0.0, 0.0], [float("nan"), 1.0, 1.0]]),
+    ],
+    ids=["a mask short", "a point", "nan"],
 )
-def test_hull_within_empty_or_non_finite_bounds_is_refused(bounds) -> None:
-    cameras = _cameras()
-    masks = torch.ones(len(cameras), HEIGHT, WIDTH, dtype=torch.bool)
-    images = torch.zeros(len(cameras), HEIGHT, WIDTH, 3)
-    with pytest.raises(InputError, match="visual_hull: empty bounds"):
-        visual_hull(masks, images, cameras, torch.tensor(bounds), HullSettings())
+def test_hull_of_masks_off_the_cameras_or_within_empty_bounds_is_refused(short, bounds) -> None:
+    cameras = dome_cameras(WIDTH, HEIGHT)
+    count = len(cameras) - short
+    masks = torch.ones(count, HEIGHT, WIDTH, dtype=torch.bool)
+    images = torch.zeros(count, HEIGHT, WIDTH, 3)
+    with pytest.raises(InputError, match="visual_hull: "):
+        visual_hull(masks, images, cameras, torch.as_tensor(bounds), HullSettings())

@@ -8,8 +8,7 @@ import torch
 
 from conftest import STAGE_K, stage_smoke_cfg
 from relaygs.renders import RenderSettings, write_renders
-from relaygs.stages import SPECS, relay_seed
-from relaygs.stages.relay import RelayConfig
+from relaygs.stages import SPECS, relay
 from relaygs.train.scene_model import SEGMENT, SceneModel, core_only
 from relaygs.train.segment_plan import SegmentPlan
 from relaygs.train.views import TrainViews
@@ -55,15 +54,15 @@ def test_carved_copies_join_hull_seeds_and_replicas_on_the_gpu(
     generator = torch.Generator().manual_seed(0)
     hull = (torch.rand(30, 3, generator=generator), torch.rand(30, 3, generator=generator), 0.05)
     monkeypatch.setattr(
-        relay_seed, "_hull_at", lambda views, renders, frame, *_: hull if frame < STAGE_K else None
+        relay, "_hull_at", lambda views, renders, frame, *_: hull if frame < STAGE_K else None
     )
     source = SceneModel.from_artifact(stage_decoupled).to(DEVICE)
     replica = core_only(source.foreground)
-    copies = relay_seed.carved_copies(
+    copies = relay.carved_copies(
         TrainViews(stage_scene, source.background.means.device),
         source.background,
         replica,
-        RelayConfig(k=STAGE_K),
+        relay.RelayConfig(k=STAGE_K),
         SegmentPlan.uniform(stage_scene.num_frames, STAGE_K),
         seed=0,
     )

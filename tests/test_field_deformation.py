@@ -45,6 +45,12 @@ def test_shapes_and_identity_at_init(isolate: bool) -> None:
         assert value.shape == (40, width)
         assert value.dtype == torch.float32
         assert torch.equal(value, torch.zeros_like(value))
+    assert field(torch.zeros(0, 3), 0.5, torch.zeros(0, dtype=torch.long)).drot.shape == (0, 4)
+    groups = field.parameter_groups()  # a partition: the grid's and the MLP sets' parameters
+    assert set(groups) == {"grid", "mlp"}
+    assert [id(p) for p in groups["grid"]] == [id(p) for p in field.hexplane.parameters()]
+    assert {id(p) for p in groups["grid"] + groups["mlp"]} == {id(p) for p in field.parameters()}
+    assert len(groups["grid"]) + len(groups["mlp"]) == len(list(field.parameters()))
 
 
 @pytest.mark.parametrize("heads", [HeadSwitches(), HeadSwitches(dscale=False, dopacity=False)])
@@ -71,7 +77,7 @@ def test_the_single_node_mlp_equals_its_layers(heads: HeadSwitches) -> None:
     assert torch.autograd.gradcheck(lambda x: tuple(mlp(x))[:1], (x,))
 
 
-def test_mlp_default_is_single_trunk_layer_and_four_heads() -> None:
+def test_mlp_layers_and_switched_off_heads() -> None:
     mlp = DeformationMLP(32)
     linears = [m for m in mlp.trunk if isinstance(m, nn.Linear)]
     assert [(m.in_features, m.out_features) for m in linears] == [(32, 128)]
@@ -81,9 +87,6 @@ def test_mlp_default_is_single_trunk_layer_and_four_heads() -> None:
     for name, head in deeper.heads.items():
         assert head[-1].out_features == WIDTHS[name]
         assert torch.equal(head[-1].weight, torch.zeros_like(head[-1].weight))
-
-
-def test_switched_off_heads_return_zeros() -> None:
     mlp = DeformationMLP(8, width=16, heads=HeadSwitches(dscale=False, dopacity=False))
     assert set(mlp.heads) == {"dxyz", "drot"}
     randomise_heads(mlp)
@@ -94,7 +97,7 @@ def test_switched_off_heads_return_zeros() -> None:
     assert deltas.drot.abs().sum().item() > 0.0
 
 
-def test_gradients_reach_grid_and_mlp() -> None:
+def test_gradients_reach_grid_and_mlp_but_not_across_groups() -> None:
     field = small_field(isolate_fg_bg=True)
     xyz, group = points()
     # At init only the zero last layers get gradient: the deform starts from identity.
@@ -107,34 +110,33 @@ def test_gradients_reach_grid_and_mlp() -> None:
     for name, parameter in field.named_parameters():
         assert parameter.grad is not None, name
         assert parameter.grad.abs().sum().item() > 0.0, name
+    # the background's deltas do not depend on the foreground MLPs
+    background_output = sum(d[group == 0].square().sum() for d in field(xyz, 0.5, group))
+    fg_params = list(field.mlp_sets["foreground"].parameters())
+    bg_params = list(field.mlp_sets["background"].parameters())
+    grads = torch.autograd.grad(
+        background_output, fg_params + bg_params, allow_unused=True, materialize_grads=True
+    )
+    assert all(torch.equal(g, torch.zeros_like(g)) for g in grads[: len(fg_params)])
+    assert sum(g.abs().sum().item() for g in grads[len(fg_params) :]) > 0.0
 
 
-def test_single_set_when_not_isolated() -> None:
-    field = small_field(isolate_fg_bg=False)
-    assert list(field.mlp_sets) == ["all"]
+@pytest.mark.parametrize("isolate", [False, True])
+def test_rows_go_through_the_mlp_set_of_their_group(isolate: bool) -> None:
+    field = small_field(isolate)
+    names = ("background", "foreground") if isolate else ("all", "all")
+    assert sorted(field.mlp_sets) == sorted(set(names))
     randomise_heads(field)
     xyz, group = points()
-    with torch.no_grad():
-        expected = field.mlp_sets["all"](field.hexplane(xyz, 0.2))
-        for got, want in zip(field(xyz, 0.2), expected, strict=True):
-            torch.testing.assert_close(got, want)
-        for got, want in zip(field(xyz, 0.2, group), expected, strict=True):
-            torch.testing.assert_close(got, want)
-
-
-def test_isolated_sets_route_by_group() -> None:
-    field = small_field(isolate_fg_bg=True)
-    assert sorted(field.mlp_sets) == ["background", "foreground"]
-    randomise_heads(field)
-    xyz, group = points()
-    fg = group == 1
     with torch.no_grad():
         deltas = field(xyz, 0.8, group)
-        want_fg = field.mlp_sets["foreground"](field.hexplane(xyz[fg], 0.8))
-        want_bg = field.mlp_sets["background"](field.hexplane(xyz[~fg], 0.8))
-    for got, fg_want, bg_want in zip(deltas, want_fg, want_bg, strict=True):
-        torch.testing.assert_close(got[fg], fg_want)
-        torch.testing.assert_close(got[~fg], bg_want)
+        for value, name in enumerate(names):
+            rows = group == value
+            want = field.mlp_sets[name](field.hexplane(xyz[rows], 0.8))
+            for got, expected in zip(deltas, want, strict=True):
+                torch.testing.assert_close(got[rows], expected)
+        if not isolate:  # the group is ignored
+            torch.testing.assert_close(field(xyz, 0.8).dxyz, deltas.dxyz)
 
 
 def test_grouped_layout_matches_interleaved_rows() -> None:
@@ -189,33 +191,6 @@ def test_forward_split_is_forward_for_background_first_rows_without_device_reads
             field.forward_split(xyz, 0.3, bad)
 
 
-def test_background_does_not_depend_on_foreground_mlp() -> None:
-    field = small_field(isolate_fg_bg=True)
-    randomise_heads(field)
-    xyz, group = points()
-    deltas = field(xyz, 0.5, group)
-    background_output = sum(d[group == 0].square().sum() for d in deltas)
-    fg_params = list(field.mlp_sets["foreground"].parameters())
-    bg_params = list(field.mlp_sets["background"].parameters())
-    grads = torch.autograd.grad(
-        background_output, fg_params + bg_params, allow_unused=True, materialize_grads=True
-    )
-    assert all(torch.equal(g, torch.zeros_like(g)) for g in grads[: len(fg_params)])
-    assert sum(g.abs().sum().item() for g in grads[len(fg_params) :]) > 0.0
-
-
-def test_parameter_groups_partition_parameters() -> None:
-    for isolate in (False, True):
-        field = small_field(isolate)
-        groups = field.parameter_groups()
-        assert set(groups) == {"grid", "mlp"}
-        grid_ids = {id(p) for p in groups["grid"]}
-        mlp_ids = {id(p) for p in groups["mlp"]}
-        assert not grid_ids & mlp_ids
-        assert grid_ids | mlp_ids == {id(p) for p in field.parameters()}
-        assert grid_ids == {id(p) for p in field.hexplane.parameters()}
-
-
 def test_regularisers_come_from_the_grid() -> None:
     field = small_field(isolate_fg_bg=False)
     assert field.regularisers().keys() == field.hexplane.regularisers().keys()
@@ -232,12 +207,6 @@ def test_group_errors() -> None:
     with pytest.raises(InputError, match="integer or bool tensor of shape"):
         field(xyz, 0.1, group.float())
     field(xyz, 0.1, group.bool())
-
-
-def test_empty_input() -> None:
-    field = small_field(isolate_fg_bg=True)
-    deltas = field(torch.zeros(0, 3), 0.5, torch.zeros(0, dtype=torch.long))
-    assert deltas.drot.shape == (0, 4)
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")

@@ -93,17 +93,6 @@ def test_points_and_times_outside_the_grid_have_finite_gradients() -> None:
         assert torch.isfinite(plane.grad).all() and float(plane.grad.abs().sum()) > 0.0
 
 
-def test_gradients_reach_every_plane() -> None:
-    hexplane = HexPlane(UNIT_BOX, 6, multires=[1, 2], spatial_resolution=8, channels=4)
-    with torch.no_grad():
-        for plane in hexplane.time_planes:
-            plane.uniform_(0.5, 1.5)
-    hexplane(torch.rand(64, 3) * 2 - 1, torch.rand(64)).square().sum().backward()
-    for plane in [*hexplane.spatial_planes, *hexplane.time_planes]:
-        assert plane.grad is not None
-        assert float(plane.grad.abs().sum()) > 0.0
-
-
 def test_gradcheck_float64() -> None:
     hexplane = HexPlane(UNIT_BOX, 3, multires=[1], spatial_resolution=3, channels=2).double()
     generator = torch.Generator().manual_seed(0)
@@ -168,36 +157,16 @@ def test_regularisers_vanish_on_flat_planes() -> None:
     assert hexplane.time_l1().item() > 0.0
 
 
-def test_regularisers_positive_on_random_planes() -> None:
+def test_regularisers_positive_on_random_planes_with_gradients_to_them() -> None:
     hexplane = HexPlane(UNIT_BOX, 6, multires=[1, 2], spatial_resolution=5, channels=2)
     with torch.no_grad():
         for plane in hexplane.time_planes:
             plane.uniform_(0.0, 2.0)
-    for value in hexplane.regularisers().values():
-        assert value.item() > 0.0
-
-
-def test_regularisers_match_hand_computation() -> None:
-    hexplane = tiny_hexplane(resolution=3, time_resolution=3)
-    with torch.no_grad():
-        # xy plane: a single bump of 1 in the middle of zeros. Along each axis only the middle
-        # line has a second difference (0 - 2 + 0 = -2): mean over 3 values = 4/3 per axis.
-        hexplane.spatial_planes[0][0, 0] = torch.tensor([[0.0, 0, 0], [0, 1, 0], [0, 0, 0]])
-        # xt plane: rows (time) 0, 1, 0 in every column: second difference -2 everywhere.
-        hexplane.time_planes[0][0, 0] = torch.tensor([[0.0], [1.0], [0.0]]).expand(3, 3)
     terms = hexplane.regularisers()
-    assert terms["plane_smoothness"].item() == pytest.approx(8.0 / 3.0)
-    assert terms["time_smoothness"].item() == pytest.approx(4.0)
-    assert terms["time_l1"].item() == pytest.approx(2.0 / 3.0)
-
-
-def test_regulariser_gradients_reach_planes() -> None:
-    hexplane = HexPlane(UNIT_BOX, 4, multires=[1], spatial_resolution=4, channels=1)
-    with torch.no_grad():
-        hexplane.time_planes[0].uniform_(0.0, 2.0)
-    sum(hexplane.regularisers().values()).backward()
-    assert float(hexplane.spatial_planes[0].grad.abs().sum()) > 0.0
-    assert float(hexplane.time_planes[0].grad.abs().sum()) > 0.0
+    assert all(value.item() > 0.0 for value in terms.values())
+    sum(terms.values()).backward()
+    for plane in [*hexplane.spatial_planes, *hexplane.time_planes]:
+        assert float(plane.grad.abs().sum()) > 0.0
 
 
 @pytest.mark.parametrize("dim", [2, 3])
@@ -236,20 +205,16 @@ def test_cuda_matches_cpu() -> None:
     torch.testing.assert_close(got.cpu(), expected)
 
 
-def test_time_l1_is_the_mean_absolute_distance_from_one() -> None:
-    # Values on both sides of 1: the xt plane at -2 is 3 away, the yt plane at 2 is 1 away and
-    # the zt plane (still 1) 0 away; each plane's mean is summed, so the L1 is 3 + 1 + 0 = 4.
-    # Without the absolute value the yt plane would count as -1.
+def test_time_l1_is_the_mean_absolute_distance_from_one_per_plane_summed() -> None:
+    # xt at -2 is 3 away, yt at 2 is 1 away, zt (still 1) 0 away: 3 + 1 + 0 = 4 (without the
+    # absolute value yt would count as -1)
     hexplane = tiny_hexplane(resolution=3, time_resolution=4)
     with torch.no_grad():
         hexplane.time_planes[0][0].fill_(-2.0)
         hexplane.time_planes[0][1].fill_(2.0)
     assert hexplane.time_l1().item() == pytest.approx(4.0)
-
-
-def test_time_l1_averages_each_plane_and_sums_over_levels() -> None:
-    # Two levels of two channels: level 0's xt plane has one channel at 3 (distance 2) and one
-    # at 1 (distance 0), mean 1; level 1's zt plane is all 0.5 (distance 0.5). Total 1.5.
+    # two levels of two channels: level 0's xt has one channel at 3 (2 away) and one at 1, mean
+    # 1; level 1's zt is all 0.5 (0.5 away): 1.5
     hexplane = HexPlane(UNIT_BOX, 3, multires=[1, 2], spatial_resolution=2, channels=2)
     with torch.no_grad():
         hexplane.time_planes[0][0, 0].fill_(3.0)

@@ -9,7 +9,7 @@ from relaygs.errors import InputError
 from relaygs.field import GAMMA_LIMIT, LOG_GAIN_LIMIT, ColorAffine, relay_position
 
 
-def test_relay_factor_only_on_relay_rows() -> None:
+def test_relay_position_scales_only_relay_rows() -> None:
     generator = torch.Generator().manual_seed(0)
     mu = torch.randn(6, 3, generator=generator)
     dmu = torch.randn(6, 3, generator=generator)
@@ -18,10 +18,7 @@ def test_relay_factor_only_on_relay_rows() -> None:
     moved = relay_position(mu, dmu, gamma, is_relay)
     torch.testing.assert_close(moved[is_relay], (mu + (1 + gamma.exp()) * dmu)[is_relay])
     assert torch.equal(moved[~is_relay], (mu + dmu)[~is_relay])
-
-
-def test_gamma_zero_doubles_relay_motion() -> None:
-    mu, dmu = torch.zeros(2, 3), torch.ones(2, 3)
+    mu, dmu = torch.zeros(2, 3), torch.ones(2, 3)  # γ = 0 doubles the relay motion
     moved = relay_position(mu, dmu, torch.zeros(2, 3), torch.tensor([True, False]))
     assert torch.equal(moved, torch.tensor([[2.0, 2.0, 2.0], [1.0, 1.0, 1.0]]))
 

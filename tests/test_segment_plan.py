@@ -1,7 +1,5 @@
 """Segment plans: uniform k-frame segments and motion-adaptive ones."""
 
-from __future__ import annotations
-
 from types import SimpleNamespace
 
 import pytest

@@ -1,12 +1,5 @@
-"""Colour-fitted PSNR: a camera's renders scored after the per-channel gain and offset that map
-them best onto its images (least squares over all of its images, 6 numbers per camera).
-
-A held-out camera of a scene whose cameras each record colour their own way (Panoptic's, or a
-synthetic scene with `color_inconsistency`) has a response no model can learn from the other
-cameras; the fit removes it and nothing else, since 6 numbers cannot fit image content
-(docs/results.md, section 7b). The fitted values are not clipped, so the score follows in closed
-form from per-image channel moments and the renders need not be kept.
-"""
+"""Colour-fitted PSNR: renders scored after each camera's best channel gain and offset (its
+own colour response, docs/results.md 7b), in closed form from per-image moments."""
 
 from __future__ import annotations
 
@@ -21,16 +14,14 @@ _SUM_P, _SUM_T, _SUM_PP, _SUM_TT, _SUM_PT = range(5)
 
 
 def channel_moments(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-    """Per-channel sums [5, C] in float64 over the pixels of `pred` and `target` ([..., C]):
-    Σp, Σt, Σp², Σt², Σp·t."""
+    """Per-channel float64 sums [5, C] over the pixels: Σp, Σt, Σp², Σt², Σp·t."""
     p = pred.detach().reshape(-1, pred.shape[-1]).to(torch.float64)
     t = target.detach().reshape(-1, target.shape[-1]).to(torch.float64)
     return torch.stack([p.sum(0), t.sum(0), (p * p).sum(0), (t * t).sum(0), (p * t).sum(0)])
 
 
 def channel_fit(moments: torch.Tensor, count: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """Least-squares gain and offset per channel from `channel_moments` over `count` pixels; a
-    flat channel (no variance in the renders) keeps gain 1."""
+    """Least-squares gain and offset per channel (gain 1 for a flat channel)."""
     mean_p, mean_t = moments[_SUM_P] / count, moments[_SUM_T] / count
     variance = moments[_SUM_PP] / count - mean_p.square()
     covariance = moments[_SUM_PT] / count - mean_p * mean_t
@@ -42,8 +33,7 @@ def channel_fit(moments: torch.Tensor, count: int) -> tuple[torch.Tensor, torch.
 def fitted_mse(
     moments: torch.Tensor, count: int, gain: torch.Tensor, offset: torch.Tensor
 ) -> float:
-    """Mean squared error of gain·pred + offset against the target, over the pixels and channels
-    the moments sum (expanded from the sums; rounding below zero is clamped)."""
+    """MSE of gain·pred + offset against the target, from the moments (clamped at 0)."""
     sp, st, spp, stt, spt = moments
     per_channel = (
         gain.square() * spp
@@ -57,8 +47,7 @@ def fitted_mse(
 
 
 class ColourFittedPSNR:
-    """Accumulates scored images by camera; `value()` is the mean per-image PSNR after each
-    camera's colour fit (renders clamped to [0, 1] first, as the raw PSNR's are displayed)."""
+    """Per-camera colour-fitted PSNR: `add` images, `value()` is their mean after each fit."""
 
     def __init__(self) -> None:
         self._images: dict[int, list[tuple[torch.Tensor, int]]] = defaultdict(list)

@@ -1,5 +1,4 @@
-"""SSIM through the native CPU kernel (relaygs.splat.native's extension): the value and the
-gradient of `relaygs.metrics.ssim` with respect to its first images, in a few passes."""
+"""SSIM through the native CPU kernel: value and gradient of `relaygs.metrics.ssim`."""
 
 from __future__ import annotations
 
@@ -13,8 +12,7 @@ from relaygs.splat.native.build import load
 
 
 class NativeSSIM(torch.autograd.Function):
-    """Mean SSIM (0-dim) of channel-last batches `pred`, `gt` [B,H,W,C]; `gt` gets no
-    gradient."""
+    """Mean SSIM of channel-last batches `pred`, `gt` [B,H,W,C]; `gt` gets no gradient."""
 
     @staticmethod
     def forward(ctx: Any, pred: Tensor, gt: Tensor) -> Tensor:

@@ -1,14 +1,12 @@
 """The motion field: HexPlane grid, deformation MLPs, relay γ update, per-camera colour affine."""
 
 from relaygs.field.color_affine import LOG_GAIN_LIMIT, ColorAffine
-from relaygs.field.deformation import BACKGROUND, FOREGROUND, DeformationField
-from relaygs.field.gamma import GAMMA_LIMIT, relay_factor, relay_position
+from relaygs.field.deformation import DeformationField
+from relaygs.field.gamma import GAMMA_LIMIT, relay_position
 from relaygs.field.hexplane import HexPlane
 from relaygs.field.mlp import DeformationMLP, Deltas, HeadSwitches
 
 __all__ = [
-    "BACKGROUND",
-    "FOREGROUND",
     "GAMMA_LIMIT",
     "LOG_GAIN_LIMIT",
     "ColorAffine",
@@ -17,6 +15,5 @@ __all__ = [
     "Deltas",
     "HeadSwitches",
     "HexPlane",
-    "relay_factor",
     "relay_position",
 ]

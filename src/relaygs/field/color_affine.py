@@ -16,7 +16,6 @@ class ColorAffine(nn.Module):
     """Learnable per-camera gain (log_gain a) and offset (b), both [num_cameras, 3], init 0."""
 
     def __init__(self, num_cameras: int) -> None:
-        """One identity affine per camera."""
         super().__init__()
         if num_cameras < 1:
             raise InputError(f"ColorAffine num_cameras: expected >= 1, got {num_cameras}")

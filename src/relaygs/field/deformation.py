@@ -18,12 +18,8 @@ ISOLATED_SETS = ("background", "foreground")
 
 
 class DeformationField(nn.Module):
-    """Motion field of the deform stage and the 4D-GS baseline: (xyz, t, group) → Deltas.
-
-    With `isolate_fg_bg` the background (group 0) and foreground (group 1) Gaussians go
-    through separate MLP sets, as the paper's "separate MLPs"; both read one shared HexPlane
-    (the paper separates only the MLPs, and one grid keeps the field's cost and memory flat).
-    """
+    """Motion field (xyz, t, group) → Deltas; with `isolate_fg_bg` background (group 0) and
+    foreground (1) go through separate MLP sets (the paper's) reading one shared HexPlane."""
 
     def __init__(
         self,
@@ -59,11 +55,8 @@ class DeformationField(nn.Module):
         )
 
     def forward(self, xyz: Tensor, t: float | Tensor, group: Tensor | None = None) -> Deltas:
-        """Deltas of Gaussians at `xyz` [N, 3], time `t` in [0, 1] (scalar or [N]).
-
-        `group` [N] (0 = background, 1 = foreground) is required with isolated MLP sets and
-        ignored otherwise.
-        """
+        """Deltas of Gaussians at `xyz` [N, 3], time `t` in [0, 1] (scalar or [N]); `group` [N]
+        is required with isolated MLP sets and ignored otherwise."""
         features = self.hexplane(xyz, t)
         if not self.isolate_fg_bg:
             return self.mlp_sets[SHARED_SET](features)
@@ -79,8 +72,7 @@ class DeformationField(nn.Module):
         return _scatter_rows(xyz.shape[0], parts)
 
     def forward_split(self, xyz: Tensor, t: float | Tensor, num_background: int) -> Deltas:
-        """`forward` for rows laid out as the stages do, the first `num_background` background
-        and the rest foreground: given on the host, so no group is read back from the device."""
+        """`forward` for background-first rows, their count given on the host (no device read)."""
         if not 0 <= num_background <= xyz.shape[0]:
             raise InputError(
                 f"DeformationField num_background: expected 0..{xyz.shape[0]}, got {num_background}"
@@ -91,8 +83,7 @@ class DeformationField(nn.Module):
         return self._split(features, num_background)
 
     def _split(self, features: Tensor, num_background: int) -> Deltas:
-        """The background MLPs' deltas of the first `num_background` rows, then the
-        foreground MLPs' of the rest (slices, not gathers)."""
+        """Background MLPs' deltas of the first `num_background` rows, foreground's of the rest."""
         halves = (
             self.mlp_sets["background"](features[:num_background]),
             self.mlp_sets["foreground"](features[num_background:]),

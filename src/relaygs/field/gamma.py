@@ -12,11 +12,14 @@ from relaygs.errors import InputError
 GAMMA_LIMIT = 10.0
 
 
-def relay_factor(gamma: Tensor, is_relay: Tensor) -> Tensor:
-    """Per-Gaussian motion factor [N, 3]: 1 + e^clamp(γ) on relay rows, exactly 1 elsewhere.
-
-    γ = 0 gives factor 2, as the paper's formula does at initialisation.
-    """
+def relay_position(mu: Tensor, dmu: Tensor, gamma: Tensor, is_relay: Tensor) -> Tensor:
+    """Deformed centres [N, 3]: μ + (1 + e^clamp(γ))·Δμ for relay Gaussians (2·Δμ at γ = 0, as
+    the paper's formula at initialisation), μ + Δμ for the others."""
+    if mu.shape != dmu.shape or mu.shape != gamma.shape:
+        raise InputError(
+            "relay_position: expected mu, dmu, gamma of one shape [N, 3], got "
+            f"{list(mu.shape)}, {list(dmu.shape)}, {list(gamma.shape)}"
+        )
     if gamma.dim() != 2 or gamma.shape[1] != 3:
         raise InputError(f"relay gamma: expected shape [N, 3], got {list(gamma.shape)}")
     if is_relay.shape != (gamma.shape[0],) or is_relay.dtype != torch.bool:
@@ -25,14 +28,4 @@ def relay_factor(gamma: Tensor, is_relay: Tensor) -> Tensor:
             f"got {is_relay.dtype} {list(is_relay.shape)}"
         )
     boosted = 1.0 + torch.exp(gamma.clamp(-GAMMA_LIMIT, GAMMA_LIMIT))
-    return torch.where(is_relay.unsqueeze(1), boosted, torch.ones_like(boosted))
-
-
-def relay_position(mu: Tensor, dmu: Tensor, gamma: Tensor, is_relay: Tensor) -> Tensor:
-    """Deformed centres μ + (1 + e^γ)·Δμ for relay Gaussians and μ + Δμ for the others, [N, 3]."""
-    if mu.shape != dmu.shape or mu.shape != gamma.shape:
-        raise InputError(
-            "relay_position: expected mu, dmu, gamma of one shape [N, 3], got "
-            f"{list(mu.shape)}, {list(dmu.shape)}, {list(gamma.shape)}"
-        )
-    return mu + relay_factor(gamma, is_relay) * dmu
+    return mu + torch.where(is_relay.unsqueeze(1), boosted, torch.ones_like(boosted)) * dmu

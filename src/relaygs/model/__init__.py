@@ -19,17 +19,9 @@ from relaygs.model.gaussians import (
 )
 from relaygs.model.guard import check_finite
 from relaygs.model.knn import mean_sq_knn_distance
-from relaygs.model.optim import (
-    ADAM_EPS,
-    GaussianOptimizer,
-    LRSchedule,
-    SetLearningRates,
-    adam,
-    log_linear,
-)
+from relaygs.model.optim import GaussianOptimizer, LRSchedule, SetLearningRates, adam, log_linear
 
 __all__ = [
-    "ADAM_EPS",
     "BACKGROUND_DENSIFY",
     "CORE_PARAMS",
     "FOREGROUND_DENSIFY",

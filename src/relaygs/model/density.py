@@ -1,20 +1,5 @@
-"""3DGS adaptive density control for one Gaussian set: clone, split, prune, opacity reset.
-
-Screen-space gradients: the renderer's `means2d` are in pixels, while 3DGS thresholds
-(2e-4) refer to gradients with respect to NDC coordinates. Since pixel = ((ndc + 1)·W − 1)/2,
-dL/dndc = dL/dpixel · W/2 (x) and · H/2 (y); we scale by these, as gsplat does. When the loss
-averages over C cameras each camera's gradient is 1/C of a single-view loss's, so (again as
-gsplat) we also multiply by C unless told the loss is a sum.
-
-Schedule (3DGS): while `step < densify_until`, every `densify_every` steps once
-`step > densify_from` densify then prune; every `opacity_reset_every` steps reset opacities.
-World-size pruning starts after the first reset; with resets off (`opacity_reset_every: 0`,
-the refining stages of `small`, which start from decouple's trained and size-pruned set) there
-is no reset to wait for, so it applies from the first densification.
-Unlike 3DGS, which zeroes the Adam moments of every new row, only split children start with
-zero moments; a clone inherits its parent's.
-Call `step()` after the optimiser step so that step's gradients are not discarded.
-"""
+"""3DGS density control of one set (docs/method.md); screen gradients go to NDC × C cameras
+as in gsplat, only split children get zero Adam moments. `step()` after the optimiser's."""
 
 from __future__ import annotations
 
@@ -33,13 +18,8 @@ from relaygs.splat.projection import quat_to_rotmat
 
 @dataclass(frozen=True)
 class DensifySettings:
-    """Density-control settings of one Gaussian set (defaults: 3DGS / background values).
-
-    percent_dense × scene extent is the clone/split size threshold (the paper's foreground uses
-    0.1× the background's, i.e. 0.001). max_screen_radius (pixels) is off by default: in the
-    reference 3DGS code its check never fires (max_radii2D is zeroed just before), so None
-    reproduces 3DGS's actual behaviour; a number enables the intended screen-size pruning.
-    """
+    """Density control of one set (3DGS background defaults); max_screen_radius (px) is off, as
+    3DGS's check in effect is (its max_radii2D is zeroed just before)."""
 
     grad_threshold: float = 2e-4
     percent_dense: float = 0.01
@@ -59,12 +39,10 @@ class DensifySettings:
 BACKGROUND_DENSIFY = DensifySettings()
 FOREGROUND_DENSIFY = DensifySettings(grad_threshold=1e-4, percent_dense=0.001)
 SCHEDULE_KEYS = ("densify_from", "densify_every", "densify_until", "opacity_reset_every")
-"""The step counts of density control, which both presets share."""
 
 
 def paper_schedule() -> dict[str, int]:
-    """The presets' (3DGS) schedule by key: the `densify*` default of every stage section,
-    spelled out there so that `budget.multiplier` scales it with the stage's steps."""
+    """The presets' (3DGS) schedule: every stage's `densify*` default, scaled by budgets."""
     return {key: getattr(BACKGROUND_DENSIFY, key) for key in SCHEDULE_KEYS}
 
 
@@ -100,22 +78,8 @@ class DensityController:
         self.generator = generator
         self._reset_stats()
 
-    def accumulate(
-        self,
-        means2d_grad: Tensor,
-        radii: Tensor,
-        width: int,
-        height: int,
-    ) -> None:
-        """Add one step's statistics: means2d_grad [C,N,2] (pixels), radii [C,N,2] or [C,N].
-        The loss is a mean over the C cameras, so each camera's gradient is scaled back by C."""
-        n = len(self.gaussians)
-        if means2d_grad.ndim != 3 or means2d_grad.shape[1:] != (n, 2):
-            raise InputError(
-                f"accumulate: means2d grad must be [C,{n},2], got {tuple(means2d_grad.shape)}"
-            )
-        if radii.shape[:2] != means2d_grad.shape[:2]:
-            raise InputError(f"accumulate: radii {tuple(radii.shape)} do not match the grad")
+    def accumulate(self, means2d_grad: Tensor, radii: Tensor, width: int, height: int) -> None:
+        """Add one step's statistics: means2d_grad [C,N,2] (pixels), radii [C,N,2] or [C,N]."""
         per_axis = radii if radii.ndim == 3 else radii[..., None]
         visible = (per_axis > 0).all(dim=-1)
         n_cameras = means2d_grad.shape[0]
@@ -142,6 +106,7 @@ class DensityController:
         cloned = split = pruned = 0
         if densify_due:
             cloned, split = self.densify()
+            # world-size pruning waits for the first opacity reset (none to wait for when off)
             pruned = self.prune(size_limits=step > s.opacity_reset_every)
             self._reset_stats()
         if reset_due:

@@ -1,10 +1,4 @@
-"""The Gaussian parameter set: raw learnable tensors, their activations and row bookkeeping.
-
-A `GaussianSet` holds the six core per-Gaussian parameters plus a registry of extra
-per-Gaussian parameters (learned, e.g. `mask_logit`, `gamma`) and buffers (not learned,
-e.g. `is_fg`, `segment`). Every row operation (subset, concat, reindex) treats core
-parameters, extras and buffers alike, so they can never fall out of step.
-"""
+"""The Gaussian parameter set: raw tensors, their activations, row operations on them all."""
 
 from __future__ import annotations
 
@@ -53,22 +47,9 @@ def normalize_quats(quats: Tensor) -> Tensor:
     return safe_quats / safe_norm
 
 
-def _init_sq_dist_floor(xyz: Tensor) -> Tensor:
-    """MIN_INIT_SQ_DIST in the cloud's units: scaled by the square of its bounding-box diagonal
-    when that is under 1, so a scene in millimetres does not start with Gaussians larger than
-    itself (one point, or all at one place: unscaled); never below float32's smallest normal
-    number, whose log is finite. A 0-d tensor on the points' device (no host read)."""
-    size = torch.linalg.vector_norm(xyz.amax(dim=0) - xyz.amin(dim=0))
-    unit = torch.where((size > 0.0) & (size < 1.0), size, torch.ones_like(size))
-    return (MIN_INIT_SQ_DIST * unit * unit).clamp_min(torch.finfo(torch.float32).tiny)
-
-
 class GaussianSet:
-    """Raw per-Gaussian parameters (nn.Parameters) and buffers, with 3DGS activations.
-
-    Core parameters: means [N,3], log_scales [N,3], quats [N,4] (wxyz, any norm),
-    opacity_logits [N], sh_dc [N,1,3], sh_rest [N,(d+1)²−1,3] for max SH degree d.
-    """
+    """Raw per-Gaussian parameters and buffers with 3DGS activations: means, log_scales [N,3],
+    quats [N,4] (wxyz), opacity_logits [N], sh_dc [N,1,3], sh_rest [N,(d+1)²−1,3]."""
 
     def __init__(
         self,
@@ -86,7 +67,22 @@ class GaussianSet:
         n = core["means"].shape[0]
         for name in CORE_PARAMS:
             self._params[name] = _new_param(core[name], name, n)
-        self._check_core_shapes()
+        expected = {
+            "means": (n, 3),
+            "log_scales": (n, 3),
+            "quats": (n, 4),
+            "opacity_logits": (n,),
+            "sh_dc": (n, 1, 3),
+        }
+        for name, shape in expected.items():
+            if tuple(self._params[name].shape) != shape:
+                raise InputError(
+                    f"GaussianSet: {name} must be {shape}, got {tuple(self._params[name].shape)}"
+                )
+        rest = tuple(self._params["sh_rest"].shape)
+        valid_counts = {num_sh_bases(d) - 1 for d in range(5)}
+        if len(rest) != 3 or rest[0] != n or rest[2] != 3 or rest[1] not in valid_counts:
+            raise InputError(f"GaussianSet: sh_rest must be [N,(d+1)^2-1,3], got {rest}")
         self.max_sh_degree = math.isqrt(self._params["sh_rest"].shape[1] + 1) - 1
         self.active_sh_degree = active_sh_degree
         for name, values in (extra_params or {}).items():
@@ -96,21 +92,21 @@ class GaussianSet:
 
     @classmethod
     def from_points(
-        cls,
-        xyz: Tensor,
-        rgb: Tensor,
-        max_sh_degree: int = 3,
-        init_opacity: float = 0.1,
+        cls, xyz: Tensor, rgb: Tensor, max_sh_degree: int = 3, init_opacity: float = 0.1
     ) -> GaussianSet:
-        """3DGS initialisation from a coloured point cloud (xyz [N,3], rgb [N,3] in [0,1]), on
-        the points' device."""
+        """3DGS initialisation from xyz [N,3] and rgb [N,3] in [0, 1], on the points' device."""
         if xyz.ndim != 2 or xyz.shape[1] != 3 or xyz.shape[0] == 0:
             raise InputError(f"from_points: xyz must be [N>0, 3], got {tuple(xyz.shape)}")
         if rgb.shape != xyz.shape:
             raise InputError(f"from_points: rgb must be {tuple(xyz.shape)}, got {tuple(rgb.shape)}")
         xyz = xyz.detach().to(torch.float32)
         n = xyz.shape[0]
-        sq_dist = torch.maximum(mean_sq_knn_distance(xyz, k=3), _init_sq_dist_floor(xyz))
+        # the floor × the squared bounding-box diagonal when under 1 (a scene in mm must not start
+        # with Gaussians larger than itself), at least float32's tiny; on the device, no host read
+        size = torch.linalg.vector_norm(xyz.amax(dim=0) - xyz.amin(dim=0))
+        unit = torch.where((size > 0.0) & (size < 1.0), size, torch.ones_like(size))
+        floor = (MIN_INIT_SQ_DIST * unit * unit).clamp_min(torch.finfo(torch.float32).tiny)
+        sq_dist = torch.maximum(mean_sq_knn_distance(xyz, k=3), floor)
         log_scale = 0.5 * torch.log(sq_dist)
         quats = xyz.new_zeros(n, 4)
         quats[:, 0] = 1.0
@@ -125,7 +121,6 @@ class GaussianSet:
         return cls(core)
 
     def __len__(self) -> int:
-        """Number of Gaussians N."""
         return self._params["means"].shape[0]
 
     @property
@@ -135,7 +130,6 @@ class GaussianSet:
 
     @property
     def buffers(self) -> dict[str, Tensor]:
-        """All non-learned per-Gaussian tensors by name."""
         return dict(self._buffers)
 
     @property
@@ -173,7 +167,6 @@ class GaussianSet:
 
     @property
     def opacities(self) -> Tensor:
-        """sigmoid(opacity_logits) [N]."""
         return torch.sigmoid(self._params["opacity_logits"])
 
     def colors(self, sh_degree: int | None = None) -> Tensor:
@@ -241,21 +234,16 @@ class GaussianSet:
         return GaussianSet.from_tensors(joined)
 
     def clone(self) -> GaussianSet:
-        """Independent deep copy."""
         return self.subset(torch.arange(len(self)))
 
     def to(self, device: torch.device | str) -> GaussianSet:
-        """Copy of this set on `device`."""
         return GaussianSet.from_tensors(
             {key: value.to(device) for key, value in self.to_tensors().items()}
         )
 
     def reindex_rows_(self, source: Tensor, overrides: Mapping[str, Tensor] | None = None) -> None:
-        """In place: row i becomes old row source[i]; `overrides` give whole new tensors by name.
-
-        Parameters are replaced by new nn.Parameter objects (an optimiser must be told; see
-        `GaussianOptimizer.reindex_rows`).
-        """
+        """In place: row i becomes old row source[i], `overrides` give whole tensors by name; new
+        nn.Parameters replace the old (tell the optimiser: `GaussianOptimizer.reindex_rows`)."""
         overrides = overrides or {}
         index = as_row_index(source, len(self))
         m = index.shape[0]
@@ -272,25 +260,6 @@ class GaussianSet:
             raise InputError(f"GaussianSet: name {name!r} is already registered")
         if not name or "." in name:
             raise InputError(f"GaussianSet: name {name!r} must be non-empty without '.'")
-
-    def _check_core_shapes(self) -> None:
-        n = len(self)
-        expected = {
-            "means": (n, 3),
-            "log_scales": (n, 3),
-            "quats": (n, 4),
-            "opacity_logits": (n,),
-            "sh_dc": (n, 1, 3),
-        }
-        for name, shape in expected.items():
-            if tuple(self._params[name].shape) != shape:
-                raise InputError(
-                    f"GaussianSet: {name} must be {shape}, got {tuple(self._params[name].shape)}"
-                )
-        rest = tuple(self._params["sh_rest"].shape)
-        valid_counts = {num_sh_bases(d) - 1 for d in range(5)}
-        if len(rest) != 3 or rest[0] != n or rest[2] != 3 or rest[1] not in valid_counts:
-            raise InputError(f"GaussianSet: sh_rest must be [N,(d+1)^2-1,3], got {rest}")
 
 
 def _new_param(values: Tensor, name: str, rows: int) -> nn.Parameter:

@@ -11,11 +11,8 @@ from relaygs.errors import DivergenceError
 
 
 def check_finite(stage: str, step: int, tensors: Mapping[str, Tensor]) -> None:
-    """Raise DivergenceError naming stage, step and the first non-finite tensor or its .grad.
-
-    Fast path: one sum per tensor and a single host sync (a NaN or inf anywhere makes the sum
-    non-finite). Only when a sum is not finite (or overflowed) is each tensor checked in full.
-    """
+    """DivergenceError naming stage, step and the first non-finite tensor or .grad; one sum per
+    tensor and one host sync, each tensor checked in full only when a sum is not finite."""
     named: list[tuple[str, Tensor]] = []
     for name, tensor in tensors.items():
         named.append((name, tensor))
@@ -37,9 +34,8 @@ def check_finite(stage: str, step: int, tensors: Mapping[str, Tensor]) -> None:
 
 
 def divergence_suspects(parameters: Mapping[str, Tensor], step: int) -> str:
-    """Which parameters a divergence at `step` started from, for its error: those the update of
-    the step before made non-finite (every step checks them, so they were finite before it),
-    else the one holding the largest magnitude (an update too big for it, not yet overflowed)."""
+    """Which parameters a divergence at `step` started from: those the previous update made
+    non-finite, else the one with the largest magnitude (an update too big, not yet overflowed)."""
     non_finite = [
         name for name, tensor in parameters.items() if not bool(torch.isfinite(tensor).all())
     ]

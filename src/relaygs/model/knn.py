@@ -1,12 +1,5 @@
-"""Exact nearest-neighbour distances for Gaussian initialisation, in bounded memory.
-
-Points are sorted along a Morton (Z-order) curve and processed in blocks of nearby points.
-For a block, neighbours within a window of the curve give an upper bound r on every
-k-th-neighbour distance; all true neighbours then lie in the block's bounding box grown by
-r, so only the points inside it are searched. Distances are screened with chunked
-`torch.cdist` (matrix form, which rounds far from the origin) and recomputed exactly from
-coordinate differences for the best few candidates.
-"""
+"""Exact nearest-neighbour distances in bounded memory: blocks along a Morton curve, each
+searched in its box grown by a bound on its k-th distances (cdist, exact recheck)."""
 
 from __future__ import annotations
 
@@ -74,10 +67,8 @@ def _nearest_sq(
     rows_per_chunk = max(1, chunk_elements // max(1, pool.shape[0]))
     out = []
     for start in range(0, queries.shape[0], rows_per_chunk):
-        rows, row_ids = (
-            queries[start : start + rows_per_chunk],
-            query_ids[start : start + rows_per_chunk],
-        )
+        stop = start + rows_per_chunk
+        rows, row_ids = queries[start:stop], query_ids[start:stop]
         approx = torch.cdist(rows, pool)
         approx.masked_fill_(row_ids[:, None] == pool_ids[None, :], float("inf"))
         candidates = approx.topk(n_candidates, dim=1, largest=False).indices

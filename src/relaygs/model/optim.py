@@ -1,14 +1,5 @@
-"""One Adam over named per-parameter groups of one or more Gaussian sets, with lr schedules.
-
-Foreground/background position learning rates: Adam is invariant to gradient scale, so
-scaling gradients per row cannot give rows different step sizes. Instead foreground and
-background are two separate `GaussianSet`s (concatenated only at render time), each with its
-own `SetLearningRates`; group names are "<set>.<param>" (e.g. "fg.means", "bg.log_scales").
-Densification then works per set on whole tensors, exactly as in 3DGS.
-
-Position learning rates are multiplied by `spatial_lr_scale` (the scene extent), as 3DGS and
-4D-GS do for means, for every set; all other rates are used as given.
-"""
+"""One Adam over "<set>.<param>" groups with lr schedules; fg and bg are separate sets, as
+Adam cannot step rows of one tensor apart; positions × the scene extent, as 3DGS."""
 
 from __future__ import annotations
 
@@ -34,11 +25,8 @@ def log_linear(
     delay_steps: int = 0,
     delay_mult: float = 1.0,
 ) -> float:
-    """3DGS `get_expon_lr_func`: log-linear from lr_init to lr_final over max_steps.
-
-    An optional delay scales the rate by delay_mult rising to 1 (sine ease) over delay_steps.
-    max_steps ≤ 0 means the schedule is already complete (lr_final).
-    """
+    """3DGS `get_expon_lr_func`: log-linear lr_init → lr_final over max_steps (≤ 0: done), times
+    delay_mult rising to 1 (sine ease) over delay_steps."""
     if lr_init == 0.0 and lr_final == 0.0:
         return 0.0
     if lr_init <= 0.0 or lr_final <= 0.0:
@@ -76,17 +64,9 @@ class LRSchedule:
         )
 
     @classmethod
-    def from_config(cls, value: float | Mapping[str, float], where: str) -> LRSchedule:
-        """Build from a number (constant) or a mapping of this class's fields."""
-        if isinstance(value, int | float):
-            return cls(float(value))
-        allowed = {f.name for f in fields(cls)}
-        unknown = sorted(set(value) - allowed)
-        if unknown or "init" not in value:
-            raise InputError(
-                f"{where}: learning rate needs 'init' and only {sorted(allowed)}, got {dict(value)}"
-            )
-        return cls(**dict(value))
+    def from_config(cls, value: float | Mapping[str, float]) -> LRSchedule:
+        """From a number (constant) or a mapping of fields (`relaygs.stages.config` checks both)."""
+        return cls(float(value)) if isinstance(value, int | float) else cls(**dict(value))
 
 
 @dataclass(frozen=True)
@@ -117,23 +97,21 @@ class SetLearningRates:
         if unknown:
             raise InputError(f"{where}: unknown learning-rate keys {unknown}")
         core = {
-            name: LRSchedule.from_config(value, f"{where}.{name}")
+            name: LRSchedule.from_config(value)
             for name, value in config.items()
             if name != "extras"
         }
         extras_config = config.get("extras") or {}
         extras = {
-            name: LRSchedule.from_config(value, f"{where}.extras.{name}")
-            for name, value in dict(extras_config).items()
+            name: LRSchedule.from_config(value) for name, value in dict(extras_config).items()
         }
         return cls(**core, extras=extras)
 
 
 @functools.cache
 def has_fused_adam(device: torch.device) -> bool:
-    """Whether this torch has a fused Adam kernel for DEVICE, found by one step on a probe
-    there (the CPU's came in torch 2.4; older versions refuse fused=True when the optimiser is
-    built, newer ones when it steps)."""
+    """Whether this torch has a fused Adam kernel for DEVICE, by one step on a probe (older
+    versions refuse fused=True when the optimiser is built, newer ones when it steps)."""
     probe = torch.zeros(1, device=device, requires_grad=True)
     probe.grad = torch.zeros_like(probe)
     try:
@@ -144,9 +122,8 @@ def has_fused_adam(device: torch.device) -> bool:
 
 
 def adam(groups: list[dict]) -> torch.optim.Adam:
-    """Adam with eps 1e-15 over param groups, as one fused kernel per step where torch has one
-    for the params' device (the per-tensor loop costs several times more on the CPU), else as
-    the multi-tensor (foreach) step; the update is the same."""
+    """Adam with eps 1e-15 over param groups, fused where torch has the kernel for the params'
+    device (the per-tensor loop costs several times more on the CPU), else foreach."""
     fused = has_fused_adam(groups[0]["params"][0].device)
     kernel = {"fused": True} if fused else {"foreach": True}
     return torch.optim.Adam(groups, lr=0.0, eps=ADAM_EPS, **kernel)
@@ -162,9 +139,6 @@ class GaussianOptimizer:
         spatial_lr_scale: float = 1.0,
     ) -> None:
         """Build groups for every parameter of every set; extras must have a schedule."""
-        missing = sorted(set(sets) - set(learning_rates))
-        if missing:
-            raise InputError(f"optimizer: no learning rates for Gaussian set(s) {missing}")
         self.sets = dict(sets)
         self.spatial_lr_scale = spatial_lr_scale
         self._schedules: dict[str, LRSchedule] = {}
@@ -189,18 +163,6 @@ class GaussianOptimizer:
             rates[group["name"]] = lr
         return rates
 
-    def learning_rate(self, group_name: str) -> float:
-        """Current lr of the named group."""
-        return self._group(group_name)["lr"]
-
-    def zero_grad(self) -> None:
-        """Drop all gradients (set to None)."""
-        self.adam.zero_grad(set_to_none=True)
-
-    def step(self) -> None:
-        """One Adam step over all groups."""
-        self.adam.step()
-
     def reindex_rows(
         self,
         gaussians: GaussianSet,
@@ -208,36 +170,22 @@ class GaussianOptimizer:
         fresh_state: Tensor | None = None,
         overrides: Mapping[str, Tensor] | None = None,
     ) -> None:
-        """Row remap of a managed set: row i takes old row source[i] (values and Adam state).
-
-        Rows where `fresh_state` is True get zero Adam moments; `overrides` replace values.
-        """
+        """Row i takes old row source[i], values and Adam state (zeroed where `fresh_state`)."""
         old_params = gaussians.params
         index = as_row_index(source, len(gaussians))
         gaussians.reindex_rows_(index, overrides)
         for name, old in old_params.items():
             self._swap_param(old, gaussians.params[name], index, fresh_state)
 
-    def reset_state(self, param: nn.Parameter, rows: Tensor | None = None) -> None:
-        """Zero the Adam moments of `param` (all rows, or the selected rows)."""
-        state = self.adam.state.get(param, {})
-        for key, value in state.items():
-            if key == "step" or not torch.is_tensor(value):
-                continue
-            if rows is None:
+    def reset_state(self, param: nn.Parameter) -> None:
+        """Zero the Adam moments of `param`."""
+        for key, value in self.adam.state.get(param, {}).items():
+            if key != "step" and torch.is_tensor(value):
                 value.zero_()
-            else:
-                value[rows] = 0.0
 
     def state_of(self, param: nn.Parameter) -> dict[str, Tensor]:
         """The Adam state tensors of `param` (empty before its first step)."""
         return dict(self.adam.state.get(param, {}))
-
-    def _group(self, group_name: str) -> dict:
-        for group in self.adam.param_groups:
-            if group["name"] == group_name:
-                return group
-        raise InputError(f"optimizer: no param group {group_name!r}")
 
     def _swap_param(
         self, old: nn.Parameter, new: nn.Parameter, index: Tensor, fresh: Tensor | None

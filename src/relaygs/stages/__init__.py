@@ -1,9 +1,4 @@
-"""The method's stages as plain functions `(scene, upstream artifacts, cfg) -> Artifact`.
-
-Each stage module declares one `StageSpec` (`SPEC`); `SPECS` lists them by stage type, and is
-all a new stage type adds here. `evaluate` scores a final artifact on the test views;
-`render_model` renders any artifact. Live metrics go through `relaygs.train.log` sinks.
-"""
+"""The method's stages, each declared by its module's `SPEC`; `SPECS` lists them by type."""
 
 from __future__ import annotations
 
@@ -31,14 +26,12 @@ register_schemas({"train": TrainSettings, **{name: spec.settings for name, spec 
 
 @functools.cache
 def step_budgets() -> dict[str, dict[str, dict[str, Any]]]:
-    """The named step budgets of `conf/budget/` (`relaygs.train.budgets`), read on first use
-    rather than on import, so importing the stages reads no file."""
+    """The named step budgets of `conf/budget/`, read on first use (importing reads no file)."""
     return load_budgets(("train", "eval", *SPECS))
 
 
 def canonical_config(stage: str, cfg: Mapping[str, Any], scene: Scene) -> dict[str, Any]:
-    """`cfg` with stage type `stage`'s section in its canonical form on `scene`: what the
-    stage's artifact key hashes and it runs with."""
+    """`cfg` with `stage`'s section in its canonical form on `scene` (keyed and run with)."""
     canonical = dict(cfg)
     if isinstance(cfg.get(stage), Mapping):
         canonical[stage] = SPECS[stage].canonical_section(cfg[stage], scene)
@@ -46,8 +39,7 @@ def canonical_config(stage: str, cfg: Mapping[str, Any], scene: Scene) -> dict[s
 
 
 def validate_config(stage: str, cfg: Mapping[str, Any]) -> None:
-    """Raise InputError (one line naming the key) unless `cfg` is valid for stage type `stage`:
-    its own section, the shared `train` section and, when present, `eval`."""
+    """InputError naming the key unless `cfg` fits stage type `stage` (with `train`, `eval`)."""
     if stage not in SPECS:
         raise InputError(f"unknown stage type {stage!r}; expected one of {sorted(SPECS)}")
     SPECS[stage].settings.from_config(cfg.get(stage)).validate()

@@ -1,13 +1,5 @@
-"""Where the movers are at a frame: a visual hull of what the frozen background cannot explain.
-
-After decouple the background explains every static pixel of every frame, so at any frame
-the residual |image − background render| marks the foreground in each train camera. A point
-is foreground when it projects into the residual of (nearly) every train camera that sees it.
-The relay stage seeds a segment's copy from the hull at its pseudo frames when the foreground
-has travelled out of reach of the frame-0 replica (gradients only move Gaussians that already
-overlap their target). Two passes: coarse voxels against dilated residuals, then their
-sub-voxels against the residuals themselves.
-"""
+"""Where the movers are at a frame: the visual hull of what the frozen background render misses
+in (nearly) every train camera, coarse voxels then sub-voxels (docs/method.md, Carved copies)."""
 
 from __future__ import annotations
 
@@ -21,17 +13,15 @@ from relaygs.data import Camera
 from relaygs.errors import InputError
 
 SUBDIVISIONS = 4  # sub-voxels per axis of a kept coarse voxel
-# Kept coarse voxels refined at most. A mover fills a few hundred; tens of thousands mean the
-# residual is no silhouette (an unconverged background), and refining all of them would cost
-# seconds per frame for seeds that are thinned to a few thousand anyway.
+# coarse voxels refined at most: a mover fills a few hundred, more mean no silhouette (an
+# unconverged background) and would cost seconds per frame for seeds thinned anyway
 MAX_REFINED_VOXELS = 4096
 MIN_CAMERAS = 3  # a point seen by fewer train cameras cannot be triangulated
 
 
 @dataclass(frozen=True)
 class HullSettings:
-    """Residual threshold (per channel, after a per-camera gain match), coarse voxels along the
-    longest axis of the bounds, and the fraction of cameras that may disagree."""
+    """Residual threshold, coarse voxels along the longest axis, tolerated miss fraction."""
 
     residual: float = 0.15
     coarse_voxels: int = 48
@@ -39,12 +29,8 @@ class HullSettings:
 
 
 def residual_masks(renders: Tensor, images: Tensor, threshold: float) -> Tensor:
-    """[C,H,W] bool: pixels the background render misses by more than `threshold` in some channel.
-
-    A per-camera, per-channel gain is matched first (least squares over the whole image,
-    dominated by the background) so cameras with a colour response of their own do not light
-    up everywhere.
-    """
+    """[C,H,W] bool: pixels the background render misses by more than `threshold` in a channel,
+    after a least-squares gain per camera and channel (a camera's own colour response)."""
     numerator = (renders * images).sum(dim=(1, 2))
     denominator = (renders * renders).sum(dim=(1, 2))
     safe = torch.where(denominator > 1e-8, denominator, torch.ones_like(denominator))
@@ -61,9 +47,8 @@ def visual_hull(
     settings: HullSettings,
     generator: torch.Generator | None = None,
 ) -> tuple[Tensor, Tensor, float]:
-    """Points [M,3] inside the hull of `masks` [C,H,W] within `bounds` [2,3], their colours
-    [M,3] (mean image colour over the cameras that agree) and the fine voxel size. Beyond
-    MAX_REFINED_VOXELS kept coarse voxels, a random subset (drawn from `generator`) is refined."""
+    """Points [M,3] in the hull of `masks` within `bounds`, their mean colours and the fine voxel
+    size; beyond MAX_REFINED_VOXELS coarse voxels a random subset is refined."""
     if masks.shape[0] != len(cameras) or images.shape[:3] != masks.shape:
         raise InputError(f"visual_hull: {len(cameras)} cameras, masks {tuple(masks.shape)}")
     lower, upper = bounds[0], bounds[1]

@@ -13,8 +13,7 @@ from relaygs.stages.train_settings import TrainSettings
 from relaygs.train.loop import TrainReport
 from relaygs.train.scene_model import SceneModel
 
-LOGGED_SCALARS = "logged_scalars"
-"""Artifact meta key of the scalars a stage emitted while it trained (`ScalarHistory`)."""
+LOGGED_SCALARS = "logged_scalars"  # meta key of the scalars logged in training (ScalarHistory)
 
 # 3DGS / 4D-GS per-parameter learning rates (positions × scene extent).
 GAUSSIAN_LR: dict[str, Any] = {
@@ -92,7 +91,6 @@ def stage_meta(
 
 
 def logged_scalars(artifact: Artifact) -> list[tuple[int, dict[str, float]]]:
-    """The (step, scalars) records a stage emitted while it trained, from its artifact's meta
-    (none for a stage that does not train, or an artifact stored before they were kept)."""
+    """The (step, scalars) records a stage emitted while it trained (none if it did not train)."""
     records = artifact.meta.get(LOGGED_SCALARS, [])
     return [(int(step), dict(scalars)) for step, scalars in records]

@@ -1,11 +1,5 @@
-"""Stage settings: dataclasses that are Hydra's structured configs, and their range checks.
-
-Each stage section (and the shared `train` section) is one dataclass whose defaults are the
-paper's settings, registered with Hydra's ConfigStore (`register_schemas`): Hydra and OmegaConf
-check keys and types while composing, `parse_section` builds the dataclass from a plain dict,
-and each class's `validate()` checks value ranges once, when the run is planned. Errors are
-one-line `InputError`s naming `section.key`.
-"""
+"""Section dataclasses as Hydra structured configs (Hydra checks keys and types), and the value
+range checks their `validate()` runs once per run; errors are one line naming `section.key`."""
 
 from __future__ import annotations
 
@@ -30,11 +24,11 @@ from relaygs.model import (
 )
 
 T = TypeVar("T")
+S = TypeVar("S", bound="Section")
 
 
 def parse_section(cls: type[T], data: Mapping[str, Any] | None, section: str) -> T:
-    """Build dataclass `cls` from `data` (missing keys keep defaults, mappings merge key by key
-    over the field's default); OmegaConf refuses unknown keys and values of the wrong type."""
+    """Dataclass `cls` from `data` over its defaults; OmegaConf refuses bad keys and types."""
     try:
         parsed = OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(cls), data or {}))
     except OmegaConfBaseException as error:
@@ -47,9 +41,19 @@ def parse_section(cls: type[T], data: Mapping[str, Any] | None, section: str) ->
     return parsed
 
 
+class Section:
+    """Base of the section dataclasses; `section` is the config key `from_config` parses."""
+
+    section: ClassVar[str]
+
+    @classmethod
+    def from_config(cls: type[S], data: Mapping[str, Any] | None) -> S:
+        """Parse `cfg[section]` (missing keys keep defaults)."""
+        return parse_section(cls, data, cls.section)
+
+
 def register_schemas(sections: Mapping[str, type]) -> None:
-    """Store each section's dataclass in Hydra's ConfigStore as `<section>/schema`, the first
-    entry of the section's defaults list, so that Hydra checks its keys and types on compose."""
+    """Store each section's dataclass as Hydra's `<section>/schema`, checked on compose."""
     store = ConfigStore.instance()
     for name, cls in sections.items():
         store.store(group=name, name="schema", node=cls)
@@ -62,7 +66,6 @@ def require(condition: bool, where: str, value: Any, expected: str) -> None:
 
 
 def require_steps(where: str, value: int) -> None:
-    """A step count: an int >= 0."""
     require(value >= 0, where, value, "a step count >= 0")
 
 
@@ -78,8 +81,7 @@ def json_ready(value: Any) -> Any:
 
 
 def learning_rates(config: Mapping[str, Any], steps: int, where: str) -> SetLearningRates:
-    """Per-parameter schedules from a config mapping; a decaying schedule without `max_steps`
-    decays over the stage's `steps`. Rates must be >= 0 (final > 0)."""
+    """Per-parameter schedules from a config mapping, decaying over `steps` unless told."""
     checked: dict[str, Any] = {  # an unknown name is left for from_config to name
         name: _rate_config(value, f"{where}.{name}") if name in CORE_PARAMS else value
         for name, value in config.items()
@@ -101,40 +103,31 @@ def learning_rates(config: Mapping[str, Any], steps: int, where: str) -> SetLear
     return SetLearningRates(**core, extras=extras)
 
 
-class PerSetSections:
-    """Mixin of stage settings that train background and foreground sets separately.
+class PerSetSections(Section):
+    """Base of stage settings with `steps` and per set ("bg", "fg") `lr_<set>`, `densify_<set>`."""
 
-    The dataclass holds `steps` and, per set name ("bg" or "fg"), `lr_<set>` and
-    `densify_<set>` sections; the subclass names its stage in `stage` (for error messages).
-    """
-
-    stage: ClassVar[str]
     steps: int
 
     def set_rates(self, name: str) -> SetLearningRates:
         """Learning-rate schedules of set `name` over the stage's steps."""
         key = f"lr_{name}"
-        return learning_rates(getattr(self, key), self.steps, f"{self.stage}.{key}")
+        return learning_rates(getattr(self, key), self.steps, f"{self.section}.{key}")
 
     def set_densify(self, name: str) -> DensifySettings:
         """Density control of set `name`: the paper's fg or bg settings with the overrides."""
         base = FOREGROUND_DENSIFY if name == "fg" else BACKGROUND_DENSIFY
         key = f"densify_{name}"
-        return densify_settings(getattr(self, key), base, f"{self.stage}.{key}", self.steps)
+        return densify_settings(getattr(self, key), base, f"{self.section}.{key}", self.steps)
 
 
 def schedule(value: float | Mapping[str, Any], steps: int, where: str) -> LRSchedule:
     """One learning rate (number or {init, final, ...}); decays over `steps` unless told."""
-    return _resolved(LRSchedule.from_config(_rate_config(value, where), where), steps, where)
+    return _resolved(LRSchedule.from_config(_rate_config(value, where)), steps, where)
 
 
 def _rate_config(value: Any, where: str) -> float | dict[str, Any]:
-    """One learning rate of a config with its types checked: a number (a constant rate), or a
-    mapping of LRSchedule's fields that has `init` (ints for the step counts).
-
-    LRSchedule.from_config trusts its input: a string, list or null would fail later with a
-    traceback, and a bool would pass as the rate 1. Ranges are checked by `_check_schedule`.
-    """
+    """One rate, type-checked (LRSchedule.from_config trusts its input): a number, or a mapping
+    of LRSchedule's fields with `init`; a bool, string or null is refused."""
     if isinstance(value, Mapping) and "init" in value:
         return dataclasses.asdict(parse_section(LRSchedule, value, where))
     number = isinstance(value, int | float) and not isinstance(value, bool)
@@ -166,9 +159,8 @@ def _check_schedule(schedule: LRSchedule, where: str) -> None:
 def densify_settings(
     config: Mapping[str, Any], base: DensifySettings, where: str, steps: int
 ) -> DensifySettings:
-    """Density-control settings: `base` with the keys of `config` replaced, each checked, and
-    ended before the stage's last step (`densify_until` <= `steps`): a split or an opacity
-    reset there would be saved with no step left to optimise it."""
+    """`base` with `config`'s keys, checked and ended by the stage's last step (a split or reset
+    there would be saved with no step left to optimise it)."""
     settings = parse_section(DensifySettings, {**dataclasses.asdict(base), **config}, where)
     _check_densify(settings, where)
     return dataclasses.replace(settings, densify_until=min(settings.densify_until, steps))
@@ -176,8 +168,7 @@ def densify_settings(
 
 def _check_densify(settings: DensifySettings, where: str) -> None:
     """The ranges of density-control settings (errors name `<where>.<key>`)."""
-    # an infinite setting passes as "never split", but cannot be written to the artifact's
-    # JSON meta: refused here rather than after the stage has trained
+    # infinity would pass as "never split", but cannot be written to the artifact's JSON meta
     for name in ("grad_threshold", "percent_dense", "max_world_size"):
         value = getattr(settings, name)
         require(0.0 < value < math.inf, f"{where}.{name}", value, "a finite number > 0")

@@ -1,18 +1,12 @@
-"""Stage 1, decouple: a static model of every frame plus a learned mask that finds the movers.
-
-Each Gaussian has a mask logit m (init 2.0) and a straight-through mask
-M = sg(1[σ(m) > ε] − σ(m)) + σ(m): hard 0/1 forward, σ'(m) backward. Frame 0 is rendered
-with all Gaussians, every other frame with opacity × M, so Gaussians that only explain frame 0
-(the dynamic foreground there) are driven to M = 0 while the static background keeps M = 1.
-Output: background (M = 1) and foreground (M = 0) sets.
-"""
+"""Stage 1, decouple: a static model of every frame whose learned mask M, off in every view but
+frame 0's, drops the frame-0 movers (M = 0: foreground) from the background (docs/method.md)."""
 
 from __future__ import annotations
 
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, ClassVar
 
 import torch
 from torch import Tensor
@@ -26,16 +20,11 @@ from relaygs.model import (
     paper_schedule,
 )
 from relaygs.pipeline.artifact import Artifact
-from relaygs.stages.common import (
-    BACKGROUND_LR,
-    no_upstream,
-    stage_meta,
-    training_scene,
-)
+from relaygs.stages.common import BACKGROUND_LR, no_upstream, stage_meta, training_scene
 from relaygs.stages.config import (
+    Section,
     densify_settings,
     learning_rates,
-    parse_section,
     require,
     require_steps,
     schedule,
@@ -48,7 +37,7 @@ from relaygs.train.loss import photometric_loss
 from relaygs.train.render import part_of, splat
 from relaygs.train.scene_model import SceneModel, core_only, foreground_with_segments
 from relaygs.train.segment_plan import SegmentPlan
-from relaygs.train.session import SetPlan, TrainingSession
+from relaygs.train.session import SetPlan
 from relaygs.train.views import TrainViews
 
 STAGE = "decouple"
@@ -58,20 +47,10 @@ SET = "all"
 
 
 @dataclass
-class DecoupleConfig:
-    """Settings of the decouple stage (`cfg["decouple"]`); defaults follow the paper.
+class DecoupleConfig(Section):
+    """`cfg["decouple"]`: the paper's; ε, mask_lr, frame0_views are ours (docs/method.md)."""
 
-    mask_threshold ε and mask_lr are not given by the paper: ε = 0.5 (the mask is off once the
-    Gaussian is more likely off than on) and lr 0.05 (Adam, as opacity logits) let a mover's
-    mask cross the threshold in ~40 consistent steps, well inside the short budgets; from
-    mask_init 2.0 a background Gaussian needs as long a consistent push to be dropped.
-    Dropping is final: at M = 0 the opacity × M is below the rasteriser's 1/255 cut, so the
-    render gives the logit zero gradient and only leftover Adam momentum still moves it.
-    frame0_views: views of each batch drawn at frame 0 (the rest uniformly over all frames and
-    train cameras): with 1 of 4, frame 0 is seen in ≥ 25 % of views, so the foreground there
-    is fitted as fast as the background and is not absorbed by it.
-    """
-
+    section: ClassVar[str] = STAGE
     steps: int = 3000
     mask_init: float = 2.0
     mask_threshold: float = 0.5
@@ -98,11 +77,6 @@ class DecoupleConfig:
         check_static_settings(self, STAGE)
         self.learning_rates()
         self.densify_settings()
-
-    @classmethod
-    def from_config(cls, data: Mapping[str, Any] | None) -> DecoupleConfig:
-        """Parse `cfg["decouple"]`."""
-        return parse_section(cls, data, STAGE)
 
     def learning_rates(self) -> SetLearningRates:
         """Schedules for the Gaussians, the mask logit included."""
@@ -145,7 +119,29 @@ def decouple(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, A
     views = TrainViews(training, device)
 
     def step_fn(step: int) -> StepResult:
-        return _decouple_step(session, views, section, train)
+        """Frame-0 views see every Gaussian; the other views see opacity × M."""
+        generator = session.generator
+        first = min(section.frame0_views, train.batch_views)
+        batch = views.random_views_at(0, first, generator) if first else []
+        batch += views.random_views(train.batch_views - first, generator)
+        gaussians = session.sets[SET]
+        degree = gaussians.active_sh_degree
+        renders, preds, targets = [], [], []
+        for masked in (False, True):
+            group = [view for view in batch if (view.frame != 0) == masked]
+            if not group:
+                continue
+            part = part_of(SET, gaussians, degree)
+            if masked:
+                part.opacity_factor = straight_through_mask(
+                    gaussians.params[MASK], section.mask_threshold
+                )
+            render = splat([part], [view.camera for view in group], degree)
+            renders.append(render)
+            preds += render.images
+            targets += [views.image(view) for view in group]
+        loss = photometric_loss(preds, targets, train.ssim_weight)
+        return StepResult(loss, renders, preds, targets)
 
     def counts() -> tuple[int, int]:
         is_fg = _foreground_flags(session.sets[SET], section.mask_threshold)
@@ -155,22 +151,16 @@ def decouple(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, A
     final = session.sets[SET]
     is_fg = _foreground_flags(final, section.mask_threshold)
     foreground = core_only(final.subset(is_fg))
-    foreground = foreground_with_segments(
-        foreground, torch.zeros(len(foreground), dtype=torch.int32)
-    )
     model = SceneModel(
         stage=STAGE,
         background=core_only(final.subset(~is_fg)),
-        foreground=foreground,
+        foreground=foreground_with_segments(
+            foreground, torch.zeros(len(foreground), dtype=torch.int32)
+        ),
         segments=SegmentPlan.uniform(scene.num_frames, scene.num_frames),
     )
-    n_fg = int(is_fg.sum())
-    metrics = {
-        "num_gaussians": len(final),
-        "num_bg": len(final) - n_fg,
-        "num_fg": n_fg,
-        "fg_fraction": n_fg / max(len(final), 1),
-    }
+    n_fg = len(foreground)
+    metrics = {**model.gaussian_counts(), "fg_fraction": n_fg / max(len(final), 1)}
     notes = [NO_FOREGROUND_NOTE.format(steps=section.steps)] if n_fg == 0 else []
     meta = stage_meta(
         SCHEMA_VERSION, section, train, report, metrics, downscale=training.downscale, notes=notes
@@ -190,38 +180,4 @@ def _foreground_flags(gaussians: GaussianSet, threshold: float) -> Tensor:
     return torch.sigmoid(gaussians.params[MASK].detach()) <= threshold
 
 
-def _decouple_step(
-    session: TrainingSession, views: TrainViews, section: DecoupleConfig, train: TrainSettings
-) -> StepResult:
-    """Frame-0 views see every Gaussian; the other views see opacity × M."""
-    generator = session.generator
-    first = min(section.frame0_views, train.batch_views)
-    batch = views.random_views_at(0, first, generator) if first else []
-    batch += views.random_views(train.batch_views - first, generator)
-    at_zero = [view for view in batch if view.frame == 0]
-    later = [view for view in batch if view.frame != 0]
-    gaussians = session.sets[SET]
-    degree = gaussians.active_sh_degree
-    renders, preds, targets = [], [], []
-    for group, masked in ((at_zero, False), (later, True)):
-        if not group:
-            continue
-        part = part_of(SET, gaussians, degree)
-        if masked:
-            part.opacity_factor = straight_through_mask(
-                gaussians.params[MASK], section.mask_threshold
-            )
-        render = splat([part], [view.camera for view in group], degree)
-        renders.append(render)
-        preds += render.images
-        targets += [views.image(view) for view in group]
-    loss = photometric_loss(preds, targets, train.ssim_weight)
-    return StepResult(loss, renders, preds, targets)
-
-
-SPEC = StageSpec(
-    name=STAGE,
-    run=decouple,
-    settings=DecoupleConfig,
-    schema_version=SCHEMA_VERSION,
-)
+SPEC = StageSpec(STAGE, decouple, DecoupleConfig, SCHEMA_VERSION)

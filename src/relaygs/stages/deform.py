@@ -1,38 +1,22 @@
-"""Stage 3, deform: a HexPlane + MLP motion field over the upstream Gaussians (4D-GS style).
-
-Each step draws `frames_per_step` frames and splits the batch's views among them; per frame
-the field is evaluated once for the background and the foreground copy of that frame's
-segment (s = frame // k: each frame belongs to exactly one copy), and the views of that frame
-are rendered together. Loss: L1 + λ·D-SSIM + weighted plane regularisers. A per-camera colour
-affine corrects each train render when the scene declares colour inconsistency.
-
-Accepted upstreams: relay / replicate (S copies), decouple (its foreground as a single copy
-for every frame: the no_copies ablation) and warmup (no foreground: the 4D-GS baseline).
-"""
+"""Stage 3, deform: a HexPlane + MLP motion field (4D-GS style) over the upstream Gaussians, each
+frame showing its segment's copy; relay, replicate, decouple or warmup upstream (docs/method.md)."""
 
 from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, ClassVar
 
 import torch
 
 from relaygs.data import Scene, frame_time
 from relaygs.data.effects import COLOR_INCONSISTENCY
-from relaygs.errors import InputError
 from relaygs.field import ColorAffine
-from relaygs.model import CORE_PARAMS, GaussianSet, SetLearningRates, paper_schedule
+from relaygs.model import paper_schedule
 from relaygs.pipeline.artifact import Artifact
 from relaygs.stages.common import GAUSSIAN_LR, single_upstream, stage_meta, upstream_model
-from relaygs.stages.config import (
-    PerSetSections,
-    parse_section,
-    require,
-    require_steps,
-    schedule,
-)
+from relaygs.stages.config import PerSetSections, require, require_steps, schedule
 from relaygs.stages.spec import StageSpec
 from relaygs.stages.train_settings import TrainSettings
 from relaygs.train.loop import StepResult, run_training
@@ -53,17 +37,9 @@ MLP_LR = {"init": 1.6e-4, "final": 1.6e-5}  # 4D-GS, × scene extent
 
 @dataclass
 class DeformConfig(PerSetSections):
-    """Settings of the deform stage (`cfg["deform"]`); defaults follow the paper and 4D-GS.
+    """`cfg["deform"]`: the paper's and 4D-GS's settings; lr_gamma, lr_affine are ours."""
 
-    Field: 16 channels, spatial resolution 64, multires [1, 2], time resolution ceil(T/2)
-    (None), MLP width 128 and depth 0 (4D-GS multi-view). Learning rates are 4D-GS's (grid and
-    MLP × scene extent), positions included for both sets: the supplement's foreground /
-    background position-lr split is not used here. Not given by either paper: γ lr 5e-3 (a
-    log-scale factor, like the scaling lr) and colour-affine lr 1e-3. color_affine "auto" turns
-    the affine on exactly when the scene declares colour inconsistency; true/false force it.
-    """
-
-    stage: ClassVar[str] = STAGE
+    section: ClassVar[str] = STAGE
     steps: int = 20000
     isolate_fg_bg: bool = True
     gamma: bool = True
@@ -92,20 +68,13 @@ class DeformConfig(PerSetSections):
         """Check every value range (errors name `deform.<key>`), once, when the run is planned."""
         require_steps("deform.steps", self.steps)
         require(self.frames_per_step >= 1, "deform.frames_per_step", self.frames_per_step, ">= 1")
-        require(
-            self.color_affine in ("auto", True, False),
-            "deform.color_affine",
-            self.color_affine,
-            "'auto', true or false",
-        )
+        valid = self.color_affine in ("auto", True, False)
+        require(valid, "deform.color_affine", self.color_affine, "'auto', true or false")
         resolution = self.time_resolution
         require(resolution is None or resolution >= 1, "deform.time_resolution", resolution, ">= 1")
-        require(
-            len(self.multires) >= 1 and all(m >= 1 for m in self.multires),
-            "deform.multires",
-            list(self.multires),
-            "a non-empty list of ints >= 1",
-        )
+        multires = list(self.multires)
+        valid = len(multires) >= 1 and all(m >= 1 for m in multires)
+        require(valid, "deform.multires", multires, "a non-empty list of ints >= 1")
         for key in ("spatial_resolution", "channels", "width"):
             require(getattr(self, key) >= 1, f"deform.{key}", getattr(self, key), "an int >= 1")
         require(self.depth >= 0, "deform.depth", self.depth, "an int >= 0")
@@ -116,20 +85,12 @@ class DeformConfig(PerSetSections):
         self.plans()
         self.module_schedules()
 
-    @classmethod
-    def from_config(cls, data: Mapping[str, Any] | None) -> DeformConfig:
-        """Parse `cfg["deform"]`."""
-        return parse_section(cls, data, STAGE)
-
     def plans(self) -> dict[str, SetPlan]:
         """Training plans of the background and foreground sets (fg lr includes γ)."""
         fg_rates = self.set_rates("fg")
         if self.gamma:
             gamma = schedule(self.lr_gamma, self.steps, f"{STAGE}.lr_gamma")
-            fg_rates = SetLearningRates(
-                **{name: fg_rates.for_param(name) for name in CORE_PARAMS},
-                extras={**fg_rates.extras, GAMMA: gamma},
-            )
+            fg_rates = replace(fg_rates, extras={**fg_rates.extras, GAMMA: gamma})
         return {
             "bg": SetPlan(self.set_rates("bg"), self.set_densify("bg"), self.sh_every),
             "fg": SetPlan(fg_rates, self.set_densify("fg"), self.sh_every),
@@ -142,12 +103,6 @@ class DeformConfig(PerSetSections):
             "mlp": schedule(self.lr_mlp, self.steps, f"{STAGE}.lr_mlp"),
             "affine": schedule(self.lr_affine, self.steps, f"{STAGE}.lr_affine"),
         }
-
-    def uses_affine(self, scene: Scene) -> bool:
-        """Whether the colour affine is on for `scene`."""
-        if self.color_affine == "auto":
-            return COLOR_INCONSISTENCY in scene.effects
-        return bool(self.color_affine)
 
     def field_settings(self, scene: Scene) -> dict[str, Any]:
         """DeformationField settings: the grid spans the scene's initial point cloud."""
@@ -217,21 +172,20 @@ def deform(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, Any
     report = run_training(STAGE, session, section.steps, train, step_fn, counts)
     _sync(model, session)
     model.to("cpu")
-    n_bg, n_fg = len(model.background), len(model.foreground)
-    metrics = {"num_gaussians": n_bg + n_fg, "num_bg": n_bg, "num_fg": n_fg}
     extra = {"color_affine": model.affine is not None, "upstream_stage": artifact.stage}
-    return model.to_artifact(stage_meta(SCHEMA_VERSION, section, train, report, metrics, **extra))
+    meta = stage_meta(SCHEMA_VERSION, section, train, report, model.gaussian_counts(), **extra)
+    return model.to_artifact(meta)
 
 
 def _starting_model(
     source: SceneModel, section: DeformConfig, scene: Scene, seed: int
 ) -> SceneModel:
-    """The upstream model as a deform model: γ (init 0) is added to the foreground and the
-    field and colour affine are built. A decouple foreground (segment 0, k = T) becomes one
-    copy shown at every frame, as the deform model shows the copy of each frame's segment."""
+    """The upstream model with γ (init 0) on the foreground, the field and the colour affine (a
+    decouple foreground, segment 0 with k = T, is one copy shown at every frame)."""
     foreground = source.foreground
     if section.gamma:
-        foreground = _with_gamma(foreground)
+        foreground = foreground.clone()
+        foreground.add_param(GAMMA, torch.zeros(len(foreground), 3, device=foreground.means.device))
     settings = section.field_settings(scene)
     model = SceneModel(
         stage=STAGE,
@@ -241,18 +195,11 @@ def _starting_model(
         field=build_field(settings, seed),
         field_settings=settings,
     )
-    if section.uses_affine(scene):
+    affine = section.color_affine  # "auto": on where the scene declares colour inconsistency
+    if (COLOR_INCONSISTENCY in scene.effects) if affine == "auto" else affine:
         model.affine_cameras = sorted({v.camera.camera_id for v in scene.train_views})
         model.affine = ColorAffine(len(model.affine_cameras))
     return model
-
-
-def _with_gamma(foreground: GaussianSet) -> GaussianSet:
-    if GAMMA in foreground.params:
-        raise InputError(f"stage {STAGE!r}: upstream foreground already has a 'gamma' parameter")
-    copy = foreground.clone()
-    copy.add_param(GAMMA, torch.zeros(len(foreground), 3, device=foreground.means.device))
-    return copy
 
 
 def _session(
@@ -291,10 +238,4 @@ def _sync(model: SceneModel, session: TrainingSession) -> None:
         model.foreground = session.sets["fg"]
 
 
-SPEC = StageSpec(
-    name=STAGE,
-    run=deform,
-    settings=DeformConfig,
-    schema_version=SCHEMA_VERSION,
-    upstream=ACCEPTED_UPSTREAM,
-)
+SPEC = StageSpec(STAGE, deform, DeformConfig, SCHEMA_VERSION, ACCEPTED_UPSTREAM)

@@ -1,39 +1,32 @@
-"""The `eval` section and the evaluation of a final artifact with it: every test camera at
-every frame (or every `frame_stride`-th), scored by `relaygs.train.evaluate.score_model`."""
+"""The `eval` section, and the evaluation of a final artifact with it (`score_model`)."""
 
 from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 from relaygs.data import Scene
 from relaygs.pipeline.artifact import Artifact
-from relaygs.stages.config import parse_section, require
+from relaygs.stages.config import Section, require
 from relaygs.stages.train_settings import TrainSettings
 from relaygs.train.evaluate import score_model
 from relaygs.train.scene_model import SceneModel
 
 
 @dataclass(frozen=True)
-class EvalSettings:
+class EvalSettings(Section):
     """`cfg["eval"]`: evaluate frames 0, stride, 2·stride, …"""
 
+    section: ClassVar[str] = "eval"
     frame_stride: int = 1
 
     def __post_init__(self) -> None:
-        """The stride is a positive frame count."""
         require(self.frame_stride >= 1, "eval.frame_stride", self.frame_stride, "an int >= 1")
-
-    @classmethod
-    def from_config(cls, data: Mapping[str, Any] | None) -> EvalSettings:
-        """Parse `cfg["eval"]` (missing keys keep defaults)."""
-        return parse_section(cls, data, "eval")
 
 
 def evaluate(scene: Scene, artifact: Artifact, cfg: Mapping[str, Any]) -> dict[str, Any]:
-    """Test metrics of the artifact's model on `scene` (`score_model`) with the run's `eval`
-    and `train` sections."""
+    """Test metrics (`score_model`) of the artifact's model on `scene` with `cfg`'s eval."""
     settings = EvalSettings.from_config(cfg.get("eval"))
     device = TrainSettings.from_config(cfg.get("train")).torch_device()
     model = SceneModel.from_artifact(artifact)

@@ -1,28 +1,21 @@
-"""Stage 2, relay: S = ceil(T/k) copies of the decoupled foreground, copy s fitted to segment s.
-
-Segments are k frames each (`segments: uniform`, the paper's) or, with `segments: adaptive`,
-the same S segments placed by motion (`SegmentPlan.by_motion`): short where the foreground
-moves fast, long where it is still.
-
-Each step draws one segment s and `batch_views` train cameras; the background plus copy s is
-rendered and compared with the pseudo-views of those cameras (the mean of p frames spread over
-the segment) or, with `pseudo_views: false`, with one random frame of the segment. The
-background is frozen by default: the pseudo-views blur the movers, and a background trained on
-them would absorb that blur; it already fits every frame after decouple.
-"""
+"""Stage 2, relay: S = ceil(T/k) copies of the decoupled foreground, each seeded from the visual
+hull of its segment's movers and fitted to the segment's pseudo-views (docs/method.md)."""
 
 from __future__ import annotations
 
+import functools
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 import torch
+from torch import Tensor
 
-from relaygs.data import Scene
+from relaygs.data import Camera, Scene
 from relaygs.model import GaussianSet, paper_schedule
 from relaygs.pipeline.artifact import Artifact
-from relaygs.stages.carve import HullSettings
+from relaygs.stages.carve import HullSettings, residual_masks, visual_hull
 from relaygs.stages.common import (
     BACKGROUND_LR,
     FOREGROUND_LR,
@@ -31,41 +24,38 @@ from relaygs.stages.common import (
     training_scene,
     upstream_model,
 )
-from relaygs.stages.config import (
-    PerSetSections,
-    parse_section,
-    require,
-    require_steps,
-)
-from relaygs.stages.relay_seed import SEED_MODES, carved_copies
+from relaygs.stages.config import PerSetSections, require, require_steps
 from relaygs.stages.spec import StageSpec
 from relaygs.stages.train_settings import TrainSettings
 from relaygs.train.canonical import uniform_unless_adaptive
 from relaygs.train.loop import StepResult, TrainReport, run_training
 from relaygs.train.loss import photometric_loss
 from relaygs.train.render import FrozenRenders, part_of, splat
-from relaygs.train.scene_model import SEGMENT, SceneModel, core_only, replicate_foreground
+from relaygs.train.scene_model import (
+    SEGMENT,
+    SceneModel,
+    core_only,
+    foreground_with_segments,
+    replicate_foreground,
+)
 from relaygs.train.segment_plan import SegmentPlan, boundaries_fixed, frame_motion
-from relaygs.train.segments import SegmentTargets
+from relaygs.train.segments import SegmentTargets, pseudo_frames
 from relaygs.train.session import SetPlan, TrainingSession
 from relaygs.train.views import TrainViews
 
 STAGE = "relay"
 SEGMENT_MODES = ("uniform", "adaptive")
+SEED_MODES = ("replicate", "carve")
 SCHEMA_VERSION = 2  # 2: density control ends before the stage's last step
 ACCEPTED_UPSTREAM = ("decouple",)
 
 
 @dataclass
 class RelayConfig(PerSetSections):
-    """Settings of the relay stage (`cfg["relay"]`); defaults follow the paper.
+    """`cfg["relay"]`: the paper's foreground rates and density control for the copies; `lr_bg`,
+    `densify_bg` only matter with `freeze_background: false`."""
 
-    Foreground copies use the paper's foreground settings (position lr 1e-3, densify gradient
-    threshold 1e-4, clone/split size threshold 0.1× the background's); `lr_bg` / `densify_bg`
-    only matter with `freeze_background: false`.
-    """
-
-    stage: ClassVar[str] = STAGE
+    section: ClassVar[str] = STAGE
     steps: int = 14000
     k: int = 16
     segments: str = "uniform"
@@ -104,28 +94,12 @@ class RelayConfig(PerSetSections):
             self.set_rates(name)
             self.set_densify(name)
 
-    @classmethod
-    def from_config(cls, data: Mapping[str, Any] | None) -> RelayConfig:
-        """Parse `cfg["relay"]`."""
-        return parse_section(cls, data, STAGE)
-
     def plans(self) -> dict[str, SetPlan]:
         """Training plan of the foreground copies and (when trained) the background."""
         plans = {"fg": SetPlan(self.set_rates("fg"), self.set_densify("fg"), self.sh_every)}
         if not self.freeze_background:
             plans["bg"] = SetPlan(self.set_rates("bg"), self.set_densify("bg"), self.sh_every)
         return plans
-
-    def segment_plan(self, scene: Scene) -> SegmentPlan:
-        """The segments over `scene`: k frames each, or ceil(T / k) placed by its motion."""
-        uniform = SegmentPlan.uniform(scene.num_frames, self.k)
-        if self.segments == "uniform" or boundaries_fixed(scene.num_frames, self.k):
-            return uniform
-        return SegmentPlan.by_motion(frame_motion(scene), uniform.count)
-
-    def hull(self) -> HullSettings:
-        """Visual-hull settings of `seed_copies: carve`."""
-        return HullSettings(self.hull_residual, self.hull_voxels, self.hull_misses)
 
 
 def relay(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, Any]) -> Artifact:
@@ -137,64 +111,58 @@ def relay(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, Any]
     device = train.torch_device()
     source = upstream_model(artifact, scene, STAGE).to(device)
     training = training_scene(scene, train, early_stage=True)
-    segments = section.segment_plan(training)
+    segments = SegmentPlan.uniform(training.num_frames, section.k)  # or as many placed by motion
+    if section.segments != "uniform" and not boundaries_fixed(training.num_frames, section.k):
+        segments = SegmentPlan.by_motion(frame_motion(training), segments.count)
+    views = TrainViews(training, device)
     if section.seed_copies == "carve":
-        copies = carved_copies(
-            TrainViews(training, device),
-            source.background,
-            core_only(source.foreground),
-            section,
-            segments,
-            seed,
-        ).to(device)
+        replica = core_only(source.foreground)
+        copies = carved_copies(views, source.background, replica, section, segments, seed)
     else:
         copies = replicate_foreground(source.foreground, segments.count).to(device)
-    trainable = {"fg": copies} if len(copies) else {}
+    sets = {"fg": copies} if len(copies) else {}
     if not section.freeze_background:
-        trainable["bg"] = source.background
+        sets["bg"] = source.background
     report = None
-    if trainable:  # nothing to train without foreground when the background is frozen
-        trainable, report = _train(
-            training, source, trainable, segments, section, train, seed, device
-        )
+    if sets:  # nothing to train without foreground when the background is frozen
+        sets, report = _train(training, views, source, sets, segments, section, train, seed)
     model = SceneModel(
         stage=STAGE,
-        background=trainable.get("bg", source.background),
-        foreground=trainable.get("fg", copies),
+        background=sets.get("bg", source.background),
+        foreground=sets.get("fg", copies),
         segments=segments,
     ).to("cpu")
-    meta = stage_meta(
-        SCHEMA_VERSION,
-        section,
-        train,
-        report,
-        _counts(model),
-        downscale=training.downscale,
+    per_segment = torch.bincount(
+        model.foreground.buffers[SEGMENT].long(), minlength=model.num_segments
     )
+    metrics = {
+        **model.gaussian_counts(),
+        "fg_per_segment": per_segment.tolist(),
+        "segment_lengths": model.segments.lengths(),
+    }
+    meta = stage_meta(SCHEMA_VERSION, section, train, report, metrics, downscale=training.downscale)
     return model.to_artifact(meta)
 
 
 def _train(
     scene: Scene,
+    views: TrainViews,
     source: SceneModel,
     sets: dict[str, GaussianSet],
     segments: SegmentPlan,
     section: RelayConfig,
     train: TrainSettings,
     seed: int,
-    device: torch.device,
 ) -> tuple[dict[str, GaussianSet], TrainReport]:
-    """Fit copy s (and a trainable background) to segment s's targets on `device`; returns the
-    trained sets and the training report."""
+    """Fit copy s (and a trainable background) to segment s's targets."""
     plans = section.plans()
     session = TrainingSession(
         sets=sets,
         plans={name: plans[name] for name in sets},
         extent=scene.extent,
         seed=seed,
-        device=device,
+        device=views.device,
     )
-    views = TrainViews(scene, device)
     targets = SegmentTargets(views, segments, section.p, section.pseudo_views)
     empty = source.foreground.subset(torch.zeros(0, dtype=torch.int64))
     # A frozen background looks the same at every step: render it once per camera.
@@ -228,26 +196,85 @@ def _train(
     return session.sets, report
 
 
-def _counts(model: SceneModel) -> dict[str, Any]:
-    """Gaussian counts, with the number of copies per segment and the segments' lengths."""
-    per_segment = torch.bincount(
-        model.foreground.buffers[SEGMENT].long(), minlength=model.num_segments
-    )
-    n_bg, n_fg = len(model.background), len(model.foreground)
-    return {
-        "num_gaussians": n_bg + n_fg,
-        "num_bg": n_bg,
-        "num_fg": n_fg,
-        "fg_per_segment": per_segment.tolist(),
-        "segment_lengths": model.segments.lengths(),
-    }
+@torch.no_grad()
+def carved_copies(
+    views: TrainViews,
+    background: GaussianSet,
+    replica: GaussianSet,
+    section: RelayConfig,
+    segments: SegmentPlan,
+    seed: int,
+) -> GaussianSet:
+    """One copy per segment, on the replica's device, from the hull at its pseudo frames (thinned
+    to `seed_points` at random); a segment whose hull is empty keeps the replica."""
+    cloud = views.scene.points.xyz  # its bounds, padded by 5 % on every side, hold the hulls
+    lower, upper = cloud.min(dim=0).values, cloud.max(dim=0).values
+    pad = 0.05 * (upper - lower).clamp_min(1e-3)
+    bounds = torch.stack([lower - pad, upper + pad])
+    generator = torch.Generator().manual_seed(seed)
+    renders = BackgroundRenders(background)
+    copies = []
+    for segment in range(segments.count):
+        frames = pseudo_frames(segments.frames(segment), section.p)
+        hulls = [_hull_at(views, renders, frame, bounds, section, generator) for frame in frames]
+        hulls = [hull for hull in hulls if hull is not None]
+        xyz = torch.cat([points for points, _, _ in hulls]) if hulls else torch.zeros(0, 3)
+        if len(xyz) == 0:
+            copies.append(_tagged(replica, segment))
+            continue
+        rgb = torch.cat([colors for _, colors, _ in hulls])
+        if len(xyz) > section.seed_points:
+            keep = torch.randperm(len(xyz), generator=generator)[: section.seed_points]
+            xyz, rgb = xyz[keep], rgb[keep]
+        seeds = GaussianSet.from_points(
+            xyz, rgb.clamp(0.0, 1.0), replica.max_sh_degree, section.seed_opacity
+        ).to(replica.means.device)
+        # the hull is a regular grid: one voxel is each seed's size (a stray hull point far
+        # from the others would otherwise get a huge nearest-neighbour scale and haze the view)
+        seeds.params["log_scales"].fill_(math.log(hulls[0][2]))
+        copies.append(_tagged(seeds, segment))
+    return functools.reduce(GaussianSet.concat, copies)
+
+
+class BackgroundRenders:
+    """Renders of a static background, one per camera (cached: see FrozenRenders)."""
+
+    def __init__(self, background: GaussianSet) -> None:
+        self.background = background
+        self._renders = FrozenRenders()
+
+    def images(self, cameras: list[Camera]) -> Tensor:
+        """[C,H,W,3] renders clamped to [0, 1], on the CPU, in the order of `cameras`."""
+        degree = self.background.active_sh_degree
+        part = part_of("bg", self.background, degree, frozen=True)
+        return self._renders.layer([part], cameras, degree).colors.cpu().clamp(0.0, 1.0)
+
+
+def _hull_at(
+    views: TrainViews,
+    renders: BackgroundRenders,
+    frame: int,
+    bounds: Tensor,
+    section: RelayConfig,
+    generator: torch.Generator,
+) -> tuple[Tensor, Tensor, float] | None:
+    """Hull points, colours, voxel size of the background's misses at `frame` (None: no view)."""
+    frame_views = views.by_frame.get(frame, [])
+    if not frame_views:
+        return None
+    cameras = [view.camera for view in frame_views]
+    images = torch.stack([views.scene.image(view) for view in frame_views])
+    settings = HullSettings(section.hull_residual, section.hull_voxels, section.hull_misses)
+    masks = residual_masks(renders.images(cameras), images, settings.residual)
+    return visual_hull(masks, images, cameras, bounds, settings, generator)
+
+
+def _tagged(gaussians: GaussianSet, segment: int) -> GaussianSet:
+    """`gaussians` (core only: a replica or seeds) with every row tagged as `segment`."""
+    tags = torch.full((len(gaussians),), segment, dtype=torch.int32)
+    return foreground_with_segments(gaussians, tags)
 
 
 SPEC = StageSpec(
-    name=STAGE,
-    run=relay,
-    settings=RelayConfig,
-    schema_version=SCHEMA_VERSION,
-    upstream=ACCEPTED_UPSTREAM,
-    canonical=uniform_unless_adaptive,
+    STAGE, relay, RelayConfig, SCHEMA_VERSION, ACCEPTED_UPSTREAM, uniform_unless_adaptive
 )

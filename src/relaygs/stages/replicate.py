@@ -4,12 +4,12 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 from relaygs.data import Scene
 from relaygs.pipeline.artifact import Artifact
 from relaygs.stages.common import single_upstream, stage_meta, upstream_model
-from relaygs.stages.config import parse_section, require
+from relaygs.stages.config import Section, require
 from relaygs.stages.spec import StageSpec
 from relaygs.stages.train_settings import TrainSettings
 from relaygs.train.canonical import one_segment_at_most
@@ -22,19 +22,14 @@ ACCEPTED_UPSTREAM = ("decouple",)
 
 
 @dataclass
-class ReplicateConfig:
-    """Settings of the replicate stage (`cfg["replicate"]`): the segment length k."""
+class ReplicateConfig(Section):
+    """`cfg["replicate"]`: the segment length k."""
 
+    section: ClassVar[str] = STAGE
     k: int = 16
 
     def validate(self) -> None:
-        """k must be a positive frame count (called once, when the run is planned)."""
         require(self.k >= 1, "replicate.k", self.k, "an int >= 1")
-
-    @classmethod
-    def from_config(cls, data: Mapping[str, Any] | None) -> ReplicateConfig:
-        """Parse `cfg["replicate"]`."""
-        return parse_section(cls, data, STAGE)
 
 
 def replicate(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, Any]) -> Artifact:
@@ -50,16 +45,10 @@ def replicate(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, 
         foreground=replicate_foreground(source.foreground, segments.count),
         segments=segments,
     )
-    n_bg, n_fg = len(model.background), len(model.foreground)
-    metrics = {"num_gaussians": n_bg + n_fg, "num_bg": n_bg, "num_fg": n_fg, "train_seconds": 0.0}
+    metrics = {**model.gaussian_counts(), "train_seconds": 0.0}
     return model.to_artifact(stage_meta(SCHEMA_VERSION, section, train, None, metrics))
 
 
 SPEC = StageSpec(
-    name=STAGE,
-    run=replicate,
-    settings=ReplicateConfig,
-    schema_version=SCHEMA_VERSION,
-    upstream=ACCEPTED_UPSTREAM,
-    canonical=one_segment_at_most,
+    STAGE, replicate, ReplicateConfig, SCHEMA_VERSION, ACCEPTED_UPSTREAM, one_segment_at_most
 )

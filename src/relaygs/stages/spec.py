@@ -13,8 +13,7 @@ from relaygs.train.canonical import SectionCanonical
 
 
 class StageSettings(Protocol):
-    """A stage's settings dataclass (its Hydra structured config): `from_config` parses its
-    config section, `validate` checks the value ranges."""
+    """A stage's settings dataclass (Hydra structured config) with its range checks."""
 
     @classmethod
     def from_config(cls, data: Mapping[str, Any] | None) -> Any: ...
@@ -24,10 +23,8 @@ class StageSettings(Protocol):
 
 @dataclass(frozen=True)
 class StageSpec:
-    """One stage type: its name (the config section and artifact label), function, settings
-    class, artifact schema version (bumped when the code changes what the stage computes),
-    the stage types its one upstream node may have (empty: it starts from the scene) and,
-    where some settings mean the same computation on a scene, their canonical form."""
+    """One stage type: name (config section, artifact label), function, settings, schema version
+    (bumped when what it computes changes), accepted upstream types, canonical settings form."""
 
     name: str
     run: StageFn

@@ -2,26 +2,21 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import ClassVar
 
 import torch
 
 from relaygs.device import parse_device, usable_device
-from relaygs.stages.config import parse_section, require
+from relaygs.stages.config import Section, require
 
 
 @dataclass
-class TrainSettings:
-    """Settings every stage reads from `cfg["train"]`.
+class TrainSettings(Section):
+    """`cfg["train"]`, read by every stage; downscale None is the paper's rule (`downscale_for`),
+    an integer forces that factor on every stage. Periods are in steps."""
 
-    downscale None is the paper's rule: the first two stages (decouple, relay) train at half
-    resolution when images are wider than `half_res_width` pixels (the
-    paper does so on Panoptic's 640×360); deform and the 4D-GS warm-up train at full resolution,
-    as 4D-GS does. An integer forces that factor on every stage. Periods are in steps.
-    """
-
+    section: ClassVar[str] = "train"
     batch_views: int = 4
     ssim_weight: float = 0.2
     downscale: int | None = None
@@ -36,30 +31,21 @@ class TrainSettings:
         """Reject values no run could use (called once, when the run is planned)."""
         require(self.batch_views >= 1, "train.batch_views", self.batch_views, "an int >= 1")
         require(0.0 <= self.ssim_weight <= 1.0, "train.ssim_weight", self.ssim_weight, "[0, 1]")
-        require(
-            self.downscale is None or self.downscale >= 1,
-            "train.downscale",
-            self.downscale,
-            "None or an int >= 1",
-        )
+        factor = self.downscale
+        require(factor is None or factor >= 1, "train.downscale", factor, "None or an int >= 1")
         require(self.half_res_width >= 1, "train.half_res_width", self.half_res_width, ">= 1")
         require(self.log_every >= 1, "train.log_every", self.log_every, "an int >= 1")
         require(self.image_every >= 0, "train.image_every", self.image_every, "an int >= 0")
         require(self.checkpoint_every >= 1, "train.checkpoint_every", self.checkpoint_every, ">= 1")
         parse_device(self.device, "train.device")  # usable here is checked where the job runs
 
-    @classmethod
-    def from_config(cls, data: Mapping[str, Any] | None) -> TrainSettings:
-        """Parse `cfg["train"]` (missing keys keep defaults)."""
-        return parse_section(cls, data, "train")
-
     def torch_device(self) -> torch.device:
-        """The device to train on, once this machine is known to allocate there (one line
-        naming `train.device` if not)."""
+        """The training device, once this machine is known to allocate there."""
         return usable_device(self.device, "train.device")
 
     def downscale_for(self, image_width: int, early_stage: bool) -> int:
-        """Resolution factor a stage trains at, given the scene's full image width."""
+        """Resolution factor a stage trains at, given the scene's full image width: decouple and
+        relay train at half resolution above `half_res_width` (the paper's rule), the rest full."""
         if self.downscale is not None:
             return self.downscale
         return 2 if early_stage and image_width > self.half_res_width else 1

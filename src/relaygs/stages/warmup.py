@@ -1,26 +1,18 @@
-"""The 4D-GS baseline's coarse stage: one static 3DGS fitted to every frame, no mask.
-
-Output: a model whose Gaussians are all background (`is_fg` all False, an empty foreground).
-"""
+"""The 4D-GS baseline's coarse stage: one static 3DGS fitted to every frame, all background."""
 
 from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, ClassVar
 
 import torch
 
 from relaygs.data import Scene
 from relaygs.model import BACKGROUND_DENSIFY, DensifySettings, SetLearningRates, paper_schedule
 from relaygs.pipeline.artifact import Artifact
-from relaygs.stages.common import (
-    GAUSSIAN_LR,
-    no_upstream,
-    stage_meta,
-    training_scene,
-)
-from relaygs.stages.config import densify_settings, learning_rates, parse_section, require_steps
+from relaygs.stages.common import GAUSSIAN_LR, no_upstream, stage_meta, training_scene
+from relaygs.stages.config import Section, densify_settings, learning_rates, require_steps
 from relaygs.stages.decouple import check_static_settings
 from relaygs.stages.spec import StageSpec
 from relaygs.stages.train_settings import TrainSettings
@@ -39,11 +31,10 @@ SET = "bg"
 
 
 @dataclass
-class WarmupConfig:
-    """Settings of the static warm-up (`cfg["warmup"]`): 4D-GS's coarse stage, 3000 steps,
-    3DGS learning rates and density control. The position lr decays over these steps (to
-    1.6e-6 at 3000), not over 4D-GS's position_lr_max_steps 20000 (near 8e-5 at 3000)."""
+class WarmupConfig(Section):
+    """`cfg["warmup"]`: 4D-GS's coarse stage, 3DGS rates and density control (docs/method.md)."""
 
+    section: ClassVar[str] = STAGE
     steps: int = 3000
     init_points: int | None = None
     init_opacity: float = 0.1
@@ -59,17 +50,10 @@ class WarmupConfig:
         self.learning_rates()
         self.densify_settings()
 
-    @classmethod
-    def from_config(cls, data: Mapping[str, Any] | None) -> WarmupConfig:
-        """Parse `cfg["warmup"]`."""
-        return parse_section(cls, data, STAGE)
-
     def learning_rates(self) -> SetLearningRates:
-        """Per-parameter schedules."""
         return learning_rates(self.lr, self.steps, f"{STAGE}.lr")
 
     def densify_settings(self) -> DensifySettings:
-        """3DGS density control."""
         return densify_settings(self.densify, BACKGROUND_DENSIFY, f"{STAGE}.densify", self.steps)
 
 
@@ -106,14 +90,9 @@ def warmup(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, Any
         foreground=foreground_with_segments(empty, torch.zeros(0, dtype=torch.int32)),
         segments=SegmentPlan.uniform(scene.num_frames, scene.num_frames),
     )
-    metrics = {"num_gaussians": len(background), "num_bg": len(background), "num_fg": 0}
+    metrics = model.gaussian_counts()
     meta = stage_meta(SCHEMA_VERSION, section, train, report, metrics, downscale=training.downscale)
     return model.to_artifact(meta)
 
 
-SPEC = StageSpec(
-    name=STAGE,
-    run=warmup,
-    settings=WarmupConfig,
-    schema_version=SCHEMA_VERSION,
-)
+SPEC = StageSpec(STAGE, warmup, WarmupConfig, SCHEMA_VERSION)

@@ -1,11 +1,4 @@
-"""Named step budgets, read from `conf/budget/*.yaml` so the numbers are written once.
-
-`paper` leaves the stage defaults (3000 / 14000 / 20000 steps). `small` runs the default
-pipeline on the default synthetic scene (160×90, 64 frames) in under a quarter of an hour on
-a 2-core CPU. `smoke` is a few steps of every code path for tests. Each budget maps a
-section name (`train`, a stage type, ...) to the overrides the app merges over it; the
-budget's own `budget:` block (name, multiplier) and run-level keys stay with the app.
-"""
+"""Named step budgets (`paper`, `small`, `smoke`): section overrides from `conf/budget/`."""
 
 from __future__ import annotations
 
@@ -17,14 +10,15 @@ from omegaconf import OmegaConf
 from relaygs.errors import InputError
 from relaygs.paths import config_dir
 
-RUN_KEYS = ("budget", "threads", "tensorboard")
-"""Keys of a budget file that the app applies to the run, not to a stage's config."""
+RUN_KEYS = (
+    "budget",
+    "threads",
+    "tensorboard",
+)  # keys the app applies to the run, not a stage
 
 
 def load_budget(name: str, sections: Collection[str]) -> dict[str, dict[str, Any]]:
-    """The section overrides of `conf/budget/<name>.yaml`; a key that is neither one of
-    `sections` (`train`, `eval` and the stage types) nor in RUN_KEYS is refused, as it would
-    otherwise be dropped without a word."""
+    """Section overrides of `conf/budget/<name>.yaml`; keys neither sections nor RUN_KEYS fail."""
     path = config_dir() / "budget" / f"{name}.yaml"
     raw = OmegaConf.to_container(OmegaConf.load(path))
     unknown = sorted(set(raw) - set(sections) - set(RUN_KEYS))

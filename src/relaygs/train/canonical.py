@@ -1,9 +1,5 @@
-"""Canonical forms of stage sections: settings that mean the same computation on a scene are
-mapped to one form, which is both what enters the artifact key and what the stage runs with.
-
-Each function takes a stage's resolved section and the scene and returns a new section; it
-must not change what the stage computes, only pick one spelling of it.
-"""
+"""Canonical forms of stage sections: settings that mean the same computation on a scene get one
+spelling, which the artifact key hashes and the stage runs with (it must not change results)."""
 
 from __future__ import annotations
 
@@ -13,13 +9,11 @@ from typing import Any
 from relaygs.data import Scene
 from relaygs.train.segment_plan import boundaries_fixed
 
-SectionCanonical = Callable[[Mapping[str, Any], Scene], dict[str, Any]]
-"""`(stage section, scene) -> canonical section`."""
+SectionCanonical = Callable[[Mapping[str, Any], Scene], dict[str, Any]]  # (section, scene)
 
 
 def one_segment_at_most(section: Mapping[str, Any], scene: Scene) -> dict[str, Any]:
-    """Segment length `k` capped at the scene's frame count T: every k >= T is one segment of
-    all frames (S = ceil(T / k) = 1, segment 0 = frames [0, T)), spelled k = T."""
+    """Segment length `k` capped at T: every k >= T is one segment of all frames."""
     canonical = dict(section)
     k = canonical.get("k")
     if isinstance(k, int) and not isinstance(k, bool) and k > scene.num_frames:
@@ -28,9 +22,8 @@ def one_segment_at_most(section: Mapping[str, Any], scene: Scene) -> dict[str, A
 
 
 def uniform_unless_adaptive(section: Mapping[str, Any], scene: Scene) -> dict[str, Any]:
-    """`one_segment_at_most`, and `segments` left out where it is uniform or where adaptive
-    placement has no choice (k = 1: a segment per frame; k >= T: one segment), so the keys of
-    uniform relays stay those they had before the setting existed."""
+    """`one_segment_at_most`, without `segments` where it is uniform or adaptive placement has no
+    choice (k = 1 or k >= T), so uniform relays keep the keys they had before the setting."""
     canonical = one_segment_at_most(section, scene)
     k = canonical.get("k")
     fixed = isinstance(k, int) and k >= 1 and boundaries_fixed(scene.num_frames, k)

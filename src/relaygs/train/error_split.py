@@ -1,7 +1,5 @@
-"""Where a model's error lies: PSNR over the foreground and the background pixels apart, on the
-train or the test views, so that a model's fit to seen views can be set against unseen ones;
-optionally after fitting each camera's colour response, which no model can know for a held-out
-camera of a scene whose cameras each record colour their own way."""
+"""PSNR over foreground and background pixels apart, on the train or the test views, optionally
+after fitting each camera's colour response (which no model can know for a held-out camera)."""
 
 from __future__ import annotations
 
@@ -17,8 +15,11 @@ from relaygs.train.evaluate import require_its_scene
 from relaygs.train.model_render import ModelRenderer
 from relaygs.train.scene_model import SceneModel
 
-SPLIT_METRICS = ("psnr", "fg_psnr", "bg_psnr")
-"""Mean per-image PSNR over all pixels, ground-truth foreground pixels, background pixels."""
+SPLIT_METRICS = (
+    "psnr",
+    "fg_psnr",
+    "bg_psnr",
+)  # over all, foreground, background pixels
 
 
 def error_split(
@@ -29,9 +30,8 @@ def error_split(
     device: torch.device | None = None,
     colour_fit: bool = False,
 ) -> dict[str, float | None]:
-    """SPLIT_METRICS of the artifact's model over `split`'s views ("train" or "test") at every
-    `frame_stride`-th frame, plus their count; fg/bg are None where no view has such pixels.
-    With `colour_fit`, each camera's renders first pass through `colour_fitted`."""
+    """SPLIT_METRICS (None without such pixels) and the image count of the artifact's model over
+    `split`'s views at every `frame_stride`-th frame, through `colour_fitted` if asked."""
     device = device or torch.device("cpu")
     model = SceneModel.from_artifact(artifact)
     require_its_scene(model, scene)
@@ -64,9 +64,8 @@ def error_split(
 def colour_fitted(
     scene: Scene, renders: list[tuple[View, torch.Tensor]]
 ) -> list[tuple[View, torch.Tensor]]:
-    """Each render (clamped to [0, 1]) mapped through its camera's per-channel gain and offset
-    (`relaygs.colour_fit`, fit to all of the camera's images at once), unclipped, so that the
-    PSNR over all pixels equals the evaluation's `psnr_cf`."""
+    """Each render (clamped) through its camera's fitted channel gain and offset, unclipped, so
+    the PSNR over all pixels is the evaluation's `psnr_cf`."""
     by_camera: dict[int, list[tuple[View, torch.Tensor]]] = defaultdict(list)
     for view, image in renders:
         by_camera[view.camera.camera_id].append((view, image.clamp(0.0, 1.0)))

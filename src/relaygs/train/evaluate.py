@@ -1,13 +1,4 @@
-"""Evaluation: render every test camera at every frame (or every `frame_stride`-th) and score.
-
-PSNR and SSIM are per image, averaged; fg-PSNR runs over ground-truth foreground pixels of
-the images that have a non-empty mask (None when the scene has no masks); `psnr_cf` is the
-PSNR after each test camera's colour response is fit (`relaygs.colour_fit`: what a model
-scores when a held-out camera's own gains, which it cannot know, are not counted); render FPS counts
-rendering only (no metric time). `per_view` lists every scored image's own metrics, so a run
-can show where in time (at which motion) quality drops. Storage is the store's to report
-(`Manifest.size_mb`).
-"""
+"""Evaluation: score every test camera at every (`frame_stride`-th) frame (docs/method.md)."""
 
 from __future__ import annotations
 
@@ -29,8 +20,7 @@ from relaygs.train.scene_model import SceneModel
 def score_model(
     scene: Scene, model: SceneModel, frame_stride: int, device: torch.device
 ) -> dict[str, Any]:
-    """Test metrics of `model` on `scene` at frames 0, stride, 2·stride, … (keys in the module
-    docstring, plus Gaussian counts and the number of test images), rendered on `device`."""
+    """Test metrics of `model` on `scene` at frames 0, stride, 2·stride, …, rendered on `device`."""
     require_its_scene(model, scene)
     model = model.to(device)
     renderer = ModelRenderer(model)
@@ -49,22 +39,18 @@ def score_model(
         for view, image in zip(views, images, strict=True):
             per_view.append(view_metrics(scene, view, image.cpu()))
             colour_fitted.add(view.camera.camera_id, image.cpu(), scene.image(view))
-    n_bg, n_fg = len(model.background), len(model.foreground)
     return {
         **{name: _mean(per_view, name) for name in METRIC_COLUMNS},
         "psnr_cf": colour_fitted.value(),
         "render_fps": rendered / render_seconds if render_seconds > 0 else None,
-        "num_gaussians": n_bg + n_fg,
-        "num_bg": n_bg,
-        "num_fg": n_fg,
+        **model.gaussian_counts(),
         "num_test_images": rendered,
         PER_VIEW: per_view,
     }
 
 
 def view_metrics(scene: Scene, view: View, pred: torch.Tensor) -> ViewRecord:
-    """One test image's record: its frame, camera and METRIC_COLUMNS (fg-PSNR None when the view
-    has no mask or an empty one)."""
+    """One test image's frame, camera and METRIC_COLUMNS (fg-PSNR None without a mask)."""
     target = scene.image(view)
     mask = scene.mask(view)
     foreground = None
@@ -80,8 +66,7 @@ def view_metrics(scene: Scene, view: View, pred: torch.Tensor) -> ViewRecord:
 
 
 def require_its_scene(model: SceneModel, scene: Scene) -> None:
-    """Refuse a scene the model cannot have been trained on, whose renders and scores would mean
-    nothing: another frame count, or other train cameras than its colour affine was fit to."""
+    """Refuse a scene the model was not trained on (frame count, affine cameras)."""
     if model.num_frames != scene.num_frames:
         raise InputError(
             f"the model was trained on {model.num_frames} frames but {scene.root} has "
@@ -98,8 +83,7 @@ def require_its_scene(model: SceneModel, scene: Scene) -> None:
 
 
 def _held_out_hint(trained: list[int], scene: Scene) -> str:
-    """What to load instead: the scene with the cameras the model did not train on as its test
-    cameras, when it has every camera the model trained on."""
+    """What to load instead: the scene with the cameras the model did not train on as tests."""
     cameras = {view.camera.camera_id for view in scene.train_views + scene.test_views}
     if not set(trained) <= cameras:
         return "use the scene it was trained on"
@@ -117,7 +101,6 @@ def _held_out_hint(trained: list[int], scene: Scene) -> str:
 
 
 def _mean(records: list[ViewRecord], name: str) -> float | None:
-    """Mean of `name` over the records that have it, or None when none has (e.g. fg-PSNR
-    without masks; JSON has no NaN)."""
+    """Mean of `name` over the records that have it, or None (JSON has no NaN)."""
     values = [record[name] for record in records if record[name] is not None]
     return sum(values) / len(values) if values else None

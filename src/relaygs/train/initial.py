@@ -1,5 +1,4 @@
-"""Where training starts: Gaussians from the scene's point cloud (3DGS initialisation) and the
-session of a stage that fits one Gaussian set from it (decouple, warmup)."""
+"""Where training starts: 3DGS Gaussians from the scene's point cloud, and their session."""
 
 from __future__ import annotations
 
@@ -16,32 +15,17 @@ from relaygs.train.session import SetPlan, TrainingSession
 
 
 def initial_gaussians(
-    scene: Scene,
-    init_points: int | None,
-    init_opacity: float,
-    sh_degree: int,
-    seed: int,
+    scene: Scene, init_points: int | None, init_opacity: float, sh_degree: int, seed: int
 ) -> GaussianSet:
-    """3DGS initialisation from the scene's point cloud, randomly thinned to `init_points`.
-
-    The cloud's fg flag is not used: foreground is what the stages learn.
-    """
+    """3DGS initialisation from the scene's point cloud, thinned to `init_points`."""
     xyz, rgb = scene.points.xyz, scene.points.rgb
     if init_points is not None and xyz.shape[0] > init_points:
         generator = torch.Generator().manual_seed(seed)
         keep = torch.randperm(xyz.shape[0], generator=generator)[:init_points].sort().values
         xyz, rgb = xyz[keep], rgb[keep]
-    gaussians = GaussianSet.from_points(
-        xyz, rgb, max_sh_degree=sh_degree, init_opacity=init_opacity
-    )
-    _require_sizes_below_the_cap(scene, gaussians)
-    return gaussians
-
-
-def _require_sizes_below_the_cap(scene: Scene, gaussians: GaussianSet) -> None:
-    """One line when most initial Gaussians (sized by their neighbours' distance) are larger
-    than the renderer's cap e^MAX_LOG_SCALE: their sizes would get no gradient and stay
-    frozen, and the scene would train to nothing. A scene in huge units, to be rescaled."""
+    gaussians = GaussianSet.from_points(xyz, rgb, sh_degree, init_opacity)
+    # mostly larger than the renderer's size cap (a scene in huge units), their sizes would get
+    # no gradient and the scene would train to nothing
     log_scales = gaussians.params["log_scales"].detach()[:, 0]
     over = int((log_scales > MAX_LOG_SCALE).sum())
     if 2 * over > len(log_scales):
@@ -51,6 +35,7 @@ def _require_sizes_below_the_cap(scene: Scene, gaussians: GaussianSet) -> None:
             "the renderer draws; expected a scene in units near metres (rescale the poses' "
             "translations and the point cloud alike)"
         )
+    return gaussians
 
 
 def static_session(
@@ -62,9 +47,7 @@ def static_session(
     device: torch.device,
     extras: Mapping[str, float] | None = None,
 ) -> TrainingSession:
-    """The session of a stage that fits one Gaussian set from the scene's point cloud
-    (decouple, warmup): `section` gives init_points, init_opacity and sh_degree; `extras`
-    adds trainable per-Gaussian scalars at an initial value (decouple's mask logit)."""
+    """The session of a stage fitting one set from the point cloud, plus trainable `extras`."""
     gaussians = initial_gaussians(
         scene, section.init_points, section.init_opacity, section.sh_degree, seed
     )

@@ -1,8 +1,4 @@
-"""Live training metrics: stages `emit` scalars (and images) to sinks that the app attaches.
-
-The stages know nothing about TensorBoard or progress bars: the app adds a sink (any callable
-`(stage, step, scalars, images)`) for the duration of a run and removes it afterwards.
-"""
+"""Live training metrics: stages `emit` scalars and images to the sinks the app attaches."""
 
 from __future__ import annotations
 
@@ -28,10 +24,7 @@ def remove_sink(sink: Sink) -> None:
 
 
 def emit(
-    stage: str,
-    step: int,
-    scalars: Mapping[str, float],
-    images: Mapping[str, Tensor] | None = None,
+    stage: str, step: int, scalars: Mapping[str, float], images: Mapping[str, Tensor] | None = None
 ) -> None:
     """Send one record to every sink: scalar metrics and optional [H,W,3] images in [0,1]."""
     for sink in list(_SINKS):

@@ -1,5 +1,4 @@
-"""The training loop every stage shares: steps, divergence guard, density control, logging,
-progress bar, and in-stage checkpoints (resume where a killed build stopped)."""
+"""The training loop every stage shares, with divergence guard, logging and checkpoints."""
 
 from __future__ import annotations
 
@@ -22,14 +21,12 @@ from relaygs.train.loss import batch_psnr
 from relaygs.train.render import Render
 from relaygs.train.session import TrainingSession
 
-LOSS_WINDOW = 50  # steps averaged for the reported initial and final training loss (at most
-# a quarter of the run, so the two windows never overlap)
+LOSS_WINDOW = 50  # steps averaged for the initial and final loss (at most a quarter of the run)
 
 
 @dataclass
 class StepResult:
-    """One forward pass: the loss to minimise, the renders (for density statistics), and the
-    predicted and target images (for batch PSNR and image logging)."""
+    """One forward pass: loss, renders (density statistics), predicted and target images."""
 
     loss: Tensor
     renders: list[Render]
@@ -39,8 +36,7 @@ class StepResult:
 
 @dataclass
 class TrainReport:
-    """Summary of a finished training run: `train_seconds` includes the seconds before a
-    resume, `run_seconds` only this run's (steps from `resumed_from` on)."""
+    """Summary of a training run; `train_seconds` includes those before a resume."""
 
     steps: int
     initial_loss: float | None  # None when the stage ran no steps
@@ -51,7 +47,6 @@ class TrainReport:
     history: list[ScalarRecord] = field(default_factory=list)
 
     def metrics(self) -> dict[str, float | int | None]:
-        """As JSON-ready artifact metrics."""
         return {
             "steps": self.steps,
             "initial_loss": self.initial_loss,
@@ -63,18 +58,15 @@ class TrainReport:
 
 
 class LossTracker:
-    """Mean loss of the first and of the latest `window` steps. Losses stay tensors on their
-    device until read (`state`, `means`): a read per step would make each training step wait
-    for a GPU to finish the one before."""
+    """Mean loss of the first and of the latest `window` steps, kept as tensors until read (a
+    read per step would make each step wait for a GPU to finish the one before)."""
 
     def __init__(self, window: int) -> None:
-        """Track windows of `window` steps."""
         self.window = window
         self.first: list[float | Tensor] = []
         self.recent: deque[float | Tensor] = deque(maxlen=window)
 
     def add(self, loss: Tensor) -> None:
-        """Record one step's loss (a 0-d tensor, not read now)."""
         loss = loss.detach()
         if len(self.first) < self.window:
             self.first.append(loss)
@@ -91,15 +83,13 @@ class LossTracker:
         return _mean(first), _mean(recent)
 
     def load_state(self, state: dict) -> None:
-        """Restore what `state` returned."""
         self.first = list(state["first"])
         self.recent.clear()
         self.recent.extend(state["recent"])
 
 
 class LoopSettings(Protocol):
-    """What the loop reads of the `train` section (the stages' `TrainSettings`); declared here
-    so the training machinery needs nothing from the stages that use it."""
+    """What the loop reads of the stages' `TrainSettings` (declared here: stages import this)."""
 
     @property
     def log_every(self) -> int: ...
@@ -111,21 +101,17 @@ class LoopSettings(Protocol):
     def progress(self) -> bool: ...
 
 
-ScalarRecord = tuple[int, dict[str, float]]
-"""One emitted record's step and scalars."""
+ScalarRecord = tuple[int, dict[str, float]]  # one emitted record's step and scalars
 
 
 class ScalarHistory:
-    """Every record of scalars a stage emitted, kept in its artifact's meta
-    (`common.LOGGED_SCALARS`) and its in-stage checkpoints, so a run that reuses or resumes the
-    stage shows its whole curves too. Non-finite values are left out (JSON has no NaN)."""
+    """Every scalar record a stage emitted, finite values only, kept in its artifact's meta and
+    checkpoints, so a run that reuses or resumes the stage shows its whole curves."""
 
     def __init__(self) -> None:
-        """Start with no records."""
         self.records: list[ScalarRecord] = []
 
     def add(self, step: int, scalars: Mapping[str, float]) -> None:
-        """Record one emitted step."""
         finite = {name: float(value) for name, value in scalars.items() if math.isfinite(value)}
         self.records.append((step, finite))
 
@@ -134,7 +120,6 @@ class ScalarHistory:
         return [[step, dict(scalars)] for step, scalars in self.records]
 
     def load_state(self, state: list[list]) -> None:
-        """Restore what `state` returned."""
         self.records = [(int(step), dict(scalars)) for step, scalars in state]
 
 
@@ -149,11 +134,8 @@ def run_training(
     step_fn: Callable[[int], StepResult],
     counts: CountsFn,
 ) -> TrainReport:
-    """Run steps 1..`steps` of `step_fn` on `session`, resuming from a checkpoint if present.
-
-    `counts()` gives the current (background, foreground) Gaussian counts for logging.
-    Raises DivergenceError (and saves nothing further) at the first non-finite value.
-    """
+    """Run steps 1..`steps` of `step_fn` on `session`, resuming from a checkpoint if present;
+    DivergenceError at the first non-finite value. `counts()`: (bg, fg) counts to log."""
     build = current_build()
     checkpointer = build.checkpointer(train.checkpoint_every) if build is not None else None
     tracker = LossTracker(max(1, min(LOSS_WINDOW, steps // 4)))
@@ -186,10 +168,23 @@ def run_training(
         session.check_finite(stage, step, result.loss)
         session.apply_gradients(result.renders, step)
         tracker.add(result.loss)
-        images = _images(result, train, step)
+        images = None
+        if train.image_every > 0 and step % train.image_every == 0:
+            images = {
+                "render": result.preds[0].detach().clamp(0.0, 1.0).cpu(),
+                "target": result.targets[0].detach().cpu(),
+            }
         if step % train.log_every == 0 or step == steps or images is not None:
             loss = float(result.loss.detach())
-            scalars = _scalars(loss, result, rates, counts)
+            n_bg, n_fg = counts()
+            scalars = {
+                "loss": loss,
+                "psnr": batch_psnr(result.preds, result.targets),
+                "num_bg": float(n_bg),
+                "num_fg": float(n_fg),
+                "fg_fraction": n_fg / max(n_bg + n_fg, 1),
+                **{f"lr/{name}": lr for name, lr in rates.items()},
+            }
             history.add(step, scalars)
             log.emit(stage, step, scalars, images)
             bar.set_postfix(loss=f"{loss:.4f}", psnr=f"{scalars['psnr']:.2f}", refresh=False)
@@ -243,30 +238,6 @@ def _interrupted(
     return Interrupted(
         f"{where}; run the same command again to resume it from its checkpoint of step {last}"
     )
-
-
-def _scalars(
-    loss: float, result: StepResult, rates: dict[str, float], counts: CountsFn
-) -> dict[str, float]:
-    n_bg, n_fg = counts()
-    scalars = {
-        "loss": loss,
-        "psnr": batch_psnr(result.preds, result.targets),
-        "num_bg": float(n_bg),
-        "num_fg": float(n_fg),
-        "fg_fraction": n_fg / max(n_bg + n_fg, 1),
-    }
-    scalars.update({f"lr/{name}": lr for name, lr in rates.items()})
-    return scalars
-
-
-def _images(result: StepResult, train: LoopSettings, step: int) -> dict[str, Tensor] | None:
-    if train.image_every <= 0 or step % train.image_every != 0:
-        return None
-    return {
-        "render": result.preds[0].detach().clamp(0.0, 1.0).cpu(),
-        "target": result.targets[0].detach().cpu(),
-    }
 
 
 def _floats(*lists: list[float | Tensor]) -> list[list[float]]:

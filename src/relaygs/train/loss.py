@@ -1,9 +1,4 @@
-"""Image loss of every training stage: L1 + λ·D-SSIM with D-SSIM = 1 − SSIM.
-
-L1 keeps weight 1 as in 4D-GS's code, whose default λ is 0 (L1 only); 3DGS uses
-(1 − λ)·L1 + λ·D-SSIM. With `train.ssim_weight` 0.2 the 4D-GS baseline's loss is thus not
-stock 4D-GS's.
-"""
+"""Image loss of every training stage: L1 + λ·D-SSIM (L1 at weight 1, as in 4D-GS's code)."""
 
 from __future__ import annotations
 
@@ -16,19 +11,14 @@ from relaygs.metrics import psnr, ssim
 def photometric_loss(preds: list[Tensor], targets: list[Tensor], ssim_weight: float) -> Tensor:
     """Mean over views of L1 + ssim_weight·(1 − SSIM); images [H,W,3]. Views of one size go
     through as one batch (the same mean, a quarter of the operations at four views)."""
+
+    def loss(pred: Tensor, target: Tensor) -> Tensor:
+        l1 = (pred - target).abs().mean()
+        return l1 + ssim_weight * (1.0 - ssim(pred, target)) if ssim_weight > 0.0 else l1
+
     if len({tuple(p.shape) for p in preds}) == 1:
-        pred, target = torch.stack(preds), torch.stack(targets)
-        loss = (pred - target).abs().mean()
-        if ssim_weight > 0.0:
-            loss = loss + ssim_weight * (1.0 - ssim(pred, target))
-        return loss
-    losses = []
-    for pred, target in zip(preds, targets, strict=True):
-        loss = (pred - target).abs().mean()
-        if ssim_weight > 0.0:
-            loss = loss + ssim_weight * (1.0 - ssim(pred, target))
-        losses.append(loss)
-    return torch.stack(losses).mean()
+        return loss(torch.stack(preds), torch.stack(targets))
+    return torch.stack([loss(p, t) for p, t in zip(preds, targets, strict=True)]).mean()
 
 
 @torch.no_grad()

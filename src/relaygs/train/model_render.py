@@ -19,7 +19,6 @@ class ModelRenderer:
     """Renders one SceneModel (static, relay copies or deformed) without gradients."""
 
     def __init__(self, model: SceneModel) -> None:
-        """Wrap `model` (its tensors decide the device)."""
         self.model = model
         self.sh_degree = max(model.background.active_sh_degree, model.foreground.active_sh_degree)
         self._affine_rows = {camera_id: row for row, camera_id in enumerate(model.affine_cameras)}
@@ -48,8 +47,7 @@ class ModelRenderer:
 
     @torch.no_grad()
     def render(self, cameras: list[Camera], time: float) -> list[Tensor]:
-        """Images [H,W,3] in [0, 1], one per camera, of the model at `time` (`parts_at`);
-        train cameras get their colour affine."""
+        """Images [H,W,3] in [0, 1] of the model at `time`, colour affine on train cameras."""
         model = self.model
         images = splat(self.parts_at(time), cameras, self.sh_degree).images
         out = []

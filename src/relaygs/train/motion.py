@@ -1,9 +1,5 @@
-"""Apply the motion field at one time to the background and the visible foreground rows.
-
-One field call covers every rendered Gaussian (background group 0, foreground group 1). The
-deltas add to the pre-activation parameters; foreground (relay) positions move by
-(1 + e^γ)·Δμ when γ is on, every other position by Δμ.
-"""
+"""Apply the motion field at one time to the background and the shown foreground rows: deltas
+add to the pre-activation parameters; with γ, foreground positions move by (1 + e^γ)·Δμ."""
 
 from __future__ import annotations
 
@@ -24,8 +20,7 @@ def deformed_parts(
     time: float,
     sh_degree: int,
 ) -> list[Part]:
-    """Background and foreground Parts at `time` in [0, 1]; γ is used when the foreground has
-    a `gamma` parameter."""
+    """Background and foreground Parts at `time` in [0, 1], with γ where the set has it."""
     bg = part_of("bg", background, sh_degree)
     fg = part_of("fg", foreground, sh_degree, rows=foreground_rows)
     n_bg = bg.count
@@ -41,17 +36,7 @@ def deformed_parts(
     log_scales = torch.cat([bg.log_scales, fg.log_scales]) + deltas.dscale
     quats = torch.cat([bg.quats, fg.quats]) + deltas.drot
     opacity_logits = torch.cat([bg.opacity_logits, fg.opacity_logits]) + deltas.dopacity[:, 0]
-    parts = []
-    for part, rows in ((bg, slice(0, n_bg)), (fg, slice(n_bg, None))):
-        parts.append(
-            Part(
-                part.name,
-                part.rows,
-                means[rows],
-                log_scales[rows],
-                quats[rows],
-                opacity_logits[rows],
-                part.sh,
-            )
-        )
-    return parts
+    return [
+        Part(p.name, p.rows, means[r], log_scales[r], quats[r], opacity_logits[r], p.sh)
+        for p, r in ((bg, slice(0, n_bg)), (fg, slice(n_bg, None)))
+    ]

@@ -1,9 +1,5 @@
-"""Splat parts of Gaussian sets into cameras, and map screen-space gradients back to each set.
-
-A render concatenates `Part`s: rows of one set given as raw (pre-activation) parameters, so a
-stage can pass deformed values or a per-row opacity factor (decouple's mask). Cameras are
-rendered in groups of equal image size (the splatting core needs one size per call).
-"""
+"""Splat `Part`s of Gaussian sets (raw parameters, so stages can pass deformed values or an
+opacity factor) into cameras, grouped by image size, and map screen gradients back to each set."""
 
 from __future__ import annotations
 
@@ -36,7 +32,6 @@ class Part:
 
     @property
     def count(self) -> int:
-        """Number of Gaussians in the part."""
         return self.means.shape[0]
 
 
@@ -51,13 +46,8 @@ def part_of(
     are empty sets (nothing to learn, and autograd warns about their zero-size gradients)."""
     frozen = frozen or len(gaussians) == 0
     params = gaussians.params
-    values = [
-        params["means"],
-        params["log_scales"],
-        params["quats"],
-        params["opacity_logits"],
-        gaussians.colors(sh_degree),
-    ]
+    values = [params[name] for name in ("means", "log_scales", "quats", "opacity_logits")]
+    values.append(gaussians.colors(sh_degree))
     if frozen:
         values = [value.detach() for value in values]
     if rows is not None:
@@ -79,16 +69,10 @@ class Render:
 
 
 class FrozenRenders:
-    """Per camera, the frozen parts rendered alone: image, alphas, projection and colours.
-
-    Frozen parts do not change during a stage and a fixed rig sees them the same at every
-    step, so each camera is rendered once (again if its calibration or the SH degree changes).
-    With it, `splat` copies the tiles only frozen Gaussians touch and reuses their projection
-    (splat.FixedLayer).
-    """
+    """Per camera (and SH degree), the frozen parts rendered alone once, for `splat` to copy the
+    tiles only frozen Gaussians touch and reuse their projection (splat.FixedLayer)."""
 
     def __init__(self) -> None:
-        """An empty cache; renders are made on first request."""
         self._cache: dict[tuple[int, int], tuple[Camera, dict[str, Tensor]]] = {}
 
     def layer(self, parts: list[Part], cameras: list[Camera], sh_degree: int) -> FixedLayer:
@@ -118,29 +102,19 @@ class FrozenRenders:
         )
 
     def _cached(self, camera: Camera, sh_degree: int) -> bool:
-        entry = self._cache.get((camera.camera_id, sh_degree))
-        if entry is None:
-            return False
-        known = entry[0]
-        return (
-            known.width == camera.width
-            and known.height == camera.height
+        known = self._cache.get((camera.camera_id, sh_degree), (None,))[0]
+        return known is not None and (
+            (known.width, known.height) == (camera.width, camera.height)
             and torch.equal(known.K, camera.K)
             and torch.equal(known.w2c, camera.w2c)
         )
 
 
 def splat(
-    parts: list[Part],
-    cameras: list[Camera],
-    sh_degree: int,
-    frozen: FrozenRenders | None = None,
+    parts: list[Part], cameras: list[Camera], sh_degree: int, frozen: FrozenRenders | None = None
 ) -> Render:
-    """Render the concatenated parts into every camera on a black background (unclamped).
-
-    With `frozen` and a mix of frozen and trainable parts, tiles that only frozen Gaussians
-    touch are taken from its renders (same image, far less work when little is trainable).
-    """
+    """Render the concatenated parts into every camera on black (unclamped); with `frozen` and a
+    mix of frozen and trainable parts, its renders give the tiles only frozen Gaussians touch."""
     means = torch.cat([p.means for p in parts])
     scales = torch.exp(torch.cat([p.log_scales for p in parts]).clamp(max=MAX_LOG_SCALE))
     quats = normalize_quats(torch.cat([p.quats for p in parts]))

@@ -1,17 +1,4 @@
-"""The model every stage hands on: background and foreground Gaussians, segments, motion field.
-
-Artifact layout (tensors): `bg.*` and `fg.*` are `GaussianSet.to_tensors` of the two sets; the
-foreground carries the buffer `segment` (int32, the relay copy each row belongs to) and, after
-deform with γ, the parameter `gamma`. `is_fg` [N] bool and `segment` [N] int32 (−1 for the
-background) describe the concatenation bg‖fg. A deformed model adds `field.<state_dict key>` and,
-with a colour affine, `affine.log_gain` / `affine.offset`. Metadata holds what is needed to
-rebuild it (frames, the segment length k, or `segment_starts` for segments placed by motion,
-field settings, affine camera ids).
-
-Which foreground rows are visible at frame f: a decouple model shows its foreground only at
-frame 0 (the decoupled movers); every other model shows the copy of the segment holding f
-(f // k for uniform segments), so each frame belongs to exactly one segment.
-"""
+"""The model every stage hands on, and its artifact form (docs/method.md, Artifacts)."""
 
 from __future__ import annotations
 
@@ -39,11 +26,8 @@ DECOUPLE = "decouple"
 
 @dataclass
 class SceneModel:
-    """Background + foreground Gaussian sets, their segments, and optional motion modules.
-
-    `field_settings` are the DeformationField keyword arguments plus `aabb` and
-    `time_resolution`; `affine_cameras` lists the train camera ids in ColorAffine row order.
-    """
+    """Background + foreground sets, their segments, and optional motion modules; `affine_cameras`
+    lists the train camera ids in ColorAffine row order."""
 
     stage: str
     background: GaussianSet
@@ -56,7 +40,6 @@ class SceneModel:
 
     @property
     def num_frames(self) -> int:
-        """T, the scene's frame count."""
         return self.segments.num_frames
 
     @property
@@ -64,8 +47,14 @@ class SceneModel:
         """S, the number of segments (ceil(T / k) for uniform ones)."""
         return self.segments.count
 
+    def gaussian_counts(self) -> dict[str, int]:
+        """The Gaussian counts every stage's metrics report."""
+        n_bg, n_fg = len(self.background), len(self.foreground)
+        return {"num_gaussians": n_bg + n_fg, "num_bg": n_bg, "num_fg": n_fg}
+
     def foreground_rows(self, frame: int) -> Tensor:
-        """Indices of the foreground rows rendered at `frame`."""
+        """Indices of the foreground rows rendered at `frame`: a decouple model shows its
+        foreground at frame 0 only, any other the copy of the segment holding `frame`."""
         segments = self.foreground.buffers[SEGMENT]
         if self.stage == DECOUPLE:
             if frame == 0:
@@ -86,12 +75,11 @@ class SceneModel:
                 self.foreground.buffers[SEGMENT].to("cpu", torch.int32),
             ]
         )
-        if self.field is not None:
-            for key, value in self.field.state_dict().items():
-                tensors[FIELD_PREFIX + key] = value.detach().clone()
-        if self.affine is not None:
-            for key, value in self.affine.state_dict().items():
-                tensors[AFFINE_PREFIX + key] = value.detach().clone()
+        for prefix, module in ((FIELD_PREFIX, self.field), (AFFINE_PREFIX, self.affine)):
+            if module is not None:
+                tensors.update(
+                    {prefix + k: v.detach().clone() for k, v in module.state_dict().items()}
+                )
         body = {
             "num_frames": self.num_frames,
             "k": self.segments.uniform_length,
@@ -115,8 +103,8 @@ class SceneModel:
         if not isinstance(meta, Mapping):
             raise InputError(f"{artifact.stage} artifact: meta is a {type(meta).__name__}")
         segments = _segment_plan(artifact.stage, meta)
-        background = GaussianSet.from_tensors(_with_prefix(tensors, "bg."), "bg.")
-        foreground = GaussianSet.from_tensors(_with_prefix(tensors, "fg."), "fg.")
+        background = GaussianSet.from_tensors(tensors, "bg.")
+        foreground = GaussianSet.from_tensors(tensors, "fg.")
         if SEGMENT not in foreground.buffers:
             raise InputError(f"{artifact.stage} artifact: foreground has no 'segment' buffer")
         model = cls(
@@ -156,7 +144,8 @@ def _restored(artifact: Artifact, what: str, build: Callable[[], _Module], prefi
     that do not fit are one line naming the artifact and `what` (the field or the affine)."""
     try:
         module = build()
-        module.load_state_dict(_with_prefix(artifact.tensors, prefix, strip=True))
+        tensors = artifact.tensors.items()
+        module.load_state_dict({k[len(prefix) :]: v for k, v in tensors if k.startswith(prefix)})
     except (AttributeError, KeyError, TypeError, ValueError, RuntimeError) as error:
         detail = textwrap.shorten(one_line(error), 300)
         raise InputError(
@@ -166,8 +155,7 @@ def _restored(artifact: Artifact, what: str, build: Callable[[], _Module], prefi
 
 
 def build_field(settings: Mapping[str, Any], seed: int = 0) -> DeformationField:
-    """A DeformationField from stored settings, its random plane init drawn from `seed`
-    without touching the global RNG."""
+    """A DeformationField from stored settings, initialised from `seed` (global RNG untouched)."""
     kwargs = {key: value for key, value in settings.items() if key != "aabb"}
     kwargs["multires"] = tuple(kwargs["multires"])
     with torch.random.fork_rng(devices=[]):
@@ -208,8 +196,7 @@ def core_only(gaussians: GaussianSet) -> GaussianSet:
 
 
 def _segment_plan(stage: str, meta: Mapping[str, Any]) -> SegmentPlan:
-    """The segments a model's meta records: its start frames or (artifacts from before
-    adaptive segments) the uniform length k."""
+    """The segments a model's meta records: its start frames, or (older) the length k."""
     for key in ("num_frames", *(() if "segment_starts" in meta else ("k",))):
         if not isinstance(meta.get(key), int) or meta[key] < 1:
             raise InputError(f"{stage} artifact: meta {key!r} missing or not an int >= 1")
@@ -222,8 +209,3 @@ def _segment_plan(stage: str, meta: Mapping[str, Any]) -> SegmentPlan:
         return SegmentPlan(tuple(starts), meta["num_frames"])
     except InputError as error:
         raise InputError(f"{stage} artifact: meta {error}") from None
-
-
-def _with_prefix(tensors: Mapping[str, Tensor], prefix: str, strip: bool = False) -> dict:
-    start = len(prefix) if strip else 0
-    return {key[start:]: value for key, value in tensors.items() if key.startswith(prefix)}

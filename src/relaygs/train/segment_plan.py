@@ -1,16 +1,10 @@
-"""Where the relay stage's segments start: k frames each (the paper's), or placed by motion.
-
-Motion-adaptive segments spend a budget of S copies where the foreground moves: boundaries
-split the scene's cumulative frame-to-frame motion into S equal parts, so a fast stretch gets
-short segments and a still one a long segment (the paper's limitations ask for this; fixed k
-gives a fast mover the same k frames to carry as a still one).
-"""
+"""Where the relay stage's segments start: k frames each (the paper's), or placed so that each
+holds an equal share of the scene's frame-to-frame motion (short where it moves fast)."""
 
 from __future__ import annotations
 
 import bisect
 import math
-from collections.abc import Sequence
 from dataclasses import dataclass
 
 import torch
@@ -19,8 +13,7 @@ from torch import Tensor
 from relaygs.data import Scene
 from relaygs.errors import InputError
 
-MOTION_CAMERAS = 8
-"""Train cameras whose image differences measure the motion (spread over the rig)."""
+MOTION_CAMERAS = 8  # train cameras, spread over the rig, whose image changes measure motion
 
 
 @dataclass(frozen=True)
@@ -45,8 +38,7 @@ class SegmentPlan:
 
     @classmethod
     def by_motion(cls, motion: Tensor, segments: int) -> SegmentPlan:
-        """`segments` segments over len(motion) + 1 frames, holding equal shares of the motion
-        (`motion[i]` between frames i and i+1); equal lengths where nothing moves."""
+        """`segments` segments over len(motion) + 1 frames, holding equal shares of motion."""
         num_frames = motion.numel() + 1
         if not 1 <= segments <= num_frames:
             raise InputError(f"relay.k: expected 1..{num_frames} segments, got {segments}")
@@ -65,7 +57,6 @@ class SegmentPlan:
 
     @property
     def count(self) -> int:
-        """The number of segments S."""
         return len(self.starts)
 
     def frames(self, segment: int) -> range:
@@ -84,7 +75,6 @@ class SegmentPlan:
         return k if self == SegmentPlan.uniform(self.num_frames, k) else None
 
     def lengths(self) -> list[int]:
-        """Frames per segment."""
         return [len(self.frames(segment)) for segment in range(self.count)]
 
 
@@ -95,15 +85,15 @@ def boundaries_fixed(num_frames: int, k: int) -> bool:
 
 
 def frame_motion(scene: Scene, cameras: int = MOTION_CAMERAS) -> Tensor:
-    """Mean absolute image change between consecutive frames [T - 1], over up to `cameras`
-    train cameras spread over the rig (each pair scored where the camera has both images),
-    less its smallest value: the change that sensor noise alone gives the stillest pair."""
+    """Mean absolute image change between consecutive frames [T - 1] over up to `cameras` train
+    cameras, less its smallest value (what sensor noise alone gives the stillest pair)."""
     camera_ids = sorted({view.camera.camera_id for view in scene.train_views})
-    picked = [camera_ids[i] for i in _spread(len(camera_ids), cameras)]
+    if len(camera_ids) > cameras:  # spread evenly over the rig
+        camera_ids = [camera_ids[math.floor(i * len(camera_ids) / cameras)] for i in range(cameras)]
     by_key = {(view.frame, view.camera.camera_id): view for view in scene.train_views}
     totals = torch.zeros(max(scene.num_frames - 1, 0), dtype=torch.float64)
     counts = torch.zeros_like(totals)
-    for camera in picked:
+    for camera in camera_ids:
         previous = None
         for frame in range(scene.num_frames):
             view = by_key.get((frame, camera))
@@ -114,10 +104,3 @@ def frame_motion(scene: Scene, cameras: int = MOTION_CAMERAS) -> Tensor:
             previous = (frame, image) if image is not None else None
     change = totals / counts.clamp_min(1)
     return change - change.min() if change.numel() else change
-
-
-def _spread(total: int, wanted: int) -> Sequence[int]:
-    """`min(total, wanted)` indices spread evenly over range(total)."""
-    if total <= wanted:
-        return range(total)
-    return sorted({math.floor(i * total / wanted) for i in range(wanted)})

@@ -26,7 +26,6 @@ class SegmentTargets:
     pseudo frames, cached) or, without pseudo-views, the image at one random frame."""
 
     def __init__(self, views: TrainViews, plan: SegmentPlan, p: int, pseudo_views: bool) -> None:
-        """Targets over the scene of `views` with segments `plan` and `p` blended frames."""
         self.views = views
         self.plan = plan
         self.p = p
@@ -35,21 +34,17 @@ class SegmentTargets:
 
     def target(self, camera_id: int, segment: int, generator: torch.Generator) -> Tensor:
         """The [H,W,3] target of `camera_id` for `segment`."""
-        if self.pseudo_views:
+        if self.pseudo_views:  # the mean of the camera's images at the pseudo frames, cached
             key = (camera_id, segment)
             if key not in self._cache:
-                self._cache[key] = self.pseudo_view(camera_id, segment)
+                wanted = pseudo_frames(self.plan.frames(segment), self.p)
+                frames = self._frames_with(camera_id, wanted)
+                images = [self.views.image(self.views.view(frame, camera_id)) for frame in frames]
+                self._cache[key] = torch.stack(images).mean(dim=0)
             return self._cache[key]
         frames = self._frames_with(camera_id, self.plan.frames(segment))
         pick = int(torch.randint(len(frames), (1,), generator=generator))
         return self.views.image(self.views.view(frames[pick], camera_id))
-
-    def pseudo_view(self, camera_id: int, segment: int) -> Tensor:
-        """Mean of the camera's images at the segment's pseudo frames."""
-        wanted = pseudo_frames(self.plan.frames(segment), self.p)
-        frames = self._frames_with(camera_id, wanted)
-        images = [self.views.image(self.views.view(frame, camera_id)) for frame in frames]
-        return torch.stack(images).mean(dim=0)
 
     def _frames_with(self, camera_id: int, frames: range | list[int]) -> list[int]:
         """The frames among `frames` at which the camera has an image (at least one)."""

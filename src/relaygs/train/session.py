@@ -1,10 +1,4 @@
-"""What a training stage optimises, as one object: Gaussian sets with their Adam and density
-control, optional modules (motion field, colour affine) with theirs, and the sampling RNG.
-
-It also captures and restores its whole state for in-stage checkpoints. Densification changes
-tensor shapes, so a restore rebuilds the sets from the saved tensors (current shapes) and only
-then builds the optimisers and loads their saved state.
-"""
+"""What a training stage optimises, as one object, and its state for in-stage checkpoints."""
 
 from __future__ import annotations
 
@@ -55,8 +49,7 @@ class ModuleGroup:
 
 @dataclass
 class TrainingSession:
-    """The trainable state of a stage, with its optimisers built on construction (`build`
-    again after the sets or modules change; `restore` rebuilds from a checkpoint)."""
+    """A stage's trainable state; `build` the optimisers again after the sets change."""
 
     sets: dict[str, GaussianSet]
     plans: dict[str, SetPlan]
@@ -67,8 +60,6 @@ class TrainingSession:
     module_groups: list[ModuleGroup] = field(default_factory=list)
 
     def __post_init__(self) -> None:
-        """Seed the generators (sampling on the CPU, split noise on the sets' device) and
-        remember each set's starting SH degree."""
         self.generator = torch.Generator().manual_seed(self.seed)
         self.density_generator = torch.Generator(self.device).manual_seed(self.seed + 1)
         self._base_sh = {name: g.active_sh_degree for name, g in self.sets.items()}
@@ -110,23 +101,18 @@ class TrainingSession:
         for name, gaussians in self.sets.items():
             scheduled = sh_degree_for_step(step, gaussians.max_sh_degree, self.plans[name].sh_every)
             gaussians.active_sh_degree = max(self._base_sh[name], scheduled)
-        self.optimizer.zero_grad()
+        self.optimizer.adam.zero_grad(set_to_none=True)
         return rates
 
     def parameters(self) -> dict[str, Tensor]:
         """Every trainable tensor by name (`<set>.<param>`, `<module>.<param>`)."""
-        named: dict[str, Tensor] = {}
-        for set_name, gaussians in self.sets.items():
-            for name, param in gaussians.params.items():
-                named[f"{set_name}.{name}"] = param
+        named = {f"{s}.{n}": p for s, g in self.sets.items() for n, p in g.params.items()}
         for module_name, module in self.modules.items():
-            for name, param in module.named_parameters():
-                named[f"{module_name}.{name}"] = param
+            named.update({f"{module_name}.{n}": p for n, p in module.named_parameters()})
         return named
 
     def check_finite(self, stage: str, step: int, loss: Tensor | None = None) -> None:
-        """DivergenceError naming stage, step and tensor if a loss/param/grad is not finite, and
-        the parameters the divergence started from."""
+        """DivergenceError naming a non-finite loss, parameter or gradient, and the suspects."""
         parameters = self.parameters()
         tensors = {} if loss is None else {"loss": loss.detach()}
         tensors.update(parameters)
@@ -137,7 +123,7 @@ class TrainingSession:
 
     def apply_gradients(self, renders: list[Render], step: int) -> list[DensifyReport]:
         """Optimiser steps, then density statistics from `renders` and density control."""
-        self.optimizer.step()
+        self.optimizer.adam.step()
         if self.module_optimizer is not None:
             self.module_optimizer.step()
         reports = []
@@ -145,7 +131,8 @@ class TrainingSession:
             stats = [screen_statistics(r, name, len(self.sets[name])) for r in renders]
             stats = [s for s in stats if s is not None]
             if stats:
-                width, height = _render_size(renders)
+                meta = renders[0].groups[0][1]  # the training scene has one camera size
+                width, height = int(meta["width"]), int(meta["height"])
                 grads = torch.cat([grad for grad, _ in stats])
                 radii = torch.cat([radius for _, radius in stats])
                 controller.accumulate(grads, radii, width, height)
@@ -160,11 +147,9 @@ class TrainingSession:
         for name, gaussians in self.sets.items():
             tensors.update(gaussians.to_tensors(f"set.{name}."))
         for name, module in self.modules.items():
-            for key, value in module.state_dict().items():
-                tensors[f"module.{name}.{key}"] = value
+            tensors.update({f"module.{name}.{k}": v for k, v in module.state_dict().items()})
         for name, controller in self.controllers.items():
-            for key, value in controller.state_dict().items():
-                tensors[f"density.{name}.{key}"] = value
+            tensors.update({f"density.{name}.{k}": v for k, v in controller.state_dict().items()})
         tensors[GENERATOR_KEY] = self.generator.get_state()
         tensors[DENSITY_GENERATOR_KEY] = self.density_generator.get_state()
         return tensors
@@ -177,32 +162,23 @@ class TrainingSession:
         return optimizers
 
     def restore(self, state: TrainingState) -> None:
-        """Resume from a checkpoint written from `state_tensors` / `optimizers`."""
+        """Resume from a checkpoint written from `state_tensors` / `optimizers`; the sets are
+        rebuilt at their saved (densified) shapes before the optimisers load their state."""
         tensors = state.tensors
+
+        def under(prefix: str) -> dict[str, Tensor]:
+            return {k[len(prefix) :]: v for k, v in tensors.items() if k.startswith(prefix)}
+
         for name in self.sets:
-            prefix = f"set.{name}."
-            subset = {k: v for k, v in tensors.items() if k.startswith(prefix)}
-            self.sets[name] = GaussianSet.from_tensors(subset, prefix).to(self.device)
+            self.sets[name] = GaussianSet.from_tensors(under(f"set.{name}.")).to(self.device)
         for name, module in self.modules.items():
-            prefix = f"module.{name}."
-            module.load_state_dict(
-                {k[len(prefix) :]: v for k, v in tensors.items() if k.startswith(prefix)}
-            )
+            module.load_state_dict(under(f"module.{name}."))
         self.build()
         self.optimizer.adam.load_state_dict(state.optimizers["gaussians"])
         if self.module_optimizer is not None:
             self.module_optimizer.load_state_dict(state.optimizers["modules"])
         for name, controller in self.controllers.items():
-            prefix = f"density.{name}."
-            controller.load_state_dict(
-                {k[len(prefix) :]: v for k, v in tensors.items() if k.startswith(prefix)}
-            )
+            controller.load_state_dict(under(f"density.{name}."))
         self.generator.set_state(tensors[GENERATOR_KEY])
         self.density_generator.set_state(tensors[DENSITY_GENERATOR_KEY])
         state.restore_rng()
-
-
-def _render_size(renders: list[Render]) -> tuple[int, int]:
-    """Image width and height of the renders (the training scene has one camera size)."""
-    meta = renders[0].groups[0][1]
-    return int(meta["width"]), int(meta["height"])

@@ -13,7 +13,6 @@ class TrainViews:
     """The scene's train views indexed by frame, with random draws from a torch.Generator."""
 
     def __init__(self, scene: Scene, device: torch.device) -> None:
-        """Index `scene.train_views` (a scene must have at least one train view)."""
         if not scene.train_views:
             raise InputError(f"scene {scene.name!r}: no training views")
         self.scene = scene
@@ -29,7 +28,6 @@ class TrainViews:
         return self.scene.image(view).to(self.device)
 
     def has_view(self, frame: int, camera_id: int) -> bool:
-        """Whether `camera_id` has a train image at `frame`."""
         return (frame, camera_id) in self._by_key
 
     def view(self, frame: int, camera_id: int) -> View:
