@@ -352,7 +352,7 @@ def test_a_signal_while_the_command_line_is_checked_is_one_line_not_a_traceback(
     assert list(tmp_path.iterdir()) == []
 
 
-def test_help_lists_examples_and_experiments_and_does_no_work(fakes, tmp_path, capsys):
+def test_help_completion_and_cfg_print_and_do_no_work(fakes, tmp_path, capsys):
     assert run_main(["--help"]) in (0, None)
     shown = capsys.readouterr().out
     assert shown.startswith("python -m relaygs.run: train and evaluate RelayGS")
@@ -361,7 +361,12 @@ def test_help_lists_examples_and_experiments_and_does_no_work(fakes, tmp_path, c
     assert f"experiment: {', '.join(experiments)}" in shown
     commands = next(a for a in artifacts_parser()._actions if a.dest == "command").choices
     assert f"python -m relaygs.artifacts {' | '.join(commands)}\n" in shown  # every command
-    assert not (tmp_path / "outputs").exists()
+    # shell completion and --cfg are left to Hydra
+    assert run_main(["-sc", "install=bash"]) == 0
+    assert "complete" in capsys.readouterr().out  # the bash completion script
+    assert run_main(["--cfg", "job", "relay.k=4"]) in (0, None)
+    assert yaml.safe_load(capsys.readouterr().out)["relay"]["k"] == 4
+    assert fakes.calls == [] and list(tmp_path.iterdir()) == []
 
 
 @pytest.mark.parametrize(
@@ -418,14 +423,6 @@ class _FlushLog(io.StringIO):
 
     def flush(self) -> None:
         self.flushed.append(self.getvalue())
-
-
-def test_shell_completion_and_cfg_job_are_left_to_hydra_and_do_no_work(fakes, tmp_path, capsys):
-    assert run_main(["-sc", "install=bash"]) == 0
-    assert "complete" in capsys.readouterr().out  # the bash completion script
-    assert run_main(["--cfg", "job", "relay.k=4"]) in (0, None)
-    assert yaml.safe_load(capsys.readouterr().out)["relay"]["k"] == 4
-    assert fakes.calls == [] and list(tmp_path.iterdir()) == []
 
 
 def test_each_stage_line_and_a_jobs_summary_reach_the_log_when_printed(

@@ -141,15 +141,13 @@ def test_a_synthetic_scene_is_generated_once_and_then_loaded(tmp_path, monkeypat
     assert len(calls) == 1
 
 
-def test_a_capture_path_is_loaded_in_place(tiny_synth_scene):
+def test_a_capture_path_is_loaded_in_place_and_its_errors_name_the_runs_option(
+    tiny_synth_scene, tmp_path
+):
     spec = scene_spec({**TINY, "path": str(tiny_synth_scene), "name": None})
     assert not spec.is_synthetic and spec.name == tiny_synth_scene.name
-    scene = prepare_scene(spec, tiny_synth_scene.parent / "unused")
-    assert scene.root == tiny_synth_scene
-    assert not (tiny_synth_scene.parent / "unused").exists()
-
-
-def test_loader_errors_of_a_capture_name_the_runs_option(tiny_synth_scene, tmp_path):
+    assert prepare_scene(spec, tmp_path / "unused").root == tiny_synth_scene
+    assert not (tmp_path / "unused").exists()
     spec = scene_spec({**TINY, "path": str(tiny_synth_scene), "loader": {"test_cameras": [99]}})
     with refused(InputError, "scene.loader.test_cameras", "[99]"):
         prepare_scene(spec, tmp_path)
