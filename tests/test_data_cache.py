@@ -46,8 +46,9 @@ def test_voxel_downsample_meets_the_budget_and_averages():
     assert out_fg.any() and (~out_fg).any()
     assert (out_xyz[out_fg, 0] > 0.5 - 1e-9).all() and (out_xyz[~out_fg, 0] <= 0.5).all()
     assert abs(out_rgb.mean() - rgb.mean()) < 0.05
-    same = voxel_downsample(xyz, rgb, is_fg, 5000)
-    assert same[0] is xyz
+    again = voxel_downsample(xyz, rgb, is_fg, 300)
+    assert all(np.array_equal(a, b) for a, b in zip(again, (out_xyz, out_rgb, out_fg), strict=True))
+    assert voxel_downsample(xyz, rgb, is_fg, 5000)[0] is xyz
 
 
 def test_an_oversized_tensor_evicts_nothing():

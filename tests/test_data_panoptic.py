@@ -27,7 +27,7 @@ def scene(tiny_synth_scene: Path) -> Scene:
     return load_scene(tiny_synth_scene)
 
 
-def test_views_frames_and_times(scene: Scene):
+def test_views_cameras_and_extent(scene: Scene, tiny_synth_scene: Path):
     assert scene.format == "panoptic" and scene.name == "juggle"
     assert scene.num_frames == 6
     assert len(scene.train_views) == 27 * 6 and len(scene.test_views) == 4 * 6
@@ -39,18 +39,12 @@ def test_views_frames_and_times(scene: Scene):
     frame_views = scene.views_at(3, "all")
     assert len(frame_views) == 31 and {view.frame for view in frame_views} == {3}
     assert scene.views_at(0, "train")[0].camera is scene.views_at(5, "train")[0].camera
-
-
-def test_cameras_match_the_meta_file(scene: Scene, tiny_synth_scene: Path):
     meta = json.loads((tiny_synth_scene / "test_meta.json").read_text())
     camera = scene.views_at(2, "test")[1]
     assert camera.camera.camera_id == meta["cam_id"][2][1]
     assert torch.allclose(camera.camera.K, torch.tensor(meta["k"][2][1], dtype=torch.float32))
     assert torch.allclose(camera.camera.w2c, torch.tensor(meta["w2c"][2][1], dtype=torch.float32))
     assert camera.camera.K.dtype == torch.float32 and camera.camera.w2c.shape == (4, 4)
-
-
-def test_extent_follows_the_3dgs_rule(scene: Scene):
     centers = torch.stack([camera.center for camera in scene.train_cameras]).double()
     radius = (centers - centers.mean(0)).norm(dim=1).max().item()
     assert scene.extent == pytest.approx(1.1 * radius, rel=1e-6)
@@ -176,12 +170,6 @@ def test_points_and_effects_come_from_the_scene_files(scene: Scene, tiny_synth_s
     assert COLOR_INCONSISTENCY in scene.effects
 
 
-def test_a_downscale_that_leaves_no_image_is_refused(tiny_synth_scene: Path):
-    assert load_scene(tiny_synth_scene, downscale=5).train_views[0].camera.height == 4
-    with refused(InputError, str(tiny_synth_scene), "downscale 9", "32x18", "4x2"):
-        load_scene(tiny_synth_scene, downscale=9)
-
-
 def test_downscale_halves_cameras_and_area_resizes_images(scene: Scene, tiny_synth_scene: Path):
     half = load_scene(tiny_synth_scene, downscale=2)
     full_view, half_view = scene.train_views[7], half.train_views[7]
@@ -194,6 +182,9 @@ def test_downscale_halves_cameras_and_area_resizes_images(scene: Scene, tiny_syn
     rescaled = scene.rescaled(2)
     assert torch.equal(rescaled.train_views[7].camera.K, half_view.camera.K)
     assert rescaled.fingerprint == half.fingerprint != scene.fingerprint
+    assert load_scene(tiny_synth_scene, downscale=5).train_views[0].camera.height == 4
+    with refused(InputError, str(tiny_synth_scene), "downscale 9", "32x18", "4x2"):
+        load_scene(tiny_synth_scene, downscale=9)
 
 
 def test_camera_scaling_keeps_pixel_edges_consistent():
@@ -258,15 +249,6 @@ def test_the_test_cameras_option_regroups_views_with_or_without_test_meta(
     assert load_scene(tiny_synth_copy, test_cameras=[]).test_views == []
     with refused(InputError, "[0]"):
         load_scene(tiny_synth_copy, test_cameras=[0])  # a camera of the removed test_meta.json
-
-
-def test_point_budget_voxel_downsamples_keeping_fg_apart(tiny_synth_scene: Path):
-    scene = load_scene(tiny_synth_scene, max_points=400)
-    assert 200 <= len(scene.points) <= 400
-    assert scene.points.is_fg.any() and (~scene.points.is_fg).any()
-    again = load_scene(tiny_synth_scene, max_points=400)
-    assert torch.equal(scene.points.xyz, again.points.xyz)
-    assert scene.points.rgb.min() >= 0 and scene.points.rgb.max() <= 1
 
 
 def test_detects_the_layout(tiny_synth_scene: Path, tmp_path: Path):

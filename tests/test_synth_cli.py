@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from relaygs.commands.synth import main, parse_effect_list
+from relaygs.commands.synth import main
 from relaygs.data.synthetic import remove_abandoned_staging
 
 
@@ -25,12 +25,6 @@ def test_cli_writes_a_scene_with_the_requested_effects(tmp_path: Path, capsys):
     assert declaration["effects"] == ["large_motion", "nonrigid", "sensor_noise"]
     assert (declaration["frames"], declaration["width"], declaration["seed"]) == (2, 16, 3)
     assert "wrote" in capsys.readouterr().out
-
-
-def test_effect_list_parsing():
-    assert parse_effect_list(None) is None
-    assert parse_effect_list([]) == []
-    assert parse_effect_list(["a,b", "c"]) == ["a", "b", "c"]
 
 
 @pytest.mark.parametrize("effects", [["none"], []])
