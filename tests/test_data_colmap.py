@@ -76,22 +76,20 @@ def test_export_renumbers_the_test_cameras_as_the_multiview_loader_numbers_folde
         (tiny_synth_copy / name).write_text(json.dumps(meta))
     _declare(tiny_synth_copy, test_cameras=[5, 25, 35, 65])
     source = load_scene(tiny_synth_copy)
-    assert [camera.camera_id for camera in source.test_cameras] == [5, 25, 35, 65]
-    exported = load_scene(export_multiview(source, tmp_path / "multiview"))
-    assert [camera.camera_id for camera in exported.test_cameras] == JUGGLE_TEST_CAMERAS
+    assert _held_out(source) == [5, 25, 35, 65]
+    assert _held_out(load_scene(export_multiview(source, tmp_path / "out"))) == JUGGLE_TEST_CAMERAS
 
 
-def test_without_declared_test_cameras_the_defaults_0_10_20_30_are_held_out(
+def test_the_option_overrides_the_declared_test_cameras_and_the_default_is_0_10_20_30(
     multiview_copy: Path,
 ):
+    assert _held_out(load_scene(multiview_copy, test_cameras=[3])) == [3]
     _declare(multiview_copy, test_cameras=None)
-    scene = load_scene(multiview_copy)
-    assert [camera.camera_id for camera in scene.test_cameras] == [0, 10, 20, 30]
+    assert _held_out(load_scene(multiview_copy)) == [0, 10, 20, 30]
 
 
-def test_the_test_cameras_option_overrides_the_declared_ones(multiview_root: Path):
-    scene = load_scene(multiview_root, test_cameras=[3])
-    assert [camera.camera_id for camera in scene.test_cameras] == [3]
+def _held_out(scene: Scene) -> list[int]:
+    return [camera.camera_id for camera in scene.test_cameras]
 
 
 def _declare(root: Path, test_cameras: object) -> None:

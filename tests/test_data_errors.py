@@ -327,6 +327,7 @@ def test_float_images_are_refused_not_scaled_as_integers(tmp_path: Path):
 
 TRAIN, TEST, IMAGE = "train_meta.json", "test_meta.json", "ims/7/000003.png"
 NAN = float("nan")
+SMALL_PNG = cv2.imencode(".png", np.zeros((10, 20, 3), np.uint8))[1]
 
 
 def _put(name: str, at: tuple, value: object) -> Callable[[Path], None]:
@@ -350,9 +351,9 @@ def _write(name: str, content: bytes | np.ndarray) -> Callable[[Path], None]:
     return lambda root: (root / name).write_bytes(bytes(content))
 
 
-def _points(data: np.ndarray) -> Callable[[Path], None]:
-    """A damage: replace the point cloud's array with `data`."""
-    return lambda root: np.savez(root / "init_pt_cld.npz", data=data)
+def _points(data: np.ndarray, key: str = "data") -> Callable[[Path], None]:
+    """A damage: replace the point cloud's archive with one holding `data` as `key`."""
+    return lambda root: np.savez(root / "init_pt_cld.npz", **{key: data})
 
 
 def _scale_rotation(meta: dict) -> None:
@@ -364,6 +365,10 @@ def _mirror_z(meta: dict) -> None:
     # diag(1, 1, -1) · R is orthonormal (R Rᵀ = I) but has det -1: a mirror, not a rotation
     pose = meta["w2c"][1][2]
     pose[2] = [-value for value in pose[2][:3]] + pose[2][3:]
+
+
+def _flatten_k(meta: dict) -> None:
+    meta["k"] = [[[value for line in k for value in line] for k in row] for row in meta["k"]]
 
 
 def _k_for_twice_the_resolution(meta: dict) -> None:
@@ -399,23 +404,12 @@ BAD_SCENES = {
     "meta not an object": (_write(TRAIN, b"[1, 2, 3]"), [TRAIN, "JSON object"]),
     "meta is a folder": (_replace_by_folder, [TRAIN, "folder"]),
     "frames per field": (_edit(TRAIN, lambda meta: meta["k"].pop()), [TRAIN, "'k'", "T=5", "T=6"]),
-    "cameras per field": (
-        _edit(TEST, lambda meta: [row.pop() for row in meta["w2c"]]),
-        [TEST, "'w2c'", "C=3", "C=4"],
-    ),
+    "cameras per field": (_edit(TEST, lambda m: [r.pop() for r in m["w2c"]]), [TEST, "C=3", "C=4"]),
     "frames per file": (
         _edit(TEST, lambda meta: [meta[field].pop() for field in ("k", "w2c", "fn", "cam_id")]),
         [TEST, "T=5", "T=6"],
     ),
-    "k flattened": (
-        _edit(
-            TRAIN,
-            lambda meta: meta.update(
-                k=[[[value for line in k for value in line] for k in row] for row in meta["k"]]
-            ),
-        ),
-        [TRAIN, "'k'", "[T][C][3][3]"],
-    ),
+    "k flattened": (_edit(TRAIN, _flatten_k), [TRAIN, "'k'", "[T][C][3][3]"]),
     "zero fx": (_put(TRAIN, ("k", 2, 1, 0, 0), 0.0), [TRAIN, "'k' at [2][1]", "column 1", "fx"]),
     "zero fy": (_put(TEST, ("k", 4, 0, 1, 1), 0.0), [TEST, "'k' at [4][0]", "fy = 0.0"]),
     "k of another size": (_edit(TRAIN, _k_for_twice_the_resolution), [TRAIN, "[1][2]", "outside"]),
@@ -438,10 +432,7 @@ BAD_SCENES = {
     "escaping name": (_put(TRAIN, ("fn", 2, 1), "../../../etc/passwd"), ["../../../etc/passwd"]),
     "absolute name": (_put(TRAIN, ("fn", 0, 0), "/x.png"), ["'/x.png'"]),
     "huge camera id": (_put(TRAIN, ("cam_id", 0, 0), 1e30), [TRAIN, "'cam_id'", "2147483647"]),
-    "camera twice": (
-        _edit(TRAIN, lambda meta: meta["cam_id"][2].__setitem__(1, meta["cam_id"][2][0])),
-        [TRAIN, "'cam_id'", "columns 0 and 1 of frame 2"],
-    ),
+    "camera twice": (_put(TRAIN, ("cam_id", 2, 1), 1), [TRAIN, "'cam_id'", "columns 0 and 1 of"]),
     "test camera trains": (_share_a_train_camera, [TEST, TRAIN]),
     "undecodable image": (_write(IMAGE, b"this is not an image"), [IMAGE, "image"]),
     "empty image": (_write(IMAGE, b""), [IMAGE, "empty"]),
@@ -454,12 +445,9 @@ BAD_SCENES = {
     "nan point": (_points(_cloud_with(3, 1, np.nan)), ["init_pt_cld.npz", "not finite"]),
     "huge point": (_points(_cloud_with(3, 1, 1e300)), ["init_pt_cld.npz", "in float32"]),
     "six columns": (_points(np.zeros((5, 6), np.float32)), ["init_pt_cld.npz", "[N,7]"]),
-    "no data array": (
-        lambda root: np.savez(root / "init_pt_cld.npz", points=np.zeros((5, 7), np.float32)),
-        ["init_pt_cld.npz: missing array 'data'"],
-    ),
+    "no data array": (_points(np.zeros((5, 7)), key="points"), ["missing array 'data'"]),
     "small image": (
-        _write("ims/4/000001.png", cv2.imencode(".png", np.zeros((10, 20, 3), np.uint8))[1]),
+        _write("ims/4/000001.png", SMALL_PNG),
         ["000001.png", "20x10", "expected 32x18"],
     ),
     "mask as jpeg": (_mask_as_jpeg, ["seg/7/000003.png", "found 000003.jpg beside it"]),

@@ -27,7 +27,7 @@ def scene(tiny_synth_scene: Path) -> Scene:
     return load_scene(tiny_synth_scene)
 
 
-def test_views_cameras_and_extent(scene: Scene, tiny_synth_scene: Path):
+def test_views_cameras_extent_images_and_points(scene: Scene, tiny_synth_scene: Path):
     assert scene.format == "panoptic" and scene.name == "juggle"
     assert scene.num_frames == 6
     assert len(scene.train_views) == 27 * 6 and len(scene.test_views) == 4 * 6
@@ -48,6 +48,24 @@ def test_views_cameras_and_extent(scene: Scene, tiny_synth_scene: Path):
     centers = torch.stack([camera.center for camera in scene.train_cameras]).double()
     radius = (centers - centers.mean(0)).norm(dim=1).max().item()
     assert scene.extent == pytest.approx(1.1 * radius, rel=1e-6)
+    view = scene.train_views[40]
+    image = scene.image(view)
+    assert image.shape == (18, 32, 3) and image.dtype == torch.float32
+    assert image.min().item() >= 0.0 and image.max().item() <= 1.0
+    raw = cv2.imread(str(view.image_path))[..., ::-1]
+    assert torch.equal(image, torch.from_numpy(raw.astype(np.float32) / 255.0))
+    mask = scene.mask(view)
+    assert mask.shape == (18, 32) and mask.dtype == torch.bool
+    assert scene.image(view) is image
+    data = np.load(tiny_synth_scene / "init_pt_cld.npz")["data"]
+    assert len(scene.points) == len(data)
+    assert torch.allclose(scene.points.xyz, torch.from_numpy(data[:, :3]))
+    assert torch.equal(scene.points.is_fg, torch.from_numpy(data[:, 6] > 0.5))
+    declared = json.loads((tiny_synth_scene / "scene.json").read_text())["effects"]
+    assert scene.effects == frozenset(declared)
+    overridden = load_scene(tiny_synth_scene, effects=[SENSOR_NOISE])
+    assert overridden.effects == {SENSOR_NOISE}
+    assert COLOR_INCONSISTENCY in scene.effects
 
 
 def test_a_single_train_camera_takes_its_extent_from_the_points(tiny_synth_copy: Path):
@@ -62,18 +80,6 @@ def test_a_single_train_camera_takes_its_extent_from_the_points(tiny_synth_copy:
     radius = (xyz - xyz.mean(0)).norm(dim=1).max().item()
     assert radius > 0.1
     assert scene.extent == pytest.approx(1.1 * radius, rel=1e-6)
-
-
-def test_images_and_masks_load_as_float_and_bool(scene: Scene):
-    view = scene.train_views[40]
-    image = scene.image(view)
-    assert image.shape == (18, 32, 3) and image.dtype == torch.float32
-    assert image.min().item() >= 0.0 and image.max().item() <= 1.0
-    raw = cv2.imread(str(view.image_path))[..., ::-1]
-    assert torch.equal(image, torch.from_numpy(raw.astype(np.float32) / 255.0))
-    mask = scene.mask(view)
-    assert mask.shape == (18, 32) and mask.dtype == torch.bool
-    assert scene.image(view) is image
 
 
 def _view_of(scene: Scene, image_path: Path) -> View:
@@ -155,19 +161,6 @@ def test_mask_foreground_is_any_non_zero_grey_or_colour_value(
     scene = load_scene(tiny_synth_copy)
     view = _view_of(scene, tiny_synth_copy / "ims" / "1" / "000000.png")
     assert torch.equal(scene.mask(view), torch.from_numpy(fg))
-
-
-def test_points_and_effects_come_from_the_scene_files(scene: Scene, tiny_synth_scene: Path):
-    data = np.load(tiny_synth_scene / "init_pt_cld.npz")["data"]
-    assert len(scene.points) == len(data)
-    assert torch.allclose(scene.points.xyz, torch.from_numpy(data[:, :3]))
-    assert torch.equal(scene.points.is_fg, torch.from_numpy(data[:, 6] > 0.5))
-    assert scene.effects == frozenset(
-        json.loads((tiny_synth_scene / "scene.json").read_text())["effects"]
-    )
-    overridden = load_scene(tiny_synth_scene, effects=[SENSOR_NOISE])
-    assert overridden.effects == {SENSOR_NOISE}
-    assert COLOR_INCONSISTENCY in scene.effects
 
 
 def test_downscale_halves_cameras_and_area_resizes_images(scene: Scene, tiny_synth_scene: Path):

@@ -18,7 +18,7 @@ from relaygs.data import load_scene
 from relaygs.data import video_frames as video_frames_module
 from relaygs.data.export import export_multiview
 from relaygs.data.synthetic import generate
-from relaygs.data.video_frames import FrameSelection
+from relaygs.data.video_frames import decoded_frames
 from relaygs.errors import InputError
 from relaygs.shell import python_command
 
@@ -35,16 +35,6 @@ def _video(path: Path, images: list[np.ndarray], fps: float = 30.0) -> Path:
 def _grey_video(path: Path, count: int) -> Path:
     """A 32×18 video whose frame i is flat grey 20·i (told apart after lossy coding)."""
     return _video(path, [np.full((18, 32, 3), 20 * i, np.uint8) for i in range(count)])
-
-
-def _decoded(path: Path) -> list[np.ndarray]:
-    capture = cv2.VideoCapture(str(path))
-    frames = []
-    while True:
-        ok, image = capture.read()
-        if not ok:
-            return frames
-        frames.append(image)
 
 
 def _main(capsys, *argv):
@@ -75,7 +65,7 @@ def test_frames_are_written_in_natural_order_cut_to_the_shortest_video(videos, t
     for camera, source in sources.items():
         written = sorted(path.name for path in (out / camera).iterdir())
         assert written == [f"frame_{n:05d}.png" for n in range(4)]
-        expected = _decoded(videos / source)[1::2][:4]
+        expected = list(decoded_frames(cv2.VideoCapture(str(videos / source))))[1::2][:4]
         for number, image in enumerate(expected):
             assert np.array_equal(cv2.imread(str(out / camera / f"frame_{number:05d}.png")), image)
     listing = json.loads((out / "frames.json").read_text())
@@ -202,11 +192,6 @@ def test_bad_options_are_usage_errors(videos, tmp_path, capsys, argv):
         frames_command.main([str(videos), str(tmp_path / "scene"), *argv])
     err = capsys.readouterr().err
     assert stopped.value.code == 2 and err.startswith("error: ") and err.count("\n") == 1
-
-
-def test_frame_selection_refuses_impossible_values():
-    with refused(ValueError, "stride 0"):
-        FrameSelection(stride=0)
 
 
 @pytest.mark.parametrize("name", ["scene", "my scene", "scène", 'odd"name', 'a\\"b', "ends\\"])

@@ -85,14 +85,6 @@ def test_a_frames_ply_renders_what_the_model_renders_at_that_frame(
     assert torch.allclose(from_file, expected, atol=1e-5)
 
 
-def test_the_movers_leave_the_decoupled_models_later_frames(stage_decoupled, tmp_path):
-    model = SceneModel.from_artifact(stage_decoupled)
-    first, later = write_frame_plys(model, tmp_path, [0, 5], progress=False)
-    n_bg, n_fg = len(model.background), len(model.foreground)
-    assert n_fg > 0
-    assert (len(_read_ply(first)[1]), len(_read_ply(later)[1])) == (n_bg + n_fg, n_bg)
-
-
 def test_properties_follow_the_3dgs_layout_and_order():
     n, bases = 2, 9  # SH degree 2
     sh = torch.arange(n * bases * 3, dtype=torch.float32).reshape(n, bases, 3)

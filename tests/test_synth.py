@@ -91,18 +91,16 @@ def test_generation_is_deterministic_for_a_seed(tmp_path: Path):
     assert cv2.imread(str(first / "ims" / meta["fn"][1][0])).shape == (14, 24, 3)
 
 
-def test_static_frames_are_identical_and_have_no_foreground(tmp_path: Path):
+def test_static_frames_are_identical_and_a_progress_bar_shows_only_when_asked(
+    tmp_path: Path, capsys
+):
     root = generate("static", tmp_path / "static", **TINY_SYNTH_SIZE)
+    assert capsys.readouterr().err == ""
     for camera in (0, 13, 30):
         frames = _images(root, "ims", camera)
         assert len(frames) == 6
         assert all(np.array_equal(frames[0], frame) for frame in frames[1:])
         assert not any(mask.any() for mask in _images(root, "seg", camera))
-
-
-def test_a_progress_bar_counts_the_rendered_views_only_when_asked(tmp_path: Path, capsys):
-    generate("static", tmp_path / "quiet", **TINY_SYNTH_SIZE)
-    assert capsys.readouterr().err == ""
     generate("static", tmp_path / "shown", progress=True, **TINY_SYNTH_SIZE)
     size = TINY_SYNTH_SIZE
     views = len(PRESETS["static"].rig(size["width"], size["height"])) * size["frames"]

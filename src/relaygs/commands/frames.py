@@ -70,8 +70,7 @@ def _extract(args: argparse.Namespace) -> None:
 
 
 def describe(scene: ExtractedScene, seconds: float) -> str:
-    """What was written, where each camera came from, notes on what may be wrong with the
-    videos, and the commands that pose and train the scene."""
+    """What was written, notes on the videos, and the commands that pose and train the scene."""
     rate = f" at {scene.fps:.4g} fps" if scene.fps is not None else ""
     lines = [
         f"wrote {scene.frames} frame(s){rate} of {len(scene.cameras)} camera(s) into "
@@ -94,8 +93,7 @@ def describe(scene: ExtractedScene, seconds: float) -> str:
 
 
 def _notes(scene: ExtractedScene) -> list[str]:
-    """Staging folders of killed runs removed, videos that ended first or decoded fewer frames
-    than they state, and frame rates that differ."""
+    """Notes: killed runs' staging removed, short or damaged videos, differing frame rates."""
     cameras = scene.cameras.items()
     notes = [
         f"note: removed {folder}, left unfinished by a run that was killed"

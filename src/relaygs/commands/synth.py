@@ -39,8 +39,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def parse_effect_list(values: list[str] | None) -> list[str] | None:
-    """Flatten space/comma separated effect names (`generate` reads 'none' alone, or nothing,
-    as no effects)."""
+    """Flatten space/comma separated effect names."""
     if values is None:
         return None
     return [name.strip() for value in values for name in value.split(",") if name.strip()]

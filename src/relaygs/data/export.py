@@ -62,23 +62,17 @@ def export_multiview(scene: Scene, out_dir: str | Path, *, binary: bool = True) 
     rgb = np.round(scene.points.rgb.double().numpy() * 255.0).astype(np.uint8)
     model = ColmapModel(colmap_cameras, images, scene.points.xyz.double().numpy(), rgb)
     write_model(out / "sparse" / "0", model, binary=binary)
-    test_ids = sorted({index_of[view.camera.camera_id] for view in scene.full_test_views})
-    _write_declaration(scene, test_ids, out)
+    # the source's scene.json with its test cameras renumbered: the export keeps its split
+    declaration = scene_declaration(scene.root) or {}
+    declaration["test_cameras"] = sorted(
+        {index_of[v.camera.camera_id] for v in scene.full_test_views}
+    )
+    (out / SCENE_JSON).write_text(json.dumps(declaration, indent=1) + "\n", encoding="utf-8")
     return out
 
 
-def _write_declaration(scene: Scene, test_ids: list[int], out: Path) -> None:
-    """out/scene.json: the source's (if any) with `test_cameras` set to `test_ids` (the test
-    cameras' multi-view ids), so the exported folder loads with its source's held-out cameras."""
-    declaration = scene_declaration(scene.root) or {}
-    declaration["test_cameras"] = test_ids
-    text = json.dumps(declaration, indent=1) + "\n"
-    (out / SCENE_JSON).write_text(text, encoding="utf-8")
-
-
 def _fixed_rig(scene: Scene, views: list) -> list[Camera]:
-    """One camera per id, ordered by id; a camera whose pose or intrinsics vary, or that
-    misses frames (each camera folder must hold every frame), is an error."""
+    """One camera per id, by id; one whose pose or K varies, or that misses frames, is refused."""
     cameras: dict[int, Camera] = {}
     frames: dict[int, set[int]] = {}
     for view in views:

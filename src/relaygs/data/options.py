@@ -48,8 +48,7 @@ def make_options(
     effects: Iterable[str] | None = None,
     prefix: str = OPTION_PREFIX,
 ) -> LoaderOptions:
-    """Validate raw option values into LoaderOptions; an error names the bad option as
-    `prefix` + its name."""
+    """Raw option values checked into LoaderOptions; errors name `prefix` + the option."""
     downscale = require_int("downscale", downscale, minimum=1, prefix=prefix)
     max_points = require_int("max_points", max_points, minimum=1, prefix=prefix)
     # a budget in whole bytes: one whose byte count is infinite has none (memory is finite)
@@ -81,8 +80,7 @@ def require_int(
     prefix: str = OPTION_PREFIX,
     maximum: int = INT64_MAX,
 ) -> int:
-    """`value` as an int if it is an integer in [minimum, maximum], else an InputError naming
-    the option (`prefix` + `name`)."""
+    """`value` as an int in [minimum, maximum], else an InputError naming `prefix` + `name`."""
     if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < minimum:
         raise InputError(f"{prefix}{name} must be an integer >= {minimum}, got {value!r}")
     if value > maximum:

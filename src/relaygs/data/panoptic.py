@@ -12,9 +12,9 @@ import numpy as np
 import torch
 
 from relaygs.data.camera import Camera, check_intrinsics, check_rigid
-from relaygs.data.fingerprint import digest, file_record
+from relaygs.data.fingerprint import file_record, record_image
 from relaygs.data.finite import FINITE, finite_in_float32
-from relaygs.data.metafiles import SCENE_JSON, declared_effects, read_json
+from relaygs.data.metafiles import SCENE_JSON, read_json
 from relaygs.data.options import LoaderOptions, test_cameras_setting
 from relaygs.data.points import PointCloud, point_cloud_from_arrays
 from relaygs.data.scene import (
@@ -22,7 +22,7 @@ from relaygs.data.scene import (
     View,
     assemble_scene,
     frame_time,
-    held_out_instead,
+    hold_out,
     split_views,
 )
 from relaygs.errors import InputError
@@ -53,8 +53,7 @@ class PanopticMeta:
 
 
 def load_panoptic(root: Path, options: LoaderOptions) -> Scene:
-    """Load a PanopticSports-layout scene folder; test cameras from test_meta.json by default,
-    which may be absent when the test_cameras option names them."""
+    """Load a Panoptic-layout folder; test_meta.json may be absent when `test_cameras` is set."""
     files = {
         name: file_record(root / name, root=root).sha256
         for name in (TRAIN_META, TEST_META, SCENE_JSON, POINTS_FILE)
@@ -65,27 +64,15 @@ def load_panoptic(root: Path, options: LoaderOptions) -> Scene:
     cameras: dict[tuple, Camera] = {}
     entries = [view for meta in metas for view in _views(root, meta, files, cameras)]
     train_views, test_views = _split(entries, metas, options)
-    points = _read_points(root / POINTS_FILE, options.max_points)
-    effects = declared_effects(root) if options.effects is None else options.effects
-    content = digest({"format": "panoptic", "options": options.content_options(), "files": files})
+    points, content = _read_points(root / POINTS_FILE, options.max_points), {"files": files}
     return assemble_scene(
-        root=root,
-        format="panoptic",
-        train_views=train_views,
-        test_views=test_views,
-        num_frames=train.num_frames,
-        points=points,
-        effects=effects,
-        downscale=options.downscale,
-        content_digest=content,
-        cache_mb=options.cache_mb,
+        root, "panoptic", train_views, test_views, train.num_frames, points, options, content
     )
 
 
 def read_meta(path: Path, train: PanopticMeta | None = None) -> PanopticMeta:
-    """Parse and check a train/test meta file: every per-view field is [T][C] with equal T, C.
-    A test meta's image size is checked against `train`'s first, as its intrinsics are
-    checked against that size."""
+    """Parse and check a meta file: every per-view field [T][C] with equal T, C; a test meta's
+    w/h must match `train`'s, as its intrinsics are checked against them."""
     meta = read_json(path)
     if not isinstance(meta, dict):
         raise InputError(f"{path}: expected a JSON object with fields w, h, k, w2c, fn, cam_id")
@@ -141,8 +128,7 @@ def _file_names(meta: dict, path: Path) -> list[list[str]]:
 
 
 def _is_path_text(name: str) -> bool:
-    """True when `name` can name a file here: no NUL, and encodable in the file system's
-    encoding (JSON may hold a lone surrogate such as \\ud800, which no path can)."""
+    """Whether `name` can name a file: no NUL, and encodable (JSON may hold a lone surrogate)."""
     try:
         os.fsencode(name)
     except UnicodeEncodeError:
@@ -185,8 +171,7 @@ def _array_field(
 
 
 def _check_unique_cameras(cam_id: np.ndarray, path: Path) -> None:
-    """Each column of a frame is a different camera: a repeated id would give one camera two
-    views (and possibly two poses) at the same time."""
+    """Refuse a camera id twice in one frame: one camera would have two views at one time."""
     for t, row in enumerate(cam_id.tolist()):
         for c, camera_id in enumerate(row):
             if camera_id in row[:c]:
@@ -199,8 +184,7 @@ def _check_unique_cameras(cam_id: np.ndarray, path: Path) -> None:
 def _test_meta(
     root: Path, train: PanopticMeta, test_cameras: tuple[int, ...] | None
 ) -> list[PanopticMeta]:
-    """[test_meta.json's meta], checked against train's; [] when the file is absent and
-    `test_cameras` names the held-out cameras (every view then comes from train_meta.json)."""
+    """[test meta], or [] when it is absent and `test_cameras` names the held-out cameras."""
     path = root / TEST_META
     if not path.exists():
         if test_cameras is not None:
@@ -248,27 +232,15 @@ def _views(
     for t, row in enumerate(meta.fn):
         for c, name in enumerate(row):
             image_path = scene_file(root, "ims", name, meta.path)
-            _check_image(image_path, meta, files, root, "image")
+            size, origin = (meta.width, meta.height), f"w/h in {meta.path.name}"
+            record_image(image_path, size, files, root, "image", origin)
             mask_path = None
             if has_masks:
                 mask_path = scene_file(root, "seg", str(Path(name).with_suffix(".png")), meta.path)
-                _check_image(mask_path, meta, files, root, "mask")
+                record_image(mask_path, size, files, root, "mask", origin)
             camera = _camera(meta, t, c, cameras)
             views.append(View(camera, t, frame_time(t, meta.num_frames), image_path, mask_path))
     return views
-
-
-def _check_image(
-    path: Path, meta: PanopticMeta, files: dict[str, str], root: Path, what: str
-) -> None:
-    record = file_record(path, root=root, image=True, what=f"{what} file")
-    if record.image_size != (meta.width, meta.height):
-        width, height = record.image_size
-        raise InputError(
-            f"{path}: {what} is {width}x{height}, expected {meta.width}x{meta.height} "
-            f"(w/h in {meta.path.name})"
-        )
-    files[path.relative_to(root).as_posix()] = record.sha256
 
 
 def _camera(meta: PanopticMeta, t: int, c: int, cameras: dict[tuple, Camera]) -> Camera:
@@ -284,24 +256,15 @@ def _camera(meta: PanopticMeta, t: int, c: int, cameras: dict[tuple, Camera]) ->
 
 
 def _split(
-    views: list[View],
-    metas: list[PanopticMeta],
-    options: LoaderOptions,
+    views: list[View], metas: list[PanopticMeta], options: LoaderOptions
 ) -> tuple[list[View], list[View]]:
-    """Hold out the `test_cameras` option's ids (cameras of any meta file), else the cameras
-    of test_meta.json (metas[1], there whenever the option is not given)."""
-    test_cameras = options.test_cameras
-    if test_cameras is None:
+    """Hold out the `test_cameras` option's ids, else test_meta.json's (metas[1]) cameras."""
+    if options.test_cameras is None:
         return split_views(views, _camera_ids(metas[1]), metas[0].path)
     known = set().union(*map(_camera_ids, metas))
-    missing = sorted(set(test_cameras) - known)
-    if missing:
-        raise InputError(
-            f"{options.prefix}test_cameras: cameras {missing} are not in the scene "
-            f"(camera ids: {sorted(known)}); hold out only cameras it has (or none), e.g. "
-            + held_out_instead(test_cameras, known)
-        )
-    return split_views(views, set(test_cameras), metas[0].path)
+    where = f"the scene (camera ids: {sorted(known)}); hold out only cameras it has (or none)"
+    source = f"{options.prefix}test_cameras"
+    return hold_out(views, options.test_cameras, known, metas[0].path, source, where)
 
 
 def _read_points(path: Path, max_points: int) -> PointCloud:
@@ -318,8 +281,7 @@ def _read_points(path: Path, max_points: int) -> PointCloud:
 
 
 def _points_array(path: Path) -> np.ndarray:
-    """Array 'data' of the .npz archive at `path`, never unpickling: a .npy, text or any other
-    file is refused in one line."""
+    """Array 'data' of the .npz at `path`, never unpickling; any other file is refused."""
     if not path.exists():
         raise InputError(f"missing file: {path}")
     unreadable = InputError(f"{path}: not a readable .npz point cloud")

@@ -39,8 +39,8 @@ class _Reader:
         return values
 
     def count(self, least: str, what: str) -> int:
-        """A record count, refused when the bytes left cannot hold that many records of at least
-        struct format `least`, so a damaged count fails before anything is allocated."""
+        """A record count, refused when the bytes left cannot hold that many `least` records, so a
+        damaged count fails before anything is allocated."""
         count = self.unpack("Q")[0]
         left, size = len(self.data) - self.pos, struct.calcsize("<" + least)
         if count * size > left:
@@ -49,11 +49,6 @@ class _Reader:
                 f"most {left // size}; the file is damaged"
             )
         return count
-
-    def skip(self, size: int) -> None:
-        if self.pos + size > len(self.data):
-            raise InputError(f"{self.path}: file is truncated at byte {self.pos}")
-        self.pos += size
 
     def string(self) -> str:
         end = self.data.find(b"\x00", self.pos)
@@ -92,7 +87,7 @@ def _read_images(path: Path) -> dict[int, ColmapImage]:
     for _ in range(reader.count(_LEAST_IMAGE, "images")):
         image_id, *pose, camera_id = reader.unpack("I7dI")
         name = reader.string()
-        reader.skip(reader.unpack("Q")[0] * struct.calcsize("<ddq"))
+        reader.unpack(f"{reader.unpack('Q')[0] * struct.calcsize('<ddq')}x")  # 2D points
         images[image_id] = ColmapImage(image_id, tuple(pose[:4]), tuple(pose[4:]), camera_id, name)
     return images
 
@@ -106,7 +101,7 @@ def _read_points(path: Path) -> dict[str, np.ndarray]:
         values = reader.unpack("Q3d3Bd")
         xyz[index] = values[1:4]
         rgb[index] = values[4:7]
-        reader.skip(reader.unpack("Q")[0] * struct.calcsize("<ii"))
+        reader.unpack(f"{reader.unpack('Q')[0] * struct.calcsize('<ii')}x")  # its track
     return {"xyz": xyz, "rgb": rgb}
 
 

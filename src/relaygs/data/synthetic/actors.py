@@ -1,8 +1,5 @@
-"""Moving things of the presets: articulated people, juggled and passed balls, spectators.
-
-All motion is vectorised over frames: a path gives root positions [F,2] and headings [F], and
-limb angles follow a gait phase, so each bone becomes one capsule posed per frame.
-"""
+"""Moving things of the presets: articulated people, juggled and passed balls, spectators;
+motion is vectorised over frames, each bone one capsule posed per frame."""
 
 from __future__ import annotations
 
@@ -41,11 +38,8 @@ class Outfit:
 
 @dataclass(frozen=True)
 class BodyMotion:
-    """Per-frame root xy [F,2], heading [F] (radians about z) and limb angles [F] per limb.
-
-    Angles are in the body's sagittal plane, 0 pointing straight down, positive forward;
-    `arms`/`legs` hold (upper, lower) angle arrays for the left and the right side.
-    """
+    """Per-frame root xy [F,2], heading [F] and (left, right) limbs of (upper, lower) sagittal
+    angles [F]: 0 straight down, positive forward."""
 
     root: np.ndarray
     heading: np.ndarray

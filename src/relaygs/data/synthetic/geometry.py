@@ -1,9 +1,5 @@
-"""Analytic ray casting of primitives in their local frames: sphere, capsule, box, rectangle.
-
-Each routine takes per-ray dimensions ([N] or [N,3]), ray origins [N,3] and unit directions
-[N,3] in the primitive's local frame, and returns (t [N] with inf where the ray misses, unit
-normals [N,3] in the local frame).
-"""
+"""Analytic ray casting in a primitive's local frame (sphere, capsule, box, rectangle): per-ray
+dims, origins and unit directions → (t [N], inf on a miss; unit normals [N,3])."""
 
 from __future__ import annotations
 
