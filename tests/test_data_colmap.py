@@ -352,10 +352,6 @@ rigs and frames files (cam00 and cam01 on one rig), tracks and keypoints include
 expected.json is what pycolmap reads in it."""
 
 
-def _pycolmap_expected() -> dict:
-    return json.loads((PYCOLMAP_FIXTURE / "expected.json").read_text())
-
-
 def _sorted_points(xyz: np.ndarray, rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Points ordered by x, then y, then z (expected.json's order)."""
     order = np.lexsort(xyz.T[::-1])
@@ -364,7 +360,7 @@ def _sorted_points(xyz: np.ndarray, rgb: np.ndarray) -> tuple[np.ndarray, np.nda
 
 @pytest.mark.parametrize("kind", ["bin", "txt"])
 def test_a_model_colmap_wrote_reads_as_colmap_reads_it(kind):
-    expected = _pycolmap_expected()
+    expected = json.loads((PYCOLMAP_FIXTURE / "expected.json").read_text())
     model = read_model(PYCOLMAP_FIXTURE / kind)
     images = {image.name: image for image in model.images.values()}
     assert set(images) == set(expected["images"])
@@ -383,7 +379,7 @@ def test_a_model_colmap_wrote_reads_as_colmap_reads_it(kind):
 
 
 def test_a_capture_posed_by_a_model_colmap_wrote_loads_with_its_poses(tmp_path):
-    expected = _pycolmap_expected()
+    expected = json.loads((PYCOLMAP_FIXTURE / "expected.json").read_text())
     width, height = expected["size"]
     for name in expected["images"]:
         for frame in (0, 1):

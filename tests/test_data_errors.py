@@ -26,13 +26,9 @@ def _edit_meta(root: Path, name: str, edit: Callable[[dict], None]) -> None:
 
 
 def _expect(root: Path, *fragments: str, **options) -> str:
-    with pytest.raises(InputError) as caught:
+    with refused(InputError, *fragments) as caught:
         load_scene(root, **options)
-    message = str(caught.value)
-    assert "\n" not in message
-    for fragment in fragments:
-        assert fragment in message, message
-    return message
+    return str(caught.value)
 
 
 def test_a_scene_folder_that_cannot_be_read_is_one_line(tmp_path: Path, monkeypatch):
@@ -79,37 +75,12 @@ def _cut_in_the_first_idat_crc(data: bytes) -> bytes:
     return data[: start + 8 + length + 2]  # its data whole, two of its four CRC bytes
 
 
-@pytest.mark.parametrize(
-    ("name", "damage", "reason"),
-    [
-        ("ims/7/000003.png", _cut_to_60_percent, "chunk IDAT is cut short"),
-        ("ims/7/000003.png", _flip_first_idat_byte, "chunk IDAT fails its CRC"),
-        ("ims/7/000003.png", lambda data: data[:33], "no IEND chunk"),
-        ("ims/7/000003.png", lambda data: data[:33] + data[-12:], "no IDAT image data"),
-        ("seg/7/000003.png", _cut_to_60_percent, "chunk IDAT is cut short"),
-        ("ims/7/000003.png", _cut_in_the_first_idat_crc, "chunk IDAT is cut short: truncated"),
-    ],
-    ids=["truncated", "flipped byte", "header only", "no IDAT", "truncated mask", "cut in a CRC"],
-)
-def test_damaged_png_is_refused_when_the_scene_loads(
-    tiny_synth_copy: Path, name: str, damage: Callable[[bytes], bytes], reason: str
-):
-    path = tiny_synth_copy / name
-    path.write_bytes(damage(path.read_bytes()))
-    _expect(tiny_synth_copy, f"{name}: damaged image file", reason)
-
-
 def test_truncated_jpeg_is_refused_and_an_intact_one_loads(tiny_synth_copy: Path):
     png = tiny_synth_copy / "ims" / "7" / "000003.png"
     jpeg = png.with_suffix(".jpg")
     cv2.imwrite(str(jpeg), cv2.imread(str(png)))
-
-    def use_jpeg(meta: dict) -> None:
-        meta["fn"] = [
-            [{"7/000003.png": "7/000003.jpg"}.get(n, n) for n in row] for row in meta["fn"]
-        ]
-
-    _edit_meta(tiny_synth_copy, "train_meta.json", use_jpeg)
+    meta = tiny_synth_copy / "train_meta.json"
+    meta.write_text(meta.read_text().replace('"7/000003.png"', '"7/000003.jpg"'))
     assert any(view.image_path == jpeg for view in load_scene(tiny_synth_copy).train_views)
     jpeg.write_bytes(_cut_to_60_percent(jpeg.read_bytes()))
     _expect(tiny_synth_copy, "7/000003.jpg: damaged image file", "no JPEG end marker FFD9")
@@ -326,6 +297,7 @@ def test_float_images_are_refused_not_scaled_as_integers(tmp_path: Path):
 
 
 TRAIN, TEST, IMAGE = "train_meta.json", "test_meta.json", "ims/7/000003.png"
+MASK = "seg/7/000003.png"
 NAN = float("nan")
 SMALL_PNG = cv2.imencode(".png", np.zeros((10, 20, 3), np.uint8))[1]
 
@@ -349,6 +321,11 @@ def _edit(name: str, edit: Callable[[dict], object]) -> Callable[[Path], None]:
 def _write(name: str, content: bytes | np.ndarray) -> Callable[[Path], None]:
     """A damage: replace the scene file `name` with `content`."""
     return lambda root: (root / name).write_bytes(bytes(content))
+
+
+def _damage(name: str, damage: Callable[[bytes], bytes]) -> Callable[[Path], None]:
+    """A damage: replace the scene file `name` with `damage` of its bytes."""
+    return lambda root: (root / name).write_bytes(damage((root / name).read_bytes()))
 
 
 def _points(data: np.ndarray, key: str = "data") -> Callable[[Path], None]:
@@ -434,6 +411,12 @@ BAD_SCENES = {
     "huge camera id": (_put(TRAIN, ("cam_id", 0, 0), 1e30), [TRAIN, "'cam_id'", "2147483647"]),
     "camera twice": (_put(TRAIN, ("cam_id", 2, 1), 1), [TRAIN, "'cam_id'", "columns 0 and 1 of"]),
     "test camera trains": (_share_a_train_camera, [TEST, TRAIN]),
+    "png cut short": (_damage(IMAGE, _cut_to_60_percent), [f"{IMAGE}: damaged", "IDAT is cut"]),
+    "png byte flipped": (_damage(IMAGE, _flip_first_idat_byte), [IMAGE, "IDAT fails its CRC"]),
+    "png header only": (_damage(IMAGE, lambda data: data[:33]), [IMAGE, "no IEND chunk"]),
+    "png without idat": (_damage(IMAGE, lambda d: d[:33] + d[-12:]), [IMAGE, "no IDAT image"]),
+    "mask cut short": (_damage(MASK, _cut_to_60_percent), [f"{MASK}: damaged", "IDAT is cut"]),
+    "cut in a crc": (_damage(IMAGE, _cut_in_the_first_idat_crc), [IMAGE, "cut short: truncated"]),
     "undecodable image": (_write(IMAGE, b"this is not an image"), [IMAGE, "image"]),
     "empty image": (_write(IMAGE, b""), [IMAGE, "empty"]),
     "missing image": (lambda root: (root / IMAGE).unlink(), ["000003.png", "No such file"]),

@@ -15,7 +15,7 @@ import pytest
 import torch
 
 from refusals import refused
-from relaygs.data import Camera, Scene, View, detect_format, load_scene
+from relaygs.data import Camera, Scene, View, load_scene
 from relaygs.data.effects import COLOR_INCONSISTENCY, SENSOR_NOISE
 from relaygs.errors import InputError
 from relaygs.model import GaussianSet
@@ -242,12 +242,6 @@ def test_the_test_cameras_option_regroups_views_with_or_without_test_meta(
     assert load_scene(tiny_synth_copy, test_cameras=[]).test_views == []
     with refused(InputError, "[0]"):
         load_scene(tiny_synth_copy, test_cameras=[0])  # a camera of the removed test_meta.json
-
-
-def test_detects_the_layout(tiny_synth_scene: Path, tmp_path: Path):
-    assert detect_format(tiny_synth_scene) == "panoptic"
-    (tmp_path / "cam00").mkdir()
-    assert detect_format(tmp_path) == "multiview"
 
 
 def _scale_world(root: Path, factor: float) -> None:

@@ -49,12 +49,8 @@ def _tree_digest(root: Path) -> str:
     return digest.hexdigest()
 
 
-def _times(frames: int = 64) -> np.ndarray:
-    return np.linspace(0.0, 5.0, frames)
-
-
 def _foreground(preset: str, effects: set[str], frames: int = 64) -> list:
-    primitives = PRESETS[preset].build(_times(frames), frozenset(effects), 0)
+    primitives = PRESETS[preset].build(np.linspace(0.0, 5.0, frames), frozenset(effects), 0)
     return [p for p in primitives if p.foreground]
 
 
@@ -89,23 +85,6 @@ def test_generation_is_deterministic_for_a_seed(tmp_path: Path):
     meta = json.loads((first / "train_meta.json").read_text())
     assert (meta["w"], meta["h"], len(meta["cam_id"][0]) + 4) == (24, 14, 34)
     assert cv2.imread(str(first / "ims" / meta["fn"][1][0])).shape == (14, 24, 3)
-
-
-def test_static_frames_are_identical_and_a_progress_bar_shows_only_when_asked(
-    tmp_path: Path, capsys
-):
-    root = generate("static", tmp_path / "static", **TINY_SYNTH_SIZE)
-    assert capsys.readouterr().err == ""
-    for camera in (0, 13, 30):
-        frames = _images(root, "ims", camera)
-        assert len(frames) == 6
-        assert all(np.array_equal(frames[0], frame) for frame in frames[1:])
-        assert not any(mask.any() for mask in _images(root, "seg", camera))
-    generate("static", tmp_path / "shown", progress=True, **TINY_SYNTH_SIZE)
-    size = TINY_SYNTH_SIZE
-    views = len(PRESETS["static"].rig(size["width"], size["height"])) * size["frames"]
-    shown = capsys.readouterr().err
-    assert shown.startswith("\r") and "generate:" in shown and f"0/{views} " in shown
 
 
 def test_court_without_effects_is_still_and_each_background_effect_adds_motion(tmp_path: Path):
@@ -167,11 +146,23 @@ def _affine_fit(source: np.ndarray, target: np.ndarray) -> tuple[float, float, f
     return gain, offset, float(np.abs(gain * x + offset - y).max())
 
 
-def test_colour_inconsistency_is_a_per_camera_channel_affine(tmp_path: Path):
+def test_static_scenes_are_still_and_simulate_only_the_camera_effects_declared(
+    tmp_path: Path, capsys
+):
     plain = generate("static", tmp_path / "plain", **TINY_SYNTH_SIZE)
+    assert capsys.readouterr().err == ""  # no progress bar unless asked
+    for camera in (0, 13, 30):
+        frames = _images(plain, "ims", camera)
+        assert len(frames) == 6
+        assert all(np.array_equal(frames[0], frame) for frame in frames[1:])
+        assert not any(mask.any() for mask in _images(plain, "seg", camera))
+    size = TINY_SYNTH_SIZE
     tinted = generate(
-        "static", tmp_path / "tinted", effects=[COLOR_INCONSISTENCY], **TINY_SYNTH_SIZE
+        "static", tmp_path / "tinted", effects=[COLOR_INCONSISTENCY], progress=True, **size
     )
+    views = len(PRESETS["static"].rig(size["width"], size["height"])) * size["frames"]
+    shown = capsys.readouterr().err
+    assert shown.startswith("\r") and "generate:" in shown and f"0/{views} " in shown
     response = json.loads((tinted / "scene.json").read_text())["camera_response"]
     identity = json.loads((plain / "scene.json").read_text())["camera_response"]
     assert np.allclose(identity["gains"], 1.0) and np.allclose(identity["offsets"], 0.0)
@@ -186,10 +177,7 @@ def test_colour_inconsistency_is_a_per_camera_channel_affine(tmp_path: Path):
             assert offset / 255 == pytest.approx(response["offsets"][camera][channel], abs=0.01)
             fitted_gains.append(gain)
     assert np.ptp(fitted_gains) > 0.05
-
-
-def test_sensor_noise_only_when_declared(tmp_path: Path):
-    noisy = generate("static", tmp_path / "noisy", effects=[SENSOR_NOISE], **TINY_SYNTH_SIZE)
+    noisy = generate("static", tmp_path / "noisy", effects=[SENSOR_NOISE], **size)
     frames = [frame.astype(np.float64) for frame in _images(noisy, "ims", 4)]
     difference = (frames[1] - frames[0]) / 255.0
     assert difference.std() == pytest.approx(np.sqrt(2) * NOISE_SIGMA, rel=0.3)
@@ -250,19 +238,13 @@ def test_fast_objects_exist_only_when_declared_and_move_fast():
 
 def test_foreground_points_land_in_foreground_masks(tiny_synth_scene: Path):
     scene = load_scene(tiny_synth_scene)
-    fg_points = scene.points.xyz[scene.points.is_fg].double().numpy()
+    fg_points = scene.points.xyz[scene.points.is_fg]
     assert 20 < len(fg_points) < len(scene.points) // 2
     for view in scene.views_at(0)[::5]:
         mask = scene.mask(view).numpy()
         mask = cv2.dilate(mask.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
-        cam = (
-            fg_points @ view.camera.w2c[:3, :3].double().numpy().T
-            + view.camera.w2c[:3, 3].double().numpy()
-        )
-        uv = cam @ view.camera.K.double().numpy().T
-        u, v = uv[:, 0] / uv[:, 2], uv[:, 1] / uv[:, 2]
-        inside = (cam[:, 2] > 0) & (u >= 0) & (u < 32) & (v >= 0) & (v < 18)
-        hits = mask[v[inside].astype(int), u[inside].astype(int)]
+        pixels, inside = view.camera.project(fg_points, min_depth=0.0)
+        hits = mask[pixels[inside, 1].long().numpy(), pixels[inside, 0].long().numpy()]
         assert hits.mean() > 0.9
 
 

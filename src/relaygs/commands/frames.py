@@ -23,7 +23,6 @@ from relaygs.shell import path_override, python_command
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The argument parser of the frames command."""
     parser = OneLineErrorParser(prog="python -m relaygs.frames", description=__doc__)
     parser.add_argument(
         "videos_dir", type=path_argument, help="folder holding one video per camera"
@@ -61,7 +60,6 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _extract(args: argparse.Namespace) -> None:
-    """Write the frames and print what was written and what to run next."""
     started = time.perf_counter()
     videos = camera_videos(args.videos_dir)
     selection = FrameSelection(args.start, args.stride, args.frames)

@@ -12,7 +12,6 @@ from relaygs.data.synthetic import PRESETS, generate
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The argument parser of the synth command."""
     parser = OneLineErrorParser(
         prog="python -m relaygs.synth",
         description="Render a synthetic multi-view video scene in the PanopticSports layout.",
@@ -53,7 +52,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _generate(args: argparse.Namespace) -> None:
-    """Write the scene and say where and how long it took."""
     started = time.perf_counter()
     out = generate(
         args.name,

@@ -23,7 +23,6 @@ class TensorCache:
 
     @property
     def used_bytes(self) -> int:
-        """Bytes currently held."""
         return self._used_bytes
 
     def __len__(self) -> int:

@@ -12,12 +12,8 @@ from relaygs.data.finite import finite_in_float32
 from relaygs.errors import InputError
 from relaygs.splat.projection import MAX_FOCAL
 
-POSE_TOLERANCE = 1e-3
-"""How far a loaded rotation may be from orthonormal (largest entry of |R Rᵀ - I|)."""
-
-NEAR_PLANE = 0.01
-"""Near-plane distance of the splatting core (gsplat's default), used as is for scenes of extent
->= 1 and scaled with the extent below it (`near_plane_for`)."""
+POSE_TOLERANCE = 1e-3  # how far a loaded rotation may be from orthonormal: max |R Rᵀ - I|
+NEAR_PLANE = 0.01  # gsplat's default near plane, for scenes of extent >= 1 (`near_plane_for`)
 
 
 def near_plane_for(extent: float) -> float:
@@ -125,14 +121,6 @@ def _first_problem(
     return None
 
 
-def _skewed(K: np.ndarray) -> np.ndarray:
-    """Per matrix of K [..., 3, 3]: K[0][1] or K[1][0] beyond MAX_SKEW of fx or fy."""
-    with np.errstate(invalid="ignore"):  # non-finite entries are reported on their own
-        over_x = np.abs(K[..., 0, 1]) > MAX_SKEW * np.abs(K[..., 0, 0])
-        over_y = np.abs(K[..., 1, 0]) > MAX_SKEW * np.abs(K[..., 1, 1])
-    return over_x | over_y
-
-
 def _intrinsics_problem(k: np.ndarray, size: tuple[int, int] | None = None) -> str:
     """The bad values of one K [3, 3]: non-finite, focal, principal point, skew, last row."""
     problems = [
@@ -147,7 +135,8 @@ def _intrinsics_problem(k: np.ndarray, size: tuple[int, int] | None = None) -> s
             for name, value, limit in (("cx", k[0, 2], size[0]), ("cy", k[1, 2], size[1]))
             if not 0 < value < limit
         ]
-    if finite_in_float32(k[:2, :2]).all() and _skewed(k):
+    skewed = abs(k[0, 1]) > MAX_SKEW * abs(k[0, 0]) or abs(k[1, 0]) > MAX_SKEW * abs(k[1, 1])
+    if finite_in_float32(k[:2, :2]).all() and skewed:
         problems.append(f"skew K[0][1] = {float(k[0, 1])}, K[1][0] = {float(k[1, 0])}")
     if finite_in_float32(k[2]).all() and not np.allclose(k[2], [0.0, 0.0, 1.0]):
         problems.append(f"last row {k[2].tolist()}")

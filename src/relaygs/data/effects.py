@@ -7,20 +7,13 @@ from collections.abc import Iterable, Mapping
 
 from relaygs.errors import InputError
 
-LARGE_MOTION = "large_motion"
-"""Actors travel many times their own size during the sequence."""
-NONRIGID = "nonrigid"
-"""Articulated actors swing their limbs (the body deforms, not only moves rigidly)."""
-FAST_OBJECTS = "fast_objects"
-"""Small objects (balls) move fast, several times their size per frame."""
-COLOR_INCONSISTENCY = "color_inconsistency"
-"""Each camera applies its own per-channel affine response (gain, offset) to the image."""
-DYNAMIC_PANELS = "dynamic_panels"
-"""Background panels (a scoreboard) change their content over time."""
-BACKGROUND_JITTER = "background_jitter"
-"""Background objects (spectators) move slightly over time."""
-SENSOR_NOISE = "sensor_noise"
-"""Independent per-pixel Gaussian noise in every image."""
+LARGE_MOTION = "large_motion"  # actors travel many times their own size during the sequence
+NONRIGID = "nonrigid"  # articulated actors swing their limbs: the body deforms
+FAST_OBJECTS = "fast_objects"  # small objects (balls) move fast, several times their size per frame
+COLOR_INCONSISTENCY = "color_inconsistency"  # a per-camera, per-channel gain and offset
+DYNAMIC_PANELS = "dynamic_panels"  # background panels (a scoreboard) change their content over time
+BACKGROUND_JITTER = "background_jitter"  # background objects (spectators) move slightly over time
+SENSOR_NOISE = "sensor_noise"  # independent per-pixel Gaussian noise in every image
 
 ALL_EFFECTS: frozenset[str] = frozenset(
     {

@@ -12,7 +12,6 @@ import torch
 from relaygs.data.camera import Camera, check_intrinsics
 from relaygs.data.colmap import (
     ColmapCamera,
-    ColmapImage,
     ColmapModel,
     model_suffix,
     read_model,
@@ -38,8 +37,7 @@ MODEL_FOLDERS = ("sparse/0", "sparse", "sparse_", "colmap/sparse/0")
 DEFAULT_TEST_CAMERAS = (0, 10, 20, 30)
 MASK_FOLDER = "seg"
 _COLMAP_SIZE = "the COLMAP camera's width/height"
-MISSING_FRAMES_LISTED = 3
-"""How many of the frame files a camera folder lacks its error names."""
+MISSING_FRAMES_LISTED = 3  # how many of the frame files a camera folder lacks its error names
 
 # COLMAP model → parameter indices of fx, fy, cx, cy; later parameters are distortion terms.
 _PINHOLE_PARAMS: dict[str, tuple[int, int, int, int]] = {
@@ -176,9 +174,14 @@ def _cameras(folders: list[Path], model: ColmapModel, model_folder: Path) -> lis
             raise InputError(
                 f"{model_folder}: image {image.name!r} uses unknown camera {image.camera_id}"
             )
+        pose = np.array([*image.qvec, *image.tvec], dtype=np.float64)
+        if not (finite_in_float32(pose).all() and np.linalg.norm(pose[:4]) > 0):
+            raise InputError(
+                f"{model_folder}: image {image.name!r} has pose qvec {list(image.qvec)} tvec "
+                f"{list(image.tvec)}; expected values finite in float32 and a non-zero quaternion"
+            )
         intrinsics = model.cameras[image.camera_id]
         K = _intrinsics(intrinsics, model_folder)
-        _check_pose(image, model_folder)
         w2c = torch.from_numpy(image.w2c().astype(np.float32))
         cameras.append(Camera(camera_id, K, w2c, intrinsics.width, intrinsics.height))
     return cameras
@@ -204,17 +207,6 @@ def _intrinsics(camera: ColmapCamera, model_folder: Path) -> torch.Tensor:
     where = f"{source}: camera {camera.camera_id} ({camera.model})"
     check_intrinsics(K, where, size=(camera.width, camera.height))
     return torch.from_numpy(K.astype(np.float32))
-
-
-def _check_pose(image: ColmapImage, model_folder: Path) -> None:
-    """A finite translation and a finite quaternion of non-zero norm (it is normalised)."""
-    pose = np.array([*image.qvec, *image.tvec], dtype=np.float64)
-    norm = float(np.linalg.norm(pose[:4]))
-    if not (finite_in_float32(pose).all() and np.isfinite(norm) and norm > 0):
-        raise InputError(
-            f"{model_folder}: image {image.name!r} has pose qvec {list(image.qvec)} tvec "
-            f"{list(image.tvec)}; expected values finite in float32 and a non-zero quaternion"
-        )
 
 
 def _views(

@@ -13,9 +13,7 @@ from relaygs.errors import InputError
 
 DEFAULT_MAX_POINTS = 100_000
 DEFAULT_CACHE_MB = 512.0
-OPTION_PREFIX = "loader option "
-"""How errors name a loader option by default (`loader option downscale`); the app names its
-own keys (`scene.loader.downscale`)."""
+OPTION_PREFIX = "loader option "  # errors say `loader option downscale`; the app its own keys
 
 
 @dataclass(frozen=True)
@@ -27,8 +25,7 @@ class LoaderOptions:
     cache_mb: float = DEFAULT_CACHE_MB
     test_cameras: tuple[int, ...] | None = None
     effects: frozenset[str] | None = None
-    prefix: str = field(default=OPTION_PREFIX, compare=False)
-    """How the loaders' errors name these options (`scene.loader.` under the app)."""
+    prefix: str = field(default=OPTION_PREFIX, compare=False)  # how errors name the options
 
     def content_options(self) -> dict[str, Any]:
         """The options that change what a scene holds (everything but the cache budget)."""

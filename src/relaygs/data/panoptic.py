@@ -30,8 +30,7 @@ from relaygs.errors import InputError
 TRAIN_META = "train_meta.json"
 TEST_META = "test_meta.json"
 POINTS_FILE = "init_pt_cld.npz"
-MAX_CAMERA_ID = 2**31 - 1
-"""Largest camera id: ids must fit a signed 32-bit integer."""
+MAX_CAMERA_ID = 2**31 - 1  # largest camera id: ids must fit a signed 32-bit integer
 
 
 @dataclass(frozen=True)
@@ -48,7 +47,6 @@ class PanopticMeta:
 
     @property
     def num_frames(self) -> int:
-        """T, the number of frames."""
         return len(self.fn)
 
 
@@ -120,20 +118,23 @@ def _file_names(meta: dict, path: Path) -> list[list[str]]:
         raise InputError(f"{path}: field 'fn' rows have different camera counts {sorted(widths)}")
     for t, row in enumerate(fn):
         for c, name in enumerate(row):
-            if os.path.normpath(name) == "." or not _is_path_text(name):
+            if _names_no_scene_file(name):
                 raise InputError(
-                    f"{path}: field 'fn' at [{t}][{c}] is {name!r}, expected an image file name"
+                    f"{path}: field 'fn' at [{t}][{c}] is {name!r}, expected an image file name "
+                    "inside the scene folder"
                 )
     return fn
 
 
-def _is_path_text(name: str) -> bool:
-    """Whether `name` can name a file: no NUL, and encodable (JSON may hold a lone surrogate)."""
+def _names_no_scene_file(name: str) -> bool:
+    """Whether `name` is empty, absolute, climbs out of ims/, or is no path text (a NUL, or a
+    lone surrogate, which JSON may hold)."""
     try:
         os.fsencode(name)
     except UnicodeEncodeError:
-        return False
-    return "\0" not in name
+        return True
+    climbs = os.path.normpath(os.path.join("ims", name)).split(os.sep)[0] == ".."
+    return "\0" in name or os.path.normpath(name) == "." or os.path.isabs(name) or climbs
 
 
 def _array_field(
@@ -199,7 +200,6 @@ def _test_meta(
 
 
 def _camera_ids(meta: PanopticMeta) -> set[int]:
-    """The camera ids a meta file lists."""
     return set(meta.cam_id.ravel().tolist())
 
 
@@ -216,14 +216,6 @@ def _check_compatible(train: PanopticMeta, test: PanopticMeta) -> None:
         )
 
 
-def scene_file(root: Path, folder: str, name: str, source: Path) -> Path:
-    """root/folder/name, refusing absolute names and names that climb out of the scene root."""
-    normal = os.path.normpath(os.path.join(folder, name))
-    if Path(name).is_absolute() or normal == ".." or normal.startswith(".." + os.sep):
-        raise InputError(f"{source}: file name {name!r} escapes the scene folder {root}")
-    return root / normal
-
-
 def _views(
     root: Path, meta: PanopticMeta, files: dict[str, str], cameras: dict[tuple, Camera]
 ) -> list[View]:
@@ -231,12 +223,12 @@ def _views(
     views = []
     for t, row in enumerate(meta.fn):
         for c, name in enumerate(row):
-            image_path = scene_file(root, "ims", name, meta.path)
+            image_path = root / os.path.normpath(os.path.join("ims", name))
             size, origin = (meta.width, meta.height), f"w/h in {meta.path.name}"
             record_image(image_path, size, files, root, "image", origin)
             mask_path = None
             if has_masks:
-                mask_path = scene_file(root, "seg", str(Path(name).with_suffix(".png")), meta.path)
+                mask_path = (root / os.path.normpath(os.path.join("seg", name))).with_suffix(".png")
                 record_image(mask_path, size, files, root, "mask", origin)
             camera = _camera(meta, t, c, cameras)
             views.append(View(camera, t, frame_time(t, meta.num_frames), image_path, mask_path))

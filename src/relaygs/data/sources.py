@@ -18,18 +18,12 @@ _KINDS = (
 )
 
 
-def check_regular(path: Path, status: os.stat_result, what: str = "file") -> None:
-    """InputError naming `path` unless `status` (symlinks followed) is a regular file's."""
-    if stat.S_ISREG(status.st_mode):
-        return
-    kind = next((name for test, name in _KINDS if test(status.st_mode)), "not a regular file")
-    raise InputError(f"{path}: is {kind}, expected a regular {what}")
-
-
 def regular_file_status(path: Path, what: str = "file") -> os.stat_result:
     """`path`'s stat once it is a regular file (else InputError), before anything opens it."""
     status = path.stat()
-    check_regular(path, status, what)
+    if not stat.S_ISREG(status.st_mode):
+        kind = next((name for test, name in _KINDS if test(status.st_mode)), "not a regular file")
+        raise InputError(f"{path}: is {kind}, expected a regular {what}")
     return status
 
 

@@ -42,16 +42,11 @@ GENERATOR = "relaygs.synth"
 GENERATOR_VERSION = "1"
 GENERATED_ENTRIES = frozenset({"ims", "seg", TRAIN_META, TEST_META, POINTS_FILE, SCENE_JSON})
 """What a generated scene folder holds (regenerating replaces exactly these)."""
-MAX_SYNTH_COUNT = 100_000
-"""The most frames, and pixels a side, a synthetic scene may have (more is no scene one
-machine renders: numpy's arrays for it cannot even be made)."""
-GENERATED_IMAGE = re.compile(r"\d+/\d{6}\.png")
-"""The files the generator writes inside ims/ and seg/: `<camera>/<frame:06d>.png`."""
+MAX_SYNTH_COUNT = 100_000  # most frames, and pixels a side: numpy could not even make more
+GENERATED_IMAGE = re.compile(r"\d+/\d{6}\.png")  # what the generator writes in ims/ and seg/
 SUPERSAMPLE = 2
-POINTS_PER_PIXEL = 0.1
-"""Initial-cloud samples per pixel of each training camera's frame 0 ..."""
-MAX_POINTS = 100_000
-"""... capped at this many points in total (the loaders' default budget)."""
+POINTS_PER_PIXEL = 0.1  # initial-cloud samples per pixel of each training camera's frame 0 ..
+MAX_POINTS = 100_000  # ... capped at this many points in total (the loaders' default budget)
 _PNG_FAST = [cv2.IMWRITE_PNG_COMPRESSION, 1]
 
 
@@ -145,7 +140,6 @@ def rig_cameras(recipe: Preset, width: int, height: int) -> list[RigCamera]:
 def _primitives(
     recipe: Preset, times: np.ndarray, effects: frozenset[str], seed: int
 ) -> list[Primitive]:
-    """The preset's world at `times`: its builder's list of primitives."""
     primitives = recipe.build(times, effects, seed)
     if not isinstance(primitives, list) or not all(isinstance(p, Primitive) for p in primitives):
         raise InputError(

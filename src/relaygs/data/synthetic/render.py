@@ -26,7 +26,6 @@ class CameraRays:
 
     @property
     def shape(self) -> tuple[int, int]:
-        """(rows, columns) of the supersample grid."""
         return self.dirs.shape[0], self.dirs.shape[1]
 
 
@@ -45,7 +44,6 @@ class Buffers:
         return cls(color, np.full(shape, np.inf), np.zeros(shape, dtype=bool))
 
     def copy(self) -> Buffers:
-        """An independent copy, to draw a frame on top of a static layer."""
         return Buffers(self.color.copy(), self.depth.copy(), self.foreground.copy())
 
     def downsampled(self, factor: int) -> tuple[np.ndarray, np.ndarray]:
