@@ -131,24 +131,15 @@ def test_16_bit_images_keep_their_low_bits(tiny_synth_copy: Path):
     assert torch.allclose(image, torch.from_numpy(expected), rtol=0, atol=1e-7)
 
 
-def _label_16_bit(fg: np.ndarray) -> np.ndarray:
-    return fg.astype(np.uint16)
-
-
-def _faint_colour(fg: np.ndarray) -> np.ndarray:
-    colour = np.zeros((*fg.shape, 3), np.uint8)
-    colour[fg, 0] = 1
-    return colour
-
-
-def _white_on_opaque_alpha(fg: np.ndarray) -> np.ndarray:
-    rgba = np.zeros((*fg.shape, 4), np.uint8)
-    rgba[..., 3] = 255
-    rgba[fg, :3] = 255
-    return rgba
-
-
-@pytest.mark.parametrize("encode", [_label_16_bit, _faint_colour, _white_on_opaque_alpha])
+@pytest.mark.parametrize(
+    "encode",
+    [
+        lambda fg: fg.astype(np.uint16),
+        lambda fg: np.stack([fg, 0 * fg, 0 * fg], axis=-1).astype(np.uint8),
+        lambda fg: np.stack([fg * 255, fg * 255, fg * 255, 0 * fg + 255], axis=-1).astype(np.uint8),
+    ],
+    ids=["16-bit label", "faint colour", "white on opaque alpha"],
+)
 def test_mask_foreground_is_any_non_zero_grey_or_colour_value(
     tiny_synth_copy: Path, encode: Callable[[np.ndarray], np.ndarray]
 ):

@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import shutil
 import threading
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -43,23 +44,20 @@ def _refusal(root: Path) -> str:
 IMAGE = Path("ims") / "4" / "000001.png"
 
 
-def _fifo_image(root: Path, tmp_path: Path) -> tuple[Path, Path]:
+def _fifo(tmp_path: Path) -> Path:
     os.mkfifo(tmp_path / "pipe")
-    (root / IMAGE).unlink()
-    (root / IMAGE).symlink_to(tmp_path / "pipe")
-    return root, root / IMAGE
+    return tmp_path / "pipe"
 
 
-def _device_image(root: Path, tmp_path: Path) -> tuple[Path, Path]:
-    (root / IMAGE).unlink()
-    (root / IMAGE).symlink_to("/dev/zero")
-    return root, root / IMAGE
+def _linked(name: str | Path, target: Callable[[Path], Path | str]):
+    """A damage: replace scene file `name` by a link to `target(tmp_path)`."""
 
+    def damage(root: Path, tmp_path: Path) -> tuple[Path, Path]:
+        (root / name).unlink()
+        (root / name).symlink_to(target(tmp_path))
+        return root, root / name
 
-def _fifo_meta(root: Path, tmp_path: Path) -> tuple[Path, Path]:
-    (root / "train_meta.json").unlink()
-    os.mkfifo(root / "train_meta.json")
-    return root, root / "train_meta.json"
+    return damage
 
 
 def _moved_out(name: str, multiview: bool = False):
@@ -78,9 +76,9 @@ def _moved_out(name: str, multiview: bool = False):
 @pytest.mark.parametrize(
     ("damage", "named"),
     [
-        (_fifo_image, "named pipe"),
-        (_device_image, "character device"),
-        (_fifo_meta, "named pipe"),
+        (_linked(IMAGE, _fifo), "named pipe"),
+        (_linked(IMAGE, lambda _: "/dev/zero"), "character device"),
+        (_linked("train_meta.json", _fifo), "named pipe"),
         (_moved_out("ims/4"), "outside the scene folder"),
         (_moved_out("init_pt_cld.npz"), "outside the scene folder"),
         (_moved_out("cam07", multiview=True), "outside the scene folder"),

@@ -23,6 +23,7 @@ from relaygs.shell import path_override, python_command
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of the frames command."""
     parser = OneLineErrorParser(prog="python -m relaygs.frames", description=__doc__)
     parser.add_argument(
         "videos_dir", type=path_argument, help="folder holding one video per camera"
@@ -99,12 +100,8 @@ def _notes(scene: ExtractedScene) -> list[str]:
     ]
     short = [name for name, camera in cameras if camera.ran_out and camera.written == scene.frames]
     if short:
-        longer = [
-            name
-            for name, camera in cameras
-            if name not in short
-            and (camera.written > scene.frames or (camera.available or 0) > scene.frames)
-        ]
+        kept = {name: max(camera.written, camera.available or 0) for name, camera in cameras}
+        longer = [name for name in kept if name not in short and kept[name] > scene.frames]
         if longer:
             notes.append(
                 f"note: every camera keeps {scene.frames} frame(s), all that {', '.join(short)} "

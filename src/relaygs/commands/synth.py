@@ -12,6 +12,7 @@ from relaygs.data.synthetic import PRESETS, generate
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of the synth command."""
     parser = OneLineErrorParser(
         prog="python -m relaygs.synth",
         description="Render a synthetic multi-view video scene in the PanopticSports layout.",

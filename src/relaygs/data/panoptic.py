@@ -15,7 +15,7 @@ from relaygs.data.camera import Camera, check_intrinsics, check_rigid
 from relaygs.data.fingerprint import file_record, record_image
 from relaygs.data.finite import FINITE, finite_in_float32
 from relaygs.data.metafiles import SCENE_JSON, read_json
-from relaygs.data.options import LoaderOptions, test_cameras_setting
+from relaygs.data.options import LoaderOptions, require_int, test_cameras_setting
 from relaygs.data.points import PointCloud, point_cloud_from_arrays
 from relaygs.data.scene import (
     Scene,
@@ -74,8 +74,9 @@ def read_meta(path: Path, train: PanopticMeta | None = None) -> PanopticMeta:
     meta = read_json(path)
     if not isinstance(meta, dict):
         raise InputError(f"{path}: expected a JSON object with fields w, h, k, w2c, fn, cam_id")
-    width = _positive_int(meta, "w", path)
-    height = _positive_int(meta, "h", path)
+    width, height = (
+        require_int(f"field '{key}'", meta.get(key), minimum=1, prefix=f"{path}: ") for key in "wh"
+    )
     if train is not None and (train.width, train.height) != (width, height):
         raise InputError(
             f"{path}: w/h {width}x{height} differ from {train.path} ({train.width}x{train.height})"
@@ -97,15 +98,6 @@ def _view_at(cam_id: np.ndarray) -> Callable[[tuple[int, ...]], str]:
         f" at [{index[0]}][{index[1]}] (frame {index[0]}, column {index[1]}: camera "
         f"{cam_id[index]})"
     )
-
-
-def _positive_int(meta: dict, name: str, path: Path) -> int:
-    if name not in meta:
-        raise InputError(f"{path}: missing field '{name}' (expected a positive integer)")
-    value = meta[name]
-    if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
-        raise InputError(f"{path}: field '{name}' must be a positive integer, got {value!r}")
-    return value
 
 
 def _file_names(meta: dict, path: Path) -> list[list[str]]:

@@ -124,7 +124,12 @@ def extract_frames(
         for name in cameras:
             _drop_frames_from(staging / name, frames)
         fps = _kept_rate([camera.rate for camera in cameras.values()], selection.stride)
-        _write_listing(staging, sources, frames, selection, fps, image_format)
+        # where each camera's frames came from, and the list of first frames COLMAP poses
+        listing = {"sources": {name: str(video) for name, video in sources.items()}}
+        listing.update(frames=frames, start=selection.start, stride=selection.stride, fps=fps)
+        (staging / SOURCES_JSON).write_text(json.dumps(listing, indent=2) + "\n", encoding="utf-8")
+        first = [f"{name}/frame_00000.{image_format}" for name in sources]
+        (staging / COLMAP_LIST).write_text("\n".join(first) + "\n", encoding="utf-8")
     except BaseException:  # a failure or Ctrl-C: no partial scene stays
         shutil.rmtree(staging, ignore_errors=True)
         raise
@@ -278,24 +283,3 @@ def _publish(staging: Path, out: Path) -> None:
         raise InputError(
             f"cannot move the frames into {out} ({error.strerror}); they are in {staging}"
         ) from None
-
-
-def _write_listing(
-    folder: Path,
-    sources: dict[str, Path],
-    frames: int,
-    selection: FrameSelection,
-    fps: float | None,
-    image_format: str,
-) -> None:
-    """`frames.json` (where each camera's frames came from) and the COLMAP image list."""
-    listing = {
-        "sources": {name: str(video) for name, video in sources.items()},
-        "frames": frames,
-        "start": selection.start,
-        "stride": selection.stride,
-        "fps": fps,
-    }
-    (folder / SOURCES_JSON).write_text(json.dumps(listing, indent=2) + "\n", encoding="utf-8")
-    first = [f"{name}/frame_00000.{image_format}" for name in sources]
-    (folder / COLMAP_LIST).write_text("\n".join(first) + "\n", encoding="utf-8")

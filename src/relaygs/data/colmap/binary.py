@@ -111,17 +111,13 @@ def write_binary_model(folder: Path, model: ColmapModel) -> None:
     cameras = [struct.pack("<Q", len(model.cameras))]
     for camera in model.cameras.values():
         model_id, num_params = CAMERA_MODELS[camera.model]
-        cameras.append(
-            struct.pack("<iiQQ", camera.camera_id, model_id, camera.width, camera.height)
-        )
-        cameras.append(struct.pack("<" + "d" * num_params, *camera.params))
+        head = struct.pack("<iiQQ", camera.camera_id, model_id, camera.width, camera.height)
+        cameras.append(head + struct.pack(f"<{num_params}d", *camera.params))
     (folder / "cameras.bin").write_bytes(b"".join(cameras))
     images = [struct.pack("<Q", len(model.images))]
     for image in model.images.values():
-        images.append(
-            struct.pack("<I7dI", image.image_id, *image.qvec, *image.tvec, image.camera_id)
-        )
-        images.append(image.name.encode("utf-8") + b"\x00" + struct.pack("<Q", 0))
+        pose = struct.pack("<I7dI", image.image_id, *image.qvec, *image.tvec, image.camera_id)
+        images.append(pose + image.name.encode("utf-8") + b"\x00" + struct.pack("<Q", 0))
     (folder / "images.bin").write_bytes(b"".join(images))
     points = [struct.pack("<Q", len(model.xyz))]
     for index, (xyz, rgb) in enumerate(zip(model.xyz, model.rgb, strict=True)):

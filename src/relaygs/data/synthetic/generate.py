@@ -74,14 +74,9 @@ def generate(
     require_int("seed", seed, minimum=0, prefix="")
     declared = declared_effects(recipe, effects)
     times = np.linspace(0.0, DURATION_S, frames) if frames > 1 else np.zeros(1)
-    world = World(
-        cameras=rig_cameras(recipe, width, height),
-        test_cameras=recipe.test_cameras,
-        primitives=_primitives(recipe, times, declared, seed),
-        times_s=times,
-        width=width,
-        height=height,
-    )
+    cameras = rig_cameras(recipe, width, height)
+    primitives = _primitives(recipe, times, declared, seed)
+    world = World(cameras, recipe.test_cameras, primitives, times, width, height)
     out = Path(out_dir).expanduser().absolute()
     staging = _staging_folder(out)
     try:
@@ -278,12 +273,9 @@ def _write_scene(
         1, min(round(POINTS_PER_PIXEL * world.width * world.height), MAX_POINTS // len(train_ids))
     )
     points = []
+    total = len(world.cameras) * num_frames
     views = progress_bar(
-        total=len(world.cameras) * num_frames,
-        desc="generate",
-        unit="view",
-        disable=not progress,
-        leave=False,
+        total=total, desc="generate", unit="view", disable=not progress, leave=False
     )
     with views:
         for camera_id, camera in enumerate(world.cameras):

@@ -194,9 +194,8 @@ def build_court(times: np.ndarray, effects: frozenset[str], seed: int) -> list[P
         primitives.append(passed_ball([hands[i] for i in order], times, PASS_S, apex=1.0))
     for sign in (1.0, -1.0):
         board = Scoreboard(1.6, 0.8, seed=seed + int(sign > 0), animated=DYNAMIC_PANELS in effects)
-        primitives.append(
-            Primitive("box", (0.06, 1.6, 0.8), *static_pose((sign * 12.9, 0, 3.8)), board)
-        )
+        panel = static_pose((sign * 12.9, 0, 3.8))
+        primitives.append(Primitive("box", (0.06, 1.6, 0.8), *panel, board))
     for side in (1.0, -1.0):
         for x in np.linspace(-9.0, 9.0, 7):
             # drawn whether or not the sway is declared: declaring it changes nothing else
