@@ -235,26 +235,20 @@ def test_the_test_cameras_option_regroups_views_with_or_without_test_meta(
         load_scene(tiny_synth_copy, test_cameras=[0])  # a camera of the removed test_meta.json
 
 
-def _scale_world(root: Path, factor: float) -> None:
-    """Scale a Panoptic scene's world in place: camera translations and the point cloud."""
-    for name in ("train_meta.json", "test_meta.json"):
-        meta = json.loads((root / name).read_text())
-        w2c = np.array(meta["w2c"])
-        w2c[..., :3, 3] *= factor
-        meta["w2c"] = w2c.tolist()
-        (root / name).write_text(json.dumps(meta))
-    data = np.load(root / "init_pt_cld.npz")["data"].copy()
-    data[:, :3] *= factor
-    np.savez(root / "init_pt_cld.npz", data=data)
-
-
 def test_a_scene_in_small_units_renders_like_the_same_scene_in_metres(
     scene: Scene, tiny_synth_copy: Path
 ):
     """The near plane scales with the extent below 1: at 1/1000 scale the cameras are ~4 mm
     from the subject, and gsplat's fixed 0.01 would cull almost every Gaussian."""
     factor = 1e-3
-    _scale_world(tiny_synth_copy, factor)
+    for name in ("train_meta.json", "test_meta.json"):  # camera translations and the cloud
+        meta = json.loads((tiny_synth_copy / name).read_text())
+        w2c = np.array(meta["w2c"])
+        w2c[..., :3, 3] *= factor
+        meta["w2c"] = w2c.tolist()
+        (tiny_synth_copy / name).write_text(json.dumps(meta))
+    data = np.load(tiny_synth_copy / "init_pt_cld.npz")["data"] * ([factor] * 3 + [1] * 4)
+    np.savez(tiny_synth_copy / "init_pt_cld.npz", data=data)
     small = load_scene(tiny_synth_copy)
     assert small.extent == pytest.approx(scene.extent * factor, rel=1e-4)
     assert {view.camera.near for view in scene.train_views + scene.test_views} == {0.01}
