@@ -68,20 +68,7 @@ def test_render_writes_each_frame_beside_the_truth_and_a_video_per_camera(
     assert not list(out.glob(".*partial*"))
 
 
-def test_render_picks_cameras_and_skips_the_video_on_request(
-    stored_deform, stage_scene_path, tmp_path, capsys
-):
-    store, key = stored_deform
-    out = tmp_path / "renders"
-    code, _, _ = _render_cli(
-        capsys, store, key, stage_scene_path, "--camera", "3", "--no-video", "--out", str(out)
-    )
-    assert code == 0
-    assert sorted(p.name for p in out.iterdir()) == ["cam03"]
-    assert len(list((out / "cam03").glob("*.png"))) == 8
-
-
-def test_render_defaults_to_a_folder_named_after_the_model(
+def test_render_defaults_to_a_folder_named_after_the_model_and_picks_cameras_on_request(
     stored_deform, stage_scene_path, tmp_path, capsys, monkeypatch
 ):
     store, key = stored_deform
@@ -90,28 +77,11 @@ def test_render_defaults_to_a_folder_named_after_the_model(
     out = tmp_path / "outputs" / "renders" / f"deform-{key[:16]}"
     assert code == 0 and f"rendered into {out}\n" in printed
     assert len(list((out / "cam00").glob("*.png"))) == 2 and (out / "cam00.mp4").is_file()
-
-
-def test_render_puts_the_error_image_beside_the_render_without_truth(
-    stored_deform, stage_scene_path, stage_deformed, tmp_path, capsys
-):
-    # with --truth: test_render_puts_other_models_beside_with_their_error_images
-    store, key = stored_deform
     out = tmp_path / "renders"
-    args = ["--camera", "10", "--frame-stride", "5", "--error", "--no-video"]
-    code, _, _ = _render_cli(capsys, store, key, stage_scene_path, *args, "--out", str(out))
-    assert code == 0
-    scene = load_scene(stage_scene_path)
-    view = next(v for v in scene.views_at(5, "all") if v.camera.camera_id == 10)
-    renderer = ModelRenderer(SceneModel.from_artifact(stage_deformed))
-    render = renderer.render([view.camera], view.time)[0]
-    written = cv2.imread(str(out / "cam10" / "000005.png"))
-    width = view.camera.width
-    assert written.shape == (view.camera.height, 2 * width, 3)
-    np.testing.assert_array_equal(written[:, :width], _bgr(render))
-    error = written[:, width:]
-    np.testing.assert_array_equal(error, _bgr(error_image(render, scene.image(view))))
-    assert len(np.unique(error.reshape(-1, 3), axis=0)) > 8  # the error varies over the image
+    args = ["--camera", "3", "--no-video", "--out", str(out)]
+    assert _render_cli(capsys, store, key, stage_scene_path, *args)[0] == 0
+    assert sorted(p.name for p in out.iterdir()) == ["cam03"]
+    assert len(list((out / "cam03").glob("*.png"))) == 8
 
 
 def test_render_puts_other_models_beside_with_their_error_images(
@@ -120,13 +90,16 @@ def test_render_puts_other_models_beside_with_their_error_images(
     store, key = stored_deform
     other = artifact_key("decouple", 1, {"steps": 2}, "juggle", [])
     store.get_or_build("decouple", other, lambda: stage_decoupled, config={}, lineage=[])
-    out = tmp_path / "renders"
-    args = ["--beside", other[:8], "--camera", "10", "--frame-stride", "5", "--truth", "--error"]
-    code, printed, _ = _render_cli(
-        capsys, store, key, stage_scene_path, *args, "--no-video", "--out", str(out)
-    )
+    args = ["--camera", "10", "--frame-stride", "5", "--error", "--no-video", "--out"]
+    alone, beside = tmp_path / "alone", tmp_path / "beside"
+    code, _, _ = _render_cli(capsys, store, key, stage_scene_path, *args, str(alone))
     assert code == 0
-    assert f"deform {key[:16]}, decouple {other[:16]} rendered side by side into {out}" in printed
+    with_others = ["--beside", other[:8], "--truth", *args, str(beside)]
+    code, printed, _ = _render_cli(capsys, store, key, stage_scene_path, *with_others)
+    assert code == 0
+    assert (
+        f"deform {key[:16]}, decouple {other[:16]} rendered side by side into {beside}" in printed
+    )
     scene = load_scene(stage_scene_path)
     view = next(v for v in scene.views_at(5, "all") if v.camera.camera_id == 10)
     truth = scene.image(view)
@@ -134,24 +107,13 @@ def test_render_puts_other_models_beside_with_their_error_images(
         ModelRenderer(SceneModel.from_artifact(a)).render([view.camera], view.time)[0]
         for a in (stage_deformed, stage_decoupled)
     ]
-    panels = [*renders, truth, *(error_image(render, truth) for render in renders)]
-    written = cv2.imread(str(out / "cam10" / "000005.png"))
-    np.testing.assert_array_equal(written, _bgr(torch.cat(panels, dim=1)))
+    errors = [error_image(render, truth) for render in renders]
+    written = cv2.imread(str(alone / "cam10" / "000005.png"))  # without --truth: no truth panel
+    np.testing.assert_array_equal(written, _bgr(torch.cat([renders[0], errors[0]], dim=1)))
+    assert len(np.unique(written[:, truth.shape[1] :].reshape(-1, 3), axis=0)) > 8  # it varies
+    written = cv2.imread(str(beside / "cam10" / "000005.png"))
+    np.testing.assert_array_equal(written, _bgr(torch.cat([*renders, truth, *errors], dim=1)))
     assert not np.array_equal(_bgr(renders[0]), _bgr(renders[1]))  # two models, two renders
-
-
-def test_render_path_puts_other_models_beside(
-    stored_deform, stage_scene_path, stage_deformed, tmp_path, capsys
-):
-    store, key = stored_deform
-    again = artifact_key("deform", 1, {"steps": 21}, "juggle", [])  # the same model again
-    store.get_or_build("deform", again, lambda: stage_deformed, config={}, lineage=[])
-    out = tmp_path / "renders"
-    args = ["--path", "2", "--beside", again[:8], "--no-video", "--out", str(out)]
-    assert _render_cli(capsys, store, key, stage_scene_path, *args)[0] == 0
-    view = cv2.imread(str(out / "path" / "000001.png"))
-    width = view.shape[1] // 2
-    np.testing.assert_array_equal(view[:, :width], view[:, width:])
 
 
 USAGE = 2  # a usage error: a malformed value or options that contradict each other
@@ -259,7 +221,7 @@ def test_a_path_renders_the_orbit_of_its_cameras_along_time_or_held(
 
 
 def test_a_path_through_the_train_cameras_is_a_video_by_default(
-    stored_deform, stage_scene_path, tmp_path, capsys
+    stored_deform, stage_scene_path, stage_deformed, tmp_path, capsys
 ):
     store, key = stored_deform
     out = tmp_path / "renders"
@@ -271,9 +233,14 @@ def test_a_path_through_the_train_cameras_is_a_video_by_default(
     assert all(not np.array_equal(a, b) for a, b in itertools.pairwise(frames))
     video = cv2.VideoCapture(str(out / "path.mp4"))
     assert int(video.get(cv2.CAP_PROP_FRAME_COUNT)) == 5
-    code, _, _ = _render_cli(capsys, store, key, stage_scene_path, *args[:1], "3", *args[2:])
-    assert code == 0  # a shorter path into the same folder replaces the frames
+    again = artifact_key("deform", 1, {"steps": 21}, "juggle", [])  # the same model again
+    store.get_or_build("deform", again, lambda: stage_deformed, config={}, lineage=[])
+    shorter = [*args[:1], "3", *args[2:], "--beside", again[:8]]
+    assert _render_cli(capsys, store, key, stage_scene_path, *shorter)[0] == 0
+    # a shorter path into the same folder replaces the frames; the model beside renders alike
     assert sorted(p.name for p in (out / "path").iterdir()) == [f"{v:06d}.png" for v in range(3)]
+    view = cv2.imread(str(out / "path" / "000001.png"))
+    np.testing.assert_array_equal(view[:, : view.shape[1] // 2], view[:, view.shape[1] // 2 :])
 
 
 @pytest.mark.parametrize("time", [float("nan"), float("inf")])
