@@ -7,8 +7,6 @@ import torch
 
 from relaygs.colour_fit import ColourFittedPSNR, channel_fit, channel_moments
 from relaygs.metrics import psnr
-from relaygs.stages import evaluate
-from relaygs.train.error_split import error_split
 
 
 def _images(seed: int, count: int) -> list[tuple[torch.Tensor, torch.Tensor]]:
@@ -49,10 +47,3 @@ def test_flat_renders_keep_gain_one_and_stay_finite():
     accumulator = ColourFittedPSNR()
     accumulator.add(0, torch.full((4, 4, 3), 0.5), torch.rand(4, 4, 3))
     assert 0.0 < accumulator.value() < 100.0
-
-
-def test_evaluation_reports_what_the_gap_tool_scores(stage_scene, stage_decoupled):
-    metrics = evaluate(stage_scene, stage_decoupled, {"eval": {"frame_stride": 4}})
-    fitted = error_split(stage_scene, stage_decoupled, "test", frame_stride=4, colour_fit=True)
-    assert metrics["psnr_cf"] == pytest.approx(fitted["psnr"], abs=1e-4)
-    assert metrics["psnr_cf"] >= metrics["psnr"] - 1e-4  # the fit includes gain 1, offset 0
