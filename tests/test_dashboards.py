@@ -61,15 +61,10 @@ class Dashboard:
         return handler.run().session_groups
 
 
-@pytest.fixture
-def sweep(fakes, tmp_path):
-    """A two-job `ablation_k` sweep (k = 8, 16) on fake stages and a 6-frame scene."""
+def test_the_dashboard_of_a_sweep(fakes, tmp_path):
+    # a two-job `ablation_k` sweep (k = 8, 16) on fake stages: HParams name the swept key first
     assert run_main(["+experiment=ablation_k", "relay.k=8,16", "budget=smoke", *SCENE]) == 0
-    (folder,) = tmp_path.glob("outputs/sweeps/*")
-    return folder
-
-
-def test_hparams_name_the_swept_key_first_and_show_the_sweeps_metrics(sweep):
+    (sweep,) = tmp_path.glob("outputs/sweeps/*")
     dashboard = Dashboard(sweep)
     assert dashboard.runs == ["0_k8", "1_k16", "sweep"]  # run names are the job folders
     experiment = dashboard.experiment()
@@ -92,9 +87,7 @@ def test_hparams_name_the_swept_key_first_and_show_the_sweeps_metrics(sweep):
         assert values[metric_tag("psnr")] == pytest.approx(result["psnr"])
         assert values[metric_tag("storage_mb")] == pytest.approx(result["storage_mb"])
         assert values[metric_tag("train_s_total")] == pytest.approx(result["train_s_total"])
-
-
-def test_tags_are_named_by_group_and_reused_stages_are_notes(sweep):
+    # tags named by group; a stage read back is a note
     first = EventAccumulator(str(sweep / "0_k8"), size_guidance=EVERYTHING)
     first.Reload()
     second = EventAccumulator(str(sweep / "1_k16"), size_guidance=EVERYTHING)
@@ -110,9 +103,7 @@ def test_tags_are_named_by_group_and_reused_stages_are_notes(sweep):
     assert "train/decouple/loss" in first.Tags()["scalars"]  # job 0 trained decouple
     assert "train/decouple/loss" not in second.Tags()["scalars"]  # job 1 read it back
     assert "reused/decouple/text_summary" in second.Tags()["tensors"]
-
-
-def test_the_sweep_run_holds_the_reports_plots_and_table(sweep):
+    # the sweep run holds the report's plots and table
     events = EventAccumulator(str(sweep / "sweep"), size_guidance=EVERYTHING)
     events.Reload()
     assert sorted(events.Tags()["images"]) == ["sweep/pareto", "sweep/psnr_by_frame"]
