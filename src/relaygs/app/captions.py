@@ -1,5 +1,5 @@
 """Images side by side, each with its caption drawn above it, so a picture in TensorBoard says
-what it shows (render, truth, error) without a legend elsewhere."""
+what it shows without a legend elsewhere."""
 
 from __future__ import annotations
 
@@ -10,9 +10,7 @@ import cv2
 import numpy as np
 import torch
 
-MIN_PANEL_HEIGHT = 160
-"""Panels lower than this are enlarged by a whole factor (nearest pixel), so a miniature
-scene's 27-pixel renders are visible and their captions fit."""
+MIN_PANEL_HEIGHT = 160  # lower panels are enlarged by a whole factor, so captions fit
 CAPTION_HEIGHT = 22
 FONT = cv2.FONT_HERSHEY_SIMPLEX
 FONT_SCALE = 0.5
@@ -20,9 +18,8 @@ MARGIN = 4
 
 
 def captioned_row(panels: Sequence[tuple[str, torch.Tensor]]) -> torch.Tensor:
-    """[H',W',3] float32 in [0,1]: the [H,W,3] images of `panels` (same size) side by side,
-    enlarged to at least MIN_PANEL_HEIGHT rows, each under a black band with its caption in
-    white (cut at the panel's edge when longer)."""
+    """[H',W',3] float32 in [0,1]: the same-sized images of `panels` side by side, enlarged to
+    at least MIN_PANEL_HEIGHT rows, each under a black band with its caption in white."""
     height = panels[0][1].shape[0]
     factor = max(1, math.ceil(MIN_PANEL_HEIGHT / max(height, 1)))
     return torch.cat([_captioned(label, image, factor) for label, image in panels], dim=1)

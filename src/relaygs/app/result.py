@@ -51,9 +51,8 @@ def build_result(
     job: int | None,
     builder: str,
 ) -> dict[str, Scalar]:
-    """The flat result of one run; `overrides` are the job's command-line/sweep overrides.
-    The `*_built_by_job` seconds count what job `builder` (a `BUILT_BY` value) built, before an
-    interruption too, so a sweep resumed in place still shows what it computed."""
+    """The flat result of one run; `*_built_by_job` count what job `builder` (a `BUILT_BY`
+    value) built, before an interruption too."""
     metrics = evaluation.metrics
     result = _identity(plan, job)
     result["status"] = STATUS_OK
@@ -85,8 +84,7 @@ def build_failed_result(
     overrides: Sequence[str],
     job: int | None,
 ) -> dict[str, Scalar]:
-    """The result of a run that raised `error`: its identity and parameters, status
-    `failed`, the error's one-line description and no metrics."""
+    """The result of a run that raised `error`: status `failed`, its `error_line`, no metrics."""
     result = _identity(plan, job)
     result.update({"status": STATUS_FAILED, "error": error_line(error)})
     result.update({name: None for name in METRIC_FIELDS})
@@ -113,9 +111,8 @@ def recorded_overrides(overrides: Sequence[str]) -> dict[str, str]:
 
 
 def effective_value(cfg: Mapping[str, Any], plan: RunPlan, key: str) -> Scalar:
-    """What `key` was for this run: a stage setting as the pipeline set it (after the node's
-    overrides and the budget, before the stage's canonical form, so a swept `relay.k` keeps the
-    swept value; None when no node runs that stage), else the config value (`_parameter`)."""
+    """What `key` was for this run: a stage setting as the pipeline set it, before its canonical
+    form (None when no node runs that stage), else the config value."""
     head, _, rest = key.partition(".")
     if head in plan.stage_types:
         sections = [config[head] for config in plan.node_configs.values() if head in config]
@@ -124,8 +121,7 @@ def effective_value(cfg: Mapping[str, Any], plan: RunPlan, key: str) -> Scalar:
 
 
 def write_result(run_dir: Path, result: Mapping[str, Scalar]) -> Path:
-    """Write `result.json` into the run dir and return its path; written whole or not at all
-    (`publish_text`), as a truncated result would make the sweep report refuse the folder."""
+    """Write `result.json` into the run dir, whole or not at all, and return its path."""
     path = Path(run_dir) / RESULT_FILE
     path.parent.mkdir(parents=True, exist_ok=True)
     publish_text(path, json.dumps(dict(result), indent=2, allow_nan=False) + "\n")
@@ -133,8 +129,7 @@ def write_result(run_dir: Path, result: Mapping[str, Scalar]) -> Path:
 
 
 def format_summary(result: Mapping[str, Scalar]) -> str:
-    """A short human-readable table of one run's results (and why its metrics are missing when
-    no test view was scored)."""
+    """A short human-readable table of one run's results (and why no test view was scored)."""
     rows = [
         ("PSNR", _fmt(result.get("psnr"), ".2f", " dB")),
         ("  colour-fitted", _fmt(result.get("psnr_cf"), ".2f", " dB")),
@@ -156,8 +151,7 @@ def format_summary(result: Mapping[str, Scalar]) -> str:
 
 
 def _run_label(result: Mapping[str, Scalar]) -> str:
-    """The run's variant and, where it is not the pipeline's name, its pipeline:
-    `no_gamma (relaygs)`, so each job of a sweep names what it ran."""
+    """The run's variant and, where it is not the pipeline's name, its pipeline."""
     variant, pipeline = result.get("variant"), result.get("pipeline")
     if variant is None or variant == pipeline:
         return str(pipeline)
@@ -188,8 +182,8 @@ def _add_parameters(
 def recorded_parameters(
     cfg: Mapping[str, Any], plan: RunPlan, overrides: Sequence[str]
 ) -> dict[str, Scalar]:
-    """The ablation axes and every recorded override, by dotted key, as a result holds them (a
-    group choice such as `budget=smoke` only where its `<group>.name` is not there already)."""
+    """The ablation axes and every recorded override by dotted key (a group choice only where its
+    `<group>.name` is not there already)."""
     parameters = {key: effective_value(cfg, plan, key) for key in ALWAYS_RECORDED}
     for key, text in recorded_overrides(overrides).items():
         if f"{key}.name" in parameters or key in parameters:
@@ -210,8 +204,8 @@ def _lookup(config: Mapping[str, Any], dotted: str) -> Any:
 
 
 def _parameter(value: Any) -> Scalar:
-    """A setting as a result field: a group by its `name`, a list (`test_cameras=[0,10]`) as
-    its JSON text so that sweeps over lists stay apart in the tables, else a JSON scalar."""
+    """A setting as a result field: a group by its `name`, a list as its JSON text, else a
+    JSON scalar."""
     if isinstance(value, Mapping):
         return _scalar(value.get("name"))
     if isinstance(value, list | tuple):

@@ -11,15 +11,13 @@ import torch
 
 from relaygs.app.tensorboard import TensorBoardLog
 
-SWEEP_RUN = "sweep"
-"""The run's folder in the sweep folder, and so its name in TensorBoard."""
+SWEEP_RUN = "sweep"  # the run's folder in the sweep folder, and so its name in TensorBoard
 EVENT_FILES = "events.out.tfevents.*"
 
 
 def log_sweep_report(sweep_dir: Path, figures: Sequence[Path], table: str) -> Path:
-    """Write the PNG `figures` as images `sweep/<file stem>` and the Markdown `table` as text
-    `sweep/summary` into a fresh event file of run SWEEP_RUN (an earlier report's event files
-    there are removed, so the run shows this report only); returns the run's folder."""
+    """Write the PNG `figures` and the Markdown `table` as run SWEEP_RUN, replacing an earlier
+    report's event files there; returns the run's folder."""
     folder = Path(sweep_dir) / SWEEP_RUN
     for old in folder.glob(EVENT_FILES):
         old.unlink()
