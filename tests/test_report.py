@@ -161,12 +161,17 @@ def test_the_summary_names_run_folders_that_hold_no_result(tmp_path, capsys):
     markdown = report.write_reports(tmp_path).markdown.read_text()
     (absent,) = [line for line in markdown.splitlines() if line.startswith("Not in the table")]
     assert absent.startswith("Not in the table: 7 ") and absent.endswith(" 5_k5 and 2 more.")
+    run = tmp_path / "0_k8"  # a finished run's own folder is not taken for a sweep
+    _refused(capsys, run, str(run), "result.json")
+    assert sorted(p.name for p in run.iterdir()) == ["result.json"]
 
 
-def test_the_summary_says_which_jobs_share_one_model(tmp_path):
+def test_the_summary_says_which_jobs_share_one_model_or_a_stage_note(tmp_path):
     # ablation_k on an 8-frame scene: k = 8 ... 128 are one segment, one relay/deform lineage
+    note = "[decouple] decouple marked no Gaussian as foreground"
     for number, variant in enumerate(["k8", "k16", "k32"]):
-        _job(tmp_path, number, variant, 25.0, 10.0, output_key="ab12cd34" + "0" * 56)
+        noted = {"notes": note} if number != 1 else {}
+        _job(tmp_path, number, variant, 25.0, 10.0, output_key="ab12cd34" + "0" * 56, **noted)
     _job(tmp_path, 3, "k4", 26.0, 10.0, output_key="ef56" + "0" * 60)
     _job(tmp_path, 4, "k2", None, 10.0, status="failed", output_key=None)
     markdown = report.write_reports(tmp_path).markdown.read_text()
@@ -176,6 +181,11 @@ def test_the_summary_says_which_jobs_share_one_model(tmp_path):
         "scene's frame count is one segment)\n"
     ) in markdown
     assert markdown.count("Same trained model") == 1
+    assert f"\nNote for job 0 (k8), job 2 (k32): {note}\n" in markdown
+    for number, variant in ((1, "k16"), (3, "k4"), (4, "k2")):
+        (tmp_path / f"{number}_{variant}" / "result.json").unlink()
+    markdown = report.write_reports(tmp_path).markdown.read_text()
+    assert f"\nNote for every job: {note}\n" in markdown
 
 
 def test_a_folder_of_sweeps_names_each_jobs_sweep(tmp_path):
@@ -202,19 +212,6 @@ def test_a_folder_of_sweeps_names_each_jobs_sweep(tmp_path):
     assert _row(markdown, "k8", "sw2")[2:5] == ["8", "25.50", "-0.50"]
     assert "- job 2 (k32): RuntimeError: x\n" in markdown
     assert _figures(markdown, "Stage time")[:2] == ["35", "70"]
-
-
-def test_the_summary_says_which_jobs_a_stage_note_is_about(tmp_path):
-    note = "[decouple] decouple marked no Gaussian as foreground"
-    _job(tmp_path, 0, "k16", 26.0, 20.0, notes=note)
-    _job(tmp_path, 1, "k8", 25.0, 10.0)
-    _job(tmp_path, 2, "k32", 25.0, 10.0, notes=note)
-    markdown = report.write_reports(tmp_path).markdown.read_text()
-    assert f"\nNote for job 0 (k16), job 2 (k32): {note}\n" in markdown
-    _job(tmp_path, 3, "k64", 25.0, 10.0, notes=note)
-    (tmp_path / "1_k8" / "result.json").unlink()
-    markdown = report.write_reports(tmp_path).markdown.read_text()
-    assert f"\nNote for every job: {note}\n" in markdown
 
 
 def test_when_no_job_is_the_reference_the_report_says_why_delta_is_missing(tmp_path, capsys):
@@ -297,44 +294,40 @@ def test_a_report_being_rewritten_is_never_read_half_written(sweep, monkeypatch)
 
 def test_a_job_folder_that_cannot_be_read_is_named_and_the_tables_stay(sweep, capsys, monkeypatch):
     # chmod 000 on a job folder (simulated: tests run as root): before, the report passed
-    # over it and rewrote the tables without that job, with exit 0
-    assert report.main([str(sweep)]) == 0
-    before = (sweep / "summary.md").read_text()
+    # over it and rewrote the tables without that job, with exit 0; a folder removed while
+    # the report looks (a running job cleaned it up) is passed over
+    vanishing = sweep / "3_k64" / "tmp"
+    vanishing.mkdir()
+    unreadable = []
     scandir = os.scandir
 
-    def unreadable(path):
-        if Path(path) == sweep / "2_k32":
+    def listed(path):
+        if Path(path) == vanishing:
+            vanishing.rmdir()
+        if Path(path) in unreadable:
             raise PermissionError(13, "Permission denied", str(path))
         return scandir(path)
 
-    monkeypatch.setattr(os, "scandir", unreadable)
+    monkeypatch.setattr(os, "scandir", listed)
+    assert report.main([str(sweep)]) == 0
+    before = (sweep / "summary.md").read_text()
+    unreadable.append(sweep / "2_k32")
     capsys.readouterr()
     _refused(capsys, sweep, str(sweep / "2_k32"), "Permission denied")
     assert (sweep / "summary.md").read_text() == before
 
 
-def test_a_folder_removed_while_the_report_looks_is_passed_over(sweep, monkeypatch):
-    scandir = os.scandir
-    vanishing = sweep / "3_k64" / "tmp"
-    vanishing.mkdir()
-
-    def removed_meanwhile(path):
-        if Path(path) == vanishing:
-            vanishing.rmdir()  # a running job cleaned it up
-        return scandir(path)
-
-    monkeypatch.setattr(os, "scandir", removed_meanwhile)
-    assert report.main([str(sweep)]) == 0
-
-
 def test_repeated_variant_labels_get_the_parameters_that_differ(tmp_path):
-    for number, (k, seed) in enumerate([(8, 0), (8, 1), (16, 0), (16, 1)]):
-        extra = {**UNLABELLED, "relay.k": k, "seed": seed}
-        _job(tmp_path, number, "k8", 25.0 + number, 10.0, **extra)
-    files = report.write_reports(tmp_path)
-    lines = files.markdown.read_text().splitlines()
-    assert lines[2].startswith("| Variant | seed | relay.k | PSNR")
-    assert _row(files.markdown.read_text(), "k8", "1", "16")[3] == "28.00"
+    # whole-number settings that some jobs lack (a synthetic scene: no downscale) read 2, not 2.0
+    settings = [(8, 0, 2, 0.2), (8, 1, 100, 0.5), (16, 0, None, None), (16, 1, None, None)]
+    for number, (k, seed, downscale, weight) in enumerate(settings):
+        extra = {"relay.k": k, "scene.loader.downscale": downscale, "train.ssim_weight": weight}
+        _job(tmp_path, number, "k8", 25.0 + number, 10.0, **UNLABELLED, seed=seed, **extra)
+    text = report.write_reports(tmp_path).table
+    header = "| Variant | seed | relay.k | scene.loader.downscale | train.ssim_weight | PSNR"
+    assert text.splitlines()[2].startswith(header)
+    assert _row(text, "k8", "1", "8")[3:6] == ["100", "0.5", "26.00"]
+    assert _row(text, "k8", "1", "16")[3:6] == ["n/a", "n/a", "28.00"]
 
 
 def test_repeated_seeds_get_a_mean_and_std_table_in_order_of_first_appearance(tmp_path):
@@ -452,57 +445,40 @@ def test_usage_errors_are_one_line_and_help_still_works(capsys):
     assert caught.value.code == 0 and "usage:" in capsys.readouterr().out
 
 
+NOT_A_NUMBER = "expected a finite number or null"
+NOT_FLAT = "expected a number, string, bool or null"  # the tables group and compare values
+
+
 @pytest.mark.parametrize(
     ("content", "named"),
     [
-        (b"\xff\xfe{}", "utf-8"),
-        (b"{not json", "unreadable"),
-        (b"{}", "variant, job, pipeline, scene, seed, psnr"),
-        (b'[{"variant": "k8"}]', "JSON object"),
-        (b'{"variant": "k8", "pipeline": "relaygs", "scene": "juggle", "seed": 0}', "job, psnr"),
+        (b"\xff\xfe{}", ["utf-8"]),
+        (b"{not json", ["unreadable"]),
+        (b"{}", ["variant, job, pipeline, scene, seed, psnr"]),
+        (b'[{"variant": "k8"}]', ["JSON object"]),
+        (b'{"variant": "k8", "pipeline": "relaygs", "scene": "juggle", "seed": 0}', ["job, psnr"]),
+        # a value of the wrong type, set in a complete result: named with its key
+        ({"job": "x"}, [f"job: {NOT_A_NUMBER}", "'x'"]),
+        ({"psnr": "abc"}, [f"psnr: {NOT_A_NUMBER}", "'abc'"]),
+        ({"train_s_total": True}, [f"train_s_total: {NOT_A_NUMBER}", "True"]),
+        ({"budget.multiplier": "2x"}, [f"budget.multiplier: {NOT_A_NUMBER}", "'2x'"]),
+        ({"scene": ["juggle"]}, [f"scene: {NOT_FLAT}", "['juggle']"]),
+        ({"variant": {"k": 16}}, [f"variant: {NOT_FLAT}", "{'k': 16}"]),
     ],
 )
-def test_an_unreadable_or_incomplete_result_is_named(sweep, capsys, content, named):
-    path = sweep / "0_k8" / "result.json"
-    path.write_bytes(content)
-    _refused(capsys, sweep, str(path), named)
-    assert not (sweep / "summary.md").exists()
-
-
-NOT_A_NUMBER = "a finite number or null"
-NOT_FLAT = "a number, string, bool or null"
-
-
-@pytest.mark.parametrize(
-    ("field", "value", "expected"),
-    [
-        ("job", "x", NOT_A_NUMBER),
-        ("psnr", "abc", NOT_A_NUMBER),
-        ("train_s_total", True, NOT_A_NUMBER),
-        ("budget.multiplier", "2x", NOT_A_NUMBER),
-        ("scene", ["juggle"], NOT_FLAT),  # the tables group and compare values
-        ("variant", {"k": 16}, NOT_FLAT),
-    ],
-)
-def test_a_result_with_a_value_of_the_wrong_type_is_named_with_its_key(
-    sweep, capsys, field, value, expected
-):
+def test_an_unreadable_incomplete_or_mistyped_result_is_named(sweep, capsys, content, named):
     path = sweep / "1_k16" / "result.json"
-    path.write_text(json.dumps({**json.loads(path.read_text()), field: value}))
-    _refused(capsys, sweep, str(path), f"{field}: expected {expected}", repr(value))
+    if isinstance(content, dict):
+        content = json.dumps({**json.loads(path.read_text()), **content}).encode()
+    path.write_bytes(content)
+    _refused(capsys, sweep, str(path), *named)
+    assert not (sweep / "summary.md").exists()
 
 
 @pytest.mark.parametrize("name", ["summary.md", "pareto.png"])
 def test_a_folder_where_a_report_file_goes_is_named(sweep, capsys, name):
     (sweep / name).mkdir()
     _refused(capsys, sweep, str(sweep / name))
-
-
-def test_a_single_run_folder_is_not_taken_for_a_sweep(tmp_path, capsys):
-    _job(tmp_path, 0, "k16", 26.0, 20.0)
-    run = tmp_path / "0_k16"
-    _refused(capsys, run, str(run), "result.json")
-    assert sorted(p.name for p in run.iterdir()) == ["result.json"]
 
 
 def test_jobs_repeated_at_one_seed_get_no_table_over_seeds(tmp_path):
@@ -611,17 +587,6 @@ def test_pareto_time_axis_is_logarithmic_only_for_a_wide_time_range(
     # the slowest job takes 30x (log) or 15x (linear) the fastest; the threshold is 20x
     pareto.plot_pareto([1.0, slowest], [20.0, 25.0], ["a", "b"], tmp_path / "p.png", "t")
     assert figures[0].axes[0].get_xscale() == scale
-
-
-def test_whole_number_settings_some_jobs_lack_read_as_integers_in_the_table(tmp_path):
-    settings = [(2, 0.2), (100, 0.5), (None, None)]  # a run of a synthetic scene: no downscale
-    for number, (downscale, weight) in enumerate(settings):
-        extra = {"scene.loader.downscale": downscale, "train.ssim_weight": weight}
-        _job(tmp_path, number, "k8", 25.0, 10.0, reference_variant=None, **extra)
-    lines = report.write_reports(tmp_path).table.splitlines()
-    assert lines[2].startswith("| Variant | scene.loader.downscale | train.ssim_weight | PSNR")
-    rows = [line.split(" | ")[:3] for line in lines if line.startswith("| k8 |")]
-    assert rows == [["| k8", "2", "0.2"], ["| k8", "100", "0.5"], ["| k8", "n/a", "n/a"]]
 
 
 def test_the_title_names_the_experiment_only_when_every_job_ran_it(sweep, tmp_path):
