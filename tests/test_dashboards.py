@@ -167,10 +167,7 @@ def test_booleans_stay_booleans_and_mixed_axes_become_text(tmp_path):
     assert start.hparams["deform.gamma"].bool_value is True
     assert start.hparams["relay.k"].string_value == "None"
     assert start.group_name == "job"
-
-
-def test_only_the_swept_keys_and_identity_without_all(tmp_path):
     axes = SweepAxes({"pipeline": ["relaygs", "4dgs"]}, {"pipeline": "4dgs"})
     config = {"deform": {"gamma": True}, "variant": "4dgs", "pipeline": {"name": "4dgs"}}
-    # a swept group is not repeated as `<group>.name`
+    # without "all": the swept keys and identity; a swept group is not repeated as `.name`
     assert job_hparams(config, axes, "swept") == {"pipeline": "4dgs", "variant": "4dgs"}

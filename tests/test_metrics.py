@@ -50,10 +50,12 @@ def _direct_ssim(x: np.ndarray, y: np.ndarray) -> float:
     return float(np.mean(values))
 
 
-def test_psnr_of_a_known_error_is_exact():
+def test_psnr_of_a_known_error_is_exact_and_averaged_per_image():
     gt = torch.rand(8, 9, 3) * 0.6 + 0.2
     assert psnr(gt + 0.1, gt).item() == pytest.approx(20.0, abs=1e-4)
     assert psnr(gt - 0.01, gt).item() == pytest.approx(40.0, abs=1e-3)
+    batch = torch.stack([gt + 0.1, gt - 0.01])  # averaged per image, not per pixel
+    assert psnr(batch, torch.stack([gt, gt])).item() == pytest.approx(30.0, abs=1e-3)
 
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float16, torch.bfloat16])
@@ -62,14 +64,6 @@ def test_psnr_of_identical_images_is_capped_at_100_db(dtype):
     value = psnr(image, image)
     assert math.isfinite(value.item())
     assert value.item() == pytest.approx(100.0)
-
-
-def test_psnr_averages_per_image_not_per_pixel():
-    gt = torch.full((2, 4, 4, 3), 0.5)
-    pred = gt.clone()
-    pred[0] += 0.1
-    pred[1] += 0.01
-    assert psnr(pred, gt).item() == pytest.approx((20.0 + 40.0) / 2, abs=1e-3)
 
 
 def test_masked_psnr_counts_only_masked_pixels():
@@ -91,11 +85,6 @@ def test_empty_masks_are_left_out_and_all_empty_gives_nan():
     mask[0] = True
     assert fg_psnr(pred, gt, mask).item() == pytest.approx(20.0, abs=1e-4)
     assert math.isnan(fg_psnr(pred, gt, torch.zeros_like(mask)).item())
-
-
-def test_ssim_of_identical_images_is_one():
-    image = torch.rand(12, 14, 3)
-    assert ssim(image, image).item() == pytest.approx(1.0, abs=1e-6)
 
 
 def _flat(value: float, *shape: int) -> torch.Tensor:
@@ -127,6 +116,7 @@ def test_ssim_batched_equals_mean_of_single_images():
     targets = torch.rand(3, 10, 12, 3)
     single = torch.stack([ssim(images[i], targets[i]) for i in range(3)]).mean()
     assert ssim(images, targets).item() == pytest.approx(single.item(), abs=1e-6)
+    assert ssim(images, images).item() == pytest.approx(1.0, abs=1e-6)  # identical images
 
 
 def test_dssim_loss_is_differentiable_descends_and_stays_finite_on_flat_images():

@@ -47,17 +47,12 @@ def test_a_logged_bar_redraws_every_half_minute_where_a_live_one_redraws_each_se
         assert logged.mininterval == logged.maxinterval == LOG_INTERVAL_S
     with progress_bar(total=10, stream=_Terminal()) as live:
         assert live.mininterval < 1.0  # tqdm's own
+    closed = io.StringIO()
+    closed.close()
+    assert not is_terminal(closed) and not is_terminal(io.StringIO()) and is_terminal(_Terminal())
     logged, live = _records(io.StringIO(), 200), _records(_Terminal(), 200)
     assert 3 <= logged <= 2 * 200 / LOG_INTERVAL_S + 3  # still alive, but sparse
     assert live >= 100
-
-
-def test_is_terminal_is_false_for_closed_and_plain_streams() -> None:
-    closed = io.StringIO()
-    closed.close()
-    assert not is_terminal(closed)
-    assert not is_terminal(io.StringIO())
-    assert is_terminal(_Terminal())
 
 
 def test_a_job_label_leads_lines_and_bar_names_only_inside_its_block() -> None:
