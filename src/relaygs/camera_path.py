@@ -99,7 +99,6 @@ def _looking_at(eye: Tensor, target: Tensor, up: Tensor, reference: Camera) -> C
 
 
 def _unit(vector: Tensor, fallback: Tensor) -> Tensor:
-    """`vector` scaled to length 1, or `fallback` (scaled) when `vector` is about zero."""
     length = float(vector.norm())
     if length > 1e-9:
         return vector / length
@@ -107,7 +106,6 @@ def _unit(vector: Tensor, fallback: Tensor) -> Tensor:
 
 
 def _perpendicular(axis: Tensor) -> Tensor:
-    """A unit vector at right angles to the unit `axis`."""
     helper = torch.zeros_like(axis)
     helper[int(axis.abs().argmin())] = 1.0
     return _unit(torch.linalg.cross(axis, helper), fallback=helper)

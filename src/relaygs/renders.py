@@ -124,7 +124,6 @@ def write_renders(
 
 
 def _renderers(scene: Scene, models: Sequence[SceneModel]) -> list[ModelRenderer]:
-    """A renderer per model, each checked against the scene."""
     for model in models:
         require_its_scene(model, scene)
     return [ModelRenderer(model) for model in models]

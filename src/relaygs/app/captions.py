@@ -26,16 +26,10 @@ def captioned_row(panels: Sequence[tuple[str, torch.Tensor]]) -> torch.Tensor:
 
 
 def _captioned(label: str, image: torch.Tensor, factor: int) -> torch.Tensor:
-    """One panel enlarged `factor` times, under its caption band."""
     pixels = image.detach().float().cpu().clamp(0.0, 1.0)
     pixels = pixels.repeat_interleave(factor, dim=0).repeat_interleave(factor, dim=1)
     band = np.zeros((CAPTION_HEIGHT, pixels.shape[1], 3), dtype=np.uint8)
-    baseline = CAPTION_HEIGHT - (CAPTION_HEIGHT - _text_height()) // 2
+    (_, text_height), _ = cv2.getTextSize("T", FONT, FONT_SCALE, 1)  # a capital's height
+    baseline = CAPTION_HEIGHT - (CAPTION_HEIGHT - text_height) // 2
     cv2.putText(band, label, (MARGIN, baseline), FONT, FONT_SCALE, (255, 255, 255), 1, cv2.LINE_AA)
     return torch.cat([torch.from_numpy(band).float() / 255.0, pixels], dim=0)
-
-
-def _text_height() -> int:
-    """Height in pixels of a capital letter at FONT_SCALE."""
-    (_, height), _ = cv2.getTextSize("T", FONT, FONT_SCALE, 1)
-    return height

@@ -18,6 +18,7 @@ LOG_SCALE_RATIO = 20.0  # a log time axis when the slowest job takes more times 
 LABEL_STEP_PT = 9.0  # how far (points) a label that would overprint another moves at a time
 LABEL_ROOM = 0.15  # vertical margin (of the data range) that leaves labels room in the axes
 MAX_LABEL_STEPS = 12  # steps up or down per label at most: in a larger crowd labels overprint
+LABEL_STEPS = [0, *(sign * step for step in range(1, MAX_LABEL_STEPS + 1) for sign in (1, -1))]
 
 
 def pareto_front(times: Sequence[float], scores: Sequence[float]) -> list[int]:
@@ -89,7 +90,7 @@ def spread_labels(figure: Figure, notes: Sequence[Annotation]) -> None:
             note.set_horizontalalignment("right")
             note.xyann = (-note.xyann[0], note.xyann[1])
         x, y = note.xyann
-        for step in _label_steps():
+        for step in LABEL_STEPS:
             note.xyann = (x, y + step * LABEL_STEP_PT)
             box = _text_box(note, renderer)
             fits = inside.y0 <= box.y0 and box.y1 <= inside.y1
@@ -103,8 +104,3 @@ def spread_labels(figure: Figure, notes: Sequence[Annotation]) -> None:
 def _text_box(note: Annotation, renderer: RendererAgg) -> Bbox:
     """Where a label's text is drawn (the annotation's own extent includes its leader line)."""
     return Text.get_window_extent(note, renderer)
-
-
-def _label_steps() -> list[int]:
-    """Label offsets to try, in steps, nearest first: 0, 1, -1, 2, -2, ..."""
-    return [0, *(sign * step for step in range(1, MAX_LABEL_STEPS + 1) for sign in (1, -1))]

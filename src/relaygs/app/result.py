@@ -73,8 +73,8 @@ def build_result(
     )
     extra = {name: _scalar(value) for name, value in metrics.items() if name not in result}
     result.update({name: value for name, value in extra.items() if value is not None})
-    _add_parameters(result, cfg, plan, overrides)
-    return result
+    parameters = recorded_parameters(cfg, plan, overrides)
+    return result | {key: value for key, value in parameters.items() if key not in result}
 
 
 def build_failed_result(
@@ -88,8 +88,8 @@ def build_failed_result(
     result = _identity(plan, job)
     result.update({"status": STATUS_FAILED, "error": error_line(error)})
     result.update({name: None for name in METRIC_FIELDS})
-    _add_parameters(result, cfg, plan, overrides)
-    return result
+    parameters = recorded_parameters(cfg, plan, overrides)
+    return result | {key: value for key, value in parameters.items() if key not in result}
 
 
 def error_line(error: BaseException) -> str:
@@ -151,7 +151,6 @@ def format_summary(result: Mapping[str, Scalar]) -> str:
 
 
 def _run_label(result: Mapping[str, Scalar]) -> str:
-    """The run's variant and, where it is not the pipeline's name, its pipeline."""
     variant, pipeline = result.get("variant"), result.get("pipeline")
     if variant is None or variant == pipeline:
         return str(pipeline)
@@ -159,7 +158,6 @@ def _run_label(result: Mapping[str, Scalar]) -> str:
 
 
 def _identity(plan: RunPlan, job: int | None) -> dict[str, Scalar]:
-    """The fields that say which run this is (experiment, variant, job, pipeline, scene, seed)."""
     return {
         "experiment": plan.run.experiment_name,
         "variant": plan.run.variant,
@@ -169,14 +167,6 @@ def _identity(plan: RunPlan, job: int | None) -> dict[str, Scalar]:
         "scene": plan.scene.name,
         "seed": plan.run.seed,
     }
-
-
-def _add_parameters(
-    result: dict[str, Scalar], cfg: Mapping[str, Any], plan: RunPlan, overrides: Sequence[str]
-) -> None:
-    """Add `recorded_parameters` to `result`, keeping the fields it already has."""
-    for key, value in recorded_parameters(cfg, plan, overrides).items():
-        result.setdefault(key, value)
 
 
 def recorded_parameters(
@@ -194,7 +184,6 @@ def recorded_parameters(
 
 
 def _lookup(config: Mapping[str, Any], dotted: str) -> Any:
-    """The value at a dotted path, or None when any part is missing."""
     value: Any = config
     for part in dotted.split(".") if dotted else []:
         if not isinstance(value, Mapping) or part not in value:
@@ -223,5 +212,4 @@ def _scalar(value: Any) -> Scalar:
 
 
 def _fmt(value: Scalar, spec: str, unit: str = "") -> str:
-    """`value` formatted with `spec` and a unit, or "n/a" when missing."""
     return "n/a" if not isinstance(value, int | float) else f"{value:{spec}}{unit}"

@@ -266,12 +266,10 @@ def computed_in_sweep(table: pd.DataFrame, column: str) -> pd.Series | None:
 
 
 def _sum(values: pd.Series | None) -> float | None:
-    """Sum of the numeric values (None for no column)."""
     return None if values is None else sum(float(v) for v in values if is_number(v))
 
 
 def _seconds(table: pd.DataFrame, columns: tuple[str, ...]) -> float | None:
-    """Sum of the numeric values in `columns` over all rows (None when a column is missing)."""
     if not set(columns) <= set(table.columns):
         return None
     return sum(_sum(table[column]) for column in columns)

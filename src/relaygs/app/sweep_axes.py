@@ -40,6 +40,5 @@ def recorded_sweep_axes(sweep_dir: Path, job: Sequence[str]) -> SweepAxes:
 
 
 def _swept_values(overrides: Sequence[str], swept: set[str]) -> dict[str, Any]:
-    """{key without `+`/`~`: parsed value} of the overrides whose key is in `swept`."""
     chosen = [arg for arg in overrides if arg.partition("=")[0] in swept]
     return {override.key_or_group: override.value() for override in parse_overrides(chosen)}

@@ -32,7 +32,6 @@ def log_sweep_report(sweep_dir: Path, figures: Sequence[Path], table: str) -> Pa
 
 
 def _read_png(path: Path) -> torch.Tensor:
-    """An RGB image file as [H,W,3] float32 in [0,1]."""
     pixels = cv2.imread(str(path), cv2.IMREAD_COLOR)
     if pixels is None:
         raise OSError(f"cannot read the image {path}")

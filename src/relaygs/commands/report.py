@@ -4,7 +4,7 @@ summary_budget.* over budget.multiplier, from its jobs' result.json and per_view
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -35,10 +35,8 @@ SUMMARY_CSV = "summary.csv"
 SUMMARY_MD = "summary.md"
 PARETO_PNG = "pareto.png"
 FRAMES_PNG = "psnr_by_frame.png"
-MEAN_CSV = "summary_mean.csv"
-MEAN_MD = "summary_mean.md"
-BUDGET_CSV = "summary_budget.csv"
-BUDGET_MD = "summary_budget.md"
+MEAN = "summary_mean"
+BUDGET = "summary_budget"
 
 
 @dataclass(frozen=True)
@@ -82,7 +80,6 @@ def _require_sweep_folder(sweep_dir: Path) -> Path:
 
 
 def _write_files(table: pd.DataFrame, sweep_dir: Path) -> ReportFiles:
-    """Write the summary table, the plots and the mean and budget tables where they apply."""
     title = _title(table, sweep_dir)
     curves = frame_curves(table)  # reads every per_view.csv: refuses a damaged one before writing
     csv_path = sweep_dir / SUMMARY_CSV
@@ -108,8 +105,15 @@ def _write_files(table: pd.DataFrame, sweep_dir: Path) -> ReportFiles:
     frames = plot_frame_curves(curves, sweep_dir / FRAMES_PNG, title)
     if frames is None:
         _remove(sweep_dir / FRAMES_PNG)
-    mean = _write_mean(table, sweep_dir, title)
-    budget = _write_budget(table, sweep_dir, title)
+    means = aggregate_table(table) if {"scene", "variant"} <= set(table.columns) else None
+    repeated = means is not None and not means.empty and (means["seeds"] > 1).any()
+    mean_title = f"{title}: mean ± std over seeds"
+    mean = _write_table(
+        means if repeated else None, sweep_dir / MEAN, aggregate_markdown, mean_title
+    )
+    marginal = marginal_table(table) if varies_budget(table) else None
+    budget_title = f"{title}: what a minute buys"
+    budget = _write_table(marginal, sweep_dir / BUDGET, marginal_markdown, budget_title)
     board = log_sweep_report(sweep_dir, [p for p in (pareto, frames) if p is not None], markdown)
     failed = tuple(failed_jobs(table))
     return ReportFiles(
@@ -117,28 +121,17 @@ def _write_files(table: pd.DataFrame, sweep_dir: Path) -> ReportFiles:
     )
 
 
-def _write_mean(table: pd.DataFrame, sweep_dir: Path, title: str) -> Path | None:
-    """`summary_mean.{csv,md}` (mean ± std over seeds) when a group has two or more seeds."""
-    mean = aggregate_table(table) if {"scene", "variant"} <= set(table.columns) else None
-    if mean is None or mean.empty or not (mean["seeds"] > 1).any():
-        _remove(sweep_dir / MEAN_CSV, sweep_dir / MEAN_MD)
+def _write_table(
+    table: pd.DataFrame | None, stem: Path, markdown: Callable[[pd.DataFrame, str], str], title: str
+) -> Path | None:
+    """`<stem>.csv` and `<stem>.md` of an optional table; without rows, an earlier report's go."""
+    csv_path, markdown_path = stem.with_suffix(".csv"), stem.with_suffix(".md")
+    if table is None or table.empty:
+        _remove(csv_path, markdown_path)
         return None
-    _write_csv(mean, sweep_dir / MEAN_CSV)
-    path = sweep_dir / MEAN_MD
-    publish_text(path, aggregate_markdown(mean, f"{title}: mean ± std over seeds"))
-    return path
-
-
-def _write_budget(table: pd.DataFrame, sweep_dir: Path, title: str) -> Path | None:
-    """`summary_budget.{csv,md}` (dB per extra minute) when the sweep varies the multiplier."""
-    marginal = marginal_table(table) if varies_budget(table) else None
-    if marginal is None or marginal.empty:
-        _remove(sweep_dir / BUDGET_CSV, sweep_dir / BUDGET_MD)
-        return None
-    _write_csv(marginal, sweep_dir / BUDGET_CSV)
-    path = sweep_dir / BUDGET_MD
-    publish_text(path, marginal_markdown(marginal, f"{title}: what a minute buys"))
-    return path
+    _write_csv(table, csv_path)
+    publish_text(markdown_path, markdown(table, title))
+    return markdown_path
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -167,7 +160,6 @@ def describe(files: ReportFiles) -> str:
 
 
 def _remove(*paths: Path) -> None:
-    """Remove files an earlier report wrote that do not apply now."""
     for path in paths:
         path.unlink(missing_ok=True)
 
