@@ -31,10 +31,15 @@ RECORDS = [
 ]
 
 
-def test_records_survive_the_csv_exactly(tmp_path):
-    path = write_per_view(tmp_path / "run" / PER_VIEW_FILE, RECORDS)
+@pytest.mark.parametrize("records", [RECORDS, []])
+def test_records_survive_the_csv_and_the_artifact_tensors_exactly(tmp_path, records):
+    path = write_per_view(tmp_path / "run" / PER_VIEW_FILE, records)
     assert path.read_text().splitlines()[0] == "frame,camera,psnr,ssim,fg_psnr"
-    assert read_per_view(path) == RECORDS  # 1/3 included: floats round-trip exactly
+    assert read_per_view(path) == records  # 1/3 included: floats round-trip exactly
+    tensors = to_tensors(iter(records))  # a generator's records are stored whole
+    assert all(bool(t.isfinite().all()) for t in tensors.values() if t.is_floating_point())
+    assert from_tensors(tensors) == records
+    assert from_tensors({}) is None  # an artifact without per-view records
 
 
 def test_frame_means_average_each_frames_views_that_have_the_metric():
@@ -121,16 +126,14 @@ def test_the_report_plots_psnr_by_frame_where_a_job_has_per_view_metrics(tmp_pat
     plot = tmp_path / report.FRAMES_PNG
     assert plot.read_bytes().startswith(PNG_SIGNATURE)
     assert str(plot) in capsys.readouterr().out
-
-
-def test_a_damaged_per_view_file_fails_the_report_in_one_line_before_it_writes(tmp_path, capsys):
-    _job(tmp_path, 0, "k8", 0, {0: 20.0})
-    (tmp_path / "0_k8" / PER_VIEW_FILE).write_text("frame,camera,psnr,ssim,fg_psnr\n0,0,x,1,\n")
+    # a damaged file fails the report in one line before it writes anything
+    before = (tmp_path / report.SUMMARY_MD).read_text()
+    _job(tmp_path, 2, "k16", 0, {0: 21.0})
+    (tmp_path / "2_k16" / PER_VIEW_FILE).write_text("frame,camera,psnr,ssim,fg_psnr\n0,0,x,1,\n")
     assert report.main([str(tmp_path)]) == 1
     err = capsys.readouterr().err
-    assert err.startswith("error: ") and err.count("\n") == 1
-    assert f"0_k8/{PER_VIEW_FILE}:2" in err
-    assert not (tmp_path / report.SUMMARY_MD).exists()  # no half-renewed set of report files
+    assert err.startswith("error: ") and err.count("\n") == 1 and f"2_k16/{PER_VIEW_FILE}:2" in err
+    assert (tmp_path / report.SUMMARY_MD).read_text() == before  # no half-renewed report
 
 
 @pytest.mark.parametrize(
@@ -159,14 +162,6 @@ def test_stored_columns_of_unequal_length_are_refused():
     del tensors["per_view.ssim"]
     with refused(InputError, "per_view"):
         from_tensors(tensors)
-
-
-@pytest.mark.parametrize("records", [RECORDS, []])
-def test_records_survive_the_artifact_tensors_exactly(records):
-    tensors = to_tensors(iter(records))  # a generator's records are stored whole
-    assert all(bool(t.isfinite().all()) for t in tensors.values() if t.is_floating_point())
-    assert from_tensors(tensors) == records
-    assert from_tensors({}) is None  # an artifact without per-view records
 
 
 def test_a_stored_evaluation_keeps_its_records_out_of_the_manifest(tmp_path):

@@ -21,13 +21,21 @@ from relaygs.train.model_render import ModelRenderer
 from relaygs.train.scene_model import SceneModel
 
 
-def _render_cli(capsys, store, key, scene, *args):
-    try:
-        code = main(["--root", str(store.root), "render", key[:8], "--scene", str(scene), *args])
-    except SystemExit as stop:  # a malformed value: argparse's usage error
-        code = stop.code
-    out, err = capsys.readouterr()
-    return code, out, err
+@pytest.fixture
+def render(stored_deform, stage_scene_path, capsys):
+    """`artifacts render` of the stored deform model on the stage scene: (code, stdout, stderr)."""
+    store, key = stored_deform
+
+    def run(*args, scene=stage_scene_path):
+        try:
+            code = main(
+                ["--root", str(store.root), "render", key[:8], "--scene", str(scene), *args]
+            )
+        except SystemExit as stop:  # a malformed value: argparse's usage error
+            code = stop.code
+        return (code, *capsys.readouterr())
+
+    return run
 
 
 def _bgr(image):
@@ -36,13 +44,10 @@ def _bgr(image):
 
 
 def test_render_writes_each_frame_beside_the_truth_and_a_video_per_camera(
-    stored_deform, stage_scene_path, stage_deformed, tmp_path, capsys
+    render, stage_scene_path, stage_deformed, tmp_path
 ):
-    store, key = stored_deform
     out = tmp_path / "renders"
-    code, printed, _ = _render_cli(
-        capsys, store, key, stage_scene_path, "--frame-stride", "3", "--truth", "--out", str(out)
-    )
+    code, printed, _ = render("--frame-stride", "3", "--truth", "--out", str(out))
     assert code == 0
     scene = load_scene(stage_scene_path)
     renderer = ModelRenderer(SceneModel.from_artifact(stage_deformed))
@@ -69,33 +74,32 @@ def test_render_writes_each_frame_beside_the_truth_and_a_video_per_camera(
 
 
 def test_render_defaults_to_a_folder_named_after_the_model_and_picks_cameras_on_request(
-    stored_deform, stage_scene_path, tmp_path, capsys, monkeypatch
+    render, stored_deform, tmp_path, monkeypatch
 ):
-    store, key = stored_deform
+    key = stored_deform[1]
     monkeypatch.chdir(tmp_path)
-    code, printed, _ = _render_cli(capsys, store, key, stage_scene_path, "--frame-stride", "4")
+    code, printed, _ = render("--frame-stride", "4")
     out = tmp_path / "outputs" / "renders" / f"deform-{key[:16]}"
     assert code == 0 and f"rendered into {out}\n" in printed
     assert len(list((out / "cam00").glob("*.png"))) == 2 and (out / "cam00.mp4").is_file()
     out = tmp_path / "renders"
     args = ["--camera", "3", "--no-video", "--out", str(out)]
-    assert _render_cli(capsys, store, key, stage_scene_path, *args)[0] == 0
+    assert render(*args)[0] == 0
     assert sorted(p.name for p in out.iterdir()) == ["cam03"]
     assert len(list((out / "cam03").glob("*.png"))) == 8
 
 
 def test_render_puts_other_models_beside_with_their_error_images(
-    stored_deform, stage_scene_path, stage_deformed, stage_decoupled, tmp_path, capsys
+    render, stored_deform, stage_scene_path, stage_deformed, stage_decoupled, tmp_path
 ):
     store, key = stored_deform
     other = artifact_key("decouple", 1, {"steps": 2}, "juggle", [])
     store.get_or_build("decouple", other, lambda: stage_decoupled, config={}, lineage=[])
     args = ["--camera", "10", "--frame-stride", "5", "--error", "--no-video", "--out"]
     alone, beside = tmp_path / "alone", tmp_path / "beside"
-    code, _, _ = _render_cli(capsys, store, key, stage_scene_path, *args, str(alone))
-    assert code == 0
+    assert render(*args, str(alone))[0] == 0
     with_others = ["--beside", other[:8], "--truth", *args, str(beside)]
-    code, printed, _ = _render_cli(capsys, store, key, stage_scene_path, *with_others)
+    code, printed, _ = render(*with_others)
     assert code == 0
     assert (
         f"deform {key[:16]}, decouple {other[:16]} rendered side by side into {beside}" in printed
@@ -139,27 +143,23 @@ USAGE = 2  # a usage error: a malformed value or options that contradict each ot
         (["--path", "2", "--camera", "99"], 1, "camera 99 is not in "),
     ],
 )
-def test_bad_render_options_fail_in_one_line(
-    stored_deform, stage_scene_path, tmp_path, capsys, args, status, message
-):
-    store, key = stored_deform
+def test_bad_render_options_fail_in_one_line(render, tmp_path, args, status, message):
     out = tmp_path / "renders"
-    code, _, err = _render_cli(capsys, store, key, stage_scene_path, *args, "--out", str(out))
+    code, _, err = render(*args, "--out", str(out))
     assert code == status and message in err and err.count("\n") == 1
     assert (code == USAGE) == ("render --help)" in err)  # usage errors say where help is
     assert not out.exists() or not any(out.rglob("*.png"))
 
 
 def test_render_refuses_an_output_file_and_a_scene_of_other_length(
-    stored_deform, stage_scene_path, tiny_synth_scene, tmp_path, capsys
+    render, tiny_synth_scene, tmp_path
 ):
-    store, key = stored_deform
     blocker = tmp_path / "file"
     blocker.write_text("keep me")
-    code, _, err = _render_cli(capsys, store, key, stage_scene_path, "--out", str(blocker))
+    code, _, err = render("--out", str(blocker))
     assert code == 1 and f"--out: {blocker} is not a folder" in err
     assert blocker.read_text() == "keep me"
-    code, _, err = _render_cli(capsys, store, key, tiny_synth_scene, "--out", str(tmp_path / "r"))
+    code, _, err = render("--out", str(tmp_path / "r"), scene=tiny_synth_scene)
     assert code == 1 and "trained on 8 frames but" in err and "has 6" in err
 
 
@@ -203,12 +203,11 @@ def test_render_settings_refuse_non_finite_fps():
 
 @pytest.mark.parametrize(("hold", "times"), [([], [0.0, 0.5, 1.0]), (["--path-frame", "5"], None)])
 def test_a_path_renders_the_orbit_of_its_cameras_along_time_or_held(
-    stored_deform, stage_scene_path, stage_deformed, tmp_path, capsys, hold, times
+    render, stage_scene_path, stage_deformed, tmp_path, hold, times
 ):
-    store, key = stored_deform
     out = tmp_path / "renders"
     args = ["--camera", "0", "--path", "3", "--no-video", *hold, "--out", str(out)]
-    code, printed, _ = _render_cli(capsys, store, key, stage_scene_path, *args)
+    code, printed, _ = render(*args)
     assert code == 0 and f"  path: 3 frame(s) in {out / 'path'}\n" in printed
     assert sorted(p.name for p in out.iterdir()) == ["path"]
     scene = load_scene(stage_scene_path)
@@ -221,12 +220,12 @@ def test_a_path_renders_the_orbit_of_its_cameras_along_time_or_held(
 
 
 def test_a_path_through_the_train_cameras_is_a_video_by_default(
-    stored_deform, stage_scene_path, stage_deformed, tmp_path, capsys
+    render, stored_deform, stage_deformed, tmp_path
 ):
-    store, key = stored_deform
+    store = stored_deform[0]
     out = tmp_path / "renders"
     args = ["--path", "5", "--path-frame", "0", "--out", str(out)]
-    code, printed, _ = _render_cli(capsys, store, key, stage_scene_path, *args)
+    code, printed, _ = render(*args)
     assert code == 0 and f"video {out / 'path.mp4'}" in printed
     assert len(list((out / "path").glob("*.png"))) == 5
     frames = [cv2.imread(str(out / "path" / f"{view:06d}.png")) for view in range(5)]
@@ -236,7 +235,7 @@ def test_a_path_through_the_train_cameras_is_a_video_by_default(
     again = artifact_key("deform", 1, {"steps": 21}, "juggle", [])  # the same model again
     store.get_or_build("deform", again, lambda: stage_deformed, config={}, lineage=[])
     shorter = [*args[:1], "3", *args[2:], "--beside", again[:8]]
-    assert _render_cli(capsys, store, key, stage_scene_path, *shorter)[0] == 0
+    assert render(*shorter)[0] == 0
     # a shorter path into the same folder replaces the frames; the model beside renders alike
     assert sorted(p.name for p in (out / "path").iterdir()) == [f"{v:06d}.png" for v in range(3)]
     view = cv2.imread(str(out / "path" / "000001.png"))

@@ -317,17 +317,30 @@ def test_a_job_folder_that_cannot_be_read_is_named_and_the_tables_stay(sweep, ca
     assert (sweep / "summary.md").read_text() == before
 
 
-def test_repeated_variant_labels_get_the_parameters_that_differ(tmp_path):
-    # whole-number settings that some jobs lack (a synthetic scene: no downscale) read 2, not 2.0
-    settings = [(8, 0, 2, 0.2), (8, 1, 100, 0.5), (16, 0, None, None), (16, 1, None, None)]
+def test_repeated_labels_get_the_parameters_that_differ_in_the_table_and_the_means(
+    tmp_path, capsys
+):
+    # `report outputs/runs` over k8 runs at k = 8 and 16, two seeds each (not 4 "seeds"); the
+    # whole-number settings that some jobs lack (a synthetic scene: no downscale) read 2
+    settings = [(8, 0, 2, 0.2), (8, 1, 2, 0.2), (16, 0, 100, 0.5), (16, 1, 100, 0.5)]
+    settings.append((32, 0, None, None))
     for number, (k, seed, downscale, weight) in enumerate(settings):
         extra = {"relay.k": k, "scene.loader.downscale": downscale, "train.ssim_weight": weight}
         _job(tmp_path, number, "k8", 25.0 + number, 10.0, **UNLABELLED, seed=seed, **extra)
-    text = report.write_reports(tmp_path).table
-    header = "| Variant | seed | relay.k | scene.loader.downscale | train.ssim_weight | PSNR"
-    assert text.splitlines()[2].startswith(header)
-    assert _row(text, "k8", "1", "8")[3:6] == ["100", "0.5", "26.00"]
-    assert _row(text, "k8", "1", "16")[3:6] == ["n/a", "n/a", "28.00"]
+    files = report.write_reports(tmp_path)
+    parameters = "relay.k | scene.loader.downscale | train.ssim_weight"
+    assert files.table.splitlines()[2].startswith(f"| Variant | seed | {parameters} | PSNR")
+    assert _row(files.table, "k8", "1", "16")[3:6] == ["100", "0.5", "28.00"]
+    assert _row(files.table, "k8", "0", "32")[3:6] == ["n/a", "n/a", "29.00"]
+    mean = pd.read_csv(tmp_path / "summary_mean.csv")
+    assert list(mean["relay.k"]) == [8, 16, 32] and list(mean.runs) == [2, 2, 1]
+    assert list(mean.psnr_mean) == pytest.approx([25.5, 27.5, 29.0])
+    text = files.mean.read_text()
+    assert text.splitlines()[2].startswith(f"| Scene | Variant | {parameters} | Runs | PSNR")
+    assert _row(text, "juggle", "k8", "16")[3:7] == ["100", "0.5", "2", "27.50 ± 0.71"]
+    assert report.main([str(tmp_path)]) == 0  # and says where both of its files are
+    listed = capsys.readouterr().out.split("summary of 5 job(s):\n")[1].split()
+    assert {str(tmp_path / "summary_mean.md"), str(tmp_path / "summary_mean.csv")} <= set(listed)
 
 
 def test_repeated_seeds_get_a_mean_and_std_table_in_order_of_first_appearance(tmp_path):
@@ -346,23 +359,6 @@ def test_repeated_seeds_get_a_mean_and_std_table_in_order_of_first_appearance(tm
     assert list(mean.delta_psnr_mean) == pytest.approx([-1.25, 0.0])
     text = files.mean.read_text()
     assert _row(text, "juggle", "k16")[2:5] == ["3", "27.00 ± 1.00", "0.00 ± 0.00"]
-
-
-def test_the_means_keep_jobs_of_one_label_at_other_settings_apart(tmp_path, capsys):
-    # `report outputs/runs` over smoke runs at k = 16 and 128, two seeds each: not 4 "seeds"
-    for number, (k, seed) in enumerate([(16, 0), (16, 1), (128, 0), (128, 1)]):
-        extra = {**UNLABELLED, "relay.k": k, "seed": seed}
-        _job(tmp_path, number, "k16", 26.0 + number, 10.0, **extra)
-    files = report.write_reports(tmp_path)
-    mean = pd.read_csv(tmp_path / "summary_mean.csv")
-    assert list(mean["relay.k"]) == [16, 128] and list(mean.runs) == [2, 2]
-    assert list(mean.psnr_mean) == pytest.approx([26.5, 28.5])
-    text = files.mean.read_text()
-    assert "| Scene | Variant | relay.k | Runs | PSNR" in text
-    assert _row(text, "juggle", "k16", "128")[3:5] == ["2", "28.50 ± 0.71"]
-    assert report.main([str(tmp_path)]) == 0  # and says where both of its files are
-    listed = capsys.readouterr().out.split("summary of 4 job(s):\n")[1].split()
-    assert {str(tmp_path / "summary_mean.md"), str(tmp_path / "summary_mean.csv")} <= set(listed)
 
 
 def test_a_sweep_resumed_in_place_counts_what_its_jobs_built_before_the_interruption(tmp_path):
@@ -389,38 +385,32 @@ def test_jobs_on_the_same_point_share_one_label():
     assert labels == {(1.0, 5.0): "k64", (2.0, 6.0): "k128, k8"}
 
 
-def _budget_jobs(sweep, runs):
-    """One `k16` job per (pipeline, multiplier, psnr, minutes), each with its own seed."""
-    for number, (pipeline, multiplier, psnr, minutes) in enumerate(runs):
-        _job(
-            sweep,
-            number,
-            "k16",
-            psnr,
-            minutes * 60.0,
-            pipeline=pipeline,
-            **{"budget.multiplier": multiplier, "seed": number},
-        )
-
-
 def test_a_budget_sweep_says_what_a_minute_buys_and_which_points_are_on_the_front(tmp_path):
     runs = [
-        ("relaygs", 0.5, 23.0, 5),
-        ("relaygs", 1.0, 24.0, 10),
-        ("relaygs", 2.0, 24.5, 20),
-        ("4dgs", 0.5, 22.5, 6),
-        ("4dgs", 1.0, 23.0, 11),
-        ("4dgs", 1.0, 24.0, 13),  # a second seed: the point is the mean
+        ("juggle", "relaygs", 0.5, 23.0, 5),
+        ("juggle", "relaygs", 1.0, 24.0, 10),
+        ("juggle", "relaygs", 2.0, 24.5, 20),
+        ("juggle", "4dgs", 0.5, 22.5, 6),
+        ("juggle", "4dgs", 1.0, 23.0, 11),
+        ("juggle", "4dgs", 1.0, 24.0, 13),  # a second seed: the point is the mean
+        # out of order; multipliers 1 and 2 took the same time (a time cap): no gain from 1 to 2
+        ("court", "relaygs", 2.0, 25.0, 10),
+        ("court", "relaygs", 0.5, 23.0, 5),
+        ("court", "relaygs", 1.0, 24.0, 10),
     ]
-    _budget_jobs(tmp_path, runs)
+    for number, (scene, pipeline, multiplier, psnr, minutes) in enumerate(runs):
+        extra = {"scene": scene, "pipeline": pipeline, "budget.multiplier": multiplier}
+        _job(tmp_path, number, "k16", psnr, minutes * 60.0, seed=number, **extra)
     files = report.write_reports(tmp_path)
     table = pd.read_csv(tmp_path / "summary_budget.csv")
-    assert list(table.pipeline) == ["relaygs"] * 3 + ["4dgs"] * 2
+    assert list(table.pipeline) == ["relaygs"] * 3 + ["4dgs"] * 2 + ["relaygs"] * 3
+    assert table.multiplier.tolist()[5:] == [0.5, 1.0, 2.0]
     gains = table.db_per_minute.tolist()
-    assert pd.isna(gains[0]) and pd.isna(gains[3])
-    assert [gains[1], gains[2], gains[4]] == pytest.approx([0.2, 0.05, 1.0 / 6.0])
-    assert table.on_front.tolist() == [True, True, True, False, False]
-    assert table.runs.tolist() == [1, 1, 1, 1, 2]
+    assert [pd.isna(gain) for gain in gains] == [True, False, False, True, False, True, False, True]
+    assert [gains[1], gains[2], gains[4], gains[6]] == pytest.approx([0.2, 0.05, 1.0 / 6.0, 0.2])
+    # each scene's front; on court (10 min, 24 dB) is beaten by (10 min, 25 dB)
+    assert table.on_front.tolist() == [True, True, True, False, False, True, False, True]
+    assert table.runs.tolist() == [1, 1, 1, 1, 2, 1, 1, 1]
     text = files.budget.read_text()
     assert _row(text, "juggle", "relaygs", "0.5")[3:] == ["1", "5.00", "23.00", "n/a", "yes"]
     assert _row(text, "juggle", "relaygs", "1")[3:] == ["1", "10.00", "24.00", "+0.200", "yes"]
@@ -509,22 +499,6 @@ def test_the_mean_table_needs_a_repeated_finished_job_and_an_old_one_goes(tmp_pa
     assert not (tmp_path / "summary_mean.md").exists()
     assert not (tmp_path / "summary_mean.csv").exists()
     assert not (tmp_path / "pareto.png").exists()  # nor a plot of the jobs that finished before
-
-
-def test_budget_points_follow_the_multiplier_and_gain_needs_more_time(tmp_path):
-    # written out of order; multipliers 1 and 2 took the same time (e.g. a time cap)
-    _budget_jobs(
-        tmp_path,
-        [("relaygs", 2.0, 25.0, 10), ("relaygs", 0.5, 23.0, 5), ("relaygs", 1.0, 24.0, 10)],
-    )
-    report.write_reports(tmp_path)
-    table = pd.read_csv(tmp_path / "summary_budget.csv")
-    assert table.multiplier.tolist() == [0.5, 1.0, 2.0]
-    gains = table.db_per_minute.tolist()
-    # 0.5 -> 1: +1 dB over 5 more minutes; 1 -> 2: no more time, so no gain
-    assert pd.isna(gains[0]) and gains[1] == pytest.approx(0.2) and pd.isna(gains[2])
-    # (10 min, 24 dB) is beaten by (10 min, 25 dB)
-    assert table.on_front.tolist() == [True, False, True]
 
 
 @pytest.mark.parametrize("multiplier", [{}, {"budget.multiplier": 1.0}])
