@@ -30,44 +30,35 @@ SCENE = ["scene.frames=6", "scene.width=16", "scene.height=9"]
 EVERYTHING = {"images": 0, "scalars": 0, "tensors": 0}
 
 
-class Dashboard:
-    """TensorBoard's HParams backend over a log folder, as its web page queries it."""
-
-    def __init__(self, logdir):
-        multiplexer = EventMultiplexer()
-        multiplexer.AddRunsFromDirectory(str(logdir))
-        multiplexer.Reload()
-        self.runs = sorted(multiplexer.Runs())
-        provider = MultiplexerDataProvider(multiplexer, str(logdir))
-        tb_context = base_plugin.TBContext(
-            logdir=str(logdir), multiplexer=multiplexer, data_provider=provider
-        )
-        self.backend = backend_context.Context(tb_context)
-        self.request = context.RequestContext()
-
-    def experiment(self):
-        request = api_pb2.GetExperimentRequest(hparams_limit=1000)  # what the page asks
-        return get_experiment.Handler(self.request, self.backend, "", request).run()
-
-    def session_groups(self):
-        experiment = self.experiment()
-        request = api_pb2.ListSessionGroupsRequest(start_index=0, slice_size=100)
-        request.allowed_statuses.extend([api_pb2.STATUS_SUCCESS])
-        for info in experiment.hparam_infos:
-            request.col_params.add(hparam=info.name)
-        for info in experiment.metric_infos:
-            request.col_params.add(metric=info.name)
-        handler = list_session_groups.Handler(self.request, self.backend, "", request)
-        return handler.run().session_groups
+def _hparams_dashboard(logdir):
+    """The runs, experiment and session groups TensorBoard's HParams backend gives the web page
+    over a log folder, asked as the page asks."""
+    multiplexer = EventMultiplexer()
+    multiplexer.AddRunsFromDirectory(str(logdir))
+    multiplexer.Reload()
+    provider = MultiplexerDataProvider(multiplexer, str(logdir))
+    tb_context = base_plugin.TBContext(
+        logdir=str(logdir), multiplexer=multiplexer, data_provider=provider
+    )
+    backend, request_context = backend_context.Context(tb_context), context.RequestContext()
+    request = api_pb2.GetExperimentRequest(hparams_limit=1000)
+    experiment = get_experiment.Handler(request_context, backend, "", request).run()
+    request = api_pb2.ListSessionGroupsRequest(start_index=0, slice_size=100)
+    request.allowed_statuses.extend([api_pb2.STATUS_SUCCESS])
+    for info in experiment.hparam_infos:
+        request.col_params.add(hparam=info.name)
+    for info in experiment.metric_infos:
+        request.col_params.add(metric=info.name)
+    groups = list_session_groups.Handler(request_context, backend, "", request).run()
+    return sorted(multiplexer.Runs()), experiment, groups.session_groups
 
 
 def test_the_dashboard_of_a_sweep(fakes, tmp_path):
     # a two-job `ablation_k` sweep (k = 8, 16) on fake stages: HParams name the swept key first
     assert run_main(["+experiment=ablation_k", "relay.k=8,16", "budget=smoke", *SCENE]) == 0
     (sweep,) = tmp_path.glob("outputs/sweeps/*")
-    dashboard = Dashboard(sweep)
-    assert dashboard.runs == ["0_k8", "1_k16", "sweep"]  # run names are the job folders
-    experiment = dashboard.experiment()
+    runs, experiment, groups = _hparams_dashboard(sweep)
+    assert runs == ["0_k8", "1_k16", "sweep"]  # run names are the job folders
     names = [info.name for info in experiment.hparam_infos]
     assert names == ["relay.k", "pipeline.name", "variant"]
     swept = experiment.hparam_infos[0]
@@ -78,7 +69,7 @@ def test_the_dashboard_of_a_sweep(fakes, tmp_path):
     # the page shows the first five metrics without a click: these lead
     leading = ("psnr", "fg_psnr", "train_s_total", "storage_mb")
     assert metrics[:4] == [metric_tag(name) for name in leading]
-    rows = {group.name: group for group in dashboard.session_groups()}
+    rows = {group.name: group for group in groups}
     assert set(rows) == {"0_k8", "1_k16"}  # the trial ids are the job names too
     for name, k in (("0_k8", 8), ("1_k16", 16)):
         result = json.loads((sweep / name / "result.json").read_text())

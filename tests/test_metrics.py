@@ -8,6 +8,7 @@ import math
 import numpy as np
 import pytest
 import torch
+from numpy.lib.stride_tricks import sliding_window_view
 
 from relaygs.metrics import _ssim_torch, fg_psnr, psnr, ssim
 from relaygs.metrics_native import NativeSSIM
@@ -29,25 +30,17 @@ def _gaussian_taps() -> np.ndarray:
 def _direct_ssim(x: np.ndarray, y: np.ndarray) -> float:
     """SSIM by explicit weighted sums over each pixel's zero-padded 11×11 neighbourhood."""
     weights = np.outer(_gaussian_taps(), _gaussian_taps())
-    height, width, channels = x.shape
-    px = np.pad(x, ((5, 5), (5, 5), (0, 0)))
-    py = np.pad(y, ((5, 5), (5, 5), (0, 0)))
-    values = []
-    for i in range(height):
-        for j in range(width):
-            for c in range(channels):
-                wx = px[i : i + 11, j : j + 11, c]
-                wy = py[i : i + 11, j : j + 11, c]
-                mx, my = (weights * wx).sum(), (weights * wy).sum()
-                vx = (weights * wx * wx).sum() - mx * mx
-                vy = (weights * wy * wy).sum() - my * my
-                cxy = (weights * wx * wy).sum() - mx * my
-                values.append(
-                    (2 * mx * my + C1)
-                    * (2 * cxy + C2)
-                    / ((mx * mx + my * my + C1) * (vx + vy + C2))
-                )
-    return float(np.mean(values))
+    pad = ((5, 5), (5, 5), (0, 0))
+    wx = sliding_window_view(np.pad(x, pad), (11, 11), axis=(0, 1))  # [H, W, C, 11, 11]
+    wy = sliding_window_view(np.pad(y, pad), (11, 11), axis=(0, 1))
+
+    def mean(windows: np.ndarray) -> np.ndarray:
+        return (weights * windows).sum(axis=(-2, -1))
+
+    mx, my = mean(wx), mean(wy)
+    vx, vy, cxy = mean(wx * wx) - mx * mx, mean(wy * wy) - my * my, mean(wx * wy) - mx * my
+    values = (2 * mx * my + C1) * (2 * cxy + C2) / ((mx * mx + my * my + C1) * (vx + vy + C2))
+    return float(values.mean())
 
 
 def test_psnr_of_a_known_error_is_exact_and_averaged_per_image():
