@@ -80,8 +80,7 @@ def _azimuth_range(angles: Tensor) -> tuple[float, float, bool]:
 
 
 def _looking_at(eye: Tensor, target: Tensor, up: Tensor, reference: Camera) -> Camera:
-    """A camera at `eye` looking at `target`, `up` up (OpenCV axes), with `reference`'s
-    intrinsics and size."""
+    """A camera at `eye` looking at `target`, `up` up, with `reference`'s intrinsics."""
     forward = _unit(target - eye, fallback=-up)
     right = _unit(torch.linalg.cross(forward, up), fallback=_perpendicular(forward))
     down = torch.linalg.cross(forward, right)

@@ -1,5 +1,4 @@
-"""Per-pixel error images, where a render misses its ground truth: the mean absolute error over
-the channels through a perceptual colour map, brightest at ERROR_FULL_SCALE or more."""
+"""Error images: the mean absolute error through a colour map, saturating at full scale."""
 
 from __future__ import annotations
 

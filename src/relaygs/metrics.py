@@ -1,5 +1,4 @@
-"""Image metrics for training and evaluation: PSNR, foreground PSNR and (differentiable) SSIM of
-channels-last images [H,W,C] or batches [B,H,W,C] with data range 1."""
+"""Image metrics: PSNR, fg-PSNR and SSIM of channels-last images or batches, range 1."""
 
 from __future__ import annotations
 

@@ -1,5 +1,4 @@
-"""Per-view test metrics: a run's `per_view.csv` (one row per scored test image: frame, camera,
-PSNR, SSIM, fg-PSNR) and the per-frame means that show where in time quality drops."""
+"""Per-view test metrics: a run's `per_view.csv` and per-frame means (where quality drops)."""
 
 from __future__ import annotations
 

@@ -203,8 +203,7 @@ def _even_sized(pixels: np.ndarray) -> np.ndarray:
 
 
 class _CameraSink:
-    """PNG frames and an MP4 of one camera (or camera path), the video built under a temporary
-    name."""
+    """PNG frames and an MP4 of one camera or path, the video built under a temporary name."""
 
     def __init__(
         self, out: Path, name: str, fps: float | None, camera_id: int | None = None
@@ -218,8 +217,7 @@ class _CameraSink:
         self._writer: cv2.VideoWriter | None = None
 
     def add(self, frame: int, image: Tensor) -> None:
-        """Write `image` [H,W,3] in [0, 1] as frame `frame`; the first removes an earlier
-        render's frames from the folder."""
+        """Write `image` [H,W,3] in [0, 1] as frame `frame` (the first clears earlier frames)."""
         pixels = _to_bgr8(image)
         if not self.frames:
             for earlier in self.folder.glob(FRAME_GLOB):

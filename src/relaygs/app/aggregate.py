@@ -23,8 +23,7 @@ METRICS = (
 )
 
 
-LABELS = {"scene": "Scene", "variant": "Variant", "test_set": "Test set"}
-"""Column labels of the group keys that have one (parameters keep their dotted key)."""
+LABELS = {"scene": "Scene", "variant": "Variant", "test_set": "Test set"}  # else the key
 
 
 def aggregate_table(summary: pd.DataFrame) -> pd.DataFrame:
@@ -59,8 +58,7 @@ def _within_variant_parameters(table: pd.DataFrame) -> list[str]:
 
 
 def aggregate_markdown(table: pd.DataFrame, title: str) -> str:
-    """The aggregate as a Markdown table of `mean ± std` after the columns that tell its rows
-    apart (`Test set` only where nothing else does)."""
+    """The aggregate as a Markdown table of `mean ± std` after the columns that tell rows apart."""
     keys = list(table.columns[: list(table.columns).index("runs")])
     names = [key for key in keys if key != "test_set"]
     if "test_set" in keys and table.duplicated(names).any():

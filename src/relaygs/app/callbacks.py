@@ -1,5 +1,4 @@
-"""Hydra callbacks of a multirun: one sweep at a time per sweep folder, and the sweep's tables
-and Pareto plot when it ends."""
+"""Hydra callbacks of a multirun: one sweep per folder at a time, its report when it ends."""
 
 from __future__ import annotations
 
@@ -36,8 +35,7 @@ class StartedFolder(NamedTuple):
         return "sweep" if self.override == "hydra.sweep.dir" else "run"
 
 
-STARTED_FOLDERS: list[StartedFolder] = []
-"""The sweeps and single runs this process started: what a command stopped by Ctrl-C names."""
+STARTED_FOLDERS: list[StartedFolder] = []  # what a command stopped by Ctrl-C names
 
 
 def names_override(hydra_overrides: Iterable[Any], override: str) -> bool:
@@ -115,7 +113,6 @@ class SweepSummary(Callback):
 
 
 def _stop(line: str) -> NoReturn:
-    """Say `line` on stderr and end the command with status 1: Hydra turns a callback's
-    exception into a warning, but not SystemExit."""
+    """Say `line` on stderr and exit 1 (Hydra turns a callback's other exceptions into warnings)."""
     print(line, file=sys.stderr)
     raise SystemExit(1)

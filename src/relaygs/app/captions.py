@@ -1,5 +1,4 @@
-"""Images side by side, each with its caption drawn above it, so a picture in TensorBoard says
-what it shows without a legend elsewhere."""
+"""Images side by side, each captioned above, so a TensorBoard picture says what it shows."""
 
 from __future__ import annotations
 

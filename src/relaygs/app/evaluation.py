@@ -95,8 +95,7 @@ def evaluate_through_store(
 
 
 def evaluation_config(eval_config: Mapping[str, Any]) -> dict[str, Any]:
-    """What shapes an evaluation's result: the `eval` section, the device and, on the CPU,
-    torch's thread count (render FPS depends on both)."""
+    """What shapes an evaluation's result: `eval`, the device and on the CPU torch's threads."""
     device = str(eval_config["train"]["device"])
     keyed: dict[str, Any] = {"eval": dict(eval_config["eval"]), "device": device}
     if torch.device(device).type == "cpu":

@@ -18,8 +18,7 @@ Curves = dict[str, dict[str, dict[int, float]]]  # {metric: {line label: {frame:
 
 
 def frame_curves(table: pd.DataFrame) -> Curves:
-    """Per metric and line (`line_labels`), the mean over its finished jobs with a
-    `per_view.csv` at each frame (a damaged file is refused)."""
+    """Per metric and line (`line_labels`), the mean of its finished jobs' `per_view.csv`."""
     per_metric: dict[str, dict[str, list[dict[int, float]]]] = {}
     for label, (_, row) in zip(line_labels(table), table.iterrows(), strict=True):
         path = Path(str(row.get("run_dir"))) / PER_VIEW_FILE

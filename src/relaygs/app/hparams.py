@@ -19,7 +19,7 @@ EXCLUDED_SECTIONS = ("paths", "artifacts")  # where files go, not what was run
 EXCLUDED_KEYS = ("pipeline.description", "pipeline.nodes.")  # differ between pipelines
 IDENTITY_KEYS = ("pipeline.name", "variant")  # held besides the swept keys
 METRIC_GROUP = "result"  # each metric is the scalar `result/<name>` of the job's run
-METRICS = (
+METRICS = (  # the declared metrics and their column titles, in the dashboard's order
     ("psnr", "PSNR (dB)"),
     ("fg_psnr", "fg-PSNR (dB)"),
     ("train_s_total", "train time (s)"),
@@ -29,7 +29,6 @@ METRICS = (
     ("render_fps", "render FPS"),
     ("num_gaussians", "Gaussians"),
 )
-"""The declared metrics and their column titles, in the dashboard's order."""
 
 
 def job_hparams(config: Mapping[str, Any], axes: SweepAxes, mode: str) -> dict[str, HParamValue]:

@@ -19,8 +19,7 @@ def varies_budget(table: pd.DataFrame) -> bool:
 
 
 def marginal_table(summary: pd.DataFrame) -> pd.DataFrame:
-    """One row per scene, pipeline and multiplier, seeds averaged; db_per_minute is None for
-    the cheapest budget and where the time did not grow."""
+    """Per scene, pipeline and multiplier: seeds averaged, dB per extra minute, on the front."""
     table = summary
     if "status" in table:
         table = table[table["status"] != STATUS_FAILED]

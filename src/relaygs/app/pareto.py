@@ -1,5 +1,4 @@
-"""The accuracy-against-cost plot of a sweep: PSNR over training time, every job labelled,
-the Pareto front (no other job is both faster and more accurate) marked."""
+"""A sweep's PSNR over training time, every job labelled and the Pareto front marked."""
 
 from __future__ import annotations
 

@@ -16,7 +16,7 @@ from relaygs.pipeline.fsio import publish_text
 
 RESULT_FILE = "result.json"
 METRIC_FIELDS = ("psnr", "psnr_cf", "ssim", "fg_psnr", "render_fps", "num_gaussians")
-ALWAYS_RECORDED = (
+ALWAYS_RECORDED = (  # the ablation axes, whether or not a job set them
     "relay.k",
     "relay.pseudo_views",
     "deform.gamma",
@@ -24,21 +24,17 @@ ALWAYS_RECORDED = (
     "budget.name",
     "budget.multiplier",
 )
-"""Parameters every result carries (the ablation axes), whether or not a job set them."""
 
-NOT_RECORDED = ("hydra", "paths.", "artifacts.")
-"""Override key prefixes that say where outputs go or how Hydra runs, not what was run."""
+NOT_RECORDED = ("hydra", "paths.", "artifacts.")  # where outputs go or how Hydra runs
 
 Scalar = bool | int | float | str | None
-NO_TEST_VIEWS = (
+NO_TEST_VIEWS = (  # why the metrics read n/a when the scene has nothing to evaluate on
     "no test views were scored: the scene holds no test cameras "
     "(hold some out with scene.loader.test_cameras=[ID,...])"
 )
-"""Why the metrics of a run read n/a when its scene has nothing to evaluate on."""
 
 STATUS_OK = "ok"
-STATUS_FAILED = "failed"
-"""Values of a result's `status`: the run finished, or it raised (its `error` says how)."""
+STATUS_FAILED = "failed"  # the run raised: its `error` says how
 
 
 def build_result(
@@ -99,8 +95,7 @@ def error_line(error: BaseException) -> str:
 
 
 def recorded_overrides(overrides: Sequence[str]) -> dict[str, str]:
-    """{dotted key or group: value text} of overrides like `relay.k=8` or `+component=full`;
-    where things go (`paths.*`, `artifacts.*`) and Hydra's own settings are left out."""
+    """{dotted key or group: value text} of the overrides, but where things go and Hydra's."""
     recorded = {}
     for override in overrides:
         key, _, text = override.partition("=")
@@ -172,8 +167,7 @@ def _identity(plan: RunPlan, job: int | None) -> dict[str, Scalar]:
 def recorded_parameters(
     cfg: Mapping[str, Any], plan: RunPlan, overrides: Sequence[str]
 ) -> dict[str, Scalar]:
-    """The ablation axes and every recorded override by dotted key (a group choice only where its
-    `<group>.name` is not there already)."""
+    """The ablation axes and every recorded override (a group only without its `.name`)."""
     parameters = {key: effective_value(cfg, plan, key) for key in ALWAYS_RECORDED}
     for key, text in recorded_overrides(overrides).items():
         if f"{key}.name" in parameters or key in parameters:
@@ -193,8 +187,7 @@ def _lookup(config: Mapping[str, Any], dotted: str) -> Any:
 
 
 def _parameter(value: Any) -> Scalar:
-    """A setting as a result field: a group by its `name`, a list as its JSON text, else a
-    JSON scalar."""
+    """A setting as a result field: a group by its `name`, a list as JSON text, else a scalar."""
     if isinstance(value, Mapping):
         return _scalar(value.get("name"))
     if isinstance(value, list | tuple):

@@ -1,5 +1,4 @@
-"""What the app needs from the stages, in one object, so tests can run the app on fake stages and
-the real ones are imported only when a run starts."""
+"""What the app needs from the stages in one object, so tests can run it on fake stages."""
 
 from __future__ import annotations
 

@@ -1,5 +1,4 @@
-"""Sweep tables: collect each job's `result.json` into rows, add Δ PSNR against the reference
-variant, and render the paper-style Markdown table."""
+"""Sweep tables: each job's `result.json` as a row, Δ PSNR against the reference, Markdown."""
 
 from __future__ import annotations
 
@@ -40,9 +39,8 @@ LEADING_COLUMNS = (
     "status",
     "error",
 )
-REQUIRED_FIELDS = ("variant", "job", "pipeline", "scene", "seed", "psnr")
-"""Fields every result.json carries (null where unknown, e.g. a failed job's metrics)."""
-NUMERIC_FIELDS = (
+REQUIRED_FIELDS = ("variant", "job", "pipeline", "scene", "seed", "psnr")  # null where unknown
+NUMERIC_FIELDS = (  # the tables sort or compute with them: a finite number or null
     "job",
     *METRIC_FIELDS,
     "train_s_total",
@@ -55,7 +53,6 @@ NUMERIC_FIELDS = (
     "cache_hits",
     "budget.multiplier",
 )
-"""Fields the tables sort or compute with: a finite number or null when present."""
 MARKDOWN_COLUMNS = (
     ("Variant", "variant", "{}"),
     ("PSNR ↑", "psnr", "{:.2f}"),
@@ -72,8 +69,7 @@ MARKDOWN_COLUMNS = (
 
 
 def collect_results(sweep_dir: Path) -> pd.DataFrame:
-    """One row per `result.json` below `sweep_dir` (no `status`: ok), by sweep (SWEEP_COLUMN,
-    where the folder holds several), then job number."""
+    """One row per `result.json` below `sweep_dir`, by sweep (where several) and job number."""
     paths = entries_named(Path(sweep_dir), RESULT_FILE)
     if not paths:
         unfinished = unfinished_runs(sweep_dir)
@@ -116,8 +112,7 @@ def _read_result(path: Path) -> dict[str, Any]:
 
 
 def summary_table(results: pd.DataFrame) -> pd.DataFrame:
-    """Results with `delta_psnr` (`_delta`: PSNR minus its reference's on the same images)
-    added and the paper's columns first."""
+    """Results with `delta_psnr` (`_delta`) added and the paper's columns first."""
     table = results.copy()
     table["delta_psnr"] = [_delta(table, index) for index in table.index]
     for column in LEADING_COLUMNS:
@@ -235,8 +230,7 @@ def stage_note_lines(table: pd.DataFrame) -> list[str]:
 
 
 def shared_model_lines(table: pd.DataFrame) -> list[str]:
-    """One line per model that several finished jobs share (the same `output_key`): settings
-    that train the same model on this scene, or a repeated run."""
+    """One line per model (`output_key`) that several finished jobs share."""
     if "output_key" not in table:
         return []
     finished = table[table["output_key"].map(lambda key: isinstance(key, str) and bool(key))]
@@ -284,8 +278,7 @@ class FailedJob:
 
 
 def job_name(row: pd.Series) -> str:
-    """`job <n> (<variant>)`, or for a single run (no job number) `<run folder> (<variant>)`;
-    `... of <sweep>` where the report covers several sweeps."""
+    """`job <n> (<variant>)` (a single run: its folder), `... of <sweep>` among several."""
     number = row.get("job")
     if is_number(number):
         name = f"job {number:.0f} ({row.get('variant')})"
@@ -307,8 +300,7 @@ def failed_jobs(table: pd.DataFrame) -> list[FailedJob]:
 
 
 def distinguishing_parameters(table: pd.DataFrame) -> list[str]:
-    """Parameters (the sweep, scene, seed and dotted config keys) that vary across rows, when
-    the variant labels alone do not tell the rows apart; else none."""
+    """The sweep, scene, seed and dotted keys that vary where variant labels repeat."""
     if "variant" not in table or table["variant"].is_unique:
         return []
     dotted = (column for column in table.columns if "." in column)
@@ -349,8 +341,7 @@ def _narrowed(pool: pd.DataFrame, column: str, value: Any) -> pd.DataFrame:
 
 
 def _reference_rows(table: pd.DataFrame, index: Any) -> pd.DataFrame:
-    """The rows of row `index`'s reference variant scored on the same images: the same scene
-    and, where both results record it, the same `test_set`."""
+    """Row `index`'s reference variant's rows on the same scene and (where known) `test_set`."""
     row = table.loc[index]
     rows = table[table["variant"] == _reference_variant(table, row)]
     if "scene" in table:
@@ -368,8 +359,7 @@ def _reference_variant(table: pd.DataFrame, row: pd.Series) -> Any:
 
 
 def markdown_cell(value: Any, spec: str) -> str:
-    """One Markdown cell: numbers formatted with `spec`, missing values (None, NaN, pandas'
-    NA) as MISSING."""
+    """One Markdown cell: a number formatted with `spec`, a missing value as MISSING."""
     if value is None or value is pd.NA or (isinstance(value, float) and math.isnan(value)):
         return MISSING
     if spec == "{}":

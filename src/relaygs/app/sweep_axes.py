@@ -1,5 +1,4 @@
-"""The settings a sweep varies, read back in a job from Hydra's record in the sweep folder, so
-the job's TensorBoard HParams can name them first."""
+"""The settings a sweep varies, read back from Hydra's record, for the job's HParams."""
 
 from __future__ import annotations
 
@@ -20,8 +19,7 @@ class SweepAxes:
 
 
 def sweep_axes(jobs: Sequence[Sequence[str]], job: Sequence[str]) -> SweepAxes:
-    """The axes of the sweep of override lists `jobs` for the job `job`, typed as Hydra parses
-    them."""
+    """The axes of the sweep of override lists `jobs` for the job `job`, as Hydra types them."""
     swept = swept_keys(jobs)
     domains: dict[str, list[Any]] = {}
     for overrides in jobs:

@@ -1,5 +1,4 @@
-"""The sweep-level TensorBoard run: the sweep report's plots and table beside its jobs' runs, so
-`tensorboard --logdir SWEEP` holds the whole story."""
+"""The sweep-level TensorBoard run: the report's plots and table beside the jobs' runs."""
 
 from __future__ import annotations
 
@@ -16,8 +15,7 @@ EVENT_FILES = "events.out.tfevents.*"
 
 
 def log_sweep_report(sweep_dir: Path, figures: Sequence[Path], table: str) -> Path:
-    """Write the PNG `figures` and the Markdown `table` as run SWEEP_RUN, replacing an earlier
-    report's event files there; returns the run's folder."""
+    """Write `figures` and `table` as run SWEEP_RUN (replacing an earlier report's); its folder."""
     folder = Path(sweep_dir) / SWEEP_RUN
     for old in folder.glob(EVENT_FILES):
         old.unlink()

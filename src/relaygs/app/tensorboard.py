@@ -25,8 +25,7 @@ from relaygs.app.sweep_axes import SweepAxes
 from relaygs.error_map import ERROR_FULL_SCALE, error_image
 from relaygs.errors import RERUN_RUN, ResourceError
 
-COUNT_SCALARS = ("num_bg", "num_fg", "fg_fraction")
-"""Training scalars that count Gaussians rather than measure the fit."""
+COUNT_SCALARS = ("num_bg", "num_fg", "fg_fraction")  # count Gaussians, not measure the fit
 
 
 def training_tag(stage: str, name: str) -> str:

@@ -1,5 +1,4 @@
-"""Which jobs of a sweep folder the summary table lacks: run folders without a `result.json`
-and, given how many jobs the sweep planned, those that never started."""
+"""Which jobs of a sweep folder the summary lacks: run folders without a result, unstarted."""
 
 from __future__ import annotations
 

@@ -10,8 +10,7 @@ from relaygs.errors import InputError
 
 
 def entries_named(root: Path, name: str) -> list[Path]:
-    """Every file or folder called `name` below `root`, sorted; InputError naming a folder that
-    cannot be listed (one removed meanwhile is passed over)."""
+    """Every entry called `name` below `root`, sorted; a folder that cannot be listed refused."""
 
     def refuse(error: OSError) -> None:
         if isinstance(error, FileNotFoundError):

@@ -1,5 +1,4 @@
-"""`python -m relaygs.bench sweeps`: wall time of the five experiments at the smoke budget, each
-run as a user runs it on a tiny scene, in order, in one output folder (target ≤ 300 s)."""
+"""`python -m relaygs.bench sweeps`: wall time of the five smoke experiments (target 300 s)."""
 
 from __future__ import annotations
 

@@ -41,8 +41,7 @@ BUDGET = "summary_budget"
 
 @dataclass(frozen=True)
 class ReportFiles:
-    """The files a report wrote (None where one does not apply), `summary.md`'s text and the
-    failed jobs."""
+    """The files a report wrote (None where one does not apply), its table and failed jobs."""
 
     csv: Path
     markdown: Path
