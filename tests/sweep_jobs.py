@@ -24,10 +24,6 @@ def write_job(sweep: Path, number: int, variant: str, psnr, seconds: float, **ex
         "fg_psnr": None,
         "train_s_total": seconds,
         "train_s_computed": seconds / 2,
-        "storage_mb": 1.5,
-        "render_fps": 30.0,
-        "num_gaussians": 1000,
-        "cache_hits": 1,
         "relay.k": int(variant[1:]) if variant[1:].isdigit() else None,
         **extra,
     }

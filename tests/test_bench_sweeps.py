@@ -9,13 +9,6 @@ import pytest
 from relaygs.commands import bench, bench_field, bench_splat, bench_sweeps, bench_train
 
 
-def test_commands_run_each_experiment_on_the_tiny_scene(tmp_path):
-    line = bench_sweeps.command("baseline", tmp_path, "seed=3")
-    assert line[1:4] == ["-m", "relaygs.run", "+experiment=baseline"]
-    assert all(override in line for override in bench_sweeps.TINY_SCENE)
-    assert line[-2:] == ["seed=3", f"paths.outputs={tmp_path}"]
-
-
 @pytest.fixture
 def no_work(monkeypatch):
     """Any bench that starts measuring fails the test: a refusal comes before any work."""
@@ -56,7 +49,7 @@ def test_bad_options_are_refused_in_one_line_before_any_work(
     assert code == 2 and err.startswith("error: ") and named in err and err.count("\n") == 1
 
 
-def test_a_failing_experiment_is_reported_with_its_error_line_not_hydras_hint(
+def test_experiments_run_on_the_tiny_scene_and_a_failing_one_is_named_by_its_error(
     tmp_path, monkeypatch, capsys
 ):
     stderr = (
@@ -72,17 +65,14 @@ def test_a_failing_experiment_is_reported_with_its_error_line_not_hydras_hint(
         "error: experiment 'smoke' exited 1: paths.outputs: cannot create /proc/x\n"
     )
     assert not report.exists()
-
-
-@pytest.mark.parametrize(
-    ("stderr", "line"),
-    [
-        ("boom\nSet the environment variable HYDRA_FULL_ERROR=1 for a complete trace.\n", "boom"),
-        ("", "(no output)"),
-    ],
-)
-def test_without_an_error_line_the_last_line_that_is_not_hydras_hint_is_kept(stderr, line):
-    assert bench_sweeps.failure_line(stderr) == line
+    # without an error line: the last line that is not Hydra's hint
+    assert bench_sweeps.failure_line(f"boom\n{stderr.splitlines()[-1]}\n") == "boom"
+    assert bench_sweeps.failure_line("") == "(no output)"
+    # each experiment runs on the tiny scene
+    line = bench_sweeps.command("baseline", tmp_path, "seed=3")
+    assert line[1:4] == ["-m", "relaygs.run", "+experiment=baseline"]
+    assert all(override in line for override in bench_sweeps.TINY_SCENE)
+    assert line[-2:] == ["seed=3", f"paths.outputs={tmp_path}"]
 
 
 def test_bench_field_times_each_backend_and_restores_the_process_backend(tmp_path, capsys):

@@ -48,7 +48,7 @@ def _looks_at_the_centre(camera):
     return float(forward @ to_centre / to_centre.norm()) > 0.99999
 
 
-def test_cameras_around_the_centre_make_a_loop_from_the_first_cameras_azimuth():
+def test_cameras_around_the_centre_make_a_loop_of_upright_views_from_the_first_camera():
     azimuths = [0, 135, 45, 270, 180, 315, 90, 225]  # ids out of order round the ring
     cameras = [_camera(index, azimuth) for index, azimuth in enumerate(azimuths)]
     path = path_cameras(cameras, 16, CENTRE)
@@ -60,9 +60,16 @@ def test_cameras_around_the_centre_make_a_loop_from_the_first_cameras_azimuth():
     for captured, view in zip(cameras, path[::2], strict=False):  # on the orbit: the cameras
         assert torch.allclose(view.w2c, _camera(0, _azimuth(view)).w2c, atol=1e-5)
         assert captured is not view
-
-
-def test_a_dome_of_rings_gives_one_orbit_at_their_mean_height_and_radius():
+    # views are upright cameras with the first camera's intrinsics
+    cameras = [_camera(3, 0, width=40), _camera(4, 90), _camera(5, 180), _camera(6, 270)]
+    for view in path_cameras(cameras, 7, CENTRE):
+        assert (view.width, view.height, view.camera_id) == (40, 18, PATH_CAMERA_ID)
+        assert torch.equal(view.K, cameras[0].K)
+        rotation = view.w2c[:3, :3]
+        assert torch.allclose(rotation @ rotation.T, torch.eye(3), atol=1e-5)
+        assert float(torch.linalg.det(rotation)) == pytest.approx(1.0, abs=1e-5)
+        assert float(view.c2w[2, 1]) < 0  # the image's down axis points down the world
+    # a dome of rings gives one orbit at their mean height and radius
     # azimuth order alternates between rings; the path must not bob between them
     cameras = [
         _camera(index, 30 * index, radius=4.0 - index % 3, height=1.5 + index % 3)
@@ -90,17 +97,6 @@ def test_cameras_close_the_loop_only_where_they_surround_the_centre(azimuths, co
     steps = [_azimuth(b) - _azimuth(a) for a, b in pairwise(path)]  # where it starts may tie
     assert _same_angles(steps, [step] * (count - 1))
     assert start is None or _same_angles([_azimuth(path[0])], [start])
-
-
-def test_views_are_upright_cameras_with_the_first_cameras_intrinsics():
-    cameras = [_camera(3, 0, width=40), _camera(4, 90), _camera(5, 180), _camera(6, 270)]
-    for view in path_cameras(cameras, 7, CENTRE):
-        assert (view.width, view.height, view.camera_id) == (40, 18, PATH_CAMERA_ID)
-        assert torch.equal(view.K, cameras[0].K)
-        rotation = view.w2c[:3, :3]
-        assert torch.allclose(rotation @ rotation.T, torch.eye(3), atol=1e-5)
-        assert float(torch.linalg.det(rotation)) == pytest.approx(1.0, abs=1e-5)
-        assert float(view.c2w[2, 1]) < 0  # the image's down axis points down the world
 
 
 def test_one_camera_is_a_still_path_and_bad_requests_are_one_line():

@@ -30,9 +30,7 @@ def test_closed_form_equals_fitting_the_images_and_scoring_them():
         gain, offset = channel_fit(channel_moments(preds, targets), preds[..., 0].numel())
         explicit += [float(psnr(p * gain + offset, t)) for p, t in zip(preds, targets, strict=True)]
     assert accumulator.value() == pytest.approx(sum(explicit) / len(explicit), abs=1e-6)
-
-
-def test_a_camera_gain_and_offset_cost_nothing_but_content_errors_do():
+    # a camera's gain and offset cost nothing, content errors do
     pairs = _images(2, 3)
     exact, wrong = ColourFittedPSNR(), ColourFittedPSNR()
     for pred, _ in pairs:
@@ -41,9 +39,7 @@ def test_a_camera_gain_and_offset_cost_nothing_but_content_errors_do():
     assert exact.value() == pytest.approx(100.0)  # the MSE floor of `psnr`
     assert wrong.value() < 20.0
     assert ColourFittedPSNR().value() is None
-
-
-def test_flat_renders_keep_gain_one_and_stay_finite():
+    # flat renders keep gain one and stay finite
     accumulator = ColourFittedPSNR()
     accumulator.add(0, torch.full((4, 4, 3), 0.5), torch.rand(4, 4, 3))
     assert 0.0 < accumulator.value() < 100.0

@@ -109,26 +109,6 @@ def _has_caption(png: bytes) -> bool:
     return bool((band > 200).any()) and float(np.median(band)) == 0.0
 
 
-def test_a_single_run_or_an_unreadable_record_has_no_sweep_axes(tmp_path):
-    assert recorded_sweep_axes(tmp_path, ["relay.k=8"]) == SweepAxes()
-    (tmp_path / "multirun.yaml").write_text("hydra: [")
-    assert recorded_sweep_axes(tmp_path, ["relay.k=8"]) == SweepAxes()
-
-
-def test_sweep_axes_keep_each_values_type():
-    jobs = [
-        ["+component=full", "deform.gamma=true", "relay.k=8", "seed=0"],
-        ["+component=no_gamma", "deform.gamma=false", "relay.k=null", "seed=0"],
-    ]
-    axes = sweep_axes(jobs, jobs[1])
-    assert axes.domains == {
-        "component": ["full", "no_gamma"],
-        "deform.gamma": [True, False],
-        "relay.k": [8, None],
-    }
-    assert axes.values == {"component": "no_gamma", "deform.gamma": False, "relay.k": None}
-
-
 def test_booleans_stay_booleans_and_mixed_axes_become_text(tmp_path):
     axes = SweepAxes({"relay.k": [8, None]}, {"relay.k": None})
     pipeline = {"name": "relaygs", "description": "d", "nodes": {"a": {"stage": "decouple"}}}
@@ -162,3 +142,19 @@ def test_booleans_stay_booleans_and_mixed_axes_become_text(tmp_path):
     config = {"deform": {"gamma": True}, "variant": "4dgs", "pipeline": {"name": "4dgs"}}
     # without "all": the swept keys and identity; a swept group is not repeated as `.name`
     assert job_hparams(config, axes, "swept") == {"pipeline": "4dgs", "variant": "4dgs"}
+    # sweep axes keep each value's type; a single run or unreadable record has none
+    jobs = [
+        ["+component=full", "deform.gamma=true", "relay.k=8", "seed=0"],
+        ["+component=no_gamma", "deform.gamma=false", "relay.k=null", "seed=0"],
+    ]
+    axes = sweep_axes(jobs, jobs[1])
+    assert axes.domains == {
+        "component": ["full", "no_gamma"],
+        "deform.gamma": [True, False],
+        "relay.k": [8, None],
+    }
+    assert axes.values == {"component": "no_gamma", "deform.gamma": False, "relay.k": None}
+    # a single run, or an unreadable record: no axes
+    assert recorded_sweep_axes(tmp_path, ["relay.k=8"]) == SweepAxes()
+    (tmp_path / "multirun.yaml").write_text("hydra: [")
+    assert recorded_sweep_axes(tmp_path, ["relay.k=8"]) == SweepAxes()

@@ -19,6 +19,14 @@ def test_no_error_is_the_maps_darkest_colour_and_full_scale_its_brightest():
     assert torch.allclose(error_image(render, render), _colour(0.0).expand(4, 5, 3), atol=1e-6)
     brighter = (render + ERROR_FULL_SCALE).clamp(max=2.0)
     assert torch.allclose(error_image(render, brighter), _colour(1.0).expand(4, 5, 3), atol=1e-6)
+    # in between, brightness grows with the error
+    truth = torch.zeros(1, 11, 3)
+    render = torch.linspace(0, ERROR_FULL_SCALE, 11).view(1, 11, 1).expand(1, 11, 3)
+    luminance = error_image(render, truth)[0] @ torch.tensor([0.2126, 0.7152, 0.0722])
+    assert bool((luminance.diff() > 0).all())
+    # images of other shapes are refused
+    with refused(ValueError, "[2, 2, 3]", "[2, 3, 3]"):
+        error_image(torch.zeros(2, 2, 3), torch.zeros(2, 3, 3))
 
 
 def test_the_error_is_averaged_over_channels_and_saturates_beyond_the_scale():
@@ -33,15 +41,3 @@ def test_the_error_is_averaged_over_channels_and_saturates_beyond_the_scale():
     image = error_image(render, truth)
     for pixel, fraction in ((0, 0.5), (1, 0.25), (2, 0.25), (3, 1.0), (4, 1.0), (5, 1.0)):
         assert torch.allclose(image[0, pixel], _colour(fraction), atol=1e-6), pixel
-
-
-def test_brightness_grows_with_the_error():
-    truth = torch.zeros(1, 11, 3)
-    render = torch.linspace(0, ERROR_FULL_SCALE, 11).view(1, 11, 1).expand(1, 11, 3)
-    luminance = error_image(render, truth)[0] @ torch.tensor([0.2126, 0.7152, 0.0722])
-    assert bool((luminance.diff() > 0).all())
-
-
-def test_images_of_other_shapes_are_refused():
-    with refused(ValueError, "[2, 2, 3]", "[2, 3, 3]"):
-        error_image(torch.zeros(2, 2, 3), torch.zeros(2, 3, 3))

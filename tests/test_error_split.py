@@ -12,7 +12,9 @@ from relaygs.train.error_split import error_split
 from relaygs.train.model_render import ModelRenderer
 
 
-def test_test_split_scores_as_the_evaluator_does(stage_scene, stage_decoupled):
+def test_the_test_split_scores_as_the_evaluator_does_the_train_split_every_view(
+    stage_scene, stage_decoupled
+):
     scores = error_split(stage_scene, stage_decoupled, "test", frame_stride=4)
     fitted = error_split(stage_scene, stage_decoupled, "test", frame_stride=4, colour_fit=True)
     metrics = evaluate(stage_scene, stage_decoupled, {"eval": {"frame_stride": 4}})
@@ -22,9 +24,6 @@ def test_test_split_scores_as_the_evaluator_does(stage_scene, stage_decoupled):
     assert scores["bg_psnr"] > scores["fg_psnr"]  # the decoupled model holds no movers
     assert metrics["psnr_cf"] == pytest.approx(fitted["psnr"], abs=1e-4)
     assert metrics["psnr_cf"] >= metrics["psnr"] - 1e-4  # the fit includes gain 1, offset 0
-
-
-def test_train_split_scores_every_train_view_of_the_frames(stage_scene, stage_decoupled):
     scores = error_split(stage_scene, stage_decoupled, "train", frame_stride=4)
     frames = range(0, stage_scene.num_frames, 4)
     assert scores["images"] == sum(len(stage_scene.views_at(f, "train")) for f in frames)
@@ -41,21 +40,7 @@ def _render_as(monkeypatch, scene, image_of):
     monkeypatch.setattr(ModelRenderer, "render", render)
 
 
-def test_background_and_foreground_pixels_are_scored_apart(
-    stage_scene, stage_decoupled, monkeypatch
-):
-    # exact on the background, black on the foreground: bg-PSNR at the 100 dB ceiling
-    def without_foreground(view):
-        return stage_scene.image(view).masked_fill(stage_scene.mask(view)[..., None], 0.0)
-
-    _render_as(monkeypatch, stage_scene, without_foreground)
-    scores = error_split(stage_scene, stage_decoupled, "test", frame_stride=4)
-    assert scores["bg_psnr"] == pytest.approx(100.0)
-    assert scores["fg_psnr"] < 40.0
-    assert torch.isfinite(torch.tensor(scores["psnr"])) and scores["psnr"] < 100.0
-
-
-def test_colour_fit_undoes_a_camera_response_and_stays_finite_on_flat_renders(
+def test_stubbed_renders_score_fg_and_bg_apart_and_colour_fit_undoes_a_response(
     stage_scene, stage_decoupled, monkeypatch
 ):
     _render_as(monkeypatch, stage_scene, lambda view: stage_scene.image(view) * 0.8 + 0.05)
@@ -66,3 +51,13 @@ def test_colour_fit_undoes_a_camera_response_and_stays_finite_on_flat_renders(
     _render_as(monkeypatch, stage_scene, lambda view: torch.full_like(stage_scene.image(view), 0.5))
     fitted = error_split(stage_scene, stage_decoupled, "test", frame_stride=4, colour_fit=True)
     assert all(math.isfinite(fitted[name]) for name in ("psnr", "fg_psnr", "bg_psnr"))
+
+    # exact on the background, black on the foreground: bg-PSNR at the 100 dB ceiling
+    def without_foreground(view):
+        return stage_scene.image(view).masked_fill(stage_scene.mask(view)[..., None], 0.0)
+
+    _render_as(monkeypatch, stage_scene, without_foreground)
+    scores = error_split(stage_scene, stage_decoupled, "test", frame_stride=4)
+    assert scores["bg_psnr"] == pytest.approx(100.0)
+    assert scores["fg_psnr"] < 40.0
+    assert torch.isfinite(torch.tensor(scores["psnr"])) and scores["psnr"] < 100.0

@@ -43,12 +43,16 @@ def _direct_ssim(x: np.ndarray, y: np.ndarray) -> float:
     return float(values.mean())
 
 
-def test_psnr_of_a_known_error_is_exact_and_averaged_per_image():
+def test_psnr_of_a_known_error_is_exact_and_other_shapes_are_refused():
     gt = torch.rand(8, 9, 3) * 0.6 + 0.2
     assert psnr(gt + 0.1, gt).item() == pytest.approx(20.0, abs=1e-4)
     assert psnr(gt - 0.01, gt).item() == pytest.approx(40.0, abs=1e-3)
     batch = torch.stack([gt + 0.1, gt - 0.01])  # averaged per image, not per pixel
     assert psnr(batch, torch.stack([gt, gt])).item() == pytest.approx(30.0, abs=1e-3)
+    with pytest.raises(ValueError, match="differs"):
+        psnr(torch.rand(4, 4, 3), torch.rand(4, 5, 3))
+    with pytest.raises(ValueError, match="mask shape"):
+        fg_psnr(torch.rand(4, 4, 3), torch.rand(4, 4, 3), torch.ones(3, 3, dtype=torch.bool))
 
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float16, torch.bfloat16])
@@ -59,7 +63,7 @@ def test_psnr_of_identical_images_is_capped_at_100_db(dtype):
     assert value.item() == pytest.approx(100.0)
 
 
-def test_masked_psnr_counts_only_masked_pixels():
+def test_masked_psnr_counts_only_masked_pixels_and_leaves_out_empty_masks():
     gt = torch.full((6, 6, 3), 0.5)
     pred = gt.clone()
     pred[:3] += 0.1
@@ -68,9 +72,6 @@ def test_masked_psnr_counts_only_masked_pixels():
     mask[:3] = True
     assert fg_psnr(pred, gt, mask).item() == pytest.approx(20.0, abs=1e-4)
     assert psnr(pred, gt, ~mask).item() == pytest.approx(-10 * math.log10(0.09), abs=1e-4)
-
-
-def test_empty_masks_are_left_out_and_all_empty_gives_nan():
     gt = torch.full((2, 4, 4, 3), 0.5)
     pred = gt + 0.1
     pred[1] += 0.2
@@ -104,14 +105,6 @@ def test_ssim_matches_a_direct_window_computation(pair):
     assert ssim(x, y).item() == pytest.approx(_direct_ssim(x.numpy(), y.numpy()), abs=1e-9)
 
 
-def test_ssim_batched_equals_mean_of_single_images():
-    images = torch.rand(3, 10, 12, 3)
-    targets = torch.rand(3, 10, 12, 3)
-    single = torch.stack([ssim(images[i], targets[i]) for i in range(3)]).mean()
-    assert ssim(images, targets).item() == pytest.approx(single.item(), abs=1e-6)
-    assert ssim(images, images).item() == pytest.approx(1.0, abs=1e-6)  # identical images
-
-
 def test_dssim_loss_is_differentiable_descends_and_stays_finite_on_flat_images():
     target = torch.rand(16, 16, 3)
     pred = torch.rand(16, 16, 3, requires_grad=True)
@@ -124,13 +117,12 @@ def test_dssim_loss_is_differentiable_descends_and_stays_finite_on_flat_images()
     flat = torch.full((12, 12, 3), 0.5, requires_grad=True)  # zero variance: the clamp at 0
     (1 - ssim(flat, torch.full((12, 12, 3), 0.5))).backward()
     assert torch.isfinite(flat.grad).all()
-
-
-def test_mismatched_shapes_are_rejected():
-    with pytest.raises(ValueError, match="differs"):
-        psnr(torch.rand(4, 4, 3), torch.rand(4, 5, 3))
-    with pytest.raises(ValueError, match="mask shape"):
-        fg_psnr(torch.rand(4, 4, 3), torch.rand(4, 4, 3), torch.ones(3, 3, dtype=torch.bool))
+    # a batch's SSIM is the mean of its images'
+    images = torch.rand(3, 10, 12, 3)
+    targets = torch.rand(3, 10, 12, 3)
+    single = torch.stack([ssim(images[i], targets[i]) for i in range(3)]).mean()
+    assert ssim(images, targets).item() == pytest.approx(single.item(), abs=1e-6)
+    assert ssim(images, images).item() == pytest.approx(1.0, abs=1e-6)  # identical images
 
 
 @pytest.mark.parametrize("sizes", [[(9, 12)] * 4, [(9, 12), (7, 12), (9, 12)]])

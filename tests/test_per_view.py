@@ -40,13 +40,14 @@ def test_records_survive_the_csv_and_the_artifact_tensors_exactly(tmp_path, reco
     assert all(bool(t.isfinite().all()) for t in tensors.values() if t.is_floating_point())
     assert from_tensors(tensors) == records
     assert from_tensors({}) is None  # an artifact without per-view records
-
-
-def test_frame_means_average_each_frames_views_that_have_the_metric():
-    assert frame_means(RECORDS, "psnr") == pytest.approx({0: 24.0625, 4: 1 / 3})
-    assert frame_means(RECORDS, "fg_psnr") == {0: 18.5, 4: 11.0}  # the None is left out
-    assert list(frame_means(list(reversed(RECORDS)), "psnr")) == [0, 4]  # frames in order
-    assert frame_means([{**r, "fg_psnr": None} for r in RECORDS], "fg_psnr") == {}
+    # stored columns of unequal length are refused
+    tensors = to_tensors(RECORDS)
+    tensors["per_view.ssim"] = tensors["per_view.ssim"][:2]
+    with refused(InputError, "per_view"):
+        from_tensors(tensors)
+    del tensors["per_view.ssim"]
+    with refused(InputError, "per_view"):
+        from_tensors(tensors)
 
 
 @pytest.mark.parametrize(
@@ -100,6 +101,11 @@ def test_curves_average_the_jobs_of_each_line_where_they_have_values(tmp_path):
         "4dgs": {0: 18.0},
     }
     assert curves["fg_psnr"]["k8"] == {0: 17.0, 2: 17.0}  # fg-PSNR 5 dB below the PSNR
+    # a frame's mean is over its views that have the metric
+    assert frame_means(RECORDS, "psnr") == pytest.approx({0: 24.0625, 4: 1 / 3})
+    assert frame_means(RECORDS, "fg_psnr") == {0: 18.5, 4: 11.0}  # the None is left out
+    assert list(frame_means(list(reversed(RECORDS)), "psnr")) == [0, 4]  # frames in order
+    assert frame_means([{**r, "fg_psnr": None} for r in RECORDS], "fg_psnr") == {}
 
 
 def test_every_panel_draws_a_line_in_the_colour_the_legend_gives_it(tmp_path, monkeypatch):
@@ -152,16 +158,6 @@ def test_records_an_evaluation_gives_are_checked_before_they_are_stored(tmp_path
         with refused(InputError, *named):
             store([record])
     assert not (tmp_path / "v.csv").exists()
-
-
-def test_stored_columns_of_unequal_length_are_refused():
-    tensors = to_tensors(RECORDS)
-    tensors["per_view.ssim"] = tensors["per_view.ssim"][:2]
-    with refused(InputError, "per_view"):
-        from_tensors(tensors)
-    del tensors["per_view.ssim"]
-    with refused(InputError, "per_view"):
-        from_tensors(tensors)
 
 
 def test_a_stored_evaluation_keeps_its_records_out_of_the_manifest(tmp_path):

@@ -53,7 +53,7 @@ def sweep(tmp_path):
     return tmp_path
 
 
-def test_reports_have_one_row_per_job_with_delta_vs_reference(sweep):
+def test_reports_have_one_row_per_job_with_delta_vs_reference(sweep, tmp_path):
     files = report.write_reports(sweep)
     table = pd.read_csv(files.csv)
     assert list(table.variant) == ["k8", "k16", "k32", "k64"]
@@ -76,6 +76,16 @@ def test_reports_have_one_row_per_job_with_delta_vs_reference(sweep):
     column = header.index("relay.k")
     assert [line.split(",")[column] for line in lines[1:]] == ["8", "16", "32", "64", ""]
     assert lines[1].split(",")[header.index("psnr")] == "25.0"
+    # the title names the experiment only when every job ran it
+    single = {"experiment": None, "job": None}  # what a single run's result.json holds
+    _job(sweep, 5, "k128", 20.0, 5.0, **single)  # copied in beside the sweep's jobs
+    report.write_reports(sweep)
+    assert (sweep / "summary.md").read_text().startswith(f"# {sweep.name} on juggle")
+    runs = tmp_path / "runs"
+    for number, variant in enumerate(("k8", "k16")):
+        _job(runs, number, variant, 20.0, 5.0, **single)
+    report.write_reports(runs)
+    assert (runs / "summary.md").read_text().startswith("# runs on juggle")
 
 
 UNLABELLED = {"reference_variant": None}
@@ -247,6 +257,14 @@ def test_the_cli_rewrites_the_table_prints_it_then_where_the_files_are(sweep, tm
     assert len(errors) == 3 and all(line.startswith("error: ") for line in errors)
     assert errors[1].endswith("missing does not exist")
     assert errors[2].endswith("summary.md is not a folder")
+    # usage errors are one line, and help still works
+    with pytest.raises(SystemExit) as caught:
+        report.main([])
+    err = capsys.readouterr().err
+    assert caught.value.code == 2 and err.count("\n") == 1 and "sweep_dir" in err
+    with pytest.raises(SystemExit) as caught:
+        report.main(["--help"])
+    assert caught.value.code == 0 and "usage:" in capsys.readouterr().out
 
 
 @pytest.mark.parametrize(
@@ -380,11 +398,6 @@ def test_a_sweep_resumed_in_place_counts_what_its_jobs_built_before_the_interrup
         report.write_reports(tmp_path)
 
 
-def test_jobs_on_the_same_point_share_one_label():
-    labels = point_labels([1.0, 2.0, 2.0, 1.0], [5.0, 6.0, 6.0, 5.0], ["k64", "k128", "k8", "k64"])
-    assert labels == {(1.0, 5.0): "k64", (2.0, 6.0): "k128, k8"}
-
-
 def test_a_budget_sweep_says_what_a_minute_buys_and_which_points_are_on_the_front(tmp_path):
     runs = [
         ("juggle", "relaygs", 0.5, 23.0, 5),
@@ -425,16 +438,6 @@ def test_a_budget_sweep_whose_jobs_all_failed_gets_its_summary_without_a_budget_
     assert "| k16 (failed) | 0.5 | n/a |" in files.markdown.read_text()
 
 
-def test_usage_errors_are_one_line_and_help_still_works(capsys):
-    with pytest.raises(SystemExit) as caught:
-        report.main([])
-    err = capsys.readouterr().err
-    assert caught.value.code == 2 and err.count("\n") == 1 and "sweep_dir" in err
-    with pytest.raises(SystemExit) as caught:
-        report.main(["--help"])
-    assert caught.value.code == 0 and "usage:" in capsys.readouterr().out
-
-
 NOT_A_NUMBER = "expected a finite number or null"
 NOT_FLAT = "expected a number, string, bool or null"  # the tables group and compare values
 
@@ -471,18 +474,6 @@ def test_a_folder_where_a_report_file_goes_is_named(sweep, capsys, name):
     _refused(capsys, sweep, str(sweep / name))
 
 
-def test_jobs_repeated_at_one_seed_get_no_table_over_seeds(tmp_path):
-    # two copies of one sweep in a folder: the same seed twice is no spread over seeds
-    for sweep in ("a", "b"):
-        _job(tmp_path / sweep, 0, "k16", 26.0, 20.0)
-        _job(tmp_path / sweep, 1, "k8", 25.0, 10.0)
-    assert report.write_reports(tmp_path).mean is None
-    _job(tmp_path / "c", 0, "k16", 27.0, 20.0, seed=1)
-    assert report.write_reports(tmp_path).mean is not None
-    mean = pd.read_csv(tmp_path / "summary_mean.csv")
-    assert list(mean.seeds) == [2, 1] and list(mean.runs) == [3, 2]
-
-
 def test_the_mean_table_needs_a_repeated_finished_job_and_an_old_one_goes(tmp_path):
     _job(tmp_path, 0, "k16", 26.0, 20.0, test_set="aaa")
     _job(tmp_path, 1, "k16", 27.0, 20.0, test_set="aaa", seed=1)
@@ -499,6 +490,16 @@ def test_the_mean_table_needs_a_repeated_finished_job_and_an_old_one_goes(tmp_pa
     assert not (tmp_path / "summary_mean.md").exists()
     assert not (tmp_path / "summary_mean.csv").exists()
     assert not (tmp_path / "pareto.png").exists()  # nor a plot of the jobs that finished before
+    # two copies of one sweep in a folder: the same seed twice is no spread over seeds
+    copies = tmp_path / "copies"
+    for sweep in ("a", "b"):
+        _job(copies / sweep, 0, "k16", 26.0, 20.0)
+        _job(copies / sweep, 1, "k8", 25.0, 10.0)
+    assert report.write_reports(copies).mean is None
+    _job(copies / "c", 0, "k16", 27.0, 20.0, seed=1)
+    assert report.write_reports(copies).mean is not None
+    mean = pd.read_csv(copies / "summary_mean.csv")
+    assert list(mean.seeds) == [2, 1] and list(mean.runs) == [3, 2]
 
 
 @pytest.mark.parametrize("multiplier", [{}, {"budget.multiplier": 1.0}])
@@ -552,6 +553,9 @@ def test_pareto_labels_of_close_jobs_do_not_overprint_nor_leave_the_plot(tmp_pat
     assert not any(a.overlaps(b) for i, a in enumerate(boxes) for b in boxes[i + 1 :])
     assert all(inside.x0 <= box.x0 and box.x1 <= inside.x1 for box in boxes)
     assert all(inside.y0 <= box.y0 and box.y1 <= inside.y1 for box in boxes)
+    # jobs on the same point share one label
+    labels = point_labels([1.0, 2.0, 2.0, 1.0], [5.0, 6.0, 6.0, 5.0], ["k64", "k128", "k8", "k64"])
+    assert labels == {(1.0, 5.0): "k64", (2.0, 6.0): "k128, k8"}
 
 
 @pytest.mark.parametrize(("slowest", "scale"), [(30.0, "log"), (15.0, "linear")])
@@ -561,15 +565,3 @@ def test_pareto_time_axis_is_logarithmic_only_for_a_wide_time_range(
     # the slowest job takes 30x (log) or 15x (linear) the fastest; the threshold is 20x
     pareto.plot_pareto([1.0, slowest], [20.0, 25.0], ["a", "b"], tmp_path / "p.png", "t")
     assert figures[0].axes[0].get_xscale() == scale
-
-
-def test_the_title_names_the_experiment_only_when_every_job_ran_it(sweep, tmp_path):
-    single = {"experiment": None, "job": None}  # what a single run's result.json holds
-    _job(sweep, 4, "k128", 20.0, 5.0, **single)  # copied in beside the sweep's jobs
-    report.write_reports(sweep)
-    assert (sweep / "summary.md").read_text().startswith(f"# {sweep.name} on juggle")
-    runs = tmp_path / "runs"
-    for number, variant in enumerate(("k8", "k16")):
-        _job(runs, number, variant, 20.0, 5.0, **single)
-    report.write_reports(runs)
-    assert (runs / "summary.md").read_text().startswith("# runs on juggle")
