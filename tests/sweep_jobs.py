@@ -7,8 +7,7 @@ PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
 def write_job(sweep: Path, number: int, variant: str, psnr, seconds: float, **extra) -> Path:
-    """The folder `<number>_<variant>` with an `ablation_k` result on `juggle` (`relay.k` from
-    a `k<N>` label), `extra` fields over it."""
+    """The folder `<number>_<variant>` with an `ablation_k` result on `juggle`, `extra` over it."""
     folder = sweep / f"{number}_{variant}"
     folder.mkdir(parents=True)
     result = {

@@ -80,6 +80,22 @@ def test_cameras_around_the_centre_make_a_loop_of_upright_views_from_the_first_c
         assert _radius_and_height(view) == pytest.approx((3.0, 2.5), abs=1e-5)
     steps = [_azimuth(b) - _azimuth(a) for a, b in pairwise(path)]
     assert _same_angles(steps, [15.0] * 23)
+    # one camera is a still path; bad requests are one line
+    cameras = [_camera(0, 10)]
+    path = path_cameras(cameras, 3, CENTRE)
+    assert all(torch.allclose(view.w2c, cameras[0].w2c, atol=1e-5) for view in path)
+    assert len(path_cameras([_camera(0, 0), _camera(1, 90)], 1, CENTRE)) == 1
+    with refused(InputError, "camera path", "got 0"):
+        path_cameras(cameras, 0, CENTRE)
+    with pytest.raises(InputError, match="camera path: no cameras to go round"):
+        path_cameras([], 3, CENTRE)
+    above = []
+    for index in range(3):  # on the vertical through the centre, looking sideways: no orbit
+        eye = np.array([0.0, 0.0, 2.0 + index])
+        w2c = torch.tensor(look_at(eye, eye + np.array([5.0, 0.0, 0.0])), dtype=torch.float32)
+        above.append(Camera(index, cameras[0].K, w2c, 32, 18))
+    with refused(InputError, "camera path", "vertical"):
+        path_cameras(above, 5, CENTRE)
 
 
 @pytest.mark.parametrize(
@@ -97,21 +113,3 @@ def test_cameras_close_the_loop_only_where_they_surround_the_centre(azimuths, co
     steps = [_azimuth(b) - _azimuth(a) for a, b in pairwise(path)]  # where it starts may tie
     assert _same_angles(steps, [step] * (count - 1))
     assert start is None or _same_angles([_azimuth(path[0])], [start])
-
-
-def test_one_camera_is_a_still_path_and_bad_requests_are_one_line():
-    cameras = [_camera(0, 10)]
-    path = path_cameras(cameras, 3, CENTRE)
-    assert all(torch.allclose(view.w2c, cameras[0].w2c, atol=1e-5) for view in path)
-    assert len(path_cameras([_camera(0, 0), _camera(1, 90)], 1, CENTRE)) == 1
-    with refused(InputError, "camera path", "got 0"):
-        path_cameras(cameras, 0, CENTRE)
-    with pytest.raises(InputError, match="camera path: no cameras to go round"):
-        path_cameras([], 3, CENTRE)
-    above = []
-    for index in range(3):  # on the vertical through the centre, looking sideways: no orbit
-        eye = np.array([0.0, 0.0, 2.0 + index])
-        w2c = torch.tensor(look_at(eye, eye + np.array([5.0, 0.0, 0.0])), dtype=torch.float32)
-        above.append(Camera(index, cameras[0].K, w2c, 32, 18))
-    with refused(InputError, "camera path", "vertical"):
-        path_cameras(above, 5, CENTRE)

@@ -65,7 +65,6 @@ class PathSettings:
 
 
 def _require_fps(fps: float | None) -> None:
-    """One line unless `fps` is None or a positive finite number."""
     if fps is not None and not (math.isfinite(fps) and fps > 0):
         raise InputError(f"render fps: expected a positive number, got {fps}")
 
@@ -130,8 +129,7 @@ def _renderers(scene: Scene, models: Sequence[SceneModel]) -> list[ModelRenderer
 
 
 def _picture(renders: list[Tensor], view: View, scene: Scene, settings: RenderSettings) -> Tensor:
-    """The models' renders, then the ground truth and each render's error image where the
-    settings ask for them, side by side."""
+    """The models' renders, then the truth and their error images where asked, side by side."""
     parts = list(renders)
     if settings.with_truth or settings.with_error:
         truth = scene.image(view)
@@ -178,8 +176,7 @@ def write_path_render(
 
 @contextmanager
 def _written_whole(out: Path, sinks: list[_CameraSink]) -> Iterator[None]:
-    """Finish every sink when the body completes, remove unfinished videos on any exit, and
-    name a path that cannot be written in one line."""
+    """Finish the sinks, or remove their unfinished videos; an unwritable path is one line."""
     try:
         yield
         for sink in sinks:
@@ -193,8 +190,7 @@ def _written_whole(out: Path, sinks: list[_CameraSink]) -> Iterator[None]:
 
 
 def _even_sized(pixels: np.ndarray) -> np.ndarray:
-    """The frame with its last row and column repeated where its height or width is odd: the
-    MPEG-4 encoder works on even sizes and would drop them instead."""
+    """The frame with an odd last row or column repeated: the MPEG-4 encoder would drop it."""
     height, width = pixels.shape[:2]
     bottom, right = height % 2, width % 2
     if not (bottom or right):

@@ -84,13 +84,9 @@ def evaluate_through_store(
     records = from_tensors(artifact.tensors)
     if records is not None:
         metrics[PER_VIEW] = records
+    builder = built_by(info.provenance)
     return Evaluation(
-        metrics,
-        key,
-        info.cache_hit,
-        info.wall_seconds,
-        info.replaced_corrupt,
-        built_by(info.provenance),
+        metrics, key, info.cache_hit, info.wall_seconds, info.replaced_corrupt, builder
     )
 
 

@@ -60,9 +60,7 @@ def experiment_summary(hparams: Mapping[str, HParamValue], axes: SweepAxes) -> S
     experiment = api_pb2.Experiment(
         hparam_infos=infos, metric_infos=metrics, time_created_secs=time.time()
     )
-    return _summary(
-        metadata.EXPERIMENT_TAG, plugin_data_pb2.HParamsPluginData(experiment=experiment)
-    )
+    return _summary(metadata.EXPERIMENT_TAG, experiment=experiment)
 
 
 def session_start_summary(
@@ -75,17 +73,13 @@ def session_start_summary(
         typed = _typed(value, _domain_type(domain)) if domain else value
         field = {bool: "bool_value", str: "string_value"}.get(type(typed), "number_value")
         setattr(start.hparams[name], field, typed)
-    return _summary(
-        metadata.SESSION_START_INFO_TAG, plugin_data_pb2.HParamsPluginData(session_start_info=start)
-    )
+    return _summary(metadata.SESSION_START_INFO_TAG, session_start_info=start)
 
 
 def session_end_summary() -> Summary:
     """The job ended well (a failed job writes no HParams entry)."""
     end = plugin_data_pb2.SessionEndInfo(status=api_pb2.STATUS_SUCCESS, end_time_secs=time.time())
-    return _summary(
-        metadata.SESSION_END_INFO_TAG, plugin_data_pb2.HParamsPluginData(session_end_info=end)
-    )
+    return _summary(metadata.SESSION_END_INFO_TAG, session_end_info=end)
 
 
 def flatten_config(config: Mapping[str, Any], prefix: str = "") -> dict[str, HParamValue]:
@@ -141,7 +135,8 @@ def _typed(value: Any, kind: int) -> HParamValue:
     return json.dumps(value)
 
 
-def _summary(tag: str, data: plugin_data_pb2.HParamsPluginData) -> Summary:
+def _summary(tag: str, **fields: Any) -> Summary:
+    data = plugin_data_pb2.HParamsPluginData(**fields)
     summary = Summary()
     summary.value.add(
         tag=tag, metadata=metadata.create_summary_metadata(data), tensor=metadata.NULL_TENSOR

@@ -39,8 +39,7 @@ def training_tag(stage: str, name: str) -> str:
 
 
 class TensorBoardLog:
-    """One SummaryWriter in the job's log dir, callable as a stage log sink; a failed write
-    (raised by the writer thread at the next call) names the log folder."""
+    """One SummaryWriter in the job's log dir, callable as a stage log sink; failures name it."""
 
     def __init__(self, log_dir: Path) -> None:
         self.log_dir = Path(log_dir)
