@@ -55,10 +55,6 @@ def _run_k(config, k, run_dir, fakes):
     )
 
 
-def _relay_keys(tmp_path):
-    return sorted(path.name for path in (tmp_path / "artifacts" / "relay").iterdir())
-
-
 def test_k64_and_k128_on_64_frames_share_one_artifact_and_keep_the_swept_value(
     base_config, tmp_path
 ):
@@ -69,7 +65,7 @@ def test_k64_and_k128_on_64_frames_share_one_artifact_and_keep_the_swept_value(
     assert (above_t["cache_hits"], above_t["train_s_computed"]) == (3, 0)
     assert fakes.ran("relay") == 1 and fakes.ran("deform") == 1
     assert [cfg["relay"]["k"] for stage, cfg in fakes.calls if stage == "relay"] == [64]
-    (key,) = _relay_keys(tmp_path)
+    (key,) = [path.name for path in (tmp_path / "artifacts" / "relay").iterdir()]
     assert ArtifactStore(tmp_path / "artifacts").manifest("relay", key).config["relay"]["k"] == 64
     assert (at_t["relay.k"], above_t["relay.k"]) == (64, 128)
     written = json.loads((tmp_path / "k128" / "result.json").read_text())

@@ -189,6 +189,10 @@ def test_changing_a_downstream_config_or_schema_version_rebuilds_only_downstream
     assert stages.calls == {"decouple": 1, "relay": 2, "deform": 2}
     assert [r.cache_hit for r in changed.reports] == [True, False, False]
     assert changed.reports[2].key != first.reports[2].key  # new upstream key, same own config
+    no_copies = _run(store, stages, BASE, pipeline="no_copies")  # shares decouple's artifact
+    assert no_copies.reports[0].cache_hit and no_copies.reports[0].key == first.reports[0].key
+    assert not no_copies.reports[1].cache_hit
+    assert no_copies.output.meta["upstream"] == ["decouple"]
     reports = []
     _run(store, stages, schema_versions={"relay": 2}, on_node_done=reports.append)
     assert [r.cache_hit for r in reports] == [True, False, False]
@@ -203,15 +207,6 @@ def test_paths_and_logging_do_not_rebuild_but_the_stage_still_sees_them(tmp_path
     other_scene = _run(store, stages, noisy, scene="scene-b")
     assert not any(r.cache_hit for r in other_scene.reports)
     assert stages.seen[3] == ("decouple", noisy["decouple"])
-
-
-def test_pipelines_share_upstream_artifacts(tmp_path):
-    store, stages = ArtifactStore(tmp_path), FakeStages()
-    relaygs = _run(store, stages, BASE)
-    no_copies = _run(store, stages, BASE, pipeline="no_copies")
-    assert no_copies.reports[0].cache_hit and no_copies.reports[0].key == relaygs.reports[0].key
-    assert not no_copies.reports[1].cache_hit
-    assert no_copies.output.meta["upstream"] == ["decouple"]
 
 
 def test_missing_stage_functions_fail_before_any_work(tmp_path):

@@ -57,28 +57,16 @@ def test_layout_manifest_and_marker_are_written_and_a_hit_does_not_rebuild(tmp_p
     assert loaded.meta == built.meta
 
 
-def _flip_byte(name):
-    return lambda folder: flip_last_byte(folder / name)
-
-
-def _write(name, text):
-    return lambda folder: (folder / name).write_text(text)
-
-
-def _deleted(name):
-    return lambda folder: (folder / name).unlink()
-
-
 @pytest.mark.parametrize(
     ("damage", "named"),
     [
-        (_flip_byte("tensors.safetensors"), ["tensors.safetensors"]),
-        (_flip_byte("meta.json"), ["meta.json"]),
-        (_flip_byte("manifest.json"), ["manifest.json"]),
-        (_write(MARKER_FILE, "{not json"), [MARKER_FILE]),
-        (_write(MARKER_FILE, json.dumps({"sha256": ["x"]})), ["marker"]),
-        (_deleted("tensors.safetensors"), ["tensors.safetensors", "missing"]),
-        (_deleted("meta.json"), ["meta.json", "missing"]),
+        (lambda f: flip_last_byte(f / "tensors.safetensors"), ["tensors.safetensors"]),
+        (lambda f: flip_last_byte(f / "meta.json"), ["meta.json"]),
+        (lambda f: flip_last_byte(f / "manifest.json"), ["manifest.json"]),
+        (lambda f: (f / MARKER_FILE).write_text("{not json"), [MARKER_FILE]),
+        (lambda f: (f / MARKER_FILE).write_text('{"sha256": ["x"]}'), ["marker"]),
+        (lambda f: (f / "tensors.safetensors").unlink(), ["tensors.safetensors", "missing"]),
+        (lambda f: (f / "meta.json").unlink(), ["meta.json", "missing"]),
         # hashes that match undecodable bytes: safetensors' own error escaped as a traceback
         (sealed("meta.json", "{not json"), ["unreadable"]),
         (sealed("tensors.safetensors", "{not json"), ["unreadable"]),
