@@ -369,17 +369,10 @@ def test_help_completion_and_cfg_print_and_do_no_work(fakes, tmp_path, capsys):
     assert fakes.calls == [] and list(tmp_path.iterdir()) == []
 
 
-@pytest.mark.parametrize(
-    "loader",
-    [
-        [],
-        [
-            "scene.loader.test_cameras=[2,0]",
-            "scene.loader.downscale=2",
-            "scene.loader.max_points=300",
-        ],
-    ],
-)
+LOADER = "scene.loader.test_cameras=[2,0] scene.loader.downscale=2 scene.loader.max_points=300"
+
+
+@pytest.mark.parametrize("loader", [[], LOADER.split()])
 def test_a_single_run_writes_its_result_and_prints_commands_that_paste_as_is(
     fakes, tmp_path, capsys, loader
 ):

@@ -29,20 +29,8 @@ from relaygs.per_view import PER_VIEW, PER_VIEW_FILE, read_per_view
 from relaygs.pipeline import ArtifactStore, CorruptArtifactError
 from relaygs.splat import default_backend, use_backend
 
-REQUIRED_FIELDS = {
-    "pipeline",
-    "scene",
-    "seed",
-    "psnr",
-    "ssim",
-    "fg_psnr",
-    "train_s_total",
-    "train_s_computed",
-    "storage_mb",
-    "render_fps",
-    "num_gaussians",
-    "cache_hits",
-}
+SCORES = {"psnr", "ssim", "fg_psnr", "storage_mb", "render_fps", "num_gaussians", "cache_hits"}
+REQUIRED_FIELDS = {"pipeline", "scene", "seed", "train_s_total", "train_s_computed", *SCORES}
 
 
 @pytest.fixture(scope="module")
@@ -69,14 +57,8 @@ def _run(config, run_dir, fakes, overrides=(), label=None, job=None):
 
 def test_a_run_writes_a_flat_result_with_every_required_field(base_config, tmp_path, capsys):
     fakes = FakeStages()
-    overrides = [
-        "relay.k=8",
-        "+component=full",
-        "budget=smoke",
-        "scene.loader.test_cameras=[0,2]",
-        "paths.outputs=/x",
-        "hydra.verbose=true",
-    ]
+    overrides = ["relay.k=8", "+component=full", "budget=smoke", "scene.loader.test_cameras=[0,2]"]
+    overrides += ["paths.outputs=/x", "hydra.verbose=true"]
     config = with_values(base_config, scene__loader__test_cameras=[0, 2])
     result = _run(config, tmp_path / "run", fakes, overrides=overrides)
     written = json.loads((tmp_path / "run" / RESULT_FILE).read_text())
@@ -270,10 +252,8 @@ def test_an_evaluation_without_per_view_metrics_leaves_no_file(base_config, tmp_
 def test_the_runs_thread_count_keys_its_evaluation_and_its_printed_commands(
     base_config, tmp_path, capsys
 ):
-    """Render FPS depends on the thread count, so a stored evaluation is reused only at the
-    thread count it was measured with; the trained artifacts are reused whatever it is. The
-    printed commands use as many threads: with torch's default instead, a render on a loaded
-    2-core machine ran 25 times slower. The run's splat backend is the job's default too."""
+    # render FPS depends on the thread count: an evaluation is reused only at its own, the
+    # models at any; printed commands keep it (torch's default ran 25x slower on 2 cores)
     fakes = FakeStages()
     threads = torch.get_num_threads()
     try:
@@ -426,8 +406,8 @@ def test_a_corrupted_artifact_or_evaluation_is_rebuilt_or_refused(base_config, t
 def test_a_gc_removing_the_model_while_it_is_evaluated_does_not_fail_the_run(
     base_config, tmp_path, monkeypatch
 ):
-    """`gc --keep` run beside a job removes the model it just built (its lock is free while
-    the job evaluates): the job still reports the model's storage, from its manifest."""
+    # `gc --keep` beside a job removes the model it just built (its lock is free while the job
+    # evaluates): the job still reports the model's storage, from its manifest
     fakes = FakeStages()
     store = ArtifactStore(tmp_path / "artifacts")
     recorded = []
@@ -461,13 +441,8 @@ def test_hparams_metrics_of_zero_are_logged_and_missing_ones_skipped(tmp_path):
 
 def test_hparams_flatten_to_dotted_keys_with_none_as_text():
     config = {"a": {"b": None, "c": [1, 2], "d": {"e": 0.5}}, "f": True, "g": "x"}
-    assert flatten_config(config) == {
-        "a.b": "None",
-        "a.c": "[1, 2]",
-        "a.d.e": 0.5,
-        "f": True,
-        "g": "x",
-    }
+    flat = {"a.b": "None", "a.c": "[1, 2]", "a.d.e": 0.5, "f": True, "g": "x"}
+    assert flatten_config(config) == flat
 
 
 def test_non_finite_metrics_are_written_as_null(base_config, tmp_path, monkeypatch):
@@ -491,10 +466,6 @@ def test_non_finite_metrics_are_written_as_null(base_config, tmp_path, monkeypat
     assert "lpips" not in written  # extra metrics are kept only when they have a value
 
 
-class KilledError(BaseException):
-    """Stands in for a kill (or SIGTERM's KeyboardInterrupt) at the injected point."""
-
-
 def test_a_result_write_stopped_part_way_keeps_the_previous_result(
     base_config, tmp_path, monkeypatch
 ):
@@ -504,10 +475,10 @@ def test_a_result_write_stopped_part_way_keeps_the_previous_result(
     before = _run(base_config, run_dir, FakeStages())
 
     def killed(source, target):
-        raise KilledError
+        raise KeyboardInterrupt  # SIGTERM's, or a kill at this point
 
     monkeypatch.setattr(os, "replace", killed)
-    with pytest.raises(KilledError):
+    with pytest.raises(KeyboardInterrupt):
         write_result(run_dir, {**before, "psnr": 1.0})
     monkeypatch.undo()
     assert json.loads((run_dir / RESULT_FILE).read_text()) == before
