@@ -159,7 +159,7 @@ def test_an_ambiguous_prefix_names_the_artifacts_it_matches(tmp_path, capsys):
     _refused(capsys, store.root, "show", key[:4], named=named)
 
 
-def test_gc_refuses_a_root_that_is_no_store_and_deletes_nothing(tmp_path, capsys):
+def test_gc_refuses_a_root_that_is_no_store_and_ls_a_missing_one(tmp_path, capsys):
     # --root at, say, Docker's overlay2: folders named by a sha256, none with a seal
     layer = tmp_path / "overlay2" / KEY_A
     (layer / "diff").mkdir(parents=True)
@@ -167,6 +167,7 @@ def test_gc_refuses_a_root_that_is_no_store_and_deletes_nothing(tmp_path, capsys
     _refused(capsys, tmp_path, "gc", named=[str(tmp_path)])
     assert (layer / "diff" / "file").read_text() == "not ours"
     assert sorted(path.name for path in tmp_path.iterdir()) == ["overlay2"]  # no .locks made
+    _refused(capsys, tmp_path / "nowhere", "ls", named=[str(tmp_path / "nowhere")])
 
 
 def test_ctrl_c_during_a_command_is_one_line_and_status_130(store, capsys, monkeypatch):
@@ -179,10 +180,6 @@ def test_ctrl_c_during_a_command_is_one_line_and_status_130(store, capsys, monke
     with pytest.raises(SystemExit) as stop:
         start_tool("relaygs.commands.artifacts")
     assert (stop.value.code, *capsys.readouterr()) == (130, "", "interrupted\n")
-
-
-def test_missing_store_is_one_line_error(tmp_path, capsys):
-    _refused(capsys, tmp_path / "nowhere", "ls", named=[str(tmp_path / "nowhere")])
 
 
 def test_eval_scores_a_stored_model_like_the_evaluator(stage_scene_path, stage_decoupled, tmp_path):
@@ -511,16 +508,8 @@ def test_a_render_out_of_disk_or_memory_is_one_line(store, capsys, monkeypatch, 
     assert err.rstrip().endswith("then rerun the command")
 
 
-@pytest.fixture
-def torch_threads():
-    """torch's CPU thread count, restored after the test (a command under test sets it)."""
-    before = torch.get_num_threads()
-    yield before
-    torch.set_num_threads(before)
-
-
 @pytest.mark.parametrize("command", ["eval", "gap", "render", "ply"])
-def test_threads_is_set_before_the_model_loads(store, capsys, monkeypatch, torch_threads, command):
+def test_threads_is_set_before_the_model_loads(store, capsys, monkeypatch, request, command):
     from relaygs.commands import artifacts_eval
     from relaygs.errors import RelayGSError
 
@@ -532,7 +521,9 @@ def test_threads_is_set_before_the_model_loads(store, capsys, monkeypatch, torch
 
     for module in (artifacts_module, artifacts_eval):
         monkeypatch.setattr(module, "model_artifact", loading)
-    wanted = 1 if torch_threads > 1 else 2
+    threads = torch.get_num_threads()
+    request.addfinalizer(lambda: torch.set_num_threads(threads))  # the command sets it
+    wanted = 1 if threads > 1 else 2
     scene = [] if command == "ply" else ["--scene", "s"]
     code, _, err = _cli(capsys, store.root, command, KEY_A[:8], *scene, "--threads", str(wanted))
     assert (code, err, seen) == (1, "error: stopped\n", [wanted])

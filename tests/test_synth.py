@@ -342,7 +342,5 @@ def test_refuses_to_overwrite_what_is_not_a_generated_scene(
 def test_a_generated_scene_holding_only_its_own_files_is_replaced(tmp_path: Path):
     scene = generate("static", tmp_path / "scene", frames=1, width=8, height=6)
     generate("static", scene, frames=2, width=8, height=6)
-    assert sorted(path.name for path in (scene / "ims" / "0").iterdir()) == [
-        "000000.png",
-        "000001.png",
-    ]
+    frames = sorted(path.name for path in (scene / "ims" / "0").iterdir())
+    assert frames == ["000000.png", "000001.png"]
