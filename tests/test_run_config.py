@@ -11,14 +11,6 @@ from relaygs.model import paper_schedule
 from relaygs.stages import SPECS, EvalSettings, TrainSettings, step_budgets
 from relaygs.stages.config import json_ready
 
-EXPERIMENTS = (
-    "ablation_k",
-    "ablation_segments",
-    "ablation_components",
-    "baseline",
-    "budget",
-    "smoke",
-)
 SUBMITIT = "hydra_plugins.hydra_submitit_launcher.submitit_launcher"
 JOBLIB = "hydra_plugins.hydra_joblib_launcher.joblib_launcher.JoblibLauncher"
 SWEEPS = {
@@ -30,6 +22,7 @@ SWEEPS = {
     "baseline": {"pipeline": "relaygs,4dgs"},
     "budget": {"pipeline": "relaygs,4dgs", "budget.multiplier": "0.25,0.5,1.0,2.0"},
 }
+EXPERIMENTS = (*SWEEPS, "smoke")  # the sweeps, and the one experiment that runs one job
 
 
 @pytest.fixture(scope="module")
