@@ -1,6 +1,5 @@
-"""What `tensorboard --logdir SWEEP` shows, read back with TensorBoard's own event reader and
-its HParams backend (the code behind the dashboard's table): run names, the swept key first,
-every declared metric, tag names, labelled previews and the sweep-level run."""
+"""What `tensorboard --logdir SWEEP` shows, read back with TensorBoard's event reader and HParams
+backend: run names, swept key first, every metric, tag names, previews, the sweep-level run."""
 
 import json
 

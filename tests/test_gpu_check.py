@@ -1,6 +1,5 @@
-"""tools/gpu_check.sh's plumbing, without a GPU: every step runs under its limit and lands in
-one table, a failing step does not stop the others, and the script's exit code says whether
-all passed. (What the steps measure is the benches' and tests' own business.)"""
+"""tools/gpu_check.sh's plumbing, without a GPU: each step runs under its limit into one table,
+a failing step does not stop the others, and the exit code says whether all passed."""
 
 from __future__ import annotations
 

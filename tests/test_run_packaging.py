@@ -1,6 +1,5 @@
-"""conf/ (the pipelines included) and the native kernels' C++ source ship inside the package:
-the `_data` link and pyproject's package-data globs cover every file, so a regular install
-finds the same configs as the repository and can build the kernels."""
+"""conf/ and the native kernels' C++ source ship inside the package (the `_data` link, package-data
+globs), so a regular install finds the repository's configs and can build the kernels."""
 
 from pathlib import Path
 

@@ -1,6 +1,5 @@
-"""tools/setup_venv.sh reuses the torch its python imports: a venv made from a venv's python
-(`make venv` in an activated venv) sees that venv's torch instead of installing another. With
-no torch, it installs one only where pip offers a CPU build, unless told to take a CUDA one."""
+"""tools/setup_venv.sh reuses the torch its python imports (a venv made from a venv's python sees
+its torch); with none, it installs a CPU build only, unless told to take a CUDA one."""
 
 import os
 import shutil
@@ -70,9 +69,8 @@ def _python_without_torch(folder: Path) -> str:
 def _setup_with_fake_torch(
     tmp_path: Path, torch_requires: list[str], torch_version: str, allow_cuda: bool
 ) -> tuple[subprocess.CompletedProcess, Path]:
-    """Run the setup script traced (bash -x) and offline on a python without torch, where pip
-    finds only a fake torch (and a fake nvidia-* wheel). Past the torch checks the project's
-    own install fails for want of an index, so the run always ends non-zero and unstamped."""
+    """Run the setup script traced (bash -x), offline, on a python without torch, pip finding
+    only fake torch/nvidia wheels: the project's own install then fails, non-zero, unstamped."""
     wheels = tmp_path / "wheels"
     wheels.mkdir()
     _fake_wheel(wheels, "torch", torch_requires, torch_version)

@@ -1,6 +1,5 @@
-"""The five experiments at `budget=smoke` on a tiny scene, end to end with the real stages, as
-a user runs them (one process per command, one shared output folder). Marked `sweep`:
-deselect with `-m "not sweep"`."""
+"""The five experiments at `budget=smoke` on a tiny scene, end to end with the real stages, one
+process per command as a user runs them. Marked `sweep`: deselect with `-m "not sweep"`."""
 
 import json
 import math
