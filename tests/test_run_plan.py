@@ -80,12 +80,8 @@ def test_budget_multiplier_scales_steps_of_every_node(config):
 
 def test_scale_steps_scales_named_counts_at_any_depth_and_keeps_them_positive():
     section = {"steps": 3, "densify": {"until": 100, "every": 0}, "k": 16, "flag": True}
-    assert scale_steps(section, 0.1, ["steps", "until", "every", "flag"]) == {
-        "steps": 1,
-        "densify": {"until": 10, "every": 0},
-        "k": 16,
-        "flag": True,
-    }
+    scaled = scale_steps(section, 0.1, ["steps", "until", "every", "flag"])
+    assert scaled == {"steps": 1, "densify": {"until": 10, "every": 0}, "k": 16, "flag": True}
     assert scale_steps({"steps": 0}, 2.0, ["steps"]) == {"steps": 0}
     assert scale_steps({"steps": -4}, 2.0, ["steps"]) == {"steps": -4}
     # a finite multiplier whose product is not (1e307 × 20) failed in round() with a traceback
@@ -152,10 +148,8 @@ def test_pipeline_files_parse_per_node_overrides(tmp_path):
     pipeline = load_pipeline(path)
     assert pipeline.nodes["a"].overrides == {}
     assert pipeline.nodes["b"].overrides == {"gamma": False, "lr": {"init": 2}}
-    assert load_pipeline("4dgs").nodes["deform"].overrides == {
-        "isolate_fg_bg": False,
-        "gamma": False,
-    }
+    pinned = load_pipeline("4dgs").nodes["deform"].overrides
+    assert pinned == {"isolate_fg_bg": False, "gamma": False}
 
 
 @pytest.mark.parametrize("value", ["[1, 2]", "7", "{1: x}"])
