@@ -384,19 +384,18 @@ def test_a_capture_posed_by_a_model_colmap_wrote_loads_with_its_poses(tmp_path):
     np.testing.assert_allclose(rgb, np.asarray(expected["rgb"]) / 255.0, atol=1e-6)
 
 
-def _rewrite_model(root: Path, edit) -> None:
-    """Apply `edit` to root's COLMAP model (or take the model it returns) and write it back."""
-    folder = root / "sparse" / "0"
-    model, binary = read_model(folder), model_suffix(folder) == ".bin"
-    model = edit(model) or model
-    for path in folder.iterdir():
-        path.unlink()
-    write_model(folder, model, binary=binary)
+def _in_model(edit: Callable[[ColmapModel], ColmapModel | None]) -> Callable[[Path], None]:
+    """A damage: rewrite the scene's COLMAP model with `edit` applied (or the model it returns)."""
 
+    def rewrite(root: Path) -> None:
+        folder = root / "sparse" / "0"
+        model, binary = read_model(folder), model_suffix(folder) == ".bin"
+        model = edit(model) or model
+        for path in folder.iterdir():
+            path.unlink()
+        write_model(folder, model, binary=binary)
 
-def _in_model(edit: Callable[[ColmapModel], None]) -> Callable[[Path], None]:
-    """A damage: rewrite the scene's COLMAP model with `edit` applied."""
-    return lambda root: _rewrite_model(root, edit)
+    return rewrite
 
 
 def _camera_1(params=lambda old: old, **changes) -> Callable[[Path], None]:
