@@ -72,39 +72,33 @@ def test_a_sweep_in_a_folder_of_an_earlier_one_names_its_jobs_and_skips_its_fail
 
 
 RERUN = "rerun the same command (finished stages are reused"
-ENVIRONMENT_FAILURES = [
-    pytest.param(
-        OSError(errno.ENOSPC, "No space left on device", "/store/x.safetensors"),
-        "stage relay: No space left on device writing /store/x.safetensors: free space, then",
-        id="disk-full",
+STORED = "/store/x.safetensors"
+FULL = f"writing {STORED}: free space, then"
+UNWRITABLE = "cannot access /store/relay"
+ENVIRONMENT_FAILURES = {
+    "disk-full": (
+        OSError(errno.ENOSPC, "No space left on device", STORED),
+        f"No space left on device {FULL}",
     ),
-    pytest.param(
-        OSError(errno.EDQUOT, "Disk quota exceeded", "/store/x.safetensors"),
-        "stage relay: Disk quota exceeded writing /store/x.safetensors: free space, then",
-        id="quota",
-    ),
-    pytest.param(
+    "quota": (OSError(errno.EDQUOT, "Disk quota exceeded", STORED), f"Disk quota exceeded {FULL}"),
+    "read-only": (
         OSError(errno.EROFS, "Read-only file system", "/store/relay"),
-        "stage relay: cannot write /store/relay (Read-only file system): make it writable, then",
-        id="read-only",
+        "cannot write /store/relay (Read-only file system): make it writable, then",
     ),
-    pytest.param(
+    "permission": (
         PermissionError(errno.EACCES, "Permission denied", "/store/relay"),
-        "stage relay: cannot access /store/relay (Permission denied): give this user access",
-        id="permission",
+        f"{UNWRITABLE} (Permission denied): give this user access",
     ),
-    pytest.param(
+    "not-permitted": (
         PermissionError(errno.EPERM, "Operation not permitted", "/store/relay"),
-        "stage relay: cannot access /store/relay (Operation not permitted): give this user",
-        id="not-permitted",
+        f"{UNWRITABLE} (Operation not permitted): give this user",
     ),
-    pytest.param(MemoryError(), "stage relay: out of memory: free memory", id="memory-error"),
-    pytest.param(
-        RuntimeError("DefaultCPUAllocator: can't allocate memory: you tried to allocate 8 bytes"),
-        "stage relay: out of memory: free memory",
-        id="cpu-allocator",
+    "memory-error": (MemoryError(), "out of memory: free memory"),
+    "cpu-allocator": (
+        RuntimeError("DefaultCPUAllocator: can't allocate memory: 8 bytes"),
+        "out of memory: free memory",
     ),
-]
+}
 
 
 def _raise_in_relay(error):
@@ -116,10 +110,10 @@ def _raise_in_relay(error):
     return fail_when
 
 
-@pytest.mark.parametrize(("error", "message"), ENVIRONMENT_FAILURES)
-def test_a_run_out_of_disk_or_memory_ends_in_one_line_and_records_it(
-    fakes, tmp_path, capsys, error, message
-):
+@pytest.mark.parametrize("case", ENVIRONMENT_FAILURES)
+def test_a_run_out_of_disk_or_memory_ends_in_one_line_and_records_it(fakes, tmp_path, capsys, case):
+    error, message = ENVIRONMENT_FAILURES[case]
+    message = f"stage relay: {message}"
     fakes.fail_when = _raise_in_relay(error)
     assert run_main(["budget=smoke", *TINY_SCENE]) == 1
     err = capsys.readouterr().err
@@ -141,8 +135,7 @@ def test_a_programming_error_in_a_run_keeps_its_traceback(fakes, capsys):
 def test_a_sweep_job_out_of_disk_is_recorded_in_one_line_and_the_others_run(
     fakes, tmp_path, capsys
 ):
-    full = OSError(errno.ENOSPC, "No space left on device", "/store/x.safetensors")
-    fakes.fail_when = _raise_in_relay(full)
+    fakes.fail_when = _raise_in_relay(ENVIRONMENT_FAILURES["disk-full"][0])
     args = ["-m", "relay.k=2,4", "variant=k${relay.k}", "budget=smoke", *TINY_SCENE]
     assert run_main(args) == 1
     err = capsys.readouterr().err
