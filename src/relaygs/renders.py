@@ -1,6 +1,5 @@
-"""A stored model's renders over time (`python -m relaygs.artifacts render`): a PNG per frame and
-an MP4 per camera, other models, the truth and error images beside, or a video along an orbit
-that the scene's cameras place around its centre."""
+"""A stored model's renders over time (`artifacts render`): PNGs and an MP4 per camera, with other
+models, truth and error beside, or a video along an orbit around the scene's centre."""
 
 from __future__ import annotations
 

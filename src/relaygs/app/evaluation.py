@@ -1,7 +1,5 @@
-"""Evaluation through the artifact store: an `eval` entry keyed by the model, the `eval`
-settings, the device (render FPS) and the scene, so a job whose model was already evaluated the
-same way reads the metrics back. Its tensors hold the per-view records (kept out of the
-manifest, which `artifacts ls` prints). Bump EVAL_SCHEMA_VERSION when what it reports changes."""
+"""Evaluation through the store: an `eval` entry keyed by model, `eval` settings, device and scene,
+its tensors the per-view records; bump EVAL_SCHEMA_VERSION when what it reports changes."""
 
 from __future__ import annotations
 

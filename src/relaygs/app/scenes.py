@@ -1,6 +1,5 @@
-"""Turn the `scene` config section into a loaded Scene: validate it up front, generate a
-synthetic preset once into a cache folder (under a lock, so parallel jobs generate it once),
-or load a capture folder."""
+"""The `scene` config section as a loaded Scene: validated up front, a synthetic preset generated
+once into a cache folder (under a lock), or a capture folder loaded."""
 
 from __future__ import annotations
 

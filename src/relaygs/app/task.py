@@ -73,9 +73,8 @@ def run_task(
     suite: StageSuite | None = None,
     axes: SweepAxes | None = None,
 ) -> dict[str, Scalar]:
-    """Run one job, write `<run_dir>/result.json` and return it. Bad input raises before
-    `run_dir` is touched (bad scene data too, except in a sweep job, where it is that job's
-    failure); any other failure is recorded as a `failed` result, then re-raised."""
+    """Run one job, write and return `<run_dir>/result.json`. Bad input raises before `run_dir` is
+    touched (bad scene data of a sweep job fails that job); other failures recorded, re-raised."""
     started = time.perf_counter()
     config = resolve_config(cfg, original_cwd)
     suite = suite or load_stage_suite()

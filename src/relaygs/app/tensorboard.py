@@ -1,6 +1,5 @@
-"""TensorBoard logging for one job: stage scalars and images, captioned previews, notes and the
-HParams entry. Tags group by their first part: `eval/`, `result/` (what HParams reads),
-`reused/` (notes), and per stage `train/`, `train_gaussians/` (counts) and `train_lr/`."""
+"""TensorBoard logging for one job under the tag groups `eval/`, `result/` (for HParams), `reused/`
+and per stage `train/`, `train_gaussians/`, `train_lr/`, with previews and the HParams entry."""
 
 from __future__ import annotations
 

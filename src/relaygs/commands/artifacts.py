@@ -1,6 +1,5 @@
-"""`python -m relaygs.artifacts [--root DIR] ls | show KEY | eval KEY --scene DIR |
-render KEY --scene DIR | ply KEY | verify | gc`: inspect, score, look at, export, check and
-clean the artifact store. Exit 0 on success, 1 on a problem (one line on stderr), 2 on usage."""
+"""`python -m relaygs.artifacts ls|show|eval|render|ply|verify|gc`: inspect, score, render, export,
+check and clean the artifact store; exit 1 on a problem (one line on stderr), 2 on usage."""
 
 from __future__ import annotations
 

@@ -1,6 +1,5 @@
-"""`python -m relaygs.report SWEEP_DIR`: (re)write a sweep's summary.csv/md, pareto.png and
-psnr_by_frame.png (also as the TensorBoard run `sweep`), summary_mean.* over seeds and
-summary_budget.* over budget.multiplier, from its jobs' result.json and per_view.csv files."""
+"""`python -m relaygs.report SWEEP_DIR`: (re)write a sweep's summary, summary_mean (over seeds) and
+summary_budget tables, pareto.png and psnr_by_frame.png (also in TensorBoard) from its jobs."""
 
 from __future__ import annotations
 

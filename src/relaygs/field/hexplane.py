@@ -30,9 +30,8 @@ def second_difference_energy(planes: Tensor, dim: int) -> Tensor:
 
 
 class _SecondDifferenceEnergy(torch.autograd.Function):
-    """second_difference_energy with its gradient in closed form: (2/M)·Dᵀ(D planes), M the
-    per-plane count. One pass each way instead of autograd's narrow/expand chain, which costs
-    twice as much on the finest planes every step."""
+    """second_difference_energy with its gradient in closed form, (2/M)·Dᵀ(D planes): one pass
+    each way, half the cost of autograd's narrow/expand chain on the finest planes."""
 
     @staticmethod
     def forward(ctx: Any, planes: Tensor, dim: int) -> Tensor:
