@@ -237,11 +237,7 @@ def _reuse_note(report: NodeReport, records: Sequence[tuple[int, dict]], run_dir
 
 
 def _note_earlier_run(
-    run_dir: Path,
-    config: dict[str, Any],
-    plan: RunPlan,
-    overrides: Sequence[str],
-    job: int | None,
+    run_dir: Path, config: dict[str, Any], plan: RunPlan, overrides: Sequence[str], job: int | None
 ) -> None:
     """Say on stderr when the run folder already holds another run (TensorBoard would merge
     their curves); a job resumed in place is not told to use another folder."""

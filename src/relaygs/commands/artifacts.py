@@ -36,12 +36,7 @@ from relaygs.errors import RelayGSError, UsageError
 from relaygs.paths import require_creatable_folder
 from relaygs.pipeline.integrity import CorruptArtifactError
 from relaygs.pipeline.layout import LOCKS_DIR, TENSORS_FILE
-from relaygs.pipeline.store import (
-    VERIFY_HINT,
-    ArtifactStore,
-    MissingArtifactError,
-    StoredArtifact,
-)
+from relaygs.pipeline.store import VERIFY_HINT, ArtifactStore, MissingArtifactError, StoredArtifact
 from relaygs.ply import write_frame_plys
 from relaygs.renders import PathSettings, RenderSettings, write_path_render, write_renders
 from relaygs.train.scene_model import SceneModel

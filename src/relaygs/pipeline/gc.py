@@ -36,10 +36,7 @@ class GcReport:
 
 
 def collect_garbage(
-    root: Path,
-    keep: Collection[str] | None,
-    dry_run: bool,
-    annotations: Collection[str] = (),
+    root: Path, keep: Collection[str] | None, dry_run: bool, annotations: Collection[str] = ()
 ) -> GcReport:
     """Remove temp/trash folders, incomplete artifacts, stale checkpoints, free locks and, with
     `keep`, all not kept (an `annotations` entry stays while its upstreams are all kept)."""

@@ -20,12 +20,7 @@ from relaygs.data.panoptic import POINTS_FILE, TEST_META, TRAIN_META
 from relaygs.data.scene import MIN_IMAGE_SIDE
 from relaygs.data.staging import process_alive, staging_prefix
 from relaygs.data.synthetic.presets import DURATION_S, PRESETS, Preset
-from relaygs.data.synthetic.render import (
-    Buffers,
-    CameraRays,
-    Layer,
-    camera_rays,
-)
+from relaygs.data.synthetic.render import Buffers, CameraRays, Layer, camera_rays
 from relaygs.data.synthetic.sensor import (
     NOISE_SIGMA,
     camera_responses,
