@@ -98,7 +98,11 @@ def run_task(
             failed["job_s"] = time.perf_counter() - started
             if file_identity(per_view_file) != per_view_before:
                 per_view_file.unlink(missing_ok=True)  # a failed job writes none
-            _record_failure(run_dir, failed)
+            try:
+                write_result(run_dir, failed)
+            except OSError as write_error:  # on the disk that failed the job: the next error says
+                if resource_error(write_error) is None:
+                    raise
             if failure is None:
                 raise
             raise failure from error
@@ -122,16 +126,6 @@ def _load_scene(plan: RunPlan) -> Scene:
         if failure is None:
             raise
         raise failure from error
-
-
-def _record_failure(run_dir: Path, failed: dict[str, Scalar]) -> None:
-    """Write the failed `result.json`, unless the disk that failed the job refuses it too: the
-    error raised next, not this second one, says what went wrong."""
-    try:
-        write_result(run_dir, failed)
-    except OSError as error:
-        if resource_error(error) is None:
-            raise
 
 
 def _execute(
@@ -172,7 +166,12 @@ def _execute(
         evaluation = evaluate_through_store(
             store, scene, run, plan.eval_config, suite.evaluate, plan.on_corrupt, builder
         )
-        _announce_evaluation(evaluation)
+        key, seconds = evaluation.key[:12], evaluation.wall_seconds
+        if evaluation.cache_hit:
+            line = f"reused evaluation {key} from the store (made earlier in {seconds:.1f} s)"
+        else:
+            line = f"evaluated the test views in {seconds:.1f} s (stored as {key})"
+        print_labelled(f"[eval] {line}{_replacing(evaluation.replaced_corrupt)}")
         per_view = _record_per_view(Path(run_dir), log, evaluation)
         _log_previews(log, suite, scene, run.output, plan.preview_frames)
         storage_mb = run.reports[-1].size_mb  # not read again: a gc may have removed it since
@@ -288,16 +287,6 @@ def _announce(report: NodeReport) -> None:
     print_labelled(f"[{report.node}] {line}{_replacing(report.replaced_corrupt)}")
     for note in report.notes:
         print_labelled(f"note: [{report.node}] {note}", sys.stderr)
-
-
-def _announce_evaluation(evaluation: Evaluation) -> None:
-    """Say whether the test metrics were read back from the store or computed now (flushed)."""
-    key, seconds = evaluation.key[:12], evaluation.wall_seconds
-    if evaluation.cache_hit:
-        line = f"reused evaluation {key} from the store (made earlier in {seconds:.1f} s)"
-    else:
-        line = f"evaluated the test views in {seconds:.1f} s (stored as {key})"
-    print_labelled(f"[eval] {line}{_replacing(evaluation.replaced_corrupt)}")
 
 
 def _replacing(problem: str | None) -> str:

@@ -248,8 +248,7 @@ def _tensor_lines(item: StoredArtifact) -> list[str]:
 
 
 def _render(store: ArtifactStore, args: argparse.Namespace) -> int:
-    """Write the artifact's renders of the chosen cameras over time, or along a camera path,
-    and say where they are."""
+    """Write the artifact's renders over time or along a camera path; say where they are."""
     settings = _render_settings(args)
     device = usable_device(args.device, "--device")
     set_threads(args.threads)

@@ -13,7 +13,7 @@ from relaygs.app.aggregate import aggregate_markdown, aggregate_table
 from relaygs.app.frame_curves import frame_curves, plot_frame_curves
 from relaygs.app.marginal import marginal_markdown, marginal_table, varies_budget
 from relaygs.app.pareto import plot_pareto
-from relaygs.app.prelaunch import recorded_job_count
+from relaygs.app.plan import recorded_job_count
 from relaygs.app.result import RESULT_FILE
 from relaygs.app.summary import (
     FailedJob,

@@ -22,8 +22,13 @@ from omegaconf.errors import OmegaConfBaseException
 
 from relaygs.app.callbacks import STARTED_FOLDERS, StartedFolder, names_override
 from relaygs.app.config import resolve_config
-from relaygs.app.plan import plan_run
-from relaygs.app.prelaunch import LAUNCH_FLAGS, JobValidator, check_command_line, library_error_line
+from relaygs.app.plan import (
+    LAUNCH_FLAGS,
+    JobValidator,
+    check_command_line,
+    library_error_line,
+    plan_run,
+)
 from relaygs.app.result import RESULT_FILE, error_line
 from relaygs.app.suite import StageSuite, load_stage_suite
 from relaygs.app.sweep_axes import recorded_sweep_axes

@@ -70,7 +70,12 @@ def generate(
     declared = declared_effects(recipe, effects)
     times = np.linspace(0.0, DURATION_S, frames) if frames > 1 else np.zeros(1)
     cameras = rig_cameras(recipe, width, height)
-    primitives = _primitives(recipe, times, declared, seed)
+    primitives = recipe.build(times, declared, seed)
+    if not isinstance(primitives, list) or not all(isinstance(p, Primitive) for p in primitives):
+        raise InputError(
+            f"PRESETS[{recipe.name!r}].build ({PRESETS_FILE}) returned "
+            f"{type(primitives).__name__}; expected a list of Primitive"
+        )
     world = World(cameras, recipe.test_cameras, primitives, times, width, height)
     out = Path(out_dir).expanduser().absolute()
     staging = _staging_folder(out)
@@ -125,18 +130,6 @@ def rig_cameras(recipe: Preset, width: int, height: int) -> list[RigCamera]:
             "one, leaving some to train on"
         )
     return cameras
-
-
-def _primitives(
-    recipe: Preset, times: np.ndarray, effects: frozenset[str], seed: int
-) -> list[Primitive]:
-    primitives = recipe.build(times, effects, seed)
-    if not isinstance(primitives, list) or not all(isinstance(p, Primitive) for p in primitives):
-        raise InputError(
-            f"PRESETS[{recipe.name!r}].build ({PRESETS_FILE}) returned "
-            f"{type(primitives).__name__}; expected a list of Primitive"
-        )
-    return primitives
 
 
 def declared_effects(
