@@ -181,8 +181,7 @@ def plan_run(
     validate: StageValidator,
     accepted_upstream: Mapping[str, Collection[str]] | None = None,
 ) -> RunPlan:
-    """Check the whole config (paths already absolute) and build the plan; bad input raises
-    one-line InputErrors naming the field."""
+    """Check the whole config (paths absolute) and build the plan; InputErrors name the field."""
     unknown = sorted(set(cfg) - TOP_LEVEL_KEYS - set(stage_types))
     if unknown:  # an experiment file without `# @package _global_` lands under `experiment`
         raise InputError(f"top level: unknown setting(s) {unknown}")
@@ -439,8 +438,7 @@ def _is_basic_sweeper(hydra_cfg: DictConfig) -> bool:
 
 
 def sweep_jobs(overrides: Sequence[Override]) -> list[list[str]]:
-    """The jobs Hydra's basic sweeper makes of `overrides`: every combination, in order, a
-    later override of a key replacing an earlier one."""
+    """The jobs Hydra's basic sweeper makes of `overrides`: every combination, later keys win."""
     choices: dict[str, list[str]] = {}
     for override in overrides:
         key = override.get_key_element()

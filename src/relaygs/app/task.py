@@ -112,8 +112,7 @@ def run_task(
 
 
 def _load_scene(plan: RunPlan) -> Scene:
-    """The run's scene, loaded (generated first, for a synthetic one) with the run's threads;
-    a disk or memory failure as a one-line ResourceError."""
+    """The run's scene, generated or loaded; a disk or memory failure as a ResourceError."""
     set_threads(plan.run.threads)
     use_backend(plan.splat_backend)
     if plan.splat_backend == "auto" and plan.device == "cpu":
@@ -138,8 +137,7 @@ def _execute(
     job: int | None,
     axes: SweepAxes,
 ) -> _Outcome:
-    """Run the stages on the scene, evaluate and log (into the run folder itself, so that
-    TensorBoard names the run after it: a sweep's job folder `0_k8`)."""
+    """Run the stages, evaluate and log into the run folder (TensorBoard names runs by it)."""
     store = ArtifactStore(plan.artifacts_root)
     # who builds the artifacts: the run folder and a digest of the job, scene and keyed
     # settings, so a job resumed in its folder is told from another job run there later
@@ -263,8 +261,7 @@ def _note_earlier_run(
 def _is_same_job(
     run_dir: Path, config: dict[str, Any], plan: RunPlan, overrides: Sequence[str], job: int
 ) -> bool:
-    """Whether the folder's `result.json` records sweep job `job` with the parameters this job
-    records (`recorded_parameters`: its overrides as it would write them)."""
+    """Whether the folder's `result.json` records sweep job `job` with this job's parameters."""
     try:
         earlier = json.loads((run_dir / RESULT_FILE).read_text(encoding="utf-8"))
     except (OSError, ValueError):
@@ -319,8 +316,7 @@ def _log_previews(
 
 
 def _where(plan: RunPlan, outcome: _Outcome, result_path: Path) -> str:
-    """Where this run's outputs are, and shell-quoted commands that export and render its
-    model with the run's scene loading, device and threads."""
+    """Where this run's outputs are, and shell commands that export and render its model."""
     output = outcome.run.reports[-1]
     scene = outcome.scene
     loader = f" --downscale {scene.downscale}" if scene.downscale != 1 else ""

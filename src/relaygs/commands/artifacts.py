@@ -274,8 +274,7 @@ def _render(store: ArtifactStore, args: argparse.Namespace) -> int:
 
 
 def _render_settings(args: argparse.Namespace) -> RenderSettings | PathSettings:
-    """What `render` was asked for: a camera path with `--path`, else the cameras' frames;
-    options of the other kind are refused in one line."""
+    """A camera path with `--path`, else the cameras' frames; other-kind options are refused."""
     cameras = tuple(args.camera) if args.camera else None
     fps = None if args.no_video else args.fps
     if args.path is None:

@@ -56,8 +56,7 @@ def generate(
     effects: Iterable[str] | None = None,
     progress: bool = False,
 ) -> Path:
-    """Write `preset` to `out_dir` (Panoptic layout + scene.json) with its default `effects`
-    or exactly the given ones; only a generated scene there is replaced."""
+    """Write `preset` to `out_dir` (Panoptic layout, scene.json), replacing only a generated one."""
     recipe = PRESETS.get(preset)
     if recipe is None:
         raise InputError(f"unknown preset {preset!r}; expected one of: {', '.join(PRESETS)}")
