@@ -145,8 +145,7 @@ def write_path_render(
     progress: bool = True,
     beside: Sequence[SceneModel] = (),
 ) -> CameraRenders:
-    """Render `model` (and the models `beside` it) along the cameras' orbit into
-    `out`/path/<view>.png and, with a frame rate, `out`/path.mp4."""
+    """Render `model` (and those `beside` it) along the orbit into `out`/path/ and path.mp4."""
     renderers = _renderers(scene, [model, *beside])
     if settings.frame is not None and not 0 <= settings.frame < scene.num_frames:
         raise InputError(

@@ -143,8 +143,7 @@ for _name, _schema in SECTIONS.items():
 
 @dataclass(frozen=True)
 class RunPlan:
-    """Everything a run needs, validated: the pipeline, each node's stage config, the scene,
-    the run's labels; `stage_types` are all implemented ones, run here or not."""
+    """Everything a run needs, validated; `stage_types` are all implemented ones, run or not."""
 
     pipeline: Pipeline
     stage_types: frozenset[str]
@@ -249,8 +248,7 @@ def _settings(cls: type[T], cfg: Mapping[str, Any], name: str) -> T:
 def merge_overrides(
     section: Mapping[str, Any], overrides: Mapping[str, Any], where: str
 ) -> dict[str, Any]:
-    """A deep copy of `section` with `overrides` merged in; an override of a key the section
-    lacks is an InputError (a typo would otherwise be silently ignored)."""
+    """A deep copy of `section` with `overrides` merged in; an unknown key (a typo) is refused."""
     merged = copy.deepcopy(dict(section))
     for key, value in overrides.items():
         if key not in merged:
@@ -458,8 +456,7 @@ def recorded_job_count(sweep_dir: Path) -> int | None:
 
 
 def recorded_jobs(sweep_dir: Path) -> list[list[str]] | None:
-    """The jobs the sweep last started in `sweep_dir` planned, from its MULTIRUN_RECORD; None
-    where that is missing or unreadable, or its sweeper is not the basic one."""
+    """The jobs of the sweep last started in `sweep_dir` (MULTIRUN_RECORD); None if unknown."""
     try:
         hydra_cfg = OmegaConf.load(Path(sweep_dir) / MULTIRUN_RECORD).hydra
         if not _is_basic_sweeper(hydra_cfg):

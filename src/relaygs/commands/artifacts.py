@@ -306,8 +306,7 @@ def _ply(store: ArtifactStore, args: argparse.Namespace) -> int:
 def _output_folder(
     given: Path | None, kind: str, item: StoredArtifact, store: ArtifactStore
 ) -> Path:
-    """`--out` as a writable absolute folder, by default <outputs>/`kind`/<stage>-<key>, beside
-    the run's other outputs when the store is a run's `artifacts` folder, else ./outputs."""
+    """`--out` as a writable absolute folder, by default <outputs>/`kind`/<stage>-<key>."""
     outputs = store.root.parent if store.root.name == STORE_FOLDER else Path("outputs")
     default = outputs / kind / f"{item.stage}-{item.key[:KEY_COLUMN_WIDTH]}"
     return require_creatable_folder((given or default).absolute(), "--out")

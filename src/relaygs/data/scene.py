@@ -209,8 +209,7 @@ def assemble_scene(
     options: LoaderOptions,
     content: dict[str, Any],
 ) -> Scene:
-    """A Scene of full-resolution views (extent, near planes from it, views scaled) whose
-    fingerprint covers `content` (the input files' hashes) and the content options."""
+    """A Scene of full-resolution views whose fingerprint covers `content` and the options."""
     downscale = options.downscale
     _require_visible_size(root, [*train_views, *test_views], downscale)
     train_cameras = {id(view.camera): view.camera for view in train_views}

@@ -70,8 +70,7 @@ class CameraFrames:
 
 @dataclass(frozen=True)
 class ExtractedScene:
-    """What `extract_frames` wrote; `fps` is None unless the videos state one and the same, and
-    `cleared` lists the staging folders of killed runs it removed."""
+    """What `extract_frames` wrote; `cleared`: the killed runs' staging folders it removed."""
 
     folder: Path
     cameras: dict[str, CameraFrames]
@@ -188,8 +187,7 @@ def _write_cameras(
     image_format: str,
     progress: bool,
 ) -> dict[str, CameraFrames]:
-    """Write every camera's frames, shortest stated video first, each stopping at the fewest
-    frames a camera before it gave (the rest would be dropped)."""
+    """Write every camera's frames, shortest stated video first, none beyond the fewest so far."""
     order = sorted(sources, key=lambda name: (stated[name] is None, stated[name] or 0, name))
     total = None if selection.count is None else selection.count * len(sources)
     bar = progress_bar(total=total, desc="frames", unit="frame", disable=not progress, leave=False)

@@ -110,8 +110,7 @@ class SetLearningRates:
 
 @functools.cache
 def has_fused_adam(device: torch.device) -> bool:
-    """Whether this torch has a fused Adam kernel for DEVICE, by one step on a probe (older
-    versions refuse fused=True when the optimiser is built, newer ones when it steps)."""
+    """Whether this torch has a fused Adam kernel for DEVICE, by building and stepping a probe."""
     probe = torch.zeros(1, device=device, requires_grad=True)
     probe.grad = torch.zeros_like(probe)
     try:

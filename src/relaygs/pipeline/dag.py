@@ -75,8 +75,7 @@ class PipelineRun:
         return sum(report.wall_seconds for report in self.reports if not report.cache_hit)
 
     def train_seconds_built_by(self, builder: str) -> float:
-        """Build seconds of the nodes that job `builder` (a `BUILT_BY` value) built, in this run
-        or in an earlier, interrupted run of it (a sweep resumed in place)."""
+        """Build seconds of the nodes `builder` (BUILT_BY) built, here or in an interrupted run."""
         return sum(report.wall_seconds for report in self.reports if report.built_by == builder)
 
 

@@ -40,8 +40,7 @@ class Pipeline:
     nodes: dict[str, Node]
 
     def topological_order(self) -> list[Node]:
-        """Nodes with every upstream before its consumers, ties in file order (Kahn's
-        algorithm); a cycle raises an InputError that names it."""
+        """Nodes, upstreams first, ties in file order (Kahn); a cycle is an InputError naming it."""
         remaining = dict(self.nodes)
         done: set[str] = set()
         order: list[Node] = []
