@@ -51,8 +51,7 @@ class SweepFolderLock(Callback):
         self._lock: FileLock | None = None
 
     def __getstate__(self) -> dict[str, Any]:
-        """What a parallel launcher sends its workers: the callback without the lock, which
-        stays with the launching process (a lock cannot be pickled)."""
+        """What a parallel launcher sends workers: the callback without its (unpicklable) lock."""
         return {**self.__dict__, "_lock": None}
 
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:

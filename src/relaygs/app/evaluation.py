@@ -52,8 +52,7 @@ def evaluate_through_store(
     on_corrupt: OnCorrupt = "rebuild",
     provenance: Mapping[str, Any] | None = None,
 ) -> Evaluation:
-    """The metrics of `run.output` on `scene`: read from the store, or computed by `evaluate`
-    and stored once (with `provenance` in its manifest), even when parallel jobs ask."""
+    """The metrics of `run.output` on `scene`: read from the store, or computed and stored once."""
     output = run.reports[-1]
     keyed = evaluation_config(eval_config)
     fingerprint = str(scene.fingerprint)

@@ -64,8 +64,7 @@ class SceneSpec:
 
 
 def scene_spec(section: Mapping[str, Any]) -> SceneSpec:
-    """Validate the `scene` section (paths already absolute) without doing any work: a capture
-    folder in a known layout, or a synthetic preset; errors name the `scene.*` field."""
+    """Validate the `scene` section (a capture folder or a preset); errors name the field."""
     _require_known(section, SCENE_FIELDS, "scene")
     label = section.get("name")
     if isinstance(label, bool | list | Mapping):  # str() would label the scene with its text
@@ -175,8 +174,7 @@ def _check_held_out(preset: str, test_cameras: tuple[int, ...] | None, count: in
 
 
 def scene_provenance(spec: SceneSpec) -> dict[str, Any]:
-    """The RECORDED_LOADING options the run set, as JSON values: what its artifacts record of
-    how the scene was loaded, beyond its fingerprint."""
+    """The RECORDED_LOADING options the run set, as JSON values its artifacts record."""
     arguments = loader_arguments(spec)
     options = make_options(**arguments)
     recorded = {}

@@ -28,8 +28,7 @@ COUNT_SCALARS = ("num_bg", "num_fg", "fg_fraction")  # count Gaussians, not meas
 
 
 def training_tag(stage: str, name: str) -> str:
-    """Where a stage's training scalar goes: `train_lr/<stage>/` for a learning rate (`lr/x`),
-    `train_gaussians/<stage>/` for COUNT_SCALARS, else `train/<stage>/<name>`."""
+    """A stage scalar's tag: under `train_lr/` (rates), `train_gaussians/` (counts) or `train/`."""
     if name.startswith("lr/"):
         return f"train_lr/{stage}/{name.removeprefix('lr/')}"
     if name in COUNT_SCALARS:

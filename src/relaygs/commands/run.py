@@ -94,8 +94,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 @contextmanager
 def _hydra_errors_raised() -> Iterator[None]:
-    """Let an error out of Hydra (HYDRA_FULL_ERROR), so a full disk under its own writes ends
-    in one line."""
+    """Let an error out of Hydra (HYDRA_FULL_ERROR): a full disk under it ends in one line."""
     before = os.environ.get(HYDRA_FULL_ERROR)
     os.environ[HYDRA_FULL_ERROR] = "1"
     try:

@@ -105,8 +105,7 @@ ScalarRecord = tuple[int, dict[str, float]]  # one emitted record's step and sca
 
 
 class ScalarHistory:
-    """Every scalar record a stage emitted, finite values only, kept in its artifact's meta and
-    checkpoints, so a run that reuses or resumes the stage shows its whole curves."""
+    """A stage's finite scalar records, kept in its meta and checkpoints for reruns' curves."""
 
     def __init__(self) -> None:
         self.records: list[ScalarRecord] = []
