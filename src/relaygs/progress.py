@@ -17,8 +17,7 @@ _job_label: str | None = None  # the job this process runs, inside `job_label`
 
 @contextmanager
 def job_label(label: str | None) -> Iterator[None]:
-    """Name `label` on this process's status lines and progress bars while the block runs
-    (None: nothing), so that jobs printing side by side can be told apart."""
+    """Name `label` on this process's lines and bars while the block runs (jobs side by side)."""
     global _job_label
     previous, _job_label = _job_label, label
     try:

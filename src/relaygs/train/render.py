@@ -158,8 +158,7 @@ def splat(
 
 
 def screen_statistics(render: Render, name: str, set_size: int) -> tuple[Tensor, Tensor] | None:
-    """(means2d grad [C, set_size, 2], radii [C, set_size, 2]) of set `name` over all cameras;
-    rows not rendered get zero radius (not visible). None when the set was not rendered."""
+    """(means2d grad, radii), each [C, set_size, 2], of set `name`; None if it was not rendered."""
     offset = 0
     located = None
     for part in render.parts:
