@@ -34,8 +34,7 @@ def labelled(text: str) -> str:
 
 
 def print_labelled(text: str, stream: TextIO | None = None) -> None:
-    """Print `text`, `labelled`, to `stream` (stdout) in one flushed write with its newline, so
-    jobs printing side by side do not interleave (unbuffered `print` writes them apart)."""
+    """Print `text`, `labelled`, to `stream` in one flushed write, so jobs do not interleave."""
     stream = sys.stdout if stream is None else stream
     stream.write(labelled(text) + "\n")
     stream.flush()

@@ -98,8 +98,7 @@ def write_renders(
     progress: bool = True,
     beside: Sequence[SceneModel] = (),
 ) -> list[CameraRenders]:
-    """Render `model` (and the models `beside` it) into `out`/cam<ID>/<frame>.png and, with a
-    frame rate, `out`/cam<ID>.mp4 (moved in only when complete)."""
+    """Render `model` (and those `beside` it) into `out`/cam<ID>/ and, with a rate, cam<ID>.mp4."""
     renderers = _renderers(scene, [model, *beside])
     cameras = chosen_cameras(scene, settings.camera_ids)
     sinks = {

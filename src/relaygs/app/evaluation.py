@@ -97,8 +97,7 @@ def evaluation_config(eval_config: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def test_set_id(scene: Any, metrics: Mapping[str, Any]) -> str:
-    """12 hex digits naming the images a run was scored on (scene folder, downscale, test
-    cameras, evaluated views): the sweep report compares PSNR only within one id."""
+    """12 hex digits naming the images a run was scored on: the report compares PSNR within one."""
     records = metrics.get(PER_VIEW)
     views = None if records is None else sorted([r["frame"], r["camera"]] for r in records)
     payload = {

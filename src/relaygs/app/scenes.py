@@ -153,8 +153,7 @@ def prepare_scene(spec: SceneSpec, scenes_dir: Path, progress: bool = True) -> S
 
 
 def loader_arguments(spec: SceneSpec) -> dict[str, Any]:
-    """The `load_scene` options a run loads its scene with: `scene.loader`'s, and a capture's
-    `scene.effects` (a generated scene has its effects built into its files)."""
+    """The `load_scene` options of a run: `scene.loader`'s, and a capture's `scene.effects`."""
     arguments = dict(spec.loader)
     if not spec.is_synthetic and spec.effects is not None:
         arguments["effects"] = spec.effects

@@ -109,8 +109,7 @@ def _hydra_errors_raised() -> Iterator[None]:
 def _interrupted_line(
     stop: KeyboardInterrupt, launched: bool, started: StartedFolder | None
 ) -> str:
-    """The line a stopped command ends with: where it stopped or what a rerun does, and the
-    override that reruns in a folder the command did not name."""
+    """The line a stopped command ends with: where it stopped, and how to rerun there."""
     if str(stop):
         line = f"interrupted: {stop}"
     elif launched:

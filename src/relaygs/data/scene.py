@@ -156,8 +156,7 @@ def split_views(
 def hold_out(
     views: list[View], ids: Iterable[int], known: set[int], root: Path, source: str, where: str
 ) -> tuple[list[View], list[View]]:
-    """`split_views` holding out `ids` (named by `source`), refusing ids not in `known`; the
-    error suggests those it has, when that leaves a camera to train on, else none."""
+    """`split_views` holding out `ids` (named by `source`), refusing ids not in `known`."""
     missing = [camera_id for camera_id in ids if camera_id not in known]
     if missing:
         kept = [camera_id for camera_id in ids if camera_id in known]

@@ -92,8 +92,7 @@ def run_pipeline(
     canonical: CanonicalFn | None = None,
     provenance: Mapping[str, Any] | None = None,
 ) -> PipelineRun:
-    """Load or build each node's artifact in topological order, keyed by stage type, schema
-    version, (`canonical`) config, scene fingerprint and upstream keys (docs/artifacts.md)."""
+    """Load or build each node's artifact in topological order (keys: docs/artifacts.md)."""
     missing = sorted(pipeline.stage_types - set(stage_fns))
     if missing:
         raise InputError(f"pipeline {pipeline.name!r}: no stage function for type(s) {missing}")

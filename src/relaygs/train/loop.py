@@ -58,8 +58,7 @@ class TrainReport:
 
 
 class LossTracker:
-    """Mean loss of the first and of the latest `window` steps, kept as tensors until read (a
-    read per step would make each step wait for a GPU to finish the one before)."""
+    """Mean loss of the first and latest `window` steps, as tensors until read (no GPU sync)."""
 
     def __init__(self, window: int) -> None:
         self.window = window

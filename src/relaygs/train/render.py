@@ -69,8 +69,7 @@ class Render:
 
 
 class FrozenRenders:
-    """Per camera (and SH degree), the frozen parts rendered alone once, for `splat` to copy the
-    tiles only frozen Gaussians touch and reuse their projection (splat.FixedLayer)."""
+    """Per camera and SH degree, the frozen parts rendered once, reused by splat.FixedLayer."""
 
     def __init__(self) -> None:
         self._cache: dict[tuple[int, int], tuple[Camera, dict[str, Tensor]]] = {}
