@@ -24,7 +24,7 @@ from hydra.errors import HydraException
 from conftest import run_main
 from fake_stages import TINY_SCENE
 from refusals import refused
-from relaygs.app import prelaunch
+from relaygs.app import plan as prelaunch
 from relaygs.commands import run as run_module
 from relaygs.commands.artifacts import _parser as artifacts_parser
 from relaygs.data.synthetic import PRESETS

@@ -1,6 +1,5 @@
-"""An orbit around a scene's centre at its cameras' mean height and distance, each view looking
-at the centre with the first camera's intrinsics: a full circle from the first camera's azimuth
-when the cameras surround the centre, else an arc over their azimuths (where they saw it)."""
+"""An orbit around a scene's centre at its cameras' mean height and distance, looking at it with
+the first camera's intrinsics: a full circle if the cameras surround it, else their arc."""
 
 from __future__ import annotations
 

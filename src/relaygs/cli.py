@@ -1,6 +1,5 @@
-"""Command-line plumbing the relaygs tools share: a start that imports the tool only once
-running, usage errors as one line, checked counts, a quiet end when the reader of their output
-goes away or Ctrl-C stops them."""
+"""Command-line plumbing the tools share: a lazy import of the tool, one-line usage errors,
+checked counts, a quiet end on a closed pipe or Ctrl-C."""
 
 from __future__ import annotations
 

@@ -17,8 +17,7 @@ _job_label: str | None = None  # the job this process runs, inside `job_label`
 
 @contextmanager
 def job_label(label: str | None) -> Iterator[None]:
-    """Name `label` on this process's status lines and progress bars while the block runs
-    (None: nothing), so that jobs printing side by side can be told apart."""
+    """Name `label` on this process's lines and bars while the block runs (jobs side by side)."""
     global _job_label
     previous, _job_label = _job_label, label
     try:
@@ -35,8 +34,7 @@ def labelled(text: str) -> str:
 
 
 def print_labelled(text: str, stream: TextIO | None = None) -> None:
-    """Print `text`, `labelled`, to `stream` (stdout) in one flushed write with its newline, so
-    jobs printing side by side do not interleave (unbuffered `print` writes them apart)."""
+    """Print `text`, `labelled`, to `stream` in one flushed write, so jobs do not interleave."""
     stream = sys.stdout if stream is None else stream
     stream.write(labelled(text) + "\n")
     stream.flush()

@@ -1,6 +1,5 @@
-"""A stored model's renders over time (`python -m relaygs.artifacts render`): a PNG per frame and
-an MP4 per camera, other models, the truth and error images beside, or a video along an orbit
-that the scene's cameras place around its centre."""
+"""A stored model's renders over time (`artifacts render`): PNGs and an MP4 per camera, with other
+models, truth and error beside, or a video along an orbit around the scene's centre."""
 
 from __future__ import annotations
 
@@ -99,8 +98,7 @@ def write_renders(
     progress: bool = True,
     beside: Sequence[SceneModel] = (),
 ) -> list[CameraRenders]:
-    """Render `model` (and the models `beside` it) into `out`/cam<ID>/<frame>.png and, with a
-    frame rate, `out`/cam<ID>.mp4 (moved in only when complete)."""
+    """Render `model` (and those `beside` it) into `out`/cam<ID>/ and, with a rate, cam<ID>.mp4."""
     renderers = _renderers(scene, [model, *beside])
     cameras = chosen_cameras(scene, settings.camera_ids)
     sinks = {
@@ -146,8 +144,7 @@ def write_path_render(
     progress: bool = True,
     beside: Sequence[SceneModel] = (),
 ) -> CameraRenders:
-    """Render `model` (and the models `beside` it) along the cameras' orbit into
-    `out`/path/<view>.png and, with a frame rate, `out`/path.mp4."""
+    """Render `model` (and those `beside` it) along the orbit into `out`/path/ and path.mp4."""
     renderers = _renderers(scene, [model, *beside])
     if settings.frame is not None and not 0 <= settings.frame < scene.num_frames:
         raise InputError(

@@ -27,9 +27,8 @@ LABELS = {"scene": "Scene", "variant": "Variant", "test_set": "Test set"}  # els
 
 
 def aggregate_table(summary: pd.DataFrame) -> pd.DataFrame:
-    """One row per group of finished jobs that differ only in their seed (scene, variant, the
-    parameters within a variant, `test_set`), in order of first appearance, with `runs`,
-    `seeds` and each METRICS column's `_mean` and `_std` (sample std, None for one run)."""
+    """One row per group of finished jobs that differ only in their seed, in order of appearance,
+    with `runs`, `seeds` and each METRICS column's `_mean` and `_std` (None for one run)."""
     table = summary
     if "status" in table:
         table = table[table["status"] != STATUS_FAILED]

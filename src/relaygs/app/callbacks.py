@@ -51,8 +51,7 @@ class SweepFolderLock(Callback):
         self._lock: FileLock | None = None
 
     def __getstate__(self) -> dict[str, Any]:
-        """What a parallel launcher sends its workers: the callback without the lock, which
-        stays with the launching process (a lock cannot be pickled)."""
+        """What a parallel launcher sends workers: the callback without its (unpicklable) lock."""
         return {**self.__dict__, "_lock": None}
 
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
@@ -86,8 +85,7 @@ class SweepSummary(Callback):
         self.started = time.time()
 
     def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
-        """Write the sweep folder's report and name an earlier sweep's jobs in it; exit 1 with
-        one line when a job of this sweep failed or the report could not be written."""
+        """Write the sweep's report; exit 1 with one line if a job failed or the report did not."""
         sweep_dir = Path(str(config.hydra.sweep.dir))
         try:
             files = write_reports(sweep_dir)

@@ -1,7 +1,5 @@
-"""Evaluation through the artifact store: an `eval` entry keyed by the model, the `eval`
-settings, the device (render FPS) and the scene, so a job whose model was already evaluated the
-same way reads the metrics back. Its tensors hold the per-view records (kept out of the
-manifest, which `artifacts ls` prints). Bump EVAL_SCHEMA_VERSION when what it reports changes."""
+"""Evaluation through the store: an `eval` entry keyed by model, `eval` settings, device and scene,
+its tensors the per-view records; bump EVAL_SCHEMA_VERSION when what it reports changes."""
 
 from __future__ import annotations
 
@@ -54,8 +52,7 @@ def evaluate_through_store(
     on_corrupt: OnCorrupt = "rebuild",
     provenance: Mapping[str, Any] | None = None,
 ) -> Evaluation:
-    """The metrics of `run.output` on `scene`: read from the store, or computed by `evaluate`
-    and stored once (with `provenance` in its manifest), even when parallel jobs ask."""
+    """The metrics of `run.output` on `scene`: read from the store, or computed and stored once."""
     output = run.reports[-1]
     keyed = evaluation_config(eval_config)
     fingerprint = str(scene.fingerprint)
@@ -100,8 +97,7 @@ def evaluation_config(eval_config: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def test_set_id(scene: Any, metrics: Mapping[str, Any]) -> str:
-    """12 hex digits naming the images a run was scored on (scene folder, downscale, test
-    cameras, evaluated views): the sweep report compares PSNR only within one id."""
+    """12 hex digits naming the images a run was scored on: the report compares PSNR within one."""
     records = metrics.get(PER_VIEW)
     views = None if records is None else sorted([r["frame"], r["camera"]] for r in records)
     payload = {

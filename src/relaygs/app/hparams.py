@@ -1,6 +1,5 @@
-"""A job's TensorBoard HParams entry, typed so that the dashboard shows what a sweep asks at a
-glance: swept keys are marked `differs` (listed first), metrics lead in METRICS order, and every
-job of a sweep writes the same experiment, so the dashboard reads alike whichever it picks."""
+"""A job's TensorBoard HParams entry: swept keys marked `differs` and first, metrics in METRICS
+order, one experiment for every job of a sweep so the dashboard reads alike whichever it picks."""
 
 from __future__ import annotations
 

@@ -47,8 +47,7 @@ def build_result(
     job: int | None,
     builder: str,
 ) -> dict[str, Scalar]:
-    """The flat result of one run; `*_built_by_job` count what job `builder` (a `BUILT_BY`
-    value) built, before an interruption too."""
+    """The flat result of one run; `*_built_by_job` count what `builder` (BUILT_BY) built."""
     metrics = evaluation.metrics
     result = _identity(plan, job)
     result["status"] = STATUS_OK

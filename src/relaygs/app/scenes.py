@@ -1,6 +1,5 @@
-"""Turn the `scene` config section into a loaded Scene: validate it up front, generate a
-synthetic preset once into a cache folder (under a lock, so parallel jobs generate it once),
-or load a capture folder."""
+"""The `scene` config section as a loaded Scene: validated up front, a synthetic preset generated
+once into a cache folder (under a lock), or a capture folder loaded."""
 
 from __future__ import annotations
 
@@ -65,8 +64,7 @@ class SceneSpec:
 
 
 def scene_spec(section: Mapping[str, Any]) -> SceneSpec:
-    """Validate the `scene` section (paths already absolute) without doing any work: a capture
-    folder in a known layout, or a synthetic preset; errors name the `scene.*` field."""
+    """Validate the `scene` section (a capture folder or a preset); errors name the field."""
     _require_known(section, SCENE_FIELDS, "scene")
     label = section.get("name")
     if isinstance(label, bool | list | Mapping):  # str() would label the scene with its text
@@ -155,8 +153,7 @@ def prepare_scene(spec: SceneSpec, scenes_dir: Path, progress: bool = True) -> S
 
 
 def loader_arguments(spec: SceneSpec) -> dict[str, Any]:
-    """The `load_scene` options a run loads its scene with: `scene.loader`'s, and a capture's
-    `scene.effects` (a generated scene has its effects built into its files)."""
+    """The `load_scene` options of a run: `scene.loader`'s, and a capture's `scene.effects`."""
     arguments = dict(spec.loader)
     if not spec.is_synthetic and spec.effects is not None:
         arguments["effects"] = spec.effects
@@ -176,8 +173,7 @@ def _check_held_out(preset: str, test_cameras: tuple[int, ...] | None, count: in
 
 
 def scene_provenance(spec: SceneSpec) -> dict[str, Any]:
-    """The RECORDED_LOADING options the run set, as JSON values: what its artifacts record of
-    how the scene was loaded, beyond its fingerprint."""
+    """The RECORDED_LOADING options the run set, as JSON values its artifacts record."""
     arguments = loader_arguments(spec)
     options = make_options(**arguments)
     recorded = {}

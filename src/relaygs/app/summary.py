@@ -89,8 +89,7 @@ def collect_results(sweep_dir: Path) -> pd.DataFrame:
 
 
 def _read_result(path: Path) -> dict[str, Any]:
-    """One job's result, refused with its path unless readable, flat and holding every
-    REQUIRED_FIELDS key and finite numbers (or null) under NUMERIC_FIELDS."""
+    """One job's result, refused with its path unless flat, complete and numeric where needed."""
     try:
         row = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, ValueError) as error:  # ValueError: bad UTF-8 or bad JSON
@@ -196,8 +195,7 @@ def absent_reference_line(table: pd.DataFrame) -> str | None:
 
 
 def unmatched_reference_line(table: pd.DataFrame) -> str | None:
-    """Why Δ PSNR is n/a for jobs whose reference variant ran, but on other images (another
-    scene, downscale or set of test cameras); None when there are none."""
+    """Why Δ PSNR is n/a for jobs whose reference variant ran on other images; None if none."""
     if "variant" not in table or "psnr" not in table:
         return None
     unmatched = [

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from relaygs.app.prelaunch import parse_overrides, recorded_jobs, swept_keys
+from relaygs.app.plan import parse_overrides, recorded_jobs, swept_keys
 
 
 @dataclass(frozen=True)

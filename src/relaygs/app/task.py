@@ -73,9 +73,8 @@ def run_task(
     suite: StageSuite | None = None,
     axes: SweepAxes | None = None,
 ) -> dict[str, Scalar]:
-    """Run one job, write `<run_dir>/result.json` and return it. Bad input raises before
-    `run_dir` is touched (bad scene data too, except in a sweep job, where it is that job's
-    failure); any other failure is recorded as a `failed` result, then re-raised."""
+    """Run one job, write and return `<run_dir>/result.json`. Bad input raises before `run_dir` is
+    touched (bad scene data of a sweep job fails that job); other failures recorded, re-raised."""
     started = time.perf_counter()
     config = resolve_config(cfg, original_cwd)
     suite = suite or load_stage_suite()
@@ -99,7 +98,11 @@ def run_task(
             failed["job_s"] = time.perf_counter() - started
             if file_identity(per_view_file) != per_view_before:
                 per_view_file.unlink(missing_ok=True)  # a failed job writes none
-            _record_failure(run_dir, failed)
+            try:
+                write_result(run_dir, failed)
+            except OSError as write_error:  # on the disk that failed the job: the next error says
+                if resource_error(write_error) is None:
+                    raise
             if failure is None:
                 raise
             raise failure from error
@@ -109,8 +112,7 @@ def run_task(
 
 
 def _load_scene(plan: RunPlan) -> Scene:
-    """The run's scene, loaded (generated first, for a synthetic one) with the run's threads;
-    a disk or memory failure as a one-line ResourceError."""
+    """The run's scene, generated or loaded; a disk or memory failure as a ResourceError."""
     set_threads(plan.run.threads)
     use_backend(plan.splat_backend)
     if plan.splat_backend == "auto" and plan.device == "cpu":
@@ -125,16 +127,6 @@ def _load_scene(plan: RunPlan) -> Scene:
         raise failure from error
 
 
-def _record_failure(run_dir: Path, failed: dict[str, Scalar]) -> None:
-    """Write the failed `result.json`, unless the disk that failed the job refuses it too: the
-    error raised next, not this second one, says what went wrong."""
-    try:
-        write_result(run_dir, failed)
-    except OSError as error:
-        if resource_error(error) is None:
-            raise
-
-
 def _execute(
     config: dict[str, Any],
     plan: RunPlan,
@@ -145,8 +137,7 @@ def _execute(
     job: int | None,
     axes: SweepAxes,
 ) -> _Outcome:
-    """Run the stages on the scene, evaluate and log (into the run folder itself, so that
-    TensorBoard names the run after it: a sweep's job folder `0_k8`)."""
+    """Run the stages, evaluate and log into the run folder (TensorBoard names runs by it)."""
     store = ArtifactStore(plan.artifacts_root)
     # who builds the artifacts: the run folder and a digest of the job, scene and keyed
     # settings, so a job resumed in its folder is told from another job run there later
@@ -173,7 +164,12 @@ def _execute(
         evaluation = evaluate_through_store(
             store, scene, run, plan.eval_config, suite.evaluate, plan.on_corrupt, builder
         )
-        _announce_evaluation(evaluation)
+        key, seconds = evaluation.key[:12], evaluation.wall_seconds
+        if evaluation.cache_hit:
+            line = f"reused evaluation {key} from the store (made earlier in {seconds:.1f} s)"
+        else:
+            line = f"evaluated the test views in {seconds:.1f} s (stored as {key})"
+        print_labelled(f"[eval] {line}{_replacing(evaluation.replaced_corrupt)}")
         per_view = _record_per_view(Path(run_dir), log, evaluation)
         _log_previews(log, suite, scene, run.output, plan.preview_frames)
         storage_mb = run.reports[-1].size_mb  # not read again: a gc may have removed it since
@@ -238,11 +234,7 @@ def _reuse_note(report: NodeReport, records: Sequence[tuple[int, dict]], run_dir
 
 
 def _note_earlier_run(
-    run_dir: Path,
-    config: dict[str, Any],
-    plan: RunPlan,
-    overrides: Sequence[str],
-    job: int | None,
+    run_dir: Path, config: dict[str, Any], plan: RunPlan, overrides: Sequence[str], job: int | None
 ) -> None:
     """Say on stderr when the run folder already holds another run (TensorBoard would merge
     their curves); a job resumed in place is not told to use another folder."""
@@ -269,8 +261,7 @@ def _note_earlier_run(
 def _is_same_job(
     run_dir: Path, config: dict[str, Any], plan: RunPlan, overrides: Sequence[str], job: int
 ) -> bool:
-    """Whether the folder's `result.json` records sweep job `job` with the parameters this job
-    records (`recorded_parameters`: its overrides as it would write them)."""
+    """Whether the folder's `result.json` records sweep job `job` with this job's parameters."""
     try:
         earlier = json.loads((run_dir / RESULT_FILE).read_text(encoding="utf-8"))
     except (OSError, ValueError):
@@ -293,16 +284,6 @@ def _announce(report: NodeReport) -> None:
     print_labelled(f"[{report.node}] {line}{_replacing(report.replaced_corrupt)}")
     for note in report.notes:
         print_labelled(f"note: [{report.node}] {note}", sys.stderr)
-
-
-def _announce_evaluation(evaluation: Evaluation) -> None:
-    """Say whether the test metrics were read back from the store or computed now (flushed)."""
-    key, seconds = evaluation.key[:12], evaluation.wall_seconds
-    if evaluation.cache_hit:
-        line = f"reused evaluation {key} from the store (made earlier in {seconds:.1f} s)"
-    else:
-        line = f"evaluated the test views in {seconds:.1f} s (stored as {key})"
-    print_labelled(f"[eval] {line}{_replacing(evaluation.replaced_corrupt)}")
 
 
 def _replacing(problem: str | None) -> str:
@@ -335,8 +316,7 @@ def _log_previews(
 
 
 def _where(plan: RunPlan, outcome: _Outcome, result_path: Path) -> str:
-    """Where this run's outputs are, and shell-quoted commands that export and render its
-    model with the run's scene loading, device and threads."""
+    """Where this run's outputs are, and shell commands that export and render its model."""
     output = outcome.run.reports[-1]
     scene = outcome.scene
     loader = f" --downscale {scene.downscale}" if scene.downscale != 1 else ""

@@ -1,6 +1,5 @@
-"""TensorBoard logging for one job: stage scalars and images, captioned previews, notes and the
-HParams entry. Tags group by their first part: `eval/`, `result/` (what HParams reads),
-`reused/` (notes), and per stage `train/`, `train_gaussians/` (counts) and `train_lr/`."""
+"""TensorBoard logging for one job under the tag groups `eval/`, `result/` (for HParams), `reused/`
+and per stage `train/`, `train_gaussians/`, `train_lr/`, with previews and the HParams entry."""
 
 from __future__ import annotations
 
@@ -29,8 +28,7 @@ COUNT_SCALARS = ("num_bg", "num_fg", "fg_fraction")  # count Gaussians, not meas
 
 
 def training_tag(stage: str, name: str) -> str:
-    """Where a stage's training scalar goes: `train_lr/<stage>/` for a learning rate (`lr/x`),
-    `train_gaussians/<stage>/` for COUNT_SCALARS, else `train/<stage>/<name>`."""
+    """A stage scalar's tag: under `train_lr/` (rates), `train_gaussians/` (counts) or `train/`."""
     if name.startswith("lr/"):
         return f"train_lr/{stage}/{name.removeprefix('lr/')}"
     if name in COUNT_SCALARS:

@@ -1,6 +1,5 @@
-"""`python -m relaygs.artifacts [--root DIR] ls | show KEY | eval KEY --scene DIR |
-render KEY --scene DIR | ply KEY | verify | gc`: inspect, score, look at, export, check and
-clean the artifact store. Exit 0 on success, 1 on a problem (one line on stderr), 2 on usage."""
+"""`python -m relaygs.artifacts ls|show|eval|render|ply|verify|gc`: inspect, score, render, export,
+check and clean the artifact store; exit 1 on a problem (one line on stderr), 2 on usage."""
 
 from __future__ import annotations
 
@@ -37,12 +36,7 @@ from relaygs.errors import RelayGSError, UsageError
 from relaygs.paths import require_creatable_folder
 from relaygs.pipeline.integrity import CorruptArtifactError
 from relaygs.pipeline.layout import LOCKS_DIR, TENSORS_FILE
-from relaygs.pipeline.store import (
-    VERIFY_HINT,
-    ArtifactStore,
-    MissingArtifactError,
-    StoredArtifact,
-)
+from relaygs.pipeline.store import VERIFY_HINT, ArtifactStore, MissingArtifactError, StoredArtifact
 from relaygs.ply import write_frame_plys
 from relaygs.renders import PathSettings, RenderSettings, write_path_render, write_renders
 from relaygs.train.scene_model import SceneModel
@@ -254,8 +248,7 @@ def _tensor_lines(item: StoredArtifact) -> list[str]:
 
 
 def _render(store: ArtifactStore, args: argparse.Namespace) -> int:
-    """Write the artifact's renders of the chosen cameras over time, or along a camera path,
-    and say where they are."""
+    """Write the artifact's renders over time or along a camera path; say where they are."""
     settings = _render_settings(args)
     device = usable_device(args.device, "--device")
     set_threads(args.threads)
@@ -281,8 +274,7 @@ def _render(store: ArtifactStore, args: argparse.Namespace) -> int:
 
 
 def _render_settings(args: argparse.Namespace) -> RenderSettings | PathSettings:
-    """What `render` was asked for: a camera path with `--path`, else the cameras' frames;
-    options of the other kind are refused in one line."""
+    """A camera path with `--path`, else the cameras' frames; other-kind options are refused."""
     cameras = tuple(args.camera) if args.camera else None
     fps = None if args.no_video else args.fps
     if args.path is None:
@@ -314,8 +306,7 @@ def _ply(store: ArtifactStore, args: argparse.Namespace) -> int:
 def _output_folder(
     given: Path | None, kind: str, item: StoredArtifact, store: ArtifactStore
 ) -> Path:
-    """`--out` as a writable absolute folder, by default <outputs>/`kind`/<stage>-<key>, beside
-    the run's other outputs when the store is a run's `artifacts` folder, else ./outputs."""
+    """`--out` as a writable absolute folder, by default <outputs>/`kind`/<stage>-<key>."""
     outputs = store.root.parent if store.root.name == STORE_FOLDER else Path("outputs")
     default = outputs / kind / f"{item.stage}-{item.key[:KEY_COLUMN_WIDTH]}"
     return require_creatable_folder((given or default).absolute(), "--out")

@@ -1,6 +1,5 @@
-"""`python -m relaygs.report SWEEP_DIR`: (re)write a sweep's summary.csv/md, pareto.png and
-psnr_by_frame.png (also as the TensorBoard run `sweep`), summary_mean.* over seeds and
-summary_budget.* over budget.multiplier, from its jobs' result.json and per_view.csv files."""
+"""`python -m relaygs.report SWEEP_DIR`: (re)write a sweep's summary, summary_mean (over seeds) and
+summary_budget tables, pareto.png and psnr_by_frame.png (also in TensorBoard) from its jobs."""
 
 from __future__ import annotations
 
@@ -14,7 +13,7 @@ from relaygs.app.aggregate import aggregate_markdown, aggregate_table
 from relaygs.app.frame_curves import frame_curves, plot_frame_curves
 from relaygs.app.marginal import marginal_markdown, marginal_table, varies_budget
 from relaygs.app.pareto import plot_pareto
-from relaygs.app.prelaunch import recorded_job_count
+from relaygs.app.plan import recorded_job_count
 from relaygs.app.result import RESULT_FILE
 from relaygs.app.summary import (
     FailedJob,

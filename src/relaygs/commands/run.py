@@ -22,12 +22,12 @@ from omegaconf.errors import OmegaConfBaseException
 
 from relaygs.app.callbacks import STARTED_FOLDERS, StartedFolder, names_override
 from relaygs.app.config import resolve_config
-from relaygs.app.plan import plan_run
-from relaygs.app.prelaunch import (
+from relaygs.app.plan import (
     LAUNCH_FLAGS,
     JobValidator,
     check_command_line,
     library_error_line,
+    plan_run,
 )
 from relaygs.app.result import RESULT_FILE, error_line
 from relaygs.app.suite import StageSuite, load_stage_suite
@@ -94,8 +94,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 @contextmanager
 def _hydra_errors_raised() -> Iterator[None]:
-    """Let an error out of Hydra (HYDRA_FULL_ERROR), so a full disk under its own writes ends
-    in one line."""
+    """Let an error out of Hydra (HYDRA_FULL_ERROR): a full disk under it ends in one line."""
     before = os.environ.get(HYDRA_FULL_ERROR)
     os.environ[HYDRA_FULL_ERROR] = "1"
     try:
@@ -110,8 +109,7 @@ def _hydra_errors_raised() -> Iterator[None]:
 def _interrupted_line(
     stop: KeyboardInterrupt, launched: bool, started: StartedFolder | None
 ) -> str:
-    """The line a stopped command ends with: where it stopped or what a rerun does, and the
-    override that reruns in a folder the command did not name."""
+    """The line a stopped command ends with: where it stopped, and how to rerun there."""
     if str(stop):
         line = f"interrupted: {stop}"
     elif launched:

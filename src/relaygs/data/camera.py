@@ -23,8 +23,7 @@ def near_plane_for(extent: float) -> float:
 
 @dataclass(frozen=True, eq=False)
 class Camera:
-    """A pinhole camera: K, world→camera pose (OpenCV axes), image size; pixel j covers [j, j+1)
-    as in COLMAP and 3DGS; Gaussians nearer than `near` are culled."""
+    """A pinhole camera (OpenCV axes, pixel j covers [j, j+1)); nearer than `near` is culled."""
 
     camera_id: int
     K: torch.Tensor

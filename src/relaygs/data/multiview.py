@@ -10,25 +10,13 @@ import numpy as np
 import torch
 
 from relaygs.data.camera import Camera, check_intrinsics
-from relaygs.data.colmap import (
-    ColmapCamera,
-    ColmapModel,
-    model_suffix,
-    read_model,
-)
+from relaygs.data.colmap import ColmapCamera, ColmapModel, model_suffix, read_model
 from relaygs.data.fingerprint import file_record, record_image
 from relaygs.data.finite import finite_in_float32
 from relaygs.data.metafiles import SCENE_JSON, declared_test_cameras
 from relaygs.data.options import LoaderOptions
 from relaygs.data.points import point_cloud_from_arrays
-from relaygs.data.scene import (
-    Scene,
-    View,
-    assemble_scene,
-    frame_time,
-    hold_out,
-    split_views,
-)
+from relaygs.data.scene import Scene, View, assemble_scene, frame_time, hold_out, split_views
 from relaygs.errors import InputError
 
 CAMERA_FOLDER = re.compile(r"^cam(\d+)$")

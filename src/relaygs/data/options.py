@@ -70,12 +70,7 @@ INT64_MAX = 2**63 - 1
 
 
 def require_int(
-    name: str,
-    value: object,
-    *,
-    minimum: int,
-    prefix: str = OPTION_PREFIX,
-    maximum: int = INT64_MAX,
+    name: str, value: object, *, minimum: int, prefix: str = OPTION_PREFIX, maximum: int = INT64_MAX
 ) -> int:
     """`value` as an int in [minimum, maximum], else an InputError naming `prefix` + `name`."""
     if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < minimum:

@@ -17,14 +17,7 @@ from relaygs.data.finite import FINITE, finite_in_float32
 from relaygs.data.metafiles import SCENE_JSON, read_json
 from relaygs.data.options import LoaderOptions, require_int, test_cameras_setting
 from relaygs.data.points import PointCloud, point_cloud_from_arrays
-from relaygs.data.scene import (
-    Scene,
-    View,
-    assemble_scene,
-    frame_time,
-    hold_out,
-    split_views,
-)
+from relaygs.data.scene import Scene, View, assemble_scene, frame_time, hold_out, split_views
 from relaygs.errors import InputError
 
 TRAIN_META = "train_meta.json"

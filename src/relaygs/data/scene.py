@@ -156,8 +156,7 @@ def split_views(
 def hold_out(
     views: list[View], ids: Iterable[int], known: set[int], root: Path, source: str, where: str
 ) -> tuple[list[View], list[View]]:
-    """`split_views` holding out `ids` (named by `source`), refusing ids not in `known`; the
-    error suggests those it has, when that leaves a camera to train on, else none."""
+    """`split_views` holding out `ids` (named by `source`), refusing ids not in `known`."""
     missing = [camera_id for camera_id in ids if camera_id not in known]
     if missing:
         kept = [camera_id for camera_id in ids if camera_id in known]
@@ -209,8 +208,7 @@ def assemble_scene(
     options: LoaderOptions,
     content: dict[str, Any],
 ) -> Scene:
-    """A Scene of full-resolution views (extent, near planes from it, views scaled) whose
-    fingerprint covers `content` (the input files' hashes) and the content options."""
+    """A Scene of full-resolution views whose fingerprint covers `content` and the options."""
     downscale = options.downscale
     _require_visible_size(root, [*train_views, *test_views], downscale)
     train_cameras = {id(view.camera): view.camera for view in train_views}

@@ -70,8 +70,7 @@ class CameraFrames:
 
 @dataclass(frozen=True)
 class ExtractedScene:
-    """What `extract_frames` wrote; `fps` is None unless the videos state one and the same, and
-    `cleared` lists the staging folders of killed runs it removed."""
+    """What `extract_frames` wrote; `cleared`: the killed runs' staging folders it removed."""
 
     folder: Path
     cameras: dict[str, CameraFrames]
@@ -121,8 +120,10 @@ def extract_frames(
     try:
         cameras = _write_cameras(sources, stated, staging, selection, image_format, progress)
         frames = min(camera.written for camera in cameras.values())
-        for name in cameras:
-            _drop_frames_from(staging / name, frames)
+        for path in (staging / name for name in cameras):
+            for image in path.iterdir():  # beyond the shortest video
+                if int(image.stem.removeprefix("frame_")) >= frames:
+                    image.unlink()
         fps = _kept_rate([camera.rate for camera in cameras.values()], selection.stride)
         # where each camera's frames came from, and the list of first frames COLMAP poses
         listing = {"sources": {name: str(video) for name, video in sources.items()}}
@@ -186,8 +187,7 @@ def _write_cameras(
     image_format: str,
     progress: bool,
 ) -> dict[str, CameraFrames]:
-    """Write every camera's frames, shortest stated video first, each stopping at the fewest
-    frames a camera before it gave (the rest would be dropped)."""
+    """Write every camera's frames, shortest stated video first, none beyond the fewest so far."""
     order = sorted(sources, key=lambda name: (stated[name] is None, stated[name] or 0, name))
     total = None if selection.count is None else selection.count * len(sources)
     bar = progress_bar(total=total, desc="frames", unit="frame", disable=not progress, leave=False)
@@ -251,13 +251,6 @@ def _write_image(path: Path, image: np.ndarray) -> None:
     """Encode one BGR frame to `path` (JPEG at JPEG_QUALITY, or PNG)."""
     params = [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY] if path.suffix == ".jpg" else []
     path.write_bytes(cv2.imencode(path.suffix, image, params)[1].tobytes())
-
-
-def _drop_frames_from(folder: Path, count: int) -> None:
-    """Remove a camera's frames numbered `count` and above (beyond the shortest video)."""
-    for path in folder.iterdir():
-        if int(path.stem.removeprefix("frame_")) >= count:
-            path.unlink()
 
 
 def _kept_rate(rates: list[float | None], stride: int) -> float | None:

@@ -1,8 +1,5 @@
-"""HexPlane: the 4D-GS space-time feature grid that the deformation MLPs read.
-
-Six 2D planes (xy, xz, yz, xt, yt, zt) per resolution level, sampled bilinearly and
-multiplied; levels are concatenated. Time t in [0, 1] spans the whole grid range [-1, 1].
-"""
+"""HexPlane, the 4D-GS space-time grid the deformation MLPs read: six planes per level, sampled
+bilinearly and multiplied; time t in [0, 1] spans the grid's [-1, 1]."""
 
 from __future__ import annotations
 
@@ -21,25 +18,20 @@ from relaygs.splat import native_kernels_in_use
 SPATIAL_PLANES = ("xy", "xz", "yz")
 TIME_PLANES = ("xt", "yt", "zt")
 SPATIAL_INIT_RANGE = (0.1, 0.5)
-# An axis whose bounding box is thinner than this uses a unit half-extent instead
-# (a planar initial cloud would otherwise divide by zero).
-MIN_HALF_EXTENT = 1e-6
+MIN_HALF_EXTENT = 1e-6  # a thinner box axis gets a unit half-extent: no division by zero
 
 
 def second_difference_energy(planes: Tensor, dim: int) -> Tensor:
-    """Sum over the stacked planes of the mean squared second difference along `dim`.
-
-    `planes` is [P, C, H, W]; a plane shorter than 3 along `dim` contributes 0.
-    """
+    """Sum over planes [P, C, H, W] of the mean squared second difference along `dim` (0 when
+    shorter than 3)."""
     if planes.shape[dim] < 3:
         return planes.new_zeros(())
     return _SecondDifferenceEnergy.apply(planes, dim)
 
 
 class _SecondDifferenceEnergy(torch.autograd.Function):
-    """second_difference_energy with its gradient in closed form: (2/M)·Dᵀ(D planes), M the
-    per-plane count. One pass each way instead of autograd's narrow/expand chain, which costs
-    twice as much on the finest planes every step."""
+    """second_difference_energy with its gradient in closed form, (2/M)·Dᵀ(D planes): one pass
+    each way, half the cost of autograd's narrow/expand chain on the finest planes."""
 
     @staticmethod
     def forward(ctx: Any, planes: Tensor, dim: int) -> Tensor:
@@ -72,12 +64,8 @@ def _sample(planes: Tensor, grid: Tensor) -> Tensor:
 
 
 class HexPlane(nn.Module):
-    """Multi-resolution space-time planes returning per-point features [N, channels·levels].
-
-    Storage per level: `spatial_planes[l]` is [3, C, R, R] for xy, xz, yz (rows = second
-    axis) and `time_planes[l]` is [3, C, T, R] for xt, yt, zt (rows = time), so each level
-    is sampled with two `grid_sample` calls.
-    """
+    """Multi-resolution planes giving features [N, channels·levels]; per level [3, C, R, R]
+    spatial (xy, xz, yz) and [3, C, T, R] time planes (xt, yt, zt): two `grid_sample` calls."""
 
     def __init__(
         self,
@@ -126,10 +114,8 @@ class HexPlane(nn.Module):
         return (xyz - self.center) / self.half_extent
 
     def forward(self, xyz: Tensor, t: float | Tensor) -> Tensor:
-        """Features [N, feature_dim] at positions `xyz` [N, 3], times `t` in [0, 1] (scalar or [N]).
-
-        Points or times outside the box / [0, 1] read the border value.
-        """
+        """Features [N, feature_dim] at `xyz` [N, 3], times `t` in [0, 1] (scalar or [N]); points
+        or times outside the box or [0, 1] read the border value."""
         if xyz.dim() != 2 or xyz.shape[1] != 3:
             raise InputError(f"HexPlane xyz: expected shape [N, 3], got {list(xyz.shape)}")
         count = xyz.shape[0]
@@ -160,12 +146,8 @@ class HexPlane(nn.Module):
         return torch.cat(levels, dim=1)
 
     def plane_smoothness(self) -> Tensor:
-        """Squared second differences of the spatial planes along both axes (4D-GS plane TV).
-
-        Summed over planes and levels, each plane's term a mean; the caller weights it.
-        4D-GS's compute_plane_smoothness takes one axis only, so at the same weight this term
-        counts about twice as much.
-        """
+        """Squared second differences of the spatial planes along both axes, unweighted: twice
+        4D-GS's one-axis compute_plane_smoothness at the same weight."""
         terms = [
             second_difference_energy(p, dim=2) + second_difference_energy(p, dim=3)
             for p in self.spatial_planes

@@ -17,9 +17,8 @@ def _channel_last(planes: tuple[Tensor, ...]) -> list[Tensor]:
 
 
 class NativeHexPlaneFeatures(torch.autograd.Function):
-    """Features [N, C·levels] at grid coordinates `coords` [N,3] and grid times `times` [N]
-    (both in [-1, 1]) of the levels' planes, given as spatial0, time0, spatial1, time1, ...
-    ([3,C,R,R] and [3,C,T,R]); the times get no gradient."""
+    """Features [N, C·levels] at grid `coords` [N,3] and `times` [N] in [-1, 1] of the planes
+    spatial0, time0, spatial1, ... ([3,C,R,R], [3,C,T,R]); the times get no gradient."""
 
     @staticmethod
     def forward(ctx: Any, coords: Tensor, times: Tensor, *planes: Tensor) -> Tensor:

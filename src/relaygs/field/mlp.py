@@ -1,8 +1,5 @@
-"""Deformation MLP: HexPlane features → per-Gaussian deltas of position, scale, rotation, opacity.
-
-Layout follows 4D-GS: a trunk, then one head per attribute (ReLU→Linear(W,W)→ReLU→Linear).
-The deltas add to the pre-activation Gaussian parameters; there is no SH head.
-"""
+"""Deformation MLP as in 4D-GS: HexPlane features → a trunk → one head per attribute, giving
+deltas of the pre-activation position, scale, rotation and opacity (no SH head)."""
 
 from __future__ import annotations
 
@@ -17,10 +14,8 @@ from relaygs.errors import InputError
 
 
 class Deltas(NamedTuple):
-    """Per-Gaussian offsets to pre-activation parameters.
-
-    dxyz [N,3], dscale [N,3] (log-scale), drot [N,4] (wxyz quaternion), dopacity [N,1] (logit).
-    """
+    """Per-Gaussian offsets to pre-activation parameters: dxyz [N,3], dscale [N,3] (log-scale),
+    drot [N,4] (wxyz quaternion), dopacity [N,1] (logit)."""
 
     dxyz: Tensor
     dscale: Tensor
@@ -43,19 +38,16 @@ class HeadSwitches:
 
 def _head(width: int, out: int) -> nn.Sequential:
     last = nn.Linear(width, out)
-    # Zero weights and bias in the last layer: the deform stage starts from the trained
-    # static model, so the initial deformation must be exactly the identity (4D-GS gives
-    # every Linear Xavier weights, so its initial deformation is random).
+    # zero last layer: deform starts from the trained static model, so it starts as the
+    # identity (4D-GS's Xavier init starts with a random deformation)
     nn.init.zeros_(last.weight)
     nn.init.zeros_(last.bias)
     return nn.Sequential(nn.ReLU(), nn.Linear(width, width), nn.ReLU(), last)
 
 
 class DeformationMLP(nn.Module):
-    """Trunk Linear(feature_dim, W) plus `depth` ReLU→Linear(W, W) layers, then the enabled heads.
-
-    4D-GS's multi-view config (defor_depth 0, net_width 128) is a single trunk Linear: depth 0.
-    """
+    """Trunk Linear(feature_dim, W) plus `depth` ReLU→Linear(W, W) layers, then the enabled
+    heads (4D-GS's multi-view config, defor_depth 0, is depth 0)."""
 
     def __init__(
         self,
@@ -98,8 +90,7 @@ class DeformationMLP(nn.Module):
                 )
             )
         else:
-            # Every head starts with ReLU(hidden): apply it once and run the heads' remaining
-            # layers (same values and parameters).
+            # every head starts with ReLU(hidden): apply it once, then each head's other layers
             shared = torch.relu(self.trunk(features))
             outputs = {name: head[1:](shared) for name, head in self.heads.items()}
         return Deltas(
@@ -111,11 +102,8 @@ class DeformationMLP(nn.Module):
 
 
 class _SingleLayerMLP(torch.autograd.Function):
-    """A depth-0 DeformationMLP as one autograd node: trunk Linear → ReLU, then per head
-    Linear → ReLU → Linear. The ReLUs run in place on the products, and the backward adds the
-    heads' gradients of the shared hidden layer into one buffer by GEMMs (autograd would
-    allocate, mask and add one [N, W] tensor per head); same values, fewer passes over memory.
-    Head parameters come as (w1, b1, w2, b2) per head."""
+    """A depth-0 DeformationMLP as one autograd node (head parameters as (w1, b1, w2, b2) each):
+    in-place ReLUs, and one GEMM-summed buffer for the shared layer's gradient, not one per head."""
 
     @staticmethod
     def forward(
@@ -145,12 +133,7 @@ class _SingleLayerMLP(torch.autograd.Function):
             head_grads += [grad_h.t() @ shared, grad_h.sum(0), grad.t() @ h, grad.sum(0)]
         grad_shared = _relu_backward(grad_shared, shared)
         grad_features = grad_shared @ trunk_weight if ctx.needs_input_grad[0] else None
-        return (
-            grad_features,
-            grad_shared.t() @ features,
-            grad_shared.sum(0),
-            *head_grads,
-        )
+        return (grad_features, grad_shared.t() @ features, grad_shared.sum(0), *head_grads)
 
 
 def _relu_backward(grad: Tensor, result: Tensor) -> Tensor:

@@ -110,8 +110,7 @@ class SetLearningRates:
 
 @functools.cache
 def has_fused_adam(device: torch.device) -> bool:
-    """Whether this torch has a fused Adam kernel for DEVICE, by one step on a probe (older
-    versions refuse fused=True when the optimiser is built, newer ones when it steps)."""
+    """Whether this torch has a fused Adam kernel for DEVICE, by building and stepping a probe."""
     probe = torch.zeros(1, device=device, requires_grad=True)
     probe.grad = torch.zeros_like(probe)
     try:
@@ -122,8 +121,7 @@ def has_fused_adam(device: torch.device) -> bool:
 
 
 def adam(groups: list[dict]) -> torch.optim.Adam:
-    """Adam with eps 1e-15 over param groups, fused where torch has the kernel for the params'
-    device (the per-tensor loop costs several times more on the CPU), else foreach."""
+    """Adam, eps 1e-15, over param groups: fused where torch can (faster), else foreach."""
     fused = has_fused_adam(groups[0]["params"][0].device)
     kernel = {"fused": True} if fused else {"foreach": True}
     return torch.optim.Adam(groups, lr=0.0, eps=ADAM_EPS, **kernel)

@@ -21,8 +21,7 @@ NOTES = "notes"  # meta key of the artifact's notes (`Artifact.notes`)
 
 @dataclass
 class Artifact:
-    """What a stage returns: tensors (saved via safetensors) and JSON metadata; the store's
-    manifest copies `meta["metrics"]`, and `meta["notes"]` lists what a user should know."""
+    """What a stage returns: safetensors tensors and JSON `meta` (its `metrics`, its `notes`)."""
 
     stage: str
     tensors: dict[str, torch.Tensor] = field(default_factory=dict)

@@ -51,8 +51,7 @@ class StageCheckpointer:
     def __init__(
         self, store_root: Path | str, stage: str, key: str, every_n_steps: int, keep_last: int = 1
     ) -> None:
-        """Checkpoints of artifact `key` of `stage` every `every_n_steps` (>= 1, as
-        `train.checkpoint_every` is checked) steps, the newest `keep_last` of them kept."""
+        """Checkpoints of `stage`/`key` every `every_n_steps` steps, the last `keep_last` kept."""
         self.folder = checkpoint_dir(Path(store_root).expanduser().resolve(), stage, key)
         self.stage = stage
         self.every_n_steps = every_n_steps
@@ -101,8 +100,7 @@ class StageCheckpointer:
         return final
 
     def load(self) -> TrainingState | None:
-        """The newest intact checkpoint, or None when there is none (a damaged one is
-        skipped with a warning, falling back to an older one or to a fresh start)."""
+        """The newest intact checkpoint or None; a damaged one is skipped with a warning."""
         for folder in self._step_dirs():
             try:
                 check_seal(folder)

@@ -75,8 +75,7 @@ class PipelineRun:
         return sum(report.wall_seconds for report in self.reports if not report.cache_hit)
 
     def train_seconds_built_by(self, builder: str) -> float:
-        """Build seconds of the nodes that job `builder` (a `BUILT_BY` value) built, in this run
-        or in an earlier, interrupted run of it (a sweep resumed in place)."""
+        """Build seconds of the nodes `builder` (BUILT_BY) built, here or in an interrupted run."""
         return sum(report.wall_seconds for report in self.reports if report.built_by == builder)
 
 
@@ -93,8 +92,7 @@ def run_pipeline(
     canonical: CanonicalFn | None = None,
     provenance: Mapping[str, Any] | None = None,
 ) -> PipelineRun:
-    """Load or build each node's artifact in topological order, keyed by stage type, schema
-    version, (`canonical`) config, scene fingerprint and upstream keys (docs/artifacts.md)."""
+    """Load or build each node's artifact in topological order (keys: docs/artifacts.md)."""
     missing = sorted(pipeline.stage_types - set(stage_fns))
     if missing:
         raise InputError(f"pipeline {pipeline.name!r}: no stage function for type(s) {missing}")

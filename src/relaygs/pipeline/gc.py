@@ -36,10 +36,7 @@ class GcReport:
 
 
 def collect_garbage(
-    root: Path,
-    keep: Collection[str] | None,
-    dry_run: bool,
-    annotations: Collection[str] = (),
+    root: Path, keep: Collection[str] | None, dry_run: bool, annotations: Collection[str] = ()
 ) -> GcReport:
     """Remove temp/trash folders, incomplete artifacts, stale checkpoints, free locks and, with
     `keep`, all not kept (an `annotations` entry stays while its upstreams are all kept)."""
@@ -61,8 +58,7 @@ def collect_garbage(
 
 
 def _is_store(root: Path) -> bool:
-    """Whether `root` has a lock folder or a finished artifact (other tools, Docker's overlay2
-    for one, name folders by a sha256 too)."""
+    """Whether `root` has a lock folder or a finished artifact (others name folders by sha256)."""
     return (root / LOCKS_DIR).is_dir() or any(is_sealed(folder) for folder in key_dirs(root))
 
 
@@ -86,8 +82,7 @@ def _is_garbage(path: Path, key: str, kept: set[str] | None) -> bool:
 
 
 def _kept_keys(root: Path, keep: Collection[str], annotations: Collection[str]) -> set[str]:
-    """The kept keys, every key in their lineage (transitively), and the annotation entries
-    whose upstreams are all among those."""
+    """The kept keys, their lineage, and the annotation entries whose upstreams are all those."""
     parents: dict[str, list[str]] = {}
     annotation_keys = []
     for folder in key_dirs(root):

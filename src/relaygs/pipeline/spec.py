@@ -40,8 +40,7 @@ class Pipeline:
     nodes: dict[str, Node]
 
     def topological_order(self) -> list[Node]:
-        """Nodes with every upstream before its consumers, ties in file order (Kahn's
-        algorithm); a cycle raises an InputError that names it."""
+        """Nodes, upstreams first, ties in file order (Kahn); a cycle is an InputError naming it."""
         remaining = dict(self.nodes)
         done: set[str] = set()
         order: list[Node] = []
@@ -112,8 +111,7 @@ def parse_pipeline(
 
 
 def _read_error(error: Exception) -> str:
-    """Why a pipeline file could not be read: a YAML error's problem with its line and column,
-    else the error's first line."""
+    """Why a pipeline file could not be read: a YAML problem with its line, else the first line."""
     mark = getattr(error, "problem_mark", None)
     if isinstance(error, yaml.MarkedYAMLError) and error.problem and mark is not None:
         return f"{error.problem} at line {mark.line + 1}, column {mark.column + 1}"
@@ -183,8 +181,7 @@ def _check_graph(
     known_stages: Collection[str] | None,
     accepted_upstream: Mapping[str, Collection[str]],
 ) -> None:
-    """Unknown upstreams, unknown stage types, upstreams a stage type does not read, cycles,
-    and more than one output node."""
+    """Unknown upstreams or stage types, upstreams a type does not read, cycles, two outputs."""
     for node in pipeline.nodes.values():
         for parent in node.upstream:
             if parent not in pipeline.nodes:

@@ -51,8 +51,7 @@ HEX_DIGITS = frozenset("0123456789abcdef")
 
 
 def checked_key_prefix(text: str) -> str:
-    """`text` as a key prefix (trimmed, lower case), or an InputError unless it is at least 4
-    hex digits: the tools take this check as a usage error, before any work."""
+    """`text` trimmed and lower-cased; an InputError (usage error) unless 4+ hex digits."""
     prefix = text.strip().lower()
     if len(prefix) < 4 or any(digit not in HEX_DIGITS for digit in prefix):
         raise InputError(
@@ -71,8 +70,7 @@ class ArtifactChangedError(MissingArtifactError):
 
 @dataclass(frozen=True)
 class BuildInfo:
-    """How `get_or_build` satisfied a request (a hit or a build), with the build time, size
-    and provenance its manifest records, so callers need not read the store again."""
+    """How `get_or_build` satisfied a request, with its manifest's time, size and provenance."""
 
     stage: str
     key: str
@@ -93,12 +91,10 @@ class StoredArtifact:
 
     @property
     def stage(self) -> str:
-        """Stage type that produced it."""
         return self.manifest.stage
 
     @property
     def key(self) -> str:
-        """Its content-addressed key."""
         return self.manifest.key
 
 
@@ -131,8 +127,7 @@ class ArtifactStore:
         return read_manifest(self.path(stage, key))
 
     def load(self, stage: str, key: str, verify: bool = True) -> Artifact:
-        """Load an artifact, with `verify` its hashes checked (CorruptArtifactError); one another
-        process's gc or rebuild cut short raises ArtifactChangedError."""
+        """An artifact, hashes checked with `verify`; ArtifactChangedError if moved meanwhile."""
         return self._load_unchanged(stage, key, verify)[0]
 
     def get_or_build(
@@ -187,13 +182,11 @@ class ArtifactStore:
         return stored, self._info(manifest, cache_hit=False, replaced_corrupt=replaced_corrupt)
 
     def list(self) -> list[StoredArtifact]:
-        """Every finished artifact, sorted by stage then creation time; temp folders are
-        skipped, incomplete and unreadable ones left out (`damaged` lists them)."""
+        """Every finished artifact by stage then creation time (`damaged` lists the others)."""
         return self._scan(check_hashes=False)[0]
 
     def damaged(self) -> list[VerifyProblem]:
-        """The folders `list` leaves out: incomplete (no completion marker) or with an
-        unreadable manifest. Hashes are not checked here; `verify` does that."""
+        """The incomplete or unreadable folders `list` leaves out (hashes unchecked: `verify`)."""
         return self._scan(check_hashes=False)[1]
 
     def find(self, key_prefix: str) -> StoredArtifact:
@@ -220,8 +213,7 @@ class ArtifactStore:
         return matches[0]
 
     def verify(self) -> list[VerifyProblem]:
-        """Check every artifact folder's hashes and decode its files; return the bad ones
-        (empty when all good)."""
+        """The artifact folders whose hashes fail or whose files do not decode."""
         return self.verify_all()[1]
 
     def verify_all(self) -> tuple[list[StoredArtifact], list[VerifyProblem]]:
@@ -229,8 +221,7 @@ class ArtifactStore:
         return self._scan(check_hashes=True)
 
     def _scan(self, check_hashes: bool) -> tuple[list[StoredArtifact], list[VerifyProblem]]:
-        """The readable artifacts (sorted as `list` says) and every other folder's problem;
-        with `check_hashes`, hashes checked and files decoded too."""
+        """The readable artifacts (sorted as `list` says) and every other folder's problem."""
         found, problems = [], []
         for folder in key_dirs(self.root):
             outcome = _examine_steady(folder, check_hashes)
@@ -247,8 +238,7 @@ class ArtifactStore:
         dry_run: bool = False,
         annotations: Collection[str] = (),
     ) -> GcReport:
-        """Remove leftovers of killed builds, stale locks and incomplete folders, and with `keep`
-        what is not kept (`collect_garbage`)."""
+        """Remove killed builds' leftovers and stale locks, and with `keep` what is not kept."""
         return collect_garbage(self.root, keep, dry_run, annotations)
 
     def _try_load(
@@ -273,17 +263,10 @@ class ArtifactStore:
         self, manifest: Manifest, cache_hit: bool, replaced_corrupt: str | None = None
     ) -> BuildInfo:
         """The BuildInfo of a stored artifact, its cost and size as its manifest records them."""
-        path = self.path(manifest.stage, manifest.key)
-        return BuildInfo(
-            manifest.stage,
-            manifest.key,
-            cache_hit,
-            manifest.wall_seconds,
-            path,
-            manifest.size_mb,
-            replaced_corrupt,
-            manifest.provenance,
-        )
+        stage, key = manifest.stage, manifest.key
+        path, size, seconds = self.path(stage, key), manifest.size_mb, manifest.wall_seconds
+        provenance = manifest.provenance
+        return BuildInfo(stage, key, cache_hit, seconds, path, size, replaced_corrupt, provenance)
 
     def _load_unchanged(self, stage: str, key: str, verify: bool) -> tuple[Artifact, Manifest]:
         """The artifact (hashes checked with `verify`) and its manifest; a failure becomes
@@ -309,8 +292,7 @@ class ArtifactStore:
     def _write(
         self, stage: str, key: str, artifact: Artifact, manifest_fields: dict[str, Any]
     ) -> Manifest:
-        """Write the artifact into a temp folder, seal it, and rename it into place; return
-        its manifest."""
+        """Write the artifact into a temp folder, seal it, rename it into place; its manifest."""
         metrics = artifact.meta.get("metrics", {})
         if not isinstance(metrics, dict):
             raise InputError(f"{stage} artifact meta['metrics'] must be a mapping, got {metrics!r}")
@@ -354,8 +336,7 @@ class ArtifactStore:
 
 
 def read_own_manifest(folder: Path) -> Manifest:
-    """The manifest of artifact folder `<root>/<stage>/<key>`, once it names that stage and
-    key: a folder copied or renamed under another key is corrupt there, its hashes intact."""
+    """The manifest of folder `<root>/<stage>/<key>`, corrupt unless it names that stage and key."""
     manifest = read_manifest(folder)
     stage, key = folder.parent.name, folder.name
     if (manifest.stage, manifest.key) != (stage, key):

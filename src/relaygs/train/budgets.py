@@ -10,11 +10,7 @@ from omegaconf import OmegaConf
 from relaygs.errors import InputError
 from relaygs.paths import config_dir
 
-RUN_KEYS = (
-    "budget",
-    "threads",
-    "tensorboard",
-)  # keys the app applies to the run, not a stage
+RUN_KEYS = ("budget", "threads", "tensorboard")  # keys the app applies to the run, not a stage
 
 
 def load_budget(name: str, sections: Collection[str]) -> dict[str, dict[str, Any]]:

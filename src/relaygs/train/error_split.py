@@ -15,11 +15,7 @@ from relaygs.train.evaluate import require_its_scene
 from relaygs.train.model_render import ModelRenderer
 from relaygs.train.scene_model import SceneModel
 
-SPLIT_METRICS = (
-    "psnr",
-    "fg_psnr",
-    "bg_psnr",
-)  # over all, foreground, background pixels
+SPLIT_METRICS = ("psnr", "fg_psnr", "bg_psnr")  # over all, foreground, background pixels
 
 
 def error_split(

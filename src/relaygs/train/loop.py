@@ -58,8 +58,7 @@ class TrainReport:
 
 
 class LossTracker:
-    """Mean loss of the first and of the latest `window` steps, kept as tensors until read (a
-    read per step would make each step wait for a GPU to finish the one before)."""
+    """Mean loss of the first and latest `window` steps, as tensors until read (no GPU sync)."""
 
     def __init__(self, window: int) -> None:
         self.window = window
@@ -105,8 +104,7 @@ ScalarRecord = tuple[int, dict[str, float]]  # one emitted record's step and sca
 
 
 class ScalarHistory:
-    """Every scalar record a stage emitted, finite values only, kept in its artifact's meta and
-    checkpoints, so a run that reuses or resumes the stage shows its whole curves."""
+    """A stage's finite scalar records, kept in its meta and checkpoints for reruns' curves."""
 
     def __init__(self) -> None:
         self.records: list[ScalarRecord] = []

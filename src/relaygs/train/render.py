@@ -69,8 +69,7 @@ class Render:
 
 
 class FrozenRenders:
-    """Per camera (and SH degree), the frozen parts rendered alone once, for `splat` to copy the
-    tiles only frozen Gaussians touch and reuse their projection (splat.FixedLayer)."""
+    """Per camera and SH degree, the frozen parts rendered once, reused by splat.FixedLayer."""
 
     def __init__(self) -> None:
         self._cache: dict[tuple[int, int], tuple[Camera, dict[str, Tensor]]] = {}
@@ -158,8 +157,7 @@ def splat(
 
 
 def screen_statistics(render: Render, name: str, set_size: int) -> tuple[Tensor, Tensor] | None:
-    """(means2d grad [C, set_size, 2], radii [C, set_size, 2]) of set `name` over all cameras;
-    rows not rendered get zero radius (not visible). None when the set was not rendered."""
+    """(means2d grad, radii), each [C, set_size, 2], of set `name`; None if it was not rendered."""
     offset = 0
     located = None
     for part in render.parts:

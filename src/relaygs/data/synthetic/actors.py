@@ -200,10 +200,7 @@ def _hand_at(
 
 
 def spectator(
-    position: tuple[float, float],
-    facing: float,
-    outfit: Outfit,
-    jitter: np.ndarray | None,
+    position: tuple[float, float], facing: float, outfit: Outfit, jitter: np.ndarray | None
 ) -> list[Primitive]:
     """A seated spectator (body capsule + head); `jitter` [F,3] offsets make it sway slightly."""
     rotation = body_rotations(np.array([facing]))

@@ -20,12 +20,7 @@ from relaygs.data.panoptic import POINTS_FILE, TEST_META, TRAIN_META
 from relaygs.data.scene import MIN_IMAGE_SIDE
 from relaygs.data.staging import process_alive, staging_prefix
 from relaygs.data.synthetic.presets import DURATION_S, PRESETS, Preset
-from relaygs.data.synthetic.render import (
-    Buffers,
-    CameraRays,
-    Layer,
-    camera_rays,
-)
+from relaygs.data.synthetic.render import Buffers, CameraRays, Layer, camera_rays
 from relaygs.data.synthetic.sensor import (
     NOISE_SIGMA,
     camera_responses,
@@ -61,8 +56,7 @@ def generate(
     effects: Iterable[str] | None = None,
     progress: bool = False,
 ) -> Path:
-    """Write `preset` to `out_dir` (Panoptic layout + scene.json) with its default `effects`
-    or exactly the given ones; only a generated scene there is replaced."""
+    """Write `preset` to `out_dir` (Panoptic layout, scene.json), replacing only a generated one."""
     recipe = PRESETS.get(preset)
     if recipe is None:
         raise InputError(f"unknown preset {preset!r}; expected one of: {', '.join(PRESETS)}")
@@ -75,7 +69,12 @@ def generate(
     declared = declared_effects(recipe, effects)
     times = np.linspace(0.0, DURATION_S, frames) if frames > 1 else np.zeros(1)
     cameras = rig_cameras(recipe, width, height)
-    primitives = _primitives(recipe, times, declared, seed)
+    primitives = recipe.build(times, declared, seed)
+    if not isinstance(primitives, list) or not all(isinstance(p, Primitive) for p in primitives):
+        raise InputError(
+            f"PRESETS[{recipe.name!r}].build ({PRESETS_FILE}) returned "
+            f"{type(primitives).__name__}; expected a list of Primitive"
+        )
     world = World(cameras, recipe.test_cameras, primitives, times, width, height)
     out = Path(out_dir).expanduser().absolute()
     staging = _staging_folder(out)
@@ -130,18 +129,6 @@ def rig_cameras(recipe: Preset, width: int, height: int) -> list[RigCamera]:
             "one, leaving some to train on"
         )
     return cameras
-
-
-def _primitives(
-    recipe: Preset, times: np.ndarray, effects: frozenset[str], seed: int
-) -> list[Primitive]:
-    primitives = recipe.build(times, effects, seed)
-    if not isinstance(primitives, list) or not all(isinstance(p, Primitive) for p in primitives):
-        raise InputError(
-            f"PRESETS[{recipe.name!r}].build ({PRESETS_FILE}) returned "
-            f"{type(primitives).__name__}; expected a list of Primitive"
-        )
-    return primitives
 
 
 def declared_effects(

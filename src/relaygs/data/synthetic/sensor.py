@@ -26,10 +26,7 @@ def noise_generator(seed: int, camera: int, frame: int) -> np.random.Generator:
 
 
 def sensor_image(
-    radiance: np.ndarray,
-    gain: np.ndarray,
-    offset: np.ndarray,
-    noise: np.random.Generator | None,
+    radiance: np.ndarray, gain: np.ndarray, offset: np.ndarray, noise: np.random.Generator | None
 ) -> np.ndarray:
     """Radiance [H,W,3] in [0,1] → 8-bit RGB: affine response, optional noise, clip, round."""
     image = radiance * gain + offset
