@@ -24,21 +24,14 @@ from relaygs.pipeline.spec import pipeline_path
 from relaygs.stages import SPECS
 from relaygs.stages.common import LOGGED_SCALARS, logged_scalars
 
-STAGE_TYPES = tuple(SPECS)
-"""The real stage types: the app tests compose conf/config.yaml, which has a section each."""
-FAKE_CURVE = [[0, {"loss": 1.0}], [5, {"loss": 0.5}]]
-"""What every fake stage stores as the scalars it logged while it trained."""
+STAGE_TYPES = tuple(SPECS)  # conf/config.yaml, which the app tests compose, has a section each
+FAKE_CURVE = [[0, {"loss": 1.0}], [5, {"loss": 0.5}]]  # the scalars every fake stage "logged"
 TINY_SCENE = ["scene.frames=3", "scene.width=16", "scene.height=9"]
 
 
 class FakeStages:
-    """A StageSuite factory that records which stages ran and what the sinks received.
-
-    `canonical` maps stage configs to their canonical form (default: unchanged; pass
-    `relaygs.stages.canonical_config` for the real one); a stage whose `(type, cfg)` makes
-    `fail_when` true raises a RuntimeError, as a diverging training would; `notes` gives
-    the notes each stage type's artifacts carry.
-    """
+    """A StageSuite factory recording which stages ran; a stage whose `(type, cfg)` makes
+    `fail_when` true raises a RuntimeError, as a diverging training would."""
 
     def __init__(
         self,
@@ -110,8 +103,8 @@ def validate_config(stage: str, cfg: Mapping[str, Any]) -> None:
 
 
 def evaluate(scene: Any, artifact: Artifact, cfg: dict[str, Any]) -> dict[str, Any]:
-    """Metrics derived from the artifact's score (so variants differ); per view, two cameras
-    at each evaluated frame f whose PSNRs are the score's + f and + 2f (mean: + 1.5 f)."""
+    """Metrics from the artifact's score (so variants differ); per view, cameras 0 and 7 at
+    each evaluated frame f, PSNR + f and + 2f."""
     score = float(artifact.meta["score"])
     psnr = 20.0 + score % 7.0
     frames = range(0, scene.num_frames, cfg["eval"]["frame_stride"])

@@ -19,29 +19,25 @@ from relaygs.pipeline.integrity import seal
 from relaygs.pipeline.keys import artifact_key
 from relaygs.pipeline.manifest import LineageEntry
 from relaygs.pipeline.store import ArtifactStore
-from store_damage import damage_dtype_and_rehash
+from store_helpers import damage_dtype_and_rehash, flip_last_byte
 
 KEY_A = artifact_key("decouple", 1, {"steps": 1}, "scene", [])
 KEY_B = artifact_key("relay", 1, {"k": 2}, "scene", [KEY_A])
 
 
+def _put(store, artifact, key, upstream=(), **provenance):
+    """`artifact` stored under `key`, its lineage the (stage, key) pairs of `upstream`."""
+    lineage = [LineageEntry(stage, stage, parent) for stage, parent in upstream]
+    store.get_or_build(
+        artifact.stage, key, lambda: artifact, config={}, lineage=lineage, provenance=provenance
+    )
+
+
 @pytest.fixture
 def store(tmp_path):
     store = ArtifactStore(tmp_path / "store")
-    store.get_or_build(
-        "decouple",
-        KEY_A,
-        lambda: Artifact("decouple", {"xyz": torch.zeros(5, 3)}, {}),
-        config={"steps": 1},
-        lineage=[],
-    )
-    store.get_or_build(
-        "relay",
-        KEY_B,
-        lambda: Artifact("relay", {"segment": torch.arange(5)}, {}),
-        config={"k": 2},
-        lineage=[LineageEntry("decouple", "decouple", KEY_A)],
-    )
+    _put(store, Artifact("decouple", {"xyz": torch.zeros(5, 3)}), KEY_A)
+    _put(store, Artifact("relay", {"segment": torch.arange(5)}), KEY_B, [("decouple", KEY_A)])
     return store
 
 
@@ -69,13 +65,27 @@ def _usage_error(capsys, *argv):
     return err
 
 
-def test_ls_lists_finished_artifacts_only(store, capsys):
-    (store.root / "relay" / f".tmp-{KEY_B}-x").mkdir()
+def test_ls_lists_finished_artifacts_and_gc_removes_leftovers_and_unkept_ones(store, capsys):
+    leftover = store.root / "relay" / f".tmp-{KEY_B}-x"
+    leftover.mkdir()
+    blob = store.root / "blobs" / KEY_A  # e.g. --root at another tool's content-addressed cache
+    blob.parent.mkdir()
+    blob.write_text("not ours")
     code, out, _ = _cli(capsys, store.root, "ls")
-    assert code == 0
+    assert code == 0 and f"decouple:{KEY_A[:8]}" in out and "2 artifact(s)" in out
+    assert "damaged" not in out
     assert KEY_A[:16] in out and KEY_B[:16] in out and ".tmp" not in out
-    assert f"decouple:{KEY_A[:8]}" in out
-    assert "2 artifact(s)" in out
+    code, out, _ = _cli(capsys, store.root, "gc", "--dry-run")
+    assert code == 0 and "would remove" in out and leftover.exists()
+    _refused(capsys, store.root, "gc", "--keep", "beef", named=["'beef'"])
+    assert leftover.exists() and store.has("relay", KEY_B)
+    code, out, _ = _cli(capsys, store.root, "gc", "--keep", KEY_A[:8])
+    assert code == 0 and not leftover.exists()
+    assert store.has("decouple", KEY_A) and not store.has("relay", KEY_B)
+    assert str(blob) not in out and blob.read_text() == "not ours"
+    locks = store.root / ".locks"
+    assert not any(locks.iterdir()) and ".lock\n" not in out  # two lock files, one line
+    assert f"removed 2 folder(s) and 2 free lock file(s) (in {locks}), 0 in use\n" in out
 
 
 def test_an_artifact_folder_that_cannot_be_read_is_one_problem_not_the_end(
@@ -98,19 +108,20 @@ def test_an_artifact_folder_that_cannot_be_read_is_one_problem_not_the_end(
     assert _cli(capsys, store.root, "show", KEY_A[:8])[0] == 0
 
 
-def test_show_prints_manifest_and_tensors_by_key_prefix(store, capsys):
+def test_show_prints_manifest_and_tensors_by_key_prefix_or_what_is_wrong(store, capsys):
     code, out, _ = _cli(capsys, store.root, "show", KEY_B[:10])
     assert code == 0
     assert f'"key": "{KEY_B}"' in out and "tensor segment: I64 [5]" in out
     _refused(capsys, store.root, "show", "ffff0000", named=["'ffff0000'"])
+    (store.path("relay", KEY_B) / "tensors.safetensors").write_bytes(b"")
+    named = ["damaged", "tensors.safetensors", "artifacts verify"]
+    _refused(capsys, store.root, "show", KEY_B[:8], named=named)
 
 
 def test_verify_exits_1_on_a_corrupt_artifact(store, capsys):
     assert _cli(capsys, store.root, "verify")[0] == 0
     victim = store.path("decouple", KEY_A) / "tensors.safetensors"
-    data = bytearray(victim.read_bytes())
-    data[-1] ^= 0xFF
-    victim.write_bytes(bytes(data))
+    flip_last_byte(victim)
     code, out, _ = _cli(capsys, store.root, "verify")
     assert code == 1 and "CORRUPT" in out and "tensors.safetensors" in out and KEY_B not in out
     assert out.splitlines()[-1] == artifacts_module.REPAIR_HINT
@@ -132,26 +143,6 @@ def test_verify_names_an_artifact_that_does_not_decode_and_counts_every_folder(s
     assert "2 problem(s) among 2 artifact(s)" in out
 
 
-def test_gc_removes_leftovers_and_unkept_artifacts(store, capsys):
-    leftover = store.root / "relay" / f".tmp-{KEY_B}-x"
-    leftover.mkdir()
-    code, out, _ = _cli(capsys, store.root, "gc", "--dry-run")
-    assert code == 0 and "would remove" in out and leftover.exists()
-    code, out, _ = _cli(capsys, store.root, "gc", "--keep", KEY_A)
-    assert code == 0 and not leftover.exists()
-    assert store.has("decouple", KEY_A) and not store.has("relay", KEY_B)
-    locks = store.root / ".locks"
-    assert not any(locks.iterdir()) and ".lock\n" not in out  # two lock files, one line
-    assert f"removed 2 folder(s) and 2 free lock file(s) (in {locks}), 0 in use\n" in out
-
-
-def test_gc_keep_takes_prefixes_and_refuses_a_key_it_cannot_find(store, capsys):
-    _refused(capsys, store.root, "gc", "--keep", "beef", named=["'beef'"])
-    assert store.has("decouple", KEY_A) and store.has("relay", KEY_B)
-    code, _, _ = _cli(capsys, store.root, "gc", "--keep", KEY_A[:8])
-    assert code == 0 and store.has("decouple", KEY_A) and not store.has("relay", KEY_B)
-
-
 def test_an_ambiguous_prefix_names_the_artifacts_it_matches(tmp_path, capsys):
     keys = {}
     steps = 0
@@ -162,21 +153,10 @@ def test_an_ambiguous_prefix_names_the_artifacts_it_matches(tmp_path, capsys):
         keys[key[:4]] = key
         steps += 1
     store = ArtifactStore(tmp_path / "store")
-    artifact = Artifact("decouple", {"xyz": torch.zeros(1, 3)}, {})
     for each in (keys[key[:4]], key):
-        store.get_or_build("decouple", each, lambda: artifact, config={}, lineage=[])
+        _put(store, Artifact("decouple", {"xyz": torch.zeros(1, 3)}), each)
     named = [f"'{key[:4]}'", f"decouple/{key[:16]}", f"decouple/{keys[key[:4]][:16]}"]
     _refused(capsys, store.root, "show", key[:4], named=named)
-
-
-def test_gc_leaves_files_named_like_keys_alone(store, capsys):
-    blob = store.root / "blobs" / KEY_A  # e.g. --root at another tool's content-addressed cache
-    blob.parent.mkdir()
-    blob.write_text("not ours")
-    code, out, _ = _cli(capsys, store.root, "ls")
-    assert code == 0 and "damaged" not in out
-    code, out, _ = _cli(capsys, store.root, "gc")
-    assert code == 0 and str(blob) not in out and blob.read_text() == "not ours"
 
 
 def test_gc_refuses_a_root_that_is_no_store_and_deletes_nothing(tmp_path, capsys):
@@ -211,7 +191,7 @@ def test_eval_scores_a_stored_model_like_the_evaluator(stage_scene_path, stage_d
 
     store = ArtifactStore(tmp_path / "store")
     key = artifact_key("decouple", 1, {"steps": 2}, "juggle", [])
-    store.get_or_build("decouple", key, lambda: stage_decoupled, config={}, lineage=[])
+    _put(store, stage_decoupled, key)
     views_csv = tmp_path / "scores" / "views.csv"
     argv = ("eval", key[:8], "--scene", str(stage_scene_path), "--frame-stride", "3", "--per-view")
     done = subprocess.run(
@@ -234,66 +214,31 @@ def test_eval_scores_a_stored_model_like_the_evaluator(stage_scene_path, stage_d
     assert f"per-view metrics of {views} image(s) in {views_csv}" in done.stdout
 
 
-def test_eval_refuses_a_per_view_path_it_cannot_write_before_any_work(store, tmp_path, capsys):
+def test_eval_refuses_a_per_view_path_it_cannot_write_and_names_a_missing_scene(
+    store, tmp_path, capsys
+):
     blocker = tmp_path / "file"
     blocker.write_text("")
     for target in (tmp_path, blocker / "views.csv"):
         argv = ("--root", str(store.root), "eval", KEY_A[:8], "--scene", ".")
         err = _usage_error(capsys, *argv, "--per-view", str(target))
         assert "--per-view" in err and str(target) in err
-
-
-def test_eval_names_a_missing_scene(store, capsys, tmp_path):
     missing = str(tmp_path / "none")
     _refused(capsys, store.root, "eval", KEY_A[:8], "--scene", missing, named=[missing])
 
 
-def _stored_evaluation(store, model_key, model_stage):
-    key = artifact_key("eval", 1, {"eval": {"frame_stride": 1}}, "scene", [model_key])
-    store.get_or_build(
-        "eval",
-        key,
-        lambda: Artifact("eval", meta={"metrics": {"psnr": 20.0}}),
-        config={},
-        lineage=[LineageEntry(model_stage, model_stage, model_key)],
-    )
-    return key
-
-
-def test_gc_keeps_the_evaluations_of_kept_models_only(store, capsys):
-    of_relay = _stored_evaluation(store, KEY_B, "relay")
-    of_decouple = _stored_evaluation(store, KEY_A, "decouple")
+def test_gc_keeps_the_evaluations_of_kept_models_only_and_eval_refuses_them(store, capsys):
+    evaluation = Artifact("eval", meta={"metrics": {"psnr": 20.0}})
+    of_relay, of_decouple = (artifact_key("eval", 1, {}, "s", [key]) for key in (KEY_B, KEY_A))
+    _put(store, evaluation, of_relay, [("relay", KEY_B)])
+    _put(store, evaluation, of_decouple, [("decouple", KEY_A)])
+    named = [of_relay[:16], "show"]  # it holds no model
+    _refused(capsys, store.root, "eval", of_relay[:8], "--scene", ".", named=named)
     code, _, _ = _cli(capsys, store.root, "gc", "--keep", KEY_B)
     assert code == 0 and store.has("eval", of_relay) and store.has("eval", of_decouple)
     code, _, _ = _cli(capsys, store.root, "gc", "--keep", KEY_A)
     assert code == 0 and not store.has("relay", KEY_B)
     assert store.has("eval", of_decouple) and not store.has("eval", of_relay)
-
-
-def test_eval_of_a_stored_evaluation_says_it_is_no_model(store, capsys):
-    key = _stored_evaluation(store, KEY_B, "relay")
-    _refused(capsys, store.root, "eval", key[:8], "--scene", ".", named=[key[:16], "show"])
-
-
-def test_usage_errors_are_one_line_and_help_still_works(capsys):
-    lineage_and_per_view = ["eval", KEY_A[:8], "--scene", ".", "--lineage", "--per-view", "v.csv"]
-    for argv, named in (
-        (["frobnicate"], "frobnicate"),
-        (["show"], "key"),
-        (["gc", "--keep"], "--keep"),
-        (["eval", KEY_A[:8]], "--scene"),
-        (lineage_and_per_view, "--lineage"),
-    ):
-        assert named in _usage_error(capsys, *argv)
-    with pytest.raises(SystemExit) as caught:
-        main(["show", "--help"])
-    assert caught.value.code == 0 and "usage:" in capsys.readouterr().out
-
-
-def test_show_of_an_artifact_with_emptied_tensors_says_it_is_damaged(store, capsys):
-    (store.path("relay", KEY_B) / "tensors.safetensors").write_bytes(b"")
-    named = ["damaged", "tensors.safetensors", "artifacts verify"]
-    _refused(capsys, store.root, "show", KEY_B[:8], named=named)
 
 
 def test_show_of_an_artifact_gc_removes_meanwhile_says_removed_not_damaged(
@@ -310,22 +255,11 @@ def test_show_of_an_artifact_gc_removes_meanwhile_says_removed_not_damaged(
     assert "removed" in err and "damaged" not in err
 
 
-def test_an_artifact_with_a_damaged_manifest_is_named_as_damaged_not_missing(store, capsys):
-    (store.path("relay", KEY_B) / "manifest.json").write_text("{broken")
-    for command in (["show", KEY_B[:8]], ["gc", "--keep", KEY_B[:8]]):
-        named = [f"relay/{KEY_B[:16]}", "damaged", "manifest.json"]
-        err = _refused(capsys, store.root, *command, named=named)
-        assert err.count("delete its folder") == 1 and "artifacts verify" not in err  # one hint
-    assert store.has("decouple", KEY_A)  # gc refused before removing anything
-    code, out, _ = _cli(capsys, store.root, "ls")
-    assert code == 0 and "1 artifact(s)" in out
-    assert "1 damaged artifact folder(s)" in out and "artifacts verify" in out
-
-
 @pytest.mark.parametrize(
     ("edit", "problem"),
     [
-        (lambda manifest: "text", "expected a JSON object, got str"),
+        (lambda manifest: "{broken", "manifest.json"),
+        (lambda manifest: '"text"', "expected a JSON object, got str"),
         (lambda manifest: {**manifest, "wall_seconds": "1.5"}, "field 'wall_seconds'"),
         (lambda manifest: {**manifest, "files": ["tensors.safetensors"]}, "field 'files'"),
         (lambda manifest: {**manifest, "files": {"a": {}}}, "files entry 'a' has no byte"),
@@ -335,42 +269,41 @@ def test_an_artifact_with_a_damaged_manifest_is_named_as_damaged_not_missing(sto
         ),
     ],
 )
-def test_a_resealed_manifest_of_the_wrong_shape_is_damaged_not_a_crash(
+def test_a_resealed_manifest_of_the_wrong_shape_is_damaged_not_missing_or_a_crash(
     store, capsys, edit, problem
 ):
     folder = store.path("relay", KEY_B)
-    manifest = json.loads((folder / "manifest.json").read_text())
-    (folder / "manifest.json").write_text(json.dumps(edit(manifest)))
-    seal(folder)  # hashes match: only the shape is wrong
+    edited = edit(json.loads((folder / "manifest.json").read_text()))
+    (folder / "manifest.json").write_text(edited if isinstance(edited, str) else json.dumps(edited))
+    seal(folder)  # hashes match: only the content is wrong
     code, out, _ = _cli(capsys, store.root, "ls")
     assert code == 0 and "1 artifact(s)" in out and "1 damaged artifact folder(s)" in out
+    assert "artifacts verify" in out
     code, out, _ = _cli(capsys, store.root, "verify")
     assert code == 1 and "CORRUPT" in out and problem in out
     for command in (["show", KEY_B[:8]], ["gc", "--keep", KEY_B[:8]]):
-        _refused(capsys, store.root, *command, named=[problem])
-    assert store.has("decouple", KEY_A)
+        named = [f"relay/{KEY_B[:16]}", "damaged", problem]
+        err = _refused(capsys, store.root, *command, named=named)
+        assert err.count("delete its folder") == 1 and "artifacts verify" not in err  # one hint
+    assert store.has("decouple", KEY_A)  # gc refused before removing anything
 
 
 def _store_model(tmp_path, artifact, name="model", **provenance):
     """`artifact` in a new store under `tmp_path`, recorded as trained with `provenance`."""
     store = ArtifactStore(tmp_path / "store")
     key = artifact_key(artifact.stage, 1, {"steps": 2, "name": name}, "juggle", [])
-    store.get_or_build(
-        artifact.stage, key, lambda: artifact, config={}, lineage=[], provenance=provenance
-    )
+    _put(store, artifact, key, **provenance)
     return store, key
 
 
-def test_eval_refuses_a_scene_of_other_length(stage_decoupled, tiny_synth_scene, tmp_path, capsys):
+def test_eval_refuses_a_scene_of_other_length_or_train_cameras(
+    stage_decoupled, stage_scene_path, tiny_synth_scene, tmp_path, capsys
+):
     store, key = _store_model(tmp_path, stage_decoupled)
     scene = str(tiny_synth_scene)
     _refused(capsys, store.root, "eval", key[:8], "--scene", scene, named=[scene, "8 frames"])
-
-
-def test_eval_refuses_a_scene_with_other_train_cameras(
-    stage_decoupled, stage_scene_path, tmp_path, capsys
-):
-    store, key = _store_model(tmp_path, _model_held_out(stage_decoupled, range(3, 31)))
+    held_out = _model_held_out(stage_decoupled, range(3, 31))
+    store, key = _store_model(tmp_path, held_out, "held out")
     scene = str(stage_scene_path)
     _refused(capsys, store.root, "eval", key[:8], "--scene", scene, named=[scene, "3 train"])
 
@@ -380,77 +313,44 @@ def stored_lineage(stage_decoupled, stage_relayed, stage_deformed, tmp_path):
     """The stage fixtures' decouple → relay → deform chain in a store, with its lineage."""
     store = ArtifactStore(tmp_path / "store")
     keys, upstream = {}, []
-    for stage, artifact in (
-        ("decouple", stage_decoupled),
-        ("relay", stage_relayed),
-        ("deform", stage_deformed),
-    ):
-        keys[stage] = artifact_key(stage, 1, {}, "juggle", [entry.key for entry in upstream])
-        store.get_or_build(stage, keys[stage], lambda a=artifact: a, config={}, lineage=upstream)
-        upstream = [LineageEntry(stage, stage, keys[stage])]
+    for artifact in (stage_decoupled, stage_relayed, stage_deformed):
+        stage = artifact.stage
+        keys[stage] = artifact_key(stage, 1, {}, "juggle", [key for _, key in upstream])
+        _put(store, artifact, keys[stage], upstream)
+        upstream = [(stage, keys[stage])]
     return store, keys
 
 
-def test_eval_lineage_scores_every_stage_of_a_model_upstream_first(
+def test_eval_lineage_and_gap_score_every_stage_upstream_first_and_need_every_one(
     stored_lineage, stage_scene_path, stage_decoupled, stage_relayed, stage_deformed, capsys
 ):
     from relaygs.data import load_scene
     from relaygs.stages import evaluate
+    from relaygs.train.error_split import error_split
 
     store, keys = stored_lineage
-    argv = ("eval", keys["deform"][:8], "--scene", str(stage_scene_path), "--frame-stride", "4")
-    code, out, err = _cli(capsys, store.root, *argv, "--lineage")
+    scene = load_scene(stage_scene_path)
+    artifacts = {"decouple": stage_decoupled, "relay": stage_relayed, "deform": stage_deformed}
+    argv = (keys["deform"][:8], "--scene", str(stage_scene_path), "--frame-stride", "4")
+    code, out, err = _cli(capsys, store.root, "eval", *argv, "--lineage")
     assert code == 0, err
     lines = out.splitlines()
     assert lines[0] == (
         f"deform {keys['deform'][:16]} and its lineage on {stage_scene_path} "
         "(test cameras 0, 10, 15, 30)"
     )
-    assert lines[1].split() == [
-        "stage",
-        "key",
-        "psnr",
-        "ssim",
-        "fg_psnr",
-        "num_gaussians",
-        "storage_mb",
-    ]
-    scene = load_scene(stage_scene_path)
-    artifacts = {"decouple": stage_decoupled, "relay": stage_relayed, "deform": stage_deformed}
+    columns = ["psnr", "ssim", "fg_psnr", "num_gaussians", "storage_mb"]
+    assert lines[1].split() == ["stage", "key", *columns] and len(lines) == 5
     for line, stage in zip(lines[2:], artifacts, strict=True):
         metrics = evaluate(scene, artifacts[stage], {"eval": {"frame_stride": 4}})
-        assert line.split()[:4] == [
-            stage,
-            keys[stage][:16],
-            f"{metrics['psnr']:.4f}",
-            f"{metrics['ssim']:.4f}",
-        ]
-    assert len(lines) == 5
-
-
-def test_gap_scores_every_stage_on_train_and_test_views(
-    stored_lineage, stage_scene_path, stage_decoupled, stage_relayed, stage_deformed, capsys
-):
-    from relaygs.data import load_scene
-    from relaygs.train.error_split import error_split
-
-    store, keys = stored_lineage
-    argv = ("gap", keys["deform"][:8], "--scene", str(stage_scene_path), "--frame-stride", "4")
-    code, out, err = _cli(capsys, store.root, *argv)
+        scores = [f"{metrics['psnr']:.4f}", f"{metrics['ssim']:.4f}"]
+        assert line.split()[:4] == [stage, keys[stage][:16], *scores]
+    code, out, err = _cli(capsys, store.root, "gap", *argv)
     assert code == 0, err
     lines = out.splitlines()
-    assert lines[1].split() == [
-        "stage",
-        "key",
-        *(
-            f"{split}_{name}"
-            for split in ("train", "test")
-            for name in ("psnr", "fg_psnr", "bg_psnr")
-        ),
-        "gap",
-    ]
-    scene = load_scene(stage_scene_path)
-    artifacts = {"decouple": stage_decoupled, "relay": stage_relayed, "deform": stage_deformed}
+    names = ("psnr", "fg_psnr", "bg_psnr")
+    splits = [f"{split}_{name}" for split in ("train", "test") for name in names]
+    assert lines[1].split() == ["stage", "key", *splits, "gap"] and len(lines) == 5
     for line, stage in zip(lines[2:], artifacts, strict=True):
         train = error_split(scene, artifacts[stage], "train", frame_stride=4)
         test = error_split(scene, artifacts[stage], "test", frame_stride=4)
@@ -458,33 +358,17 @@ def test_gap_scores_every_stage_on_train_and_test_views(
         assert cells[:3] == [stage, keys[stage][:16], f"{train['psnr']:.4f}"]
         assert cells[5] == f"{test['psnr']:.4f}"
         assert float(cells[8]) == pytest.approx(train["psnr"] - test["psnr"], abs=1e-4)
-    assert len(lines) == 5
-    code, out, err = _cli(capsys, store.root, *argv, "--colour-fit")
+    code, out, err = _cli(capsys, store.root, "gap", *argv, "--colour-fit")
     assert code == 0, err
     first = out.splitlines()[2].split()
     fitted = error_split(scene, stage_decoupled, "train", frame_stride=4, colour_fit=True)
     assert "colour-fitted" in out.splitlines()[0] and first[2] == f"{fitted['psnr']:.4f}"
-
-
-def test_eval_lineage_names_an_upstream_artifact_gc_removed(
-    stored_lineage, stage_scene_path, capsys
-):
-    store, keys = stored_lineage
+    # a damaged or removed upstream artifact is named before any output
+    flip_last_byte(store.path("relay", keys["relay"]) / "tensors.safetensors")
+    _refused(capsys, store.root, "eval", *argv, "--lineage", named=[keys["relay"][:16], "damaged"])
     shutil.rmtree(store.path("decouple", keys["decouple"]))
-    argv = ("eval", keys["deform"][:8], "--scene", str(stage_scene_path), "--lineage")
-    _refused(capsys, store.root, *argv, named=[keys["decouple"][:16], str(store.root)])
-
-
-def test_eval_lineage_names_a_damaged_upstream_artifact_before_any_output(
-    stored_lineage, stage_scene_path, capsys
-):
-    store, keys = stored_lineage
-    tensors = next(store.path("relay", keys["relay"]).glob("*.safetensors"))
-    data = bytearray(tensors.read_bytes())
-    data[-1] ^= 0xFF
-    tensors.write_bytes(bytes(data))
-    argv = ("eval", keys["deform"][:8], "--scene", str(stage_scene_path), "--lineage")
-    _refused(capsys, store.root, *argv, named=[keys["relay"][:16], "damaged"])
+    named = [keys["decouple"][:16], str(store.root)]
+    _refused(capsys, store.root, "eval", *argv, "--lineage", named=named)
 
 
 def _model_held_out(stage_decoupled, held_out):
@@ -521,24 +405,6 @@ def test_eval_and_render_take_the_runs_test_cameras(
     assert sorted(path.name for path in out_dir.iterdir()) == ["cam01", "cam05"]
 
 
-def test_eval_and_render_note_a_scene_loaded_otherwise_than_for_training(
-    stage_decoupled, stage_scene_path, tmp_path, capsys
-):
-    from relaygs.data import load_scene
-
-    trained_on = load_scene(stage_scene_path, test_cameras=[1, 5]).fingerprint
-    store, key = _store_model(tmp_path, stage_decoupled, scene=trained_on)
-    scene = ("--scene", str(stage_scene_path), "--frame-stride", "8")
-    code, _, err = _cli(capsys, store.root, "eval", key[:8], *scene, "--test-cameras", "1,5")
-    assert code == 0 and err == ""
-    code, _, err = _cli(capsys, store.root, "eval", key[:8], *scene)
-    assert code == 0 and err.count("\n") == 1
-    assert err.startswith(f"note: decouple {key[:16]} was not trained on {stage_scene_path} as")
-    render = ("render", key[:8], *scene, "--no-video", "--camera", "3")
-    code, _, err = _cli(capsys, store.root, *render, "--out", str(tmp_path / "r"))
-    assert code == 0 and err.rsplit("\r", 1)[-1].startswith(f"note: decouple {key[:16]} was")
-
-
 def test_the_note_comes_when_the_files_or_the_given_options_differ_from_the_run(
     stage_decoupled, stage_scene_path, tmp_path, capsys
 ):
@@ -552,12 +418,17 @@ def test_the_note_comes_when_the_files_or_the_given_options_differ_from_the_run(
         store, key = _store_model(tmp_path, stage_decoupled, name, scene=fingerprint, **recorded)
         for given in ((), ("--test-cameras", "1,6"), ("--test-cameras", "5,1,5")):
             code, _, err = _cli(capsys, store.root, "eval", key[:8], *scene, *given)
-            assert code == 0
+            assert code == 0 and err.count("\n") <= 1
             notes[name, given] = err
     assert notes["same files", ()] == ""  # loaded as its run loaded it
     assert notes["same files", ("--test-cameras", "5,1,5")] == ""  # the same cameras
     noted = [case for case, err in notes.items() if err.startswith("note: decouple")]
     assert len(noted) == 4 and ("same files", ("--test-cameras", "1,6")) in noted
+    said = f"note: decouple {key[:16]} was not trained on {stage_scene_path} as"
+    assert notes["other files", ()].startswith(said)
+    render = ("render", key[:8], *scene, "--no-video", "--camera", "3")
+    code, _, err = _cli(capsys, store.root, *render, "--out", str(tmp_path / "r"))
+    assert code == 0 and err.rsplit("\r", 1)[-1].startswith(said)
 
 
 def test_a_model_trained_on_every_camera_is_told_to_load_none_as_test_cameras(
@@ -587,19 +458,14 @@ def test_eval_and_render_load_the_test_cameras_the_run_chose(
     assert sorted(path.name for path in (tmp_path / "r").iterdir()) == ["cam01", "cam05"]
 
 
-def test_recorded_test_cameras_the_scene_lacks_are_named_with_the_manifest(
+def test_a_scene_error_the_recorded_loading_causes_and_only_that_is_blamed_on_it(
     stage_decoupled, stage_scene_path, tmp_path, capsys
 ):
     store, key = _store_model(tmp_path, stage_decoupled, scene="another", test_cameras=[99])
     argv = ("eval", key[:8], "--scene", str(stage_scene_path))
     _refused(capsys, store.root, *argv, named=["[99]", key[:16], "--test-cameras"])
-
-
-def test_a_scene_error_the_recorded_loading_does_not_cause_is_not_blamed_on_it(
-    stage_decoupled, stage_scene_path, tmp_path, capsys
-):
     # max_points is recorded, but no flag can replace it
-    store, key = _store_model(tmp_path, stage_decoupled, scene="another", max_points=0)
+    store, key = _store_model(tmp_path, stage_decoupled, "other", scene="another", max_points=0)
     missing = str(tmp_path / "no-such-scene")
     err = _refused(capsys, store.root, "eval", key[:8], "--scene", missing, named=[missing])
     assert "manifest" not in err
@@ -621,16 +487,10 @@ def test_eval_renders_on_the_device_given_and_refuses_an_unusable_one(
     monkeypatch.setattr(
         artifacts_eval, "evaluate", lambda *args: given.append(args[2]) or real(*args)
     )
-    code, _, err = _cli(capsys, store.root, *argv, "--device", "cpu")
-    assert code == 0, err
-    assert given == [{"eval": {"frame_stride": 8}, "train": {"device": "cpu"}}]
-
-
-def test_a_model_without_a_recorded_scene_gets_no_note(stored_deform, stage_scene_path, capsys):
-    store, key = stored_deform  # stored without provenance, as by older versions
-    argv = ("eval", key[:8], "--scene", str(stage_scene_path), "--frame-stride", "8")
-    code, _, err = _cli(capsys, store.root, *argv, "--downscale", "2")  # another fingerprint
+    # stored without provenance, as by older versions: no note whatever the scene's fingerprint
+    code, _, err = _cli(capsys, store.root, *argv, "--device", "cpu", "--downscale", "2")
     assert code == 0 and err == ""
+    assert given == [{"eval": {"frame_stride": 8}, "train": {"device": "cpu"}}]
 
 
 @pytest.mark.parametrize(
@@ -678,28 +538,37 @@ def test_threads_is_set_before_the_model_loads(store, capsys, monkeypatch, torch
     assert (code, err, seen) == (1, "error: stopped\n", [wanted])
 
 
-@pytest.mark.parametrize(
-    "argv",
-    [
-        ["show", "zzzz"],
-        ["show", "abc"],
-        ["ply", "xyz1"],
-        ["render", "abcd", "--scene", "s", "--beside", "zz"],
-        ["gc", "--keep", "abcd", "nothex"],
-    ],
-)
-def test_a_malformed_key_prefix_is_a_usage_error(store, capsys, argv):
-    assert "hex digits" in _usage_error(capsys, "--root", str(store.root), *argv)
-
-
 BAD_FLAG_VALUES = [
     *(("--test-cameras", given) for given in ["1,x", "-1", "1;5", "1,,5", "²", "\u0661", "", " "]),
     *(("--downscale", given) for given in ["0", "-2", "x"]),
     *(("--threads", given) for given in ["0", "-2", "x", "1.5", "1025"]),
     ("--frame-stride", "0"),
 ]
+EVAL_A = ["eval", KEY_A[:8], "--scene", "."]
 
 
-@pytest.mark.parametrize(("flag", "given"), BAD_FLAG_VALUES)
-def test_a_bad_flag_value_is_a_one_line_usage_error_naming_the_flag(capsys, tmp_path, flag, given):
-    assert flag in _usage_error(capsys, "eval", KEY_A[:8], "--scene", str(tmp_path), flag, given)
+@pytest.mark.parametrize(
+    ("argv", "named"),
+    [
+        (["frobnicate"], "frobnicate"),
+        (["show"], "key"),
+        (["gc", "--keep"], "--keep"),
+        (["eval", KEY_A[:8]], "--scene"),
+        ([*EVAL_A, "--lineage", "--per-view", "v.csv"], "--lineage"),
+        # a malformed key prefix
+        (["show", "zzzz"], "hex digits"),
+        (["show", "abc"], "hex digits"),
+        (["ply", "xyz1"], "hex digits"),
+        (["render", "abcd", "--scene", "s", "--beside", "zz"], "hex digits"),
+        (["gc", "--keep", "abcd", "nothex"], "hex digits"),
+        *(([*EVAL_A, flag, given], flag) for flag, given in BAD_FLAG_VALUES),
+    ],
+)
+def test_a_usage_error_is_one_line_naming_the_argument(capsys, argv, named):
+    assert named in _usage_error(capsys, *argv)
+
+
+def test_help_still_works(capsys):
+    with pytest.raises(SystemExit) as caught:
+        main(["show", "--help"])
+    assert caught.value.code == 0 and "usage:" in capsys.readouterr().out

@@ -13,7 +13,7 @@ def _roundtrip(tmp_path, artifact):
     return read_artifact_files(tmp_path, artifact.stage)
 
 
-def test_tensors_roundtrip_bitwise_with_dtypes_and_odd_layouts(tmp_path):
+def test_tensors_roundtrip_bitwise_with_dtypes_and_odd_layouts_and_meta_equal(tmp_path):
     base = torch.randn(4, 6, generator=torch.Generator().manual_seed(1))
     tensors = {
         "float": base,
@@ -30,7 +30,17 @@ def test_tensors_roundtrip_bitwise_with_dtypes_and_odd_layouts(tmp_path):
         "empty_too": torch.zeros(0, dtype=torch.int64),
         "specials": torch.tensor([-0.0, 1e-45, 3.4e38, -3.4e38]),  # signed zero, denormal, extremes
     }
-    loaded = _roundtrip(tmp_path, Artifact("decouple", tensors, {"n": 3}))
+    meta = {
+        "metrics": {"psnr": 31.234567890123456, "loss": 1e-300, "neg_zero": -0.0},
+        "counts": [1, 2, 3],
+        "nested": {"flag": True, "none": None, "text": "ünï"},
+        "big": 2**62,
+    }
+    loaded = _roundtrip(tmp_path, Artifact("decouple", tensors, meta))
+    assert loaded.meta == meta
+    assert str(loaded.meta["metrics"]["neg_zero"]) == "-0.0"
+    (tmp_path / "none").mkdir()
+    assert _roundtrip(tmp_path / "none", Artifact("relay")).tensors == {}  # no tensors is fine
     assert set(loaded.tensors) == set(tensors)
     for name, original in tensors.items():
         got = loaded.tensors[name]
@@ -40,19 +50,6 @@ def test_tensors_roundtrip_bitwise_with_dtypes_and_odd_layouts(tmp_path):
         assert torch.equal(
             got.view(-1).view(torch.uint8), original.contiguous().view(-1).view(torch.uint8)
         ), name
-
-
-def test_meta_roundtrips_equal_and_empty_tensors_are_allowed(tmp_path):
-    meta = {
-        "metrics": {"psnr": 31.234567890123456, "loss": 1e-300, "neg_zero": -0.0},
-        "counts": [1, 2, 3],
-        "nested": {"flag": True, "none": None, "text": "ünï"},
-        "big": 2**62,
-    }
-    loaded = _roundtrip(tmp_path, Artifact("relay", {}, meta))
-    assert loaded.tensors == {}
-    assert loaded.meta == meta
-    assert str(loaded.meta["metrics"]["neg_zero"]) == "-0.0"
 
 
 def _non_finite_means(bad: float) -> dict:

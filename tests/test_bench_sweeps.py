@@ -9,29 +9,47 @@ import pytest
 from relaygs.commands import bench, bench_field, bench_splat, bench_sweeps, bench_train
 
 
-def test_commands_run_each_experiment_on_the_tiny_scene(tmp_path):
-    line = bench_sweeps.command("baseline", tmp_path, "seed=3")
-    assert line[1:4] == ["-m", "relaygs.run", "+experiment=baseline"]
-    assert all(override in line for override in bench_sweeps.TINY_SCENE)
-    assert line[-2:] == ["seed=3", f"paths.outputs={tmp_path}"]
+@pytest.fixture
+def no_work(monkeypatch):
+    """Any bench that starts measuring fails the test: a refusal comes before any work."""
+    work = [(bench_sweeps, "time_experiments"), (bench_train, "bench_scene")]
+    work += [(bench_splat, "bench_splat"), (bench_field, "_field_step")]
+    for module, name in work:
+        monkeypatch.setattr(module, name, lambda *args, name=name: pytest.fail(f"{name} ran"))
 
 
-@pytest.mark.parametrize("what", ["splat", "train", "sweeps"])
-def test_an_unwritable_json_path_stops_before_any_work(what, tmp_path, monkeypatch, capsys):
-    # A file where the report's folder should be: argparse refuses it before anything runs.
-    monkeypatch.setattr(bench_sweeps, "time_experiments", lambda *a: pytest.fail("sweeps started"))
-    monkeypatch.setattr(bench_train, "bench_scene", lambda *args: pytest.fail("train started"))
-    monkeypatch.setattr(bench_splat, "bench_splat", lambda *args: pytest.fail("splat started"))
-    blocker = tmp_path / "taken"
-    blocker.write_text("")
-    with pytest.raises(SystemExit) as stopped:
-        bench.main([what, "--json", str(blocker / "report.json")])
-    assert stopped.value.code == 2
+@pytest.mark.parametrize(
+    ("argv", "named"),
+    [
+        (["splat", "--repeats", "0"], "argument --repeats: expected an integer >= 1, got '0'"),
+        (["train", "--steps", "0"], "argument --steps: expected an integer >= 2, got '0'"),
+        (["train", "--threads", "-4"], "argument --threads: expected an integer >= 1, got '-4'"),
+        (["foo"], "argument command: invalid choice: 'foo'"),
+        (["splat", "--backends", "torch,fast"], "'fast'"),
+        (["train", "--backends", "torch,fast"], "'fast'"),
+        (["field", "--backends", "torch,fast"], "'fast'"),
+        (["train", "--device", "cuda:99"], "--device"),
+        (["train", "--device", "tpu"], "'tpu'"),
+        # a file where the report's folder should be
+        (["splat", "--json", "taken/report.json"], "taken is not a folder"),
+        (["train", "--json", "taken/report.json"], "taken is not a folder"),
+        (["sweeps", "--json", "taken/report.json"], "taken is not a folder"),
+    ],
+)
+def test_bad_options_are_refused_in_one_line_before_any_work(
+    argv, named, no_work, tmp_path, monkeypatch, capsys
+):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "taken").write_text("")
+    try:
+        code = bench.main(argv)
+    except SystemExit as stopped:  # argparse's usage error
+        code = stopped.code
     err = capsys.readouterr().err
-    assert f"cannot write {blocker / 'report.json'}: {blocker} is not a folder" in err
+    assert code == 2 and err.startswith("error: ") and named in err and err.count("\n") == 1
 
 
-def test_a_failing_experiment_is_reported_with_its_error_line_not_hydras_hint(
+def test_experiments_run_on_the_tiny_scene_and_a_failing_one_is_named_by_its_error(
     tmp_path, monkeypatch, capsys
 ):
     stderr = (
@@ -47,53 +65,14 @@ def test_a_failing_experiment_is_reported_with_its_error_line_not_hydras_hint(
         "error: experiment 'smoke' exited 1: paths.outputs: cannot create /proc/x\n"
     )
     assert not report.exists()
-
-
-@pytest.mark.parametrize(
-    ("stderr", "line"),
-    [
-        ("boom\nSet the environment variable HYDRA_FULL_ERROR=1 for a complete trace.\n", "boom"),
-        ("", "(no output)"),
-    ],
-)
-def test_without_an_error_line_the_last_line_that_is_not_hydras_hint_is_kept(stderr, line):
-    assert bench_sweeps.failure_line(stderr) == line
-
-
-@pytest.mark.parametrize(
-    ("argv", "message"),
-    [
-        (["splat", "--repeats", "0"], "argument --repeats: expected an integer >= 1, got '0'"),
-        (["train", "--steps", "0"], "argument --steps: expected an integer >= 2, got '0'"),
-        (["train", "--threads", "-4"], "argument --threads: expected an integer >= 1, got '-4'"),
-        (["foo"], "argument command: invalid choice: 'foo'"),
-    ],
-)
-def test_bad_options_are_refused_in_one_line_before_any_work(argv, message, monkeypatch, capsys):
-    monkeypatch.setattr(bench_train, "bench_scene", lambda *args: pytest.fail("train started"))
-    monkeypatch.setattr(bench_splat, "bench_splat", lambda *args: pytest.fail("splat started"))
-    with pytest.raises(SystemExit) as stopped:
-        bench.main(argv)
-    err = capsys.readouterr().err
-    assert stopped.value.code == 2 and err.startswith(f"error: {message}")
-    assert err.count("\n") == 1
-
-
-@pytest.mark.parametrize("what", ["splat", "train", "field"])
-def test_an_unknown_backend_is_named_before_any_work(what, monkeypatch, capsys):
-    monkeypatch.setattr(bench_splat, "bench_splat", lambda *args: pytest.fail("splat started"))
-    monkeypatch.setattr(bench_train, "bench_scene", lambda *args: pytest.fail("train started"))
-    monkeypatch.setattr(bench_field, "_field_step", lambda *args: pytest.fail("field started"))
-    assert bench.main([what, "--backends", "torch,fast"]) == 2
-    assert "'fast'" in capsys.readouterr().err
-
-
-@pytest.mark.parametrize("device", ["cuda:99", "tpu"])
-def test_train_on_a_device_it_cannot_use_is_named_before_any_work(device, monkeypatch, capsys):
-    monkeypatch.setattr(bench_train, "bench_scene", lambda *args: pytest.fail("train started"))
-    assert bench.main(["train", "--device", device]) == 2
-    err = capsys.readouterr().err
-    assert "--device" in err and repr(device) in err and err.count("\n") == 1
+    # without an error line: the last line that is not Hydra's hint
+    assert bench_sweeps.failure_line(f"boom\n{stderr.splitlines()[-1]}\n") == "boom"
+    assert bench_sweeps.failure_line("") == "(no output)"
+    # each experiment runs on the tiny scene
+    line = bench_sweeps.command("baseline", tmp_path, "seed=3")
+    assert line[1:4] == ["-m", "relaygs.run", "+experiment=baseline"]
+    assert all(override in line for override in bench_sweeps.TINY_SCENE)
+    assert line[-2:] == ["seed=3", f"paths.outputs={tmp_path}"]
 
 
 def test_bench_field_times_each_backend_and_restores_the_process_backend(tmp_path, capsys):

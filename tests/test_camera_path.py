@@ -48,7 +48,7 @@ def _looks_at_the_centre(camera):
     return float(forward @ to_centre / to_centre.norm()) > 0.99999
 
 
-def test_cameras_around_the_centre_make_a_loop_from_the_first_cameras_azimuth():
+def test_cameras_around_the_centre_make_a_loop_of_upright_views_from_the_first_camera():
     azimuths = [0, 135, 45, 270, 180, 315, 90, 225]  # ids out of order round the ring
     cameras = [_camera(index, azimuth) for index, azimuth in enumerate(azimuths)]
     path = path_cameras(cameras, 16, CENTRE)
@@ -60,16 +60,16 @@ def test_cameras_around_the_centre_make_a_loop_from_the_first_cameras_azimuth():
     for captured, view in zip(cameras, path[::2], strict=False):  # on the orbit: the cameras
         assert torch.allclose(view.w2c, _camera(0, _azimuth(view)).w2c, atol=1e-5)
         assert captured is not view
-
-
-def test_cameras_on_one_side_make_an_arc_over_their_azimuths():
-    cameras = [_camera(0, 60), _camera(1, 0), _camera(2, 30)]
-    path = path_cameras(cameras, 5, CENTRE)
-    assert _same_angles([_azimuth(view) for view in path], [0, 15, 30, 45, 60])
-    assert all(_looks_at_the_centre(view) for view in path)
-
-
-def test_a_dome_of_rings_gives_one_orbit_at_their_mean_height_and_radius():
+    # views are upright cameras with the first camera's intrinsics
+    cameras = [_camera(3, 0, width=40), _camera(4, 90), _camera(5, 180), _camera(6, 270)]
+    for view in path_cameras(cameras, 7, CENTRE):
+        assert (view.width, view.height, view.camera_id) == (40, 18, PATH_CAMERA_ID)
+        assert torch.equal(view.K, cameras[0].K)
+        rotation = view.w2c[:3, :3]
+        assert torch.allclose(rotation @ rotation.T, torch.eye(3), atol=1e-5)
+        assert float(torch.linalg.det(rotation)) == pytest.approx(1.0, abs=1e-5)
+        assert float(view.c2w[2, 1]) < 0  # the image's down axis points down the world
+    # a dome of rings gives one orbit at their mean height and radius
     # azimuth order alternates between rings; the path must not bob between them
     cameras = [
         _camera(index, 30 * index, radius=4.0 - index % 3, height=1.5 + index % 3)
@@ -80,28 +80,7 @@ def test_a_dome_of_rings_gives_one_orbit_at_their_mean_height_and_radius():
         assert _radius_and_height(view) == pytest.approx((3.0, 2.5), abs=1e-5)
     steps = [_azimuth(b) - _azimuth(a) for a, b in pairwise(path)]
     assert _same_angles(steps, [15.0] * 23)
-
-
-@pytest.mark.parametrize(("count", "closed"), [(4, True), (3, False)])
-def test_four_cameras_a_right_angle_apart_close_the_loop_and_three_do_not(count, closed):
-    cameras = [_camera(index, 360 * index / count) for index in range(count)]
-    path = path_cameras(cameras, 8, CENTRE)
-    covered = _azimuth(path[-1]) - _azimuth(path[0])  # where it starts is a tie here
-    assert _same_angles([covered], [315 if closed else 240])
-
-
-def test_views_are_upright_cameras_with_the_first_cameras_intrinsics():
-    cameras = [_camera(3, 0, width=40), _camera(4, 90), _camera(5, 180), _camera(6, 270)]
-    for view in path_cameras(cameras, 7, CENTRE):
-        assert (view.width, view.height, view.camera_id) == (40, 18, PATH_CAMERA_ID)
-        assert torch.equal(view.K, cameras[0].K)
-        rotation = view.w2c[:3, :3]
-        assert torch.allclose(rotation @ rotation.T, torch.eye(3), atol=1e-5)
-        assert float(torch.linalg.det(rotation)) == pytest.approx(1.0, abs=1e-5)
-        assert float(view.c2w[2, 1]) < 0  # the image's down axis points down the world
-
-
-def test_one_camera_is_a_still_path_and_bad_requests_are_one_line():
+    # one camera is a still path; bad requests are one line
     cameras = [_camera(0, 10)]
     path = path_cameras(cameras, 3, CENTRE)
     assert all(torch.allclose(view.w2c, cameras[0].w2c, atol=1e-5) for view in path)
@@ -110,14 +89,27 @@ def test_one_camera_is_a_still_path_and_bad_requests_are_one_line():
         path_cameras(cameras, 0, CENTRE)
     with pytest.raises(InputError, match="camera path: no cameras to go round"):
         path_cameras([], 3, CENTRE)
-
-
-def test_cameras_right_above_the_centre_have_no_orbit_and_say_so():
-    K = torch.tensor([[30.0, 0.0, 16.0], [0.0, 30.0, 9.0], [0.0, 0.0, 1.0]])
-    cameras = []
-    for index in range(3):
+    above = []
+    for index in range(3):  # on the vertical through the centre, looking sideways: no orbit
         eye = np.array([0.0, 0.0, 2.0 + index])
-        w2c = look_at(eye, eye + np.array([5.0, 0.0, 0.0]))
-        cameras.append(Camera(index, K, torch.tensor(w2c, dtype=torch.float32), 32, 18))
+        w2c = torch.tensor(look_at(eye, eye + np.array([5.0, 0.0, 0.0])), dtype=torch.float32)
+        above.append(Camera(index, cameras[0].K, w2c, 32, 18))
     with refused(InputError, "camera path", "vertical"):
-        path_cameras(cameras, 5, CENTRE)
+        path_cameras(above, 5, CENTRE)
+
+
+@pytest.mark.parametrize(
+    ("azimuths", "count", "start", "step"),
+    [
+        ([0, 90, 180, 270], 8, None, 45),  # a right angle apart: a loop, one step short
+        ([0, 120, 240], 8, None, 240 / 7),  # wider gaps: the arc over them
+        ([60, 0, 30], 5, 0, 15),  # on one side: the arc, from one end
+    ],
+)
+def test_cameras_close_the_loop_only_where_they_surround_the_centre(azimuths, count, start, step):
+    cameras = [_camera(index, azimuth) for index, azimuth in enumerate(azimuths)]
+    path = path_cameras(cameras, count, CENTRE)
+    assert all(_looks_at_the_centre(view) for view in path)
+    steps = [_azimuth(b) - _azimuth(a) for a, b in pairwise(path)]  # where it starts may tie
+    assert _same_angles(steps, [step] * (count - 1))
+    assert start is None or _same_angles([_azimuth(path[0])], [start])

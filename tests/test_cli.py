@@ -32,25 +32,19 @@ def _closed_reader(args: list[str], buffered: bool = False) -> tuple[int, str]:
     return process.wait(timeout=120), stderr
 
 
-@pytest.mark.parametrize("command", ["artifacts", "run_tool"])
-def test_a_reader_that_closed_the_pipe_ends_the_tool_quietly(tmp_path, command):
+@pytest.mark.parametrize(
+    ("command", "buffered"), [("artifacts", False), ("run_tool", False), ("run_tool", True)]
+)
+def test_a_reader_that_closed_the_pipe_ends_the_tool_quietly(tmp_path, command, buffered):
     # `python -m relaygs.artifacts ls | head`: before, a BrokenPipeError traceback (and
-    # "Exception ignored ... BrokenPipeError" when the interpreter flushed stdout at exit)
+    # "Exception ignored ... BrokenPipeError" when the interpreter flushed stdout at exit);
+    # block-buffered stdout (no PYTHONUNBUFFERED) fails only when flushed, at the tool's end
     if command == "artifacts":
         args = ["-m", "relaygs.artifacts", "--root", str(tmp_path), "ls"]
     else:
         args = ["-c", LONG_OUTPUT]
-    assert _closed_reader([sys.executable, *args]) == (BROKEN_PIPE_EXIT, "")
-
-
-def test_buffered_output_that_meets_a_closed_pipe_at_the_end_is_quiet_too():
-    # with block-buffered stdout (no PYTHONUNBUFFERED) the write fails only when it is flushed:
-    # at the tool's end, not at exit ("Exception ignored ... BrokenPipeError", status 120)
-    assert _closed_reader([sys.executable, "-c", LONG_OUTPUT], buffered=True) == (141, "")
-
-
-def test_the_broken_pipe_status_is_the_shells_128_plus_sigpipe():
-    assert BROKEN_PIPE_EXIT == 128 + 13 == 141
+    assert BROKEN_PIPE_EXIT == 128 + 13  # the shell's 128 + SIGPIPE
+    assert _closed_reader([sys.executable, *args], buffered) == (BROKEN_PIPE_EXIT, "")
 
 
 TOOLS = tuple(name for name, _ in COMMANDS)
@@ -110,27 +104,22 @@ def _tool_module(tmp_path, monkeypatch, body: str) -> str:
 
 
 @pytest.mark.parametrize(
-    "body",
+    ("body", "status", "out", "err"),
     [
-        "raise KeyboardInterrupt  # Ctrl-C while importing",
-        "def main():\n    raise KeyboardInterrupt",
+        ("raise KeyboardInterrupt  # while importing", INTERRUPTED_EXIT, "", "interrupted\n"),
+        ("def main():\n    raise KeyboardInterrupt", INTERRUPTED_EXIT, "", "interrupted\n"),
+        ("def main():\n    print('ran')\n    return 3", 3, "ran\n", ""),
     ],
 )
-def test_ctrl_c_while_a_tool_loads_or_runs_is_one_line_and_130(tmp_path, monkeypatch, capsys, body):
+def test_a_started_tool_exits_with_its_mains_status_or_one_line_on_ctrl_c(
+    tmp_path, monkeypatch, capsys, body, status, out, err
+):
     with pytest.raises(SystemExit) as stop:
         start_tool(_tool_module(tmp_path, monkeypatch, body))
-    assert (stop.value.code, *capsys.readouterr()) == (INTERRUPTED_EXIT, "", "interrupted\n")
-
-
-def test_a_started_tool_exits_with_its_mains_status(tmp_path, monkeypatch, capsys):
-    with pytest.raises(SystemExit) as stop:
-        start_tool(
-            _tool_module(tmp_path, monkeypatch, "def main():\n    print('ran')\n    return 3")
-        )
+    assert (stop.value.code, *capsys.readouterr()) == (status, out, err)
     # once its work is done, a Ctrl-C during the interpreter's shutdown changes nothing
     # (conftest's sigint_handler_restored undoes it for the tests that follow)
     assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
-    assert (stop.value.code, capsys.readouterr().out) == (3, "ran\n")
 
 
 def test_a_tools_output_its_terminal_cannot_encode_is_escaped_not_a_traceback(tmp_path):

@@ -7,8 +7,6 @@ import torch
 
 from relaygs.colour_fit import ColourFittedPSNR, channel_fit, channel_moments
 from relaygs.metrics import psnr
-from relaygs.stages import evaluate
-from relaygs.train.error_split import error_split
 
 
 def _images(seed: int, count: int) -> list[tuple[torch.Tensor, torch.Tensor]]:
@@ -32,9 +30,7 @@ def test_closed_form_equals_fitting_the_images_and_scoring_them():
         gain, offset = channel_fit(channel_moments(preds, targets), preds[..., 0].numel())
         explicit += [float(psnr(p * gain + offset, t)) for p, t in zip(preds, targets, strict=True)]
     assert accumulator.value() == pytest.approx(sum(explicit) / len(explicit), abs=1e-6)
-
-
-def test_a_camera_gain_and_offset_cost_nothing_but_content_errors_do():
+    # a camera's gain and offset cost nothing, content errors do
     pairs = _images(2, 3)
     exact, wrong = ColourFittedPSNR(), ColourFittedPSNR()
     for pred, _ in pairs:
@@ -43,16 +39,7 @@ def test_a_camera_gain_and_offset_cost_nothing_but_content_errors_do():
     assert exact.value() == pytest.approx(100.0)  # the MSE floor of `psnr`
     assert wrong.value() < 20.0
     assert ColourFittedPSNR().value() is None
-
-
-def test_flat_renders_keep_gain_one_and_stay_finite():
+    # flat renders keep gain one and stay finite
     accumulator = ColourFittedPSNR()
     accumulator.add(0, torch.full((4, 4, 3), 0.5), torch.rand(4, 4, 3))
     assert 0.0 < accumulator.value() < 100.0
-
-
-def test_evaluation_reports_what_the_gap_tool_scores(stage_scene, stage_decoupled):
-    metrics = evaluate(stage_scene, stage_decoupled, {"eval": {"frame_stride": 4}})
-    fitted = error_split(stage_scene, stage_decoupled, "test", frame_stride=4, colour_fit=True)
-    assert metrics["psnr_cf"] == pytest.approx(fitted["psnr"], abs=1e-4)
-    assert metrics["psnr_cf"] >= metrics["psnr"] - 1e-4  # the fit includes gain 1, offset 0

@@ -1,7 +1,7 @@
 """Pipeline files: shipped topologies, validation errors, and running a DAG of fake stages."""
 
 import itertools
-from dataclasses import dataclass
+from types import SimpleNamespace
 
 import pytest
 import torch
@@ -10,7 +10,7 @@ from refusals import refused
 from relaygs import paths
 from relaygs.errors import InputError
 from relaygs.pipeline.artifact import Artifact
-from relaygs.pipeline.dag import PipelineRun, run_pipeline
+from relaygs.pipeline.dag import run_pipeline
 from relaygs.pipeline.spec import available_pipelines, load_pipeline
 from relaygs.pipeline.store import ArtifactStore
 
@@ -19,32 +19,23 @@ SHIPPED = {
     "4dgs": ["warmup", "deform"],
     "no_stage2": ["decouple", "replicate", "deform"],
     "no_copies": ["decouple", "deform"],
+    "decouple": ["decouple"],
 }
 KNOWN_STAGES = {"decouple", "relay", "deform", "warmup", "replicate"}
 
 
 @pytest.mark.parametrize(("name", "chain"), SHIPPED.items())
-def test_shipped_pipelines_are_the_documented_chains(name, chain):
-    pipeline = load_pipeline(name, known_stages=KNOWN_STAGES)
+def test_shipped_pipelines_are_the_documented_chains_of_upstreams_their_stages_read(name, chain):
+    from relaygs.stages import SPECS
+
+    upstream = {spec.name: spec.upstream for spec in SPECS.values()}
+    pipeline = load_pipeline(name, known_stages=SPECS, accepted_upstream=upstream)
     order = pipeline.topological_order()
     assert [node.stage for node in order] == chain
     for parent, child in itertools.pairwise(order):
         assert child.upstream == (parent.name,)
-    assert pipeline.output_node.stage == "deform"
-    assert pipeline.path.is_absolute()
-
-
-def test_the_decouple_pipeline_is_stage_one_alone():
-    from relaygs.stages import SPECS
-
-    upstream = {spec.name: spec.upstream for spec in SPECS.values()}
-    pipeline = load_pipeline("decouple", known_stages=SPECS, accepted_upstream=upstream)
-    assert [node.stage for node in pipeline.topological_order()] == ["decouple"]
-    assert pipeline.output_node.stage == "decouple"
-
-
-def test_available_pipelines_lists_the_shipped_ones():
-    assert set(SHIPPED) <= set(available_pipelines())
+    assert pipeline.output_node.stage == chain[-1]
+    assert pipeline.path.is_absolute() and name in available_pipelines()
 
 
 def _write(tmp_path, text, name="p.yaml"):
@@ -124,14 +115,6 @@ def test_an_upstream_a_stage_type_does_not_read_fails_before_any_stage_runs(tmp_
     load_pipeline(path, known_stages=KNOWN_STAGES)  # not checked without `accepted_upstream`
 
 
-def test_the_shipped_pipelines_read_upstreams_their_stages_accept():
-    from relaygs.stages import SPECS
-
-    upstream = {name: spec.upstream for name, spec in SPECS.items()}
-    for name in SHIPPED:
-        load_pipeline(name, known_stages=SPECS, accepted_upstream=upstream)
-
-
 def test_unknown_pipeline_name_lists_the_available_ones():
     with refused(InputError, "'nope'", "pipeline/nope.yaml", "relaygs"):
         load_pipeline("nope")
@@ -139,20 +122,17 @@ def test_unknown_pipeline_name_lists_the_available_ones():
         load_pipeline("/no/such/pipeline.yaml")
 
 
-@dataclass
-class FakeScene:
-    fingerprint: str
-
-
 class FakeStages:
-    """Stage functions that return arange tensors shifted by their inputs and count calls."""
+    """Stage functions that return arange tensors shifted by their inputs, and count calls and
+    record the config of each (`seen`)."""
 
     def __init__(self):
-        self.calls = {}
+        self.calls, self.seen = {}, []
 
     def fn(self, stage):
         def run(scene, upstream, cfg):
             self.calls[stage] = self.calls.get(stage, 0) + 1
+            self.seen.append((stage, cfg))
             base = sum(float(a.tensors["x"].sum()) for a in upstream.values())
             x = torch.arange(4.0) * cfg["scale"] + base
             meta = {"upstream": sorted(upstream), "scene": scene.fingerprint}
@@ -170,14 +150,16 @@ BASE = {"decouple": {"scale": 1.0}, "relay": {"scale": 2.0, "k": 4}, "deform": {
 def _run(store, stages, cfgs=BASE, pipeline="relaygs", scene="scene-a", **options):
     """Run a shipped pipeline on FakeStages (or a table of stage functions) with `cfgs`."""
     table = stages if isinstance(stages, dict) else stages.table()
+    scene = SimpleNamespace(fingerprint=scene)
     return run_pipeline(
-        load_pipeline(pipeline), table, FakeScene(scene), lambda n: cfgs[n.stage], store, **options
+        load_pipeline(pipeline), table, scene, lambda n: cfgs[n.stage], store, **options
     )
 
 
-def test_run_builds_each_stage_once_then_hits_the_cache(tmp_path):
+def test_run_builds_each_stage_once_records_its_lineage_then_hits_the_cache(tmp_path):
     store, stages = ArtifactStore(tmp_path), FakeStages()
-    first = _run(store, stages, BASE)
+    extra = {"test_cameras": [1, 5], "node": "not this"}
+    first = _run(store, stages, BASE, provenance=extra)
     second = _run(store, stages, BASE)
     assert stages.calls == {"decouple": 1, "relay": 1, "deform": 1}
     assert [r.cache_hit for r in first.reports] == [False, False, False]
@@ -187,66 +169,44 @@ def test_run_builds_each_stage_once_then_hits_the_cache(tmp_path):
     assert second.output.meta == {"upstream": ["relay"], "scene": "scene-a"}
     assert second.train_seconds_computed == 0.0
     assert second.train_seconds_total == pytest.approx(first.train_seconds_total)
-
-
-def test_lineage_is_recorded_and_seconds_add_up(tmp_path):
-    store = ArtifactStore(tmp_path)
-    run: PipelineRun = _run(store, FakeStages(), BASE)
-    decouple, relay, deform = run.reports
-    manifest = store.manifest("deform", deform.key)
-    assert [(e.node, e.stage, e.key) for e in manifest.lineage] == [("relay", "relay", relay.key)]
-    assert manifest.provenance["node"] == "deform"
+    decouple, relay, deform = first.reports
+    lineage = store.manifest("deform", deform.key).lineage
+    assert [(e.node, e.stage, e.key) for e in lineage] == [("relay", "relay", relay.key)]
     assert deform.lineage_seconds == pytest.approx(
         decouple.wall_seconds + relay.wall_seconds + deform.wall_seconds
     )
-    assert run.train_seconds_total == pytest.approx(deform.lineage_seconds)
-
-
-def test_given_provenance_is_recorded_beside_the_runners_own_entries(tmp_path):
-    store = ArtifactStore(tmp_path)
-    extra = {"test_cameras": [1, 5], "node": "not this"}
-    run = _run(store, FakeStages(), provenance=extra)
-    for report in run.reports:
+    assert first.train_seconds_total == pytest.approx(deform.lineage_seconds)
+    for report in first.reports:  # the given provenance beside the runner's own entries
         provenance = store.manifest(report.stage, report.key).provenance
         assert provenance["test_cameras"] == [1, 5]
         assert provenance["node"] == report.node and provenance["scene"] == "scene-a"
 
 
-def test_changing_a_downstream_config_rebuilds_only_downstream(tmp_path):
+def test_changing_a_downstream_config_or_schema_version_rebuilds_only_downstream(tmp_path):
     store, stages = ArtifactStore(tmp_path), FakeStages()
     first = _run(store, stages, BASE)
     changed = _run(store, stages, {**BASE, "relay": {"scale": 2.0, "k": 8}})
     assert stages.calls == {"decouple": 1, "relay": 2, "deform": 2}
     assert [r.cache_hit for r in changed.reports] == [True, False, False]
     assert changed.reports[2].key != first.reports[2].key  # new upstream key, same own config
+    no_copies = _run(store, stages, BASE, pipeline="no_copies")  # shares decouple's artifact
+    assert no_copies.reports[0].cache_hit and no_copies.reports[0].key == first.reports[0].key
+    assert not no_copies.reports[1].cache_hit
+    assert no_copies.output.meta["upstream"] == ["decouple"]
+    reports = []
+    _run(store, stages, schema_versions={"relay": 2}, on_node_done=reports.append)
+    assert [r.cache_hit for r in reports] == [True, False, False]
 
 
 def test_paths_and_logging_do_not_rebuild_but_the_stage_still_sees_them(tmp_path):
     store, stages = ArtifactStore(tmp_path), FakeStages()
     _run(store, stages, BASE)
-    seen = []
-    table = stages.table()
-
-    def recording_decouple(scene, upstream, cfg):
-        seen.append(cfg)
-        return stages.fn("decouple")(scene, upstream, cfg)
-
-    table["decouple"] = recording_decouple
     noisy = {**BASE, "decouple": {"scale": 1.0, "paths": {"out": "/x"}, "logging": {"every": 1}}}
-    run = _run(store, table, noisy)
-    assert all(r.cache_hit for r in run.reports) and seen == []
-    other_scene = _run(store, table, noisy, scene="scene-b")
+    run = _run(store, stages, noisy)
+    assert all(r.cache_hit for r in run.reports) and len(stages.seen) == 3
+    other_scene = _run(store, stages, noisy, scene="scene-b")
     assert not any(r.cache_hit for r in other_scene.reports)
-    assert seen == [noisy["decouple"]]
-
-
-def test_pipelines_share_upstream_artifacts(tmp_path):
-    store, stages = ArtifactStore(tmp_path), FakeStages()
-    relaygs = _run(store, stages, BASE)
-    no_copies = _run(store, stages, BASE, pipeline="no_copies")
-    assert no_copies.reports[0].cache_hit and no_copies.reports[0].key == relaygs.reports[0].key
-    assert not no_copies.reports[1].cache_hit
-    assert no_copies.output.meta["upstream"] == ["decouple"]
+    assert stages.seen[3] == ("decouple", noisy["decouple"])
 
 
 def test_missing_stage_functions_fail_before_any_work(tmp_path):
@@ -256,14 +216,6 @@ def test_missing_stage_functions_fail_before_any_work(tmp_path):
     with refused(InputError, "'deform'"):
         _run(store, table)
     assert stages.calls == {} and store.list() == []
-
-
-def test_schema_version_bump_rebuilds(tmp_path):
-    store, stages = ArtifactStore(tmp_path), FakeStages()
-    _run(store, stages, BASE)
-    reports = []
-    _run(store, stages, schema_versions={"relay": 2}, on_node_done=reports.append)
-    assert [r.cache_hit for r in reports] == [True, False, False]
 
 
 def test_the_config_folder_prefers_the_repo_then_the_packaged_copy(tmp_path, monkeypatch):
@@ -282,25 +234,20 @@ def test_the_config_folder_prefers_the_repo_then_the_packaged_copy(tmp_path, mon
 
 def test_a_canonical_form_is_what_is_keyed_and_what_the_stage_runs_with(tmp_path):
     stages = FakeStages()
-    table = stages.table()
-    seen = []
-
-    def recording_relay(scene, upstream, cfg):
-        seen.append(cfg)
-        return stages.fn("relay")(scene, upstream, cfg)
 
     def cap_k(stage, cfg, scene):
         return {**cfg, "k": min(cfg["k"], 4)} if stage == "relay" else cfg
 
-    table["relay"] = recording_relay
     wide = {**BASE, "relay": {"scale": 2.0, "k": 16}}
-    run = _run(ArtifactStore(tmp_path / "canonical"), table, wide, canonical=cap_k)
-    assert seen == [BASE["relay"]]  # built (no cache) with k capped to 4
+    run = _run(ArtifactStore(tmp_path / "canonical"), stages, wide, canonical=cap_k)
+    assert stages.seen[1] == ("relay", BASE["relay"])  # built (no cache) with k capped to 4
     plain = _run(ArtifactStore(tmp_path / "plain"), FakeStages(), BASE)
     assert [r.key for r in run.reports] == [r.key for r in plain.reports]
 
 
-@pytest.mark.parametrize("returned", [None, {"x": torch.zeros(1)}, FakeScene("not an artifact")])
+@pytest.mark.parametrize(
+    "returned", [None, {"x": torch.zeros(1)}, SimpleNamespace(stage="decouple")]
+)
 def test_a_stage_that_returns_no_artifact_is_one_line_naming_it(tmp_path, returned):
     # before: AttributeError ('NoneType' object has no attribute 'stage', ... 'to_cpu_contiguous')
     table = {**FakeStages().table(), "decouple": lambda scene, upstream, cfg: returned}

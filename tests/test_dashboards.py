@@ -30,49 +30,35 @@ SCENE = ["scene.frames=6", "scene.width=16", "scene.height=9"]
 EVERYTHING = {"images": 0, "scalars": 0, "tensors": 0}
 
 
-class Dashboard:
-    """TensorBoard's HParams backend over a log folder, as its web page queries it."""
-
-    def __init__(self, logdir):
-        multiplexer = EventMultiplexer()
-        multiplexer.AddRunsFromDirectory(str(logdir))
-        multiplexer.Reload()
-        self.runs = sorted(multiplexer.Runs())
-        provider = MultiplexerDataProvider(multiplexer, str(logdir))
-        tb_context = base_plugin.TBContext(
-            logdir=str(logdir), multiplexer=multiplexer, data_provider=provider
-        )
-        self.backend = backend_context.Context(tb_context)
-        self.request = context.RequestContext()
-
-    def experiment(self):
-        request = api_pb2.GetExperimentRequest(hparams_limit=1000)  # what the page asks
-        return get_experiment.Handler(self.request, self.backend, "", request).run()
-
-    def session_groups(self):
-        experiment = self.experiment()
-        request = api_pb2.ListSessionGroupsRequest(start_index=0, slice_size=100)
-        request.allowed_statuses.extend([api_pb2.STATUS_SUCCESS])
-        for info in experiment.hparam_infos:
-            request.col_params.add(hparam=info.name)
-        for info in experiment.metric_infos:
-            request.col_params.add(metric=info.name)
-        handler = list_session_groups.Handler(self.request, self.backend, "", request)
-        return handler.run().session_groups
+def _hparams_dashboard(logdir):
+    """The runs, experiment and session groups TensorBoard's HParams backend gives the web page
+    over a log folder, asked as the page asks."""
+    multiplexer = EventMultiplexer()
+    multiplexer.AddRunsFromDirectory(str(logdir))
+    multiplexer.Reload()
+    provider = MultiplexerDataProvider(multiplexer, str(logdir))
+    tb_context = base_plugin.TBContext(
+        logdir=str(logdir), multiplexer=multiplexer, data_provider=provider
+    )
+    backend, request_context = backend_context.Context(tb_context), context.RequestContext()
+    request = api_pb2.GetExperimentRequest(hparams_limit=1000)
+    experiment = get_experiment.Handler(request_context, backend, "", request).run()
+    request = api_pb2.ListSessionGroupsRequest(start_index=0, slice_size=100)
+    request.allowed_statuses.extend([api_pb2.STATUS_SUCCESS])
+    for info in experiment.hparam_infos:
+        request.col_params.add(hparam=info.name)
+    for info in experiment.metric_infos:
+        request.col_params.add(metric=info.name)
+    groups = list_session_groups.Handler(request_context, backend, "", request).run()
+    return sorted(multiplexer.Runs()), experiment, groups.session_groups
 
 
-@pytest.fixture
-def sweep(fakes, tmp_path):
-    """A two-job `ablation_k` sweep (k = 8, 16) on fake stages and a 6-frame scene."""
+def test_the_dashboard_of_a_sweep(fakes, tmp_path):
+    # a two-job `ablation_k` sweep (k = 8, 16) on fake stages: HParams name the swept key first
     assert run_main(["+experiment=ablation_k", "relay.k=8,16", "budget=smoke", *SCENE]) == 0
-    (folder,) = tmp_path.glob("outputs/sweeps/*")
-    return folder
-
-
-def test_hparams_name_the_swept_key_first_and_show_the_sweeps_metrics(sweep):
-    dashboard = Dashboard(sweep)
-    assert dashboard.runs == ["0_k8", "1_k16", "sweep"]  # run names are the job folders
-    experiment = dashboard.experiment()
+    (sweep,) = tmp_path.glob("outputs/sweeps/*")
+    runs, experiment, groups = _hparams_dashboard(sweep)
+    assert runs == ["0_k8", "1_k16", "sweep"]  # run names are the job folders
     names = [info.name for info in experiment.hparam_infos]
     assert names == ["relay.k", "pipeline.name", "variant"]
     swept = experiment.hparam_infos[0]
@@ -83,7 +69,7 @@ def test_hparams_name_the_swept_key_first_and_show_the_sweeps_metrics(sweep):
     # the page shows the first five metrics without a click: these lead
     leading = ("psnr", "fg_psnr", "train_s_total", "storage_mb")
     assert metrics[:4] == [metric_tag(name) for name in leading]
-    rows = {group.name: group for group in dashboard.session_groups()}
+    rows = {group.name: group for group in groups}
     assert set(rows) == {"0_k8", "1_k16"}  # the trial ids are the job names too
     for name, k in (("0_k8", 8), ("1_k16", 16)):
         result = json.loads((sweep / name / "result.json").read_text())
@@ -92,9 +78,7 @@ def test_hparams_name_the_swept_key_first_and_show_the_sweeps_metrics(sweep):
         assert values[metric_tag("psnr")] == pytest.approx(result["psnr"])
         assert values[metric_tag("storage_mb")] == pytest.approx(result["storage_mb"])
         assert values[metric_tag("train_s_total")] == pytest.approx(result["train_s_total"])
-
-
-def test_tags_are_named_by_group_and_reused_stages_are_notes(sweep):
+    # tags named by group; a stage read back is a note
     first = EventAccumulator(str(sweep / "0_k8"), size_guidance=EVERYTHING)
     first.Reload()
     second = EventAccumulator(str(sweep / "1_k16"), size_guidance=EVERYTHING)
@@ -110,9 +94,7 @@ def test_tags_are_named_by_group_and_reused_stages_are_notes(sweep):
     assert "train/decouple/loss" in first.Tags()["scalars"]  # job 0 trained decouple
     assert "train/decouple/loss" not in second.Tags()["scalars"]  # job 1 read it back
     assert "reused/decouple/text_summary" in second.Tags()["tensors"]
-
-
-def test_the_sweep_run_holds_the_reports_plots_and_table(sweep):
+    # the sweep run holds the report's plots and table
     events = EventAccumulator(str(sweep / "sweep"), size_guidance=EVERYTHING)
     events.Reload()
     assert sorted(events.Tags()["images"]) == ["sweep/pareto", "sweep/psnr_by_frame"]
@@ -125,26 +107,6 @@ def _has_caption(png: bytes) -> bool:
     pixels = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_GRAYSCALE)
     band = pixels[:CAPTION_HEIGHT]
     return bool((band > 200).any()) and float(np.median(band)) == 0.0
-
-
-def test_a_single_run_or_an_unreadable_record_has_no_sweep_axes(tmp_path):
-    assert recorded_sweep_axes(tmp_path, ["relay.k=8"]) == SweepAxes()
-    (tmp_path / "multirun.yaml").write_text("hydra: [")
-    assert recorded_sweep_axes(tmp_path, ["relay.k=8"]) == SweepAxes()
-
-
-def test_sweep_axes_keep_each_values_type():
-    jobs = [
-        ["+component=full", "deform.gamma=true", "relay.k=8", "seed=0"],
-        ["+component=no_gamma", "deform.gamma=false", "relay.k=null", "seed=0"],
-    ]
-    axes = sweep_axes(jobs, jobs[1])
-    assert axes.domains == {
-        "component": ["full", "no_gamma"],
-        "deform.gamma": [True, False],
-        "relay.k": [8, None],
-    }
-    assert axes.values == {"component": "no_gamma", "deform.gamma": False, "relay.k": None}
 
 
 def test_booleans_stay_booleans_and_mixed_axes_become_text(tmp_path):
@@ -176,10 +138,23 @@ def test_booleans_stay_booleans_and_mixed_axes_become_text(tmp_path):
     assert start.hparams["deform.gamma"].bool_value is True
     assert start.hparams["relay.k"].string_value == "None"
     assert start.group_name == "job"
-
-
-def test_only_the_swept_keys_and_identity_without_all(tmp_path):
     axes = SweepAxes({"pipeline": ["relaygs", "4dgs"]}, {"pipeline": "4dgs"})
     config = {"deform": {"gamma": True}, "variant": "4dgs", "pipeline": {"name": "4dgs"}}
-    # a swept group is not repeated as `<group>.name`
+    # without "all": the swept keys and identity; a swept group is not repeated as `.name`
     assert job_hparams(config, axes, "swept") == {"pipeline": "4dgs", "variant": "4dgs"}
+    # sweep axes keep each value's type; a single run or unreadable record has none
+    jobs = [
+        ["+component=full", "deform.gamma=true", "relay.k=8", "seed=0"],
+        ["+component=no_gamma", "deform.gamma=false", "relay.k=null", "seed=0"],
+    ]
+    axes = sweep_axes(jobs, jobs[1])
+    assert axes.domains == {
+        "component": ["full", "no_gamma"],
+        "deform.gamma": [True, False],
+        "relay.k": [8, None],
+    }
+    assert axes.values == {"component": "no_gamma", "deform.gamma": False, "relay.k": None}
+    # a single run, or an unreadable record: no axes
+    assert recorded_sweep_axes(tmp_path, ["relay.k=8"]) == SweepAxes()
+    (tmp_path / "multirun.yaml").write_text("hydra: [")
+    assert recorded_sweep_axes(tmp_path, ["relay.k=8"]) == SweepAxes()

@@ -45,14 +45,6 @@ def multiview_root(request, panoptic: Scene, tmp_path_factory) -> Path:
     return export_multiview(panoptic, out, binary=request.param == "binary")
 
 
-def test_layout_files(multiview_root: Path):
-    assert (multiview_root / "cam00" / "frame_00000.png").is_file()
-    assert (multiview_root / "cam30" / "frame_00005.png").is_file()
-    assert (multiview_root / "seg" / "cam07" / "frame_00002.png").is_file()
-    extension = ".bin" if multiview_root.name == "binary" else ".txt"
-    assert (multiview_root / "sparse" / "0" / f"images{extension}").is_file()
-
-
 def test_both_loaders_agree_on_cameras_images_and_points(panoptic: Scene, multiview_root: Path):
     multiview = load_scene(multiview_root)  # the export's scene.json keeps juggle's test cameras
     assert multiview.format == "multiview" and multiview.num_frames == panoptic.num_frames
@@ -74,17 +66,6 @@ def test_both_loaders_agree_on_cameras_images_and_points(panoptic: Scene, multiv
     assert multiview.effects == panoptic.effects
 
 
-def test_an_exported_scene_holds_out_its_source_test_cameras(multiview_root: Path):
-    assert json.loads((multiview_root / "scene.json").read_text())["test_cameras"] == [
-        0,
-        10,
-        15,
-        30,
-    ]
-    scene = load_scene(multiview_root)
-    assert [camera.camera_id for camera in scene.test_cameras] == JUGGLE_TEST_CAMERAS
-
-
 def test_export_renumbers_the_test_cameras_as_the_multiview_loader_numbers_folders(
     tiny_synth_copy: Path, tmp_path: Path
 ):
@@ -95,22 +76,20 @@ def test_export_renumbers_the_test_cameras_as_the_multiview_loader_numbers_folde
         (tiny_synth_copy / name).write_text(json.dumps(meta))
     _declare(tiny_synth_copy, test_cameras=[5, 25, 35, 65])
     source = load_scene(tiny_synth_copy)
-    assert [camera.camera_id for camera in source.test_cameras] == [5, 25, 35, 65]
-    exported = load_scene(export_multiview(source, tmp_path / "multiview"))
-    assert [camera.camera_id for camera in exported.test_cameras] == JUGGLE_TEST_CAMERAS
+    assert _held_out(source) == [5, 25, 35, 65]
+    assert _held_out(load_scene(export_multiview(source, tmp_path / "out"))) == JUGGLE_TEST_CAMERAS
 
 
-def test_without_declared_test_cameras_the_defaults_0_10_20_30_are_held_out(
+def test_the_option_overrides_the_declared_test_cameras_and_the_default_is_0_10_20_30(
     multiview_copy: Path,
 ):
+    assert _held_out(load_scene(multiview_copy, test_cameras=[3])) == [3]
     _declare(multiview_copy, test_cameras=None)
-    scene = load_scene(multiview_copy)
-    assert [camera.camera_id for camera in scene.test_cameras] == [0, 10, 20, 30]
+    assert _held_out(load_scene(multiview_copy)) == [0, 10, 20, 30]
 
 
-def test_the_test_cameras_option_overrides_the_declared_ones(multiview_root: Path):
-    scene = load_scene(multiview_root, test_cameras=[3])
-    assert [camera.camera_id for camera in scene.test_cameras] == [3]
+def _held_out(scene: Scene) -> list[int]:
+    return [camera.camera_id for camera in scene.test_cameras]
 
 
 def _declare(root: Path, test_cameras: object) -> None:
@@ -143,27 +122,17 @@ def test_a_declared_split_changes_the_fingerprint_and_only_then(multiview_copy: 
 
 
 @pytest.mark.parametrize(
-    ("declared", "message"),
+    ("declared", "named"),
     [
-        (
-            [0, 99],
-            r"scene\.json field 'test_cameras': cameras \[99\] are not in .* 0\.\.30, one per "
-            r"camXX folder\); correct that field, or override it, e.g. "
-            r"scene\.loader\.test_cameras=\[0\] \(artifacts commands: --test-cameras 0\)$",
-        ),
-        ("0,10", r"scene\.json: field 'test_cameras' must be a list of camera ids"),
-        ([0, -1], r"scene\.json: field 'test_cameras' must be a list of camera ids"),
+        ([0, 99], ["'test_cameras'", "[99]", "0..30", "scene.loader.test_cameras=[0]"]),
+        ("0,10", ["'test_cameras'", "camera ids"]),
+        ([0, -1], ["'test_cameras'", "camera ids"]),
     ],
 )
-def test_bad_declared_test_cameras_are_refused(multiview_copy: Path, declared, message):
+def test_bad_declared_test_cameras_are_refused(multiview_copy: Path, declared, named):
     _declare(multiview_copy, test_cameras=declared)
-    with pytest.raises(InputError, match=message):
+    with refused(InputError, "scene.json", *named):
         load_scene(multiview_copy)
-
-
-def test_a_multiview_scene_json_that_is_an_array_is_refused(multiview_copy: Path):
-    (multiview_copy / "scene.json").write_text('["nonrigid"]')
-    _expect(multiview_copy, "scene.json: expected a JSON object with fields such as effects")
 
 
 def test_export_refuses_a_source_scene_json_that_is_not_an_object(tiny_synth_copy: Path, tmp_path):
@@ -171,13 +140,6 @@ def test_export_refuses_a_source_scene_json_that_is_not_an_object(tiny_synth_cop
     (tiny_synth_copy / "scene.json").write_text("[]")
     with refused(InputError, "scene.json"):
         export_multiview(scene, tmp_path / "out")
-
-
-def _edit_train_meta(root: Path, edit) -> None:
-    path = root / "train_meta.json"
-    meta = json.loads(path.read_text())
-    edit(meta)
-    path.write_text(json.dumps(meta))
 
 
 def _move_camera(meta: dict) -> None:
@@ -189,46 +151,40 @@ def _swap_in_a_camera(meta: dict) -> None:
 
 
 @pytest.mark.parametrize(
-    ("edit", "fragment"),
-    [
-        (_move_camera, "changes over time; the multi-view layout needs a fixed rig"),
-        (
-            _swap_in_a_camera,
-            "camera 1 is in 5 of the 6 frames; the multi-view layout needs every camera",
-        ),
-    ],
+    ("edit", "named"),
+    [(_move_camera, ["changes over time", "fixed rig"]), (_swap_in_a_camera, ["5 of the 6"])],
 )
-def test_export_refuses_a_scene_that_is_no_fixed_rig(
-    tiny_synth_copy: Path, tmp_path, edit, fragment
-):
-    _edit_train_meta(tiny_synth_copy, edit)
+def test_export_refuses_a_scene_that_is_no_fixed_rig(tiny_synth_copy: Path, tmp_path, edit, named):
+    path = tiny_synth_copy / "train_meta.json"
+    meta = json.loads(path.read_text())
+    edit(meta)
+    path.write_text(json.dumps(meta))
     scene = load_scene(tiny_synth_copy)
-    with pytest.raises(InputError, match=fragment):
+    with refused(InputError, *named):
         export_multiview(scene, tmp_path / "out")
     assert not (tmp_path / "out").exists()
 
 
-def test_binary_and_text_models_round_trip(tmp_path: Path):
-    rng = np.random.default_rng(1)
-    model = ColmapModel(
-        cameras={
-            1: ColmapCamera(1, "PINHOLE", 64, 48, (50.0, 51.0, 32.0, 24.5)),
-            2: ColmapCamera(2, "SIMPLE_RADIAL", 64, 48, (40.0, 31.0, 23.0, 0.0)),
-        },
-        images={
-            3: ColmapImage(3, (0.5, 0.5, -0.5, 0.5), (0.1, -2.0, 3.5), 1, "cam00.png"),
-            8: ColmapImage(8, (1.0, 0.0, 0.0, 0.0), (0.0, 0.0, 1.0), 2, "dir/cam01 frame.png"),
-        },
-        xyz=rng.normal(size=(20, 3)),
-        rgb=rng.integers(0, 256, size=(20, 3)).astype(np.uint8),
-    )
-    for binary in (True, False):
-        folder = tmp_path / str(binary)
-        write_model(folder, model, binary=binary)
-        loaded = read_model(str(folder))  # a path given as text, as load_scene takes it
-        assert loaded.cameras == model.cameras
-        assert loaded.images == model.images
-        assert np.array_equal(loaded.xyz, model.xyz) and np.array_equal(loaded.rgb, model.rgb)
+MODEL = ColmapModel(
+    cameras={
+        1: ColmapCamera(1, "PINHOLE", 64, 48, (50.0, 51.0, 32.0, 24.5)),
+        2: ColmapCamera(2, "SIMPLE_RADIAL", 64, 48, (40.0, 31.0, 23.0, 0.0)),
+    },
+    images={
+        3: ColmapImage(3, (0.5, 0.5, -0.5, 0.5), (0.1, -2.0, 3.5), 1, "cam00.png"),
+        8: ColmapImage(8, (1.0, 0.0, 0.0, 0.0), (0.0, 0.0, 1.0), 2, "dir/cam01 frame.png"),
+    },
+    xyz=np.random.default_rng(1).normal(size=(20, 3)),
+    rgb=np.random.default_rng(1).integers(0, 256, size=(20, 3)).astype(np.uint8),
+)
+
+
+@pytest.mark.parametrize("binary", [True, False])
+def test_binary_and_text_models_round_trip(tmp_path: Path, binary: bool):
+    write_model(tmp_path, MODEL, binary=binary)
+    loaded = read_model(str(tmp_path))  # a path given as text, as load_scene takes it
+    assert (loaded.cameras, loaded.images) == (MODEL.cameras, MODEL.images)
+    assert np.array_equal(loaded.xyz, MODEL.xyz) and np.array_equal(loaded.rgb, MODEL.rgb)
 
 
 def test_quaternion_round_trip():
@@ -248,131 +204,39 @@ def multiview_copy(multiview_root: Path, tmp_path: Path) -> Path:
 
 
 def _expect(root: Path, *fragments: str) -> None:
-    with pytest.raises(InputError) as caught:
+    with refused(InputError, *fragments):
         load_scene(root)
-    for fragment in fragments:
-        assert fragment in str(caught.value), str(caught.value)
-
-
-def _rewrite_model(root: Path, edit) -> None:
-    """Apply `edit` to root's COLMAP model and write it back in its own format."""
-    folder = root / "sparse" / "0"
-    model, binary = read_model(folder), model_suffix(folder) == ".bin"
-    edit(model)
-    for path in folder.iterdir():
-        path.unlink()
-    write_model(folder, model, binary=binary)
-
-
-@pytest.mark.parametrize("binary", [True, False])
-def test_a_model_without_points_names_its_points_file(panoptic: Scene, tmp_path: Path, binary):
-    root = export_multiview(panoptic, tmp_path / ("binary" if binary else "text"), binary=binary)
-
-    folder = root / "sparse" / "0"
-    model = read_model(folder)
-    for path in folder.iterdir():
-        path.unlink()
-    write_model(folder, replace(model, xyz=model.xyz[:0], rgb=model.rgb[:0]), binary=binary)
-    suffix = ".bin" if binary else ".txt"
-    _expect(root, f"sparse/0/points3D{suffix}: expected a non-empty point cloud")
 
 
 @pytest.mark.parametrize("qvec", [[0.0, 0.0, 0.0, 0.0], [np.nan, 0.0, 0.0, 1.0]])
 def test_quaternion_of_no_direction_is_refused(qvec):
-    with pytest.raises(ValueError, match="expected a finite non-zero one"):
+    with refused(ValueError, "finite non-zero"):
         qvec_to_rotation(np.array(qvec))
-
-
-def test_truncated_binary_model_is_refused(panoptic: Scene, tmp_path: Path):
-    root = export_multiview(panoptic, tmp_path / "binary", binary=True)
-    path = root / "sparse" / "0" / "images.bin"
-    path.write_bytes(path.read_bytes()[:-20])
-    _expect(root, "images.bin", "truncated")
-
-
-def test_binary_point_count_beyond_the_file_is_refused(panoptic: Scene, tmp_path: Path):
-    root = export_multiview(panoptic, tmp_path / "binary", binary=True)
-    path = root / "sparse" / "0" / "points3D.bin"
-    path.write_bytes(struct.pack("<Q", 2**40) + path.read_bytes()[8:])
-    _expect(root, "points3D.bin: declares 1099511627776 points", "the file is damaged")
-
-
-def test_text_model_that_is_not_utf8_is_refused(panoptic: Scene, tmp_path: Path):
-    root = export_multiview(panoptic, tmp_path / "text", binary=False)
-    path = root / "sparse" / "0" / "cameras.txt"
-    path.write_bytes(b"\xff\xfe" + path.read_bytes())
-    _expect(root, "cameras.txt: not UTF-8 text (byte 0xff at offset 0)")
 
 
 def test_text_model_with_a_byte_order_mark_reads_as_without(tmp_path: Path):
     # Windows editors may start a UTF-8 file with a BOM; COLMAP's "# Camera list" comment
     # must still read as a comment
-    write_model(tmp_path, _two_image_model(), binary=False)
+    write_model(tmp_path, MODEL, binary=False)
     for name in ("cameras.txt", "images.txt", "points3D.txt"):
         path = tmp_path / name
         path.write_bytes(b"\xef\xbb\xbf" + path.read_bytes())
-    model, expected = read_model(tmp_path), _two_image_model()
-    assert (model.cameras, model.images) == (expected.cameras, expected.images)
-    np.testing.assert_array_equal(model.rgb, expected.rgb)
-
-
-def test_text_model_colour_beyond_255_is_refused(panoptic: Scene, tmp_path: Path):
-    root = export_multiview(panoptic, tmp_path / "text", binary=False)
-    path = root / "sparse" / "0" / "points3D.txt"
-    lines = path.read_text().splitlines()
-    fields = lines[1].split()
-    lines[1] = " ".join([*fields[:4], "300", *fields[5:]])
-    path.write_text("\n".join(lines) + "\n")
-    _expect(root, "points3D.txt line 2", "R G B in 0..255, got [300,")
-
-
-def test_malformed_text_model_line_is_refused(panoptic: Scene, tmp_path: Path):
-    root = export_multiview(panoptic, tmp_path / "text", binary=False)
-    path = root / "sparse" / "0" / "cameras.txt"
-    path.write_text(path.read_text().replace("PINHOLE", "PINHOLE 32", 1))
-    _expect(root, "cameras.txt line 2", "4 PINHOLE params")
-
-
-def _two_image_model() -> ColmapModel:
-    return ColmapModel(
-        cameras={1: ColmapCamera(1, "PINHOLE", 64, 48, (50.0, 51.0, 32.0, 24.5))},
-        images={
-            3: ColmapImage(3, (0.5, 0.5, -0.5, 0.5), (0.1, -2.0, 3.5), 1, "cam00.png"),
-            8: ColmapImage(8, (1.0, 0.0, 0.0, 0.0), (0.0, 0.0, 1.0), 1, "cam01.png"),
-        },
-        xyz=np.zeros((2, 3)),
-        rgb=np.full((2, 3), 255, dtype=np.uint8),
-    )
+    model = read_model(tmp_path)
+    assert (model.cameras, model.images) == (MODEL.cameras, MODEL.images)
+    np.testing.assert_array_equal(model.rgb, MODEL.rgb)
 
 
 def test_binary_images_with_2d_observations_are_read_past_them(tmp_path: Path):
     # COLMAP stores each image's 2D points (x, y as doubles, point3D id as int64) after its
     # name; the writer stores none, so write them here: 3 for the first image, 1 for the next
-    model = _two_image_model()
-    write_model(tmp_path, model, binary=True)
-    blob = [struct.pack("<Q", len(model.images))]
-    for image, observations in zip(model.images.values(), (3, 1), strict=True):
-        blob.append(struct.pack("<I7dI", image.image_id, *image.qvec, *image.tvec, 1))
+    write_model(tmp_path, MODEL, binary=True)
+    blob = [struct.pack("<Q", len(MODEL.images))]
+    for image, observations in zip(MODEL.images.values(), (3, 1), strict=True):
+        blob.append(struct.pack("<I7dI", image.image_id, *image.qvec, *image.tvec, image.camera_id))
         blob.append(image.name.encode() + b"\x00" + struct.pack("<Q", observations))
         blob += [struct.pack("<ddq", 1.5 * n, 2.5, n - 1) for n in range(observations)]
     (tmp_path / "images.bin").write_bytes(b"".join(blob))
-    assert read_model(tmp_path).images == model.images
-
-
-@pytest.mark.parametrize(("value", "refused"), [(255, False), (256, True), (-1, True)])
-def test_text_model_colour_limits_are_0_and_255(tmp_path: Path, value: int, refused: bool):
-    write_model(tmp_path, _two_image_model(), binary=False)
-    path = tmp_path / "points3D.txt"
-    lines = path.read_text().splitlines()
-    index = next(i for i, line in enumerate(lines) if line and not line.startswith("#"))
-    fields = lines[index].split()
-    lines[index] = " ".join([*fields[:4], str(value), *fields[5:]])
-    path.write_text("\n".join(lines) + "\n")
-    if refused:
-        with pytest.raises(InputError, match=r"R G B in 0\.\.255"):
-            read_model(tmp_path)
-    else:
-        assert read_model(tmp_path).rgb[0, 0] == value
+    assert read_model(tmp_path).images == MODEL.images
 
 
 def _edit_first_record(path: Path, edit) -> None:
@@ -383,71 +247,56 @@ def _edit_first_record(path: Path, edit) -> None:
     path.write_text("\n".join(lines) + "\n")
 
 
+@pytest.mark.parametrize(("value", "refused"), [(255, False), (256, True), (-1, True)])
+def test_text_model_colour_limits_are_0_and_255(tmp_path: Path, value: int, refused: bool):
+    write_model(tmp_path, MODEL, binary=False)
+    _edit_first_record(tmp_path / "points3D.txt", lambda f: [*f[:4], str(value), *f[5:]])
+    if refused:
+        with pytest.raises(InputError, match=r"R G B in 0\.\.255"):
+            read_model(tmp_path)
+    else:
+        assert read_model(tmp_path).rgb[0, 0] == value
+
+
 @pytest.mark.parametrize(
     ("name", "edit", "fragment"),
     [
-        (
-            "cameras.txt",
-            lambda f: [f[0], "KANNALA", *f[2:]],
-            "CAMERA_ID MODEL WIDTH HEIGHT PARAMS[] with a known COLMAP model",
-        ),
-        (
-            "cameras.txt",
-            lambda f: [f[0], f[1], "64.5", *f[3:]],
-            "expected CAMERA_ID MODEL WIDTH HEIGHT PARAMS[]",
-        ),
-        ("images.txt", lambda f: f[:9], "expected IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME"),
-        (
-            "images.txt",
-            lambda f: [f[0], "one", *f[2:]],
-            "expected IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME",
-        ),
-        ("points3D.txt", lambda f: [f[0], "x", *f[2:]], "expected POINT3D_ID X Y Z R G B"),
-        ("points3D.txt", lambda f: f[:7], "expected POINT3D_ID X Y Z R G B"),
+        ("cameras.txt", lambda f: [f[0], "KANNALA", *f[2:]], "with a known COLMAP model"),
+        ("cameras.txt", lambda f: [f[0], f[1], "64.5", *f[3:]], "CAMERA_ID MODEL WIDTH"),
+        ("cameras.txt", lambda f: [*f, "32"], "4 PINHOLE params"),
+        ("images.txt", lambda f: f[:9], "IMAGE_ID QW QX QY QZ"),
+        ("images.txt", lambda f: [f[0], "one", *f[2:]], "IMAGE_ID QW QX QY QZ"),
+        ("points3D.txt", lambda f: [f[0], "x", *f[2:]], "POINT3D_ID X Y Z R G B"),
+        ("points3D.txt", lambda f: f[:7], "POINT3D_ID X Y Z R G B"),
     ],
-    ids=["unknown model", "fractional width", "short image", "word qw", "word x", "short point"],
+    ids=["model", "fractional width", "extra param", "short image", "word qw", "word x", "short"],
 )
 def test_malformed_text_model_records_are_refused_naming_file_and_line(
     tmp_path: Path, name: str, edit, fragment: str
 ):
-    write_model(tmp_path, _two_image_model(), binary=False)
+    write_model(tmp_path, MODEL, binary=False)
     _edit_first_record(tmp_path / name, edit)
-    with pytest.raises(InputError, match=rf"{name} line \d+: ") as caught:
+    with refused(InputError, f"{name} line ", fragment):
         read_model(tmp_path)
-    assert fragment in str(caught.value), str(caught.value)
 
 
 def test_an_images_file_without_its_points2d_lines_is_refused_naming_the_line(tmp_path: Path):
     # written by hand with one line per image: the second image's line would be read as the
     # first one's 2D points, and that image silently lost
-    write_model(tmp_path, _two_image_model(), binary=False)
+    write_model(tmp_path, MODEL, binary=False)
     path = tmp_path / "images.txt"
     records = [line for line in path.read_text().splitlines() if line and line[0] != "#"]
     path.write_text("\n".join(records) + "\n")
-    with pytest.raises(InputError) as caught:
+    with refused(InputError, "images.txt line 2", "POINTS2D", "'cam00.png'"):
         read_model(tmp_path)
-    assert str(caught.value) == (
-        f"{path} line 2: expected the POINTS2D line of image 'cam00.png' (X Y POINT3D_ID "
-        "triples, or empty): each image takes two lines"
-    )
     path.write_text("\n".join([records[0], "1.5 2.5 -1 3.0 4.0 7", records[1], ""]) + "\n")
     assert sorted(read_model(tmp_path).images) == [3, 8]  # two observations: read past
 
 
 def test_folder_without_a_complete_model_is_refused(tmp_path: Path):
-    write_model(tmp_path, _two_image_model(), binary=False)
+    write_model(tmp_path, MODEL, binary=False)
     (tmp_path / "points3D.txt").unlink()
     with refused(InputError, "COLMAP model"):
-        read_model(tmp_path)
-
-
-def test_binary_camera_of_unknown_model_id_is_refused(tmp_path: Path):
-    write_model(tmp_path, _two_image_model(), binary=True)
-    path = tmp_path / "cameras.bin"
-    data = bytearray(path.read_bytes())
-    data[12:16] = struct.pack("<i", 99)  # after the count (Q) and camera id (i): the model id
-    path.write_bytes(bytes(data))
-    with refused(InputError, "cameras.bin", "99"):
         read_model(tmp_path)
 
 
@@ -456,18 +305,25 @@ def _binary_images(name: bytes, observations: int, observation_bytes: int) -> by
     return head + name + struct.pack("<Q", observations) + b"\x00" * observation_bytes
 
 
-def test_binary_image_name_without_its_nul_is_refused(tmp_path: Path):
-    write_model(tmp_path, _two_image_model(), binary=True)
-    (tmp_path / "images.bin").write_bytes(_binary_images(b"cam00.png", 0, 0)[:-8])
-    with refused(InputError, "images.bin", "byte 72"):
-        read_model(tmp_path)
-
-
-def test_binary_image_with_fewer_2d_points_than_declared_is_refused(tmp_path: Path):
-    write_model(tmp_path, _two_image_model(), binary=True)
-    # 3 observations of 24 bytes declared, 2 present
-    (tmp_path / "images.bin").write_bytes(_binary_images(b"cam00.png\x00", 3, 48))
-    with refused(InputError, "images.bin", "byte 90"):
+@pytest.mark.parametrize(
+    ("name", "damage", "named"),
+    [
+        ("images.bin", lambda data: data[:-4], ["truncated"]),
+        ("points3D.bin", lambda data: struct.pack("<Q", 2**40) + data[8:], ["1099511627776"]),
+        # after the count (Q) and camera id (i): the model id
+        ("cameras.bin", lambda data: data[:12] + struct.pack("<i", 99) + data[16:], ["99"]),
+        ("images.bin", lambda _: _binary_images(b"cam00.png", 0, 0)[:-8], ["byte 72"]),
+        # 3 observations of 24 bytes declared, 2 present
+        ("images.bin", lambda _: _binary_images(b"cam00.png\x00", 3, 48), ["byte 90"]),
+        ("cameras.txt", lambda data: b"\xff\xfe" + data, ["not UTF-8", "0xff"]),
+    ],
+    ids=["truncated", "point count", "model id", "name without nul", "2d points", "not utf-8"],
+)
+def test_a_damaged_model_file_is_refused_naming_it(tmp_path: Path, name, damage, named):
+    write_model(tmp_path, MODEL, binary=name.endswith(".bin"))
+    path = tmp_path / name
+    path.write_bytes(damage(path.read_bytes()))
+    with refused(InputError, name, *named):
         read_model(tmp_path)
 
 
@@ -484,16 +340,9 @@ def test_a_one_camera_capture_is_told_how_to_hold_out_none(multiview_copy: Path)
             shutil.rmtree(folder)
     none = "scene.loader.test_cameras=[] (artifacts commands: --test-cameras '[]')"
     _declare(multiview_copy, test_cameras=[10, 15, 30])  # a split copied from a larger rig
-    _expect(
-        multiview_copy,
-        "field 'test_cameras': cameras [10, 15, 30] are not in",
-        f"(camera ids 0..0, one per camXX folder); correct that field, or override it, e.g. {none}",
-    )
+    _expect(multiview_copy, "'test_cameras'", "[10, 15, 30]", "0..0", none)
     _declare(multiview_copy, test_cameras=None)  # the default split holds out camera 0
-    _expect(
-        multiview_copy,
-        f"no training cameras left after holding out [0]; hold out fewer (or none), e.g. {none}",
-    )
+    _expect(multiview_copy, "no training cameras", "[0]", none)
     assert load_scene(multiview_copy, test_cameras=[]).test_views == []
 
 
@@ -501,10 +350,6 @@ PYCOLMAP_FIXTURE = Path(__file__).parent / "data" / "pycolmap"
 """A model written by COLMAP's own code (pycolmap 4.2.1, `tools/make_pycolmap_fixture.py`):
 rigs and frames files (cam00 and cam01 on one rig), tracks and keypoints included;
 expected.json is what pycolmap reads in it."""
-
-
-def _pycolmap_expected() -> dict:
-    return json.loads((PYCOLMAP_FIXTURE / "expected.json").read_text())
 
 
 def _sorted_points(xyz: np.ndarray, rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -515,7 +360,7 @@ def _sorted_points(xyz: np.ndarray, rgb: np.ndarray) -> tuple[np.ndarray, np.nda
 
 @pytest.mark.parametrize("kind", ["bin", "txt"])
 def test_a_model_colmap_wrote_reads_as_colmap_reads_it(kind):
-    expected = _pycolmap_expected()
+    expected = json.loads((PYCOLMAP_FIXTURE / "expected.json").read_text())
     model = read_model(PYCOLMAP_FIXTURE / kind)
     images = {image.name: image for image in model.images.values()}
     assert set(images) == set(expected["images"])
@@ -534,7 +379,7 @@ def test_a_model_colmap_wrote_reads_as_colmap_reads_it(kind):
 
 
 def test_a_capture_posed_by_a_model_colmap_wrote_loads_with_its_poses(tmp_path):
-    expected = _pycolmap_expected()
+    expected = json.loads((PYCOLMAP_FIXTURE / "expected.json").read_text())
     width, height = expected["size"]
     for name in expected["images"]:
         for frame in (0, 1):
@@ -555,6 +400,16 @@ def test_a_capture_posed_by_a_model_colmap_wrote_loads_with_its_poses(tmp_path):
     xyz, rgb = _sorted_points(scene.points.xyz.double().numpy(), scene.points.rgb.numpy())
     np.testing.assert_allclose(xyz, expected["xyz"], atol=1e-6)
     np.testing.assert_allclose(rgb, np.asarray(expected["rgb"]) / 255.0, atol=1e-6)
+
+
+def _rewrite_model(root: Path, edit) -> None:
+    """Apply `edit` to root's COLMAP model (or take the model it returns) and write it back."""
+    folder = root / "sparse" / "0"
+    model, binary = read_model(folder), model_suffix(folder) == ".bin"
+    model = edit(model) or model
+    for path in folder.iterdir():
+        path.unlink()
+    write_model(folder, model, binary=binary)
 
 
 def _in_model(edit: Callable[[ColmapModel], None]) -> Callable[[Path], None]:
@@ -627,6 +482,10 @@ BAD_MULTIVIEW = {
         )
         for focal in (0.0, -50.0, float("nan"), float("inf"))
     },
+    "no points": (
+        _in_model(lambda model: replace(model, xyz=model.xyz[:0], rgb=model.rgb[:0])),
+        ["sparse/0/points3D.", "non-empty point cloud"],
+    ),
     "wider camera": (_camera_1(width=64), ["32x18", "64x18"]),
     "zero qvec": (_first_image(qvec=(0.0, 0.0, 0.0, 0.0)), ["qvec", "quaternion"]),
     "nan tvec": (_first_image(tvec=(float("nan"), 0.0, 4.0)), ["qvec", "tvec"]),

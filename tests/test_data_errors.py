@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import io
 import json
-import re
-import shutil
 from collections.abc import Callable
 from pathlib import Path
 
@@ -28,13 +26,9 @@ def _edit_meta(root: Path, name: str, edit: Callable[[dict], None]) -> None:
 
 
 def _expect(root: Path, *fragments: str, **options) -> str:
-    with pytest.raises(InputError) as caught:
+    with refused(InputError, *fragments) as caught:
         load_scene(root, **options)
-    message = str(caught.value)
-    assert "\n" not in message
-    for fragment in fragments:
-        assert fragment in message, message
-    return message
+    return str(caught.value)
 
 
 def test_a_scene_folder_that_cannot_be_read_is_one_line(tmp_path: Path, monkeypatch):
@@ -50,46 +44,9 @@ def test_a_scene_folder_that_cannot_be_read_is_one_line(tmp_path: Path, monkeypa
     _expect(tmp_path, f"{tmp_path}: cannot read the scene folder (Permission denied)")
 
 
-def test_missing_scene_folder(tmp_path: Path):
+def test_missing_or_unknown_scene_folder(tmp_path: Path):
     _expect(tmp_path / "absent", "scene folder: ", "absent does not exist")
-
-
-def test_folder_of_unknown_layout(tmp_path: Path):
     _expect(tmp_path, "unknown scene layout", "train_meta.json")
-
-
-def test_meta_json_with_a_byte_order_mark_loads(tiny_synth_copy: Path):
-    def poses() -> list[tuple[int, int, list]]:
-        views = load_scene(tiny_synth_copy).train_views
-        return [(v.camera.camera_id, v.frame, v.camera.w2c.tolist()) for v in views]
-
-    expected = poses()
-    path = tiny_synth_copy / "train_meta.json"
-    path.write_bytes(b"\xef\xbb\xbf" + path.read_bytes())
-    assert poses() == expected
-
-
-def test_image_whose_size_differs_from_w_h(tiny_synth_copy: Path):
-    small = tiny_synth_copy / "ims" / "4" / "000001.png"
-    shutil.copyfile(_png_of_size(tiny_synth_copy, 20, 10), small)
-    _expect(tiny_synth_copy, "000001.png", "20x10", "expected 32x18")
-
-
-def _png_of_size(root: Path, width: int, height: int) -> Path:
-    path = root / "odd.png"
-    cv2.imwrite(str(path), np.zeros((height, width, 3), np.uint8))
-    return path
-
-
-def test_a_mask_saved_with_another_extension_is_named(tiny_synth_copy: Path):
-    mask = tiny_synth_copy / "seg" / "7" / "000003.png"
-    cv2.imwrite(str(mask.with_suffix(".jpg")), cv2.imread(str(mask)))
-    mask.unlink()
-    _expect(
-        tiny_synth_copy,
-        "missing mask file: ",
-        "seg/7/000003.png (found 000003.jpg beside it: same name, other extension)",
-    )
 
 
 def _cut_to_60_percent(data: bytes) -> bytes:
@@ -107,37 +64,12 @@ def _cut_in_the_first_idat_crc(data: bytes) -> bytes:
     return data[: start + 8 + length + 2]  # its data whole, two of its four CRC bytes
 
 
-@pytest.mark.parametrize(
-    ("name", "damage", "reason"),
-    [
-        ("ims/7/000003.png", _cut_to_60_percent, "chunk IDAT is cut short"),
-        ("ims/7/000003.png", _flip_first_idat_byte, "chunk IDAT fails its CRC"),
-        ("ims/7/000003.png", lambda data: data[:33], "no IEND chunk"),
-        ("ims/7/000003.png", lambda data: data[:33] + data[-12:], "no IDAT image data"),
-        ("seg/7/000003.png", _cut_to_60_percent, "chunk IDAT is cut short"),
-        ("ims/7/000003.png", _cut_in_the_first_idat_crc, "chunk IDAT is cut short: truncated"),
-    ],
-    ids=["truncated", "flipped byte", "header only", "no IDAT", "truncated mask", "cut in a CRC"],
-)
-def test_damaged_png_is_refused_when_the_scene_loads(
-    tiny_synth_copy: Path, name: str, damage: Callable[[bytes], bytes], reason: str
-):
-    path = tiny_synth_copy / name
-    path.write_bytes(damage(path.read_bytes()))
-    _expect(tiny_synth_copy, f"{name}: damaged image file", reason)
-
-
 def test_truncated_jpeg_is_refused_and_an_intact_one_loads(tiny_synth_copy: Path):
     png = tiny_synth_copy / "ims" / "7" / "000003.png"
     jpeg = png.with_suffix(".jpg")
     cv2.imwrite(str(jpeg), cv2.imread(str(png)))
-
-    def use_jpeg(meta: dict) -> None:
-        meta["fn"] = [
-            [{"7/000003.png": "7/000003.jpg"}.get(n, n) for n in row] for row in meta["fn"]
-        ]
-
-    _edit_meta(tiny_synth_copy, "train_meta.json", use_jpeg)
+    meta = tiny_synth_copy / "train_meta.json"
+    meta.write_text(meta.read_text().replace('"7/000003.png"', '"7/000003.jpg"'))
     assert any(view.image_path == jpeg for view in load_scene(tiny_synth_copy).train_views)
     jpeg.write_bytes(_cut_to_60_percent(jpeg.read_bytes()))
     _expect(tiny_synth_copy, "7/000003.jpg: damaged image file", "no JPEG end marker FFD9")
@@ -174,11 +106,6 @@ def test_a_fill_byte_before_a_jpeg_marker_is_skipped_as_libjpeg_does():
     assert image_size(filled, Path("a.jpg")) == (40, 24)
 
 
-def test_a_jpeg_whose_frame_header_is_cut_short_has_no_size():
-    with pytest.raises(InputError, match="no JPEG frame header found"):
-        image_size(b"\xff\xd8\xff\xc0\x00\x02\xff\xd9", Path("a.jpg"))
-
-
 def test_opengl_axes_are_refused_as_putting_the_scene_behind_the_cameras(tiny_synth_copy: Path):
     # a common pose mistake: OpenGL's camera axes (y up, z backward) for OpenCV's; a cloud
     # around the subject the rig looks at is then behind every camera: a black scene
@@ -211,22 +138,6 @@ def test_one_point_in_view_is_enough(tiny_synth_copy: Path):
     assert load_scene(tiny_synth_copy).points.xyz.shape[0] >= 1
 
 
-@pytest.mark.parametrize("value", [np.nan, 1e300], ids=["nan", "beyond float32"])
-def test_non_finite_point_cloud(tiny_synth_copy: Path, value: float):
-    data = np.random.default_rng(0).random((50, 7))  # float64: 1e300 is finite until the cast
-    data[3, 1] = value
-    np.savez(tiny_synth_copy / "init_pt_cld.npz", data=data)
-    _expect(tiny_synth_copy, "init_pt_cld.npz", "not finite in float32 (NaN, inf, or beyond")
-
-
-def test_point_cloud_with_wrong_columns_or_key(tiny_synth_copy: Path):
-    np.savez(tiny_synth_copy / "init_pt_cld.npz", data=np.zeros((5, 6), np.float32))
-    _expect(tiny_synth_copy, "init_pt_cld.npz", "[N,7]")
-    np.savez(tiny_synth_copy / "init_pt_cld.npz", points=np.zeros((5, 7), np.float32))
-    message = _expect(tiny_synth_copy, "init_pt_cld.npz: missing array 'data'")
-    assert message.count("init_pt_cld.npz") == 1, message
-
-
 def _written(write: Callable[[io.BytesIO], None]) -> bytes:
     buffer = io.BytesIO()
     write(buffer)
@@ -256,27 +167,18 @@ def test_file_name_that_names_no_file(tiny_synth_copy: Path, name: str):
     _expect(tiny_synth_copy, f"train_meta.json: field 'fn' at [2][1] is {name!r}")
 
 
-def test_unknown_effect_in_scene_json(tiny_synth_copy: Path):
-    path = tiny_synth_copy / "scene.json"
-    declaration = json.loads(path.read_text())
-    declaration["effects"] = ["nonrigid", "glitter"]
-    path.write_text(json.dumps(declaration))
-    _expect(tiny_synth_copy, "scene.json", "unknown effect 'glitter'")
-
-
-@pytest.mark.parametrize("effects", ["nonrigid", {"nonrigid": True}, None])
-def test_effects_in_scene_json_that_are_not_a_list(tiny_synth_copy: Path, effects):
-    path = tiny_synth_copy / "scene.json"
-    declaration = json.loads(path.read_text())
-    declaration["effects"] = effects
-    path.write_text(json.dumps(declaration))
-    _expect(tiny_synth_copy, "scene.json: field 'effects' must be a list of effect names")
-
-
-@pytest.mark.parametrize("content", ['["nonrigid"]', '"nonrigid"', "null"])
-def test_scene_json_that_is_not_an_object_is_refused_as_such(tiny_synth_copy: Path, content):
-    (tiny_synth_copy / "scene.json").write_text(content)
-    _expect(tiny_synth_copy, "scene.json: expected a JSON object with fields such as effects")
+@pytest.mark.parametrize(
+    ("content", "named"),
+    [
+        ('{"effects": ["nonrigid", "glitter"]}', ["unknown effect 'glitter'"]),
+        *[({"effects": v}, ["'effects'", "list of effect names"]) for v in ("x", {"x": 1}, None)],
+        *[(text, ["expected a JSON object"]) for text in ('["nonrigid"]', '"nonrigid"', "null")],
+    ],
+)
+def test_a_bad_scene_json_is_refused(tiny_synth_copy: Path, content, named: list):
+    text = content if isinstance(content, str) else json.dumps(content)
+    (tiny_synth_copy / "scene.json").write_text(text)
+    _expect(tiny_synth_copy, "scene.json", *named)
 
 
 def test_a_scene_without_scene_json_declares_no_effects(tiny_synth_copy: Path):
@@ -285,30 +187,22 @@ def test_a_scene_without_scene_json_declares_no_effects(tiny_synth_copy: Path):
 
 
 @pytest.mark.parametrize(
-    ("options", "fragment"),
+    ("options", "named"),
     [
-        ({"downscale": 0}, "downscale must be an integer >= 1"),
-        ({"downscale": 1.5}, "downscale must be an integer >= 1"),
-        ({"max_points": 0}, "max_points must be an integer >= 1"),
-        ({"cache_mb": -1}, "cache_mb must be a finite number > 0"),
-        ({"cache_mb": float("inf")}, r"cache_mb must be a finite number > 0, got inf"),
-        ({"cache_mb": 1e308}, "cache_mb must be a finite number > 0, got 1e+308"),
-        ({"test_cameras": [99]}, "cameras [99] are not in the scene"),
-        (
-            {"test_cameras": [1, 99]},
-            "30]); hold out only cameras it has (or none), e.g. scene.loader.test_cameras=[1] "
-            "(artifacts commands: --test-cameras 1)",
-        ),
-        (
-            {"test_cameras": range(31)},
-            "30]; hold out fewer (or none), e.g. scene.loader.test_cameras=[] (artifacts "
-            "commands: --test-cameras '[]')",
-        ),
-        ({"effects": ["sparkle"]}, "unknown effect 'sparkle'"),
+        ({"downscale": 0}, ["downscale", ">= 1"]),
+        ({"downscale": 1.5}, ["downscale", ">= 1"]),
+        ({"max_points": 0}, ["max_points", ">= 1"]),
+        ({"cache_mb": -1}, ["cache_mb", "> 0"]),
+        ({"cache_mb": float("inf")}, ["cache_mb", "inf"]),
+        ({"cache_mb": 1e308}, ["cache_mb", "1e+308"]),
+        ({"test_cameras": [99]}, ["test_cameras", "[99]"]),
+        ({"test_cameras": [1, 99]}, ["[99]", "test_cameras=[1]", "--test-cameras 1)"]),
+        ({"test_cameras": range(31)}, ["no training cameras", "--test-cameras '[]'"]),
+        ({"effects": ["sparkle"]}, ["unknown effect 'sparkle'"]),
     ],
 )
-def test_bad_loader_options(tiny_synth_scene: Path, options: dict, fragment: str):
-    _expect(tiny_synth_scene, fragment, **options)
+def test_bad_loader_options(tiny_synth_scene: Path, options: dict, named: list):
+    _expect(tiny_synth_scene, *named, **options)
 
 
 @pytest.mark.parametrize(
@@ -323,53 +217,35 @@ def test_bad_loader_options(tiny_synth_scene: Path, options: dict, fragment: str
         # the renderer models no skew: dropping it would train on wrong rays
         ({(0, 1): 1e6}, "skew K[0][1] = 1000000.0, K[1][0] = 0.0"),
         ({(1, 0): 5.0}, "skew K[0][1] = 0.0, K[1][0] = 5.0"),
+        # intrinsics meant for another resolution: well-formed, but they would train a wrong scene
+        ({(0, 2): 3200.0}, "cx = 3200.0 outside 0..32"),
+        ({(1, 2): -1.0}, "cy = -1.0 outside 0..18"),
+        ({(0, 2): 32.0}, "cx = 32.0 outside 0..32"),  # on the edge, as twice the resolution gives
     ],
-    ids=["focal lengths", "huge fx", "infinite cx", "nan skew", "last row", "skew", "lower skew"],
 )
 def test_intrinsics_errors_name_the_bad_values(entries: dict, problem: str):
     K = np.array([[20.0, 0.0, 16.0], [0.0, 20.0, 9.0], [0.0, 0.0, 1.0]])
     for at, value in entries.items():
         K[at] = value
-    with pytest.raises(InputError) as caught:
-        check_intrinsics(K, "cam.txt: camera 3")
-    assert str(caught.value).startswith(f"cam.txt: camera 3 has {problem}; expected intrinsics")
+    with refused(InputError, f"cam.txt: camera 3 has {problem}; expected", "inside the 32x18"):
+        check_intrinsics(K, "cam.txt: camera 3", size=(32, 18))
 
 
-def test_a_skew_within_a_thousandth_of_the_focal_length_is_taken_for_zero():
-    K = np.array([[2000.0, 1.9, 16.0], [-1.9, 2000.0, 9.0], [0.0, 0.0, 1.0]])
-    check_intrinsics(K, "cam.txt: camera 3")  # rounding in a calibration file: accepted
-    K[0, 1] = 2.1
-    with pytest.raises(InputError, match="has skew K"):
-        check_intrinsics(K, "cam.txt: camera 3")
-
-
-@pytest.mark.parametrize(
-    ("centre", "problem"),
-    [((3200.0, 9.0), "cx = 3200.0 outside 0..32"), ((16.0, -1.0), "cy = -1.0 outside 0..18")],
-)
-def test_a_principal_point_outside_the_image_is_refused(centre: tuple, problem: str):
-    # intrinsics meant for another resolution: well-formed, but they would train a wrong scene
-    K = np.array([[20.0, 0.0, centre[0]], [0.0, 20.0, centre[1]], [0.0, 0.0, 1.0]])
+def test_a_small_skew_and_a_centre_near_the_edge_are_accepted():
+    K = np.array([[2000.0, 1.9, 31.5], [-1.9, 2000.0, 0.5], [0.0, 0.0, 1.0]])
+    check_intrinsics(K, "cam.txt: camera 3", size=(32, 18))  # rounding in a calibration file
+    K[0, 2] = 3200.0
     check_intrinsics(K, "cam.txt: camera 3")  # the image's size unknown: nothing to compare
-    with pytest.raises(InputError) as caught:
-        check_intrinsics(K, "cam.txt: camera 3", size=(32, 18))
-    assert str(caught.value).startswith(f"cam.txt: camera 3 has {problem}; expected intrinsics")
-    assert str(caught.value).endswith("and the principal point inside the 32x18 image")
-    K[:2, 2] = (31.5, 0.5)  # near the edge is inside; on it, as twice the resolution gives, not
-    check_intrinsics(K, "cam.txt: camera 3", size=(32, 18))
-    K[0, 2] = 32.0
-    with pytest.raises(InputError, match=re.escape("cx = 32.0 outside 0..32")):
-        check_intrinsics(K, "cam.txt: camera 3", size=(32, 18))
+    K[0, 1] = 2.1  # beyond a thousandth of the focal length
+    with refused(InputError, "has skew K"):
+        check_intrinsics(K, "cam.txt: camera 3")
 
 
 def test_a_batch_of_poses_names_the_first_bad_one_and_non_finite_entries():
     w2c = np.tile(np.eye(4), (2, 3, 1, 1))
     w2c[1, 2, 0, 3] = np.nan
-    with pytest.raises(InputError) as caught:
+    with refused(InputError, "poses at [1][2] has entries not finite", "[[1.0, 0.0, 0.0, nan]"):
         check_rigid(w2c, "poses")
-    assert str(caught.value).startswith(
-        "poses at [1][2] has entries not finite in float32 [[1.0, 0.0, 0.0, nan]"
-    )
     w2c[1, 2] = np.eye(4)
     w2c[0, 1, 3] = [0.0, 0.0, 1.0, 1.0]
     with refused(InputError, "poses at [0][1]", "[0.0, 0.0, 1.0, 1.0]"):
@@ -380,13 +256,17 @@ PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
 @pytest.mark.parametrize(
-    "data",
-    [PNG_SIGNATURE + b"\x00\x00\x00\x0dIHDR\x00\x00", PNG_SIGNATURE + b"\x00" * 16],
-    ids=["cut in IHDR", "no IHDR first"],
+    ("data", "name", "named"),
+    [
+        (PNG_SIGNATURE + b"\x00\x00\x00\x0dIHDR\x00\x00", "a.png", "truncated PNG header"),
+        (PNG_SIGNATURE + b"\x00" * 16, "a.png", "truncated PNG header"),
+        (b"\xff\xd8\xff\xc0\x00\x02\xff\xd9", "a.jpg", "no JPEG frame header found"),
+    ],
+    ids=["cut in IHDR", "no IHDR first", "JPEG frame header cut short"],
 )
-def test_png_without_a_whole_ihdr_header_has_no_size(data: bytes):
-    with refused(InputError, "a.png", "truncated PNG header"):
-        image_size(data, Path("a.png"))
+def test_an_image_header_cut_short_has_no_size(data: bytes, name: str, named: str):
+    with refused(InputError, name, named):
+        image_size(data, Path(name))
 
 
 def test_files_opencv_cannot_decode_are_refused_by_the_pixel_readers(tmp_path: Path):
@@ -406,7 +286,9 @@ def test_float_images_are_refused_not_scaled_as_integers(tmp_path: Path):
 
 
 TRAIN, TEST, IMAGE = "train_meta.json", "test_meta.json", "ims/7/000003.png"
+MASK = "seg/7/000003.png"
 NAN = float("nan")
+SMALL_PNG = cv2.imencode(".png", np.zeros((10, 20, 3), np.uint8))[1]
 
 
 def _put(name: str, at: tuple, value: object) -> Callable[[Path], None]:
@@ -425,14 +307,19 @@ def _edit(name: str, edit: Callable[[dict], object]) -> Callable[[Path], None]:
     return lambda root: _edit_meta(root, name, edit)
 
 
-def _write(name: str, content: bytes) -> Callable[[Path], None]:
+def _write(name: str, content: bytes | np.ndarray) -> Callable[[Path], None]:
     """A damage: replace the scene file `name` with `content`."""
-    return lambda root: (root / name).write_bytes(content)
+    return lambda root: (root / name).write_bytes(bytes(content))
 
 
-def _points(data: np.ndarray) -> Callable[[Path], None]:
-    """A damage: replace the point cloud's array with `data`."""
-    return lambda root: np.savez(root / "init_pt_cld.npz", data=data)
+def _damage(name: str, damage: Callable[[bytes], bytes]) -> Callable[[Path], None]:
+    """A damage: replace the scene file `name` with `damage` of its bytes."""
+    return lambda root: (root / name).write_bytes(damage((root / name).read_bytes()))
+
+
+def _points(data: np.ndarray, key: str = "data") -> Callable[[Path], None]:
+    """A damage: replace the point cloud's archive with one holding `data` as `key`."""
+    return lambda root: np.savez(root / "init_pt_cld.npz", **{key: data})
 
 
 def _scale_rotation(meta: dict) -> None:
@@ -444,6 +331,10 @@ def _mirror_z(meta: dict) -> None:
     # diag(1, 1, -1) · R is orthonormal (R Rᵀ = I) but has det -1: a mirror, not a rotation
     pose = meta["w2c"][1][2]
     pose[2] = [-value for value in pose[2][:3]] + pose[2][3:]
+
+
+def _flatten_k(meta: dict) -> None:
+    meta["k"] = [[[value for line in k for value in line] for k in row] for row in meta["k"]]
 
 
 def _k_for_twice_the_resolution(meta: dict) -> None:
@@ -460,10 +351,17 @@ def _replace_by_folder(root: Path) -> None:
     (root / TRAIN).mkdir()
 
 
-def _colours_0_255(root: Path) -> None:
-    data = np.random.default_rng(0).random((50, 7)).astype(np.float32)
-    data[7, 4] = 255.0  # colours stored as 0..255 instead of 0..1
-    np.savez(root / "init_pt_cld.npz", data=data)
+def _cloud_with(row: int, column: int, value: float) -> np.ndarray:
+    """A random [50,7] cloud (float64: 1e300 is finite until the cast) with one entry set."""
+    data = np.random.default_rng(0).random((50, 7))
+    data[row, column] = value
+    return data
+
+
+def _mask_as_jpeg(root: Path) -> None:
+    mask = root / "seg" / "7" / "000003.png"
+    cv2.imwrite(str(mask.with_suffix(".jpg")), cv2.imread(str(mask)))
+    mask.unlink()
 
 
 BAD_SCENES = {
@@ -472,23 +370,12 @@ BAD_SCENES = {
     "meta not an object": (_write(TRAIN, b"[1, 2, 3]"), [TRAIN, "JSON object"]),
     "meta is a folder": (_replace_by_folder, [TRAIN, "folder"]),
     "frames per field": (_edit(TRAIN, lambda meta: meta["k"].pop()), [TRAIN, "'k'", "T=5", "T=6"]),
-    "cameras per field": (
-        _edit(TEST, lambda meta: [row.pop() for row in meta["w2c"]]),
-        [TEST, "'w2c'", "C=3", "C=4"],
-    ),
+    "cameras per field": (_edit(TEST, lambda m: [r.pop() for r in m["w2c"]]), [TEST, "C=3", "C=4"]),
     "frames per file": (
         _edit(TEST, lambda meta: [meta[field].pop() for field in ("k", "w2c", "fn", "cam_id")]),
         [TEST, "T=5", "T=6"],
     ),
-    "k flattened": (
-        _edit(
-            TRAIN,
-            lambda meta: meta.update(
-                k=[[[value for line in k for value in line] for k in row] for row in meta["k"]]
-            ),
-        ),
-        [TRAIN, "'k'", "[T][C][3][3]"],
-    ),
+    "k flattened": (_edit(TRAIN, _flatten_k), [TRAIN, "'k'", "[T][C][3][3]"]),
     "zero fx": (_put(TRAIN, ("k", 2, 1, 0, 0), 0.0), [TRAIN, "'k' at [2][1]", "column 1", "fx"]),
     "zero fy": (_put(TEST, ("k", 4, 0, 1, 1), 0.0), [TEST, "'k' at [4][0]", "fy = 0.0"]),
     "k of another size": (_edit(TRAIN, _k_for_twice_the_resolution), [TRAIN, "[1][2]", "outside"]),
@@ -498,7 +385,7 @@ BAD_SCENES = {
     # finite as JSON's float64, inf once cast to float32
     "huge w2c": (_put(TRAIN, ("w2c", 0, 0, 0, 3), 1e39), [TRAIN, "'w2c'", "float32"]),
     "w2c text": (_put(TRAIN, ("w2c",), "identity"), [TRAIN, "'w2c'", "[T][C][4][4]"]),
-    "zero w": (_put(TRAIN, ("w",), 0), [TRAIN, "'w'", "positive integer"]),
+    "zero w": (_put(TRAIN, ("w",), 0), [TRAIN, "'w'", ">= 1"]),
     "null h": (_put(TRAIN, ("h",), None), [TRAIN, "'h'", "None"]),
     "no k": (_edit(TRAIN, lambda meta: meta.pop("k")), [TRAIN, "'k'", "[T][C][3][3]"]),
     "no w": (_edit(TRAIN, lambda meta: meta.pop("w")), [TRAIN, "'w'"]),
@@ -511,18 +398,31 @@ BAD_SCENES = {
     "escaping name": (_put(TRAIN, ("fn", 2, 1), "../../../etc/passwd"), ["../../../etc/passwd"]),
     "absolute name": (_put(TRAIN, ("fn", 0, 0), "/x.png"), ["'/x.png'"]),
     "huge camera id": (_put(TRAIN, ("cam_id", 0, 0), 1e30), [TRAIN, "'cam_id'", "2147483647"]),
-    "camera twice": (
-        _edit(TRAIN, lambda meta: meta["cam_id"][2].__setitem__(1, meta["cam_id"][2][0])),
-        [TRAIN, "'cam_id'", "columns 0 and 1 of frame 2"],
-    ),
+    "camera twice": (_put(TRAIN, ("cam_id", 2, 1), 1), [TRAIN, "'cam_id'", "columns 0 and 1 of"]),
     "test camera trains": (_share_a_train_camera, [TEST, TRAIN]),
+    "png cut short": (_damage(IMAGE, _cut_to_60_percent), [f"{IMAGE}: damaged", "IDAT is cut"]),
+    "png byte flipped": (_damage(IMAGE, _flip_first_idat_byte), [IMAGE, "IDAT fails its CRC"]),
+    "png header only": (_damage(IMAGE, lambda data: data[:33]), [IMAGE, "no IEND chunk"]),
+    "png without idat": (_damage(IMAGE, lambda d: d[:33] + d[-12:]), [IMAGE, "no IDAT image"]),
+    "mask cut short": (_damage(MASK, _cut_to_60_percent), [f"{MASK}: damaged", "IDAT is cut"]),
+    "cut in a crc": (_damage(IMAGE, _cut_in_the_first_idat_crc), [IMAGE, "cut short: truncated"]),
     "undecodable image": (_write(IMAGE, b"this is not an image"), [IMAGE, "image"]),
     "empty image": (_write(IMAGE, b""), [IMAGE, "empty"]),
     "missing image": (lambda root: (root / IMAGE).unlink(), ["000003.png", "No such file"]),
     "no point cloud": (lambda root: (root / "init_pt_cld.npz").unlink(), ["init_pt_cld.npz"]),
     "no points": (_points(np.zeros((0, 7), np.float32)), ["init_pt_cld.npz", "non-empty"]),
     "complex points": (_points(np.ones((5, 7), np.complex64)), ["init_pt_cld.npz", "complex64"]),
-    "colours 0..255": (_colours_0_255, ["init_pt_cld.npz", "[0, 1]"]),
+    # colours stored as 0..255 instead of 0..1
+    "colours 0..255": (_points(_cloud_with(7, 4, 255.0)), ["init_pt_cld.npz", "[0, 1]"]),
+    "nan point": (_points(_cloud_with(3, 1, np.nan)), ["init_pt_cld.npz", "not finite"]),
+    "huge point": (_points(_cloud_with(3, 1, 1e300)), ["init_pt_cld.npz", "in float32"]),
+    "six columns": (_points(np.zeros((5, 6), np.float32)), ["init_pt_cld.npz", "[N,7]"]),
+    "no data array": (_points(np.zeros((5, 7)), key="points"), ["missing array 'data'"]),
+    "small image": (
+        _write("ims/4/000001.png", SMALL_PNG),
+        ["000001.png", "20x10", "expected 32x18"],
+    ),
+    "mask as jpeg": (_mask_as_jpeg, ["seg/7/000003.png", "found 000003.jpg beside it"]),
 }
 
 

@@ -15,7 +15,7 @@ import pytest
 import torch
 
 from refusals import refused
-from relaygs.data import Camera, Scene, View, detect_format, load_scene
+from relaygs.data import Camera, Scene, View, load_scene
 from relaygs.data.effects import COLOR_INCONSISTENCY, SENSOR_NOISE
 from relaygs.errors import InputError
 from relaygs.model import GaussianSet
@@ -27,7 +27,7 @@ def scene(tiny_synth_scene: Path) -> Scene:
     return load_scene(tiny_synth_scene)
 
 
-def test_views_frames_and_times(scene: Scene):
+def test_views_cameras_extent_images_and_points(scene: Scene, tiny_synth_scene: Path):
     assert scene.format == "panoptic" and scene.name == "juggle"
     assert scene.num_frames == 6
     assert len(scene.train_views) == 27 * 6 and len(scene.test_views) == 4 * 6
@@ -39,21 +39,33 @@ def test_views_frames_and_times(scene: Scene):
     frame_views = scene.views_at(3, "all")
     assert len(frame_views) == 31 and {view.frame for view in frame_views} == {3}
     assert scene.views_at(0, "train")[0].camera is scene.views_at(5, "train")[0].camera
-
-
-def test_cameras_match_the_meta_file(scene: Scene, tiny_synth_scene: Path):
     meta = json.loads((tiny_synth_scene / "test_meta.json").read_text())
     camera = scene.views_at(2, "test")[1]
     assert camera.camera.camera_id == meta["cam_id"][2][1]
     assert torch.allclose(camera.camera.K, torch.tensor(meta["k"][2][1], dtype=torch.float32))
     assert torch.allclose(camera.camera.w2c, torch.tensor(meta["w2c"][2][1], dtype=torch.float32))
     assert camera.camera.K.dtype == torch.float32 and camera.camera.w2c.shape == (4, 4)
-
-
-def test_extent_follows_the_3dgs_rule(scene: Scene):
     centers = torch.stack([camera.center for camera in scene.train_cameras]).double()
     radius = (centers - centers.mean(0)).norm(dim=1).max().item()
     assert scene.extent == pytest.approx(1.1 * radius, rel=1e-6)
+    view = scene.train_views[40]
+    image = scene.image(view)
+    assert image.shape == (18, 32, 3) and image.dtype == torch.float32
+    assert image.min().item() >= 0.0 and image.max().item() <= 1.0
+    raw = cv2.imread(str(view.image_path))[..., ::-1]
+    assert torch.equal(image, torch.from_numpy(raw.astype(np.float32) / 255.0))
+    mask = scene.mask(view)
+    assert mask.shape == (18, 32) and mask.dtype == torch.bool
+    assert scene.image(view) is image
+    data = np.load(tiny_synth_scene / "init_pt_cld.npz")["data"]
+    assert len(scene.points) == len(data)
+    assert torch.allclose(scene.points.xyz, torch.from_numpy(data[:, :3]))
+    assert torch.equal(scene.points.is_fg, torch.from_numpy(data[:, 6] > 0.5))
+    declared = json.loads((tiny_synth_scene / "scene.json").read_text())["effects"]
+    assert scene.effects == frozenset(declared)
+    overridden = load_scene(tiny_synth_scene, effects=[SENSOR_NOISE])
+    assert overridden.effects == {SENSOR_NOISE}
+    assert COLOR_INCONSISTENCY in scene.effects
 
 
 def test_a_single_train_camera_takes_its_extent_from_the_points(tiny_synth_copy: Path):
@@ -68,18 +80,6 @@ def test_a_single_train_camera_takes_its_extent_from_the_points(tiny_synth_copy:
     radius = (xyz - xyz.mean(0)).norm(dim=1).max().item()
     assert radius > 0.1
     assert scene.extent == pytest.approx(1.1 * radius, rel=1e-6)
-
-
-def test_images_and_masks_load_as_float_and_bool(scene: Scene):
-    view = scene.train_views[40]
-    image = scene.image(view)
-    assert image.shape == (18, 32, 3) and image.dtype == torch.float32
-    assert image.min().item() >= 0.0 and image.max().item() <= 1.0
-    raw = cv2.imread(str(view.image_path))[..., ::-1]
-    assert torch.equal(image, torch.from_numpy(raw.astype(np.float32) / 255.0))
-    mask = scene.mask(view)
-    assert mask.shape == (18, 32) and mask.dtype == torch.bool
-    assert scene.image(view) is image
 
 
 def _view_of(scene: Scene, image_path: Path) -> View:
@@ -131,24 +131,15 @@ def test_16_bit_images_keep_their_low_bits(tiny_synth_copy: Path):
     assert torch.allclose(image, torch.from_numpy(expected), rtol=0, atol=1e-7)
 
 
-def _label_16_bit(fg: np.ndarray) -> np.ndarray:
-    return fg.astype(np.uint16)
-
-
-def _faint_colour(fg: np.ndarray) -> np.ndarray:
-    colour = np.zeros((*fg.shape, 3), np.uint8)
-    colour[fg, 0] = 1
-    return colour
-
-
-def _white_on_opaque_alpha(fg: np.ndarray) -> np.ndarray:
-    rgba = np.zeros((*fg.shape, 4), np.uint8)
-    rgba[..., 3] = 255
-    rgba[fg, :3] = 255
-    return rgba
-
-
-@pytest.mark.parametrize("encode", [_label_16_bit, _faint_colour, _white_on_opaque_alpha])
+@pytest.mark.parametrize(
+    "encode",
+    [
+        lambda fg: fg.astype(np.uint16),
+        lambda fg: np.stack([fg, 0 * fg, 0 * fg], axis=-1).astype(np.uint8),
+        lambda fg: np.stack([fg * 255, fg * 255, fg * 255, 0 * fg + 255], axis=-1).astype(np.uint8),
+    ],
+    ids=["16-bit label", "faint colour", "white on opaque alpha"],
+)
 def test_mask_foreground_is_any_non_zero_grey_or_colour_value(
     tiny_synth_copy: Path, encode: Callable[[np.ndarray], np.ndarray]
 ):
@@ -163,25 +154,6 @@ def test_mask_foreground_is_any_non_zero_grey_or_colour_value(
     assert torch.equal(scene.mask(view), torch.from_numpy(fg))
 
 
-def test_points_and_effects_come_from_the_scene_files(scene: Scene, tiny_synth_scene: Path):
-    data = np.load(tiny_synth_scene / "init_pt_cld.npz")["data"]
-    assert len(scene.points) == len(data)
-    assert torch.allclose(scene.points.xyz, torch.from_numpy(data[:, :3]))
-    assert torch.equal(scene.points.is_fg, torch.from_numpy(data[:, 6] > 0.5))
-    assert scene.effects == frozenset(
-        json.loads((tiny_synth_scene / "scene.json").read_text())["effects"]
-    )
-    overridden = load_scene(tiny_synth_scene, effects=[SENSOR_NOISE])
-    assert overridden.effects == {SENSOR_NOISE}
-    assert COLOR_INCONSISTENCY in scene.effects
-
-
-def test_a_downscale_that_leaves_no_image_is_refused(tiny_synth_scene: Path):
-    assert load_scene(tiny_synth_scene, downscale=5).train_views[0].camera.height == 4
-    with refused(InputError, str(tiny_synth_scene), "downscale 9", "32x18", "4x2"):
-        load_scene(tiny_synth_scene, downscale=9)
-
-
 def test_downscale_halves_cameras_and_area_resizes_images(scene: Scene, tiny_synth_scene: Path):
     half = load_scene(tiny_synth_scene, downscale=2)
     full_view, half_view = scene.train_views[7], half.train_views[7]
@@ -194,6 +166,9 @@ def test_downscale_halves_cameras_and_area_resizes_images(scene: Scene, tiny_syn
     rescaled = scene.rescaled(2)
     assert torch.equal(rescaled.train_views[7].camera.K, half_view.camera.K)
     assert rescaled.fingerprint == half.fingerprint != scene.fingerprint
+    assert load_scene(tiny_synth_scene, downscale=5).train_views[0].camera.height == 4
+    with refused(InputError, str(tiny_synth_scene), "downscale 9", "32x18", "4x2"):
+        load_scene(tiny_synth_scene, downscale=9)
 
 
 def test_camera_scaling_keeps_pixel_edges_consistent():
@@ -260,41 +235,20 @@ def test_the_test_cameras_option_regroups_views_with_or_without_test_meta(
         load_scene(tiny_synth_copy, test_cameras=[0])  # a camera of the removed test_meta.json
 
 
-def test_point_budget_voxel_downsamples_keeping_fg_apart(tiny_synth_scene: Path):
-    scene = load_scene(tiny_synth_scene, max_points=400)
-    assert 200 <= len(scene.points) <= 400
-    assert scene.points.is_fg.any() and (~scene.points.is_fg).any()
-    again = load_scene(tiny_synth_scene, max_points=400)
-    assert torch.equal(scene.points.xyz, again.points.xyz)
-    assert scene.points.rgb.min() >= 0 and scene.points.rgb.max() <= 1
-
-
-def test_detects_the_layout(tiny_synth_scene: Path, tmp_path: Path):
-    assert detect_format(tiny_synth_scene) == "panoptic"
-    (tmp_path / "cam00").mkdir()
-    assert detect_format(tmp_path) == "multiview"
-
-
-def _scale_world(root: Path, factor: float) -> None:
-    """Scale a Panoptic scene's world in place: camera translations and the point cloud."""
-    for name in ("train_meta.json", "test_meta.json"):
-        meta = json.loads((root / name).read_text())
-        w2c = np.array(meta["w2c"])
-        w2c[..., :3, 3] *= factor
-        meta["w2c"] = w2c.tolist()
-        (root / name).write_text(json.dumps(meta))
-    data = np.load(root / "init_pt_cld.npz")["data"].copy()
-    data[:, :3] *= factor
-    np.savez(root / "init_pt_cld.npz", data=data)
-
-
 def test_a_scene_in_small_units_renders_like_the_same_scene_in_metres(
     scene: Scene, tiny_synth_copy: Path
 ):
     """The near plane scales with the extent below 1: at 1/1000 scale the cameras are ~4 mm
     from the subject, and gsplat's fixed 0.01 would cull almost every Gaussian."""
     factor = 1e-3
-    _scale_world(tiny_synth_copy, factor)
+    for name in ("train_meta.json", "test_meta.json"):  # camera translations and the cloud
+        meta = json.loads((tiny_synth_copy / name).read_text())
+        w2c = np.array(meta["w2c"])
+        w2c[..., :3, 3] *= factor
+        meta["w2c"] = w2c.tolist()
+        (tiny_synth_copy / name).write_text(json.dumps(meta))
+    data = np.load(tiny_synth_copy / "init_pt_cld.npz")["data"] * ([factor] * 3 + [1] * 4)
+    np.savez(tiny_synth_copy / "init_pt_cld.npz", data=data)
     small = load_scene(tiny_synth_copy)
     assert small.extent == pytest.approx(scene.extent * factor, rel=1e-4)
     assert {view.camera.near for view in scene.train_views + scene.test_views} == {0.01}

@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import shutil
 import threading
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -40,73 +41,61 @@ def _refusal(root: Path) -> str:
     return str(error)
 
 
-def _replace_with_link(path: Path, target: Path | str) -> None:
-    path.unlink()
-    path.symlink_to(target)
+IMAGE = Path("ims") / "4" / "000001.png"
 
 
-def test_an_image_that_is_a_fifo_is_refused_not_waited_on(tiny_synth_copy: Path, tmp_path: Path):
-    fifo = tmp_path / "pipe"
-    os.mkfifo(fifo)
-    image = tiny_synth_copy / "ims" / "4" / "000001.png"
-    _replace_with_link(image, fifo)
-    message = _refusal(tiny_synth_copy)
-    assert str(image) in message and "named pipe" in message
+def _fifo(tmp_path: Path) -> Path:
+    os.mkfifo(tmp_path / "pipe")
+    return tmp_path / "pipe"
 
 
-def test_an_image_that_is_a_device_is_refused_not_read_without_end(tiny_synth_copy: Path):
-    image = tiny_synth_copy / "ims" / "4" / "000001.png"
-    _replace_with_link(image, "/dev/zero")
-    message = _refusal(tiny_synth_copy)
-    assert str(image) in message and "character device" in message
+def _linked(name: str | Path, target: Callable[[Path], Path | str]):
+    """A damage: replace scene file `name` by a link to `target(tmp_path)`."""
+
+    def damage(root: Path, tmp_path: Path) -> tuple[Path, Path]:
+        (root / name).unlink()
+        (root / name).symlink_to(target(tmp_path))
+        return root, root / name
+
+    return damage
 
 
-def test_a_meta_file_that_is_a_fifo_is_refused(tiny_synth_copy: Path):
-    meta = tiny_synth_copy / "train_meta.json"
-    meta.unlink()
-    os.mkfifo(meta)
-    message = _refusal(tiny_synth_copy)
-    assert str(meta) in message and "named pipe" in message
+def _moved_out(name: str, multiview: bool = False):
+    """A damage: move scene file or folder `name` out of the scene and link it back in."""
+
+    def damage(root: Path, tmp_path: Path) -> tuple[Path, Path]:
+        if multiview:
+            root = export_multiview(load_scene(root), tmp_path / "multiview")
+        path = root / name
+        path.symlink_to(Path(shutil.move(path, tmp_path / path.name)))
+        return root, path
+
+    return damage
 
 
-def test_a_symlinked_image_folder_outside_the_scene_is_refused(
-    tiny_synth_copy: Path, tmp_path: Path
+@pytest.mark.parametrize(
+    ("damage", "named"),
+    [
+        (_linked(IMAGE, _fifo), "named pipe"),
+        (_linked(IMAGE, lambda _: "/dev/zero"), "character device"),
+        (_linked("train_meta.json", _fifo), "named pipe"),
+        (_moved_out("ims/4"), "outside the scene folder"),
+        (_moved_out("init_pt_cld.npz"), "outside the scene folder"),
+        (_moved_out("cam07", multiview=True), "outside the scene folder"),
+        (_moved_out("sparse/0/cameras.bin", multiview=True), "outside the scene folder"),
+    ],
+    ids=["fifo image", "device image", "fifo meta", "image folder", "points", "camera", "model"],
+)
+def test_a_scene_file_that_is_no_regular_file_inside_is_refused(
+    tiny_synth_copy: Path, tmp_path: Path, damage, named: str
 ):
-    folder = tiny_synth_copy / "ims" / "4"
-    outside = Path(shutil.move(folder, tmp_path / "elsewhere"))
-    folder.symlink_to(outside)
-    message = _refusal(tiny_synth_copy)
-    assert str(folder) in message and "outside the scene folder" in message
+    root, path = damage(tiny_synth_copy, tmp_path)
+    message = _refusal(root)
+    assert str(path) in message and named in message
 
 
 def test_a_symlink_that_stays_inside_the_scene_is_followed(tiny_synth_copy: Path):
-    image = tiny_synth_copy / "ims" / "4" / "000001.png"
+    image = tiny_synth_copy / IMAGE
     shutil.move(image, tiny_synth_copy / "moved.png")
     image.symlink_to("../../moved.png")
     assert load_scene(tiny_synth_copy).num_frames == 6
-
-
-def test_a_symlinked_camera_folder_outside_a_multiview_scene_is_refused(
-    tiny_synth_scene: Path, tmp_path: Path
-):
-    root = export_multiview(load_scene(tiny_synth_scene), tmp_path / "multiview")
-    camera = root / "cam07"
-    outside = Path(shutil.move(camera, tmp_path / "cam07"))
-    camera.symlink_to(outside)
-    message = _refusal(root)
-    assert str(camera / "frame_00000.png") in message and "outside the scene folder" in message
-
-
-@pytest.mark.parametrize("name", ["cameras.bin", "init_pt_cld.npz"])
-def test_model_and_point_files_outside_the_scene_are_refused(
-    tiny_synth_scene: Path, tiny_synth_copy: Path, tmp_path: Path, name: str
-):
-    if name == "cameras.bin":
-        root = export_multiview(load_scene(tiny_synth_scene), tmp_path / "multiview")
-        path = root / "sparse" / "0" / name
-    else:
-        root, path = tiny_synth_copy, tiny_synth_copy / name
-    outside = Path(shutil.move(path, tmp_path / name))
-    path.symlink_to(outside)
-    message = _refusal(root)
-    assert str(path) in message and "outside the scene folder" in message

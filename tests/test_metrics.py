@@ -8,6 +8,7 @@ import math
 import numpy as np
 import pytest
 import torch
+from numpy.lib.stride_tricks import sliding_window_view
 
 from relaygs.metrics import _ssim_torch, fg_psnr, psnr, ssim
 from relaygs.metrics_native import NativeSSIM
@@ -29,31 +30,29 @@ def _gaussian_taps() -> np.ndarray:
 def _direct_ssim(x: np.ndarray, y: np.ndarray) -> float:
     """SSIM by explicit weighted sums over each pixel's zero-padded 11×11 neighbourhood."""
     weights = np.outer(_gaussian_taps(), _gaussian_taps())
-    height, width, channels = x.shape
-    px = np.pad(x, ((5, 5), (5, 5), (0, 0)))
-    py = np.pad(y, ((5, 5), (5, 5), (0, 0)))
-    values = []
-    for i in range(height):
-        for j in range(width):
-            for c in range(channels):
-                wx = px[i : i + 11, j : j + 11, c]
-                wy = py[i : i + 11, j : j + 11, c]
-                mx, my = (weights * wx).sum(), (weights * wy).sum()
-                vx = (weights * wx * wx).sum() - mx * mx
-                vy = (weights * wy * wy).sum() - my * my
-                cxy = (weights * wx * wy).sum() - mx * my
-                values.append(
-                    (2 * mx * my + C1)
-                    * (2 * cxy + C2)
-                    / ((mx * mx + my * my + C1) * (vx + vy + C2))
-                )
-    return float(np.mean(values))
+    pad = ((5, 5), (5, 5), (0, 0))
+    wx = sliding_window_view(np.pad(x, pad), (11, 11), axis=(0, 1))  # [H, W, C, 11, 11]
+    wy = sliding_window_view(np.pad(y, pad), (11, 11), axis=(0, 1))
+
+    def mean(windows: np.ndarray) -> np.ndarray:
+        return (weights * windows).sum(axis=(-2, -1))
+
+    mx, my = mean(wx), mean(wy)
+    vx, vy, cxy = mean(wx * wx) - mx * mx, mean(wy * wy) - my * my, mean(wx * wy) - mx * my
+    values = (2 * mx * my + C1) * (2 * cxy + C2) / ((mx * mx + my * my + C1) * (vx + vy + C2))
+    return float(values.mean())
 
 
-def test_psnr_of_a_known_error_is_exact():
+def test_psnr_of_a_known_error_is_exact_and_other_shapes_are_refused():
     gt = torch.rand(8, 9, 3) * 0.6 + 0.2
     assert psnr(gt + 0.1, gt).item() == pytest.approx(20.0, abs=1e-4)
     assert psnr(gt - 0.01, gt).item() == pytest.approx(40.0, abs=1e-3)
+    batch = torch.stack([gt + 0.1, gt - 0.01])  # averaged per image, not per pixel
+    assert psnr(batch, torch.stack([gt, gt])).item() == pytest.approx(30.0, abs=1e-3)
+    with pytest.raises(ValueError, match="differs"):
+        psnr(torch.rand(4, 4, 3), torch.rand(4, 5, 3))
+    with pytest.raises(ValueError, match="mask shape"):
+        fg_psnr(torch.rand(4, 4, 3), torch.rand(4, 4, 3), torch.ones(3, 3, dtype=torch.bool))
 
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float16, torch.bfloat16])
@@ -64,15 +63,7 @@ def test_psnr_of_identical_images_is_capped_at_100_db(dtype):
     assert value.item() == pytest.approx(100.0)
 
 
-def test_psnr_averages_per_image_not_per_pixel():
-    gt = torch.full((2, 4, 4, 3), 0.5)
-    pred = gt.clone()
-    pred[0] += 0.1
-    pred[1] += 0.01
-    assert psnr(pred, gt).item() == pytest.approx((20.0 + 40.0) / 2, abs=1e-3)
-
-
-def test_masked_psnr_counts_only_masked_pixels():
+def test_masked_psnr_counts_only_masked_pixels_and_leaves_out_empty_masks():
     gt = torch.full((6, 6, 3), 0.5)
     pred = gt.clone()
     pred[:3] += 0.1
@@ -81,9 +72,6 @@ def test_masked_psnr_counts_only_masked_pixels():
     mask[:3] = True
     assert fg_psnr(pred, gt, mask).item() == pytest.approx(20.0, abs=1e-4)
     assert psnr(pred, gt, ~mask).item() == pytest.approx(-10 * math.log10(0.09), abs=1e-4)
-
-
-def test_empty_masks_are_left_out_and_all_empty_gives_nan():
     gt = torch.full((2, 4, 4, 3), 0.5)
     pred = gt + 0.1
     pred[1] += 0.2
@@ -93,65 +81,31 @@ def test_empty_masks_are_left_out_and_all_empty_gives_nan():
     assert math.isnan(fg_psnr(pred, gt, torch.zeros_like(mask)).item())
 
 
-def test_ssim_of_identical_images_is_one():
-    image = torch.rand(12, 14, 3)
-    assert ssim(image, image).item() == pytest.approx(1.0, abs=1e-6)
+def _flat(value: float, *shape: int) -> torch.Tensor:
+    return torch.full(shape, value, dtype=torch.float64)
 
 
-def test_ssim_of_constant_images_matches_the_hand_formula():
-    a, b, height, width = 0.3, 0.7, 14, 17
-    pred = torch.full((height, width, 3), a, dtype=torch.float64)
-    gt = torch.full((height, width, 3), b, dtype=torch.float64)
-    taps = _gaussian_taps()
-    mass_rows = np.array(
-        [taps[max(0, 5 - i) : 11 - max(0, i + 6 - height)].sum() for i in range(height)]
-    )
-    mass_cols = np.array(
-        [taps[max(0, 5 - j) : 11 - max(0, j + 6 - width)].sum() for j in range(width)]
-    )
-    w = np.outer(mass_rows, mass_cols)
-    # Zero padding: mean = value·w, variance = value²·w(1 − w), covariance = a·b·w(1 − w).
-    expected = (
-        (2 * a * b * w * w + C1)
-        * (2 * a * b * w * (1 - w) + C2)
-        / (((a * a + b * b) * w * w + C1) * ((a * a + b * b) * w * (1 - w) + C2))
-    ).mean()
-    interior = (2 * a * b + C1) / (a * a + b * b + C1)
-    assert ssim(pred, gt).item() == pytest.approx(expected, abs=1e-7)
-    assert ssim(pred, gt).item() != pytest.approx(interior, abs=1e-3)
-
-
-def test_ssim_of_a_single_pixel_matches_the_closed_form():
-    """A 1×1 image: the zero-padded window sees only its centre tap, of weight w = g₀².
-
-    With g₀ = 1 / Σ_{k=-5..5} exp(−k²/4.5): μ = w·v, σ² = w·v² − (w·v)² = v²·w(1 − w) and
-    σxy = a·b·w(1 − w), so SSIM is a closed form in a, b and w alone.
-    """
-    a, b = 0.2, 0.8
-    w = (1.0 / sum(math.exp(-(k**2) / 4.5) for k in range(-5, 6))) ** 2
-    s = w * (1.0 - w)
-    expected = (2 * a * b * w * w + C1) * (2 * a * b * s + C2)
-    expected /= ((a * a + b * b) * w * w + C1) * ((a * a + b * b) * s + C2)
-    pred = torch.full((1, 1, 1), a, dtype=torch.float64)
-    gt = torch.full((1, 1, 1), b, dtype=torch.float64)
-    assert ssim(pred, gt).item() == pytest.approx(expected, rel=1e-12)
-
-
-def test_ssim_matches_a_direct_window_computation():
+def _noisy_pair() -> tuple[torch.Tensor, torch.Tensor]:
     generator = torch.Generator().manual_seed(3)
     x = torch.rand(9, 13, 2, generator=generator, dtype=torch.float64)
-    y = (x + 0.2 * torch.rand(9, 13, 2, generator=generator, dtype=torch.float64)).clamp(0, 1)
-    assert ssim(x, y).item() == pytest.approx(_direct_ssim(x.numpy(), y.numpy()), abs=1e-6)
+    return x, (x + 0.2 * torch.rand(9, 13, 2, generator=generator, dtype=torch.float64)).clamp(0, 1)
 
 
-def test_ssim_batched_equals_mean_of_single_images():
-    images = torch.rand(3, 10, 12, 3)
-    targets = torch.rand(3, 10, 12, 3)
-    single = torch.stack([ssim(images[i], targets[i]) for i in range(3)]).mean()
-    assert ssim(images, targets).item() == pytest.approx(single.item(), abs=1e-6)
+@pytest.mark.parametrize(
+    "pair",
+    [
+        _noisy_pair(),
+        # flat images: only the zero-padded borders move SSIM off (2ab + C1) / (a² + b² + C1)
+        (_flat(0.3, 14, 17, 3), _flat(0.7, 14, 17, 3)),
+        (_flat(0.2, 1, 1, 1), _flat(0.8, 1, 1, 1)),  # a 1×1 image: the window's centre tap alone
+    ],
+)
+def test_ssim_matches_a_direct_window_computation(pair):
+    x, y = pair
+    assert ssim(x, y).item() == pytest.approx(_direct_ssim(x.numpy(), y.numpy()), abs=1e-9)
 
 
-def test_dssim_loss_is_differentiable_and_descends():
+def test_dssim_loss_is_differentiable_descends_and_stays_finite_on_flat_images():
     target = torch.rand(16, 16, 3)
     pred = torch.rand(16, 16, 3, requires_grad=True)
     loss = 1 - ssim(pred, target)
@@ -160,19 +114,15 @@ def test_dssim_loss_is_differentiable_and_descends():
     with torch.no_grad():
         stepped = pred - 0.5 * pred.grad / pred.grad.abs().max()
     assert (1 - ssim(stepped, target)).item() < loss.item()
-
-
-def test_ssim_gradient_is_finite_on_constant_images():
-    pred = torch.full((12, 12, 3), 0.5, requires_grad=True)
-    (1 - ssim(pred, torch.full((12, 12, 3), 0.5))).backward()
-    assert torch.isfinite(pred.grad).all()
-
-
-def test_mismatched_shapes_are_rejected():
-    with pytest.raises(ValueError, match="differs"):
-        psnr(torch.rand(4, 4, 3), torch.rand(4, 5, 3))
-    with pytest.raises(ValueError, match="mask shape"):
-        fg_psnr(torch.rand(4, 4, 3), torch.rand(4, 4, 3), torch.ones(3, 3, dtype=torch.bool))
+    flat = torch.full((12, 12, 3), 0.5, requires_grad=True)  # zero variance: the clamp at 0
+    (1 - ssim(flat, torch.full((12, 12, 3), 0.5))).backward()
+    assert torch.isfinite(flat.grad).all()
+    # a batch's SSIM is the mean of its images'
+    images = torch.rand(3, 10, 12, 3)
+    targets = torch.rand(3, 10, 12, 3)
+    single = torch.stack([ssim(images[i], targets[i]) for i in range(3)]).mean()
+    assert ssim(images, targets).item() == pytest.approx(single.item(), abs=1e-6)
+    assert ssim(images, images).item() == pytest.approx(1.0, abs=1e-6)  # identical images
 
 
 @pytest.mark.parametrize("sizes", [[(9, 12)] * 4, [(9, 12), (7, 12), (9, 12)]])

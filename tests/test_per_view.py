@@ -1,7 +1,6 @@
 """Per-view metrics: per_view.csv and the eval artifact's tensors written and read back,
 per-frame means, and the sweep's PSNR-by-frame plot averaged over seeds."""
 
-import json
 from types import SimpleNamespace
 
 import pytest
@@ -23,8 +22,8 @@ from relaygs.per_view import (
     write_per_view,
 )
 from relaygs.pipeline import ArtifactStore
+from sweep_jobs import PNG_SIGNATURE, write_job
 
-PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 RECORDS = [
     {"frame": 0, "camera": 3, "psnr": 25.125, "ssim": 0.75, "fg_psnr": 18.5},
     {"frame": 0, "camera": 9, "psnr": 23.0, "ssim": 0.5, "fg_psnr": None},
@@ -32,17 +31,23 @@ RECORDS = [
 ]
 
 
-def test_records_survive_the_csv_exactly(tmp_path):
-    path = write_per_view(tmp_path / "run" / PER_VIEW_FILE, RECORDS)
+@pytest.mark.parametrize("records", [RECORDS, []])
+def test_records_survive_the_csv_and_the_artifact_tensors_exactly(tmp_path, records):
+    path = write_per_view(tmp_path / "run" / PER_VIEW_FILE, records)
     assert path.read_text().splitlines()[0] == "frame,camera,psnr,ssim,fg_psnr"
-    assert read_per_view(path) == RECORDS  # 1/3 included: floats round-trip exactly
-
-
-def test_frame_means_average_each_frames_views_that_have_the_metric():
-    assert frame_means(RECORDS, "psnr") == pytest.approx({0: 24.0625, 4: 1 / 3})
-    assert frame_means(RECORDS, "fg_psnr") == {0: 18.5, 4: 11.0}  # the None is left out
-    assert list(frame_means(list(reversed(RECORDS)), "psnr")) == [0, 4]  # frames in order
-    assert frame_means([{**r, "fg_psnr": None} for r in RECORDS], "fg_psnr") == {}
+    assert read_per_view(path) == records  # 1/3 included: floats round-trip exactly
+    tensors = to_tensors(iter(records))  # a generator's records are stored whole
+    assert all(bool(t.isfinite().all()) for t in tensors.values() if t.is_floating_point())
+    assert from_tensors(tensors) == records
+    assert from_tensors({}) is None  # an artifact without per-view records
+    # stored columns of unequal length are refused
+    tensors = to_tensors(RECORDS)
+    tensors["per_view.ssim"] = tensors["per_view.ssim"][:2]
+    with refused(InputError, "per_view"):
+        from_tensors(tensors)
+    del tensors["per_view.ssim"]
+    with refused(InputError, "per_view"):
+        from_tensors(tensors)
 
 
 @pytest.mark.parametrize(
@@ -63,24 +68,10 @@ def test_a_damaged_file_is_named_with_its_line(tmp_path, content, named):
         read_per_view(path)
 
 
-def _job(sweep, number, variant, seed, per_frame, scene="juggle", status="ok", **extra):
-    """A job folder with its result and a per_view.csv of two cameras per frame whose mean
-    PSNR at frame f is per_frame[f]."""
-    folder = sweep / f"{number}_{variant}"
-    folder.mkdir(parents=True)
-    result = {
-        "experiment": "ablation_k",
-        "variant": variant,
-        "job": number,
-        "pipeline": "relaygs",
-        "scene": scene,
-        "seed": seed,
-        "psnr": 20.0,
-        "train_s_total": 10.0 + number,
-        "status": status,
-        **extra,
-    }
-    (folder / "result.json").write_text(json.dumps(result))
+def _job(sweep, number, variant, seed, per_frame, **extra):
+    """A job (`write_job`) with a per_view.csv of two cameras per frame whose mean PSNR at frame
+    f is per_frame[f]."""
+    folder = write_job(sweep, number, variant, 20.0, 10.0 + number, seed=seed, **extra)
     if per_frame is not None:
         records = [
             {"frame": f, "camera": c, "psnr": v + d, "ssim": 0.5, "fg_psnr": v - 5}
@@ -90,40 +81,31 @@ def _job(sweep, number, variant, seed, per_frame, scene="juggle", status="ok", *
         write_per_view(folder / PER_VIEW_FILE, records)
 
 
-def test_curves_average_each_variant_over_its_seeds(tmp_path):
+def test_curves_average_the_jobs_of_each_line_where_they_have_values(tmp_path):
     _job(tmp_path, 0, "k8", 0, {0: 20.0, 2: 22.0})
-    _job(tmp_path, 1, "k8", 1, {0: 24.0, 2: 26.0})
-    _job(tmp_path, 2, "k16", 0, {0: 21.0, 2: 21.5})
+    _job(tmp_path, 1, "k8", 1, {0: 24.0})  # another seed, evaluated at other frames
+    _job(tmp_path, 2, "k16", 0, {0: 30.0}, status="failed")
+    _job(tmp_path, 3, "k32", 0, None)  # written before per-view metrics existed
+    # jobs of one variant on other scenes or settings get lines of their own
+    _job(tmp_path, 4, "relaygs", 0, {0: 20.0}, **{"relay.k": 8})
+    _job(tmp_path, 5, "relaygs", 0, {0: 26.0}, scene="court", **{"relay.k": 8})
+    _job(tmp_path, 6, "relaygs", 0, {0: 22.0}, **{"relay.k": 16})
+    _job(tmp_path, 7, "relaygs", 1, {0: 24.0}, **{"relay.k": 16})
+    _job(tmp_path, 8, "4dgs", 0, {0: 18.0}, **{"relay.k": None})
     curves = frame_curves(collect_results(tmp_path))
-    assert curves["psnr"] == {"k8": {0: 22.0, 2: 24.0}, "k16": {0: 21.0, 2: 21.5}}
-    assert curves["fg_psnr"]["k8"] == {0: 17.0, 2: 19.0}
-
-
-def test_curves_leave_out_failed_jobs_and_jobs_without_per_view_metrics(tmp_path):
-    _job(tmp_path, 0, "k8", 0, {0: 20.0})
-    _job(tmp_path, 1, "k16", 0, {0: 30.0}, status="failed")
-    _job(tmp_path, 2, "k32", 0, None)  # written before per-view metrics existed
-    assert frame_curves(collect_results(tmp_path))["psnr"] == {"k8": {0: 20.0}}
-
-
-def test_a_sweep_over_scenes_labels_each_line_with_its_scene(tmp_path):
-    _job(tmp_path, 0, "relaygs", 0, {0: 20.0}, scene="juggle")
-    _job(tmp_path, 1, "relaygs", 0, {0: 26.0}, scene="court")
-    curves = frame_curves(collect_results(tmp_path))["psnr"]
-    assert curves == {"relaygs (scene=juggle)": {0: 20.0}, "relaygs (scene=court)": {0: 26.0}}
-
-
-def test_jobs_of_one_variant_apart_in_a_parameter_get_their_own_lines(tmp_path):
-    _job(tmp_path, 0, "relaygs", 0, {0: 20.0}, **{"relay.k": 8})
-    _job(tmp_path, 1, "relaygs", 0, {0: 22.0}, **{"relay.k": 16})
-    _job(tmp_path, 2, "relaygs", 1, {0: 24.0}, **{"relay.k": 16})  # another seed: averaged
-    _job(tmp_path, 3, "4dgs", 0, {0: 18.0}, **{"relay.k": None})  # apart only from relaygs
-    curves = frame_curves(collect_results(tmp_path))["psnr"]
-    assert curves == {
-        "relaygs (relay.k=8)": {0: 20.0},
-        "relaygs (relay.k=16)": {0: 23.0},
+    assert curves["psnr"] == {
+        "k8": {0: 22.0, 2: 22.0},
+        "relaygs (scene=juggle, relay.k=8)": {0: 20.0},
+        "relaygs (scene=court, relay.k=8)": {0: 26.0},
+        "relaygs (scene=juggle, relay.k=16)": {0: 23.0},
         "4dgs": {0: 18.0},
     }
+    assert curves["fg_psnr"]["k8"] == {0: 17.0, 2: 17.0}  # fg-PSNR 5 dB below the PSNR
+    # a frame's mean is over its views that have the metric
+    assert frame_means(RECORDS, "psnr") == pytest.approx({0: 24.0625, 4: 1 / 3})
+    assert frame_means(RECORDS, "fg_psnr") == {0: 18.5, 4: 11.0}  # the None is left out
+    assert list(frame_means(list(reversed(RECORDS)), "psnr")) == [0, 4]  # frames in order
+    assert frame_means([{**r, "fg_psnr": None} for r in RECORDS], "fg_psnr") == {}
 
 
 def test_every_panel_draws_a_line_in_the_colour_the_legend_gives_it(tmp_path, monkeypatch):
@@ -141,35 +123,23 @@ def test_every_panel_draws_a_line_in_the_colour_the_legend_gives_it(tmp_path, mo
     assert [t.get_text() for t in fg_axes.get_legend().get_texts()] == ["k16"]
 
 
-def test_a_job_evaluated_at_other_frames_counts_only_where_it_has_values(tmp_path):
-    _job(tmp_path, 0, "k8", 0, {0: 20.0, 1: 21.0})
-    _job(tmp_path, 1, "k8", 1, {0: 24.0})  # e.g. another eval.frame_stride
-    assert frame_curves(collect_results(tmp_path))["psnr"] == {"k8": {0: 22.0, 1: 21.0}}
-
-
-def test_the_report_plots_psnr_by_frame_and_lists_it(tmp_path, capsys):
-    _job(tmp_path, 0, "k8", 0, {0: 20.0, 2: 22.0})
+def test_the_report_plots_psnr_by_frame_where_a_job_has_per_view_metrics(tmp_path, capsys):
+    _job(tmp_path, 0, "k8", 0, None)
+    assert report.write_reports(tmp_path).frames is None
+    assert not (tmp_path / report.FRAMES_PNG).exists()
+    _job(tmp_path, 1, "k8", 1, {0: 20.0, 2: 22.0})
     assert report.main([str(tmp_path)]) == 0
     plot = tmp_path / report.FRAMES_PNG
     assert plot.read_bytes().startswith(PNG_SIGNATURE)
     assert str(plot) in capsys.readouterr().out
-
-
-def test_no_plot_when_no_job_has_per_view_metrics(tmp_path):
-    _job(tmp_path, 0, "k8", 0, None)
-    files = report.write_reports(tmp_path)
-    assert files.frames is None
-    assert not (tmp_path / report.FRAMES_PNG).exists()
-
-
-def test_a_damaged_per_view_file_fails_the_report_in_one_line_before_it_writes(tmp_path, capsys):
-    _job(tmp_path, 0, "k8", 0, {0: 20.0})
-    (tmp_path / "0_k8" / PER_VIEW_FILE).write_text("frame,camera,psnr,ssim,fg_psnr\n0,0,x,1,\n")
+    # a damaged file fails the report in one line before it writes anything
+    before = (tmp_path / report.SUMMARY_MD).read_text()
+    _job(tmp_path, 2, "k16", 0, {0: 21.0})
+    (tmp_path / "2_k16" / PER_VIEW_FILE).write_text("frame,camera,psnr,ssim,fg_psnr\n0,0,x,1,\n")
     assert report.main([str(tmp_path)]) == 1
     err = capsys.readouterr().err
-    assert err.startswith("error: ") and err.count("\n") == 1
-    assert f"0_k8/{PER_VIEW_FILE}:2" in err
-    assert not (tmp_path / report.SUMMARY_MD).exists()  # no half-renewed set of report files
+    assert err.startswith("error: ") and err.count("\n") == 1 and f"2_k16/{PER_VIEW_FILE}:2" in err
+    assert (tmp_path / report.SUMMARY_MD).read_text() == before  # no half-renewed report
 
 
 @pytest.mark.parametrize(
@@ -188,29 +158,6 @@ def test_records_an_evaluation_gives_are_checked_before_they_are_stored(tmp_path
         with refused(InputError, *named):
             store([record])
     assert not (tmp_path / "v.csv").exists()
-
-
-def test_records_from_a_generator_are_stored_whole():
-    tensors = to_tensors(record for record in RECORDS)
-    assert from_tensors(tensors) == RECORDS
-
-
-def test_stored_columns_of_unequal_length_are_refused():
-    tensors = to_tensors(RECORDS)
-    tensors["per_view.ssim"] = tensors["per_view.ssim"][:2]
-    with refused(InputError, "per_view"):
-        from_tensors(tensors)
-    del tensors["per_view.ssim"]
-    with refused(InputError, "per_view"):
-        from_tensors(tensors)
-
-
-@pytest.mark.parametrize("records", [RECORDS, []])
-def test_records_survive_the_artifact_tensors_exactly(records):
-    tensors = to_tensors(records)
-    assert all(bool(t.isfinite().all()) for t in tensors.values() if t.is_floating_point())
-    assert from_tensors(tensors) == records
-    assert from_tensors({}) is None  # an artifact without per-view records
 
 
 def test_a_stored_evaluation_keeps_its_records_out_of_the_manifest(tmp_path):

@@ -85,14 +85,6 @@ def test_a_frames_ply_renders_what_the_model_renders_at_that_frame(
     assert torch.allclose(from_file, expected, atol=1e-5)
 
 
-def test_the_movers_leave_the_decoupled_models_later_frames(stage_decoupled, tmp_path):
-    model = SceneModel.from_artifact(stage_decoupled)
-    first, later = write_frame_plys(model, tmp_path, [0, 5], progress=False)
-    n_bg, n_fg = len(model.background), len(model.foreground)
-    assert n_fg > 0
-    assert (len(_read_ply(first)[1]), len(_read_ply(later)[1])) == (n_bg + n_fg, n_bg)
-
-
 def test_properties_follow_the_3dgs_layout_and_order():
     n, bases = 2, 9  # SH degree 2
     sh = torch.arange(n * bases * 3, dtype=torch.float32).reshape(n, bases, 3)
@@ -148,39 +140,27 @@ def _ply_cli(capsys, store, key, *args):
     return code, out, err
 
 
-def test_a_runs_store_exports_beside_its_artifacts_folder(
-    stage_deformed, tmp_path, capsys, monkeypatch
+@pytest.mark.parametrize(
+    ("store_dir", "outputs"),
+    [("run outputs/artifacts", "run outputs"), ("store", "elsewhere/outputs")],
+)
+def test_the_command_writes_the_chosen_frames_into_a_folder_named_after_the_model(
+    stage_deformed, tmp_path, capsys, monkeypatch, store_dir, outputs
 ):
-    store = ArtifactStore(tmp_path / "run outputs" / "artifacts")  # <paths.outputs>/artifacts
+    """A run's store (<paths.outputs>/artifacts) exports beside itself, another into ./outputs."""
+    store = ArtifactStore(tmp_path / store_dir)
     key = artifact_key("deform", 1, {"steps": 20}, "juggle", [])
     store.get_or_build("deform", key, lambda: stage_deformed, config={}, lineage=[])
     (tmp_path / "elsewhere").mkdir()
     monkeypatch.chdir(tmp_path / "elsewhere")
-    code, printed, _ = _ply_cli(capsys, store, key, "--frame", "0")
-    out = tmp_path / "run outputs" / "ply" / f"deform-{key[:16]}"
-    assert (code, printed) == (0, f"deform {key[:16]}: 1 PLY file(s) in {out}\n")
-    assert not (tmp_path / "elsewhere" / "outputs").exists()
-
-
-def test_the_command_writes_the_chosen_frames_into_a_folder_named_after_the_model(
-    stored_deform, tmp_path, capsys, monkeypatch
-):
-    store, key = stored_deform
-    monkeypatch.chdir(tmp_path)
     code, printed, _ = _ply_cli(capsys, store, key, "--frame-stride", "3")
-    out = tmp_path / "outputs" / "ply" / f"deform-{key[:16]}"
+    out = tmp_path / outputs / "ply" / f"deform-{key[:16]}"
     assert (code, printed) == (0, f"deform {key[:16]}: 3 PLY file(s) in {out}\n")
-    assert sorted(path.name for path in out.iterdir()) == [
-        "000000.ply",
-        "000003.ply",
-        "000006.ply",
-    ]
+    assert sorted(p.name for p in out.iterdir()) == ["000000.ply", "000003.ply", "000006.ply"]
+    assert list(tmp_path.rglob("ply")) == [out.parent]  # and nowhere else
     chosen = tmp_path / "chosen"
     code, _, _ = _ply_cli(capsys, store, key, "--frame", "7", "--frame", "2", "--out", str(chosen))
-    assert code == 0 and sorted(path.name for path in chosen.iterdir()) == [
-        "000002.ply",
-        "000007.ply",
-    ]
+    assert code == 0 and sorted(p.name for p in chosen.iterdir()) == ["000002.ply", "000007.ply"]
 
 
 @pytest.mark.parametrize(

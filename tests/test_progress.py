@@ -42,29 +42,20 @@ def _records(stream: io.StringIO, updates: int) -> int:
     return stream.getvalue().count("\r")
 
 
-def test_a_log_file_gets_the_throttled_interval_and_a_terminal_keeps_tqdm_s() -> None:
+def test_a_logged_bar_redraws_every_half_minute_where_a_live_one_redraws_each_second(
+    monkeypatch,
+) -> None:
     with progress_bar(total=10, stream=io.StringIO()) as logged:
-        assert logged.mininterval == LOG_INTERVAL_S
-        assert logged.maxinterval == LOG_INTERVAL_S
+        assert logged.mininterval == logged.maxinterval == LOG_INTERVAL_S
     with progress_bar(total=10, stream=_Terminal()) as live:
-        assert live.mininterval < 1.0
-
-
-def test_a_logged_bar_redraws_every_half_minute_where_a_live_one_redraws_each_second() -> None:
+        assert live.mininterval < 1.0  # tqdm's own
+    closed = io.StringIO()
+    closed.close()
+    assert not is_terminal(closed) and not is_terminal(io.StringIO()) and is_terminal(_Terminal())
     logged, live = _records(io.StringIO(), 200), _records(_Terminal(), 200)
     assert 3 <= logged <= 2 * 200 / LOG_INTERVAL_S + 3  # still alive, but sparse
     assert live >= 100
-
-
-def test_is_terminal_is_false_for_closed_and_plain_streams() -> None:
-    closed = io.StringIO()
-    closed.close()
-    assert not is_terminal(closed)
-    assert not is_terminal(io.StringIO())
-    assert is_terminal(_Terminal())
-
-
-def test_a_job_label_leads_lines_and_bar_names_only_inside_its_block() -> None:
+    # a job label leads lines and bar names only inside its block
     with job_label("3_k64"):
         assert labelled("[relay] built") == "[3_k64] [relay] built"
         with progress_bar(total=2, desc="relay", stream=io.StringIO()) as bar:
@@ -77,10 +68,7 @@ def test_a_job_label_leads_lines_and_bar_names_only_inside_its_block() -> None:
     assert labelled("outputs:\n  result r.json") == "outputs:\n  result r.json"
     with progress_bar(total=2, desc="relay", stream=io.StringIO()) as bar:
         assert bar.desc.startswith("relay")
-
-
-def test_a_labelled_block_is_printed_in_one_write(monkeypatch) -> None:
-    # jobs printing side by side: another job's lines cannot land inside this block
+    # a labelled block is one write: another job's lines cannot land inside it
     stdout = WriteRecorder()
     monkeypatch.setattr("sys.stdout", stdout)
     with job_label("3_k64"):

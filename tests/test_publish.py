@@ -13,7 +13,9 @@ def _hidden_files(folder):
     return sorted(path.name for path in folder.iterdir() if path.name.startswith("."))
 
 
-def test_the_data_is_flushed_to_disk_before_it_is_renamed_in(tmp_path, monkeypatch):
+def test_the_data_is_on_disk_before_it_is_renamed_in_and_a_second_writer_keeps_apart(
+    tmp_path, monkeypatch
+):
     path = tmp_path / "result.json"
     events = []
     real_replace = os.replace
@@ -28,34 +30,7 @@ def test_the_data_is_flushed_to_disk_before_it_is_renamed_in(tmp_path, monkeypat
     partial = f".result.json.{os.getpid()}.partial"
     assert events == [("fsync", partial), ("rename", partial)]
     assert path.read_bytes() == b"{}" and _hidden_files(tmp_path) == []
-
-
-def test_a_failed_publish_names_the_file_and_leaves_no_partial_one(tmp_path):
-    path = tmp_path / "summary.csv"
-    (path / "in the way").mkdir(parents=True)  # a folder holding files: no rename onto it
-    with pytest.raises(OSError) as raised:
-        fsio.publish_text(path, "a,b\n")
-    assert raised.value.filename == str(path)
-    assert raised.value.errno in (errno.EISDIR, errno.ENOTEMPTY, errno.EEXIST)
-    assert _hidden_files(tmp_path) == []
-
-
-def test_an_error_without_an_errno_is_raised_as_it_was(tmp_path, monkeypatch):
-    failure = OSError("the disk went away")
-
-    def fail(path):
-        raise failure
-
-    monkeypatch.setattr(fsio, "fsync_path", fail)
-    with pytest.raises(OSError) as raised:
-        fsio.publish_bytes(tmp_path / "pareto.png", b"png")
-    assert raised.value is failure
-    assert list(tmp_path.iterdir()) == []
-
-
-def test_a_second_writer_of_the_same_file_does_not_take_the_first_ones_partial_file(
-    tmp_path, monkeypatch
-):
+    monkeypatch.undo()
     # a report and a finishing sweep job both publish the summary; the other process's
     # publish runs between this one's write and its rename
     path = tmp_path / "summary.md"
@@ -73,3 +48,25 @@ def test_a_second_writer_of_the_same_file_does_not_take_the_first_ones_partial_f
     monkeypatch.setattr(fsio, "fsync_path", other_process_publishes_meanwhile)
     fsio.publish_bytes(path, b"mine")
     assert path.read_bytes() == b"mine" and _hidden_files(tmp_path) == []
+
+
+def test_a_failed_publish_names_the_file_or_without_an_errno_is_raised_as_it_was(
+    tmp_path, monkeypatch
+):
+    path = tmp_path / "summary.csv"
+    (path / "in the way").mkdir(parents=True)  # a folder holding files: no rename onto it
+    with pytest.raises(OSError) as raised:
+        fsio.publish_text(path, "a,b\n")
+    assert raised.value.filename == str(path)
+    assert raised.value.errno in (errno.EISDIR, errno.ENOTEMPTY, errno.EEXIST)
+    assert _hidden_files(tmp_path) == []
+    failure = OSError("the disk went away")  # without an errno: raised as it was
+
+    def fail(path):
+        raise failure
+
+    monkeypatch.setattr(fsio, "fsync_path", fail)
+    with pytest.raises(OSError) as raised:
+        fsio.publish_bytes(tmp_path / "pareto.png", b"png")
+    assert raised.value is failure
+    assert [path.name for path in tmp_path.iterdir()] == ["summary.csv"]  # no pareto.png

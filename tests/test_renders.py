@@ -21,13 +21,21 @@ from relaygs.train.model_render import ModelRenderer
 from relaygs.train.scene_model import SceneModel
 
 
-def _render_cli(capsys, store, key, scene, *args):
-    try:
-        code = main(["--root", str(store.root), "render", key[:8], "--scene", str(scene), *args])
-    except SystemExit as stop:  # a malformed value: argparse's usage error
-        code = stop.code
-    out, err = capsys.readouterr()
-    return code, out, err
+@pytest.fixture
+def render(stored_deform, stage_scene_path, capsys):
+    """`artifacts render` of the stored deform model on the stage scene: (code, stdout, stderr)."""
+    store, key = stored_deform
+
+    def run(*args, scene=stage_scene_path):
+        try:
+            code = main(
+                ["--root", str(store.root), "render", key[:8], "--scene", str(scene), *args]
+            )
+        except SystemExit as stop:  # a malformed value: argparse's usage error
+            code = stop.code
+        return (code, *capsys.readouterr())
+
+    return run
 
 
 def _bgr(image):
@@ -36,13 +44,10 @@ def _bgr(image):
 
 
 def test_render_writes_each_frame_beside_the_truth_and_a_video_per_camera(
-    stored_deform, stage_scene_path, stage_deformed, tmp_path, capsys
+    render, stage_scene_path, stage_deformed, tmp_path
 ):
-    store, key = stored_deform
     out = tmp_path / "renders"
-    code, printed, _ = _render_cli(
-        capsys, store, key, stage_scene_path, "--frame-stride", "3", "--truth", "--out", str(out)
-    )
+    code, printed, _ = render("--frame-stride", "3", "--truth", "--out", str(out))
     assert code == 0
     scene = load_scene(stage_scene_path)
     renderer = ModelRenderer(SceneModel.from_artifact(stage_deformed))
@@ -68,65 +73,45 @@ def test_render_writes_each_frame_beside_the_truth_and_a_video_per_camera(
     assert not list(out.glob(".*partial*"))
 
 
-def test_render_picks_cameras_and_skips_the_video_on_request(
-    stored_deform, stage_scene_path, tmp_path, capsys
+def test_render_defaults_to_a_folder_named_after_the_model_picks_cameras_refuses_a_file(
+    render, stored_deform, tmp_path, monkeypatch, tiny_synth_scene
 ):
-    store, key = stored_deform
-    out = tmp_path / "renders"
-    code, _, _ = _render_cli(
-        capsys, store, key, stage_scene_path, "--camera", "3", "--no-video", "--out", str(out)
-    )
-    assert code == 0
-    assert sorted(p.name for p in out.iterdir()) == ["cam03"]
-    assert len(list((out / "cam03").glob("*.png"))) == 8
-
-
-def test_render_defaults_to_a_folder_named_after_the_model(
-    stored_deform, stage_scene_path, tmp_path, capsys, monkeypatch
-):
-    store, key = stored_deform
+    key = stored_deform[1]
     monkeypatch.chdir(tmp_path)
-    code, printed, _ = _render_cli(capsys, store, key, stage_scene_path, "--frame-stride", "4")
+    code, printed, _ = render("--frame-stride", "4")
     out = tmp_path / "outputs" / "renders" / f"deform-{key[:16]}"
     assert code == 0 and f"rendered into {out}\n" in printed
     assert len(list((out / "cam00").glob("*.png"))) == 2 and (out / "cam00.mp4").is_file()
-
-
-def test_render_puts_the_error_image_beside_the_render_without_truth(
-    stored_deform, stage_scene_path, stage_deformed, tmp_path, capsys
-):
-    # with --truth: test_render_puts_other_models_beside_with_their_error_images
-    store, key = stored_deform
     out = tmp_path / "renders"
-    args = ["--camera", "10", "--frame-stride", "5", "--error", "--no-video"]
-    code, _, _ = _render_cli(capsys, store, key, stage_scene_path, *args, "--out", str(out))
-    assert code == 0
-    scene = load_scene(stage_scene_path)
-    view = next(v for v in scene.views_at(5, "all") if v.camera.camera_id == 10)
-    renderer = ModelRenderer(SceneModel.from_artifact(stage_deformed))
-    render = renderer.render([view.camera], view.time)[0]
-    written = cv2.imread(str(out / "cam10" / "000005.png"))
-    width = view.camera.width
-    assert written.shape == (view.camera.height, 2 * width, 3)
-    np.testing.assert_array_equal(written[:, :width], _bgr(render))
-    error = written[:, width:]
-    np.testing.assert_array_equal(error, _bgr(error_image(render, scene.image(view))))
-    assert len(np.unique(error.reshape(-1, 3), axis=0)) > 8  # the error varies over the image
+    args = ["--camera", "3", "--no-video", "--out", str(out)]
+    assert render(*args)[0] == 0
+    assert sorted(p.name for p in out.iterdir()) == ["cam03"]
+    assert len(list((out / "cam03").glob("*.png"))) == 8
+    # a file where the folder goes, or a scene of other length, is refused
+    blocker = tmp_path / "file"
+    blocker.write_text("keep me")
+    code, _, err = render("--out", str(blocker))
+    assert code == 1 and f"--out: {blocker} is not a folder" in err
+    assert blocker.read_text() == "keep me"
+    code, _, err = render("--out", str(tmp_path / "r"), scene=tiny_synth_scene)
+    assert code == 1 and "trained on 8 frames but" in err and "has 6" in err
 
 
 def test_render_puts_other_models_beside_with_their_error_images(
-    stored_deform, stage_scene_path, stage_deformed, stage_decoupled, tmp_path, capsys
+    render, stored_deform, stage_scene_path, stage_deformed, stage_decoupled, tmp_path
 ):
     store, key = stored_deform
     other = artifact_key("decouple", 1, {"steps": 2}, "juggle", [])
     store.get_or_build("decouple", other, lambda: stage_decoupled, config={}, lineage=[])
-    out = tmp_path / "renders"
-    args = ["--beside", other[:8], "--camera", "10", "--frame-stride", "5", "--truth", "--error"]
-    code, printed, _ = _render_cli(
-        capsys, store, key, stage_scene_path, *args, "--no-video", "--out", str(out)
-    )
+    args = ["--camera", "10", "--frame-stride", "5", "--error", "--no-video", "--out"]
+    alone, beside = tmp_path / "alone", tmp_path / "beside"
+    assert render(*args, str(alone))[0] == 0
+    with_others = ["--beside", other[:8], "--truth", *args, str(beside)]
+    code, printed, _ = render(*with_others)
     assert code == 0
-    assert f"deform {key[:16]}, decouple {other[:16]} rendered side by side into {out}" in printed
+    assert (
+        f"deform {key[:16]}, decouple {other[:16]} rendered side by side into {beside}" in printed
+    )
     scene = load_scene(stage_scene_path)
     view = next(v for v in scene.views_at(5, "all") if v.camera.camera_id == 10)
     truth = scene.image(view)
@@ -134,24 +119,13 @@ def test_render_puts_other_models_beside_with_their_error_images(
         ModelRenderer(SceneModel.from_artifact(a)).render([view.camera], view.time)[0]
         for a in (stage_deformed, stage_decoupled)
     ]
-    panels = [*renders, truth, *(error_image(render, truth) for render in renders)]
-    written = cv2.imread(str(out / "cam10" / "000005.png"))
-    np.testing.assert_array_equal(written, _bgr(torch.cat(panels, dim=1)))
+    errors = [error_image(render, truth) for render in renders]
+    written = cv2.imread(str(alone / "cam10" / "000005.png"))  # without --truth: no truth panel
+    np.testing.assert_array_equal(written, _bgr(torch.cat([renders[0], errors[0]], dim=1)))
+    assert len(np.unique(written[:, truth.shape[1] :].reshape(-1, 3), axis=0)) > 8  # it varies
+    written = cv2.imread(str(beside / "cam10" / "000005.png"))
+    np.testing.assert_array_equal(written, _bgr(torch.cat([*renders, truth, *errors], dim=1)))
     assert not np.array_equal(_bgr(renders[0]), _bgr(renders[1]))  # two models, two renders
-
-
-def test_render_path_puts_other_models_beside(
-    stored_deform, stage_scene_path, stage_deformed, tmp_path, capsys
-):
-    store, key = stored_deform
-    again = artifact_key("deform", 1, {"steps": 21}, "juggle", [])  # the same model again
-    store.get_or_build("deform", again, lambda: stage_deformed, config={}, lineage=[])
-    out = tmp_path / "renders"
-    args = ["--path", "2", "--beside", again[:8], "--no-video", "--out", str(out)]
-    assert _render_cli(capsys, store, key, stage_scene_path, *args)[0] == 0
-    view = cv2.imread(str(out / "path" / "000001.png"))
-    width = view.shape[1] // 2
-    np.testing.assert_array_equal(view[:, :width], view[:, width:])
 
 
 USAGE = 2  # a usage error: a malformed value or options that contradict each other
@@ -164,41 +138,23 @@ USAGE = 2  # a usage error: a malformed value or options that contradict each ot
         (["--beside", "ffff"], 1, "no artifact with key starting 'ffff'"),
         (["--fps", "0"], USAGE, "--fps: expected a positive number, got '0'"),
         (["--fps", "nan"], USAGE, "--fps: expected a positive number, got 'nan'"),
-        (["--fps", "inf"], USAGE, "--fps: expected a positive number, got 'inf'"),
         (["--fps", "fast"], USAGE, "--fps: expected a positive number, got 'fast'"),
         (["--frame-stride", "0"], USAGE, "--frame-stride: expected an integer >= 1, got '0'"),
         (["--device", "mps"], USAGE, "--device: expected cpu, cuda or cuda:N, got 'mps'"),
         (["--path", "0"], USAGE, "--path: expected an integer >= 1, got '0'"),
         (["--path", "2", "--path-frame", "8"], 1, "render path frame 8 is not in "),
         (["--path", "2", "--truth"], USAGE, "--truth: a camera path (--path) has no ground"),
-        (["--path", "2", "--error"], USAGE, "--error: a camera path (--path) has no ground"),
         (["--path", "2", "--frame-stride", "2"], USAGE, "--frame-stride: a camera path (--path)"),
         (["--path-frame", "1"], USAGE, "--path-frame needs --path N (a camera path of N views) ("),
         (["--path", "2", "--camera", "99"], 1, "camera 99 is not in "),
     ],
 )
-def test_bad_render_options_fail_in_one_line(
-    stored_deform, stage_scene_path, tmp_path, capsys, args, status, message
-):
-    store, key = stored_deform
+def test_bad_render_options_fail_in_one_line(render, tmp_path, args, status, message):
     out = tmp_path / "renders"
-    code, _, err = _render_cli(capsys, store, key, stage_scene_path, *args, "--out", str(out))
+    code, _, err = render(*args, "--out", str(out))
     assert code == status and message in err and err.count("\n") == 1
     assert (code == USAGE) == ("render --help)" in err)  # usage errors say where help is
     assert not out.exists() or not any(out.rglob("*.png"))
-
-
-def test_render_refuses_an_output_file_and_a_scene_of_other_length(
-    stored_deform, stage_scene_path, tiny_synth_scene, tmp_path, capsys
-):
-    store, key = stored_deform
-    blocker = tmp_path / "file"
-    blocker.write_text("keep me")
-    code, _, err = _render_cli(capsys, store, key, stage_scene_path, "--out", str(blocker))
-    assert code == 1 and f"--out: {blocker} is not a folder" in err
-    assert blocker.read_text() == "keep me"
-    code, _, err = _render_cli(capsys, store, key, tiny_synth_scene, "--out", str(tmp_path / "r"))
-    assert code == 1 and "trained on 8 frames but" in err and "has 6" in err
 
 
 def test_an_interrupted_render_leaves_no_video(stage_scene, stage_deformed, tmp_path, monkeypatch):
@@ -234,19 +190,13 @@ def test_a_path_in_the_way_of_a_render_is_named_and_no_partial_video_is_left(
     assert not list(tmp_path.glob(".*"))
 
 
-def test_render_settings_refuse_non_finite_fps():
-    with refused(InputError, "fps", "nan"):
-        RenderSettings(fps=float("nan"))
-
-
 @pytest.mark.parametrize(("hold", "times"), [([], [0.0, 0.5, 1.0]), (["--path-frame", "5"], None)])
 def test_a_path_renders_the_orbit_of_its_cameras_along_time_or_held(
-    stored_deform, stage_scene_path, stage_deformed, tmp_path, capsys, hold, times
+    render, stage_scene_path, stage_deformed, tmp_path, hold, times
 ):
-    store, key = stored_deform
     out = tmp_path / "renders"
     args = ["--camera", "0", "--path", "3", "--no-video", *hold, "--out", str(out)]
-    code, printed, _ = _render_cli(capsys, store, key, stage_scene_path, *args)
+    code, printed, _ = render(*args)
     assert code == 0 and f"  path: 3 frame(s) in {out / 'path'}\n" in printed
     assert sorted(p.name for p in out.iterdir()) == ["path"]
     scene = load_scene(stage_scene_path)
@@ -259,26 +209,35 @@ def test_a_path_renders_the_orbit_of_its_cameras_along_time_or_held(
 
 
 def test_a_path_through_the_train_cameras_is_a_video_by_default(
-    stored_deform, stage_scene_path, tmp_path, capsys
+    render, stored_deform, stage_deformed, tmp_path
 ):
-    store, key = stored_deform
+    store = stored_deform[0]
     out = tmp_path / "renders"
     args = ["--path", "5", "--path-frame", "0", "--out", str(out)]
-    code, printed, _ = _render_cli(capsys, store, key, stage_scene_path, *args)
+    code, printed, _ = render(*args)
     assert code == 0 and f"video {out / 'path.mp4'}" in printed
     assert len(list((out / "path").glob("*.png"))) == 5
     frames = [cv2.imread(str(out / "path" / f"{view:06d}.png")) for view in range(5)]
     assert all(not np.array_equal(a, b) for a, b in itertools.pairwise(frames))
     video = cv2.VideoCapture(str(out / "path.mp4"))
     assert int(video.get(cv2.CAP_PROP_FRAME_COUNT)) == 5
-    code, _, _ = _render_cli(capsys, store, key, stage_scene_path, *args[:1], "3", *args[2:])
-    assert code == 0  # a shorter path into the same folder replaces the frames
+    again = artifact_key("deform", 1, {"steps": 21}, "juggle", [])  # the same model again
+    store.get_or_build("deform", again, lambda: stage_deformed, config={}, lineage=[])
+    shorter = [*args[:1], "3", *args[2:], "--beside", again[:8]]
+    assert render(*shorter)[0] == 0
+    # a shorter path into the same folder replaces the frames; the model beside renders alike
     assert sorted(p.name for p in (out / "path").iterdir()) == [f"{v:06d}.png" for v in range(3)]
+    view = cv2.imread(str(out / "path" / "000001.png"))
+    np.testing.assert_array_equal(view[:, : view.shape[1] // 2], view[:, view.shape[1] // 2 :])
 
 
 @pytest.mark.parametrize("time", [float("nan"), float("inf")])
-def test_a_render_time_that_is_not_finite_is_one_line(stage_deformed, stage_scene_path, time):
+def test_a_render_time_or_frame_rate_that_is_not_finite_is_one_line(
+    stage_deformed, stage_scene_path, time
+):
     camera = load_scene(stage_scene_path).train_views[0].camera
     renderer = ModelRenderer(SceneModel.from_artifact(stage_deformed))
     with refused(InputError, "render time", "[0, 1]"):
         renderer.render([camera], time)
+    with refused(InputError, "fps", str(time)):
+        RenderSettings(fps=time)

@@ -62,6 +62,7 @@ UNUSABLE_GPU = f"cuda:{torch.cuda.device_count()}"
         (["--info", "defaults", "relay.k=[1,"], ["[1,"]),
         (["-m", "relay.k=8,16", "--cfg", "job"], ["--cfg", "--multirun"]),
         (["-r", "-c", "job"], ["--cfg", "--run"]),
+        (["relay.k=0", "-r"], ["relay.k"]),  # checked before any work, as without -r
         # value ranges, and what only the run knows, planned for every job before any starts
         (["relay.k=0"], ["relay.k"]),
         (["decouple.steps=-5"], ["decouple.steps"]),
@@ -178,23 +179,21 @@ def test_the_device_is_checked_here_unless_the_launcher_sends_jobs_elsewhere(
     assert seen == [(8, runs_here), (16, runs_here)]
 
 
-def test_an_unknown_choice_an_experiment_sweeps_is_found_before_any_job(tmp_path):
-    conf = shutil.copytree(config_dir(), tmp_path / "conf")
-    (conf / "experiment" / "plain.yaml").write_text(
-        "# @package _global_\nhydra:\n  mode: MULTIRUN\n  sweeper:\n    params:\n"
-        "      pipeline: relaygs,nope\n"
-    )
-    seen = []
-    with pytest.raises(HydraException, match="pipeline/nope"):
-        prelaunch.check_command_line(["+experiment=plain"], conf, lambda cfg, h: seen.append(1))
-    assert seen == [1]  # the first job, relaygs, composed
-
-
 def _experiment(tmp_path, text):
     """A copy of conf/ with experiment `plain` holding `text` after the package line."""
     conf = shutil.copytree(config_dir(), tmp_path / "conf")
     (conf / "experiment" / "plain.yaml").write_text(f"# @package _global_\n{text}")
     return conf
+
+
+def test_an_unknown_choice_an_experiment_sweeps_is_found_before_any_job(tmp_path):
+    sweep = "hydra:\n  mode: MULTIRUN\n  sweeper:\n    params:\n      pipeline: relaygs,nope\n"
+    seen = []
+    with pytest.raises(HydraException, match="pipeline/nope"):
+        prelaunch.check_command_line(
+            ["+experiment=plain"], _experiment(tmp_path, sweep), lambda cfg, h: seen.append(1)
+        )
+    assert seen == [1]  # the first job, relaygs, composed
 
 
 def test_a_group_an_experiment_adds_is_changed_without_a_plus(tmp_path):
@@ -245,52 +244,46 @@ def _interrupt(stage, step, scalars, images=None):
     raise Interrupted(f"{stage} stopped after step 3 of 9; run the same command again")
 
 
-def test_ctrl_c_ends_the_run_with_one_line_and_status_130(fakes, capsys):
-    fakes.sinks.append(_interrupt)
-    assert run_main(["budget=smoke", *TINY_SCENE]) == run_module.INTERRUPTED_EXIT == 130
-    last = capsys.readouterr().err.strip().splitlines()[-1]
-    stopped = "interrupted: decouple stopped after step 3 of 9; run the same command again"
-    assert last.startswith(f"{stopped}; add hydra.run.dir=")
-
-
 def _stop_in_relay(stage, step, scalars, images=None):
     """A sink that stops the job as SIGTERM would once decouple is built, in relay."""
     if stage == "relay":
         raise KeyboardInterrupt
 
 
+@pytest.mark.parametrize(
+    ("stop", "status", "stopped", "hits"),
+    [
+        (_interrupt, run_module.INTERRUPTED_EXIT, "decouple stopped after step 3 of 9; run the", 0),
+        # a stage that cannot say where it stopped (a fake one here, a parallel launcher's
+        # worker in a real sweep): the line says what running the command again does
+        (_terminate, run_module.TERMINATED_EXIT, RERUN_RUN, 0),
+        (_stop_in_relay, run_module.INTERRUPTED_EXIT, RERUN_RUN, 1),
+    ],
+)
 def test_a_stopped_run_is_told_to_rerun_in_its_folder_and_is_credited_with_both_attempts(
-    fakes, tmp_path, capsys
+    fakes, tmp_path, capsys, stop, status, stopped, hits
 ):
     # the same command again would go on in a new timestamped folder, crediting the decouple
     # the stopped attempt built to no job
-    fakes.sinks.append(_stop_in_relay)
+    assert (run_module.INTERRUPTED_EXIT, run_module.TERMINATED_EXIT) == (130, 143)
+    fakes.sinks.append(stop)
+    previous = signal.getsignal(signal.SIGTERM)
     args = ["budget=smoke", *TINY_SCENE]
-    assert run_main(args) == run_module.INTERRUPTED_EXIT
+    assert run_main(args) == status
+    assert signal.getsignal(signal.SIGTERM) is previous
     [folder] = (tmp_path / "outputs" / "runs").iterdir()
     last = capsys.readouterr().err.strip().splitlines()[-1]
     suffix = " to the command, so that the run goes on in its folder, not a new one"
-    assert last.startswith(f"interrupted: {RERUN_RUN}") and last.endswith(suffix)
+    assert last.startswith(f"interrupted: {stopped}") and last.endswith(suffix)
     [override] = shlex.split(last.removesuffix(suffix).rpartition("; add ")[2])
     assert override == f"hydra.run.dir={folder}"
-    fakes.sinks.remove(_stop_in_relay)
+    fakes.sinks.remove(stop)
     assert run_main([*args, override]) == 0
     assert "already holds a run" not in capsys.readouterr().err
     result = json.loads((folder / "result.json").read_text())
-    assert result["cache_hits"] == 1 and fakes.ran("decouple") == 1
+    assert result["cache_hits"] == hits and fakes.ran("decouple") == 2 - hits
     assert result["train_s_built_by_job"] == result["train_s_total"]
     assert list((tmp_path / "outputs" / "runs").iterdir()) == [folder]
-
-
-def test_sigterm_stops_the_run_as_ctrl_c_does_with_status_143(fakes, capsys):
-    fakes.sinks.append(_terminate)
-    previous = signal.getsignal(signal.SIGTERM)
-    assert run_main(["budget=smoke", *TINY_SCENE]) == run_module.TERMINATED_EXIT == 143
-    # a stage that cannot say where it stopped (a fake one here, a parallel launcher's worker
-    # in a real sweep): the line says what running the command again does
-    last = capsys.readouterr().err.strip().splitlines()[-1]
-    assert last.startswith(f"interrupted: {RERUN_RUN}; add hydra.run.dir=")
-    assert signal.getsignal(signal.SIGTERM) is previous
 
 
 @pytest.mark.parametrize(
@@ -359,7 +352,7 @@ def test_a_signal_while_the_command_line_is_checked_is_one_line_not_a_traceback(
     assert list(tmp_path.iterdir()) == []
 
 
-def test_help_lists_examples_and_experiments_and_does_no_work(fakes, tmp_path, capsys):
+def test_help_completion_and_cfg_print_and_do_no_work(fakes, tmp_path, capsys):
     assert run_main(["--help"]) in (0, None)
     shown = capsys.readouterr().out
     assert shown.startswith("python -m relaygs.run: train and evaluate RelayGS")
@@ -368,34 +361,12 @@ def test_help_lists_examples_and_experiments_and_does_no_work(fakes, tmp_path, c
     assert f"experiment: {', '.join(experiments)}" in shown
     commands = next(a for a in artifacts_parser()._actions if a.dest == "command").choices
     assert f"python -m relaygs.artifacts {' | '.join(commands)}\n" in shown  # every command
-    assert not (tmp_path / "outputs").exists()
-
-
-def test_a_single_run_writes_its_result_in_a_run_dir_under_outputs(fakes, tmp_path):
-    assert run_main(["budget=smoke", *TINY_SCENE, "seed=3"]) == 0
-    (result_path,) = tmp_path.glob("outputs/runs/*/result.json")
-    result = json.loads(result_path.read_text())
-    assert result["seed"] == 3 and result["job"] is None
-    assert result["scene.frames"] == 3  # every override is recorded by its dotted key
-    assert list(result_path.parent.glob("events.out.tfevents.*"))  # TensorBoard's run: the folder
-    assert not (result_path.parent / "run.log").exists()  # the app prints: it would stay empty
-    assert (tmp_path / "outputs" / "artifacts" / "deform").is_dir()
-    assert len(list((tmp_path / "outputs" / "scenes").glob("juggle-*"))) == 1
-
-
-def test_printed_commands_paste_as_is_when_paths_hold_spaces_and_accents(fakes, tmp_path, capsys):
-    outputs = tmp_path / "out dir ü"
-    assert run_main(["budget=smoke", *TINY_SCENE, f'paths.outputs="{outputs}"']) == 0
-    lines = [line.strip() for line in capsys.readouterr().out.splitlines()]
-    (run_dir,) = outputs.glob("runs/*")
-    (scene_dir,) = outputs.glob("scenes/juggle-*")
-    tensorboard = shlex.split(next(line for line in lines if line.startswith("tensorboard ")))
-    assert tensorboard[1:] == [script_command("tensorboard"), "--logdir", str(run_dir)]
-    videos = shlex.split(next(line for line in lines if line.startswith("videos ")))
-    assert videos[videos.index("--root") + 1] == str(outputs / "artifacts")
-    assert videos[videos.index("--scene") + 1] == str(scene_dir)
-    ply = shlex.split(next(line for line in lines if line.startswith("ply ")))
-    assert ply[ply.index("--root") + 1] == str(outputs / "artifacts")
+    # shell completion and --cfg are left to Hydra
+    assert run_main(["-sc", "install=bash"]) == 0
+    assert "complete" in capsys.readouterr().out  # the bash completion script
+    assert run_main(["--cfg", "job", "relay.k=4"]) in (0, None)
+    assert yaml.safe_load(capsys.readouterr().out)["relay"]["k"] == 4
+    assert fakes.calls == [] and list(tmp_path.iterdir()) == []
 
 
 @pytest.mark.parametrize(
@@ -409,14 +380,33 @@ def test_printed_commands_paste_as_is_when_paths_hold_spaces_and_accents(fakes, 
         ],
     ],
 )
-def test_the_printed_render_command_loads_the_scene_as_the_run_did(fakes, tmp_path, capsys, loader):
+def test_a_single_run_writes_its_result_and_prints_commands_that_paste_as_is(
+    fakes, tmp_path, capsys, loader
+):
+    # -r runs one checked job wherever it stands; paths with spaces and accents paste as one
+    # argument, and the printed render command loads the scene as the run did
     from relaygs.commands.artifact_models import load_run_scene
     from relaygs.pipeline import ArtifactStore
 
-    assert run_main(["budget=smoke", *TINY_SCENE, *loader]) == 0
+    outputs = tmp_path / "out dir ü"
+    args = ["budget=smoke", *TINY_SCENE, "seed=3", f'paths.outputs="{outputs}"', *loader, "-r"]
+    assert run_main(args) == 0
+    (run_dir,) = outputs.glob("runs/*")
+    (scene_dir,) = outputs.glob("scenes/juggle-*")
+    result = json.loads((run_dir / "result.json").read_text())
+    assert result["seed"] == 3 and result["job"] is None
+    assert result["scene.frames"] == 3  # every override is recorded by its dotted key
+    assert list(run_dir.glob("events.out.tfevents.*"))  # TensorBoard's run: the folder
+    assert not (run_dir / "run.log").exists()  # the app prints: it would stay empty
+    assert (outputs / "artifacts" / "deform").is_dir()
     lines = [line.strip() for line in capsys.readouterr().out.splitlines()]
+    tensorboard = shlex.split(next(line for line in lines if line.startswith("tensorboard ")))
+    assert tensorboard[1:] == [script_command("tensorboard"), "--logdir", str(run_dir)]
+    ply = shlex.split(next(line for line in lines if line.startswith("ply ")))
+    assert ply[ply.index("--root") + 1] == str(outputs / "artifacts")
     videos = shlex.split(next(line for line in lines if line.startswith("videos ")))
     args = artifacts_parser().parse_args(videos[videos.index("relaygs.artifacts") + 1 :])
+    assert (args.root, args.scene) == (outputs / "artifacts", scene_dir)
     item = ArtifactStore(args.root).find(args.key)
     trained = item.manifest.provenance["scene"]
     assert load_run_scene(args, item).fingerprint == trained  # so `eval` and `render` add no note
@@ -435,36 +425,14 @@ class _FlushLog(io.StringIO):
         self.flushed.append(self.getvalue())
 
 
-def test_shell_completion_is_left_to_hydra(fakes, tmp_path, capsys):
-    assert run_main(["-sc", "install=bash"]) == 0
-    assert "complete" in capsys.readouterr().out  # the bash completion script
-    assert fakes.calls == [] and list(tmp_path.iterdir()) == []
-
-
-def test_cfg_job_prints_the_config_and_does_no_work(fakes, tmp_path, capsys):
-    assert run_main(["--cfg", "job", "relay.k=4"]) in (0, None)
-    assert yaml.safe_load(capsys.readouterr().out)["relay"]["k"] == 4
-    assert fakes.calls == [] and list(tmp_path.iterdir()) == []
-
-
-def test_multirun_flag_may_follow_the_overrides(fakes, tmp_path):
-    assert run_main(["budget=smoke", *TINY_SCENE, "seed=3,4", "-m"]) == 0
-    (sweep,) = tmp_path.glob("outputs/sweeps/*")
-    assert sorted(pd.read_csv(sweep / "summary.csv").seed) == [3, 4]
-
-
-def test_run_flag_runs_one_checked_job_wherever_it_stands(fakes, tmp_path, capsys):
-    assert run_main(["relay.k=0", "-r"]) == 1  # checked before any work, as without -r
-    assert "relay.k" in capsys.readouterr().err and list(tmp_path.iterdir()) == []
-    assert run_main(["budget=smoke", *TINY_SCENE, "seed=3", "-r"]) == 0
-    (result_path,) = tmp_path.glob("outputs/runs/*/result.json")
-    assert json.loads(result_path.read_text())["seed"] == 3
-
-
-def test_each_stage_line_and_a_jobs_summary_reach_the_log_when_printed(fakes, monkeypatch):
+def test_each_stage_line_and_a_jobs_summary_reach_the_log_when_printed(
+    fakes, tmp_path, monkeypatch
+):
     log = _FlushLog()
     monkeypatch.setattr(sys, "stdout", log)
-    assert run_main(["-m", "budget=smoke", *TINY_SCENE, "seed=3,4"]) == 0
+    assert run_main(["budget=smoke", *TINY_SCENE, "seed=3,4", "-m"]) == 0  # -m may come last
+    (sweep,) = tmp_path.glob("outputs/sweeps/*")
+    assert sorted(pd.read_csv(sweep / "summary.csv").seed) == [3, 4]
     ends = [text.rstrip("\n").rsplit("\n", 1)[-1] for text in log.flushed]
     for node in ("decouple", "relay", "deform"):
         assert any(end.startswith(f"[{node}] built {node} artifact") for end in ends), node
@@ -511,14 +479,8 @@ def test_components_sweep_builds_each_distinct_upstream_once(fakes, tmp_path):
     assert run_main(["+experiment=ablation_components", "budget=smoke", *TINY_SCENE]) == 0
     (sweep,) = tmp_path.glob("outputs/sweeps/*")
     table = pd.read_csv(sweep / "summary.csv")
-    assert list(table.variant) == [
-        "full",
-        "no_copies",
-        "no_stage2",
-        "no_pseudo_views",
-        "no_isolation",
-        "no_gamma",
-    ]
+    components = "full no_copies no_stage2 no_pseudo_views no_isolation no_gamma"
+    assert list(table.variant) == components.split()
     assert list(table.pipeline) == ["relaygs", "no_copies", "no_stage2", *["relaygs"] * 3]
     built = {stage: fakes.ran(stage) for stage in ("decouple", "relay", "replicate", "deform")}
     assert built == {"decouple": 1, "relay": 2, "replicate": 1, "deform": 6}

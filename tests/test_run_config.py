@@ -41,20 +41,11 @@ def composer():
         )
 
 
-def test_config_dir_is_the_repository_conf_in_an_editable_install():
-    assert paths.config_dir() == paths.REPO_ROOT / "conf"
-    assert (paths.config_dir() / "config.yaml").is_file()
-
-
 def test_defaults_are_the_main_job(composer):
     cfg = composer()
     assert cfg.pipeline.name == "relaygs"
-    assert (cfg.scene.preset, cfg.scene.width, cfg.scene.height, cfg.scene.frames) == (
-        "juggle",
-        160,
-        90,
-        64,
-    )
+    scene = cfg.scene
+    assert (scene.preset, scene.width, scene.height, scene.frames) == ("juggle", 160, 90, 64)
     assert cfg.budget.name == "small" and cfg.budget.multiplier == 1.0
     assert cfg.relay.k == cfg.replicate.k == 1 and cfg.relay.pseudo_views is True
     assert cfg.deform.gamma is True and cfg.deform.isolate_fg_bg is True
@@ -66,7 +57,8 @@ def test_defaults_are_the_main_job(composer):
 def test_segment_length_follows_the_budget_unless_set(composer, budget, k):
     """`small` relays one copy per frame (few deform steps); the others keep the paper's k = 16."""
     assert composer([f"budget={budget}"]).relay.k == k
-    assert composer([f"budget={budget}", "relay.k=8"]).relay.k == 8
+    cfg = composer([f"budget={budget}", "relay.k=8"])
+    assert cfg.relay.k == cfg.replicate.k == 8  # replicate uses the relay segment length
 
 
 def test_run_and_sweep_dirs_are_unique_to_the_microsecond_and_avoid_runtime_cwd(composer):
@@ -75,11 +67,6 @@ def test_run_and_sweep_dirs_are_unique_to_the_microsecond_and_avoid_runtime_cwd(
         assert "%f" in hydra_cfg[key]["dir"]
         assert "runtime.cwd" not in str(hydra_cfg[key])
     assert "SweepSummary" in hydra_cfg["callbacks"]["sweep_summary"]["_target_"]
-
-
-def test_paper_budget_has_the_papers_step_counts(composer):
-    cfg = composer(["budget=paper"])
-    assert (cfg.decouple.steps, cfg.relay.steps, cfg.deform.steps) == (3000, 14000, 20000)
 
 
 def test_paper_density_schedule_is_in_the_config_so_the_multiplier_scales_it(composer):
@@ -100,6 +87,8 @@ def test_paper_density_schedule_is_in_the_config_so_the_multiplier_scales_it(com
 
 
 def test_budgets_order_by_cost(composer):
+    cfg = composer(["budget=paper"])  # the paper's step counts
+    assert (cfg.decouple.steps, cfg.relay.steps, cfg.deform.steps) == (3000, 14000, 20000)
     steps = {
         name: [composer([f"budget={name}"])[stage].steps for stage in ("decouple", "deform")]
         for name in ("smoke", "small", "paper")
@@ -180,20 +169,12 @@ def test_launchers_compose_with_a_sweep(composer, launcher, plugin, checks):
     assert cfg.hydra.sweeper.params["relay.k"] == "8,16,32,64,128"
 
 
-def test_replicate_uses_the_relay_segment_length(composer):
-    assert composer(["relay.k=8"]).replicate.k == 8
-
-
-def _defaults(settings_class):
-    return json_ready(settings_class())
-
-
 def test_stage_groups_hold_exactly_the_stage_defaults(composer):
     cfg = OmegaConf.to_container(composer(["budget=paper"]), resolve=True)
     for stage, spec in SPECS.items():
-        assert cfg[stage] == _defaults(spec.settings), stage
-    assert cfg["train"] == _defaults(TrainSettings)
-    assert cfg["eval"] == _defaults(EvalSettings)
+        assert cfg[stage] == json_ready(spec.settings()), stage
+    assert cfg["train"] == json_ready(TrainSettings())
+    assert cfg["eval"] == json_ready(EvalSettings())
 
 
 @pytest.mark.parametrize("budget", ["paper", "medium", "small", "smoke"])

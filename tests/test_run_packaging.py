@@ -40,7 +40,9 @@ def test_a_checkout_uses_its_own_conf_folder(monkeypatch, tmp_path):
     assert paths.config_dir() == tmp_path / "repo" / "conf"
 
 
-def test_packaged_data_links_point_at_the_repository_folders():
+def test_an_editable_install_uses_the_repository_conf_its_packaged_link_points_at():
+    assert paths.config_dir() == paths.REPO_ROOT / "conf"
+    assert (paths.config_dir() / "config.yaml").is_file()
     assert (paths.PACKAGED_DATA_DIR / "conf").resolve() == paths.REPO_ROOT / "conf"
 
 

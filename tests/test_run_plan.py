@@ -42,32 +42,26 @@ def test_stage_configs_hold_only_seed_train_and_the_stage_section(config):
         assert stage_cfg[node.stage] == config[node.stage]
 
 
-def test_k_changes_relay_and_deform_keys_but_not_decouple(config):
-    k8, k32 = _keys(_plan(config, relay__k=8)), _keys(_plan(config, relay__k=32))
-    assert k8["decouple"] == k32["decouple"]
-    assert k8["relay"] != k32["relay"] and k8["deform"] != k32["deform"]
+@pytest.mark.parametrize(
+    ("changes", "rekeyed"),
+    [
+        ({"relay__k": 32}, {"relay", "deform"}),
+        ({"deform__gamma": False}, {"deform"}),  # decouple and relay are shared
+        ({"train__checkpoint_every": 7}, set()),
+        ({"tensorboard__hparams": "all", "tensorboard__preview_frames": 9}, set()),
+        ({"train__progress": False}, set()),
+    ],
+)
+def test_a_setting_changes_the_keys_of_the_nodes_it_reaches_only(config, changes, rekeyed):
+    plain, changed = _keys(_plan(config)), _keys(_plan(config, **changes))
+    assert {node for node in plain if plain[node] != changed[node]} == rekeyed
 
 
-def test_deform_only_settings_share_decouple_and_relay(config):
-    full, no_gamma = _keys(_plan(config)), _keys(_plan(config, deform__gamma=False))
-    assert (full["decouple"], full["relay"]) == (no_gamma["decouple"], no_gamma["relay"])
-    assert full["deform"] != no_gamma["deform"]
-
-
-def test_checkpoint_interval_does_not_change_any_key(config):
-    assert _keys(_plan(config)) == _keys(_plan(config, train__checkpoint_every=7))
-
-
-def test_tensorboard_settings_do_not_change_any_key(config):
+def test_logging_settings_reach_the_plan(config):
     plain = _plan(config)
     logged = _plan(config, tensorboard__hparams="all", tensorboard__preview_frames=9)
     assert (plain.hparams, logged.hparams, logged.preview_frames) == ("swept", "all", 9)
-    assert _keys(plain) == _keys(logged)
-
-
-def test_progress_follows_train_progress(config):
-    assert _plan(config).progress
-    assert not _plan(config, train__progress=False).progress
+    assert plain.progress and not _plan(config, train__progress=False).progress
 
 
 def test_pipeline_overrides_pin_the_4dgs_deform_settings(config):
@@ -94,9 +88,6 @@ def test_scale_steps_scales_named_counts_at_any_depth_and_keeps_them_positive():
     }
     assert scale_steps({"steps": 0}, 2.0, ["steps"]) == {"steps": 0}
     assert scale_steps({"steps": -4}, 2.0, ["steps"]) == {"steps": -4}
-
-
-def test_a_multiplier_that_overflows_a_step_count_is_one_line():
     # a finite multiplier whose product is not (1e307 × 20) failed in round() with a traceback
     with refused(InputError, "budget.multiplier"):
         scale_steps({"densify": {"densify_every": 20}}, 1e307, ["densify_every"])

@@ -43,6 +43,11 @@ def test_cache_folder_depends_on_every_generation_parameter(tmp_path):
         assert synthetic_folder(scene_spec({**TINY, **change}), tmp_path) != base
     renamed = synthetic_folder(scene_spec({**TINY, "name": "label"}), tmp_path)
     assert renamed == base  # the label is not a generation parameter
+    # effects `none` is no effects, as in synth
+    no_effects = synthetic_folder(scene_spec({**TINY, "effects": []}), tmp_path)
+    for none in ("none", ["none"]):
+        assert scene_spec({**TINY, "effects": none}).effects == ()
+        assert synthetic_folder(scene_spec({**TINY, "effects": none}), tmp_path) == no_effects
 
 
 @pytest.mark.parametrize(
@@ -109,19 +114,6 @@ def test_a_broken_preset_is_refused_before_generation(tmp_path, monkeypatch, edi
     assert not any(tmp_path.iterdir())
 
 
-@pytest.mark.parametrize("none", ["none", ["none"]])
-def test_effects_none_is_no_effects_as_in_synth(tmp_path, none):
-    spec = scene_spec({**TINY, "effects": none})
-    empty = scene_spec({**TINY, "effects": []})
-    assert spec.effects == () == empty.effects
-    assert synthetic_folder(spec, tmp_path) == synthetic_folder(empty, tmp_path)
-
-
-def test_none_among_effect_names_is_refused():
-    with refused(InputError, "scene.effects", "'none'"):
-        scene_spec({**TINY, "effects": ["none", "nonrigid"]})
-
-
 def test_a_synthetic_scene_is_generated_once_and_then_loaded(tmp_path, monkeypatch):
     calls = []
     real_generate = scenes.generate
@@ -149,15 +141,13 @@ def test_a_synthetic_scene_is_generated_once_and_then_loaded(tmp_path, monkeypat
     assert len(calls) == 1
 
 
-def test_a_capture_path_is_loaded_in_place(tiny_synth_scene):
+def test_a_capture_path_is_loaded_in_place_and_its_errors_name_the_runs_option(
+    tiny_synth_scene, tmp_path
+):
     spec = scene_spec({**TINY, "path": str(tiny_synth_scene), "name": None})
     assert not spec.is_synthetic and spec.name == tiny_synth_scene.name
-    scene = prepare_scene(spec, tiny_synth_scene.parent / "unused")
-    assert scene.root == tiny_synth_scene
-    assert not (tiny_synth_scene.parent / "unused").exists()
-
-
-def test_loader_errors_of_a_capture_name_the_runs_option(tiny_synth_scene, tmp_path):
+    assert prepare_scene(spec, tmp_path / "unused").root == tiny_synth_scene
+    assert not (tmp_path / "unused").exists()
     spec = scene_spec({**TINY, "path": str(tiny_synth_scene), "loader": {"test_cameras": [99]}})
     with refused(InputError, "scene.loader.test_cameras", "[99]"):
         prepare_scene(spec, tmp_path)
@@ -184,16 +174,6 @@ def test_the_loading_a_run_records_loads_its_scene_again_as_the_run_did(tiny_syn
     assert scene_provenance(scene_spec({**TINY, "effects": ["sensor_noise"]})) == {}
 
 
-def test_capture_paths_must_exist_and_have_a_known_layout(tmp_path):
-    with refused(InputError, "scene.path", str(tmp_path / "missing")):
-        scene_spec({**TINY, "path": str(tmp_path / "missing")})
-    (tmp_path / "frames.txt").write_text("not a scene")
-    with refused(InputError, "scene.path", "frames.txt"):
-        scene_spec({**TINY, "path": str(tmp_path / "frames.txt")})
-    with refused(InputError, str(tmp_path), "train_meta.json", "camXX"):
-        scene_spec({**TINY, "path": str(tmp_path)})
-
-
 def test_held_out_cameras_within_the_rig_are_accepted_before_generation():
     # the highest id of juggle's 31-camera dome, and all but one camera, are valid
     for held_out in ([30], list(range(30))):
@@ -201,9 +181,21 @@ def test_held_out_cameras_within_the_rig_are_accepted_before_generation():
         assert spec.loader["test_cameras"] == held_out
 
 
-def test_unknown_scene_fields_are_rejected():
-    with refused(InputError, "scene", "'colour'"):
-        scene_spec({**TINY, "colour": "red"})
+@pytest.mark.parametrize(
+    ("changes", "named"),
+    [
+        ({"colour": "red"}, ["scene", "'colour'"]),
+        ({"effects": ["none", "nonrigid"]}, ["scene.effects", "'none'"]),
+        ({"path": "{tmp}/missing"}, ["scene.path", "{tmp}/missing"]),
+        ({"path": "{tmp}/frames.txt"}, ["scene.path", "frames.txt"]),
+        ({"path": "{tmp}"}, ["{tmp}", "train_meta.json", "camXX"]),  # no known layout
+    ],
+)
+def test_a_bad_scene_section_is_refused_naming_the_field(tmp_path, changes, named):
+    (tmp_path / "frames.txt").write_text("not a scene")
+    changes = {k: v.format(tmp=tmp_path) if k == "path" else v for k, v in changes.items()}
+    with refused(InputError, *(name.format(tmp=tmp_path) for name in named)):
+        scene_spec({**TINY, **changes})
 
 
 @pytest.mark.parametrize(

@@ -100,17 +100,78 @@ def test_a_run_writes_a_flat_result_with_every_required_field(base_config, tmp_p
     assert render in out
 
 
-def test_changing_k_reuses_decouple_and_rebuilds_relay_and_deform(base_config, tmp_path, capsys):
-    fakes = FakeStages()
-    first = _run(with_values(base_config, relay__k=8), tmp_path / "a", fakes)
-    second = _run(with_values(base_config, relay__k=32), tmp_path / "b", fakes)
-    again = _run(with_values(base_config, relay__k=32), tmp_path / "c", fakes)
+def test_runs_sharing_a_store_reuse_its_stages_and_evaluations(base_config, tmp_path, capsys):
+    # nodes named other than their stage types: a reused stage is noted under its type
+    pipeline = tmp_path / "renamed.yaml"
+    pipeline.write_text(
+        "nodes:\n  first: {stage: decouple}\n  second: {stage: relay, upstream: [first]}\n"
+        "  model: {stage: deform, upstream: [second]}\n"
+    )
+    renamed = with_values(base_config, pipeline__name=str(pipeline))
+    fakes = FakeStages(notes={"decouple": ["decouple marked no Gaussian as foreground"]})
+    note = "note: [first] decouple marked no Gaussian as foreground"
+    first = _run(with_values(renamed, relay__k=8), tmp_path / "a", fakes)
+    (stored,) = (p for p in (tmp_path / "artifacts" / "decouple").iterdir() if p.is_dir())
+    out, err = capsys.readouterr()
+    path = tmp_path / "a" / PER_VIEW_FILE
+    assert f"per view     {path}" in out and err.count(note) == 1
+    second = _run(with_values(renamed, relay__k=32), tmp_path / "b", fakes)
+    out, err = capsys.readouterr()
+    assert "reused decouple artifact" in out and err.count(note) == 1  # said by every run
+    again = _run(with_values(renamed, relay__k=32), tmp_path / "c", fakes)
     assert (fakes.ran("decouple"), fakes.ran("relay"), fakes.ran("deform")) == (1, 2, 2)
     assert (first["cache_hits"], second["cache_hits"], again["cache_hits"]) == (0, 1, 3)
-    assert again["train_s_computed"] == 0
-    assert again["train_s_total"] == pytest.approx(second["train_s_total"])
+    assert first["notes"] == again["notes"] == note.removeprefix("note: ")
+    assert "notes" not in _run(base_config, tmp_path / "quiet" / "d", FakeStages())  # own store
     assert first["psnr"] != second["psnr"]
-    assert "reused decouple artifact" in capsys.readouterr().out
+    # an evaluated model is not evaluated again: its metrics and per-view records are read back
+    assert fakes.evaluations == 2 and "[eval] reused evaluation" in capsys.readouterr().out
+    assert (again["train_s_computed"], again["eval_s_computed"]) == (0, 0.0)
+    assert second["eval_s_computed"] == second["eval_s_total"]
+    for name in ("train_s_total", "eval_s_total", "psnr", "eval_frames"):
+        assert again[name] == pytest.approx(second[name]), name
+    records = read_per_view(tmp_path / "b" / PER_VIEW_FILE)
+    assert read_per_view(tmp_path / "c" / PER_VIEW_FILE) == records
+    assert [(r["frame"], r["camera"]) for r in records] == [(0, 0), (0, 7), (2, 0), (2, 7)]
+    assert PER_VIEW not in first  # the result stays flat
+    # another frame stride is another evaluation of the same model
+    _run(with_values(renamed, relay__k=32, eval__frame_stride=1), tmp_path / "e", fakes)
+    assert fakes.evaluations == 3 and fakes.ran("deform") == 2
+    # a result names the images it was scored on: another model, the same test images
+    halved = _run(with_values(base_config, scene__loader__downscale=2), tmp_path / "f", fakes)
+    held_out = _run(
+        with_values(base_config, scene__loader__test_cameras=[2]), tmp_path / "g", fakes
+    )
+    assert len(first["test_set"]) == 12 and first["test_set"] == second["test_set"]
+    assert len({first["test_set"], halved["test_set"], held_out["test_set"]}) == 3
+    # TensorBoard: the built run's curves, previews, per-frame means and hparams
+    assert fakes.sinks == []  # the sink is removed after each run
+    built = EventAccumulator(str(tmp_path / "a"), size_guidance={"scalars": 0, "images": 0})
+    built.Reload()
+    tags = built.Tags()
+    stages = {f"train/{stage}/loss" for stage in ("decouple", "relay", "deform")}
+    assert stages | {"result/psnr"} <= set(tags["scalars"])
+    assert {"eval/render_vs_truth", "train/deform/render"} <= set(tags["images"])
+    (preview, *_) = built.Images("eval/render_vs_truth")
+    # render, truth and error of 16×9 views, enlarged 18× (to >= 160 rows) under their captions
+    assert (preview.width, preview.height) == (3 * 16 * 18, 9 * 18 + CAPTION_HEIGHT)
+    plugins = built.PluginTagToContent("hparams")
+    assert "_hparams_/experiment" in plugins and "_hparams_/session_start_info" in plugins
+    # the fake's two cameras score psnr + f and psnr + 2f at frame f: their mean is psnr + 1.5 f
+    logged = [(e.step, e.value) for e in built.Scalars("eval/psnr_by_frame")]
+    assert logged == [(0, pytest.approx(first["psnr"])), (2, pytest.approx(first["psnr"] + 3))]
+    assert "eval/fg_psnr_by_frame" not in tags["scalars"]  # no value at any frame
+    # a job that reuses stages notes them instead of replaying their curves
+    reused = EventAccumulator(str(tmp_path / "b"), size_guidance={"scalars": 0, "tensors": 0})
+    reused.Reload()
+    assert [(e.step, e.value) for e in reused.Scalars("train/relay/loss")] == [(0, 1.0)]
+    assert not any(tag.startswith("train/decouple/") for tag in reused.Tags()["scalars"])
+    (note,) = reused.Tensors("reused/decouple/text_summary")
+    text = note.tensor_proto.string_val[0].decode()
+    assert "**decouple**" in text and "(node `first`)" in text and "artifact store" in text
+    assert f"artifact `{stored.name[:16]}`" in text
+    assert "by run `a`" in text and "step, 5: loss 0.5" in text
+    assert "reused/relay/text_summary" not in reused.Tags()["tensors"]
 
 
 def _status_lines(out):
@@ -119,152 +180,78 @@ def _status_lines(out):
     return [line for line in out.splitlines() if status.match(line)]
 
 
-def test_a_labelled_job_names_itself_on_every_status_line(base_config, tmp_path, capsys):
-    # jobs of a parallel launcher print side by side: each line says whose it is
-    fakes = FakeStages()
-    _run(base_config, tmp_path / "3_k64", fakes, label="3_k64")
-    out = capsys.readouterr().out
+def test_a_labelled_job_names_itself_on_every_line_and_writes_each_whole(
+    base_config, tmp_path, monkeypatch
+):
+    # jobs of a parallel launcher print side by side on one unbuffered pipe: each line says
+    # whose it is, and a line and its newline written apart would let another's land between
+    fakes = FakeStages(notes={"decouple": ["no foreground"]})
+    printed = []
+    for label in ("3_k64", None):
+        stdout, stderr = WriteRecorder(), WriteRecorder()
+        monkeypatch.setattr("sys.stdout", stdout)
+        monkeypatch.setattr("sys.stderr", stderr)
+        _run(base_config, tmp_path / (label or "alone"), fakes, label=label)
+        printed.append((stdout, stderr))
+    (stdout, stderr), (alone, _) = printed
+    writes = [text for text in stdout.writes + stderr.writes if text]
+    assert sum("[decouple] " in text for text in writes) == 2  # its status line and its note
+    assert all(text.startswith("[3_k64] ") and text.endswith("\n") for text in writes)
+    out = stdout.getvalue()
     labelled = _status_lines(out)
     assert len(labelled) == 4  # three stages and the evaluation
     assert all(line.startswith("[3_k64] [") for line in labelled)
     # and so does every line of its results table and outputs block
     assert all(line.startswith("[3_k64] ") for line in out.splitlines())
     assert "\n[3_k64]   PSNR " in out and "\n[3_k64] outputs:\n[3_k64]   result " in out
-    _run(base_config, tmp_path / "alone", fakes)
-    out = capsys.readouterr().out
+    out = alone.getvalue()
     alone = _status_lines(out)
     assert len(alone) == 4 and all(line.startswith("[") for line in alone)
     assert "3_k64" not in out
     assert "\n  PSNR " in out and "\noutputs:\n  result " in out  # as a single run prints
 
 
-def test_a_labelled_jobs_lines_each_go_out_whole_with_their_newline(
-    base_config, tmp_path, monkeypatch
-):
-    # jobs side by side on one unbuffered pipe: a line and its newline written apart would
-    # let another job's line land between them
-    stdout, stderr = WriteRecorder(), WriteRecorder()
-    monkeypatch.setattr("sys.stdout", stdout)
-    monkeypatch.setattr("sys.stderr", stderr)
-    fakes = FakeStages(notes={"decouple": ["no foreground"]})
-    _run(base_config, tmp_path / "3_k64", fakes, label="3_k64")
-    writes = [text for text in stdout.writes + stderr.writes if text]
-    assert sum("[decouple] " in text for text in writes) == 2  # its status line and its note
-    assert all(text.startswith("[3_k64] ") and text.endswith("\n") for text in writes)
-
-
-def test_a_result_names_the_images_it_was_scored_on(base_config, tmp_path):
-    fakes = FakeStages()
-    first = _run(base_config, tmp_path / "a", fakes)
-    again = _run(with_values(base_config, relay__k=32), tmp_path / "b", fakes)
-    halved = _run(with_values(base_config, scene__loader__downscale=2), tmp_path / "c", fakes)
-    held_out = _run(
-        with_values(base_config, scene__loader__test_cameras=[2]), tmp_path / "d", fakes
-    )
-    assert len(first["test_set"]) == 12
-    assert first["test_set"] == again["test_set"]  # another model, the same test images
-    assert len({first["test_set"], halved["test_set"], held_out["test_set"]}) == 3
-
-
-def test_a_stages_note_is_said_by_every_run_of_its_artifact_and_kept_in_the_result(
+def test_a_job_rerun_in_its_folder_counts_what_it_built_there_and_is_not_noted(
     base_config, tmp_path, capsys
 ):
-    fakes = FakeStages(notes={"decouple": ["decouple marked no Gaussian as foreground"]})
-    line = "note: [decouple] decouple marked no Gaussian as foreground"
-    built = _run(base_config, tmp_path / "a", fakes)
-    assert capsys.readouterr().err.count(line) == 1
-    reused = _run(with_values(base_config, relay__k=32), tmp_path / "b", fakes)
-    assert capsys.readouterr().err.count(line) == 1 and fakes.ran("decouple") == 1
-    assert built["notes"] == reused["notes"] == line.removeprefix("note: ")
-    assert "notes" not in _run(base_config, tmp_path / "quiet" / "c", FakeStages())  # own store
-
-
-def test_a_sweep_job_resumed_in_its_folder_is_not_noted_but_another_run_there_is(
-    base_config, tmp_path, capsys
-):
-    # a sweep rerun with its hydra.sweep.dir (as an interrupted one is told to) finds each
-    # job's own result: no advice to give it another folder
+    # a sweep resumed in place (as an interrupted one is told to): the rerun reuses everything,
+    # yet the job built it all in its folder before the interruption, and finds its own result
+    # there (no advice to give it another folder); a job in another folder built none of it
     fakes = FakeStages()
-    folder = tmp_path / "sweep" / "0_relaygs"
-    k8, k16 = with_values(base_config, relay__k=8), with_values(base_config, relay__k=16)
-    overrides = ["relay.k=8", "+component=full", "budget=smoke"]
-    _run(k8, folder, fakes, overrides=overrides, job=0)
-    _run(k8, folder, fakes, overrides=overrides, job=0)
-    assert "already holds a run" not in capsys.readouterr().err
-    (folder / RESULT_FILE).unlink()  # the job the interruption stopped: only its curves
-    _run(k8, folder, fakes, overrides=overrides, job=0)
+    folder = tmp_path / "sweep" / "0_k8"
+    k8, overrides = with_values(base_config, relay__k=8), ["relay.k=8", "+component=full"]
+    first = _run(k8, folder, fakes, overrides=overrides, job=0)
+    assert first["train_s_built_by_job"] == first["train_s_computed"] > 0
+    assert first["eval_s_built_by_job"] == first["eval_s_computed"] > 0
+    (folder / RESULT_FILE).unlink()  # killed after its stages, before its result: its curves
+    capsys.readouterr()
+    again = _run(k8, folder, fakes, overrides=overrides, job=0)
     err = capsys.readouterr().err
     assert "already holds a run" not in err
     assert f"note: {folder} holds the TensorBoard curves of a run stopped before its " in err
-    note = f"note: {folder} already holds a run: its result.json is replaced"
-    _run(k16, folder, fakes, overrides=["relay.k=16"], job=0)  # another sweep's job 0
-    assert note in capsys.readouterr().err
-    _run(k16, folder, fakes, overrides=["relay.k=16"], job=1)  # another job of a sweep
-    assert note in capsys.readouterr().err
-    _run(k16, folder, fakes)  # a pinned hydra.run.dir used again by a single run
-    assert note in capsys.readouterr().err
-
-
-def test_a_job_rerun_in_its_folder_still_counts_what_it_built_there(base_config, tmp_path):
-    # a sweep resumed in place: the rerun reuses everything, yet the job built it all in its
-    # folder before the interruption; a job in another folder built none of it
-    fakes = FakeStages()
-    folder = tmp_path / "sweep" / "0_k8"
-    first = _run(base_config, folder, fakes, job=0)
-    assert first["train_s_built_by_job"] == first["train_s_computed"] > 0
-    assert first["eval_s_built_by_job"] == first["eval_s_computed"] > 0
-    (folder / RESULT_FILE).unlink()  # killed after its stages, before its result
-    again = _run(base_config, folder, fakes, job=0)
     assert (again["train_s_computed"], again["eval_s_computed"], again["cache_hits"]) == (0, 0, 3)
     assert again["train_s_built_by_job"] == pytest.approx(first["train_s_computed"])
     assert again["eval_s_built_by_job"] == pytest.approx(first["eval_s_computed"])
     # resumed with settings that build nothing differently: still the same job
-    quiet = with_values(base_config, train__progress=False, train__checkpoint_every=7)
-    assert _run(quiet, folder, fakes, job=0)["train_s_built_by_job"] == pytest.approx(
-        first["train_s_computed"]
-    )
-    other = _run(base_config, tmp_path / "sweep" / "1_k8", fakes, job=1)
+    quiet = with_values(k8, train__progress=False, train__checkpoint_every=7)
+    built = _run(quiet, folder, fakes, overrides=overrides, job=0)["train_s_built_by_job"]
+    assert built == pytest.approx(first["train_s_computed"])
+    assert "already holds a run" not in capsys.readouterr().err
+    other = _run(k8, tmp_path / "sweep" / "1_k8", fakes, job=1)
     assert (other["train_s_built_by_job"], other["eval_s_built_by_job"]) == (0, 0)
     assert fakes.ran("deform") == 1 and fakes.evaluations == 1
     # another sweep's job 0 in the same folder built only what its own setting changed
-    k2 = _run(with_values(base_config, relay__k=2), folder, fakes, overrides=["relay.k=2"], job=0)
-    built_now = (k2["train_s_computed"], k2["eval_s_computed"])
-    assert built_now == (k2["train_s_built_by_job"], k2["eval_s_built_by_job"])
-    assert k2["cache_hits"] == 1 and fakes.ran("deform") == 2
-
-
-def test_an_evaluated_model_is_not_evaluated_again(base_config, tmp_path, capsys):
-    fakes = FakeStages()
-    first = _run(base_config, tmp_path / "a", fakes)
-    again = _run(base_config, tmp_path / "b", fakes)
-    assert fakes.evaluations == 1
-    assert again["psnr"] == first["psnr"] and again["eval_frames"] == first["eval_frames"]
-    assert again["eval_s_total"] == pytest.approx(first["eval_s_total"])
-    assert (first["eval_s_computed"], again["eval_s_computed"]) == (first["eval_s_total"], 0.0)
-    assert "[eval] reused evaluation" in capsys.readouterr().out
-    # another frame stride is another evaluation of the same model
-    _run(with_values(base_config, eval__frame_stride=1), tmp_path / "c", fakes)
-    assert fakes.evaluations == 2 and fakes.ran("deform") == 1
-
-
-def test_a_run_writes_per_view_metrics_and_logs_their_frame_means(base_config, tmp_path, capsys):
-    fakes = FakeStages()
-    result = _run(base_config, tmp_path / "a", fakes)
-    path = tmp_path / "a" / PER_VIEW_FILE
-    records = read_per_view(path)
-    assert [(r["frame"], r["camera"]) for r in records] == [(0, 0), (0, 7), (2, 0), (2, 7)]
-    assert f"per view     {path}" in capsys.readouterr().out
-    assert PER_VIEW not in result  # the result stays flat
-    events = EventAccumulator(str(tmp_path / "a"), size_guidance={"scalars": 0})
-    events.Reload()
-    # the fake's two cameras score psnr + f and psnr + 2f at frame f: their mean is psnr + 1.5 f
-    logged = [(e.step, e.value) for e in events.Scalars("eval/psnr_by_frame")]
-    assert logged == [(0, pytest.approx(result["psnr"])), (2, pytest.approx(result["psnr"] + 3))]
-    assert "eval/fg_psnr_by_frame" not in events.Tags()["scalars"]  # no value at any frame
-    # a job that reads the evaluation back from the store writes the same records
-    _run(base_config, tmp_path / "b", fakes)
-    assert fakes.evaluations == 1
-    assert read_per_view(tmp_path / "b" / PER_VIEW_FILE) == records
+    k2 = with_values(base_config, relay__k=2)
+    result = _run(k2, folder, fakes, overrides=["relay.k=2"], job=0)
+    built_now = (result["train_s_computed"], result["eval_s_computed"])
+    assert built_now == (result["train_s_built_by_job"], result["eval_s_built_by_job"])
+    assert result["cache_hits"] == 1 and fakes.ran("deform") == 2
+    note = f"note: {folder} already holds a run: its result.json is replaced"
+    assert note in capsys.readouterr().err
+    _run(k2, folder, fakes, overrides=["relay.k=2"], job=1)  # another job of a sweep
+    assert note in capsys.readouterr().err
+    _run(k2, folder, fakes)  # a pinned hydra.run.dir used again by a single run
+    assert note in capsys.readouterr().err
 
 
 def test_an_evaluation_without_per_view_metrics_leaves_no_file(base_config, tmp_path, capsys):
@@ -286,11 +273,12 @@ def test_the_runs_thread_count_keys_its_evaluation_and_its_printed_commands(
     """Render FPS depends on the thread count, so a stored evaluation is reused only at the
     thread count it was measured with; the trained artifacts are reused whatever it is. The
     printed commands use as many threads: with torch's default instead, a render on a loaded
-    2-core machine ran 25 times slower."""
+    2-core machine ran 25 times slower. The run's splat backend is the job's default too."""
     fakes = FakeStages()
     threads = torch.get_num_threads()
     try:
-        _run(with_values(base_config, threads=1), tmp_path / "a", fakes)
+        _run(with_values(base_config, threads=1, splat__backend="torch"), tmp_path / "a", fakes)
+        assert default_backend() == "torch"
         result = _run(with_values(base_config, threads=2), tmp_path / "b", fakes)
         two = capsys.readouterr().out
         _run(with_values(base_config, threads=2), tmp_path / "c", fakes)
@@ -298,22 +286,14 @@ def test_the_runs_thread_count_keys_its_evaluation_and_its_printed_commands(
         capsys.readouterr()
         _run(with_values(base_config, threads=None), tmp_path / "default", fakes)
         default = capsys.readouterr().out
+        assert default_backend() == "auto"
     finally:
         torch.set_num_threads(threads)
+        use_backend("auto")
     key = result["output_key"][:16]
     assert f" ply {key} --threads 2\n" in two and " --truth --error --threads 2\n" in two
     assert f" ply {key}\n" in default and " --truth --error\n" in default
     assert "--threads" not in default
-
-
-def test_the_runs_splat_backend_is_the_jobs_default(base_config, tmp_path):
-    try:
-        _run(with_values(base_config, splat__backend="torch"), tmp_path / "a", FakeStages())
-        assert default_backend() == "torch"
-        _run(base_config, tmp_path / "b", FakeStages())
-        assert default_backend() == "auto"
-    finally:
-        use_backend("auto")
 
 
 def test_evaluation_key_names_the_thread_count_only_on_the_cpu():
@@ -324,45 +304,25 @@ def test_evaluation_key_names_the_thread_count_only_on_the_cpu():
     assert "cpu_threads" not in cuda and cuda["device"] == "cuda"
 
 
-def test_stages_receive_only_seed_train_and_their_section_with_overrides(base_config, tmp_path):
+def test_stages_receive_only_seed_train_and_their_section_overridden_and_scaled(
+    base_config, tmp_path
+):
     fakes = FakeStages()
-    config = with_values(base_config, pipeline=pipeline_section("4dgs"), deform__steps=7)
+    config = with_values(
+        base_config, pipeline=pipeline_section("4dgs"), deform__steps=7, budget__multiplier=2.0
+    )
     result = _run(config, tmp_path / "run", fakes, overrides=["pipeline=4dgs", "deform.steps=7"])
     deform_cfg = dict(fakes.calls)["deform"]
     assert deform_cfg["deform"]["gamma"] is False
     assert deform_cfg["deform"]["isolate_fg_bg"] is False
-    assert deform_cfg["deform"]["steps"] == 7
     assert deform_cfg["train"] == base_config["train"]
     assert result["pipeline"] == "4dgs"
     assert result["deform.gamma"] is False  # as the pipeline ran it, not the config default
     assert result["relay.k"] is None  # 4dgs runs no relay stage
-
-
-def test_budget_multiplier_scales_the_steps_stages_receive(base_config, tmp_path):
-    fakes = FakeStages()
-    config = with_values(base_config, budget__multiplier=2.0)
-    _run(config, tmp_path / "run", fakes)
+    # the budget multiplier scales the steps every stage receives, the overridden ones too
     steps = {stage: cfg[stage]["steps"] for stage, cfg in fakes.calls}
-    smoke = {stage: base_config[stage]["steps"] for stage in steps}
-    assert steps == {stage: 2 * value for stage, value in smoke.items()}
-
-
-def test_tensorboard_gets_stage_scalars_previews_and_hparams(base_config, tmp_path):
-    fakes = FakeStages()
-    _run(base_config, tmp_path / "run", fakes)
-    assert fakes.sinks == []  # the sink is removed after the run
-    events = EventAccumulator(str(tmp_path / "run"), size_guidance={"images": 0})
-    events.Reload()
-    tags = events.Tags()
-    stages = {f"train/{stage}/loss" for stage in ("decouple", "relay", "deform")}
-    assert stages | {"result/psnr"} <= set(tags["scalars"])
-    assert "eval/render_vs_truth" in tags["images"]
-    (preview, *_) = events.Images("eval/render_vs_truth")
-    # render, truth and error of 16×9 views, enlarged 18× (to >= 160 rows) under their captions
-    assert (preview.width, preview.height) == (3 * 16 * 18, 9 * 18 + CAPTION_HEIGHT)
-    assert "train/deform/render" in tags["images"]
-    plugins = events.PluginTagToContent("hparams")
-    assert "_hparams_/experiment" in plugins and "_hparams_/session_start_info" in plugins
+    unscaled = {stage: base_config[stage]["steps"] for stage in steps} | {"deform": 7}
+    assert steps == {stage: 2 * value for stage, value in unscaled.items()}
 
 
 def test_training_scalars_are_grouped_so_rates_sort_after_the_fit():
@@ -370,47 +330,6 @@ def test_training_scalars_are_grouped_so_rates_sort_after_the_fit():
     assert training_tag("relay", "psnr") == "train/relay/psnr"
     assert training_tag("relay", "num_fg") == "train_gaussians/relay/num_fg"
     assert training_tag("relay", "lr/means") == "train_lr/relay/means"
-
-
-def test_a_job_that_reuses_stages_notes_them_instead_of_replaying_their_curves(
-    base_config, tmp_path
-):
-    fakes = FakeStages()
-    _run(with_values(base_config, relay__k=8), tmp_path / "a", fakes)
-    _run(with_values(base_config, relay__k=32), tmp_path / "b", fakes)  # decouple from the store
-    built = EventAccumulator(str(tmp_path / "a"), size_guidance={"scalars": 0})
-    built.Reload()
-    reused = EventAccumulator(str(tmp_path / "b"), size_guidance={"scalars": 0, "tensors": 0})
-    reused.Reload()
-    assert "train/decouple/loss" in built.Tags()["scalars"]
-    # built here: the live record; reused: no curve written at this moment, a note instead
-    assert [(e.step, e.value) for e in reused.Scalars("train/relay/loss")] == [(0, 1.0)]
-    assert not any(tag.startswith("train/decouple/") for tag in reused.Tags()["scalars"])
-    (note,) = reused.Tensors("reused/decouple/text_summary")
-    text = note.tensor_proto.string_val[0].decode()
-    (stored,) = (p for p in (tmp_path / "artifacts" / "decouple").iterdir() if p.is_dir())
-    assert "**decouple**" in text and "(node `decouple`)" in text and "artifact store" in text
-    assert f"artifact `{stored.name[:16]}`" in text
-    assert "by run `a`" in text and "step, 5: loss 0.5" in text
-    assert "reused/relay/text_summary" not in reused.Tags()["tensors"]
-
-
-def test_a_reused_stage_is_noted_under_its_stage_type_whatever_the_node_is_called(
-    base_config, tmp_path
-):
-    pipeline = tmp_path / "renamed.yaml"
-    pipeline.write_text(
-        "nodes:\n  first: {stage: decouple}\n  second: {stage: relay, upstream: [first]}\n"
-        "  model: {stage: deform, upstream: [second]}\n"
-    )
-    fakes = FakeStages()
-    config = with_values(base_config, pipeline__name=str(pipeline))
-    _run(with_values(config, relay__k=8), tmp_path / "a", fakes)
-    _run(with_values(config, relay__k=32), tmp_path / "b", fakes)
-    events = EventAccumulator(str(tmp_path / "b"), size_guidance={"tensors": 0})
-    events.Reload()
-    (note,) = events.Tensors("reused/decouple/text_summary")
-    assert "(node `first`)" in note.tensor_proto.string_val[0].decode()
 
 
 def test_the_suites_upstream_types_are_checked_before_any_stage_runs(base_config, tmp_path):
@@ -478,13 +397,15 @@ def test_bad_scene_data_fails_before_the_run_folder_is_touched(base_config, tmp_
     assert fakes.ran("decouple") == 1
 
 
-def test_a_corrupted_artifact_is_rebuilt_or_refused(base_config, tmp_path, capsys):
+def test_a_corrupted_artifact_or_evaluation_is_rebuilt_or_refused(base_config, tmp_path, capsys):
     fakes = FakeStages()
     _run(base_config, tmp_path / "a", fakes)
     (tensors,) = (tmp_path / "artifacts" / "decouple").glob("*/tensors.safetensors")
     data = bytearray(tensors.read_bytes())
     data[-1] ^= 0xFF
     tensors.write_bytes(bytes(data))
+    (manifest,) = (tmp_path / "artifacts" / "eval").glob("*/manifest.json")
+    manifest.write_text(manifest.read_text().replace('"', " ", 1) + " ")  # one byte changed
     refusing = with_values(base_config, artifacts__on_corrupt="error")
     with refused(CorruptArtifactError, "on_corrupt=error", str(tensors)):
         _run(refusing, tmp_path / "b", fakes)
@@ -492,20 +413,12 @@ def test_a_corrupted_artifact_is_rebuilt_or_refused(base_config, tmp_path, capsy
     capsys.readouterr()
     result = _run(base_config, tmp_path / "c", fakes)
     assert fakes.ran("decouple") == 2 and result["cache_hits"] == 2
-    (line,) = [line for line in capsys.readouterr().out.splitlines() if "failed" in line]
+    out = capsys.readouterr().out.splitlines()
+    (line,) = [line for line in out if "failed" in line and line.startswith("[decouple]")]
     assert line.startswith("[decouple] built decouple artifact ")
     reason = f"{tensors}: sha256 mismatch (recorded "
     assert "replacing the stored one" in line and reason in line
-
-
-def test_a_corrupted_stored_evaluation_is_redone_and_said_so(base_config, tmp_path, capsys):
-    fakes = FakeStages()
-    _run(base_config, tmp_path / "a", fakes)
-    (manifest,) = (tmp_path / "artifacts" / "eval").glob("*/manifest.json")
-    manifest.write_text(manifest.read_text().replace('"', " ", 1) + " ")  # one byte changed
-    capsys.readouterr()
-    _run(base_config, tmp_path / "b", fakes)
-    (line,) = [line for line in capsys.readouterr().out.splitlines() if line.startswith("[eval]")]
+    (line,) = [line for line in out if line.startswith("[eval]")]
     assert line.startswith("[eval] evaluated the test views in ")
     assert "replacing the stored one" in line and "manifest" in line
 
@@ -625,26 +538,27 @@ def _disk_full(*args, **kwargs):
     raise OSError(errno.ENOSPC, "No space left on device", "/runs/x/.result.json.partial")
 
 
+def _no_memory_in_relay(stage, cfg):
+    if stage == "relay":
+        raise MemoryError
+    return False
+
+
+@pytest.mark.parametrize(
+    ("fail_when", "named", "cause"),
+    [
+        # the disk had room for per_view.csv, then refused result.json (and the failed one too)
+        (None, ["No space left on device", "/runs/x/"], OSError),
+        # a failed result the full disk refuses does not hide why the run failed
+        (_no_memory_in_relay, ["relay", "out of memory"], MemoryError),
+    ],
+)
 def test_a_full_disk_refusing_the_result_is_one_error_and_leaves_neither_file(
-    base_config, tmp_path, monkeypatch
+    base_config, tmp_path, monkeypatch, fail_when, named, cause
 ):
-    # the disk had room for per_view.csv, then refused result.json (and the failed one too)
     monkeypatch.setattr(task_module, "write_result", _disk_full)
     run_dir = tmp_path / "run"
-    with refused(errors.ResourceError, "No space left on device", "/runs/x/"):
-        _run(base_config, run_dir, FakeStages())
+    with refused(errors.ResourceError, *named) as raised:
+        _run(base_config, run_dir, FakeStages(fail_when=fail_when))
+    assert isinstance(raised.value.__cause__, cause)
     assert not (run_dir / PER_VIEW_FILE).exists() and not (run_dir / RESULT_FILE).exists()
-
-
-def test_a_failed_result_the_full_disk_refuses_does_not_hide_why_the_run_failed(
-    base_config, tmp_path, monkeypatch
-):
-    def no_memory(stage, cfg):
-        if stage == "relay":
-            raise MemoryError
-        return False
-
-    monkeypatch.setattr(task_module, "write_result", _disk_full)
-    with refused(errors.ResourceError, "relay", "out of memory") as raised:
-        _run(base_config, tmp_path / "run", FakeStages(fail_when=no_memory))
-    assert isinstance(raised.value.__cause__, MemoryError)

@@ -16,6 +16,9 @@ from relaygs import paths
 
 SCRIPT = paths.REPO_ROOT / "tools" / "setup_venv.sh"
 SETUP_VARIABLES = ("PIP_", "PYTHON", "TORCH_", "ALLOW_CUDA_TORCH", "VENV")
+needs_bash = pytest.mark.skipif(
+    not SCRIPT.is_file() or shutil.which("bash") is None, reason="needs bash"
+)
 
 
 def _setup_free_environment() -> dict[str, str]:
@@ -25,7 +28,7 @@ def _setup_free_environment() -> dict[str, str]:
 
 
 @pytest.mark.skipif(sys.prefix == sys.base_prefix, reason="needs tests run from a venv's python")
-@pytest.mark.skipif(not SCRIPT.is_file() or shutil.which("bash") is None, reason="needs bash")
+@needs_bash
 def test_a_venv_made_from_a_venvs_python_reuses_its_torch(tmp_path):
     venv = tmp_path / "venv"
     env = _setup_free_environment()
@@ -90,11 +93,6 @@ def _setup_with_fake_torch(
 def _reached_the_project_install(trace: str, pins: str = "") -> bool:
     """Whether the traced run got as far as `pip install -e .[dev]` (with these extra args)."""
     return any(line.endswith(f"-e '.[dev]'{pins}") for line in trace.splitlines())
-
-
-needs_bash = pytest.mark.skipif(
-    not SCRIPT.is_file() or shutil.which("bash") is None, reason="needs bash"
-)
 
 
 @pytest.mark.parametrize(

@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 import torch
 
+from refusals import refused
 from relaygs.errors import InputError
 from relaygs.model import BACKGROUND_DENSIFY, FOREGROUND_DENSIFY, DensityController, GaussianSet
 from relaygs.stages import SPECS, StageSpec, step_budgets, validate_config
@@ -46,7 +47,14 @@ def test_a_budget_section_that_is_no_stage_type_is_one_line(
         budgets.load_budget("tiny", ("train", "warmup"))
 
 
-def test_paper_defaults() -> None:
+def test_paper_defaults_and_partial_mappings_merged_over_them() -> None:
+    section = DecoupleConfig.from_config({"lr": {"quats": 0.5}, "steps": 100})
+    rates = section.learning_rates()
+    assert rates.quats.init == 0.5
+    assert rates.means.init == 2e-4  # kept from the default mapping
+    # a decaying schedule without max_steps decays over the stage's own steps
+    assert rates.means.max_steps == 100
+    assert rates.extras["mask_logit"].init == section.mask_lr
     assert DecoupleConfig.from_config(None).steps == 3000
     assert DecoupleConfig.from_config({}).mask_init == 2.0
     relay = RelayConfig.from_config({})
@@ -57,6 +65,13 @@ def test_paper_defaults() -> None:
     assert SPECS["warmup"].settings.from_config({}).steps == 3000
     train = TrainSettings.from_config({})
     assert (train.batch_views, train.ssim_weight) == (4, 0.2)
+    plans = RelayConfig.from_config({}).plans()  # the foreground's, as the paper sets them
+    assert set(plans) == {"fg"}  # background frozen by default
+    assert plans["fg"].learning_rates.means.init == 1e-3
+    assert plans["fg"].densify.grad_threshold == 1e-4
+    background = DecoupleConfig.from_config({}).densify_settings()
+    assert plans["fg"].densify.percent_dense == pytest.approx(0.1 * background.percent_dense)
+    assert set(RelayConfig.from_config({"freeze_background": False}).plans()) == {"fg", "bg"}
 
 
 @pytest.mark.parametrize("budget", sorted(step_budgets()))
@@ -80,6 +95,7 @@ def test_per_set_sections_start_from_the_papers_fg_and_bg_settings(config: type)
 
 
 DELAYED = {"init": 1e-3, "final": 1e-5, "delay_steps": 10}
+INF, NAN = float("inf"), float("nan")
 
 
 @pytest.mark.parametrize(
@@ -108,30 +124,22 @@ DELAYED = {"init": 1e-3, "final": 1e-5, "delay_steps": 10}
         ("deform", {"lr_grid": {"init": 1.0, "final": 0.0}}, "deform.lr_grid.final"),
         ("replicate", {"k": -2}, "replicate.k"),
         # an infinite rate or weight would turn the first step's parameters into NaN
-        ("decouple", {"lr": {"sh_dc": float("inf")}}, "decouple.lr.sh_dc"),
-        ("decouple", {"lr": {"means": {"init": float("inf"), "final": 1.0}}}, "lr.means.init"),
-        ("decouple", {"lr": {"means": {"init": 1.0, "final": float("inf")}}}, "lr.means.final"),
-        ("decouple", {"mask_lr": float("inf")}, "decouple.mask_lr"),
-        ("relay", {"lr_fg": {"means": float("inf")}}, "relay.lr_fg.means"),
-        ("deform", {"lr_mlp": {"init": float("inf"), "final": 1e-5}}, "deform.lr_mlp.init"),
-        ("deform", {"lr_gamma": float("inf")}, "deform.lr_gamma"),
-        ("deform", {"plane_smoothness": float("inf")}, "deform.plane_smoothness"),
-        (
-            "decouple",
-            {"lr": {"means": {**DELAYED, "delay_mult": float("inf")}}},
-            "lr.means.delay_mult",
-        ),
-        (
-            "relay",
-            {"lr_fg": {"means": {**DELAYED, "delay_mult": float("nan")}}},
-            "lr_fg.means.delay_mult",
-        ),
+        ("decouple", {"lr": {"sh_dc": INF}}, "decouple.lr.sh_dc"),
+        ("decouple", {"lr": {"means": {"init": INF, "final": 1.0}}}, "lr.means.init"),
+        ("decouple", {"lr": {"means": {"init": 1.0, "final": INF}}}, "lr.means.final"),
+        ("decouple", {"mask_lr": INF}, "decouple.mask_lr"),
+        ("relay", {"lr_fg": {"means": INF}}, "relay.lr_fg.means"),
+        ("deform", {"lr_mlp": {"init": INF, "final": 1e-5}}, "deform.lr_mlp.init"),
+        ("deform", {"lr_gamma": INF}, "deform.lr_gamma"),
+        ("deform", {"plane_smoothness": INF}, "deform.plane_smoothness"),
+        ("decouple", {"lr": {"means": {**DELAYED, "delay_mult": INF}}}, "lr.means.delay_mult"),
+        ("relay", {"lr_fg": {"means": {**DELAYED, "delay_mult": NAN}}}, "lr_fg.means.delay_mult"),
         ("deform", {"lr_grid": {**DELAYED, "delay_mult": -1.0}}, "deform.lr_grid.delay_mult"),
         ("deform", {"lr_mlp": {**DELAYED, "delay_steps": -1}}, "deform.lr_mlp.delay_steps"),
         ("warmup", {"init_opacity": 1.0}, "warmup.init_opacity"),
         # a mask logit that is not a finite float32 stops the training at step 1 (diverged)
-        ("decouple", {"mask_init": float("nan")}, "decouple.mask_init"),
-        ("decouple", {"mask_init": float("-inf")}, "decouple.mask_init"),
+        ("decouple", {"mask_init": NAN}, "decouple.mask_init"),
+        ("decouple", {"mask_init": -INF}, "decouple.mask_init"),
         ("decouple", {"mask_init": 1e300}, "decouple.mask_init"),
         # learning rates of the wrong type: a traceback, or (a bool) silently the rate 1
         ("decouple", {"lr": {"quats": "abc"}}, "decouple.lr.quats"),
@@ -148,28 +156,25 @@ DELAYED = {"init": 1e-3, "final": 1e-5, "delay_steps": 10}
         # density control: a reset to opacity 0 is a logit of -inf, an infinite divisor a
         # log-scale of -inf, a screen radius <= 0 prunes every Gaussian ever seen
         ("decouple", {"densify": {"reset_opacity": 0.0}}, "decouple.densify.reset_opacity"),
-        ("deform", {"densify_fg": {"split_scale_divisor": float("inf")}}, "split_scale_divisor"),
+        ("deform", {"densify_fg": {"split_scale_divisor": INF}}, "split_scale_divisor"),
         ("warmup", {"densify": {"max_screen_radius": -1.0}}, "warmup.densify.max_screen_radius"),
-        ("relay", {"densify_fg": {"max_screen_radius": float("nan")}}, "max_screen_radius"),
+        ("relay", {"densify_fg": {"max_screen_radius": NAN}}, "max_screen_radius"),
         # torch takes no size past int64: a traceback deep in the stage before
         ("relay", {"p": 10**20}, "relay.p: expected an int <= 9223372036854775807"),
         ("deform", {"width": -(10**20)}, "deform.width: expected an int <="),
         # infinite thresholds would train, then fail writing the artifact's JSON meta
-        ("decouple", {"densify": {"grad_threshold": float("inf")}}, "densify.grad_threshold"),
-        ("relay", {"densify_fg": {"percent_dense": float("inf")}}, "densify_fg.percent_dense"),
-        ("deform", {"densify_bg": {"max_world_size": float("inf")}}, "bg.max_world_size"),
-        ("warmup", {"densify": {"max_screen_radius": float("inf")}}, "max_screen_radius"),
+        ("decouple", {"densify": {"grad_threshold": INF}}, "densify.grad_threshold"),
+        ("relay", {"densify_fg": {"percent_dense": INF}}, "densify_fg.percent_dense"),
+        ("deform", {"densify_bg": {"max_world_size": INF}}, "bg.max_world_size"),
+        ("warmup", {"densify": {"max_screen_radius": INF}}, "max_screen_radius"),
         # the background's settings enter the relay key even while it is frozen (the default)
         ("relay", {"densify_bg": {"grad_treshold": 1.0}}, "relay.densify_bg"),
         ("relay", {"lr_bg": {"quats": -1.0}}, "relay.lr_bg.quats"),
     ],
 )
 def test_bad_section_values_name_the_key(stage: str, section: dict, needle: str) -> None:
-    with pytest.raises(InputError) as caught:
+    with refused(InputError, needle):
         validate_config(stage, {stage: section})
-    message = str(caught.value)
-    assert needle in message
-    assert "\n" not in message
 
 
 @pytest.mark.parametrize(
@@ -184,9 +189,11 @@ def test_bad_section_values_name_the_key(stage: str, section: dict, needle: str)
         ({"train": {"batch_views": 10**20}}, "train.batch_views: expected an int <= 9223372"),
     ],
 )
-def test_bad_shared_sections_name_the_key(cfg: dict, needle: str) -> None:
-    with pytest.raises(InputError, match=needle.replace(".", r"\.")):
+def test_bad_shared_sections_or_stage_types_name_the_key(cfg: dict, needle: str) -> None:
+    with refused(InputError, needle):
         validate_config("decouple", cfg)
+    with refused(InputError, "unknown stage type 'stage4'"):
+        validate_config("stage4", cfg)
 
 
 def test_an_unusable_cuda_device_is_refused_where_the_stage_would_train() -> None:
@@ -194,24 +201,8 @@ def test_an_unusable_cuda_device_is_refused_where_the_stage_would_train() -> Non
     device = f"cuda:{torch.cuda.device_count()}" if torch.cuda.is_available() else "cuda"
     validate_config("decouple", {"train": {"device": device}})  # may be a Slurm node's GPU
     train = TrainSettings.from_config({"device": device})
-    with pytest.raises(InputError, match=rf"train\.device: cannot use '{device}'") as caught:
+    with refused(InputError, f"train.device: cannot use '{device}'"):
         train.torch_device()
-    assert "\n" not in str(caught.value)
-
-
-def test_unknown_stage_type() -> None:
-    with pytest.raises(InputError, match="unknown stage type 'stage4'"):
-        validate_config("stage4", {})
-
-
-def test_partial_mappings_merge_over_defaults() -> None:
-    section = DecoupleConfig.from_config({"lr": {"quats": 0.5}, "steps": 100})
-    rates = section.learning_rates()
-    assert rates.quats.init == 0.5
-    assert rates.means.init == 2e-4  # kept from the default mapping
-    # a decaying schedule without max_steps decays over the stage's own steps
-    assert rates.means.max_steps == 100
-    assert rates.extras["mask_logit"].init == section.mask_lr
 
 
 def test_density_control_ends_before_a_stages_last_step() -> None:
@@ -230,17 +221,6 @@ def test_density_control_ends_before_a_stages_last_step() -> None:
     controller = DensityController(gaussians, ends["decouple"], 1.0)
     assert controller.step(3000) is None
     assert controller.step(2900) is not None
-
-
-def test_foreground_settings_follow_the_paper() -> None:
-    plans = RelayConfig.from_config({}).plans()
-    assert set(plans) == {"fg"}  # background frozen by default
-    fg = plans["fg"]
-    assert fg.learning_rates.means.init == 1e-3
-    assert fg.densify.grad_threshold == 1e-4
-    background = DecoupleConfig.from_config({}).densify_settings()
-    assert fg.densify.percent_dense == pytest.approx(0.1 * background.percent_dense)
-    assert set(RelayConfig.from_config({"freeze_background": False}).plans()) == {"fg", "bg"}
 
 
 @pytest.mark.parametrize(

@@ -35,7 +35,9 @@ def test_straight_through_mask_is_hard_forward_and_sigmoid_backward() -> None:
     torch.testing.assert_close(logits.grad, sigmoid * (1 - sigmoid))
 
 
-def test_output_is_finite_and_well_formed(stage_decoupled: Artifact, stage_scene: Scene) -> None:
+def test_output_is_well_formed_shows_fg_at_frame_0_only_and_marks_the_movers(
+    stage_decoupled: Artifact, stage_scene: Scene
+) -> None:
     tensors = stage_decoupled.tensors
     for name, tensor in tensors.items():
         if tensor.is_floating_point():
@@ -51,22 +53,11 @@ def test_output_is_finite_and_well_formed(stage_decoupled: Artifact, stage_scene
     assert tensors["fg.means"].shape == (counts["fg"], 3)
     assert not any("mask_logit" in name for name in tensors)
     assert stage_decoupled.meta["num_frames"] == stage_scene.num_frames
-    assert (
-        stage_decoupled.meta["metrics"]["final_loss"]
-        < stage_decoupled.meta["metrics"]["initial_loss"]
-    )
-
-
-def test_foreground_is_shown_only_at_frame_zero(stage_decoupled: Artifact) -> None:
+    metrics = stage_decoupled.meta["metrics"]
+    assert metrics["final_loss"] < metrics["initial_loss"]
     model = SceneModel.from_artifact(stage_decoupled)
     assert model.foreground_rows(0).numel() == len(model.foreground)
     assert model.foreground_rows(3).numel() == 0
-
-
-def test_movers_are_foreground_and_static_parts_background(
-    stage_decoupled: Artifact, stage_scene: Scene
-) -> None:
-    model = SceneModel.from_artifact(stage_decoupled)
     means = torch.cat([model.background.means, model.foreground.means]).detach()
     nearest = torch.cdist(stage_scene.points.xyz, means).argmin(dim=1)
     marked_fg = stage_decoupled.tensors["is_fg"][nearest]
@@ -129,14 +120,10 @@ def test_every_batch_has_frame0_views_rendered_without_the_mask(
     monkeypatch.setattr(decouple_module, "TrainViews", RecordingViews)
     monkeypatch.setattr(decouple_module, "run_training", run_training)
     monkeypatch.setattr(decouple_module, "splat", splat)
+    no_density = {"densify_until": 0, "opacity_reset_every": 0}
+    section = {"steps": steps, "frame0_views": frame0_views, "init_points": 300}
     cfg = stage_smoke_cfg(
-        decouple={
-            "steps": steps,
-            "frame0_views": frame0_views,
-            "init_points": 300,
-            "densify": {"densify_until": 0, "opacity_reset_every": 0},
-        },
-        train={"batch_views": batch_views},
+        decouple={**section, "densify": no_density}, train={"batch_views": batch_views}
     )
     SPECS["decouple"].run(stage_scene, {}, cfg)
     assert len(batches) == steps

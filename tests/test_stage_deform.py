@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from types import SimpleNamespace
 from typing import Any
 
 import pytest
@@ -15,7 +15,7 @@ from relaygs.data import Scene, View, load_scene
 from relaygs.field import DeformationField, Deltas
 from relaygs.model import GaussianSet
 from relaygs.pipeline.artifact import Artifact
-from relaygs.stages import SPECS, SceneModel, evaluate
+from relaygs.stages import SPECS, SceneModel
 from relaygs.train.motion import deformed_parts
 from relaygs.train.scene_model import build_field
 from relaygs.train.views import TrainViews
@@ -47,12 +47,15 @@ def _moving_field(isolate: bool):
     return field
 
 
-@pytest.mark.parametrize("isolate", [True, False])
-def test_gamma_scales_relay_motion_only(isolate: bool) -> None:
+@pytest.mark.parametrize(("isolate", "gamma"), [(True, True), (False, True), (True, False)])
+def test_gamma_scales_relay_motion_only(isolate: bool, gamma: bool) -> None:
+    """Relay Gaussians move by (1 + e^γ) Δμ with γ, by plain Δμ without; the rest by Δμ."""
     generator = torch.Generator().manual_seed(0)
     background, foreground = _random_set(7, generator), _random_set(5, generator)
-    gamma = torch.randn(5, 3, generator=generator)
-    foreground.add_param("gamma", gamma)
+    scale = torch.ones(5, 1)
+    if gamma:
+        foreground.add_param("gamma", torch.randn(5, 3, generator=generator))
+        scale = 1 + torch.exp(foreground.params["gamma"].detach())
     field = _moving_field(isolate)
     rows = torch.tensor([0, 2, 3])
     bg, fg = deformed_parts(background, foreground, rows, field, 0.4, sh_degree=0)
@@ -61,22 +64,12 @@ def test_gamma_scales_relay_motion_only(isolate: bool) -> None:
     dmu = field(xyz, 0.4, group).dxyz.detach()
     assert dmu.abs().min() > 0
     torch.testing.assert_close(bg.means.detach(), xyz[:7] + dmu[:7])
-    expected_fg = xyz[7:] + (1 + torch.exp(gamma[rows])) * dmu[7:]
-    torch.testing.assert_close(fg.means.detach(), expected_fg)
+    torch.testing.assert_close(fg.means.detach(), xyz[7:] + scale[rows] * dmu[7:])
 
 
-def test_without_gamma_relay_moves_by_plain_delta() -> None:
-    generator = torch.Generator().manual_seed(1)
-    background, foreground = _random_set(4, generator), _random_set(4, generator)
-    field = _moving_field(isolate=True)
-    rows = torch.arange(4)
-    _, fg = deformed_parts(background, foreground, rows, field, 0.9, sh_degree=0)
-    xyz = torch.cat([background.means, foreground.means]).detach()
-    dmu = field(xyz, 0.9, torch.cat([torch.zeros(4), torch.ones(4)]).long()).dxyz.detach()
-    torch.testing.assert_close(fg.means.detach(), xyz[4:] + dmu[4:])
-
-
-def test_deform_output(stage_deformed: Artifact, stage_scene: Scene) -> None:
+def test_deform_output_and_its_fitted_colour_affine(
+    stage_deformed: Artifact, stage_scene: Scene
+) -> None:
     tensors = stage_deformed.tensors
     for name, tensor in tensors.items():
         if tensor.is_floating_point():
@@ -88,6 +81,9 @@ def test_deform_output(stage_deformed: Artifact, stage_scene: Scene) -> None:
     # the juggle preset declares colour inconsistency: one affine row per train camera
     assert "color_inconsistency" in stage_scene.effects
     assert tensors["affine.log_gain"].shape == (len(stage_scene.train_cameras), 3)
+    # the affine (identity at init) takes part in the training loss: it moves off the identity
+    assert tensors["affine.log_gain"].abs().amax() > 0
+    assert tensors["affine.offset"].abs().amax() > 0
     assert stage_deformed.meta["field"]["time_resolution"] == math.ceil(stage_scene.num_frames / 2)
 
 
@@ -100,7 +96,7 @@ def test_four_dgs_baseline_has_one_mlp_set_and_no_gamma(stage_scene: Scene) -> N
     assert "gamma" not in model.foreground.params and len(model.foreground) == 0
 
 
-def test_colour_affine_only_when_the_scene_asks(
+def test_colour_affine_only_when_the_scene_asks_and_no_copies_show_their_one_copy(
     stage_scene_path, stage_decoupled: Artifact
 ) -> None:
     plain = load_scene(stage_scene_path, max_points=500, effects=[])
@@ -108,19 +104,13 @@ def test_colour_affine_only_when_the_scene_asks(
     deformed = SPECS["deform"].run(plain, {"decouple": stage_decoupled}, cfg)
     assert not any(name.startswith("affine.") for name in deformed.tensors)
     assert deformed.meta["affine_cameras"] == []
+    model = SceneModel.from_artifact(deformed)  # a decouple upstream: one copy at every frame
+    for frame in (0, 3, plain.num_frames - 1):
+        assert model.foreground_rows(frame).numel() == len(model.foreground) > 0
     forced = stage_smoke_cfg(deform={"steps": 2, "color_affine": True})
     assert (
         "affine.offset" in SPECS["deform"].run(plain, {"decouple": stage_decoupled}, forced).tensors
     )
-
-
-def test_no_copies_shows_the_single_copy_at_every_frame(
-    stage_scene: Scene, stage_decoupled: Artifact
-) -> None:
-    cfg = stage_smoke_cfg(deform={"steps": 2})
-    model = SceneModel.from_artifact(SPECS["deform"].run(stage_scene, {"d": stage_decoupled}, cfg))
-    for frame in (0, 3, stage_scene.num_frames - 1):
-        assert model.foreground_rows(frame).numel() == len(model.foreground) > 0
 
 
 def test_training_loss_falls(stage_scene: Scene, stage_relayed: Artifact) -> None:
@@ -133,51 +123,22 @@ def test_training_loss_falls(stage_scene: Scene, stage_relayed: Artifact) -> Non
     assert metrics["final_loss"] < metrics["initial_loss"]
 
 
-def test_test_metrics_are_finite(stage_deformed: Artifact, stage_scene: Scene) -> None:
-    metrics = evaluate(stage_scene, stage_deformed, stage_smoke_cfg(eval={"frame_stride": 3}))
-    for key in ("psnr", "ssim", "fg_psnr", "render_fps"):
-        assert math.isfinite(metrics[key]) and metrics[key] > 0, key
-    assert metrics["num_gaussians"] == stage_deformed.meta["counts"]["total"]
-    frames = len(range(0, stage_scene.num_frames, 3))
-    assert metrics["num_test_images"] == frames * len(stage_scene.test_cameras)
-
-
-def test_several_frames_per_step(stage_scene: Scene, stage_relayed: Artifact) -> None:
-    cfg = stage_smoke_cfg(deform={"steps": 3, "frames_per_step": 3})
-    deformed = SPECS["deform"].run(stage_scene, {"relay": stage_relayed}, cfg)
-    assert deformed.meta["metrics"]["steps"] == 3
-    assert torch.isfinite(deformed.tensors["fg.means"]).all()
-
-
-class _KnownDeltas:
-    """A stand-in motion field: fixed random deltas per row, and a record of its inputs."""
-
-    def __init__(self, count: int, generator: torch.Generator) -> None:
-        widths = {"dxyz": 3, "dscale": 3, "drot": 4, "dopacity": 1}
-        self.deltas = Deltas(
-            **{k: torch.randn(count, w, generator=generator) for k, w in widths.items()}
-        )
-        self.calls: list[tuple[float, int]] = []
-
-    def forward_split(self, xyz: torch.Tensor, time: float, num_background: int) -> Deltas:
-        self.calls.append((time, num_background))
-        return self.deltas
-
-
 def test_every_field_delta_is_added_to_its_parameter() -> None:
     """Position, log-scale, quaternion and opacity logit each move by the field's delta (the
     deltas are on pre-activation values), for the background and the shown foreground rows."""
     generator = torch.Generator().manual_seed(2)
     background, foreground = _random_set(4, generator), _random_set(6, generator)
     rows = torch.tensor([1, 4, 5])
-    stub = _KnownDeltas(4 + 3, generator)
+    widths = {"dxyz": 3, "dscale": 3, "drot": 4, "dopacity": 1}
+    d = Deltas(**{k: torch.randn(4 + 3, w, generator=generator) for k, w in widths.items()})
+    calls = []  # a stand-in motion field: these deltas, whatever its inputs
+    stub = SimpleNamespace(forward_split=lambda xyz, time, count: calls.append((time, count)) or d)
     parts = deformed_parts(background, foreground, rows, stub, 0.25, sh_degree=0)
-    assert stub.calls == [(0.25, 4)]  # background rows first, then the 3 shown foreground
+    assert calls == [(0.25, 4)]  # background rows first, then the 3 shown foreground
     base = {
         name: torch.cat([background.params[name], foreground.params[name][rows]]).detach()
         for name in ("means", "log_scales", "quats", "opacity_logits")
     }
-    d = stub.deltas
     expected = {
         "means": base["means"] + d.dxyz,
         "log_scales": base["log_scales"] + d.dscale,
@@ -189,25 +150,16 @@ def test_every_field_delta_is_added_to_its_parameter() -> None:
         torch.testing.assert_close(got, values, msg=name)
 
 
-@dataclass
-class _DeformSpy:
-    """What a short deform run passed around, per step."""
-
-    losses: list[torch.Tensor] = field(default_factory=list)  # the loss each step returned
-    photometric: list[torch.Tensor] = field(default_factory=list)
-    regularisers: list[dict[str, torch.Tensor]] = field(default_factory=list)
-    frame_views: list[list[View]] = field(default_factory=list)  # per field evaluation
-    times: list[float] = field(default_factory=list)  # per field evaluation
-
-
 SPY_WEIGHTS = {"plane_smoothness": 0.5, "time_smoothness": 2.0, "time_l1": 3.0}
 SPY_STEPS = 4
 
 
 @pytest.fixture(scope="module")
-def deform_spy(stage_scene: Scene, stage_relayed: Artifact) -> _DeformSpy:
+def deform_spy(stage_scene: Scene, stage_relayed: Artifact) -> SimpleNamespace:
     """A 4-step deform run (2 frames a step) with large regulariser weights, recorded."""
-    spy = _DeformSpy()
+    # per step: the loss returned, its photometric part and regularisers; per field evaluation:
+    # the frame's views and the time
+    spy = SimpleNamespace(losses=[], photometric=[], regularisers=[], frame_views=[], times=[])
     real_run_training = deform_module.run_training
     real_photometric = deform_module.photometric_loss
     real_deformed_parts = deform_module.deformed_parts
@@ -252,7 +204,11 @@ def deform_spy(stage_scene: Scene, stage_relayed: Artifact) -> _DeformSpy:
     return spy
 
 
-def test_step_loss_is_photometric_plus_weighted_plane_regularisers(deform_spy: _DeformSpy) -> None:
+def test_step_loss_and_the_time_of_each_training_frame(
+    deform_spy: SimpleNamespace, stage_scene: Scene
+) -> None:
+    """Each step's loss is photometric plus the weighted plane regularisers; a training frame's
+    time is frame / (T − 1), the time its views carry and evaluation renders it at."""
     spy = deform_spy
     assert len(spy.losses) == len(spy.photometric) == len(spy.regularisers) == SPY_STEPS
     for loss, photometric, values in zip(
@@ -262,14 +218,6 @@ def test_step_loss_is_photometric_plus_weighted_plane_regularisers(deform_spy: _
         penalty = sum(weight * values[name] for name, weight in SPY_WEIGHTS.items())
         assert float(penalty) > 1e-3  # large enough to tell a loss without it apart
         torch.testing.assert_close(loss, photometric + penalty)
-
-
-def test_training_evaluates_the_field_at_each_frames_evaluation_time(
-    deform_spy: _DeformSpy, stage_scene: Scene
-) -> None:
-    """The time of a training frame is frame / (T − 1), the time its views carry and the
-    time evaluation renders that frame at."""
-    spy = deform_spy
     assert len(spy.times) == len(spy.frame_views) == 2 * SPY_STEPS
     last = stage_scene.num_frames - 1
     frames = set()
@@ -280,12 +228,3 @@ def test_training_evaluates_the_field_at_each_frames_evaluation_time(
         assert time == pytest.approx(frame / last)
         assert all(view.time == pytest.approx(time) for view in views)
     assert frames - {0}  # a frame > 0 was drawn: frame / T would differ there
-
-
-def test_colour_affine_is_fitted_in_training(stage_deformed: Artifact, stage_scene: Scene) -> None:
-    """The juggle preset has colour inconsistency: the per-camera affine (identity at init)
-    takes part in the training loss, so it moves off the identity."""
-    assert "color_inconsistency" in stage_scene.effects
-    tensors = stage_deformed.tensors
-    assert tensors["affine.log_gain"].abs().amax() > 0
-    assert tensors["affine.offset"].abs().amax() > 0

@@ -7,7 +7,6 @@ import math
 from types import SimpleNamespace
 
 import pytest
-import torch
 
 from conftest import stage_smoke_cfg
 from relaygs.data import Scene
@@ -22,58 +21,38 @@ STRIDE = 3
 evaluate_module = importlib.import_module("relaygs.train.evaluate")
 
 
-class _TickingClock:
-    """perf_counter that advances by `tick` seconds on every call."""
-
-    def __init__(self, tick: float) -> None:
-        self.tick = tick
-        self.now = 100.0
-
-    def perf_counter(self) -> float:
-        self.now += self.tick
-        return self.now
-
-
 def _evaluated_frames(scene: Scene) -> list[int]:
     return list(range(0, scene.num_frames, STRIDE))
 
 
-def test_render_fps_is_images_per_render_second(
+def test_render_fps_is_images_per_render_second_once_the_device_finished(
     stage_deformed: Artifact, stage_scene: Scene, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """Each frame's render is timed by two clock reads, one tick apart: fps = images / time."""
-    tick = 0.25
-    monkeypatch.setattr(
-        evaluate_module, "time", SimpleNamespace(perf_counter=_TickingClock(tick).perf_counter)
-    )
+    """Each frame's render is timed by two clock reads a tick apart, the second once the device
+    has finished (CUDA renders run asynchronously): fps = images / time."""
+    tick, events = 0.25, []
+
+    def perf_counter() -> float:
+        events.append("clock")
+        return tick * events.count("clock")  # each read one tick after the one before
+
+    monkeypatch.setattr(evaluate_module, "time", SimpleNamespace(perf_counter=perf_counter))
+    monkeypatch.setattr(evaluate_module, "synchronize", lambda device: events.append(str(device)))
     metrics = evaluate(stage_scene, stage_deformed, stage_smoke_cfg(eval={"frame_stride": STRIDE}))
     frames = _evaluated_frames(stage_scene)
+    assert events == ["clock", "cpu", "clock"] * len(frames)
     images = len(frames) * len(stage_scene.test_cameras)
     assert metrics["num_test_images"] == images
     assert metrics["render_fps"] == pytest.approx(images / (len(frames) * tick))
 
 
-def test_render_time_waits_for_the_device(
-    stage_deformed: Artifact, stage_scene: Scene, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    """CUDA renders run asynchronously: the clock stops only once the device has finished."""
-    events: list[str] = []
-    clock = SimpleNamespace(perf_counter=lambda: events.append("clock") or 0.0)
-    monkeypatch.setattr(evaluate_module, "time", clock)
-    monkeypatch.setattr(evaluate_module, "synchronize", lambda device: events.append(str(device)))
-    evaluate(stage_scene, stage_deformed, stage_smoke_cfg(eval={"frame_stride": STRIDE}))
-    assert events == ["clock", "cpu", "clock"] * len(_evaluated_frames(stage_scene))
-
-
-def _masked_psnr(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> float:
-    squared = (pred - target).square()[mask]  # [pixels, 3]
-    return 10 * math.log10(1.0 / max(float(squared.mean()), 1e-10))
-
-
-def test_fg_psnr_runs_over_the_foreground_masks(
+def test_fg_psnr_runs_over_the_masks_and_per_view_records_average_to_the_metrics(
     stage_deformed: Artifact, stage_scene: Scene
 ) -> None:
     metrics = evaluate(stage_scene, stage_deformed, stage_smoke_cfg(eval={"frame_stride": STRIDE}))
+    for key in ("psnr", "ssim", "fg_psnr", "render_fps"):
+        assert math.isfinite(metrics[key]) and metrics[key] > 0, key
+    assert metrics["num_gaussians"] == stage_deformed.meta["counts"]["total"]
     renderer = ModelRenderer(SceneModel.from_artifact(stage_deformed))
     scores = []
     for frame in _evaluated_frames(stage_scene):
@@ -82,16 +61,11 @@ def test_fg_psnr_runs_over_the_foreground_masks(
         for view, image in zip(views, images, strict=True):
             mask = stage_scene.mask(view)
             if mask is not None and bool(mask.any()):
-                scores.append(_masked_psnr(image, stage_scene.image(view), mask))
+                squared = (image - stage_scene.image(view)).square()[mask]  # [pixels, 3]
+                scores.append(10 * math.log10(1.0 / max(float(squared.mean()), 1e-10)))
     assert scores  # the juggle scene has foreground in its test views
     assert metrics["fg_psnr"] == pytest.approx(sum(scores) / len(scores), abs=1e-4)
     assert abs(metrics["fg_psnr"] - metrics["psnr"]) > 0.1  # not the full-image score
-
-
-def test_per_view_records_score_each_test_image_and_average_to_the_metrics(
-    stage_deformed: Artifact, stage_scene: Scene
-) -> None:
-    metrics = evaluate(stage_scene, stage_deformed, stage_smoke_cfg(eval={"frame_stride": STRIDE}))
     records = metrics[PER_VIEW]
     expected = [
         (view.frame, view.camera.camera_id)
@@ -104,7 +78,6 @@ def test_per_view_records_score_each_test_image_and_average_to_the_metrics(
         scored = [r[name] for r in records if r[name] is not None]
         assert metrics[name] == pytest.approx(sum(scored) / len(scored), abs=1e-9)
     assert len({round(r["psnr"], 3) for r in records}) > 1  # each image its own score
-    renderer = ModelRenderer(SceneModel.from_artifact(stage_deformed))
     last = stage_scene.views_at(expected[-1][0], "test")[-1]
     image = renderer.render([last.camera], last.time)[0]
     assert records[-1]["psnr"] == pytest.approx(float(psnr(image, stage_scene.image(last))))

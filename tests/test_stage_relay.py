@@ -35,13 +35,12 @@ def test_pseudo_frames_spread_over_the_segment(
     assert pseudo_frames(SegmentPlan.uniform(num_frames, k).frames(segment), p) == expected
 
 
-def test_pseudo_view_targets_are_the_blends(stage_scene: Scene) -> None:
+def test_targets_are_the_pseudo_view_blends_or_single_frames(stage_scene: Scene) -> None:
     views = TrainViews(stage_scene, torch.device("cpu"))
     camera = stage_scene.train_cameras[2].camera_id
     generator = torch.Generator().manual_seed(0)
-    targets = SegmentTargets(
-        views, SegmentPlan.uniform(stage_scene.num_frames, STAGE_K), p=3, pseudo_views=True
-    )
+    plan = SegmentPlan.uniform(stage_scene.num_frames, STAGE_K)
+    targets = SegmentTargets(views, plan, p=3, pseudo_views=True)
     for segment in range(2):
         first = segment * STAGE_K
         frames = (first, first + 2, first + STAGE_K - 1)  # linspace(first, last, 3), rounded
@@ -49,15 +48,7 @@ def test_pseudo_view_targets_are_the_blends(stage_scene: Scene) -> None:
         expected = (images[0] + images[1] + images[2]) / 3
         torch.testing.assert_close(targets.target(camera, segment, generator), expected)
         assert not torch.equal(images[0], images[2])  # the blend really mixes moving content
-
-
-def test_single_frame_targets_without_pseudo_views(stage_scene: Scene) -> None:
-    views = TrainViews(stage_scene, torch.device("cpu"))
-    camera = stage_scene.train_cameras[0].camera_id
-    targets = SegmentTargets(
-        views, SegmentPlan.uniform(stage_scene.num_frames, STAGE_K), p=3, pseudo_views=False
-    )
-    generator = torch.Generator().manual_seed(1)
+    targets = SegmentTargets(views, plan, p=3, pseudo_views=False)
     segment_images = [stage_scene.image(views.view(f, camera)) for f in range(STAGE_K, 2 * STAGE_K)]
     for _ in range(6):
         target = targets.target(camera, 1, generator)
@@ -79,21 +70,12 @@ def test_relay_output(stage_relayed: Artifact, stage_decoupled: Artifact, stage_
     per_segment = torch.bincount(tensors["fg.buffer.segment"].long(), minlength=segments)
     assert (per_segment > 0).all()
     assert per_segment.tolist() == meta["metrics"]["fg_per_segment"]
-
-
-def test_relay_shows_each_frames_copy(stage_relayed: Artifact) -> None:
-    model = SceneModel.from_artifact(stage_relayed)
+    model = SceneModel.from_artifact(stage_relayed)  # each frame shows its segment's copy
     segments = model.foreground.buffers["segment"]
     for frame in range(model.num_frames):
         rows = model.foreground_rows(frame)
         assert rows.numel() > 0
         assert (segments[rows] == frame // STAGE_K).all()
-
-
-def test_trained_background_changes(stage_scene: Scene, stage_decoupled: Artifact) -> None:
-    cfg = stage_smoke_cfg(relay={"steps": 4, "freeze_background": False})
-    relayed = SPECS["relay"].run(stage_scene, {"decouple": stage_decoupled}, cfg)
-    assert not torch.equal(relayed.tensors["bg.means"], stage_decoupled.tensors["bg.means"])
 
 
 def test_replicate_copies_the_foreground_untrained(
@@ -113,27 +95,15 @@ def test_replicate_copies_the_foreground_untrained(
     assert torch.equal(replicated.tensors["bg.sh_dc"], stage_decoupled.tensors["bg.sh_dc"])
 
 
-def test_relay_needs_a_decouple_upstream(stage_scene: Scene, stage_relayed: Artifact) -> None:
-    with pytest.raises(InputError, match="upstream must be one of"):
-        SPECS["relay"].run(stage_scene, {"x": stage_relayed}, stage_smoke_cfg())
-    with pytest.raises(InputError, match="exactly one upstream"):
-        SPECS["relay"].run(stage_scene, {}, stage_smoke_cfg())
-
-
-def test_relay_without_pseudo_views_runs(stage_scene: Scene, stage_decoupled: Artifact) -> None:
-    cfg = stage_smoke_cfg(relay={"steps": 3, "pseudo_views": False})
-    relayed = SPECS["relay"].run(stage_scene, {"decouple": stage_decoupled}, cfg)
-    assert relayed.meta["config"]["section"]["pseudo_views"] is False
-    assert torch.isfinite(relayed.tensors["fg.means"]).all()
-
-
 def test_one_frame_segments_give_a_copy_per_frame(
     stage_scene: Scene, stage_decoupled: Artifact
 ) -> None:
     """k = 1 (the `small` budget's setting): S = T copies, each frame shows its own, and the
     pseudo-view of a one-frame segment is that frame's image, with or without blending."""
-    cfg = stage_smoke_cfg(relay={"steps": 3, "k": 1})
+    cfg = stage_smoke_cfg(relay={"steps": 3, "k": 1, "pseudo_views": False})
     relayed = SPECS["relay"].run(stage_scene, {"decouple": stage_decoupled}, cfg)
+    assert relayed.meta["config"]["section"]["pseudo_views"] is False
+    assert torch.isfinite(relayed.tensors["fg.means"]).all()
     frames = stage_scene.num_frames
     assert (relayed.meta["k"], relayed.meta["num_segments"]) == (1, frames)
     model = SceneModel.from_artifact(relayed)
@@ -156,9 +126,13 @@ def test_a_step_on_one_segment_leaves_the_other_copies_untouched(
     stage_scene: Scene, stage_decoupled: Artifact
 ) -> None:
     """Replicated (identical) copies, one relay step: the step renders and fits only the copy
-    of the segment it drew, so exactly one copy moves and every other stays bit-identical."""
-    cfg = stage_smoke_cfg(relay={"steps": 1, "seed_copies": "replicate"})
+    of the segment it drew, so exactly one copy moves and every other stays bit-identical; a
+    background not frozen trains too."""
+    cfg = stage_smoke_cfg(
+        relay={"steps": 1, "seed_copies": "replicate", "freeze_background": False}
+    )
     relayed = SPECS["relay"].run(stage_scene, {"decouple": stage_decoupled}, cfg)
+    assert not torch.equal(relayed.tensors["bg.means"], stage_decoupled.tensors["bg.means"])
     segment = relayed.tensors["fg.buffer.segment"]
     upstream = {
         name: tensor
@@ -182,10 +156,6 @@ def test_draws_at_a_frame_take_every_camera_once_before_repeating_one(stage_scen
     drawn = views.random_views_at(3, len(cameras) + 5, torch.Generator().manual_seed(0))
     assert len(drawn) == len(cameras) + 5 and {view.frame for view in drawn} == {3}
     assert sorted(view.camera.camera_id for view in drawn[: len(cameras)]) == sorted(cameras)
-
-
-def test_train_views_name_a_missing_frame_or_camera(stage_scene: Scene) -> None:
-    views = TrainViews(stage_scene, torch.device("cpu"))
     with pytest.raises(InputError, match="camera 999 has no train image at frame 0"):
         views.view(0, 999)
     frame = stage_scene.num_frames
@@ -196,6 +166,10 @@ def test_train_views_name_a_missing_frame_or_camera(stage_scene: Scene) -> None:
 def test_stages_refuse_upstreams_they_cannot_use(
     stage_scene: Scene, stage_decoupled: Artifact, tiny_synth_scene
 ) -> None:
+    with refused(InputError, "'relay'", "upstream must be one of"):
+        SPECS["relay"].run(stage_scene, {"x": Artifact("warmup")}, stage_smoke_cfg())
+    with refused(InputError, "'relay'", "exactly one upstream"):
+        SPECS["relay"].run(stage_scene, {}, stage_smoke_cfg())
     with refused(InputError, "'decouple'", "['x']"):
         SPECS["decouple"].run(stage_scene, {"x": stage_decoupled}, stage_smoke_cfg())
     other = load_scene(tiny_synth_scene)  # 6 frames, the upstream 8

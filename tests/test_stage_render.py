@@ -12,32 +12,21 @@ from splat_scenes import dome_cameras
 WIDTH, HEIGHT = 64, 36
 
 
-def _cameras() -> list[Camera]:
-    return dome_cameras(WIDTH, HEIGHT)[:3]
-
-
 def _sets() -> tuple[GaussianSet, GaussianSet]:
     """A background spread over the scene and a small foreground near its centre."""
     gen = torch.Generator().manual_seed(3)
-    background = GaussianSet.from_points(
-        torch.rand(400, 3, generator=gen) * 2 - 1,
-        torch.rand(400, 3, generator=gen),
-        max_sh_degree=1,
-        init_opacity=0.4,
-    )
-    foreground = GaussianSet.from_points(
-        torch.rand(30, 3, generator=gen) * 0.2 - 0.1,
-        torch.rand(30, 3, generator=gen),
-        max_sh_degree=1,
-        init_opacity=0.6,
-    )
-    return background, foreground
+    sets = []
+    for count, spread, opacity in ((400, 2.0, 0.4), (30, 0.2, 0.6)):
+        xyz = (torch.rand(count, 3, generator=gen) - 0.5) * spread
+        colors = torch.rand(count, 3, generator=gen)
+        sets.append(GaussianSet.from_points(xyz, colors, max_sh_degree=1, init_opacity=opacity))
+    return sets[0], sets[1]
 
 
 def _render_and_grads(frozen: FrozenRenders | None):
     background, foreground = _sets()
     parts = [part_of("bg", background, 1, frozen=True), part_of("fg", foreground, 1)]
-    render = splat(parts, _cameras(), 1, frozen)
+    render = splat(parts, dome_cameras(WIDTH, HEIGHT)[:3], 1, frozen)
     weights = torch.linspace(-1.0, 1.0, WIDTH * 3).repeat(HEIGHT, 1).view(HEIGHT, WIDTH, 3)
     sum(((image * weights).sum() for image in render.images), torch.zeros(())).backward()
     grads = {name: param.grad for name, param in foreground.params.items()}
@@ -59,7 +48,7 @@ def test_splat_with_frozen_renders_matches_a_full_splat():
 
 def test_frozen_parts_are_rendered_once_per_camera():
     background, foreground = _sets()
-    cameras = _cameras()
+    cameras = dome_cameras(WIDTH, HEIGHT)[:3]
     frozen = FrozenRenders()
 
     def render() -> torch.Tensor:
@@ -79,7 +68,7 @@ def test_frozen_parts_are_rendered_once_per_camera():
 
 def test_all_frozen_or_all_trainable_parts_render_without_a_layer():
     background, foreground = _sets()
-    cameras = _cameras()
+    cameras = dome_cameras(WIDTH, HEIGHT)[:3]
     for frozen_fg in (True, False):
         parts = [
             part_of("bg", background, 1, frozen=frozen_fg),
@@ -95,11 +84,10 @@ def test_all_frozen_or_all_trainable_parts_render_without_a_layer():
 
 
 def test_a_cached_frozen_render_does_not_depend_on_the_cameras_batched_with_it():
-    """A stage resumed from a checkpoint starts with an empty cache and so first renders each
-    camera beside other cameras than the uninterrupted run did; the cache must hold the same
-    bits either way, or the resumed stage drifts from the uninterrupted one."""
+    """A resumed stage's empty cache first renders a camera beside others than the whole run
+    did: the cache must hold the same bits either way, or the resumed stage drifts."""
     background, foreground = _sets()
-    cameras = _cameras()
+    cameras = dome_cameras(WIDTH, HEIGHT)[:3]
     parts = [part_of("bg", background, 1, frozen=True), part_of("fg", foreground, 1)]
     together, one_by_one = FrozenRenders(), FrozenRenders()
     batched = together.layer(parts, cameras, 1)

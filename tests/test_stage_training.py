@@ -6,6 +6,8 @@ from __future__ import annotations
 import json
 import math
 import re
+import shutil
+from functools import partial
 from pathlib import Path
 
 import pytest
@@ -36,6 +38,8 @@ class KilledError(Exception):
 
 
 def _kill_at(step_to_die: int, error: type[BaseException] = KilledError):
+    """A log sink that raises `error` at step `step_to_die`, as a kill (or Ctrl-C) would."""
+
     def sink(stage: str, step: int, scalars, images=None) -> None:
         if step == step_to_die:
             raise error(f"{stage} killed at {step}")
@@ -43,20 +47,19 @@ def _kill_at(step_to_die: int, error: type[BaseException] = KilledError):
     return sink
 
 
-def _run(
-    stage: str,
-    scene: Scene,
-    upstream: dict,
-    cfg: dict,
-    root: Path,
-    kill_at: int | None = None,
-    error: type[BaseException] = KilledError,
-):
-    sink = _kill_at(kill_at, error) if kill_at is not None else None
+def _recorder(records: list):
+    """A log sink that appends each record it receives to `records`."""
+    return lambda stage, step, scalars, images=None: records.append(
+        (stage, step, dict(scalars), images)
+    )
+
+
+def _run(stage: str, scene: Scene, upstream: dict, cfg: dict, root: Path, sink=None, context=None):
+    """Run `stage` as the build of KEY in the store at `root`, `sink` receiving its logs."""
     if sink is not None:
         log.add_sink(sink)
     try:
-        with building(BuildContext(root, stage, KEY)):
+        with building(context or BuildContext(root, stage, KEY)):
             return SPECS[stage].run(scene, upstream, cfg)
     finally:
         if sink is not None:
@@ -71,8 +74,8 @@ def test_resumed_run_ends_bitwise_equal_to_uninterrupted(
     stage_relayed: Artifact,
     tmp_path: Path,
 ) -> None:
-    """docs/artifacts.md: bitwise on one machine. (The relay's frozen-background cache starts
-    empty on resume: what it holds must not depend on the steps before the checkpoint.)"""
+    """Ctrl-C names the step and the checkpoint a rerun resumes from, which ends bitwise equal
+    (docs/artifacts.md); the relay's frozen-background cache starts empty on resume."""
     upstreams = {
         "decouple": {},
         "relay": {"decouple": stage_decoupled},
@@ -82,8 +85,10 @@ def test_resumed_run_ends_bitwise_equal_to_uninterrupted(
     # checkpoints every 5 steps, densification every 4: the resume restores changed shapes
     cfg = stage_smoke_cfg(train={"checkpoint_every": 5, "log_every": 1})
     whole = _run(stage, stage_scene, upstream, cfg, tmp_path / "a")
-    with pytest.raises(KilledError):
-        _run(stage, stage_scene, upstream, cfg, tmp_path / "b", kill_at=13)
+    steps = cfg[stage]["steps"]
+    with refused(Interrupted, stage, f"step 12 of {steps}", "step 10") as caught:
+        _run(stage, stage_scene, upstream, cfg, tmp_path / "b", _kill_at(13, KeyboardInterrupt))
+    assert isinstance(caught.value, KeyboardInterrupt)
     resumed = _run(stage, stage_scene, upstream, cfg, tmp_path / "b")
     assert resumed.meta["metrics"]["resumed_from"] == 10
     assert whole.meta["metrics"]["resumed_from"] == 0
@@ -97,36 +102,15 @@ def test_resumed_run_ends_bitwise_equal_to_uninterrupted(
     assert [step for step, _ in whole.meta["logged_scalars"]] == list(range(1, 21))
 
 
-def test_ctrl_c_names_the_step_and_the_checkpoint_a_rerun_resumes_from(
-    stage_scene: Scene, tmp_path: Path
-) -> None:
-    cfg = stage_smoke_cfg(train={"checkpoint_every": 5, "log_every": 1})
-    steps = cfg["decouple"]["steps"]
-    with refused(Interrupted, "decouple", f"step 12 of {steps}", "step 10") as caught:
-        _run("decouple", stage_scene, {}, cfg, tmp_path, kill_at=13, error=KeyboardInterrupt)
-    assert isinstance(caught.value, KeyboardInterrupt)
-    resumed = _run("decouple", stage_scene, {}, cfg, tmp_path)
-    assert resumed.meta["metrics"]["resumed_from"] == 10
-
-
 def test_divergence_names_stage_step_tensor_and_stores_nothing(
     stage_scene: Scene, tmp_path: Path
 ) -> None:
     store = ArtifactStore(tmp_path)
     cfg = stage_smoke_cfg(decouple={"lr": {"sh_dc": 1e36}}, train={"checkpoint_every": 1})
-    with pytest.raises(DivergenceError) as caught:
-        store.get_or_build(
-            "decouple",
-            KEY,
-            lambda: SPECS["decouple"].run(stage_scene, {}, cfg),
-            config={},
-            lineage=[],
-        )
-    found = re.fullmatch(
-        r"stage 'decouple' diverged at step (\d+): tensor '([\w.]+)' has .*", str(caught.value)
-    )
-    assert found is not None, str(caught.value)
-    step = int(found.group(1))
+    build = partial(SPECS["decouple"].run, stage_scene, {}, cfg)
+    with refused(DivergenceError, "'decouple'", "diverged at step", "tensor '") as caught:
+        store.get_or_build("decouple", KEY, build, config={}, lineage=[])
+    step = int(re.search(r"step (\d+)", str(caught.value)).group(1))
     assert store.list() == []
     checkpoints = store.root / "decouple" / f"{KEY}.ckpt"
     saved = [int(p.name.split("-")[1]) for p in checkpoints.glob("step-*")]
@@ -187,18 +171,13 @@ def test_non_finite_loss_stops_the_stage(
         SPECS["relay"].run(stage_scene, {"decouple": stage_decoupled}, stage_smoke_cfg())
 
 
-def test_sinks_receive_live_metrics(stage_scene: Scene, stage_relayed: Artifact) -> None:
+def test_sinks_receive_live_metrics(
+    stage_scene: Scene, stage_relayed: Artifact, tmp_path: Path
+) -> None:
     records = []
-
-    def sink(stage: str, step: int, scalars, images=None) -> None:
-        records.append((stage, step, dict(scalars), images))
-
     cfg = stage_smoke_cfg(train={"log_every": 4, "image_every": 8}, deform={"steps": 8})
-    log.add_sink(sink)
-    try:
-        deformed = SPECS["deform"].run(stage_scene, {"relay": stage_relayed}, cfg)
-    finally:
-        log.remove_sink(sink)
+    upstream = {"relay": stage_relayed}
+    deformed = _run("deform", stage_scene, upstream, cfg, tmp_path, _recorder(records))
     assert [step for _, step, _, _ in records] == [4, 8]
     assert deformed.meta["logged_scalars"] == [[step, scalars] for _, step, scalars, _ in records]
     stage, _, scalars, images = records[-1]
@@ -210,35 +189,37 @@ def test_sinks_receive_live_metrics(stage_scene: Scene, stage_relayed: Artifact)
     assert images["render"].shape == images["target"].shape == (27, 48, 3)
 
 
-def test_a_resumed_run_sends_its_sinks_the_records_from_before_the_kill(
-    stage_scene: Scene, tmp_path: Path
+def test_a_resumed_run_counts_and_replays_what_came_before_the_kill(
+    stage_scene: Scene, tmp_path: Path, capsys, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    # a resumed job's TensorBoard would otherwise start its curves at the checkpoint
+    """The seconds before the kill count in its build time, and its sinks get the records from
+    before it (a resumed job's TensorBoard would otherwise start its curves at the checkpoint)."""
     cfg = stage_smoke_cfg(train={"checkpoint_every": 2, "log_every": 1}, decouple={"steps": 6})
     with pytest.raises(KilledError):
-        _run("decouple", stage_scene, {}, cfg, tmp_path, kill_at=5)
+        _run("decouple", stage_scene, {}, cfg, tmp_path / "a", _kill_at(5))
+    shutil.copytree(tmp_path / "a", tmp_path / "b")
+    state = StageCheckpointer(tmp_path / "a", "decouple", KEY, 2).load()
+    assert state is not None and state.step == 4
+    before_kill = float(state.extras["seconds"])
+    assert before_kill > 0.0
     records = []
-
-    def sink(stage: str, step: int, scalars, images=None) -> None:
-        records.append((stage, step))
-
-    log.add_sink(sink)
-    try:
-        resumed = _run("decouple", stage_scene, {}, cfg, tmp_path)
-    finally:
-        log.remove_sink(sink)
-    assert resumed.meta["metrics"]["resumed_from"] == 4
-    assert records == [("decouple", step) for step in range(1, 7)]
+    capsys.readouterr()
+    context = BuildContext(tmp_path / "a", "decouple", KEY)
+    resumed = _run("decouple", stage_scene, {}, cfg, tmp_path, _recorder(records), context)
+    assert [record[:2] for record in records] == [("decouple", step) for step in range(1, 7)]
     assert [step for step, _ in resumed.meta["logged_scalars"]] == list(range(1, 7))
-
-
-def test_a_checkpoint_from_before_scalars_were_kept_still_resumes(
-    stage_scene: Scene, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
+    assert context.earlier_seconds == before_kill  # the store adds them to the build's time
+    assert capsys.readouterr().out == (
+        f"[decouple] resuming from the checkpoint of step 4 of 6 ({before_kill:.1f} s of "
+        "training before it)\n"
+    )
+    metrics = resumed.meta["metrics"]
+    assert metrics["resumed_from"] == 4
+    # steps_per_second covers only this run's steps, so it gives this run's seconds back.
+    this_run = (metrics["steps"] - 4) / metrics["steps_per_second"]
+    assert metrics["train_seconds"] >= before_kill
+    assert metrics["train_seconds"] == pytest.approx(before_kill + this_run, rel=1e-9)
     # an in-stage checkpoint written by an older relaygs holds no "history"
-    cfg = stage_smoke_cfg(train={"checkpoint_every": 2, "log_every": 1}, decouple={"steps": 6})
-    with pytest.raises(KilledError):
-        _run("decouple", stage_scene, {}, cfg, tmp_path, kill_at=5)
     real_load = StageCheckpointer.load
 
     def load_an_older_checkpoint(self):
@@ -247,42 +228,13 @@ def test_a_checkpoint_from_before_scalars_were_kept_still_resumes(
         return state
 
     monkeypatch.setattr(StageCheckpointer, "load", load_an_older_checkpoint)
-    resumed = _run("decouple", stage_scene, {}, cfg, tmp_path)
-    assert resumed.meta["metrics"]["resumed_from"] == 4
-    assert [step for step, _ in logged_scalars(resumed)] == [5, 6]
+    older = _run("decouple", stage_scene, {}, cfg, tmp_path / "b")
+    assert older.meta["metrics"]["resumed_from"] == 4
+    assert [step for step, _ in logged_scalars(older)] == [5, 6]
+    assert logged_scalars(Artifact("decouple", {}, {"metrics": {}})) == []  # an older artifact
 
 
-def test_an_artifact_stored_before_scalars_were_kept_has_none() -> None:
-    assert logged_scalars(Artifact("decouple", {}, {"metrics": {}})) == []
-
-
-def test_resumed_run_counts_the_seconds_before_the_kill(
-    stage_scene: Scene, tmp_path: Path, capsys
-) -> None:
-    cfg = stage_smoke_cfg(train={"checkpoint_every": 2, "log_every": 1}, decouple={"steps": 6})
-    with pytest.raises(KilledError):
-        _run("decouple", stage_scene, {}, cfg, tmp_path, kill_at=3)
-    state = StageCheckpointer(tmp_path, "decouple", KEY, 2).load()
-    assert state is not None and state.step == 2
-    before_kill = float(state.extras["seconds"])
-    assert before_kill > 0.0
-    capsys.readouterr()
-    context = BuildContext(tmp_path, "decouple", KEY)
-    with building(context):
-        metrics = SPECS["decouple"].run(stage_scene, {}, cfg).meta["metrics"]
-    assert context.earlier_seconds == before_kill  # the store adds them to the build's time
-    assert capsys.readouterr().out == (
-        f"[decouple] resuming from the checkpoint of step 2 of 6 ({before_kill:.1f} s of "
-        "training before it)\n"
-    )
-    assert metrics["resumed_from"] == 2
-    # steps_per_second covers only this run's steps, so it gives this run's seconds back.
-    this_run = (metrics["steps"] - 2) / metrics["steps_per_second"]
-    assert metrics["train_seconds"] >= before_kill
-    assert metrics["train_seconds"] == pytest.approx(before_kill + this_run, rel=1e-9)
-
-
-def test_photometric_loss_is_l1_plus_weighted_d_ssim_and_zero_on_a_match() -> None:
+def test_photometric_loss_is_l1_plus_weighted_d_ssim_and_psnr_clamps_to_what_is_shown() -> None:
     generator = torch.Generator().manual_seed(0)
     target = torch.rand(16, 20, 3, generator=generator)
     pred = target * 0.5
@@ -294,9 +246,7 @@ def test_photometric_loss_is_l1_plus_weighted_d_ssim_and_zero_on_a_match() -> No
     loss = photometric_loss([pred, target], [target, target], 0.2)
     assert float(loss) == pytest.approx((l1 + 0.2 * d_ssim) / 2, rel=1e-5)
     assert float(photometric_loss([pred], [target], 0.0)) == pytest.approx(l1, rel=1e-6)
-
-
-def test_batch_psnr_clamps_renders_to_the_displayable_range() -> None:
+    # batch_psnr clamps renders to the displayable range
     target = torch.full((4, 5, 3), 0.5)
     over = torch.full((4, 5, 3), 1.5)  # shown as 1.0: squared error 0.25 -> 10·log10(4) dB
     assert batch_psnr([over], [target]) == pytest.approx(10 * math.log10(4.0), rel=1e-5)

@@ -12,26 +12,13 @@ from refusals import refused
 from relaygs.errors import InputError
 from relaygs.pipeline.artifact import Artifact
 from relaygs.pipeline.context import current_build
-from relaygs.pipeline.integrity import MARKER_FILE, CorruptArtifactError, seal
+from relaygs.pipeline.integrity import MARKER_FILE, CorruptArtifactError
 from relaygs.pipeline.keys import artifact_key
 from relaygs.pipeline.manifest import LineageEntry
 from relaygs.pipeline.store import ArtifactStore, MissingArtifactError
-from store_damage import damage_dtype_and_rehash
+from store_helpers import KEY, OTHER, CountingBuild, damage_dtype_and_rehash, flip_last_byte, sealed
 
-KEY = artifact_key("decouple", 1, {"steps": 3}, "scene", [])
 CHILD_KEY = artifact_key("relay", 1, {"k": 4}, "scene", [KEY])
-
-
-class CountingStage:
-    """A fake stage: arange tensors plus a counter of how often it really ran."""
-
-    def __init__(self, stage="decouple", offset=0):
-        self.stage, self.offset, self.calls = stage, offset, 0
-
-    def __call__(self):
-        self.calls += 1
-        tensors = {"xyz": torch.arange(12.0).reshape(4, 3) + self.offset, "mask": torch.ones(4) > 0}
-        return Artifact(self.stage, tensors, {"metrics": {"loss": 0.5}, "calls": self.calls})
 
 
 def _build(store, fake, key=KEY, **kwargs):
@@ -40,11 +27,11 @@ def _build(store, fake, key=KEY, **kwargs):
     return store.get_or_build(fake.stage, key, fake, **kwargs)
 
 
-def test_root_is_absolute_and_layout_manifest_and_marker_are_written(tmp_path, monkeypatch):
+def test_layout_manifest_and_marker_are_written_and_a_hit_does_not_rebuild(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    store = ArtifactStore("store")
+    store, fake = ArtifactStore("store"), CountingBuild()
     assert store.root.is_absolute() and store.root == (tmp_path / "store").resolve()
-    _build(store, CountingStage(), provenance={"node": "decouple"})
+    built, first = _build(store, fake, provenance={"node": "decouple"})
     folder = store.root / "decouple" / KEY
     assert sorted(p.name for p in folder.iterdir()) == sorted(
         [MARKER_FILE, "manifest.json", "meta.json", "tensors.safetensors"]
@@ -60,11 +47,6 @@ def test_root_is_absolute_and_layout_manifest_and_marker_are_written(tmp_path, m
     on_disk = sum((folder / name).stat().st_size for name in manifest["files"])
     assert store.manifest("decouple", KEY).size_mb == pytest.approx(on_disk / 1e6)
     assert not list((store.root / "decouple").glob(".tmp-*"))
-
-
-def test_cache_hit_does_not_rebuild_and_reports_recorded_seconds(tmp_path):
-    store, fake = ArtifactStore(tmp_path), CountingStage()
-    built, first = _build(store, fake)
     loaded, second = _build(store, fake)
     assert fake.calls == 1
     assert not first.cache_hit and second.cache_hit
@@ -75,53 +57,24 @@ def test_cache_hit_does_not_rebuild_and_reports_recorded_seconds(tmp_path):
     assert loaded.meta == built.meta
 
 
-def test_lineage_is_recorded(tmp_path):
-    store = ArtifactStore(tmp_path)
-    _build(store, CountingStage())
-    lineage = [LineageEntry("decouple", "decouple", KEY)]
-    _build(store, CountingStage("relay"), key=CHILD_KEY, config={"k": 4}, lineage=lineage)
-    assert store.manifest("relay", CHILD_KEY).lineage == lineage
-
-
-def _flip_byte(name):
-    def damage(folder):
-        data = bytearray((folder / name).read_bytes())
-        data[len(data) // 2] ^= 0x01
-        (folder / name).write_bytes(bytes(data))
-
-    return damage
-
-
-def _write(name, text):
-    return lambda folder: (folder / name).write_text(text)
-
-
-def _sealed(name, text):
-    # hashes that match undecodable bytes: a file damaged before it was sealed (safetensors
-    # raises its own SafetensorError, which escaped as a traceback)
-    return lambda folder: ((folder / name).write_text(text), seal(folder))
-
-
-def _deleted(name):
-    return lambda folder: (folder / name).unlink()
-
-
 @pytest.mark.parametrize(
     ("damage", "named"),
     [
-        (_flip_byte("tensors.safetensors"), ["tensors.safetensors"]),
-        (_flip_byte("meta.json"), ["meta.json"]),
-        (_flip_byte("manifest.json"), ["manifest.json"]),
-        (_write(MARKER_FILE, "{not json"), [MARKER_FILE]),
-        (_write(MARKER_FILE, json.dumps({"sha256": ["x"]})), ["marker"]),
-        (_deleted("tensors.safetensors"), ["tensors.safetensors", "missing"]),
-        (_deleted("meta.json"), ["meta.json", "missing"]),
-        (_sealed("meta.json", "{not json"), ["unreadable"]),
-        (_sealed("tensors.safetensors", "{not json"), ["unreadable"]),
+        (lambda f: flip_last_byte(f / "tensors.safetensors"), ["tensors.safetensors"]),
+        (lambda f: flip_last_byte(f / "meta.json"), ["meta.json"]),
+        (lambda f: flip_last_byte(f / "manifest.json"), ["manifest.json"]),
+        (lambda f: (f / MARKER_FILE).write_text("{not json"), [MARKER_FILE]),
+        (lambda f: (f / MARKER_FILE).write_text('{"sha256": ["x"]}'), ["marker"]),
+        (lambda f: (f / "tensors.safetensors").unlink(), ["tensors.safetensors", "missing"]),
+        (lambda f: (f / "meta.json").unlink(), ["meta.json", "missing"]),
+        # hashes that match undecodable bytes: safetensors' own error escaped as a traceback
+        (sealed("meta.json", "{not json"), ["unreadable"]),
+        (sealed("tensors.safetensors", "{not json"), ["unreadable"]),
+        (damage_dtype_and_rehash, ["unreadable artifact files"]),
     ],
 )
 def test_a_damaged_artifact_is_named_refused_under_error_and_rebuilt(tmp_path, damage, named):
-    store, fake = ArtifactStore(tmp_path), CountingStage()
+    store, fake = ArtifactStore(tmp_path), CountingBuild()
     _build(store, fake)
     damage(store.path("decouple", KEY))
     assert [problem.path.name for problem in store.verify()] == [KEY]
@@ -144,12 +97,12 @@ def test_missing_and_malformed_requests_fail_clearly(tmp_path):
         store.has("decouple", "../etc")
     with refused(InputError, "'../x'"):
         store.has("../x", KEY)
-    fake = CountingStage()
+    fake = CountingBuild()
     with refused(InputError, "decouple", "seeds", "set"):
         _build(store, fake, config={"seeds": {1, 2}})
     assert fake.calls == 0
     with refused(InputError, "'relay'", "'decouple'"):
-        store.get_or_build("decouple", KEY, CountingStage("relay"), config={}, lineage=[])
+        store.get_or_build("decouple", KEY, CountingBuild("relay"), config={}, lineage=[])
     assert not store.has("decouple", KEY)
     with refused(InputError, "'decouple'", "dict"):
         store.get_or_build("decouple", KEY, lambda: {"x": 1}, config={}, lineage=[])
@@ -165,29 +118,50 @@ def test_build_sees_its_context_and_checkpoints_are_removed_on_completion(tmp_pa
         seen.append((context.stage, context.key, context.store_root))
         context.checkpointer(1).save(1, {"x": torch.ones(2)})
         assert (store.root / "decouple" / f"{KEY}.ckpt").is_dir()
+        context.earlier_seconds = 1000.0  # as the training loop sets on resuming
         return Artifact("decouple", {}, {})
 
-    store.get_or_build("decouple", KEY, build, config={}, lineage=[])
+    _, info = store.get_or_build("decouple", KEY, build, config={}, lineage=[])
     assert seen == [("decouple", KEY, store.root)]
     assert current_build() is None
     assert not (store.root / "decouple" / f"{KEY}.ckpt").exists()
+    # a resumed build costs the seconds before its checkpoint too
+    assert 1000.0 <= info.wall_seconds < 1060.0
+    assert store.manifest("decouple", KEY).wall_seconds == info.wall_seconds
 
 
-def test_a_failing_build_leaves_nothing(tmp_path):
+def _raising():
+    raise RuntimeError("boom")
+
+
+@pytest.mark.parametrize(
+    ("build", "error", "named"),
+    [
+        (_raising, RuntimeError, ["boom"]),
+        (
+            lambda: Artifact("decouple", {"xyz": torch.zeros(2, 3)}, {"metrics": [0.5]}),
+            InputError,
+            ["decouple", "meta['metrics']"],
+        ),
+    ],
+)
+def test_a_failing_build_or_one_whose_metrics_are_no_mapping_stores_nothing(
+    tmp_path, build, error, named
+):
     store = ArtifactStore(tmp_path)
-
-    def build():
-        raise RuntimeError("boom")
-
-    with pytest.raises(RuntimeError, match="boom"):
+    with refused(error, *named):
         store.get_or_build("decouple", KEY, build, config={}, lineage=[])
-    assert not store.has("decouple", KEY) and store.list() == []
+    assert not store.has("decouple", KEY) and store.list() == [] and store.damaged() == []
 
 
-def test_leftover_temp_dirs_are_ignored_by_list_and_removed_by_gc(tmp_path):
+def test_leftover_temp_dirs_are_ignored_by_list_and_removed_by_gc_or_the_next_build(tmp_path):
     store = ArtifactStore(tmp_path)
-    _build(store, CountingStage())
     stage_dir = store.root / "decouple"
+    killed = stage_dir / f".tmp-{KEY}-killed"  # a killed build's, cleared by the next
+    killed.mkdir(parents=True)
+    (killed / "meta.json").write_text("{")
+    _build(store, CountingBuild())
+    assert not killed.exists() and store.verify() == []
     leftover = stage_dir / f".tmp-{CHILD_KEY}-abc123"
     leftover.mkdir()
     (leftover / "tensors.safetensors").write_bytes(b"half")
@@ -218,123 +192,68 @@ def test_gc_skips_entries_whose_lock_is_held(tmp_path):
     assert leftover.exists() and leftover in report.busy and lock_file in report.busy
 
 
-def test_gc_with_keep_set_keeps_lineage_and_removes_the_rest(tmp_path):
+def test_lineage_is_recorded_and_gc_with_a_keep_set_keeps_it_and_removes_the_rest(tmp_path):
     store = ArtifactStore(tmp_path)
-    _build(store, CountingStage())
+    _build(store, CountingBuild())
     lineage = [LineageEntry("decouple", "decouple", KEY)]
-    _build(store, CountingStage("relay"), key=CHILD_KEY, config={"k": 4}, lineage=lineage)
-    other = artifact_key("decouple", 1, {"steps": 4}, "scene", [])
-    _build(store, CountingStage(offset=1), key=other)
-    store.gc(keep={CHILD_KEY})
-    assert store.has("relay", CHILD_KEY) and store.has("decouple", KEY)
-    assert not store.has("decouple", other)
-
-
-def test_gc_keeping_an_unknown_key_removes_nothing(tmp_path):
-    store = ArtifactStore(tmp_path)
-    _build(store, CountingStage())
+    _build(store, CountingBuild("relay"), key=CHILD_KEY, config={"k": 4}, lineage=lineage)
+    assert store.manifest("relay", CHILD_KEY).lineage == lineage
+    _build(store, CountingBuild(offset=1), key=OTHER)
     leftover = store.root / "decouple" / f".tmp-{KEY}-killed"
     leftover.mkdir()
-    with refused(InputError, CHILD_KEY):
-        store.gc(keep={KEY, CHILD_KEY})
-    assert store.has("decouple", KEY) and leftover.exists()
-
-
-def test_the_next_build_of_a_key_clears_its_killed_builds_temp_dirs(tmp_path):
-    store = ArtifactStore(tmp_path)
-    leftover = store.root / "decouple" / f".tmp-{KEY}-killed"
-    leftover.mkdir(parents=True)
-    (leftover / "meta.json").write_text("{")
-    _build(store, CountingStage())
-    assert not leftover.exists() and store.verify() == []
+    unknown = "0" * 64
+    with refused(InputError, unknown):  # keeping an unknown key removes nothing
+        store.gc(keep={KEY, unknown})
+    assert store.has("decouple", OTHER) and leftover.exists()
+    store.gc(keep={CHILD_KEY})
+    assert store.has("relay", CHILD_KEY) and store.has("decouple", KEY)
+    assert not store.has("decouple", OTHER) and not leftover.exists()
 
 
 def test_a_folder_copied_under_another_key_is_not_loaded_as_that_key(tmp_path):
     # The copy's files match their own hashes, but its manifest names KEY, not OTHER.
-    store, fake = ArtifactStore(tmp_path), CountingStage()
+    store, fake = ArtifactStore(tmp_path), CountingBuild()
     _build(store, fake)
-    other = artifact_key("decouple", 1, {"steps": 4}, "scene", [])
-    shutil.copytree(store.path("decouple", KEY), store.path("decouple", other))
-    assert store.has("decouple", other)
-    with refused(CorruptArtifactError, f"decouple/{KEY}", other):
-        store.load("decouple", other)
-    assert [problem.path.name for problem in store.verify()] == [other]
+    shutil.copytree(store.path("decouple", KEY), store.path("decouple", OTHER))
+    assert store.has("decouple", OTHER)
+    with refused(CorruptArtifactError, f"decouple/{KEY}", OTHER):
+        store.load("decouple", OTHER)
+    assert [problem.path.name for problem in store.verify()] == [OTHER]
     assert [item.key for item in store.list()] == [KEY]
     with refused(CorruptArtifactError, f"decouple/{KEY}", "on_corrupt"):
-        _build(store, fake, key=other, on_corrupt="error")
+        _build(store, fake, key=OTHER, on_corrupt="error")
     assert fake.calls == 1
-    rebuild = CountingStage(offset=1)
-    artifact, info = _build(store, rebuild, key=other)
+    rebuild = CountingBuild(offset=1)
+    artifact, info = _build(store, rebuild, key=OTHER)
     assert not info.cache_hit and info.replaced_corrupt
     assert artifact.tensors["xyz"][0, 0] == 1.0
     # the rebuild replaced the copy: the key is served from the store from now on
-    assert store.manifest("decouple", other).key == other and store.verify() == []
-    _, again = _build(store, rebuild, key=other)
+    assert store.manifest("decouple", OTHER).key == OTHER and store.verify() == []
+    _, again = _build(store, rebuild, key=OTHER)
     assert again.cache_hit and rebuild.calls == 1
 
 
 def test_gc_keeps_only_annotations_whose_upstreams_are_all_kept(tmp_path):
     store = ArtifactStore(tmp_path)
-    _build(store, CountingStage())
-    other = artifact_key("decouple", 1, {"steps": 4}, "scene", [])
-    _build(store, CountingStage(offset=1), key=other)
-    evaluate = CountingStage("evaluate")
+    _build(store, CountingBuild())
+    _build(store, CountingBuild(offset=1), key=OTHER)
+    evaluate = CountingBuild("evaluate")
     described = artifact_key("evaluate", 1, {}, "scene", [KEY])
-    of_other = artifact_key("evaluate", 1, {}, "scene", [other])
+    of_other = artifact_key("evaluate", 1, {}, "scene", [OTHER])
     orphan = artifact_key("evaluate", 1, {}, "scene", [])
     _build(store, evaluate, key=described, lineage=[LineageEntry("decouple", "decouple", KEY)])
-    _build(store, evaluate, key=of_other, lineage=[LineageEntry("decouple", "decouple", other)])
+    _build(store, evaluate, key=of_other, lineage=[LineageEntry("decouple", "decouple", OTHER)])
     _build(store, evaluate, key=orphan)  # describes nothing: nothing keeps it
     store.gc(keep={KEY}, annotations={"evaluate"})
     assert store.has("decouple", KEY) and store.has("evaluate", described)
-    assert not store.has("decouple", other) and not store.has("evaluate", of_other)
+    assert not store.has("decouple", OTHER) and not store.has("evaluate", of_other)
     assert not store.has("evaluate", orphan)
 
 
 @pytest.mark.parametrize("prefix", [KEY[:3], "zzzz", KEY[:3] + "-"])
 def test_a_key_prefix_under_4_hex_digits_is_refused(tmp_path, prefix):
     store = ArtifactStore(tmp_path)
-    _build(store, CountingStage())
+    _build(store, CountingBuild())
     assert store.find(KEY[:4].upper()).key == KEY
     with refused(InputError, f"'{prefix}'", "hex digits"):
         store.find(prefix)
-
-
-def test_metrics_that_are_not_a_mapping_are_refused_and_nothing_is_stored(tmp_path):
-    store = ArtifactStore(tmp_path)
-
-    def build():
-        return Artifact("decouple", {"xyz": torch.zeros(2, 3)}, {"metrics": [0.5]})
-
-    with refused(InputError, "decouple", "meta['metrics']"):
-        store.get_or_build("decouple", KEY, build, config={}, lineage=[])
-    assert not store.has("decouple", KEY) and store.damaged() == []
-
-
-def test_an_artifact_whose_hashes_match_but_whose_tensors_do_not_decode_is_replaced(tmp_path):
-    # a dtype changed in the safetensors header, manifest and marker rehashed to match: the
-    # rebuild must replace the folder on disk, not only build beside it on every run
-    store, fake = ArtifactStore(tmp_path), CountingStage()
-    _build(store, fake)
-    folder = store.path("decouple", KEY)
-    damage_dtype_and_rehash(folder)
-    assert [problem.path for problem in store.verify()] == [folder]
-    _, info = _build(store, fake)
-    assert fake.calls == 2 and "unreadable artifact files" in info.replaced_corrupt
-    assert store.verify() == []
-    assert torch.equal(store.load("decouple", KEY).tensors["xyz"], torch.arange(12.0).reshape(4, 3))
-    _, third = _build(store, fake)
-    assert fake.calls == 2 and third.cache_hit
-
-
-def test_a_resumed_build_costs_the_seconds_before_its_checkpoint_too(tmp_path):
-    store = ArtifactStore(tmp_path / "store")
-    fake = CountingStage()
-
-    def resumed_build():
-        current_build().earlier_seconds = 1000.0  # as the training loop sets on resuming
-        return fake()
-
-    _, info = store.get_or_build("decouple", KEY, resumed_build, config={}, lineage=[])
-    assert 1000.0 <= info.wall_seconds < 1060.0
-    assert store.manifest("decouple", KEY).wall_seconds == info.wall_seconds

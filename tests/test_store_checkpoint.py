@@ -4,10 +4,7 @@ import json
 import os
 import random
 import signal
-import subprocess
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,14 +15,13 @@ from relaygs.errors import DivergenceError
 from relaygs.pipeline.artifact import Artifact
 from relaygs.pipeline.checkpoint import STATE_FILE, StageCheckpointer
 from relaygs.pipeline.context import current_build
-from relaygs.pipeline.integrity import seal
 from relaygs.pipeline.keys import artifact_key
 from relaygs.pipeline.layout import TENSORS_FILE
 from relaygs.pipeline.statecodec import decode_tree, encode_tree
 from relaygs.pipeline.store import ArtifactStore
+from store_helpers import flip_last_byte, sealed, spawn, wait_until
 
 KEY = artifact_key("train", 1, {"case": "resume"}, "scene", [])
-TESTS_DIR = Path(__file__).resolve().parent
 
 
 def _seed_everything(seed: int) -> None:
@@ -44,7 +40,7 @@ def _one_step(param, optimizer):
     optimizer.step()
 
 
-def train(ckpt: StageCheckpointer | None, total_steps: int, step_sleep: float = 0.0, log=None):
+def train(ckpt: StageCheckpointer | None, total_steps: int, step_sleep=0.0, log=lambda line: None):
     """Adam on a small tensor against random targets, resuming from `ckpt` when it has one."""
     _seed_everything(0)
     param = torch.nn.Parameter(torch.randn(32))
@@ -58,16 +54,13 @@ def train(ckpt: StageCheckpointer | None, total_steps: int, step_sleep: float = 
         state.restore_rng()
         start = state.step
         assert state.extras == {"note": "resume", "loss_history": [start]}
-    if log is not None:
-        log(f"start {start}")
+    log(f"start {start}")
     for step in range(start, total_steps):
         _one_step(param, optimizer)
         time.sleep(step_sleep)
         if ckpt is not None and ckpt.due(step + 1):
             extras = {"note": "resume", "loss_history": [step + 1]}
             ckpt.save(step + 1, {"param": param}, {"adam": optimizer}, extras)
-        if log is not None:
-            log(f"step {step + 1}")
     return param.detach().clone(), start
 
 
@@ -86,55 +79,32 @@ def child_train(root: str, total_steps: str, every: str, step_sleep: str, log_pa
     ArtifactStore(root).get_or_build("train", KEY, build, config={"case": "resume"}, lineage=[])
 
 
-def test_resume_from_a_checkpoint_is_bitwise_identical(tmp_path):
+def test_resume_from_a_checkpoint_is_bitwise_identical_with_its_rng_states_only(tmp_path):
     reference, _ = train(None, total_steps=12)
     ckpt = StageCheckpointer(tmp_path, "train", KEY, every_n_steps=5)
     train(ckpt, total_steps=7)  # stops after step 7; the last checkpoint is step 5
-    _seed_everything(123)  # a fresh process would start from other RNG states
-    resumed, start = train(ckpt, total_steps=12)
-    assert start == 5
-    assert torch.equal(resumed, reference)
-
-
-def test_latest_due_is_the_last_step_a_checkpoint_was_written_after(tmp_path):
-    ckpt = StageCheckpointer(tmp_path, "train", KEY, every_n_steps=4)
-    written = [step for step in range(1, 12) if ckpt.due(step)]
-    assert written == [4, 8]
-    assert [ckpt.latest_due(step) for step in (0, 3, 4, 7, 8, 11)] == [0, 0, 4, 4, 8, 8]
-
-
-def test_resume_without_restoring_rng_would_differ(tmp_path):
-    """The exactness above depends on the RNG states: dropping them changes the result."""
-    reference, _ = train(None, total_steps=8)
-    ckpt = StageCheckpointer(tmp_path, "train", KEY, every_n_steps=4)
-    train(ckpt, total_steps=4)
     state = ckpt.load()
     param = torch.nn.Parameter(state.tensors["param"].clone())
     optimizer = torch.optim.Adam([param], lr=0.05)
     optimizer.load_state_dict(state.optimizers["adam"])
-    _seed_everything(123)
-    for _ in range(4):
+    _seed_everything(123)  # a fresh process would start from other RNG states
+    for _ in range(5, 12):  # without restoring the RNG states: another result
         _one_step(param, optimizer)
     assert not torch.equal(param.detach(), reference)
-
-
-def _flip_byte(folder: Path) -> None:
-    data = bytearray((folder / TENSORS_FILE).read_bytes())
-    data[len(data) // 2] ^= 0x01
-    (folder / TENSORS_FILE).write_bytes(bytes(data))
-
-
-def _sealed(name: str, text: str):
-    return lambda folder: ((folder / name).write_text(text), seal(folder))
+    resumed, start = train(ckpt, total_steps=12)
+    assert start == 5
+    assert torch.equal(resumed, reference)
+    assert [step for step in range(1, 12) if ckpt.due(step)] == [5, 10]
+    assert [ckpt.latest_due(step) for step in (0, 4, 5, 9, 10, 11)] == [0, 0, 5, 5, 10, 10]
 
 
 @pytest.mark.parametrize(
     ("damage", "warned"),
     [
-        (_flip_byte, "damaged checkpoint"),
-        (_sealed(STATE_FILE, json.dumps({"step": 4})), "unreadable checkpoint"),  # no tensors...
+        (lambda folder: flip_last_byte(folder / TENSORS_FILE), "damaged checkpoint"),
+        (sealed(STATE_FILE, json.dumps({"step": 4})), "unreadable checkpoint"),  # no tensors...
         # safetensors' own SafetensorError escaped as a traceback
-        (_sealed(TENSORS_FILE, "junk"), "unreadable checkpoint"),
+        (sealed(TENSORS_FILE, "junk"), "unreadable checkpoint"),
     ],
 )
 def test_only_the_newest_checkpoints_are_kept_and_damage_falls_back(tmp_path, damage, warned):
@@ -147,8 +117,6 @@ def test_only_the_newest_checkpoints_are_kept_and_damage_falls_back(tmp_path, da
     with pytest.warns(UserWarning, match=warned):
         state = ckpt.load()
     assert state.step == 4 and torch.equal(state.tensors["x"], torch.full((3,), 4.0))
-    ckpt.clear()
-    assert ckpt.load() is None and not ckpt.folder.exists()
 
 
 def test_a_non_finite_optimizer_moment_stops_the_stage_before_anything_is_written(tmp_path):
@@ -185,29 +153,18 @@ def test_state_codec_roundtrips_nested_state_exactly():
         encode_tree({"x": object()}, {}, "t.", "tree")
 
 
-def _spawn_child(*args) -> subprocess.Popen:
-    code = (
-        f"import sys; sys.path.insert(0, {str(TESTS_DIR)!r}); "
-        f"import test_store_checkpoint as t; t.child_train(*{[str(a) for a in args]!r})"
-    )
-    return subprocess.Popen([sys.executable, "-c", code], stderr=subprocess.PIPE, text=True)
-
-
 def test_a_run_killed_with_sigkill_resumes_from_its_checkpoint(tmp_path):
     store = ArtifactStore(tmp_path / "store")
     log = tmp_path / "log.txt"
     total, every = 60, 5
-    proc = _spawn_child(store.root, total, every, 0.03, log)
+    proc = spawn("test_store_checkpoint", "child_train", store.root, total, every, 0.03, log)
     ckpt_dir = store.root / "train" / f"{KEY}.ckpt"
-    deadline = time.monotonic() + 90
-    while not (ckpt_dir.is_dir() and list(ckpt_dir.glob("step-*"))):
-        assert time.monotonic() < deadline and proc.poll() is None, "no checkpoint appeared"
-        time.sleep(0.02)
+    wait_until(lambda: ckpt_dir.is_dir() and any(ckpt_dir.glob("step-*")), proc)
     os.kill(proc.pid, signal.SIGKILL)
     proc.communicate(timeout=60)
     assert not store.has("train", KEY)
 
-    rerun = _spawn_child(store.root, total, every, 0.0, log)
+    rerun = spawn("test_store_checkpoint", "child_train", store.root, total, every, 0.0, log)
     _, err = rerun.communicate(timeout=120)
     assert rerun.returncode == 0, err
     starts = [int(line.split()[1]) for line in log.read_text().splitlines() if "start" in line]

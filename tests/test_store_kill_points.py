@@ -12,11 +12,8 @@ from relaygs.pipeline import gc as gc_module
 from relaygs.pipeline import store as store_module
 from relaygs.pipeline.artifact import Artifact
 from relaygs.pipeline.context import current_build
-from relaygs.pipeline.keys import artifact_key
 from relaygs.pipeline.store import ArtifactStore
-
-KEY = artifact_key("decouple", 1, {"steps": 3}, "scene", [])
-OTHER = artifact_key("decouple", 1, {"steps": 4}, "scene", [])
+from store_helpers import KEY, OTHER, store_with
 
 
 class KilledError(BaseException):
@@ -26,10 +23,6 @@ class KilledError(BaseException):
 def _checkpointing_build():
     current_build().checkpointer(1).save(1, {"x": torch.ones(2)})
     return Artifact("decouple", {"x": torch.ones(2)}, {})
-
-
-def _empty_build():
-    return Artifact("decouple", {}, {})
 
 
 def _not_called():
@@ -59,15 +52,7 @@ def test_checkpoints_left_by_a_kill_after_publishing_are_removed_by_the_next_req
 
 
 def test_a_gc_killed_while_removing_an_artifact_leaves_no_damaged_folder(tmp_path, monkeypatch):
-    store = ArtifactStore(tmp_path)
-    for key, steps in ((KEY, 3), (OTHER, 4)):
-        store.get_or_build(
-            "decouple",
-            key,
-            lambda: Artifact("decouple", {"x": torch.ones(2)}, {}),
-            config={"steps": steps},
-            lineage=[],
-        )
+    store = store_with(tmp_path, KEY, OTHER)
     real_remove = gc_module.remove_tree
 
     def killed_half_way(path):  # rmtree had deleted one file when the kill came
@@ -88,8 +73,7 @@ def test_a_gc_killed_while_removing_an_artifact_leaves_no_damaged_folder(tmp_pat
 def test_a_full_disk_mid_build_leaves_no_partial_artifact_and_keeps_earlier_ones(
     tmp_path, monkeypatch, failing_write
 ):
-    store = ArtifactStore(tmp_path)
-    store.get_or_build("decouple", OTHER, _empty_build, config={}, lineage=[])
+    store = store_with(tmp_path, OTHER)
     real_save, writes = fsio_module.save_file, []
 
     def full_on_write(tensors, path):

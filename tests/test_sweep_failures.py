@@ -2,7 +2,6 @@
 summary lists the finished jobs and the failed one, and the command exits 1."""
 
 import errno
-import functools
 import json
 import pickle
 import shutil
@@ -12,13 +11,12 @@ import pytest
 from filelock import FileLock
 from omegaconf import OmegaConf
 
-from fake_stages import TINY_SCENE, FakeStages, compose_config
+from conftest import run_main
+from fake_stages import TINY_SCENE
 from relaygs.app import callbacks
 from relaygs.app import task as task_module
 from relaygs.app.callbacks import SWEEP_LOCK_FILE, SweepFolderLock
-from relaygs.app.task import run_task
 from relaygs.commands import report
-from relaygs.commands import run as run_module
 
 ERROR = "RuntimeError: relay diverged: loss is nan"
 
@@ -27,37 +25,15 @@ def _relay_k_is(k):
     return lambda stage, cfg: stage == "relay" and cfg["relay"]["k"] == k
 
 
-def test_a_failed_run_writes_a_failed_result_and_raises(tmp_path):
-    fakes = FakeStages(fail_when=_relay_k_is(16))
-    cfg = compose_config([*TINY_SCENE, "budget=smoke", "relay.k=16"], tmp_path / "outputs")
-    with pytest.raises(RuntimeError, match="relay diverged"):
-        run_task(
-            OmegaConf.to_container(cfg, resolve=True),
-            run_dir=tmp_path / "run",
-            original_cwd=tmp_path,
-            overrides=["relay.k=16"],
-            suite=fakes.suite(),
-        )
-    result = json.loads((tmp_path / "run" / "result.json").read_text())
+def test_a_failing_job_leaves_a_summary_of_the_sweep_and_exit_status_1(fakes, tmp_path, capsys):
+    fakes.fail_when = _relay_k_is(16)
+    args = ["-m", "relay.k=8,16,32", "variant=k${relay.k}", "budget=smoke", *TINY_SCENE]
+    assert run_main(args) == 1
+    (sweep,) = tmp_path.glob("outputs/sweeps/*")
+    result = json.loads((sweep / "1_k16" / "result.json").read_text())
     assert (result["status"], result["error"]) == ("failed", ERROR)
     assert (result["pipeline"], result["relay.k"], result["psnr"]) == ("relaygs", 16, None)
     assert result["job_s"] > 0
-
-
-def test_a_failing_job_leaves_a_summary_of_the_sweep_and_exit_status_1(
-    monkeypatch, tmp_path, capsys
-):
-    fakes = FakeStages(fail_when=_relay_k_is(16))
-    monkeypatch.setattr(run_module, "load_stage_suite", fakes.suite)
-    monkeypatch.setattr(run_module, "run_task", functools.partial(run_task, suite=fakes.suite()))
-    monkeypatch.chdir(tmp_path)
-    args = ["-m", "relay.k=8,16,32", "variant=k${relay.k}", "budget=smoke", *TINY_SCENE]
-    try:
-        status = run_module.main(args)
-    except SystemExit as stop:
-        status = stop.code
-    assert status == 1
-    (sweep,) = tmp_path.glob("outputs/sweeps/*")
     table = pd.read_csv(sweep / "summary.csv")
     assert list(table.variant) == ["k8", "k16", "k32"]
     assert list(table.status) == ["ok", "failed", "ok"]
@@ -78,24 +54,15 @@ def test_a_failing_job_leaves_a_summary_of_the_sweep_and_exit_status_1(
 
 
 def test_a_sweep_in_a_folder_of_an_earlier_one_names_its_jobs_and_skips_its_failures(
-    monkeypatch, tmp_path, capsys
+    fakes, tmp_path, capsys
 ):
-    monkeypatch.chdir(tmp_path)  # the store and scenes go under ./outputs, not the repo's
-    fakes = FakeStages(fail_when=_relay_k_is(16))
-    monkeypatch.setattr(run_module, "load_stage_suite", fakes.suite)
-    monkeypatch.setattr(run_module, "run_task", functools.partial(run_task, suite=fakes.suite()))
+    fakes.fail_when = _relay_k_is(16)
     folder = tmp_path / "sweep"
     common = ["variant=k${relay.k}", "budget=smoke", f"hydra.sweep.dir={folder}", *TINY_SCENE]
-
-    def sweep(values):
-        try:
-            return run_module.main(["-m", f"relay.k={values}", *common])
-        except SystemExit as stop:
-            return stop.code
-
-    assert sweep("8,16") == 1
+    assert run_main(["-m", "relay.k=8,16", *common]) == 1
     capsys.readouterr()
-    assert sweep("32") == 0  # the failed job is the earlier sweep's, not this one's
+    # the failed job is the earlier sweep's, not this one's
+    assert run_main(["-m", "relay.k=32", *common]) == 0
     err = capsys.readouterr().err
     assert err.strip().splitlines()[-1] == (
         f"note: the summary also holds 2 job(s) of an earlier sweep in {folder}: 0_k8, 1_k16; "
@@ -149,22 +116,12 @@ def _raise_in_relay(error):
     return fail_when
 
 
-def _main_with(monkeypatch, fakes, args):
-    monkeypatch.setattr(run_module, "load_stage_suite", fakes.suite)
-    monkeypatch.setattr(run_module, "run_task", functools.partial(run_task, suite=fakes.suite()))
-    try:
-        return run_module.main(args)
-    except SystemExit as stop:
-        return stop.code
-
-
 @pytest.mark.parametrize(("error", "message"), ENVIRONMENT_FAILURES)
 def test_a_run_out_of_disk_or_memory_ends_in_one_line_and_records_it(
-    monkeypatch, tmp_path, capsys, error, message
+    fakes, tmp_path, capsys, error, message
 ):
-    monkeypatch.chdir(tmp_path)
-    fakes = FakeStages(fail_when=_raise_in_relay(error))
-    assert _main_with(monkeypatch, fakes, ["budget=smoke", *TINY_SCENE]) == 1
+    fakes.fail_when = _raise_in_relay(error)
+    assert run_main(["budget=smoke", *TINY_SCENE]) == 1
     err = capsys.readouterr().err
     assert "Traceback" not in err
     assert err.strip().splitlines()[-1].startswith(f"error: {message}")
@@ -174,22 +131,20 @@ def test_a_run_out_of_disk_or_memory_ends_in_one_line_and_records_it(
     assert result["status"] == "failed" and result["error"].startswith(f"ResourceError: {message}")
 
 
-def test_a_programming_error_in_a_run_keeps_its_traceback(monkeypatch, tmp_path, capsys):
-    monkeypatch.chdir(tmp_path)
-    fakes = FakeStages(fail_when=_raise_in_relay(FileNotFoundError(errno.ENOENT, "gone", "/x")))
-    assert _main_with(monkeypatch, fakes, ["budget=smoke", *TINY_SCENE]) == 1
+def test_a_programming_error_in_a_run_keeps_its_traceback(fakes, capsys):
+    fakes.fail_when = _raise_in_relay(FileNotFoundError(errno.ENOENT, "gone", "/x"))
+    assert run_main(["budget=smoke", *TINY_SCENE]) == 1
     err = capsys.readouterr().err
     assert "Traceback" in err and "FileNotFoundError" in err
 
 
 def test_a_sweep_job_out_of_disk_is_recorded_in_one_line_and_the_others_run(
-    monkeypatch, tmp_path, capsys
+    fakes, tmp_path, capsys
 ):
-    monkeypatch.chdir(tmp_path)
     full = OSError(errno.ENOSPC, "No space left on device", "/store/x.safetensors")
-    fakes = FakeStages(fail_when=_raise_in_relay(full))
+    fakes.fail_when = _raise_in_relay(full)
     args = ["-m", "relay.k=2,4", "variant=k${relay.k}", "budget=smoke", *TINY_SCENE]
-    assert _main_with(monkeypatch, fakes, args) == 1
+    assert run_main(args) == 1
     err = capsys.readouterr().err
     assert "Traceback" not in err
     line = "ResourceError: stage relay: No space left on device writing /store/x.safetensors"
@@ -202,22 +157,20 @@ def test_a_sweep_job_out_of_disk_is_recorded_in_one_line_and_the_others_run(
 
 
 def test_a_sweep_started_in_the_folder_of_a_running_one_stops_before_any_job(
-    monkeypatch, tmp_path, capsys
+    fakes, tmp_path, capsys
 ):
     # before, both wrote the same job folders: the result.json files of one were lost
-    monkeypatch.chdir(tmp_path)
     folder = tmp_path / "sweep"
     folder.mkdir()
-    fakes = FakeStages()
     args = ["-m", "relay.k=2,4", "budget=smoke", f"hydra.sweep.dir={folder}", *TINY_SCENE]
     with FileLock(folder / SWEEP_LOCK_FILE):  # held as the running sweep's process holds it
-        assert _main_with(monkeypatch, fakes, args) == 1
+        assert run_main(args) == 1
     assert capsys.readouterr().err.splitlines() == [
         f"error: another sweep is running in {folder}: wait for it to end, or give this one "
         "its own hydra.sweep.dir"
     ]
     assert fakes.calls == [] and not list(folder.rglob("result.json"))
-    assert _main_with(monkeypatch, fakes, args) == 0  # once that sweep has ended
+    assert run_main(args) == 0  # once that sweep has ended
     assert len(list(folder.rglob("result.json"))) == 2
     with FileLock(folder / SWEEP_LOCK_FILE).acquire(timeout=0):  # which leaves the folder free
         pass
@@ -239,18 +192,17 @@ def test_a_sweep_holding_its_folder_goes_to_parallel_workers_without_the_lock(tm
 
 
 def test_a_sweep_job_on_damaged_scene_data_fails_alone_even_over_an_earlier_good_result(
-    monkeypatch, tmp_path, tiny_synth_scene, capsys
+    fakes, tmp_path, tiny_synth_scene, capsys
 ):
-    monkeypatch.chdir(tmp_path)
     damaged = shutil.copytree(tiny_synth_scene, tmp_path / "damaged")
     folder = tmp_path / "sweep"
     scenes = f"scene.path={damaged},{tiny_synth_scene}"
     args = ["-m", scenes, "budget=smoke", f"hydra.sweep.dir={folder}"]
-    assert _main_with(monkeypatch, FakeStages(), args) == 0
+    assert run_main(args) == 0
     image = next(damaged.glob("ims/*/000001.png"))
     image.unlink()
-    fakes = FakeStages()
-    assert _main_with(monkeypatch, fakes, args) == 1  # not 0 on job 0's earlier result
+    fakes.calls.clear()
+    assert run_main(args) == 1  # not 0 on job 0's earlier result
     err = capsys.readouterr().err
     assert "Traceback" not in err
     assert f"error: job 0 failed: InputError: missing image file: {image}" in err
@@ -259,44 +211,40 @@ def test_a_sweep_job_on_damaged_scene_data_fails_alone_even_over_an_earlier_good
     assert fakes.ran("decouple") == 0  # job 1 reused the first sweep's artifacts
 
 
-def test_a_sweep_job_that_cannot_record_its_failure_stops_the_sweep(monkeypatch, tmp_path, capsys):
+def test_a_sweep_job_that_cannot_record_its_failure_stops_the_sweep(fakes, monkeypatch, capsys):
     # an earlier sweep's result in the job's folder is no record of this job's failure
-    monkeypatch.chdir(tmp_path)
     args = ["-m", "relay.k=2,4", "budget=smoke", "hydra.sweep.dir=sweep", *TINY_SCENE]
-    assert _main_with(monkeypatch, FakeStages(), args) == 0
+    assert run_main(args) == 0
     full = OSError(errno.ENOSPC, "No space left on device", "/store/x.safetensors")
 
     def refuse_failed(run_dir, result):
         raise full
 
     monkeypatch.setattr(task_module, "write_result", refuse_failed)
-    fakes = FakeStages(fail_when=_raise_in_relay(full))
-    assert _main_with(monkeypatch, fakes, [*args, "relay.steps=3"]) == 1
+    fakes.calls.clear()
+    fakes.fail_when = _raise_in_relay(full)
+    assert run_main([*args, "relay.steps=3"]) == 1
     err = capsys.readouterr().err
     assert err.strip().splitlines()[-1].startswith("error: stage relay: No space left on device")
     assert "job 0 failed" not in err and fakes.ran("relay") == 1  # job 1 never started
 
 
-def test_a_sweep_whose_summary_cannot_be_written_exits_1(monkeypatch, tmp_path, capsys):
-    monkeypatch.chdir(tmp_path)
+def test_a_sweep_whose_summary_cannot_be_written_exits_1(fakes, monkeypatch, capsys):
 
     def broken(sweep_dir):
         raise KeyError("psnr")
 
     monkeypatch.setattr(callbacks, "write_reports", broken)
     args = ["-m", "relay.k=2,4", "budget=smoke", *TINY_SCENE]
-    assert _main_with(monkeypatch, FakeStages(), args) == 1
+    assert run_main(args) == 1
     err = capsys.readouterr().err
     assert "Traceback" in err  # not a relaygs error: where it happened is shown
     assert err.strip().splitlines()[-1] == "error: no sweep summary: KeyError: 'psnr'"
 
 
-def test_the_report_of_a_half_finished_sweep_counts_the_jobs_it_lacks(
-    monkeypatch, tmp_path, capsys
-):
-    monkeypatch.chdir(tmp_path)
+def test_the_report_of_a_half_finished_sweep_counts_the_jobs_it_lacks(fakes, tmp_path, capsys):
     args = ["-m", "relay.k=8,16,32", "variant=k${relay.k}", "budget=smoke", *TINY_SCENE]
-    assert _main_with(monkeypatch, FakeStages(), [*args, "hydra.sweep.dir=sweep"]) == 0
+    assert run_main([*args, "hydra.sweep.dir=sweep"]) == 0
     # as a sweep stopped in job 1 leaves it: job 1 started (Hydra's .hydra/), job 2 did not
     (tmp_path / "sweep" / "1_k16" / "result.json").unlink()
     shutil.rmtree(tmp_path / "sweep" / "2_k32")
@@ -310,11 +258,10 @@ def test_the_report_of_a_half_finished_sweep_counts_the_jobs_it_lacks(
     ) in out
 
 
-def test_jobs_in_nested_folders_count_as_started(monkeypatch, tmp_path, capsys):
-    monkeypatch.chdir(tmp_path)
+def test_jobs_in_nested_folders_count_as_started(fakes, tmp_path):
     subdir = "hydra.sweep.subdir=s${seed}/j${hydra.job.num}"
     args = ["-m", "seed=0,1", "budget=smoke", "hydra.sweep.dir=sweep", subdir, *TINY_SCENE]
-    assert _main_with(monkeypatch, FakeStages(), args) == 0
+    assert run_main(args) == 0
     assert "Not in the table" not in (tmp_path / "sweep" / "summary.md").read_text()
 
 

@@ -60,13 +60,10 @@ def _summary(experiments, name):
     return pd.read_csv(experiments[name]["sweep"] / "summary.csv")
 
 
-def test_every_sweep_writes_its_summary(experiments):
+def test_smoke_is_a_single_run_with_a_result_and_every_sweep_writes_its_summary(experiments):
     print(f"five smoke experiments: {experiments['elapsed_s']:.1f} s")
     for name in EXPERIMENTS[1:]:
         assert (experiments[name]["sweep"] / "summary.md").is_file(), name
-
-
-def test_smoke_is_a_single_run_with_a_result(experiments):
     (result_path,) = (experiments["outputs"] / "runs").glob("*/result.json")
     result = json.loads(result_path.read_text())
     assert result["variant"] == "smoke" and math.isfinite(result["psnr"])
@@ -90,30 +87,32 @@ def test_ablation_k_on_8_frames_is_one_segment_for_every_k_and_reuses_the_smoke_
 
 def test_components_build_each_distinct_upstream_once(experiments):
     table = _summary(experiments, "ablation_components")
-    assert list(table.variant) == [
-        "full",
-        "no_copies",
-        "no_stage2",
-        "no_pseudo_views",
-        "no_isolation",
-        "no_gamma",
-    ]
+    components = "full no_copies no_stage2 no_pseudo_views no_isolation no_gamma"
+    assert list(table.variant) == components.split()
     before = experiments["ablation_k"]["counts"]
     after = experiments["ablation_components"]["counts"]
     new = {stage: after.get(stage, 0) - before.get(stage, 0) for stage in after}
     assert new == {"decouple": 0, "relay": 1, "replicate": 1, "deform": 5, "eval": 5}
     assert table.loc[table.variant == "full", "delta_psnr"].item() == 0.0
+    # every job logs the same hparam keys
+    key_sets = []
+    for result in sorted(experiments["ablation_components"]["sweep"].glob("*/result.json")):
+        events = EventAccumulator(str(result.parent))
+        events.Reload()
+        content = events.PluginTagToContent("hparams")["_hparams_/session_start_info"]
+        data = plugin_data_pb2.HParamsPluginData.FromString(content)
+        key_sets.append(set(data.session_start_info.hparams))
+        assert "result/psnr" in events.Tags()["scalars"]
+    assert len(key_sets) == 6 and all(keys == key_sets[0] for keys in key_sets)
 
 
-def test_baseline_compares_relaygs_with_4dgs_on_the_same_scene_and_seed(experiments):
+def test_baseline_and_budget_compare_relaygs_with_4dgs_on_the_same_scene(experiments):
     table = _summary(experiments, "baseline")
     assert list(table.variant) == ["relaygs", "4dgs"]
     assert table.scene.nunique() == 1 and table.seed.nunique() == 1
     assert list(table.cache_hits) == [3, 0]
     assert table["deform.gamma"].tolist() == [True, False]
-
-
-def test_budget_sweeps_both_pipelines_over_the_multipliers(experiments):
+    # the budget sweep: both pipelines over the multipliers
     table = _summary(experiments, "budget")
     assert len(table) == 8
     assert sorted(set(table["budget.multiplier"])) == [0.25, 0.5, 1.0, 2.0]
@@ -121,22 +120,6 @@ def test_budget_sweeps_both_pipelines_over_the_multipliers(experiments):
     unscaled = table[table["budget.multiplier"] == 1.0]
     assert (unscaled.train_s_computed == 0).all()  # built by the baseline sweep already
     assert (experiments["budget"]["sweep"] / "pareto.png").is_file()
-
-
-def test_every_job_logs_the_same_hparam_keys(experiments):
-    key_sets = []
-    for result in sorted(experiments["ablation_components"]["sweep"].glob("*/result.json")):
-        events = EventAccumulator(str(result.parent))
-        events.Reload()
-        content = events.PluginTagToContent("hparams")["_hparams_/session_start_info"]
-        key_sets.append(_hparam_keys(content))
-        assert "result/psnr" in events.Tags()["scalars"]
-    assert len(key_sets) == 6 and all(keys == key_sets[0] for keys in key_sets)
-
-
-def _hparam_keys(content: bytes) -> set[str]:
-    data = plugin_data_pb2.HParamsPluginData.FromString(content)
-    return set(data.session_start_info.hparams)
 
 
 def test_parallel_jobs_share_the_store_and_build_decouple_once(tmp_path):

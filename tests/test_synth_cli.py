@@ -13,32 +13,26 @@ from pathlib import Path
 
 import pytest
 
-from relaygs.commands.synth import main, parse_effect_list
+from relaygs.commands.synth import main
 from relaygs.data.synthetic import remove_abandoned_staging
 
 
-def test_cli_writes_a_scene_with_the_requested_effects(tmp_path: Path, capsys):
+@pytest.mark.parametrize(
+    ("effects", "declared"),
+    [
+        (["large_motion,nonrigid", "sensor_noise"], ["large_motion", "nonrigid", "sensor_noise"]),
+        (["none"], []),
+        ([], []),
+    ],
+)
+def test_cli_writes_a_scene_with_the_requested_effects(tmp_path: Path, capsys, effects, declared):
     out = tmp_path / "court"
     args = ["court", str(out), "--frames", "2", "--width", "16", "--height", "9", "--seed", "3"]
-    assert main([*args, "--effects", "large_motion,nonrigid", "sensor_noise"]) == 0
+    assert main([*args, "--effects", *effects]) == 0
     declaration = json.loads((out / "scene.json").read_text())
-    assert declaration["effects"] == ["large_motion", "nonrigid", "sensor_noise"]
+    assert declaration["effects"] == declared
     assert (declaration["frames"], declaration["width"], declaration["seed"]) == (2, 16, 3)
     assert "wrote" in capsys.readouterr().out
-
-
-def test_effect_list_parsing():
-    assert parse_effect_list(None) is None
-    assert parse_effect_list([]) == []
-    assert parse_effect_list(["a,b", "c"]) == ["a", "b", "c"]
-
-
-@pytest.mark.parametrize("effects", [["none"], []])
-def test_cli_effects_none_or_nothing_writes_a_scene_without_effects(tmp_path: Path, effects):
-    out = tmp_path / "juggle"
-    args = ["juggle", str(out), "--frames", "1", "--width", "8", "--height", "6"]
-    assert main([*args, "--effects", *effects]) == 0
-    assert json.loads((out / "scene.json").read_text())["effects"] == []
 
 
 SMALL = ["--frames", "1", "--width", "8", "--height", "6"]

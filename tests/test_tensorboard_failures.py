@@ -43,31 +43,24 @@ def test_a_full_disk_under_the_log_names_its_folder(tmp_path: Path):
     assert message.startswith(f"stage decouple: No space left on device writing {tmp_path}/tb:")
 
 
-def test_a_failed_image_write_names_the_log_folder(tmp_path: Path, monkeypatch):
+@pytest.mark.parametrize("errno_", [errno.ENOSPC, None])
+def test_a_failed_write_names_the_log_folder_or_without_an_errno_is_raised_as_it_was(
+    tmp_path: Path, monkeypatch, errno_
+):
     log = TensorBoardLog(tmp_path / "tb")
-
-    def full_disk(*args, **kwargs):
-        raise OSError(errno.ENOSPC, "No space left on device")
-
-    monkeypatch.setattr(log.writer, "add_image", full_disk)
-    with pytest.raises(OSError) as raised:
-        log("decouple", 0, {}, images={"render": torch.zeros(2, 3, 3)})
-    assert (raised.value.errno, raised.value.filename) == (errno.ENOSPC, str(tmp_path / "tb"))
-    log.close()  # releasing the failed writer raises nothing more
-
-
-def test_a_failed_write_without_an_errno_is_raised_as_it_was(tmp_path: Path, monkeypatch):
-    log = TensorBoardLog(tmp_path / "tb")
-    failure = OSError("the writer thread is gone")
+    failure = OSError(errno_, "No space left on device") if errno_ else OSError("thread gone")
 
     def fail(*args, **kwargs):
         raise failure
 
-    monkeypatch.setattr(log.writer, "add_scalar", fail)
+    monkeypatch.setattr(log.writer, "add_image", fail)
     with pytest.raises(OSError) as raised:
-        log("decouple", 0, {"loss": 1.0})
-    assert raised.value is failure
-    log.close()
+        log("decouple", 0, {}, images={"render": torch.zeros(2, 3, 3)})
+    if errno_:
+        assert (raised.value.errno, raised.value.filename) == (errno_, str(tmp_path / "tb"))
+    else:
+        assert raised.value is failure
+    log.close()  # releasing the failed writer raises nothing more
 
 
 class _WriterThread(threading.Thread):

@@ -1,6 +1,5 @@
-"""A stage type added the way docs/extending.md shows: this file plays the stage module (its
-settings, function and `SPEC`), the test registers the spec in `SPECS` and gives the config
-its section, and the real app runs it as a pipeline on a tiny synthetic scene."""
+"""A stage type added as docs/extending.md shows (this file plays its module, the test registers
+its spec), run by the real app as a pipeline on a tiny synthetic scene."""
 
 from __future__ import annotations
 
@@ -86,7 +85,9 @@ def toy_config(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> dict[str, Any
     return config
 
 
-def test_a_toy_stage_runs_in_a_pipeline_is_scored_and_reused(toy_config, tmp_path):
+def test_a_toy_stage_runs_in_a_pipeline_is_scored_reused_and_its_settings_checked(
+    toy_config, tmp_path
+):
     first = run_task(toy_config, run_dir=tmp_path / "a", original_cwd=tmp_path)
     assert (first["num_gaussians"], first["cache_hits"]) == (40, 0)
     assert math.isfinite(first["psnr"])
@@ -94,10 +95,7 @@ def test_a_toy_stage_runs_in_a_pipeline_is_scored_and_reused(toy_config, tmp_pat
     assert len(stored) == 1 and (stored[0] / "manifest.json").is_file()
     again = run_task(toy_config, run_dir=tmp_path / "b", original_cwd=tmp_path)
     assert (again["cache_hits"], again["psnr"]) == (1, first["psnr"])
-
-
-def test_a_toy_stage_setting_out_of_range_is_refused_before_it_runs(toy_config, tmp_path):
-    toy_config[STAGE]["init_points"] = 0
+    toy_config[STAGE]["init_points"] = 0  # out of range: refused before it runs
     with refused(InputError, "points.init_points"):
         run_task(toy_config, run_dir=tmp_path / "run", original_cwd=tmp_path)
     assert not (tmp_path / "run").exists()

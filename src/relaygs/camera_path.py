@@ -1,13 +1,6 @@
-"""An orbit around a scene's centre, placed by its cameras, to see a model from between the
-captured views.
-
-The orbit turns about the cameras' up direction through the centre, at their mean height
-above the centre and mean distance from that axis, each view looking at the centre. It is a
-full circle, starting at the first camera's azimuth, when the cameras surround the centre, and
-an arc over their azimuths when they do not (when two neighbours are more than OPEN_GAP
-apart), so it stays where cameras saw the scene. Every view has the intrinsics, image size and
-near plane of the first camera given.
-"""
+"""An orbit around a scene's centre at its cameras' mean height and distance, each view looking
+at the centre with the first camera's intrinsics: a full circle from the first camera's azimuth
+when the cameras surround the centre, else an arc over their azimuths (where they saw it)."""
 
 from __future__ import annotations
 
@@ -60,9 +53,8 @@ def path_cameras(cameras: Sequence[Camera], count: int, centre: Tensor) -> list[
 
 
 def _up(cameras: Sequence[Camera]) -> Tensor:
-    """The cameras' common up direction: the one at right angles to every camera's x axis
-    (level cameras have horizontal x axes, whichever way they tilt), pointing the way their
-    mean up does; their mean up when the x axes are all parallel (a row of cameras)."""
+    """The direction at right angles to every camera's x axis (level cameras' x axes are
+    horizontal), along their mean up, which it is when the x axes are parallel."""
     c2ws = [camera.c2w.to(torch.float64) for camera in cameras]
     downs = torch.stack([c2w[:3, 1] for c2w in c2ws])  # OpenCV: a camera's y axis points down
     mean_up = _unit(-downs.sum(dim=0), fallback=-downs[0])
@@ -75,9 +67,8 @@ def _up(cameras: Sequence[Camera]) -> Tensor:
 
 
 def _azimuth_range(angles: Tensor) -> tuple[float, float, bool]:
-    """(start, span, closed) of the orbit over azimuths `angles` [n]: the whole circle from
-    the first camera's when no gap between neighbours exceeds OPEN_GAP, else the arc from the
-    camera after the widest gap to the one before it."""
+    """(start, span, closed) over azimuths `angles`: the circle from the first camera's when no
+    gap between neighbours exceeds OPEN_GAP, else the arc that leaves out the widest gap."""
     first = float(angles[0])
     ordered = sorted(float(angle) % (2 * math.pi) for angle in angles)
     gaps = [b - a for a, b in pairwise(ordered)]
@@ -89,8 +80,7 @@ def _azimuth_range(angles: Tensor) -> tuple[float, float, bool]:
 
 
 def _looking_at(eye: Tensor, target: Tensor, up: Tensor, reference: Camera) -> Camera:
-    """A camera at `eye` looking at `target` with `up` up (OpenCV axes: x right, y down, z
-    forward), with `reference`'s intrinsics and size."""
+    """A camera at `eye` looking at `target`, `up` up, with `reference`'s intrinsics."""
     forward = _unit(target - eye, fallback=-up)
     right = _unit(torch.linalg.cross(forward, up), fallback=_perpendicular(forward))
     down = torch.linalg.cross(forward, right)
@@ -108,7 +98,6 @@ def _looking_at(eye: Tensor, target: Tensor, up: Tensor, reference: Camera) -> C
 
 
 def _unit(vector: Tensor, fallback: Tensor) -> Tensor:
-    """`vector` scaled to length 1, or `fallback` (scaled) when `vector` is about zero."""
     length = float(vector.norm())
     if length > 1e-9:
         return vector / length
@@ -116,7 +105,6 @@ def _unit(vector: Tensor, fallback: Tensor) -> Tensor:
 
 
 def _perpendicular(axis: Tensor) -> Tensor:
-    """A unit vector at right angles to the unit `axis`."""
     helper = torch.zeros_like(axis)
     helper[int(axis.abs().argmin())] = 1.0
     return _unit(torch.linalg.cross(axis, helper), fallback=helper)

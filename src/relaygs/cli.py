@@ -26,10 +26,10 @@ INTERRUPTED_EXIT = 130
 
 
 def start_tool(module: str) -> NoReturn:
-    """Exit with the status of `module`'s `main()`, imported only now: the `python -m relaygs.X`
-    entry modules are this call alone, so that a Ctrl-C while torch and Hydra load (one to three
-    seconds) ends with one line and INTERRUPTED_EXIT, as it does once the tool runs."""
-    escape_unencodable_output()
+    """Exit with the status of `module`'s `main()`, imported only now, so that a Ctrl-C while
+    torch and Hydra load ends with one line and INTERRUPTED_EXIT."""
+    if isinstance(sys.stdout, io.TextIOWrapper):  # a Δ on a latin-1 terminal: escaped, no error
+        sys.stdout.reconfigure(errors="backslashreplace")
     try:
         status = run_tool(importlib.import_module(module).main)
     except KeyboardInterrupt:
@@ -41,17 +41,8 @@ def start_tool(module: str) -> NoReturn:
     raise SystemExit(status)
 
 
-def escape_unencodable_output() -> None:
-    """Make stdout write what its encoding cannot hold (a table's Δ or ↑ on a latin-1 terminal,
-    or redirected to a file under a Windows code page) as backslash escapes, as stderr does,
-    instead of ending the tool with UnicodeEncodeError."""
-    if isinstance(sys.stdout, io.TextIOWrapper):
-        sys.stdout.reconfigure(errors="backslashreplace")
-
-
 class OneLineErrorParser(argparse.ArgumentParser):
-    """An argument parser whose usage errors are a single stderr line (exit status 2), without
-    argparse's usage block; its sub-command parsers are of the same class (argparse's default)."""
+    """An argument parser whose usage errors are one stderr line (exit 2), without the usage."""
 
     def error(self, message: str) -> NoReturn:
         """Print `error: message` with where to find help, and exit 2."""
@@ -59,8 +50,7 @@ class OneLineErrorParser(argparse.ArgumentParser):
 
 
 def int_at_least(minimum: int, maximum: int | None = None) -> Callable[[str], int]:
-    """argparse type of an integer option that must be >= `minimum` (and <= `maximum` when
-    given): a value outside is refused in one line rather than silently clamped."""
+    """argparse type of an integer >= `minimum` (and <= `maximum`), refused, not clamped."""
     expected = f">= {minimum}" if maximum is None else f"in [{minimum}, {maximum}]"
 
     def parse(text: str) -> int:
@@ -76,8 +66,7 @@ def int_at_least(minimum: int, maximum: int | None = None) -> Callable[[str], in
 
 
 def positive_float(text: str) -> float:
-    """argparse type of a rate such as `--fps`: a finite number above 0, else refused in one
-    line (`nan`, `inf` and 0 would only fail once the work is done)."""
+    """argparse type of a rate such as `--fps`: a finite number above 0."""
     try:
         value = float(text)
     except ValueError:
@@ -88,9 +77,8 @@ def positive_float(text: str) -> float:
 
 
 def camera_ids(text: str) -> tuple[int, ...]:
-    """argparse type of a list of camera ids, `1,5` (a pasted Hydra list `[1,5]` too; `[]` for
-    none), as the `scene.loader.test_cameras` a run was given; an empty value is refused (an
-    unset shell variable must not mean "no test cameras")."""
+    """argparse type of camera ids, `1,5` or `[1,5]` (`[]` for none); an empty value (an unset
+    shell variable) is refused rather than taken as no test cameras."""
     if text.replace(" ", "") == "[]":
         return ()
     items = [item.strip() for item in text.strip().removeprefix("[").removesuffix("]").split(",")]
@@ -102,16 +90,14 @@ def camera_ids(text: str) -> tuple[int, ...]:
 
 
 def path_argument(value: str) -> Path:
-    """argparse type of a path: any non-blank text (an empty one would silently mean the
-    current folder, where an output option writes, and replaces, files)."""
+    """argparse type of a path: any non-blank text (an empty one would mean the current folder)."""
     if not value.strip():
         raise argparse.ArgumentTypeError(f"expected a path, got {value!r}")
     return Path(value)
 
 
 def writable_file(value: str) -> Path:
-    """argparse type of an output file option: a path that can be written once the command's
-    work is done, checked before it starts (so minutes of work are not lost to a bad path)."""
+    """argparse type of an output file, checked writable before the work starts."""
     path = path_argument(value).expanduser().absolute()
     if path.is_dir():
         raise argparse.ArgumentTypeError(f"{path} is a folder, expected a file path")
@@ -123,8 +109,8 @@ def writable_file(value: str) -> Path:
 
 
 def run_tool(main: Callable[[], int]) -> int:
-    """Run a tool's `main` and return its exit status; output piped into a reader that stopped
-    early (`artifacts ls | head`) ends it with BROKEN_PIPE_EXIT instead of a traceback."""
+    """Run a tool's `main` and return its exit status; a reader that stopped early (`ls | head`)
+    ends it with BROKEN_PIPE_EXIT instead of a traceback."""
     try:
         try:
             return main()

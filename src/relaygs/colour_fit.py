@@ -1,5 +1,5 @@
 """Colour-fitted PSNR: renders scored after each camera's best channel gain and offset (its
-own colour response, docs/results.md 7b), in closed form from per-image moments."""
+own colour response, docs/results.md 1b), in closed form from per-image moments."""
 
 from __future__ import annotations
 

@@ -9,8 +9,8 @@ from relaygs.errors import InputError
 
 
 def parse_device(name: str, what: str) -> torch.device:
-    """`name` as a torch device the splatting core runs on ('cpu', 'cuda', 'cuda:N'), or one
-    line naming `what`. Says nothing of this machine: a job may run on another one."""
+    """`name` as a 'cpu', 'cuda' or 'cuda:N' device, or one line naming `what` (not checked
+    on this machine: a job may run on another)."""
     try:
         device = torch.device(name)
     except RuntimeError:
@@ -21,8 +21,7 @@ def parse_device(name: str, what: str) -> torch.device:
 
 
 def usable_device(name: str, what: str) -> torch.device:
-    """`parse_device`, and this torch can allocate there, else one line naming `what` and why
-    (a CPU-only build, no GPU, an index past the last GPU). Checked before any work starts."""
+    """`parse_device`, where this torch can allocate, else one line naming `what` and why."""
     device = parse_device(name, what)
     if device.type == "cpu":
         return device
@@ -36,14 +35,12 @@ def usable_device(name: str, what: str) -> torch.device:
 
 
 def set_threads(threads: int | None) -> None:
-    """Set torch's CPU thread count to `threads` (None keeps torch's default) before any work: a
-    run's `threads` and the commands' `--threads` (one thread is fastest on a busy machine)."""
+    """Set torch's CPU thread count to `threads` (None keeps torch's default)."""
     if threads is not None:
         torch.set_num_threads(threads)
 
 
 def synchronize(device: torch.device) -> None:
-    """Wait until `device` has finished the work queued on it, so a timer read next counts
-    that work (CUDA kernels run asynchronously; on the CPU there is nothing to wait for)."""
+    """Wait until `device` has finished its queued work, so a timer read next counts it."""
     if device.type == "cuda":
         torch.cuda.synchronize(device)

@@ -1,6 +1,4 @@
-"""Per-pixel error images for looking at where a render misses its ground truth: the mean
-absolute error over the colour channels, through a perceptual colour map (matplotlib's
-inferno), black for no error and brightest at ERROR_FULL_SCALE or more."""
+"""Error images: the mean absolute error through a colour map, saturating at full scale."""
 
 from __future__ import annotations
 
@@ -9,17 +7,14 @@ import functools
 import torch
 from matplotlib import colormaps
 
-ERROR_FULL_SCALE = 0.25
-"""Mean absolute error (images in [0,1]) that maps to the colour map's brightest end; larger
-errors saturate there, so small misses stay visible beside gross ones."""
+ERROR_FULL_SCALE = 0.25  # the brightest error: larger ones saturate, so small ones stay visible
 COLOUR_MAP = "inferno"
 LEVELS = 256
 
 
 def error_image(render: torch.Tensor, truth: torch.Tensor) -> torch.Tensor:
-    """[H,W,3] float32 in [0,1] on the render's device: |render − truth| averaged over
-    channels, scaled by ERROR_FULL_SCALE and coloured with COLOUR_MAP (renders and truths
-    [H,W,3] in [0,1]); a pixel that is not a number shows as the largest error."""
+    """[H,W,3] float32 in [0,1]: |render − truth| over channels, scaled by ERROR_FULL_SCALE and
+    coloured with COLOUR_MAP; a pixel that is not a number shows as the largest error."""
     if render.shape != truth.shape:
         raise ValueError(f"render {list(render.shape)} and truth {list(truth.shape)} differ")
     error = (render.float() - truth.float().to(render.device)).abs().mean(dim=-1)

@@ -15,8 +15,7 @@ class InputError(RelayGSError, ValueError):
 
 
 class UsageError(RelayGSError):
-    """Command-line options that contradict each other: reported as argparse reports its usage
-    errors, with exit status 2."""
+    """Command-line options that contradict each other (exit status 2, as argparse's)."""
 
 
 class DivergenceError(RelayGSError, FloatingPointError):
@@ -24,9 +23,8 @@ class DivergenceError(RelayGSError, FloatingPointError):
 
 
 class ResourceError(RelayGSError):
-    """The machine ran out of disk space or memory, or refused a write (a read-only or
-    permission-denied folder): an environmental failure, not a bug, so it ends a run in one
-    line that names what failed and what to do, instead of a traceback."""
+    """The machine ran out of disk or memory, or refused a write: not a bug, so one line that
+    names what failed and what to do, not a traceback."""
 
 
 NO_SPACE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT})
@@ -44,9 +42,8 @@ RERUN_COMMAND = "rerun the command"
 def resource_error(
     error: BaseException, where: str = "", rerun: str = RERUN_RUN
 ) -> ResourceError | None:
-    """The one-line ResourceError that `error` stands for (prefixed with `where`, e.g. the
-    stage), or None when it is no environmental failure: a full disk or quota, a read-only or
-    forbidden path, a failed allocation. Anything else keeps its type and traceback."""
+    """The one-line ResourceError `error` stands for (prefixed with `where`), or None when it
+    is no full disk, unwritable path or failed allocation."""
     prefix = f"{where}: " if where else ""
     if isinstance(error, OSError) and error.errno in NO_SPACE_ERRNOS | NOT_WRITABLE_ERRNOS:
         return ResourceError(prefix + _disk_failure(error, rerun))
@@ -61,8 +58,7 @@ def resource_error(
 
 
 def _disk_failure(error: OSError, rerun: str) -> str:
-    """What a full or unwritable disk stopped (the file, when the error names it) and what
-    the user can do about it."""
+    """What a full or unwritable disk stopped, and what the user can do about it."""
     reason = error.strerror or os.strerror(error.errno or 0)
     if error.errno in NO_SPACE_ERRNOS:
         target = f" writing {error.filename}" if error.filename else ""
@@ -75,13 +71,11 @@ def _disk_failure(error: OSError, rerun: str) -> str:
 
 
 class Interrupted(KeyboardInterrupt):
-    """Ctrl-C during training; the message names the stage, the step and what a rerun resumes
-    from. A KeyboardInterrupt, so code that handles Ctrl-C still sees one."""
+    """Ctrl-C during training, naming the stage, step and what a rerun resumes from."""
 
 
 def one_line(error: BaseException) -> str:
-    """An exception's message folded into one line (Hydra's and OmegaConf's span several; their
-    "See https://..." and "full_key:" detail lines are dropped)."""
+    """An exception's message in one line, Hydra's and OmegaConf's detail lines dropped."""
     lines = [line.strip() for line in str(error).splitlines() if line.strip()]
     return " ".join(line for line in lines if not line.startswith(_DETAIL_PREFIXES))
 

@@ -1,8 +1,4 @@
-"""Image metrics for training and evaluation: PSNR, foreground PSNR and (differentiable) SSIM.
-
-Images are channels-last, [H,W,C] or a batch [B,H,W,C], with data range 1. PSNR clamps the
-MSE at 1e-10, so identical images score a finite 100 dB instead of inf.
-"""
+"""Image metrics: PSNR, fg-PSNR and SSIM of channels-last images or batches, range 1."""
 
 from __future__ import annotations
 
@@ -14,8 +10,7 @@ import torch.nn.functional as F
 from relaygs.metrics_native import NativeSSIM
 from relaygs.splat import native_kernels_in_use
 
-MSE_FLOOR = 1e-10
-"""Smallest MSE PSNR uses: identical images give 10·log10(1/1e-10) = 100 dB."""
+MSE_FLOOR = 1e-10  # identical images score a finite 100 dB, not inf
 SSIM_WINDOW = 11
 SSIM_SIGMA = 1.5
 SSIM_C1 = 0.01**2
@@ -23,11 +18,8 @@ SSIM_C2 = 0.03**2
 
 
 def psnr(pred: torch.Tensor, gt: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
-    """PSNR in dB computed per image and averaged over the batch; 0-dim tensor.
-
-    With `mask` ([H,W] or [B,H,W] bool) the MSE runs over masked pixels only; images whose mask
-    is empty are left out of the average, and NaN is returned when every mask is empty.
-    """
+    """PSNR in dB per image, averaged over the batch; with `mask` ([H,W] or [B,H,W] bool) over
+    masked pixels only, images with an empty mask left out (NaN when every mask is empty)."""
     pred, gt = _batched(pred, gt)
     squared = (pred - gt).square()
     if mask is None:
@@ -49,12 +41,8 @@ def fg_psnr(pred: torch.Tensor, gt: torch.Tensor, mask: torch.Tensor) -> torch.T
 
 
 def ssim(pred: torch.Tensor, gt: torch.Tensor) -> torch.Tensor:
-    """Mean SSIM with an 11×11 Gaussian window (σ 1.5), C1 = 0.01², C2 = 0.03²; 0-dim tensor.
-
-    Windows are zero-padded at the borders ('same' output size), as in the 3DGS training and
-    evaluation code, so scores compare with published numbers. Differentiable; use 1 − ssim
-    as a loss. Where the process backend takes the native kernels (CPU), a kernel computes it.
-    """
+    """Mean SSIM, 11×11 Gaussian window (σ 1.5) zero-padded at the borders as in the 3DGS code
+    (so scores compare with published ones); differentiable, native kernels on the CPU."""
     pred, gt = _batched(pred, gt)
     if native_kernels_in_use(pred) and not gt.requires_grad:
         return NativeSSIM.apply(pred, gt)
@@ -62,8 +50,7 @@ def ssim(pred: torch.Tensor, gt: torch.Tensor) -> torch.Tensor:
 
 
 def _ssim_torch(pred: torch.Tensor, gt: torch.Tensor) -> torch.Tensor:
-    """`ssim` of batches [B,H,W,C] in torch operations (any device; the native kernel's
-    reference)."""
+    """`ssim` of batches [B,H,W,C] in torch operations (the native kernel's reference)."""
     x = pred.permute(0, 3, 1, 2)
     y = gt.permute(0, 3, 1, 2)
     # the five blurred maps in one depthwise convolution (each channel is blurred alone)
@@ -80,8 +67,7 @@ def _ssim_torch(pred: torch.Tensor, gt: torch.Tensor) -> torch.Tensor:
 
 
 def gaussian_window(size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA) -> torch.Tensor:
-    """Normalised 1D Gaussian weights [size] centred on the middle tap, in float64 (the blur
-    casts them to the images' dtype)."""
+    """Normalised 1D Gaussian weights [size] centred on the middle tap, in float64."""
     offsets = torch.arange(size, dtype=torch.float64) - (size - 1) / 2
     weights = torch.exp(-(offsets**2) / (2 * sigma**2))
     return weights / weights.sum()

@@ -1,14 +1,9 @@
-"""Locate the config tree (pipelines included) for editable and regular installs alike.
-
-Rule (DESIGN.md "Config"): use the repository's absolute folder when the package runs from a
-relaygs checkout's `src/` and the folder holds what is expected, else the copy packaged inside
-`relaygs/_data/`.
-"""
+"""Locate the config tree: a relaygs checkout's own folder, else the copy packaged inside
+`relaygs/_data/` (DESIGN.md "Config"); check folders given for output."""
 
 from __future__ import annotations
 
 import tempfile
-from collections.abc import Callable
 from pathlib import Path
 
 from relaygs.errors import InputError
@@ -19,13 +14,17 @@ PACKAGED_DATA_DIR = PACKAGE_DIR / "_data"
 
 
 def config_dir() -> Path:
-    """Absolute path of the Hydra config tree (the folder holding `config.yaml`)."""
-    return _locate("conf", lambda folder: (folder / "config.yaml").is_file())
+    """The repo's `conf/` when it holds `config.yaml`, else the packaged copy; else one line."""
+    candidates = (*((REPO_ROOT / "conf",) if _in_repository() else ()), PACKAGED_DATA_DIR / "conf")
+    for folder in candidates:
+        if (folder / "config.yaml").is_file():
+            return folder
+    looked = ", ".join(str(folder) for folder in candidates)
+    raise InputError(f"no usable conf/ folder found (looked in {looked})")
 
 
 def require_folder(path: Path, what: str) -> Path:
-    """`path` when it is a folder; else one line, "`what`: PATH does not exist" or "... is not
-    a folder"."""
+    """`path` when it is a folder; else one line naming `what`."""
     if path.is_dir():
         return path
     problem = "is not a folder" if path.exists() else "does not exist"
@@ -33,9 +32,8 @@ def require_folder(path: Path, what: str) -> Path:
 
 
 def require_creatable_folder(path: Path, what: str) -> Path:
-    """`path` when it is a folder or can be made one, and files can be written there; else one
-    line naming `what`. Checked before a run starts, so a bad output path fails before any
-    training, not when the first file is written."""
+    """`path` when it is (or can be made) a folder files can be written in; else one line
+    naming `what`, so a bad output path fails before any training."""
     if path.exists():
         require_folder(path, what)
         probe_in = path
@@ -52,17 +50,6 @@ def require_creatable_folder(path: Path, what: str) -> Path:
         reason = error.strerror or type(error).__name__
         raise InputError(f"{what}: cannot write in {probe_in} ({reason})") from None
     return path
-
-
-def _locate(name: str, is_usable: Callable[[Path], bool]) -> Path:
-    """Return the repo's `<name>/` when usable, else the packaged copy, else fail in one line."""
-    in_repository = (REPO_ROOT / name,) if _in_repository() else ()
-    candidates = (*in_repository, PACKAGED_DATA_DIR / name)
-    for folder in candidates:
-        if folder.is_dir() and is_usable(folder):
-            return folder
-    looked = ", ".join(str(folder) for folder in candidates)
-    raise InputError(f"no usable {name}/ folder found (looked in {looked})")
 
 
 def _in_repository() -> bool:

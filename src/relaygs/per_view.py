@@ -1,5 +1,4 @@
-"""Per-view test metrics: a run's `per_view.csv` (one row per scored test image: frame, camera,
-PSNR, SSIM, fg-PSNR) and the per-frame means that show where in time quality drops."""
+"""Per-view test metrics: a run's `per_view.csv` and per-frame means (where quality drops)."""
 
 from __future__ import annotations
 
@@ -16,23 +15,19 @@ import torch
 from relaygs.errors import InputError
 from relaygs.pipeline.fsio import publish_text
 
-PER_VIEW = "per_view"
-"""The key under which an evaluation's metrics hold its ViewRecords (optional for a custom
-evaluate function: without it a run writes no per_view.csv)."""
+PER_VIEW = "per_view"  # where an evaluation's metrics hold its ViewRecords (optional)
 PER_VIEW_FILE = "per_view.csv"
 ID_COLUMNS = ("frame", "camera")
-METRIC_COLUMNS = ("psnr", "ssim", "fg_psnr")
-"""The per-image metrics; a run's psnr, ssim and fg_psnr are their means over the images."""
+METRIC_COLUMNS = ("psnr", "ssim", "fg_psnr")  # a run's metrics are their means
 COLUMNS = (*ID_COLUMNS, *METRIC_COLUMNS)
 TENSOR_PREFIX = f"{PER_VIEW}."
 
-ViewRecord = dict[str, Any]
-"""{frame: int, camera: int, psnr/ssim/fg_psnr: float or None}."""
+ViewRecord = dict[str, Any]  # {frame: int, camera: int, psnr/ssim/fg_psnr: float or None}
 
 
 def checked_records(records: Iterable[Mapping[str, Any]]) -> list[ViewRecord]:
-    """The records as a list of ViewRecords, refused in one line when one lacks a column or
-    holds anything but an int id and finite (or None) metrics, e.g. a diverged model's NaN."""
+    """The records as ViewRecords, refused in one line unless each has int ids and finite (or
+    None) metrics: a diverged model's NaN must not be stored."""
     checked = []
     for index, record in enumerate(records):
         missing = [name for name in COLUMNS if name not in record]
@@ -43,7 +38,7 @@ def checked_records(records: Iterable[Mapping[str, Any]]) -> list[ViewRecord]:
             raise InputError(f"per-view record {index}: frame and camera must be ints: {ids!r}")
         for name in METRIC_COLUMNS:
             value = record[name]
-            if value is not None and not _is_finite(value):
+            if value is not None and not is_number(value):
                 raise InputError(
                     f"per-view record {index} (frame {ids['frame']}, camera {ids['camera']}): "
                     f"{name} must be a finite number or None, got {value!r}"
@@ -53,8 +48,7 @@ def checked_records(records: Iterable[Mapping[str, Any]]) -> list[ViewRecord]:
 
 
 def write_per_view(path: Path, records: Iterable[Mapping[str, Any]]) -> Path:
-    """Write the records (`checked_records`) as CSV, a metric that is None as an empty cell,
-    whole or not at all."""
+    """Write the checked records as CSV (None as an empty cell), whole or not at all."""
     text = io.StringIO()
     writer = csv.writer(text, lineterminator="\n")
     writer.writerow(COLUMNS)
@@ -68,8 +62,7 @@ def write_per_view(path: Path, records: Iterable[Mapping[str, Any]]) -> Path:
 
 
 def read_per_view(path: Path) -> list[ViewRecord]:
-    """The records of a `per_view.csv`, refused with its path and line when a header or value
-    is not what `write_per_view` writes."""
+    """The records of a `per_view.csv`, refused with its path and line where it is damaged."""
     try:
         lines = Path(path).read_text(encoding="utf-8").splitlines()
     except (OSError, ValueError) as error:  # ValueError: bad UTF-8
@@ -98,9 +91,8 @@ def means_by_key(pairs: Iterable[tuple[int, float]]) -> dict[int, float]:
 
 
 def to_tensors(records: Iterable[Mapping[str, Any]]) -> dict[str, torch.Tensor]:
-    """The records (`checked_records`) as tensors for an artifact, one per column
-    (`per_view.<column>`: ids int64, metrics float64 so stored values read back exactly), a
-    metric's missing values as 0 with `per_view.has_<metric>` false there (no NaN)."""
+    """The checked records as artifact tensors `per_view.<column>` (float64: exact), a missing
+    metric as 0 with `per_view.has_<metric>` false there (no NaN)."""
     checked = checked_records(records)
     tensors = {
         f"{TENSOR_PREFIX}{name}": torch.tensor([r[name] for r in checked], dtype=torch.int64)
@@ -118,8 +110,7 @@ def to_tensors(records: Iterable[Mapping[str, Any]]) -> dict[str, torch.Tensor]:
 
 
 def from_tensors(tensors: Mapping[str, torch.Tensor]) -> list[ViewRecord] | None:
-    """The records `to_tensors` stored, or None when the tensors hold none; refused in one
-    line when the columns are incomplete or of unequal length."""
+    """The records `to_tensors` stored (None if none), refused if the columns do not match."""
     names = [f"{TENSOR_PREFIX}{name}" for name in COLUMNS]
     names += [f"{TENSOR_PREFIX}has_{name}" for name in METRIC_COLUMNS]
     if names[0] not in tensors:
@@ -139,7 +130,6 @@ def from_tensors(tensors: Mapping[str, torch.Tensor]) -> list[ViewRecord] | None
 
 
 def _record(path: Path, line: int, row: list[str]) -> ViewRecord:
-    """One CSV row as a record (ids as ints, metrics as finite floats or None)."""
     if len(row) != len(COLUMNS):
         raise InputError(f"{path}:{line}: expected {len(COLUMNS)} values, got {len(row)}")
     cells = dict(zip(COLUMNS, row, strict=True))
@@ -155,15 +145,13 @@ def _record(path: Path, line: int, row: list[str]) -> ViewRecord:
 
 
 def _cell(value: Any) -> str:
-    """A metric as CSV text: empty for None, else the float's shortest round-trip form."""
     return "" if value is None else repr(float(value))
 
 
 def _is_int(value: Any) -> bool:
-    """An integer (numpy's too), not a bool."""
     return isinstance(value, numbers.Integral) and not isinstance(value, bool)
 
 
-def _is_finite(value: Any) -> bool:
-    """A finite real number (numpy's too), not a bool."""
+def is_number(value: Any) -> bool:
+    """A finite real number, numpy's too (bools are not numbers here)."""
     return isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)

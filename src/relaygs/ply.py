@@ -1,14 +1,5 @@
-"""A stored model as PLY files, one per frame, in the layout of the original 3DGS code, so
-that Gaussian splat viewers and tools made for 3DGS open what a run reconstructed.
-
-`python -m relaygs.artifacts ply KEY` is the command line. Each file holds the Gaussians the
-renderer draws at that frame (the background, the frame's relay copy, moved by the motion
-field when the model has one) with the values before activation that 3DGS stores: position,
-log scale (capped at the renderer's MAX_LOG_SCALE), unit wxyz quaternion, opacity logit and
-SH coefficients (f_dc, then f_rest with all red coefficients first, then green, then blue).
-A deform model's per-camera colour affine is not part of the file: it corrects the training
-cameras only, as in evaluation.
-"""
+"""A stored model as 3DGS-layout PLY files, one per frame, with the values before activation
+that 3DGS stores (no per-camera colour affine), so splat viewers open what a run made."""
 
 from __future__ import annotations
 
@@ -32,9 +23,8 @@ PLY_DTYPE = "<f4"  # every property is a little-endian float32, as 3DGS writes t
 
 
 def ply_columns(parts: Sequence[Part], sh_degree: int) -> dict[str, torch.Tensor]:
-    """The 3DGS PLY properties, in file order, of the concatenated parts: name → [N] float32.
-    SH coefficients fill degree `sh_degree`, zero past the parts' own (3DGS writes and reads
-    its model's full degree; zero bands change no colour)."""
+    """The 3DGS PLY properties in file order: name → [N] float32; SH zero-filled to `sh_degree`
+    (3DGS reads its model's full degree)."""
     means = torch.cat([part.means for part in parts])
     sh = torch.cat([part.sh for part in parts])  # [N, K, 3]
     missing = num_sh_bases(sh_degree) - sh.shape[1]
@@ -68,9 +58,8 @@ def ply_bytes(columns: dict[str, torch.Tensor]) -> bytes:
 def write_frame_plys(
     model: SceneModel, out: Path, frames: Sequence[int], progress: bool = True
 ) -> list[Path]:
-    """Write `out`/<frame>.ply for each of `frames` and return their paths: all of them or,
-    when one fails or the export is interrupted, none (each file is also written whole or not
-    at all). A frame outside the model's or a value that is not finite is one line naming it."""
+    """Write `out`/<frame>.ply for `frames` and return their paths: all or, on a failure or an
+    interrupt, none; a frame not in the model or a non-finite value is one line naming it."""
     outside = [frame for frame in frames if not 0 <= frame < model.num_frames]
     if outside:
         raise InputError(

@@ -1,10 +1,5 @@
 """Progress bars and status lines that suit where they go: live in a terminal, sparse in a log
-file, and named by job when a parallel launcher runs jobs side by side on one terminal.
-
-tqdm redraws up to ten times a second; written to a file (a Slurm log, CI, `> run.log`) each
-redraw is another carriage-return record, so away from a terminal the bar is redrawn at most
-every LOG_INTERVAL_S seconds.
-"""
+file (where each redraw is another record), named by job when jobs run side by side."""
 
 from __future__ import annotations
 
@@ -22,8 +17,8 @@ _job_label: str | None = None  # the job this process runs, inside `job_label`
 
 @contextmanager
 def job_label(label: str | None) -> Iterator[None]:
-    """Name `label` on this process's status lines (`labelled`) and progress bars while the block
-    runs, so that jobs printing side by side can be told apart; None names nothing."""
+    """Name `label` on this process's status lines and progress bars while the block runs
+    (None: nothing), so that jobs printing side by side can be told apart."""
     global _job_label
     previous, _job_label = _job_label, label
     try:
@@ -40,10 +35,8 @@ def labelled(text: str) -> str:
 
 
 def print_labelled(text: str, stream: TextIO | None = None) -> None:
-    """Print the lines of `text`, `labelled`, to `stream` (stdout by default) in one flushed
-    write, newline included: a job's lines are then not interleaved with those of jobs printing
-    beside it, even where stdout is unbuffered (PYTHONUNBUFFERED), under which `print` writes
-    a line and its newline apart."""
+    """Print `text`, `labelled`, to `stream` (stdout) in one flushed write with its newline, so
+    jobs printing side by side do not interleave (unbuffered `print` writes them apart)."""
     stream = sys.stdout if stream is None else stream
     stream.write(labelled(text) + "\n")
     stream.flush()
@@ -60,9 +53,8 @@ def is_terminal(stream: TextIO) -> bool:
 def progress_bar(
     iterable: Iterable[Any] | None = None, *, stream: TextIO | None = None, **options: Any
 ) -> tqdm:
-    """A tqdm bar on `stream` (stderr by default), throttled to one redraw per LOG_INTERVAL_S
-    when that stream is not a terminal and its `desc` led by the job's label inside
-    `job_label`; `options` go to tqdm and win over the throttle."""
+    """A tqdm bar on `stream` (stderr), redrawn every LOG_INTERVAL_S away from a terminal, its
+    `desc` led by the job's label; `options` go to tqdm and win over the throttle."""
     stream = sys.stderr if stream is None else stream
     if _job_label and options.get("desc"):
         options["desc"] = f"{_job_label} {options['desc']}"

@@ -1,11 +1,6 @@
-"""A stored model's renders over time, to look at what a run reconstructed: one PNG per frame
-and one MP4 per camera, optionally with other models, the ground truth and error images beside
-each render, or a video along an orbit that the scene's cameras place around its centre (views
-between the captured ones).
-
-`python -m relaygs.artifacts render KEY --scene DIR` is the command line; every stage's output
-renders (decouple and relay show their copies, deform its motion field).
-"""
+"""A stored model's renders over time (`python -m relaygs.artifacts render`): a PNG per frame and
+an MP4 per camera, other models, the truth and error images beside, or a video along an orbit
+that the scene's cameras place around its centre."""
 
 from __future__ import annotations
 
@@ -38,9 +33,8 @@ FRAME_GLOB = "[0-9]" * 6 + ".png"  # the frames a render writes: <frame or view>
 
 @dataclass(frozen=True)
 class RenderSettings:
-    """Which cameras (None: the test cameras), every `frame_stride`-th frame, the ground truth
-    beside the renders or not, the videos' frame rate (None: no video) and each render's error
-    image (`relaygs.error_map`) beside them or not."""
+    """Which cameras (None: the test cameras), every `frame_stride`-th frame, the truth and
+    error images beside or not, and the videos' frame rate (None: no video)."""
 
     camera_ids: tuple[int, ...] | None = None
     frame_stride: int = 1
@@ -49,7 +43,6 @@ class RenderSettings:
     with_error: bool = False
 
     def __post_init__(self) -> None:
-        """Refuse a stride below 1 and a frame rate that is not a positive number."""
         if self.frame_stride < 1:
             raise InputError(f"render frame_stride: expected an int >= 1, got {self.frame_stride}")
         _require_fps(self.fps)
@@ -57,10 +50,8 @@ class RenderSettings:
 
 @dataclass(frozen=True)
 class PathSettings:
-    """A video of `views` poses along the orbit that the chosen cameras (None: the train
-    cameras) place around the scene's centre (`relaygs.camera_path`); the model at `frame`
-    throughout (bullet time) or, when None, at times running from the first frame to the last
-    along the path; the video's frame rate (None: none)."""
+    """`views` poses along the orbit of the chosen cameras (None: the train cameras), the model
+    at `frame` throughout or (None) at times from the first frame to the last, and a frame rate."""
 
     views: int
     camera_ids: tuple[int, ...] | None = None
@@ -68,22 +59,19 @@ class PathSettings:
     fps: float | None = 15.0
 
     def __post_init__(self) -> None:
-        """Refuse fewer than 1 view and a frame rate that is not a positive number."""
         if self.views < 1:
             raise InputError(f"render path: expected at least 1 view, got {self.views}")
         _require_fps(self.fps)
 
 
 def _require_fps(fps: float | None) -> None:
-    """One line unless `fps` is None or a positive finite number."""
     if fps is not None and not (math.isfinite(fps) and fps > 0):
         raise InputError(f"render fps: expected a positive number, got {fps}")
 
 
 @dataclass(frozen=True)
 class CameraRenders:
-    """What was written for one camera (`camera_id` None for a camera path): its frames, their
-    PNG folder and the video (if any)."""
+    """What was written for one camera (None: a camera path): frames, PNG folder, video."""
 
     camera_id: int | None
     frames: list[int]
@@ -92,8 +80,7 @@ class CameraRenders:
 
 
 def chosen_cameras(scene: Scene, camera_ids: Sequence[int] | None) -> list[int]:
-    """`camera_ids` checked against the scene's cameras, or its test cameras (all cameras when
-    it holds none out) when None."""
+    """`camera_ids` checked against the scene's cameras, or (None) its test cameras, else all."""
     available = sorted({view.camera.camera_id for view in scene.train_views + scene.test_views})
     if camera_ids is None:
         tests = sorted({view.camera.camera_id for view in scene.test_views})
@@ -112,10 +99,8 @@ def write_renders(
     progress: bool = True,
     beside: Sequence[SceneModel] = (),
 ) -> list[CameraRenders]:
-    """Render `model` (and the models `beside` it, to its right) from the chosen cameras at
-    every `frame_stride`-th frame into `out`/cam<ID>/<frame>.png and, with a frame rate,
-    `out`/cam<ID>.mp4 (written beside and moved in when complete, so an interrupted run leaves
-    no truncated video); a path that cannot be written is one line naming it."""
+    """Render `model` (and the models `beside` it) into `out`/cam<ID>/<frame>.png and, with a
+    frame rate, `out`/cam<ID>.mp4 (moved in only when complete)."""
     renderers = _renderers(scene, [model, *beside])
     cameras = chosen_cameras(scene, settings.camera_ids)
     sinks = {
@@ -138,15 +123,13 @@ def write_renders(
 
 
 def _renderers(scene: Scene, models: Sequence[SceneModel]) -> list[ModelRenderer]:
-    """A renderer per model, each checked against the scene (`require_its_scene`)."""
     for model in models:
         require_its_scene(model, scene)
     return [ModelRenderer(model) for model in models]
 
 
 def _picture(renders: list[Tensor], view: View, scene: Scene, settings: RenderSettings) -> Tensor:
-    """The models' renders, then the ground truth and each render's error image where the
-    settings ask for them, side by side."""
+    """The models' renders, then the truth and their error images where asked, side by side."""
     parts = list(renders)
     if settings.with_truth or settings.with_error:
         truth = scene.image(view)
@@ -163,9 +146,8 @@ def write_path_render(
     progress: bool = True,
     beside: Sequence[SceneModel] = (),
 ) -> CameraRenders:
-    """Render `model` (and the models `beside` it, to its right) along the orbit that the
-    chosen cameras place around the scene's centre into `out`/path/<view>.png and, with a frame
-    rate, `out`/path.mp4."""
+    """Render `model` (and the models `beside` it) along the cameras' orbit into
+    `out`/path/<view>.png and, with a frame rate, `out`/path.mp4."""
     renderers = _renderers(scene, [model, *beside])
     if settings.frame is not None and not 0 <= settings.frame < scene.num_frames:
         raise InputError(
@@ -194,8 +176,7 @@ def write_path_render(
 
 @contextmanager
 def _written_whole(out: Path, sinks: list[_CameraSink]) -> Iterator[None]:
-    """Finish every sink when the body completes; on any exit, remove unfinished videos. A
-    path that cannot be written (a file where a folder goes) is one line naming it."""
+    """Finish the sinks, or remove their unfinished videos; an unwritable path is one line."""
     try:
         yield
         for sink in sinks:
@@ -209,8 +190,7 @@ def _written_whole(out: Path, sinks: list[_CameraSink]) -> Iterator[None]:
 
 
 def _even_sized(pixels: np.ndarray) -> np.ndarray:
-    """The frame with its last row and column repeated where its height or width is odd: the
-    MPEG-4 encoder works on even sizes and would drop them instead."""
+    """The frame with an odd last row or column repeated: the MPEG-4 encoder would drop it."""
     height, width = pixels.shape[:2]
     bottom, right = height % 2, width % 2
     if not (bottom or right):
@@ -219,8 +199,7 @@ def _even_sized(pixels: np.ndarray) -> np.ndarray:
 
 
 class _CameraSink:
-    """PNG frames and an MP4 of one camera (or camera path) named `name`, the video built
-    under a temporary name."""
+    """PNG frames and an MP4 of one camera or path, the video built under a temporary name."""
 
     def __init__(
         self, out: Path, name: str, fps: float | None, camera_id: int | None = None
@@ -234,8 +213,7 @@ class _CameraSink:
         self._writer: cv2.VideoWriter | None = None
 
     def add(self, frame: int, image: Tensor) -> None:
-        """Write `image` [H,W,3] in [0, 1] as frame `frame`; the first one removes the frames
-        an earlier render left in the folder (another stride or path would mix with them)."""
+        """Write `image` [H,W,3] in [0, 1] as frame `frame` (the first clears earlier frames)."""
         pixels = _to_bgr8(image)
         if not self.frames:
             for earlier in self.folder.glob(FRAME_GLOB):

@@ -12,9 +12,8 @@ from pathlib import Path
 
 
 def python_command() -> str:
-    """How a printed command should start Python so that it pastes as is: `python` when that
-    name finds this interpreter first, in its folder (an activated venv), else this
-    interpreter's path, shell-quoted (`.venv/bin/python` run without activating the venv)."""
+    """How a printed command starts Python: `python` when that name finds this interpreter
+    (an activated venv), else its shell-quoted path."""
     if not sys.executable:
         return "python"
     found = shutil.which("python")
@@ -29,8 +28,8 @@ def python_command() -> str:
 
 
 def script_command(name: str) -> str:
-    """How a printed command should start an installed script (`tensorboard`): by its name when
-    Python starts as `python` (`python_command`), else by its path beside this interpreter."""
+    """How a printed command starts an installed script: by name, or by its path beside this
+    interpreter when Python is not started as `python`."""
     beside = Path(sys.executable).absolute().parent / name if sys.executable else None
     if python_command() == "python" or beside is None or not beside.exists():
         return name
@@ -38,9 +37,7 @@ def script_command(name: str) -> str:
 
 
 def path_override(key: str, folder: Path) -> str:
-    """`KEY=FOLDER` (`scene.path`, `hydra.sweep.dir`) as one shell word that Hydra reads back:
-    a path with characters beyond letters, digits and `_/.-` goes inside Hydra's double quotes
-    (a `"` in it as `\\"`)."""
+    """`KEY=FOLDER` as one shell word that Hydra reads back (an unusual path in its quotes)."""
     text = str(folder)
     if re.fullmatch(r"[A-Za-z0-9_/.\-]+", text):
         return f"{key}={text}"

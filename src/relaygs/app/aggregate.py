@@ -1,9 +1,5 @@
-"""Mean ± std over seeds: one row per group of a sweep's jobs that differ only in their seed
-(the same scene, variant, parameters and test images).
-
-Δ PSNR is computed per seed against the reference variant on the same scene and seed (the
-summary's `delta_psnr`), then averaged, so seed-to-seed scene difficulty cancels out.
-"""
+"""Mean ± std over seeds: one row per group of a sweep's jobs that differ only in their seed;
+Δ PSNR is averaged from each seed's own (so seed-to-seed scene difficulty cancels out)."""
 
 from __future__ import annotations
 
@@ -27,16 +23,13 @@ METRICS = (
 )
 
 
-LABELS = {"scene": "Scene", "variant": "Variant", "test_set": "Test set"}
-"""Column labels of the group keys that have one (parameters keep their dotted key)."""
+LABELS = {"scene": "Scene", "variant": "Variant", "test_set": "Test set"}  # else the key
 
 
 def aggregate_table(summary: pd.DataFrame) -> pd.DataFrame:
-    """One row per group of jobs that differ only in their seed, in order of first appearance:
-    its scene, variant, the parameters that tell rows of one variant apart (`relay.k` when a
-    label repeats over k) and, where results record it, `test_set` (PSNR on other images does
-    not average); then `runs` (finished jobs), `seeds` (distinct seeds among them) and
-    `<metric>_mean` / `<metric>_std` (sample std, None for one run) of every METRICS column."""
+    """One row per group of finished jobs that differ only in their seed (scene, variant, the
+    parameters within a variant, `test_set`), in order of first appearance, with `runs`,
+    `seeds` and each METRICS column's `_mean` and `_std` (sample std, None for one run)."""
     table = summary
     if "status" in table:
         table = table[table["status"] != STATUS_FAILED]
@@ -49,15 +42,13 @@ def aggregate_table(summary: pd.DataFrame) -> pd.DataFrame:
         for _, column, _ in METRICS:
             values = [float(v) for v in group.get(column, []) if is_number(v)]
             row[f"{column}_mean"] = statistics.fmean(values) if values else None
-            # the sample std; one run has no spread
             row[f"{column}_std"] = statistics.stdev(values) if len(values) > 1 else None
         rows.append(row)
     return pd.DataFrame(rows)
 
 
 def _within_variant_parameters(table: pd.DataFrame) -> list[str]:
-    """The parameters (dotted keys) that take more than one value among the jobs of one scene
-    and variant: the label alone does not tell those jobs apart (`k8` run at two k)."""
+    """The dotted keys that take more than one value among the jobs of one scene and variant."""
     groups = table.groupby(["scene", "variant"], sort=False, dropna=False)
     return [
         column
@@ -67,9 +58,7 @@ def _within_variant_parameters(table: pd.DataFrame) -> list[str]:
 
 
 def aggregate_markdown(table: pd.DataFrame, title: str) -> str:
-    """The aggregate as a Markdown table, each metric as `mean ± std` (the mean alone for one
-    run), after the columns that tell its rows apart (`Test set` only where nothing else
-    does)."""
+    """The aggregate as a Markdown table of `mean ± std` after the columns that tell rows apart."""
     keys = list(table.columns[: list(table.columns).index("runs")])
     names = [key for key in keys if key != "test_set"]
     if "test_set" in keys and table.duplicated(names).any():

@@ -1,5 +1,4 @@
-"""Hydra callbacks of a multirun: one sweep at a time per sweep folder, and the sweep's tables
-and Pareto plot when it ends."""
+"""Hydra callbacks of a multirun: one sweep per folder at a time, its report when it ends."""
 
 from __future__ import annotations
 
@@ -14,8 +13,8 @@ from filelock import FileLock, Timeout
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
 
-from relaygs.app.result import error_line
-from relaygs.app.summary import results_written_before
+from relaygs.app.result import RESULT_FILE, error_line
+from relaygs.app.walk import entries_named
 from relaygs.commands.report import describe, write_reports
 from relaygs.errors import RelayGSError
 
@@ -23,9 +22,8 @@ SWEEP_LOCK_FILE = ".sweep.lock"
 
 
 class StartedFolder(NamedTuple):
-    """A sweep or single run this process started: its folder, the override that names it
-    (`hydra.sweep.dir` or `hydra.run.dir`) and whether the command named it, so that the same
-    command run again goes on in that folder."""
+    """A sweep or single run this process started, the override that names its folder and
+    whether the command named it (so that the same command run again goes on there)."""
 
     folder: Path
     named: bool
@@ -37,36 +35,28 @@ class StartedFolder(NamedTuple):
         return "sweep" if self.override == "hydra.sweep.dir" else "run"
 
 
-STARTED_FOLDERS: list[StartedFolder] = []
-"""The sweeps this process started, as `SweepFolderLock` took their folders, and its single
-runs, as they started: what a command stopped by Ctrl-C names for its rerun
-(`relaygs.commands.run` empties it before each launch)."""
+STARTED_FOLDERS: list[StartedFolder] = []  # what a command stopped by Ctrl-C names
 
 
 def names_override(hydra_overrides: Iterable[Any], override: str) -> bool:
-    """Whether the command line's Hydra overrides (`hydra.overrides.hydra`) set `override`
-    (`hydra.run.dir=...`, say)."""
+    """Whether the command line's Hydra overrides (`hydra.overrides.hydra`) set `override`."""
     return any(str(line).partition("=")[0].lstrip("+") == override for line in hydra_overrides)
 
 
 class SweepFolderLock(Callback):
-    """Holds a lock in the sweep folder while the multirun's jobs run: a second sweep started
-    in the same folder (the same `hydra.sweep.dir`) stops at once instead of writing its jobs
-    over the first one's. Listed after `SweepSummary`, so its end comes first: the lock is
-    released before the summary, which may end the command (a failed job)."""
+    """Holds a lock in the sweep folder while the jobs run, so a second sweep there stops at once;
+    listed after `SweepSummary` so that it lets go before the summary may end the command."""
 
     def __init__(self) -> None:
-        """No lock yet: it is taken when the multirun starts."""
         self._lock: FileLock | None = None
 
     def __getstate__(self) -> dict[str, Any]:
-        """What a parallel launcher sends its workers with each job: the callback without the
-        lock, which stays with the launching process (a lock cannot be pickled)."""
+        """What a parallel launcher sends its workers: the callback without the lock, which
+        stays with the launching process (a lock cannot be pickled)."""
         return {**self.__dict__, "_lock": None}
 
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
-        """Take the sweep folder's lock, or end the command with one line if a sweep holds it;
-        record the folder in `STARTED_FOLDERS`."""
+        """Take the sweep folder's lock (or end in one line), and record it in STARTED_FOLDERS."""
         sweep_dir = Path(str(config.hydra.sweep.dir))
         sweep_dir.mkdir(parents=True, exist_ok=True)
         lock = FileLock(sweep_dir / SWEEP_LOCK_FILE)
@@ -92,14 +82,12 @@ class SweepSummary(Callback):
     """On multirun end: `summary.csv`, `summary.md` and `pareto.png` in the sweep folder."""
 
     def __init__(self) -> None:
-        """Note when the sweep starts (Hydra makes its callbacks before the first job), to
-        tell this sweep's results from those an earlier sweep left in the same folder."""
+        """Note when the sweep starts, to tell its results from an earlier sweep's there."""
         self.started = time.time()
 
     def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
-        """Write the report of the sweep folder; name the jobs in it that an earlier sweep
-        ran; when a job of this sweep failed, or the report could not be written (a sweep
-        without its summary is no success), say which on stderr and exit with status 1."""
+        """Write the sweep folder's report and name an earlier sweep's jobs in it; exit 1 with
+        one line when a job of this sweep failed or the report could not be written."""
         sweep_dir = Path(str(config.hydra.sweep.dir))
         try:
             files = write_reports(sweep_dir)
@@ -109,7 +97,8 @@ class SweepSummary(Callback):
             detail = error if isinstance(error, RelayGSError) else error_line(error)
             _stop(f"error: no sweep summary: {detail}")
         print(describe(files))
-        earlier = results_written_before(sweep_dir, self.started)
+        results = entries_named(sweep_dir, RESULT_FILE)
+        earlier = [path.parent for path in results if path.stat().st_mtime < self.started]
         if earlier:
             names = ", ".join(str(folder.relative_to(sweep_dir)) for folder in earlier)
             print(
@@ -124,7 +113,6 @@ class SweepSummary(Callback):
 
 
 def _stop(line: str) -> NoReturn:
-    """Say `line` on stderr and end the command with status 1: Hydra turns a callback's
-    exception into a warning, but not SystemExit."""
+    """Say `line` on stderr and exit 1 (Hydra turns a callback's other exceptions into warnings)."""
     print(line, file=sys.stderr)
     raise SystemExit(1)

@@ -1,8 +1,5 @@
-"""The composed Hydra config as a plain, resolved dict with every path made absolute.
-
-Relative paths resolve against the directory the user launched from (Hydra's original cwd),
-so the artifact store and scene cache are shared by every job whatever its working directory.
-"""
+"""The composed Hydra config as a plain, resolved dict with every path made absolute (against
+the launch folder, so every job shares the store and scene cache)."""
 
 from __future__ import annotations
 
@@ -23,9 +20,8 @@ OPTIONAL_PATHS = ("scene.path",)
 
 
 def resolve_config(cfg: DictConfig | Mapping[str, Any], base_dir: Path) -> dict[str, Any]:
-    """Interpolations resolved, `hydra` dropped, and each of PATH_KEYS absolute (relative ones
-    taken from `base_dir`, `~` expanded); an interpolation that does not resolve, or a path
-    that is no text, is one line."""
+    """Interpolations resolved, `hydra` dropped, each of PATH_KEYS absolute (from `base_dir`);
+    an unresolvable interpolation or a path that is no text is one line."""
     if isinstance(cfg, DictConfig):
         try:
             config = OmegaConf.to_container(cfg, resolve=True, enum_to_str=True)
@@ -49,9 +45,8 @@ def resolve_config(cfg: DictConfig | Mapping[str, Any], base_dir: Path) -> dict[
 
 
 def _path_text(value: Any, dotted: str) -> str:
-    """A path setting as text: a non-empty string (a bare number, `paths.outputs=2024`, names a
-    folder too). Null, a bool, a list or a mapping names none: str() would turn `[a]` into a
-    folder called "['a']" and null into one called "None"."""
+    """A path setting as text: a non-empty string or a bare number; str() would turn `[a]` or
+    null into a folder called "['a']" or "None"."""
     if isinstance(value, int) and not isinstance(value, bool):
         value = str(value)
     if not isinstance(value, str) or not value:

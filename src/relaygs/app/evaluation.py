@@ -1,14 +1,7 @@
-"""Evaluation through the artifact store: a model's test metrics are stored as an `eval` entry
-keyed by the model's key, the `eval` settings, the device and the scene, so a job whose model
-was already evaluated the same way (a re-run, or sweep jobs that share their output artifact)
-reads the metrics back instead of rendering every test view again.
-
-The entry's manifest carries the metrics and the seconds the evaluation took; its tensors hold
-the per-view records (`relaygs.per_view.to_tensors`; in the manifest they would swell every
-`artifacts ls` and `show`). Render FPS is the one measured when the entry was made, which is
-why the device and, on the CPU, torch's thread count enter the key. Bump EVAL_SCHEMA_VERSION
-when evaluation changes what it reports, so stored metrics are not mistaken for new ones.
-"""
+"""Evaluation through the artifact store: an `eval` entry keyed by the model, the `eval`
+settings, the device (render FPS) and the scene, so a job whose model was already evaluated the
+same way reads the metrics back. Its tensors hold the per-view records (kept out of the
+manifest, which `artifacts ls` prints). Bump EVAL_SCHEMA_VERSION when what it reports changes."""
 
 from __future__ import annotations
 
@@ -33,8 +26,7 @@ EvaluateFn = Callable[[Any, Artifact, dict[str, Any]], Mapping[str, Any]]
 
 @dataclass(frozen=True)
 class Evaluation:
-    """Test metrics of a run's output, whether they were computed now (`cache_hit` False) and
-    the seconds the evaluation took when it ran."""
+    """Test metrics of a run's output, whether they were read back, and the seconds it took."""
 
     metrics: dict[str, Any]
     key: str
@@ -49,8 +41,7 @@ class Evaluation:
         return 0.0 if self.cache_hit else self.wall_seconds
 
     def seconds_built_by(self, builder: str) -> float:
-        """The evaluation's seconds when job `builder` (a `BUILT_BY` value) made it, now or in
-        an earlier, interrupted run of it; else 0."""
+        """The evaluation's seconds when job `builder` made it, now or before an interruption."""
         return self.wall_seconds if self.built_by == builder else 0.0
 
 
@@ -64,8 +55,7 @@ def evaluate_through_store(
     provenance: Mapping[str, Any] | None = None,
 ) -> Evaluation:
     """The metrics of `run.output` on `scene`: read from the store, or computed by `evaluate`
-    and stored (once, even when parallel jobs ask at the same time). `provenance` entries go
-    into the stored entry's manifest (e.g. `BUILT_BY`)."""
+    and stored once (with `provenance` in its manifest), even when parallel jobs ask."""
     output = run.reports[-1]
     keyed = evaluation_config(eval_config)
     fingerprint = str(scene.fingerprint)
@@ -94,20 +84,14 @@ def evaluate_through_store(
     records = from_tensors(artifact.tensors)
     if records is not None:
         metrics[PER_VIEW] = records
+    builder = built_by(info.provenance)
     return Evaluation(
-        metrics,
-        key,
-        info.cache_hit,
-        info.wall_seconds,
-        info.replaced_corrupt,
-        built_by(info.provenance),
+        metrics, key, info.cache_hit, info.wall_seconds, info.replaced_corrupt, builder
     )
 
 
 def evaluation_config(eval_config: Mapping[str, Any]) -> dict[str, Any]:
-    """What shapes an evaluation's result: the `eval` section, the device it renders on and, on
-    the CPU, torch's current thread count (render FPS depends on both); training settings and
-    the seed do not."""
+    """What shapes an evaluation's result: `eval`, the device and on the CPU torch's threads."""
     device = str(eval_config["train"]["device"])
     keyed: dict[str, Any] = {"eval": dict(eval_config["eval"]), "device": device}
     if torch.device(device).type == "cpu":
@@ -116,9 +100,8 @@ def evaluation_config(eval_config: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def test_set_id(scene: Any, metrics: Mapping[str, Any]) -> str:
-    """12 hex digits naming the images a run was scored on: the scene folder, its downscale,
-    its test cameras and the (frame, camera) pairs evaluated, where the metrics list them. The
-    sweep report compares PSNR only between runs with the same id."""
+    """12 hex digits naming the images a run was scored on (scene folder, downscale, test
+    cameras, evaluated views): the sweep report compares PSNR only within one id."""
     records = metrics.get(PER_VIEW)
     views = None if records is None else sorted([r["frame"], r["camera"]] for r in records)
     payload = {

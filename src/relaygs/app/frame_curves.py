@@ -1,6 +1,5 @@
-"""A sweep's quality over time: test PSNR (and fg-PSNR, where the scene has masks) at every
-evaluated frame, one line per variant (the mean over its jobs, e.g. seeds), read from the jobs'
-`per_view.csv`. It shows where in the sequence, at which motion, each variant loses."""
+"""A sweep's quality over time: test PSNR and fg-PSNR at every evaluated frame, one line per
+variant (the mean over its seeds), from the jobs' `per_view.csv`: where each variant loses."""
 
 from __future__ import annotations
 
@@ -14,17 +13,12 @@ from relaygs.app.figures import save_png
 from relaygs.app.result import STATUS_OK
 from relaygs.per_view import PER_VIEW_FILE, frame_means, means_by_key, read_per_view
 
-FRAME_METRICS = (("psnr", "PSNR (dB)"), ("fg_psnr", "fg-PSNR (dB)"))
-"""The metrics plotted, one panel each (a panel without values is left out)."""
-
-Curves = dict[str, dict[str, dict[int, float]]]
-"""{metric: {line label: {frame: value}}}."""
+FRAME_METRICS = (("psnr", "PSNR (dB)"), ("fg_psnr", "fg-PSNR (dB)"))  # a panel each
+Curves = dict[str, dict[str, dict[int, float]]]  # {metric: {line label: {frame: value}}}
 
 
 def frame_curves(table: pd.DataFrame) -> Curves:
-    """For FRAME_METRICS, per line (`line_labels`) the mean over its finished jobs of the metric
-    at each frame. Jobs without a `per_view.csv` are left out, and so is a metric no job has;
-    a damaged file is refused (`read_per_view`)."""
+    """Per metric and line (`line_labels`), the mean of its finished jobs' `per_view.csv`."""
     per_metric: dict[str, dict[str, list[dict[int, float]]]] = {}
     for label, (_, row) in zip(line_labels(table), table.iterrows(), strict=True):
         path = Path(str(row.get("run_dir"))) / PER_VIEW_FILE
@@ -45,9 +39,8 @@ def frame_curves(table: pd.DataFrame) -> Curves:
 
 
 def line_labels(table: pd.DataFrame) -> list[str]:
-    """Each row's line: its variant, followed by the scene and dotted parameters that differ
-    between rows of that variant (`relaygs (relay.k=8)`), so only repeats such as seeds share
-    a line."""
+    """Each row's line: its variant, then the scene and dotted parameters that differ between
+    rows of that variant (`relaygs (relay.k=8)`), so only repeats such as seeds share one."""
     candidates = [c for c in table.columns if c == "scene" or "." in c]
     labels = []
     for _, row in table.iterrows():
@@ -59,8 +52,7 @@ def line_labels(table: pd.DataFrame) -> list[str]:
 
 
 def plot_frame_curves(curves: Curves, path: Path, title: str) -> Path | None:
-    """Write `frame_curves`' lines to `path` (PNG), a panel per metric and one colour per line
-    on every panel; None, and nothing written, when there are none."""
+    """Write the curves to `path` (PNG), a panel per metric, a colour per line; None if none."""
     panels = [(label, curves[metric]) for metric, label in FRAME_METRICS if metric in curves]
     if not panels:
         return None
@@ -82,8 +74,7 @@ def plot_frame_curves(curves: Curves, path: Path, title: str) -> Path | None:
 
 
 def _text(value: Any) -> str:
-    """A label value: a whole float as an int (pandas turns an int column with gaps into
-    floats, `relay.k` 16 into 16.0)."""
+    """A label value, a whole float as an int (a column of ints with gaps holds floats)."""
     if isinstance(value, float) and value.is_integer():
         return str(int(value))
     return str(value)

@@ -1,12 +1,6 @@
-"""A job's TensorBoard HParams entry: which settings it holds, typed so that the dashboard
-shows what a sweep asks at a glance, and the three summaries the HParams plugin reads.
-
-TensorBoard lists the hparams marked `differs` first (by name), then the rest by name, and
-shows the first five of each list without a click: the swept keys are the ones marked, so
-they lead; the metrics are declared in METRICS order, the ones a sweep is read by first.
-Every job of a sweep writes the same experiment (same keys, types, domains and metrics), so
-the dashboard reads alike whichever job's copy it picks, also while the sweep still runs.
-"""
+"""A job's TensorBoard HParams entry, typed so that the dashboard shows what a sweep asks at a
+glance: swept keys are marked `differs` (listed first), metrics lead in METRICS order, and every
+job of a sweep writes the same experiment, so the dashboard reads alike whichever it picks."""
 
 from __future__ import annotations
 
@@ -21,16 +15,11 @@ from tensorboard.plugins.hparams import api_pb2, metadata, plugin_data_pb2
 from relaygs.app.sweep_axes import SweepAxes
 
 HParamValue = bool | int | float | str
-EXCLUDED_SECTIONS = ("paths", "artifacts")
-"""Config sections left out of HParams (where files go, not what was run)."""
-EXCLUDED_KEYS = ("pipeline.description", "pipeline.nodes.")
-"""Settings left out of HParams: the pipeline's graph is named by `pipeline.name`, and its
-nodes differ between pipelines, where every job must log the same keys."""
-IDENTITY_KEYS = ("pipeline.name", "variant")
-"""What every entry holds besides the swept keys."""
-METRIC_GROUP = "result"
-"""Each metric is the scalar `result/<name>` of the job's run."""
-METRICS = (
+EXCLUDED_SECTIONS = ("paths", "artifacts")  # where files go, not what was run
+EXCLUDED_KEYS = ("pipeline.description", "pipeline.nodes.")  # differ between pipelines
+IDENTITY_KEYS = ("pipeline.name", "variant")  # held besides the swept keys
+METRIC_GROUP = "result"  # each metric is the scalar `result/<name>` of the job's run
+METRICS = (  # the declared metrics and their column titles, in the dashboard's order
     ("psnr", "PSNR (dB)"),
     ("fg_psnr", "fg-PSNR (dB)"),
     ("train_s_total", "train time (s)"),
@@ -40,13 +29,11 @@ METRICS = (
     ("render_fps", "render FPS"),
     ("num_gaussians", "Gaussians"),
 )
-"""The declared metrics and their column titles, in the dashboard's order."""
 
 
 def job_hparams(config: Mapping[str, Any], axes: SweepAxes, mode: str) -> dict[str, HParamValue]:
     """The swept keys with this job's values, then IDENTITY_KEYS (`mode` "swept") or every
-    setting of the config but EXCLUDED_SECTIONS (`mode` "all"), by dotted key; a group
-    that is swept (`pipeline`) is not repeated as `<group>.name`."""
+    setting (`mode` "all") by dotted key; a swept group is not repeated as `<group>.name`."""
     hparams = {key: hparam_value(value) for key, value in axes.values.items()}
     flat = flatten_config({k: v for k, v in config.items() if k not in EXCLUDED_SECTIONS})
     flat = {key: value for key, value in flat.items() if not key.startswith(EXCLUDED_KEYS)}
@@ -64,8 +51,7 @@ def metric_tag(name: str) -> str:
 
 
 def experiment_summary(hparams: Mapping[str, HParamValue], axes: SweepAxes) -> Summary:
-    """The experiment: every hparam with its type (a swept one with the sweep's values as its
-    domain, marked `differs`; a boolean with {false, true}) and every metric of METRICS."""
+    """The experiment: every hparam with its type and domain, and every metric of METRICS."""
     infos = [_hparam_info(name, value, axes.domains.get(name)) for name, value in hparams.items()]
     metrics = [
         api_pb2.MetricInfo(name=api_pb2.MetricName(tag=metric_tag(name)), display_name=title)
@@ -74,9 +60,7 @@ def experiment_summary(hparams: Mapping[str, HParamValue], axes: SweepAxes) -> S
     experiment = api_pb2.Experiment(
         hparam_infos=infos, metric_infos=metrics, time_created_secs=time.time()
     )
-    return _summary(
-        metadata.EXPERIMENT_TAG, plugin_data_pb2.HParamsPluginData(experiment=experiment)
-    )
+    return _summary(metadata.EXPERIMENT_TAG, experiment=experiment)
 
 
 def session_start_summary(
@@ -89,17 +73,13 @@ def session_start_summary(
         typed = _typed(value, _domain_type(domain)) if domain else value
         field = {bool: "bool_value", str: "string_value"}.get(type(typed), "number_value")
         setattr(start.hparams[name], field, typed)
-    return _summary(
-        metadata.SESSION_START_INFO_TAG, plugin_data_pb2.HParamsPluginData(session_start_info=start)
-    )
+    return _summary(metadata.SESSION_START_INFO_TAG, session_start_info=start)
 
 
 def session_end_summary() -> Summary:
     """The job ended well (a failed job writes no HParams entry)."""
     end = plugin_data_pb2.SessionEndInfo(status=api_pb2.STATUS_SUCCESS, end_time_secs=time.time())
-    return _summary(
-        metadata.SESSION_END_INFO_TAG, plugin_data_pb2.HParamsPluginData(session_end_info=end)
-    )
+    return _summary(metadata.SESSION_END_INFO_TAG, session_end_info=end)
 
 
 def flatten_config(config: Mapping[str, Any], prefix: str = "") -> dict[str, HParamValue]:
@@ -124,7 +104,6 @@ def hparam_value(value: Any) -> HParamValue:
 
 
 def _hparam_info(name: str, value: HParamValue, domain: list[Any] | None) -> api_pb2.HParamInfo:
-    """How the experiment declares one hparam."""
     if domain:
         kind = _domain_type(domain)
         info = api_pb2.HParamInfo(name=name, type=kind, differs=len(domain) > 1)
@@ -156,8 +135,8 @@ def _typed(value: Any, kind: int) -> HParamValue:
     return json.dumps(value)
 
 
-def _summary(tag: str, data: plugin_data_pb2.HParamsPluginData) -> Summary:
-    """A summary holding HParams plugin data under `tag`, as TensorBoard's own writers make it."""
+def _summary(tag: str, **fields: Any) -> Summary:
+    data = plugin_data_pb2.HParamsPluginData(**fields)
     summary = Summary()
     summary.value.add(
         tag=tag, metadata=metadata.create_summary_metadata(data), tensor=metadata.NULL_TENSOR

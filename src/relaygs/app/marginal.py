@@ -1,6 +1,5 @@
-"""What one more minute buys: for a sweep over `budget.multiplier`, each pipeline's PSNR at
-every budget, the gain per extra minute of training over its next cheaper budget, and whether
-the point is on the scene's Pareto front (no job of the scene is both faster and better)."""
+"""What one more minute buys: over `budget.multiplier`, each pipeline's PSNR per budget, the
+gain per extra minute over its next cheaper budget, and whether it is on the Pareto front."""
 
 from __future__ import annotations
 
@@ -20,9 +19,7 @@ def varies_budget(table: pd.DataFrame) -> bool:
 
 
 def marginal_table(summary: pd.DataFrame) -> pd.DataFrame:
-    """Rows (scene, pipeline, multiplier, runs, minutes, psnr, db_per_minute, on_front), ordered
-    by scene, pipeline and multiplier, repeated jobs (seeds) averaged; db_per_minute is None
-    for a pipeline's cheapest budget and where the time did not grow."""
+    """Per scene, pipeline and multiplier: seeds averaged, dB per extra minute, on the front."""
     table = summary
     if "status" in table:
         table = table[table["status"] != STATUS_FAILED]

@@ -1,5 +1,4 @@
-"""The accuracy-against-cost plot of a sweep: PSNR over training time, every job labelled,
-the Pareto front (no other job is both faster and more accurate) marked."""
+"""A sweep's PSNR over training time, every job labelled and the Pareto front marked."""
 
 from __future__ import annotations
 
@@ -14,19 +13,15 @@ from matplotlib.transforms import Bbox
 
 from relaygs.app.figures import save_png
 
-LOG_SCALE_RATIO = 20.0
-"""Use a log time axis when the slowest job takes more than this many times the fastest."""
-LABEL_STEP_PT = 9.0
-"""How far (points) a label that would overprint another is moved at a time."""
-LABEL_ROOM = 0.15
-"""Vertical margin (a fraction of the data range) that leaves labels room inside the axes."""
-MAX_LABEL_STEPS = 12
-"""At most this many steps up or down per label: in a larger crowd a label may overprint."""
+LOG_SCALE_RATIO = 20.0  # a log time axis when the slowest job takes more times the fastest
+LABEL_STEP_PT = 9.0  # how far (points) a label that would overprint another moves at a time
+LABEL_ROOM = 0.15  # vertical margin (of the data range) that leaves labels room in the axes
+MAX_LABEL_STEPS = 12  # steps up or down per label at most: in a larger crowd labels overprint
+LABEL_STEPS = [0, *(sign * step for step in range(1, MAX_LABEL_STEPS + 1) for sign in (1, -1))]
 
 
 def pareto_front(times: Sequence[float], scores: Sequence[float]) -> list[int]:
-    """Indices of the points no other point beats (time ≤ and score ≥, one strictly),
-    ordered by time."""
+    """Indices of the points no other beats (time ≤ and score ≥, one strictly), by time."""
     order = sorted(range(len(times)), key=lambda i: (times[i], -scores[i]))
     front: list[int] = []
     best = -math.inf
@@ -40,8 +35,7 @@ def pareto_front(times: Sequence[float], scores: Sequence[float]) -> list[int]:
 def point_labels(
     times: Sequence[float], scores: Sequence[float], labels: Sequence[str]
 ) -> dict[tuple[float, float], str]:
-    """One label per distinct point: jobs that landed on the same point (e.g. a cached
-    variant) share it as `a, b`, so their labels do not overprint."""
+    """One label per distinct point: jobs on the same point share it as `a, b`."""
     merged: dict[tuple[float, float], list[str]] = {}
     for x, y, label in zip(times, scores, labels, strict=True):
         names = merged.setdefault((x, y), [])
@@ -60,33 +54,15 @@ def plot_pareto(
     front = pareto_front(times, scores)
     if front:
         front_times, front_scores = [times[i] for i in front], [scores[i] for i in front]
-        axes.step(
-            front_times,
-            front_scores,
-            where="post",
-            color="tab:red",
-            zorder=1,
-            label="Pareto front",
-        )
-        axes.scatter(
-            front_times,
-            front_scores,
-            facecolors="none",
-            edgecolors="tab:red",
-            s=140,
-            zorder=3,
-        )
+        step = {"where": "post", "color": "tab:red", "zorder": 1, "label": "Pareto front"}
+        axes.step(front_times, front_scores, **step)
+        ring = {"facecolors": "none", "edgecolors": "tab:red", "s": 140, "zorder": 3}
+        axes.scatter(front_times, front_scores, **ring)
     leader = {"arrowstyle": "-", "color": "0.6", "linewidth": 0.6, "shrinkA": 0, "shrinkB": 3}
-    notes = [
-        axes.annotate(
-            label,
-            (x, y),
-            textcoords="offset points",
-            xytext=(5, 5),
-            fontsize=8,
-            arrowprops=leader,  # a line to its point, for a label moved off it
-        )
-        for (x, y), label in point_labels(times, scores, labels).items()
+    placement = {"textcoords": "offset points", "xytext": (5, 5), "fontsize": 8}
+    notes = [  # each with a leader line to its point, for a label moved off it
+        axes.annotate(label, point, arrowprops=leader, **placement)
+        for point, label in point_labels(times, scores, labels).items()
     ]
     axes.margins(y=LABEL_ROOM)
     positive = [t for t in times if t > 0]
@@ -102,10 +78,8 @@ def plot_pareto(
 
 
 def spread_labels(figure: Figure, notes: Sequence[Annotation]) -> None:
-    """Put labels that would run off the plot's right edge on their point's left, then move
-    each, lowest point first, up or down in LABEL_STEP_PT steps (the nearest free place inside
-    the axes, at most MAX_LABEL_STEPS away) until it clears the labels placed before it: jobs
-    close together (e.g. variants of one cost) stay readable."""
+    """Put labels that would leave the plot on their point's left, then move each, lowest first,
+    by LABEL_STEP_PT to the nearest place inside the axes that clears the labels placed before."""
     renderer = FigureCanvasAgg(figure).get_renderer()
     figure.draw_without_rendering()  # the constrained layout places the axes first
     placed: list[Bbox] = []
@@ -115,7 +89,7 @@ def spread_labels(figure: Figure, notes: Sequence[Annotation]) -> None:
             note.set_horizontalalignment("right")
             note.xyann = (-note.xyann[0], note.xyann[1])
         x, y = note.xyann
-        for step in _label_steps():
+        for step in LABEL_STEPS:
             note.xyann = (x, y + step * LABEL_STEP_PT)
             box = _text_box(note, renderer)
             fits = inside.y0 <= box.y0 and box.y1 <= inside.y1
@@ -127,10 +101,5 @@ def spread_labels(figure: Figure, notes: Sequence[Annotation]) -> None:
 
 
 def _text_box(note: Annotation, renderer: RendererAgg) -> Bbox:
-    """Where a label's text is drawn (an annotation's own extent includes its leader line)."""
+    """Where a label's text is drawn (the annotation's own extent includes its leader line)."""
     return Text.get_window_extent(note, renderer)
-
-
-def _label_steps() -> list[int]:
-    """Label offsets to try, in steps, nearest first: 0, 1, -1, 2, -2, ..."""
-    return [0, *(sign * step for step in range(1, MAX_LABEL_STEPS + 1) for sign in (1, -1))]

@@ -1,12 +1,7 @@
 """Validate a resolved run config and derive every node's stage config before any work starts.
 
-A stage receives `{"seed": ..., "train": <train section>, "<stage type>": <its section>}`: the
-section is the config group's values with the pipeline node's `overrides` merged over them and
-the budget multiplier applied to its step counts. Nothing else reaches a stage (or its key).
-The sections that are not a stage's are small dataclasses: Hydra checks their keys and types on
-compose (registered below as `<section>/schema`), `plan_run` parses them again from a plain dict
-and checks their value ranges.
-"""
+A stage receives only `seed`, `train` and its own section (node `overrides` merged, step counts
+scaled by the budget). The other sections are dataclasses Hydra checks on compose."""
 
 from __future__ import annotations
 
@@ -30,17 +25,14 @@ from relaygs.pipeline.store import ON_CORRUPT_CHOICES
 from relaygs.splat import BACKENDS
 
 HParams = Enum("HParams", {"swept": "swept", "all": "all"})
-"""`tensorboard.hparams`: the HParams entry holds the settings the sweep varies (with the
-pipeline and variant), or the whole config besides."""
+"""`tensorboard.hparams`: log the swept settings, or the whole config too."""
 OnCorrupt = Enum("OnCorrupt", {name: name for name in ON_CORRUPT_CHOICES})
 Backend = Enum("Backend", {name: name for name in BACKENDS})
 MAX_THREADS = 1024
-"""Most torch CPU threads a job may ask for: more fails in the OpenMP runtime at job start
-(16384 could not be created here, 100000 crashed the process), after the scene is ready."""
+"""Most torch CPU threads a job may ask for: more failed in the OpenMP runtime at job start."""
 
 StageValidator = Callable[[str, Mapping[str, Any]], None]
-"""Checks the config a stage type receives (its section, `train`, and `eval` when present);
-raises a one-line InputError naming the bad key."""
+"""Checks a stage type's config; raises a one-line InputError naming the bad key."""
 T = TypeVar("T")
 
 
@@ -60,8 +52,7 @@ class RunSettings:
     threads: int | None = None
 
     def validate(self) -> None:
-        """Ranges; a variant names a sweep job's folder `<job>_<variant>`, so holds no path
-        separator (its folder would land elsewhere)."""
+        """Ranges; a variant names a job's folder `<job>_<variant>`: no path separator."""
         _require(self.seed >= 0, "seed", self.seed, "an int >= 0")
         fits = self.threads is None or 1 <= self.threads <= MAX_THREADS
         _require(fits, "threads", self.threads, f"null or an int in [1, {MAX_THREADS}]")
@@ -133,8 +124,7 @@ SECTIONS: dict[str, type] = {
     "artifacts": ArtifactSettings,
     "splat": SplatSettings,
 }
-"""Sections of conf/config.yaml checked by Hydra through their schema (`<name>/schema`, first in
-the defaults list); `budget` is set by the budget group's files, so only `plan_run` checks it."""
+"""Sections Hydra checks through their schema (`<name>/schema`); `plan_run` checks `budget`."""
 TOP_LEVEL_KEYS = frozenset(
     {"seed", "variant", "experiment_name", "threads", "train", "eval", "scene", "pipeline"}
     | {"budget", *SECTIONS}
@@ -147,8 +137,7 @@ for _name, _schema in SECTIONS.items():
 @dataclass(frozen=True)
 class RunPlan:
     """Everything a run needs, validated: the pipeline, each node's stage config, the scene,
-    the run's labels (`run`, `reference`: what its result records). `stage_types` are all
-    implemented stage types, whether or not this pipeline runs them."""
+    the run's labels; `stage_types` are all implemented ones, run here or not."""
 
     pipeline: Pipeline
     stage_types: frozenset[str]
@@ -186,9 +175,7 @@ def plan_run(
     accepted_upstream: Mapping[str, Collection[str]] | None = None,
 ) -> RunPlan:
     """Check the whole config (paths already absolute) and build the plan; bad input raises
-    one-line InputErrors naming the field. `stage_types` are the implemented stage types;
-    `validate` checks each node's stage config (the output node's with `eval` added);
-    `accepted_upstream` the pipeline's upstream node types (`load_pipeline`)."""
+    one-line InputErrors naming the field."""
     unknown = sorted(set(cfg) - TOP_LEVEL_KEYS - set(stage_types))
     if unknown:  # an experiment file without `# @package _global_` lands under `experiment`
         raise InputError(f"top level: unknown setting(s) {unknown}")
@@ -239,9 +226,7 @@ def plan_run(
 
 
 def _settings(cls: type[T], cfg: Mapping[str, Any], name: str) -> T:
-    """Section `name` of `cfg` (its top-level fields for "") as dataclass `cls` (OmegaConf
-    refuses unknown keys and values of the wrong type), its ranges checked by its `validate()`
-    where it has one."""
+    """Section `name` of `cfg` (top-level fields for "") parsed as `cls`, ranges validated."""
     from relaygs.stages.config import parse_section  # loaded with the stages a run plans for
 
     names = {each.name for each in fields(cls)}
@@ -271,9 +256,8 @@ def merge_overrides(
 def scale_steps(
     section: Mapping[str, Any], multiplier: float, keys: Collection[str]
 ) -> dict[str, Any]:
-    """`section` with every positive integer entry whose name is in `keys` (at any depth)
-    times `multiplier`, rounded and kept >= 1; zeros (often "off"), negatives (left for
-    validation) and everything else are unchanged."""
+    """`section` with each positive int named in `keys` (at any depth) times `multiplier`,
+    rounded and kept >= 1; zeros ("off") and negatives (left for validation) are unchanged."""
     scaled: dict[str, Any] = {}
     for key, value in section.items():
         if isinstance(value, Mapping):
@@ -304,9 +288,8 @@ def _pipeline(
     stage_types: Collection[str],
     accepted_upstream: Mapping[str, Collection[str]] | None,
 ) -> Pipeline:
-    """The pipeline `pipeline.name` names (a file of conf/pipeline/, or a file's path). Nodes
-    are changed in that file: a composed section whose nodes differ from it (`pipeline.name`
-    changed alone, or a node changed on the command line) is refused."""
+    """The pipeline `pipeline.name` names; a composed section whose nodes differ from its file
+    (`pipeline.name` changed alone, a node set on the command line) is refused."""
     section = _section(cfg, "pipeline")
     name = section.get("name")
     named = not isinstance(name, bool) and isinstance(name, str | int) and name != ""
@@ -323,8 +306,7 @@ def _pipeline(
 def _require_stage_setting_names(
     cfg: Mapping[str, Any], stage_types: Collection[str], scaled_keys: Collection[str]
 ) -> None:
-    """Each of `budget.scaled_keys` names a setting of some stage section, at any depth: a
-    misspelt name (`stpes`) would leave the step counts it meant unscaled without a word."""
+    """Each of `budget.scaled_keys` names some stage setting: a typo would scale nothing."""
     sections = [cfg[stage] for stage in stage_types if isinstance(cfg.get(stage), Mapping)]
     unknown = sorted(set(scaled_keys) - set().union(*map(_setting_names, sections)))
     _require(not unknown, "budget.scaled_keys", unknown, "names of stage settings ('steps')")

@@ -1,11 +1,6 @@
-"""What Hydra cannot check of a `python -m relaygs.run` command before its first job starts.
-
-Hydra composes one job at a time, so a sweep would find a bad value only when its job comes
-up, and a capture's path or the run folder only once work has begun. Here every job the
-command would launch (the command-line sweeps times the basic sweeper's
-`hydra.sweeper.params`) is composed and planned, its scene overrides checked, and the run
-(sweep) folder tried, before any work starts. Hydra's and OmegaConf's own errors pass through.
-"""
+"""What Hydra cannot check of a `python -m relaygs.run` command before its first job starts:
+every job the command would launch is composed and planned, its scene overrides checked and
+the run (sweep) folder tried, so a sweep does not find a bad value only when its job comes up."""
 
 from __future__ import annotations
 
@@ -34,15 +29,14 @@ MODE_FLAGS = {
     **{"-sc": "--shell-completion", "--run": "--run", "--multirun": "--multirun"},
     **{"--cfg": "--cfg", "--info": "--info", "--shell-completion": "--shell-completion"},
 }
-"""Hydra's flags that choose what the command does, of which it takes one (a second one is a
-ValueError, with its traceback, in Hydra)."""
+"""Hydra's flags that choose what the command does: it takes one (a second is a traceback)."""
 MULTIRUN_RECORD = "multirun.yaml"
 """What Hydra writes into a sweep folder: the sweep's config, its overrides included."""
 REMOTE_LAUNCHERS = {
     "hydra_plugins.hydra_submitit_launcher.submitit_launcher.SlurmLauncher": ("sbatch", "srun")
 }
-"""Launchers whose jobs run on other machines (a job's device is checked where it runs), with
-the commands they submit through, which must be on this machine's PATH."""
+"""Launchers whose jobs run elsewhere (their device is checked there), with the commands they
+submit through, which must be on this machine's PATH."""
 SYNTHETIC_ONLY = (
     "scene",
     "scene.preset",
@@ -54,14 +48,12 @@ SYNTHETIC_ONLY = (
 """Overrides that only a synthetic scene takes: a capture (`scene.path`) has its own."""
 
 JobValidator = Callable[[DictConfig, bool], None]
-"""Raises InputError when a composed job config is bad; the flag says whether the job runs on
-this machine, so that what it needs from the machine (its device) can be checked here."""
+"""Raises InputError for a bad composed job; the flag says whether the job runs here."""
 
 
 def check_command_line(argv: Sequence[str], conf_dir: Path, validate: JobValidator) -> None:
-    """Compose every job a running command would launch and pass it to `validate`, check its
-    scene overrides, a remote launcher's submit commands and the run (sweep) folder. Commands
-    that only print (--help, --cfg, --info ...) are Hydra's alone."""
+    """Compose every job a running command would launch and `validate` it, then check its
+    scene overrides, submit commands and run folder (commands that only print are Hydra's)."""
     modes = {MODE_FLAGS[arg.split("=")[0]] for arg in argv if arg.split("=")[0] in MODE_FLAGS}
     if len(modes) > 1:
         raise InputError(f"{' and '.join(sorted(modes))} cannot be combined: Hydra takes one")
@@ -101,8 +93,7 @@ def library_error_line(error: BaseException) -> str:
 
 
 def swept_keys(jobs: Sequence[Sequence[str]]) -> set[str]:
-    """The override keys whose value differs between `jobs` (a sweep's axes): what names a
-    job among the others, as `job relay.k=0`."""
+    """The override keys whose value differs between `jobs`: what names a job among them."""
     values: dict[str, set[str]] = {}
     for job in jobs:
         for arg in job:
@@ -113,8 +104,7 @@ def swept_keys(jobs: Sequence[Sequence[str]]) -> set[str]:
 
 def check_capture_overrides(job: Sequence[str]) -> None:
     """A job that reads a capture (`scene.path=DIR`) must not also set what only a synthetic
-    preset has: the capture would ignore it, though the result would record it. A deleted
-    (`~scene.path`), null or empty path reads none."""
+    preset has: the capture would ignore it, though the result would record it."""
     settings = {o.key_or_group: o for o in parse_overrides(job)}  # the last one of a key counts
     path = settings.get("scene.path")
     if path is None or path.is_delete() or path.value() in (None, ""):
@@ -128,8 +118,7 @@ def check_capture_overrides(job: Sequence[str]) -> None:
 
 
 def check_output_folder(hydra_cfg: DictConfig, multirun: bool) -> None:
-    """The run folder (`hydra.run.dir`, or `hydra.sweep.dir` for a multirun) must be a folder
-    that files can be written in, or one that can be created."""
+    """`hydra.run.dir` (`hydra.sweep.dir` for a multirun) must be a writable or creatable folder."""
     key = "sweep" if multirun else "run"
     text = str(hydra_cfg[key].dir)
     if not text.strip():
@@ -139,9 +128,8 @@ def check_output_folder(hydra_cfg: DictConfig, multirun: bool) -> None:
 
 
 def planned_jobs(args: list[str], hydra_cfg: DictConfig, multirun: bool) -> list[list[str]]:
-    """The override lists of the jobs this command line would run: itself in run mode (Hydra
-    refuses a sweep there), the basic sweeper's combinations in a multirun, and the plain
-    overrides alone for another sweeper (whose jobs only it knows)."""
+    """The override lists of the jobs this command line would run (for a sweeper other than
+    the basic one, whose jobs only it knows, its plain overrides)."""
     if not multirun:
         return [args]
     overrides = parse_overrides(args)
@@ -157,9 +145,8 @@ def _is_basic_sweeper(hydra_cfg: DictConfig) -> bool:
 
 
 def sweep_jobs(overrides: Sequence[Override]) -> list[list[str]]:
-    """The jobs Hydra's basic sweeper makes of `overrides`: every combination of the values of
-    each key, in order, a later override of a key replacing an earlier one (the command line
-    over `hydra.sweeper.params`)."""
+    """The jobs Hydra's basic sweeper makes of `overrides`: every combination, in order, a
+    later override of a key replacing an earlier one."""
     choices: dict[str, list[str]] = {}
     for override in overrides:
         key = override.get_key_element()
@@ -179,9 +166,8 @@ def recorded_job_count(sweep_dir: Path) -> int | None:
 
 
 def recorded_jobs(sweep_dir: Path) -> list[list[str]] | None:
-    """The override lists of the jobs the sweep last started in `sweep_dir` planned, from the
-    MULTIRUN_RECORD Hydra writes there before its first job; None where that file is missing
-    or unreadable, or its sweeper is not Hydra's basic one (whose jobs this cannot list)."""
+    """The jobs the sweep last started in `sweep_dir` planned, from its MULTIRUN_RECORD; None
+    where that is missing or unreadable, or its sweeper is not the basic one."""
     try:
         hydra_cfg = OmegaConf.load(Path(sweep_dir) / MULTIRUN_RECORD).hydra
         if not _is_basic_sweeper(hydra_cfg):

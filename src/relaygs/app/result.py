@@ -16,7 +16,7 @@ from relaygs.pipeline.fsio import publish_text
 
 RESULT_FILE = "result.json"
 METRIC_FIELDS = ("psnr", "psnr_cf", "ssim", "fg_psnr", "render_fps", "num_gaussians")
-ALWAYS_RECORDED = (
+ALWAYS_RECORDED = (  # the ablation axes, whether or not a job set them
     "relay.k",
     "relay.pseudo_views",
     "deform.gamma",
@@ -24,21 +24,17 @@ ALWAYS_RECORDED = (
     "budget.name",
     "budget.multiplier",
 )
-"""Parameters every result carries (the ablation axes), whether or not a job set them."""
 
-NOT_RECORDED = ("hydra", "paths.", "artifacts.")
-"""Override key prefixes that say where outputs go or how Hydra runs, not what was run."""
+NOT_RECORDED = ("hydra", "paths.", "artifacts.")  # where outputs go or how Hydra runs
 
 Scalar = bool | int | float | str | None
-NO_TEST_VIEWS = (
+NO_TEST_VIEWS = (  # why the metrics read n/a when the scene has nothing to evaluate on
     "no test views were scored: the scene holds no test cameras "
     "(hold some out with scene.loader.test_cameras=[ID,...])"
 )
-"""Why the metrics of a run read n/a when its scene has nothing to evaluate on."""
 
 STATUS_OK = "ok"
-STATUS_FAILED = "failed"
-"""Values of a result's `status`: the run finished, or it raised (its `error` says how)."""
+STATUS_FAILED = "failed"  # the run raised: its `error` says how
 
 
 def build_result(
@@ -51,9 +47,8 @@ def build_result(
     job: int | None,
     builder: str,
 ) -> dict[str, Scalar]:
-    """The flat result of one run; `overrides` are the job's command-line/sweep overrides.
-    The `*_built_by_job` seconds count what job `builder` (a `BUILT_BY` value) built, before an
-    interruption too, so a sweep resumed in place still shows what it computed."""
+    """The flat result of one run; `*_built_by_job` count what job `builder` (a `BUILT_BY`
+    value) built, before an interruption too."""
     metrics = evaluation.metrics
     result = _identity(plan, job)
     result["status"] = STATUS_OK
@@ -74,8 +69,8 @@ def build_result(
     )
     extra = {name: _scalar(value) for name, value in metrics.items() if name not in result}
     result.update({name: value for name, value in extra.items() if value is not None})
-    _add_parameters(result, cfg, plan, overrides)
-    return result
+    parameters = recorded_parameters(cfg, plan, overrides)
+    return result | {key: value for key, value in parameters.items() if key not in result}
 
 
 def build_failed_result(
@@ -85,13 +80,12 @@ def build_failed_result(
     overrides: Sequence[str],
     job: int | None,
 ) -> dict[str, Scalar]:
-    """The result of a run that raised `error`: its identity and parameters, status
-    `failed`, the error's one-line description and no metrics."""
+    """The result of a run that raised `error`: status `failed`, its `error_line`, no metrics."""
     result = _identity(plan, job)
     result.update({"status": STATUS_FAILED, "error": error_line(error)})
     result.update({name: None for name in METRIC_FIELDS})
-    _add_parameters(result, cfg, plan, overrides)
-    return result
+    parameters = recorded_parameters(cfg, plan, overrides)
+    return result | {key: value for key, value in parameters.items() if key not in result}
 
 
 def error_line(error: BaseException) -> str:
@@ -101,8 +95,7 @@ def error_line(error: BaseException) -> str:
 
 
 def recorded_overrides(overrides: Sequence[str]) -> dict[str, str]:
-    """{dotted key or group: value text} of overrides like `relay.k=8` or `+component=full`;
-    where things go (`paths.*`, `artifacts.*`) and Hydra's own settings are left out."""
+    """{dotted key or group: value text} of the overrides, but where things go and Hydra's."""
     recorded = {}
     for override in overrides:
         key, _, text = override.partition("=")
@@ -113,9 +106,8 @@ def recorded_overrides(overrides: Sequence[str]) -> dict[str, str]:
 
 
 def effective_value(cfg: Mapping[str, Any], plan: RunPlan, key: str) -> Scalar:
-    """What `key` was for this run: a stage setting as the pipeline set it (after the node's
-    overrides and the budget, before the stage's canonical form, so a swept `relay.k` keeps the
-    swept value; None when no node runs that stage), else the config value (`_parameter`)."""
+    """What `key` was for this run: a stage setting as the pipeline set it, before its canonical
+    form (None when no node runs that stage), else the config value."""
     head, _, rest = key.partition(".")
     if head in plan.stage_types:
         sections = [config[head] for config in plan.node_configs.values() if head in config]
@@ -124,8 +116,7 @@ def effective_value(cfg: Mapping[str, Any], plan: RunPlan, key: str) -> Scalar:
 
 
 def write_result(run_dir: Path, result: Mapping[str, Scalar]) -> Path:
-    """Write `result.json` into the run dir and return its path; written whole or not at all
-    (`publish_text`), as a truncated result would make the sweep report refuse the folder."""
+    """Write `result.json` into the run dir, whole or not at all, and return its path."""
     path = Path(run_dir) / RESULT_FILE
     path.parent.mkdir(parents=True, exist_ok=True)
     publish_text(path, json.dumps(dict(result), indent=2, allow_nan=False) + "\n")
@@ -133,8 +124,7 @@ def write_result(run_dir: Path, result: Mapping[str, Scalar]) -> Path:
 
 
 def format_summary(result: Mapping[str, Scalar]) -> str:
-    """A short human-readable table of one run's results (and why its metrics are missing when
-    no test view was scored)."""
+    """A short human-readable table of one run's results (and why no test view was scored)."""
     rows = [
         ("PSNR", _fmt(result.get("psnr"), ".2f", " dB")),
         ("  colour-fitted", _fmt(result.get("psnr_cf"), ".2f", " dB")),
@@ -156,8 +146,6 @@ def format_summary(result: Mapping[str, Scalar]) -> str:
 
 
 def _run_label(result: Mapping[str, Scalar]) -> str:
-    """The run's variant and, where it is not the pipeline's name, its pipeline:
-    `no_gamma (relaygs)`, so each job of a sweep names what it ran."""
     variant, pipeline = result.get("variant"), result.get("pipeline")
     if variant is None or variant == pipeline:
         return str(pipeline)
@@ -165,7 +153,6 @@ def _run_label(result: Mapping[str, Scalar]) -> str:
 
 
 def _identity(plan: RunPlan, job: int | None) -> dict[str, Scalar]:
-    """The fields that say which run this is (experiment, variant, job, pipeline, scene, seed)."""
     return {
         "experiment": plan.run.experiment_name,
         "variant": plan.run.variant,
@@ -177,19 +164,10 @@ def _identity(plan: RunPlan, job: int | None) -> dict[str, Scalar]:
     }
 
 
-def _add_parameters(
-    result: dict[str, Scalar], cfg: Mapping[str, Any], plan: RunPlan, overrides: Sequence[str]
-) -> None:
-    """Add `recorded_parameters` to `result`, keeping the fields it already has."""
-    for key, value in recorded_parameters(cfg, plan, overrides).items():
-        result.setdefault(key, value)
-
-
 def recorded_parameters(
     cfg: Mapping[str, Any], plan: RunPlan, overrides: Sequence[str]
 ) -> dict[str, Scalar]:
-    """The ablation axes and every recorded override, by dotted key, as a result holds them (a
-    group choice such as `budget=smoke` only where its `<group>.name` is not there already)."""
+    """The ablation axes and every recorded override (a group only without its `.name`)."""
     parameters = {key: effective_value(cfg, plan, key) for key in ALWAYS_RECORDED}
     for key, text in recorded_overrides(overrides).items():
         if f"{key}.name" in parameters or key in parameters:
@@ -200,7 +178,6 @@ def recorded_parameters(
 
 
 def _lookup(config: Mapping[str, Any], dotted: str) -> Any:
-    """The value at a dotted path, or None when any part is missing."""
     value: Any = config
     for part in dotted.split(".") if dotted else []:
         if not isinstance(value, Mapping) or part not in value:
@@ -210,8 +187,7 @@ def _lookup(config: Mapping[str, Any], dotted: str) -> Any:
 
 
 def _parameter(value: Any) -> Scalar:
-    """A setting as a result field: a group by its `name`, a list (`test_cameras=[0,10]`) as
-    its JSON text so that sweeps over lists stay apart in the tables, else a JSON scalar."""
+    """A setting as a result field: a group by its `name`, a list as JSON text, else a scalar."""
     if isinstance(value, Mapping):
         return _scalar(value.get("name"))
     if isinstance(value, list | tuple):
@@ -229,5 +205,4 @@ def _scalar(value: Any) -> Scalar:
 
 
 def _fmt(value: Scalar, spec: str, unit: str = "") -> str:
-    """`value` formatted with `spec` and a unit, or "n/a" when missing."""
     return "n/a" if not isinstance(value, int | float) else f"{value:{spec}}{unit}"

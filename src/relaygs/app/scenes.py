@@ -40,9 +40,8 @@ LOADER_PREFIX = "scene.loader."
 GENERATED_MARKER = "scene.json"
 HASH_LENGTH = 12
 RECORDED_LOADING = ("downscale", "max_points", "test_cameras", "effects")
-"""The `load_scene` options a run's artifacts record in their manifest's provenance when the
-run has them (`scene_provenance`; the base config always sets downscale and max_points), so
-the artifacts commands load the scene as it did."""
+"""The `load_scene` options a run's manifests record (`scene_provenance`), so the artifacts
+commands load the scene as it did."""
 
 
 @dataclass(frozen=True)
@@ -66,11 +65,8 @@ class SceneSpec:
 
 
 def scene_spec(section: Mapping[str, Any]) -> SceneSpec:
-    """Validate the `scene` section (paths already absolute) without doing any work.
-
-    A set `path` must be an existing folder in a known layout; otherwise `preset` must name a
-    synthetic preset. Every error is one InputError naming the `scene.*` field.
-    """
+    """Validate the `scene` section (paths already absolute) without doing any work: a capture
+    folder in a known layout, or a synthetic preset; errors name the `scene.*` field."""
     _require_known(section, SCENE_FIELDS, "scene")
     label = section.get("name")
     if isinstance(label, bool | list | Mapping):  # str() would label the scene with its text
@@ -119,8 +115,7 @@ def _require_known(section: Mapping[str, Any], known: Collection[str], where: st
 
 
 def synthetic_folder(spec: SceneSpec, scenes_dir: Path) -> Path:
-    """Cache folder of a synthetic scene: `<scenes_dir>/<preset>-<hash of its parameters>`,
-    the preset's own definition among them (an edited preset is generated anew)."""
+    """`<scenes_dir>/<preset>-<hash of its parameters>`, the preset's definition among them."""
     params = {
         "preset": spec.preset,
         "definition": PRESETS[spec.preset].definition(),
@@ -136,8 +131,7 @@ def synthetic_folder(spec: SceneSpec, scenes_dir: Path) -> Path:
 
 
 def prepare_scene(spec: SceneSpec, scenes_dir: Path, progress: bool = True) -> Scene:
-    """Load the scene, generating a synthetic one first if its cache folder is missing
-    (`progress`: with a bar over the rendered views)."""
+    """Load the scene, generating a synthetic one first if its cache folder is missing."""
     if not spec.is_synthetic:
         return load_scene(spec.path, **loader_arguments(spec), option_prefix=LOADER_PREFIX)
     folder = synthetic_folder(spec, scenes_dir)
@@ -170,8 +164,7 @@ def loader_arguments(spec: SceneSpec) -> dict[str, Any]:
 
 
 def _check_held_out(preset: str, test_cameras: tuple[int, ...] | None, count: int) -> None:
-    """Refuse held-out camera ids the preset's rig of `count` cameras lacks, or that leave it
-    no train camera, before the scene is generated (its loader would refuse them only after)."""
+    """Refuse held-out camera ids the rig lacks, or all of them, before generating the scene."""
     if test_cameras is None:
         return
     missing = [camera_id for camera_id in test_cameras if camera_id >= count]
@@ -183,9 +176,8 @@ def _check_held_out(preset: str, test_cameras: tuple[int, ...] | None, count: in
 
 
 def scene_provenance(spec: SceneSpec) -> dict[str, Any]:
-    """What every artifact of a run records about how its scene was loaded, beyond the
-    fingerprint: the RECORDED_LOADING options the run set, as JSON values (the loader's
-    defaults apply again to those it did not set)."""
+    """The RECORDED_LOADING options the run set, as JSON values: what its artifacts record of
+    how the scene was loaded, beyond its fingerprint."""
     arguments = loader_arguments(spec)
     options = make_options(**arguments)
     recorded = {}
@@ -197,6 +189,5 @@ def scene_provenance(spec: SceneSpec) -> dict[str, Any]:
 
 
 def recorded_loading(provenance: Mapping[str, Any]) -> dict[str, Any]:
-    """The `load_scene` options an artifact's manifest `provenance` records for its run (those
-    the run set; see `scene_provenance`)."""
+    """The `load_scene` options a manifest's `provenance` records (`scene_provenance`)."""
     return {name: provenance[name] for name in RECORDED_LOADING if name in provenance}

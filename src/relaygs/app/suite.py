@@ -1,5 +1,4 @@
-"""What the app needs from the stage implementations, gathered in one object so tests can run
-the whole app on fake stages and the real ones are imported only when a run starts."""
+"""What the app needs from the stages in one object, so tests can run it on fake stages."""
 
 from __future__ import annotations
 
@@ -14,18 +13,14 @@ from relaygs.app.plan import StageValidator
 from relaygs.pipeline import Artifact
 from relaygs.pipeline.dag import CanonicalFn, StageFn
 
-LogSink = Callable[..., None]
-"""Receives `(stage, step, scalars, images=None)` from the stages' `emit`."""
-ScalarRecord = tuple[int, dict[str, float]]
-"""A step and the scalars a stage logged at it."""
+LogSink = Callable[..., None]  # receives `(stage, step, scalars, images=None)`
+ScalarRecord = tuple[int, dict[str, float]]  # a step and the scalars a stage logged at it
 
 
 @dataclass(frozen=True)
 class StageSuite:
-    """Stage functions by type, their artifact schema versions, the canonical form of their
-    configs, config validation, evaluation, rendering, the log-sink hooks, the stage types
-    each stage type's upstream may have (see `relaygs.stages`; none listed: not checked) and
-    the scalars an artifact's stage logged while it trained (none by default)."""
+    """Stage functions, schema versions, config canonicalisation and validation, evaluation,
+    rendering, log-sink hooks, accepted upstream types and an artifact's logged scalars."""
 
     stages: Mapping[str, StageFn]
     schema_versions: Mapping[str, int]

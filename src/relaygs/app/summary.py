@@ -1,28 +1,24 @@
-"""Sweep tables: collect each job's `result.json` into rows, add Δ PSNR against the reference
-variant, and render the paper-style Markdown table."""
+"""Sweep tables: each job's `result.json` as a row, Δ PSNR against the reference, Markdown."""
 
 from __future__ import annotations
 
 import json
 import math
-import numbers
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import pandas as pd
 
 from relaygs.app.result import METRIC_FIELDS, RESULT_FILE, STATUS_FAILED, STATUS_OK
 from relaygs.app.unfinished import unfinished_clause, unfinished_runs
 from relaygs.app.walk import entries_named
 from relaygs.errors import InputError
+from relaygs.per_view import is_number
 
 MISSING = "n/a"
-SWEEP_COLUMN = "sweep"
-"""The column that names each job's sweep folder, relative to the report's (`.` for jobs
-directly in it), where the report's folder holds several sweeps."""
+SWEEP_COLUMN = "sweep"  # each job's sweep folder (`.`: the report's), where there are several
 LEADING_COLUMNS = (
     "job",
     "variant",
@@ -43,9 +39,8 @@ LEADING_COLUMNS = (
     "status",
     "error",
 )
-REQUIRED_FIELDS = ("variant", "job", "pipeline", "scene", "seed", "psnr")
-"""Fields every result.json carries (null where unknown, e.g. a failed job's metrics)."""
-NUMERIC_FIELDS = (
+REQUIRED_FIELDS = ("variant", "job", "pipeline", "scene", "seed", "psnr")  # null where unknown
+NUMERIC_FIELDS = (  # the tables sort or compute with them: a finite number or null
     "job",
     *METRIC_FIELDS,
     "train_s_total",
@@ -58,7 +53,6 @@ NUMERIC_FIELDS = (
     "cache_hits",
     "budget.multiplier",
 )
-"""Fields the tables sort or compute with: a finite number or null when present."""
 MARKDOWN_COLUMNS = (
     ("Variant", "variant", "{}"),
     ("PSNR ↑", "psnr", "{:.2f}"),
@@ -75,10 +69,7 @@ MARKDOWN_COLUMNS = (
 
 
 def collect_results(sweep_dir: Path) -> pd.DataFrame:
-    """One row per `result.json` below `sweep_dir`, ordered by job number then folder (a
-    result without a `status`, written before failures were recorded, counts as ok); in a
-    folder that holds sweeps (`report outputs/sweeps`), each row's SWEEP_COLUMN names the one
-    it belongs to, and rows go by sweep, then job."""
+    """One row per `result.json` below `sweep_dir`, by sweep (where several) and job number."""
     paths = entries_named(Path(sweep_dir), RESULT_FILE)
     if not paths:
         unfinished = unfinished_runs(sweep_dir)
@@ -98,9 +89,8 @@ def collect_results(sweep_dir: Path) -> pd.DataFrame:
 
 
 def _read_result(path: Path) -> dict[str, Any]:
-    """One job's result, refused with its path when it is unreadable, lacks a REQUIRED_FIELDS
-    key, holds anything but a finite number (or null) under a NUMERIC_FIELDS key, or is not
-    flat (a list or object as a value: the tables group and compare values)."""
+    """One job's result, refused with its path unless readable, flat and holding every
+    REQUIRED_FIELDS key and finite numbers (or null) under NUMERIC_FIELDS."""
     try:
         row = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, ValueError) as error:  # ValueError: bad UTF-8 or bad JSON
@@ -122,13 +112,7 @@ def _read_result(path: Path) -> dict[str, Any]:
 
 
 def summary_table(results: pd.DataFrame) -> pd.DataFrame:
-    """Results with `delta_psnr` added and the paper's columns first.
-
-    Δ is PSNR minus the reference variant's PSNR on the same images (`_reference_rows`) and
-    seed (the mean over the seeds scored on those images where that seed is missing; none
-    where no reference job was scored on them); the reference is each row's
-    `reference_variant`, else job 0's variant.
-    """
+    """Results with `delta_psnr` (`_delta`) added and the paper's columns first."""
     table = results.copy()
     table["delta_psnr"] = [_delta(table, index) for index in table.index]
     for column in LEADING_COLUMNS:
@@ -139,10 +123,8 @@ def summary_table(results: pd.DataFrame) -> pd.DataFrame:
 
 
 def markdown_table(table: pd.DataFrame, title: str, notes: Sequence[str] = ()) -> str:
-    """The summary as a Markdown table in the paper's form (missing values as MISSING); when
-    variant labels repeat, the parameters that tell the rows apart follow the variant. Failed
-    jobs are marked in the table and listed with their errors below it, after `notes` (lines
-    the caller adds, such as `unfinished_line`). Computed seconds are `computed_in_sweep`'s."""
+    """The summary as a Markdown table in the paper's form, with the parameters that tell rows
+    of one label apart; then the notes, the caller's `notes` and the failed jobs' errors."""
     if "train_s_computed" in table:
         table = table.assign(train_s_computed=computed_in_sweep(table, "train_s_computed"))
     extra = [(name, name, "{}") for name in distinguishing_parameters(table)]
@@ -173,9 +155,8 @@ def markdown_table(table: pd.DataFrame, title: str, notes: Sequence[str] = ()) -
 
 
 def sharing_line(table: pd.DataFrame) -> str | None:
-    """What sharing artifacts saved: stage seconds this sweep computed against the sum of
-    every job's whole lineage (what running the jobs independently would have computed), and
-    the same with evaluation added (results written before evaluations were stored lack it)."""
+    """What sharing artifacts saved: stage seconds the sweep computed against the sum of every
+    job's whole lineage, and the same with evaluation added (where results record it)."""
     computed = _sum(computed_in_sweep(table, "train_s_computed"))
     lineage = _seconds(table, ("train_s_total",))
     if computed is None or lineage is None or lineage <= 0:
@@ -235,9 +216,7 @@ def unmatched_reference_line(table: pd.DataFrame) -> str | None:
 
 
 def stage_note_lines(table: pd.DataFrame) -> list[str]:
-    """One line per distinct `notes` value of the results (what a stage of their lineage said
-    a user should know, e.g. that decouple separated no foreground), naming the jobs it is
-    about."""
+    """One line per distinct `notes` value (what a stage told the user), naming its jobs."""
     if "notes" not in table:
         return []
     lines = []
@@ -251,9 +230,7 @@ def stage_note_lines(table: pd.DataFrame) -> list[str]:
 
 
 def shared_model_lines(table: pd.DataFrame) -> list[str]:
-    """One line per model that several finished jobs share (the same `output_key`): settings
-    that train the same model on this scene (every k at or above its frame count is one
-    segment), or a repeated run; their rows differ only where evaluation settings do."""
+    """One line per model (`output_key`) that several finished jobs share."""
     if "output_key" not in table:
         return []
     finished = table[table["output_key"].map(lambda key: isinstance(key, str) and bool(key))]
@@ -271,19 +248,10 @@ def shared_model_lines(table: pd.DataFrame) -> list[str]:
     return lines
 
 
-BUILT_BY_JOB = {
-    "train_s_computed": "train_s_built_by_job",
-    "eval_s_computed": "eval_s_built_by_job",
-}
-"""Each `*_computed` result field and the field that also counts what the job's folder built
-before an interruption (results written before it existed lack it)."""
-
-
 def computed_in_sweep(table: pd.DataFrame, column: str) -> pd.Series | None:
-    """Per row, the seconds of `column` that the sweep's own job built: its `BUILT_BY_JOB`
-    field where the result has one, so a job rerun in a sweep resumed in place still counts
-    what it built before the interruption, else `column` (None when neither is there)."""
-    built = BUILT_BY_JOB[column]
+    """Per row, the seconds of `column` (`*_computed`) the job built, before an interruption
+    too: its `*_built_by_job` where the result has one (None when neither is there)."""
+    built = column.replace("_computed", "_built_by_job")
     if column not in table:
         return None
     if built not in table:
@@ -292,12 +260,10 @@ def computed_in_sweep(table: pd.DataFrame, column: str) -> pd.Series | None:
 
 
 def _sum(values: pd.Series | None) -> float | None:
-    """Sum of the numeric values (None for no column)."""
     return None if values is None else sum(float(v) for v in values if is_number(v))
 
 
 def _seconds(table: pd.DataFrame, columns: tuple[str, ...]) -> float | None:
-    """Sum of the numeric values in `columns` over all rows (None when a column is missing)."""
     if not set(columns) <= set(table.columns):
         return None
     return sum(_sum(table[column]) for column in columns)
@@ -312,8 +278,7 @@ class FailedJob:
 
 
 def job_name(row: pd.Series) -> str:
-    """`job <n> (<variant>)`, or for a single run (no job number) `<run folder> (<variant>)`;
-    `... of <sweep>` where the report covers several sweeps."""
+    """`job <n> (<variant>)` (a single run: its folder), `... of <sweep>` among several."""
     number = row.get("job")
     if is_number(number):
         name = f"job {number:.0f} ({row.get('variant')})"
@@ -329,27 +294,13 @@ def failed_jobs(table: pd.DataFrame) -> list[FailedJob]:
         return []
     failed = table[table["status"] == STATUS_FAILED]
     return [
-        FailedJob(
-            Path(row["run_dir"]),
-            f"{job_name(row)}: {row.get('error')}",
-        )
+        FailedJob(Path(row["run_dir"]), f"{job_name(row)}: {row.get('error')}")
         for _, row in failed.iterrows()
     ]
 
 
-def results_written_before(sweep_dir: Path, moment: float) -> list[Path]:
-    """The job folders below `sweep_dir` whose `result.json` is older than `moment` (seconds
-    since the epoch): results a sweep started at `moment` did not write."""
-    return [
-        path.parent
-        for path in entries_named(Path(sweep_dir), RESULT_FILE)
-        if path.stat().st_mtime < moment
-    ]
-
-
 def distinguishing_parameters(table: pd.DataFrame) -> list[str]:
-    """Parameters (the sweep, scene, seed and dotted config keys) that vary across rows, when
-    the variant labels alone do not tell the rows apart; else none."""
+    """The sweep, scene, seed and dotted keys that vary where variant labels repeat."""
     if "variant" not in table or table["variant"].is_unique:
         return []
     dotted = (column for column in table.columns if "." in column)
@@ -362,12 +313,8 @@ def distinguishing_parameters(table: pd.DataFrame) -> list[str]:
 
 
 def _delta(table: pd.DataFrame, index: Any) -> float | None:
-    """PSNR of row `index` minus its reference's PSNR (None when either is missing): the
-    scored reference rows of its seed and its sweep (in a folder of sweeps), each where there
-    are any, else the mean over them. Where those rows differ in a parameter (`-m
-    relay.k=8,16` under one label), a row of another variant takes the one at its own value,
-    where there is one, and a row of the reference variant the first (job 0 of a sweep with
-    no labels), not itself."""
+    """Row `index`'s PSNR minus the mean of its scored reference rows, narrowed to its seed,
+    sweep and parameter values where some match (the reference variant's own row: the first)."""
     row = table.loc[index]
     if not is_number(row.get("psnr")):
         return None
@@ -394,9 +341,7 @@ def _narrowed(pool: pd.DataFrame, column: str, value: Any) -> pd.DataFrame:
 
 
 def _reference_rows(table: pd.DataFrame, index: Any) -> pd.DataFrame:
-    """The rows of row `index`'s reference variant (its `reference_variant`, else job 0's
-    variant) scored on the same images: the same scene and, where both results record it, the
-    same `test_set` (a run at another downscale or with other test cameras is not comparable)."""
+    """Row `index`'s reference variant's rows on the same scene and (where known) `test_set`."""
     row = table.loc[index]
     rows = table[table["variant"] == _reference_variant(table, row)]
     if "scene" in table:
@@ -413,18 +358,8 @@ def _reference_variant(table: pd.DataFrame, row: pd.Series) -> Any:
     return reference if isinstance(reference, str) and reference else table["variant"].iloc[0]
 
 
-def is_number(value: Any) -> bool:
-    """True for a finite real number, numpy scalars included (bools are not numbers here)."""
-    return (
-        isinstance(value, numbers.Real)
-        and not isinstance(value, bool | np.bool_)
-        and math.isfinite(value)
-    )
-
-
 def markdown_cell(value: Any, spec: str) -> str:
-    """One Markdown cell: numbers formatted with `spec`, missing values (None, NaN, pandas'
-    NA) as MISSING."""
+    """One Markdown cell: a number formatted with `spec`, a missing value as MISSING."""
     if value is None or value is pd.NA or (isinstance(value, float) and math.isnan(value)):
         return MISSING
     if spec == "{}":

@@ -1,5 +1,4 @@
-"""The settings a sweep varies (its axes), read back in a job from the record Hydra writes into
-the sweep folder, so the job's TensorBoard HParams can name them first."""
+"""The settings a sweep varies, read back from Hydra's record, for the job's HParams."""
 
 from __future__ import annotations
 
@@ -13,16 +12,14 @@ from relaygs.app.prelaunch import parse_overrides, recorded_jobs, swept_keys
 
 @dataclass(frozen=True)
 class SweepAxes:
-    """Each swept key (as `recorded_overrides` names it: `relay.k`, `component`) with the
-    values the sweep gives it, in job order, and this job's value of each."""
+    """Each swept key with the values the sweep gives it, in job order, and this job's value."""
 
     domains: dict[str, list[Any]] = field(default_factory=dict)
     values: dict[str, Any] = field(default_factory=dict)
 
 
 def sweep_axes(jobs: Sequence[Sequence[str]], job: Sequence[str]) -> SweepAxes:
-    """The axes of the sweep whose jobs' override lists are `jobs`, for the job whose own
-    overrides are `job` (values typed as Hydra parses them: `relay.k=8` is the int 8)."""
+    """The axes of the sweep of override lists `jobs` for the job `job`, as Hydra types them."""
     swept = swept_keys(jobs)
     domains: dict[str, list[Any]] = {}
     for overrides in jobs:
@@ -35,13 +32,11 @@ def sweep_axes(jobs: Sequence[Sequence[str]], job: Sequence[str]) -> SweepAxes:
 
 
 def recorded_sweep_axes(sweep_dir: Path, job: Sequence[str]) -> SweepAxes:
-    """`sweep_axes` of the sweep Hydra recorded in `sweep_dir` (none where the record is
-    missing, unreadable or not the basic sweeper's)."""
+    """`sweep_axes` of the sweep Hydra recorded in `sweep_dir` (none without a usable record)."""
     jobs = recorded_jobs(sweep_dir)
     return sweep_axes(jobs, job) if jobs else SweepAxes()
 
 
 def _swept_values(overrides: Sequence[str], swept: set[str]) -> dict[str, Any]:
-    """{key without `+`/`~`: parsed value} of the overrides whose key is in `swept`."""
     chosen = [arg for arg in overrides if arg.partition("=")[0] in swept]
     return {override.key_or_group: override.value() for override in parse_overrides(chosen)}

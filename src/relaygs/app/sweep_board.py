@@ -1,5 +1,4 @@
-"""The sweep-level TensorBoard run: the sweep report's plots and table beside its jobs' runs, so
-`tensorboard --logdir SWEEP` holds the whole story."""
+"""The sweep-level TensorBoard run: the report's plots and table beside the jobs' runs."""
 
 from __future__ import annotations
 
@@ -11,15 +10,12 @@ import torch
 
 from relaygs.app.tensorboard import TensorBoardLog
 
-SWEEP_RUN = "sweep"
-"""The run's folder in the sweep folder, and so its name in TensorBoard."""
+SWEEP_RUN = "sweep"  # the run's folder in the sweep folder, and so its name in TensorBoard
 EVENT_FILES = "events.out.tfevents.*"
 
 
 def log_sweep_report(sweep_dir: Path, figures: Sequence[Path], table: str) -> Path:
-    """Write the PNG `figures` as images `sweep/<file stem>` and the Markdown `table` as text
-    `sweep/summary` into a fresh event file of run SWEEP_RUN (an earlier report's event files
-    there are removed, so the run shows this report only); returns the run's folder."""
+    """Write `figures` and `table` as run SWEEP_RUN (replacing an earlier report's); its folder."""
     folder = Path(sweep_dir) / SWEEP_RUN
     for old in folder.glob(EVENT_FILES):
         old.unlink()
@@ -34,7 +30,6 @@ def log_sweep_report(sweep_dir: Path, figures: Sequence[Path], table: str) -> Pa
 
 
 def _read_png(path: Path) -> torch.Tensor:
-    """An RGB image file as [H,W,3] float32 in [0,1]."""
     pixels = cv2.imread(str(path), cv2.IMREAD_COLOR)
     if pixels is None:
         raise OSError(f"cannot read the image {path}")

@@ -1,9 +1,5 @@
 """One job of `python -m relaygs.run`: validate, prepare the scene, run the stage DAG through
-the artifact store, evaluate, log to TensorBoard and write `result.json`.
-
-Plain function of a config (no HydraConfig inside), so tests call it with composed configs
-and fake stages.
-"""
+the store, evaluate, log to TensorBoard and write `result.json` (no HydraConfig inside)."""
 
 from __future__ import annotations
 
@@ -57,8 +53,7 @@ from relaygs.splat import native, use_backend
 
 
 class _Outcome(NamedTuple):
-    """What a finished job made: its result (without `job_s`), the pipeline run, the
-    TensorBoard folder, the scene it ran on and its per-view metrics file (if any)."""
+    """What a finished job made: its result (without `job_s`) and where its outputs are."""
 
     result: dict[str, Scalar]
     run: PipelineRun
@@ -78,19 +73,9 @@ def run_task(
     suite: StageSuite | None = None,
     axes: SweepAxes | None = None,
 ) -> dict[str, Scalar]:
-    """Run one job and return its result (also written to `<run_dir>/result.json`; `job_s`
-    is the job's wall time up to the result: scene, stages and evaluation).
-
-    `overrides` are the job's command-line/sweep overrides (recorded in the result), `job` its
-    number in a sweep, `label` the name its status lines, bars and closing results and outputs
-    lines carry when jobs run side by side (`job_label`), `axes` what its sweep varies (named
-    first in its TensorBoard HParams; none for a single run). Bad input raises InputError before
-    anything is written to `run_dir`, and so does bad scene data in a single run (an earlier
-    run's result there stays as it was); in a sweep's job (`job` given) a bad scene is that
-    job's failure, so the sweep's other jobs, on other scenes, still run. A failure is re-raised
-    once a `result.json` with status `failed` and the error is written, as a one-line
-    ResourceError when the disk or memory ran out (`resource_error`).
-    """
+    """Run one job, write `<run_dir>/result.json` and return it. Bad input raises before
+    `run_dir` is touched (bad scene data too, except in a sweep job, where it is that job's
+    failure); any other failure is recorded as a `failed` result, then re-raised."""
     started = time.perf_counter()
     config = resolve_config(cfg, original_cwd)
     suite = suite or load_stage_suite()
@@ -163,7 +148,11 @@ def _execute(
     """Run the stages on the scene, evaluate and log (into the run folder itself, so that
     TensorBoard names the run after it: a sweep's job folder `0_k8`)."""
     store = ArtifactStore(plan.artifacts_root)
-    builder = {BUILT_BY: _job_builder(Path(run_dir), job, plan, scene)}
+    # who builds the artifacts: the run folder and a digest of the job, scene and keyed
+    # settings, so a job resumed in its folder is told from another job run there later
+    nodes = {node.name: key_config(plan.config_for(node)) for node in plan.pipeline.nodes.values()}
+    job_digest = digest({"job": job, "scene": scene.fingerprint, "nodes": nodes})[:12]
+    builder = {BUILT_BY: f"{Path(run_dir).resolve()}#{job_digest}"}
     _note_earlier_run(Path(run_dir), config, plan, overrides, job)
     log = TensorBoardLog(Path(run_dir))
     suite.add_sink(log)
@@ -203,21 +192,9 @@ def _execute(
     return _Outcome(result, run, log.log_dir, scene, per_view)
 
 
-def _job_builder(run_dir: Path, job: int | None, plan: RunPlan, scene: Scene) -> str:
-    """Who builds this run's artifacts, as their manifests record it (`BUILT_BY`): the run
-    folder, then `#` and a digest of the job number, the scene and each node's keyed settings,
-    so the same job run again in its folder (a sweep resumed in place, with another thread
-    count or progress setting too) is told apart from another job run there later."""
-    nodes = {node.name: key_config(plan.config_for(node)) for node in plan.pipeline.nodes.values()}
-    job_digest = digest({"job": job, "scene": scene.fingerprint, "nodes": nodes})[:12]
-    return f"{Path(run_dir).resolve()}#{job_digest}"
-
-
 def _record_per_view(run_dir: Path, log: TensorBoardLog, evaluation: Evaluation) -> Path | None:
-    """Write the evaluation's per-view metrics to `per_view.csv` and log their means over each
-    frame's test views (`eval/<metric>_by_frame`, step = frame); None when the evaluation
-    reports no per-view metrics (an earlier run's file in the folder is then removed, as the
-    sweep report would take it for this run's)."""
+    """Write `per_view.csv` and log its per-frame means; None (and no earlier run's file left,
+    which the sweep report would take for this run's) when there are no per-view metrics."""
     records = evaluation.metrics.get(PER_VIEW)
     if records is None:
         (run_dir / PER_VIEW_FILE).unlink(missing_ok=True)
@@ -231,9 +208,8 @@ def _record_per_view(run_dir: Path, log: TensorBoardLog, evaluation: Evaluation)
 def _note_reused_stages(
     log: TensorBoardLog, suite: StageSuite, run: PipelineRun, run_dir: Path
 ) -> None:
-    """Note each stage read from the store (`reused/<stage>`, Markdown): its artifact, what
-    building it took, the run whose curves show it and its last logged values. Its curves are
-    not written again here: replayed now, all their points would carry this moment's time."""
+    """Note each stage read from the store (`reused/<stage>`) instead of replaying its curves,
+    whose points would all carry this moment's time."""
     for report in run.reports:
         if report.cache_hit:
             records = suite.logged_scalars(run.artifacts[report.node])
@@ -268,12 +244,8 @@ def _note_earlier_run(
     overrides: Sequence[str],
     job: int | None,
 ) -> None:
-    """Say on stderr when the run folder already holds a run (a pinned `hydra.run.dir` used
-    again): its result is replaced and TensorBoard would show both runs' curves as one run.
-    A run or sweep resumed in place (the same `hydra.run.dir` or `hydra.sweep.dir`, as an
-    interrupted one is told to) is not told to use another folder: nothing is said where the
-    folder holds this job's own result, and the curves of a job stopped before its result are
-    only named as such."""
+    """Say on stderr when the run folder already holds another run (TensorBoard would merge
+    their curves); a job resumed in place is not told to use another folder."""
     events = any(run_dir.glob("events.out.tfevents.*"))
     result = (run_dir / RESULT_FILE).is_file()
     if not result or (job is not None and _is_same_job(run_dir, config, plan, overrides, job)):
@@ -310,9 +282,8 @@ def _is_same_job(
 
 
 def _announce(report: NodeReport) -> None:
-    """Say whether a node's artifact was reused from the store or built now, what was wrong
-    with a corrupt one it replaced, and the artifact's notes on stderr (flushed at once, so a
-    log file shows each stage as it ends, in order with the progress bars on stderr)."""
+    """Say whether a node's artifact was reused or built (and what corrupt one it replaced),
+    and its notes on stderr, flushed so a log shows each stage as it ends."""
     key, seconds = report.key[:12], report.wall_seconds
     if report.cache_hit:
         line = f"reused {report.stage} artifact {key} from the store "
@@ -335,8 +306,7 @@ def _announce_evaluation(evaluation: Evaluation) -> None:
 
 
 def _replacing(problem: str | None) -> str:
-    """The clause a status line ends with when what it built replaced a stored artifact that
-    failed its hash check (`problem`: what was wrong), else nothing."""
+    """The status line's clause for a stored artifact that failed its check, else nothing."""
     return (
         "" if problem is None else f", replacing the stored one, which failed its check: {problem}"
     )
@@ -345,9 +315,7 @@ def _replacing(problem: str | None) -> str:
 def _log_previews(
     log: TensorBoardLog, suite: StageSuite, scene: Any, model: Artifact, count: int
 ) -> None:
-    """Render the first test camera at `count` frames spread over the sequence, each beside
-    its ground-truth image and error image (TensorBoard tag `eval/render_vs_truth`, step =
-    frame)."""
+    """Log the first test camera's render, truth and error at `count` spread frames."""
     first_views = scene.views_at(0, "test")
     if count <= 0 or not first_views:
         return
@@ -367,9 +335,8 @@ def _log_previews(
 
 
 def _where(plan: RunPlan, outcome: _Outcome, result_path: Path) -> str:
-    """Where this run's outputs are, and the commands that export its model for 3DGS viewers
-    and render it as videos (paths in the commands shell-quoted, so a folder with spaces
-    pastes as one argument; the run's `threads`, when set, so they run as fast as it did)."""
+    """Where this run's outputs are, and shell-quoted commands that export and render its
+    model with the run's scene loading, device and threads."""
     output = outcome.run.reports[-1]
     scene = outcome.scene
     loader = f" --downscale {scene.downscale}" if scene.downscale != 1 else ""

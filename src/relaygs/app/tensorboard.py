@@ -1,11 +1,6 @@
-"""TensorBoard logging for one job: a sink for the stages' scalars and images, labelled render
-vs ground-truth previews, notes, and the HParams entry that lets `tensorboard --logdir SWEEP`
-compare jobs (`relaygs.app.hparams`).
-
-Tags group by their first part, which TensorBoard sorts by name: `eval/` (test metrics and
-previews), `result/` (the final metrics HParams reads), `reused/` (notes), `train/<stage>/`
-(loss and batch PSNR), `train_gaussians/<stage>/` (counts), `train_lr/<stage>/` (rates).
-"""
+"""TensorBoard logging for one job: stage scalars and images, captioned previews, notes and the
+HParams entry. Tags group by their first part: `eval/`, `result/` (what HParams reads),
+`reused/` (notes), and per stage `train/`, `train_gaussians/` (counts) and `train_lr/`."""
 
 from __future__ import annotations
 
@@ -30,14 +25,12 @@ from relaygs.app.sweep_axes import SweepAxes
 from relaygs.error_map import ERROR_FULL_SCALE, error_image
 from relaygs.errors import RERUN_RUN, ResourceError
 
-COUNT_SCALARS = ("num_bg", "num_fg", "fg_fraction")
-"""Training scalars that count Gaussians rather than measure the fit."""
+COUNT_SCALARS = ("num_bg", "num_fg", "fg_fraction")  # count Gaussians, not measure the fit
 
 
 def training_tag(stage: str, name: str) -> str:
-    """Where a stage's training scalar goes: `train_lr/<stage>/<param>` for a learning rate
-    (`lr/<param>`), `train_gaussians/<stage>/<name>` for COUNT_SCALARS, else
-    `train/<stage>/<name>` (the loss, and `psnr`: the training batch's, not the test views')."""
+    """Where a stage's training scalar goes: `train_lr/<stage>/` for a learning rate (`lr/x`),
+    `train_gaussians/<stage>/` for COUNT_SCALARS, else `train/<stage>/<name>`."""
     if name.startswith("lr/"):
         return f"train_lr/{stage}/{name.removeprefix('lr/')}"
     if name in COUNT_SCALARS:
@@ -46,15 +39,9 @@ def training_tag(stage: str, name: str) -> str:
 
 
 class TensorBoardLog:
-    """One SummaryWriter in the job's log dir; callable as a stage log sink.
-
-    TensorBoard writes from a thread of its own and raises a failed write's OSError at the
-    next call; every call here names the log folder in it (a full disk, a folder removed while
-    the job ran), and the thread itself stays quiet (`_QuietWriterThreads`).
-    """
+    """One SummaryWriter in the job's log dir, callable as a stage log sink; failures name it."""
 
     def __init__(self, log_dir: Path) -> None:
-        """Open the writer on `log_dir` (created if missing)."""
         self.log_dir = Path(log_dir)
         _QuietWriterThreads.install()
         self.writer = SummaryWriter(log_dir=str(self.log_dir))
@@ -62,8 +49,7 @@ class TensorBoardLog:
 
     @contextlib.contextmanager
     def _writing(self) -> Iterator[None]:
-        """Re-raise a failed write naming the log folder (TensorBoard names no path, or the
-        event file's as bytes), so it ends the job in one line."""
+        """Re-raise a failed write naming the log folder, so it ends the job in one line."""
         try:
             yield
         except OSError as error:
@@ -84,8 +70,7 @@ class TensorBoardLog:
         scalars: Mapping[str, float],
         images: Mapping[str, torch.Tensor] | None = None,
     ) -> None:
-        """Log a stage's training scalars under `training_tag` and its [H,W,3] images in [0,1]
-        as `train/<stage>/<name>`."""
+        """Log a stage's scalars under `training_tag` and its images as `train/<stage>/<name>`."""
         for name, value in scalars.items():
             self.add_scalar(training_tag(stage, name), value, step)
         for name, image in (images or {}).items():
@@ -110,8 +95,7 @@ class TensorBoardLog:
     def add_comparison(
         self, tag: str, render: torch.Tensor, truth: torch.Tensor, frame: int
     ) -> None:
-        """Log a render, its ground truth and the render's error image (`error_image`) side by
-        side, each captioned in the image, at step `frame`."""
+        """Log a render, its ground truth and its error image side by side, captioned."""
         render, truth = render.detach().float().cpu(), truth.detach().float().cpu()
         panels = [
             (f"render, frame {frame}", render),
@@ -127,8 +111,7 @@ class TensorBoardLog:
         axes: SweepAxes,
         group: str,
     ) -> None:
-        """Write the HParams entry into this job's own log dir as trial `group`, with each
-        metric as the scalar `result/<name>` (missing metrics are skipped)."""
+        """Write the HParams entry as trial `group`, each metric as the scalar `result/<name>`."""
         finite = {metric_tag(name): float(v) for name, v in metrics.items() if v is not None}
         with self._writing():
             file_writer = self.writer._get_file_writer()
@@ -139,8 +122,7 @@ class TensorBoardLog:
             file_writer.add_summary(session_end_summary())
 
     def close(self) -> None:
-        """Flush and close the event file; after a failed write only release it, so the error
-        that ended the job is the one reported."""
+        """Flush and close the event file (after a failed write only release it)."""
         if self._failed:
             with contextlib.suppress(OSError):
                 self.writer.close()
@@ -150,15 +132,13 @@ class TensorBoardLog:
 
 
 class _QuietWriterThreads:
-    """A `threading.excepthook` that leaves an OSError of TensorBoard's writer thread unprinted
-    (the writer raises it again at the job's next call, which reports it) and hands every
-    other thread's exception to the hook it replaced."""
+    """A `threading.excepthook` that leaves TensorBoard's writer thread's OSError unprinted (the
+    job's next call raises it again) and hands anything else to the hook it replaced."""
 
     def __init__(self, previous: Callable[[Any], object]) -> None:
         self.previous = previous
 
     def __call__(self, args: Any) -> None:
-        """Drop a TensorBoard writer thread's OSError; pass anything else on."""
         writer_thread = type(args.thread).__module__.startswith("tensorboard.")
         if not (writer_thread and isinstance(args.exc_value, OSError)):
             self.previous(args)

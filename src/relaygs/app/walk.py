@@ -1,5 +1,5 @@
-"""Find what a sweep folder holds, all of it: a sub-folder that cannot be read is an error,
-where `Path.rglob` would pass over it and the report would silently lack its jobs."""
+"""Find what a sweep folder holds, all of it: a sub-folder that cannot be read is an error
+(`Path.rglob` would pass over it, and the report would silently lack its jobs)."""
 
 from __future__ import annotations
 
@@ -10,8 +10,7 @@ from relaygs.errors import InputError
 
 
 def entries_named(root: Path, name: str) -> list[Path]:
-    """Every file or folder called `name` below `root`, sorted; InputError naming the first
-    folder that cannot be listed (one removed meanwhile, say by a running job, is passed)."""
+    """Every entry called `name` below `root`, sorted; a folder that cannot be listed refused."""
 
     def refuse(error: OSError) -> None:
         if isinstance(error, FileNotFoundError):

@@ -1,6 +1,5 @@
-"""What the store's model commands (`artifacts eval`, `gap`, `render`, `ply`) share: the stored
-model a key names, the scene it was trained on loaded as the run loaded it (with a note when it
-was not), and their options."""
+"""What `artifacts eval`, `gap`, `render` and `ply` share: the stored model a key names, its
+scene loaded as its run loaded it (noted when not), and their options."""
 
 from __future__ import annotations
 
@@ -20,9 +19,7 @@ from relaygs.pipeline.store import ArtifactStore, StoredArtifact, checked_key_pr
 
 KEY_COLUMN_WIDTH = 16
 KEY_HELP = "full key or a unique prefix (at least 4 hex digits)"
-FLAGGED_LOADING = ("downscale", "test_cameras")
-"""The recorded loader options the model commands take on the command line (`--downscale`,
-`--test-cameras`); a run's max_points and effects are always taken from its manifest."""
+FLAGGED_LOADING = ("downscale", "test_cameras")  # the others always come from the manifest
 
 
 def key_prefix(text: str) -> str:

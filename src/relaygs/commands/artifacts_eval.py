@@ -1,6 +1,5 @@
-"""`python -m relaygs.artifacts eval KEY --scene DIR [--lineage]`: score a stored model (and,
-with `--lineage`, every model upstream of it) on the scene's test views; `gap KEY`: each model
-of its lineage on the train and the test views, over all, foreground and background pixels."""
+"""`artifacts eval KEY --scene DIR [--lineage]`: score a stored model (and its lineage) on the
+test views; `gap KEY`: its lineage on the train and test views, all, fg and bg pixels apart."""
 
 from __future__ import annotations
 

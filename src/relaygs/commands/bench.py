@@ -14,8 +14,7 @@ SUBCOMMANDS = {
     "sweeps": bench_sweeps,
     "field": bench_field,
 }
-"""Each subcommand's module: its HELP, `add_arguments`, `measure` (a report, or None after
-saying why it failed) and `print_report`."""
+"""Each subcommand's module: HELP, `add_arguments`, `measure` (None: failed) and `print_report`."""
 
 
 def main(argv: list[str] | None = None) -> int:

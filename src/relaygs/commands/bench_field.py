@@ -36,8 +36,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _field_step(count: int) -> Callable[[], None]:
-    """One forward+backward of a default-sized field over `count` Gaussians (heads non-zero,
-    so every layer carries gradient)."""
+    """One forward+backward of a default-sized field (non-zero heads) over `count` Gaussians."""
     generator = torch.Generator().manual_seed(0)
     field = DeformationField([[-2.0] * 3, [2.0] * 3], TIME_ROWS, isolate_fg_bg=True)
     with torch.no_grad():

@@ -127,8 +127,7 @@ def time_splat(case: dict, repeats: int, device: torch.device, backend: str) -> 
 
 
 def _cpu_peak_mb(case: dict, backend: str) -> float | None:
-    """Peak resident memory (MB) a forward+backward adds above what the process held before
-    it, from Linux's peak-RSS counter (reset through /proc/self/clear_refs); None elsewhere."""
+    """Peak resident MB a forward+backward adds, from Linux's peak-RSS counter; else None."""
     status, clear = Path("/proc/self/status"), Path("/proc/self/clear_refs")
 
     def read_kb(field: str) -> int:
@@ -150,8 +149,7 @@ def _cpu_peak_mb(case: dict, backend: str) -> float | None:
 def bench_splat(
     repeats: int, device: torch.device, cases: list[str], backends: list[str]
 ) -> list[dict]:
-    """Run the named splat cases on each backend; garden is skipped with a note when its file
-    is absent."""
+    """Run the named splat cases on each backend (garden skipped when its file is absent)."""
     results = []
     for name in cases:
         if name not in CASES:
@@ -194,13 +192,6 @@ def print_report(report: dict) -> None:
         print(line)
 
 
-def _backends(text: str | None, device: torch.device) -> list[str]:
-    """The --backends list: default torch and native on CPU, torch and auto on CUDA."""
-    if text is None:
-        return ["torch", "native"] if device.type == "cpu" else ["torch", "auto"]
-    return bench_train.backend_names(text)
-
-
 def add_arguments(splat: argparse.ArgumentParser) -> None:
     """The `splat` subcommand's options."""
     splat.add_argument(
@@ -225,7 +216,8 @@ def measure(args: argparse.Namespace) -> dict:
     device = usable_device(args.device, "--device")
     if device.type == "cpu":
         torch.set_num_threads(2)
-    backends = _backends(args.backends, device)
+    default = ["torch", "native"] if device.type == "cpu" else ["torch", "auto"]
+    backends = default if args.backends is None else bench_train.backend_names(args.backends)
     rows = bench_splat(args.repeats, device, args.cases.split(","), backends)
     return {
         "device": str(device),

@@ -1,5 +1,4 @@
-"""`python -m relaygs.bench sweeps`: wall time of the five experiments at the smoke budget, each
-run as a user runs it on a tiny scene, in order, in one output folder (target ≤ 300 s)."""
+"""`python -m relaygs.bench sweeps`: wall time of the five smoke experiments (target 300 s)."""
 
 from __future__ import annotations
 
@@ -23,15 +22,8 @@ HYDRA_HINT = "Set the environment variable HYDRA_FULL_ERROR"
 
 def command(name: str, outputs: Path, *overrides: str) -> list[str]:
     """The command line of experiment `name` on the tiny scene, writing under `outputs`."""
-    return [
-        sys.executable,
-        "-m",
-        "relaygs.run",
-        f"+experiment={name}",
-        *TINY_SCENE,
-        *overrides,
-        f"paths.outputs={outputs}",
-    ]
+    experiment = [sys.executable, "-m", "relaygs.run", f"+experiment={name}", *TINY_SCENE]
+    return [*experiment, *overrides, f"paths.outputs={outputs}"]
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -66,8 +58,7 @@ def time_experiments(outputs: Path) -> dict[str, Any] | None:
 
 
 def failure_line(stderr: str) -> str:
-    """Why a child run failed: its last `error: ...` line (prefix dropped), else its last line
-    that is not Hydra's hint about HYDRA_FULL_ERROR."""
+    """Why a child run failed: its last `error: ...` line, else its last line but Hydra's hint."""
     lines = [line.strip() for line in stderr.splitlines() if line.strip()]
     errors = [line.removeprefix(ERROR_PREFIX) for line in lines if line.startswith(ERROR_PREFIX)]
     others = [line for line in lines if not line.startswith(HYDRA_HINT)]

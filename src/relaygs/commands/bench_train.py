@@ -60,8 +60,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def measure(args: argparse.Namespace) -> dict[str, Any]:
-    """The report: scene, per-stage speeds per backend, step-cost ratio and (with --full) the
-    pipeline; the process's splatting backend is left as it was."""
+    """The report: scene, per-stage speeds per backend, step-cost ratio and (--full) pipeline."""
     set_threads(args.threads)
     keep_freed_memory()  # as a run does
     backends = backend_names(args.backends)
@@ -108,8 +107,7 @@ def bench_scene(cache: Path) -> Scene:
 def small_cfg(
     log_every: int = 10_000, device: str = "cpu", **sections: dict[str, Any]
 ) -> dict[str, Any]:
-    """The `small` budget as a stage cfg (no progress bar) training on `device`, `sections`
-    merged over it."""
+    """The `small` budget as a stage cfg on `device`, `sections` merged over it."""
     cfg: dict[str, Any] = copy.deepcopy(step_budgets()["small"])
     cfg["seed"] = 0
     cfg["train"] = {
@@ -124,8 +122,8 @@ def small_cfg(
 
 
 def stage_speeds(scene: Scene, steps: int, device: str = "cpu") -> list[dict[str, Any]]:
-    """Steps/s of each training stage over its first `steps` steps at the small settings;
-    relay starts from `flagged_decouple` (a short decouple run finds no movers yet)."""
+    """Steps/s of each stage over its first `steps` steps; relay starts from `flagged_decouple`
+    (a short decouple finds no movers yet)."""
     short = {name: {"steps": steps} for name in ("warmup", "decouple", "relay", "deform")}
     cfg = small_cfg(device=device, **short)
     artifacts: dict[str, Artifact] = {"flagged": flagged_decouple(scene)}
@@ -151,8 +149,7 @@ def stage_speeds(scene: Scene, steps: int, device: str = "cpu") -> list[dict[str
 
 
 def step_cost_ratio(scene: Scene, steps: int, device: str = "cpu") -> dict[str, Any]:
-    """Deform vs decouple median step time on the same Gaussians (the small budget's initial
-    ones), neither densifying; deform renders all of them at every frame (one fg copy)."""
+    """Deform vs decouple median step time on the same initial Gaussians, neither densifying."""
     decouple_cfg = small_cfg(
         log_every=1, device=device, decouple={"steps": steps, "densify": NO_DENSITY}
     )
@@ -197,8 +194,7 @@ def full_pipeline(scene: Scene, device: str = "cpu") -> dict[str, Any]:
 
 
 def flagged_decouple(scene: Scene) -> Artifact:
-    """A decouple artifact without training: the small budget's initial Gaussians, split by
-    the synthetic cloud's mover flag (a stand-in with a realistic foreground, bench only)."""
+    """An untrained decouple artifact: the initial Gaussians split by the cloud's mover flag."""
     section = DecoupleConfig.from_config(small_cfg()["decouple"])
     xyz, rgb, is_fg = scene.points.xyz, scene.points.rgb, scene.points.is_fg
     if section.init_points is not None and len(xyz) > section.init_points:
@@ -219,8 +215,7 @@ def flagged_decouple(scene: Scene) -> Artifact:
 
 
 def median_step_seconds(build: Callable[[], Artifact]) -> float:
-    """Median seconds between consecutive steps of a stage run (robust to a slow first step
-    and to short stalls), timed from the log records it emits every step."""
+    """Median seconds between consecutive logged steps of a stage run."""
     stamps: list[float] = []
 
     def sink(stage: str, step: int, scalars: Any, images: Any = None) -> None:
@@ -235,8 +230,7 @@ def median_step_seconds(build: Callable[[], Artifact]) -> float:
 
 
 def print_report(report: dict[str, Any]) -> None:
-    """The scene, a row per stage with its speed per backend, the step-cost ratio and the
-    pipeline's time."""
+    """The scene, each stage's speed per backend, the step-cost ratio and the pipeline's time."""
     scene = report["scene"]
     print(
         f"scene {scene['preset']} {scene['width']}x{scene['height']}, {scene['frames']} frames, "

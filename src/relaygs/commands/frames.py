@@ -61,7 +61,6 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _extract(args: argparse.Namespace) -> None:
-    """Write the frames and print what was written and what to run next."""
     started = time.perf_counter()
     videos = camera_videos(args.videos_dir)
     selection = FrameSelection(args.start, args.stride, args.frames)
@@ -70,8 +69,7 @@ def _extract(args: argparse.Namespace) -> None:
 
 
 def describe(scene: ExtractedScene, seconds: float) -> str:
-    """What was written, where each camera came from, notes on what may be wrong with the
-    videos, and the commands that pose and train the scene."""
+    """What was written, notes on the videos, and the commands that pose and train the scene."""
     rate = f" at {scene.fps:.4g} fps" if scene.fps is not None else ""
     lines = [
         f"wrote {scene.frames} frame(s){rate} of {len(scene.cameras)} camera(s) into "
@@ -94,8 +92,7 @@ def describe(scene: ExtractedScene, seconds: float) -> str:
 
 
 def _notes(scene: ExtractedScene) -> list[str]:
-    """Staging folders of killed runs removed, videos that ended first or decoded fewer frames
-    than they state, and frame rates that differ."""
+    """Notes: killed runs' staging removed, short or damaged videos, differing frame rates."""
     cameras = scene.cameras.items()
     notes = [
         f"note: removed {folder}, left unfinished by a run that was killed"
@@ -103,12 +100,8 @@ def _notes(scene: ExtractedScene) -> list[str]:
     ]
     short = [name for name, camera in cameras if camera.ran_out and camera.written == scene.frames]
     if short:
-        longer = [
-            name
-            for name, camera in cameras
-            if name not in short
-            and (camera.written > scene.frames or (camera.available or 0) > scene.frames)
-        ]
+        kept = {name: max(camera.written, camera.available or 0) for name, camera in cameras}
+        longer = [name for name in kept if name not in short and kept[name] > scene.frames]
         if longer:
             notes.append(
                 f"note: every camera keeps {scene.frames} frame(s), all that {', '.join(short)} "

@@ -1,12 +1,10 @@
-"""`python -m relaygs.report SWEEP_DIR`: (re)write a sweep's `summary.csv`, `summary.md`,
-`pareto.png` and `psnr_by_frame.png` (these three also as the TensorBoard run `sweep`), with
-`summary_mean.csv/md` when jobs differ only in their seed and `summary_budget.csv/md` when it
-varies `budget.multiplier`, from its jobs' `result.json` and `per_view.csv` files (the
-multirun end callback calls the same)."""
+"""`python -m relaygs.report SWEEP_DIR`: (re)write a sweep's summary.csv/md, pareto.png and
+psnr_by_frame.png (also as the TensorBoard run `sweep`), summary_mean.* over seeds and
+summary_budget.* over budget.multiplier, from its jobs' result.json and per_view.csv files."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -37,16 +35,13 @@ SUMMARY_CSV = "summary.csv"
 SUMMARY_MD = "summary.md"
 PARETO_PNG = "pareto.png"
 FRAMES_PNG = "psnr_by_frame.png"
-MEAN_CSV = "summary_mean.csv"
-MEAN_MD = "summary_mean.md"
-BUDGET_CSV = "summary_budget.csv"
-BUDGET_MD = "summary_budget.md"
+MEAN = "summary_mean"
+BUDGET = "summary_budget"
 
 
 @dataclass(frozen=True)
 class ReportFiles:
-    """The files a report wrote (None where one does not apply), `summary.md`'s text as
-    `table`, and the failed jobs."""
+    """The files a report wrote (None where one does not apply), its table and failed jobs."""
 
     csv: Path
     markdown: Path
@@ -61,8 +56,7 @@ class ReportFiles:
 
 
 def write_reports(sweep_dir: Path) -> ReportFiles:
-    """Collect the sweep's results and write the table (CSV, Markdown), the Pareto plot and,
-    where they apply, the mean and budget tables."""
+    """Collect the sweep's results and write its tables and plots."""
     sweep_dir = _require_sweep_folder(Path(sweep_dir))
     table = summary_table(collect_results(sweep_dir))
     try:
@@ -74,8 +68,7 @@ def write_reports(sweep_dir: Path) -> ReportFiles:
 
 
 def _require_sweep_folder(sweep_dir: Path) -> Path:
-    """`sweep_dir` if it is a folder but not one run's own (which holds `result.json` itself:
-    a report there would land among the run's files)."""
+    """`sweep_dir` if it is a folder but not one run's own (a report would land among its files)."""
     sweep_dir = require_folder(sweep_dir, "sweep folder")
     if (sweep_dir / RESULT_FILE).exists():
         raise InputError(
@@ -86,8 +79,6 @@ def _require_sweep_folder(sweep_dir: Path) -> Path:
 
 
 def _write_files(table: pd.DataFrame, sweep_dir: Path) -> ReportFiles:
-    """Write the summary table, the Pareto and per-frame plots and the optional mean and
-    budget tables."""
     title = _title(table, sweep_dir)
     curves = frame_curves(table)  # reads every per_view.csv: refuses a damaged one before writing
     csv_path = sweep_dir / SUMMARY_CSV
@@ -113,8 +104,15 @@ def _write_files(table: pd.DataFrame, sweep_dir: Path) -> ReportFiles:
     frames = plot_frame_curves(curves, sweep_dir / FRAMES_PNG, title)
     if frames is None:
         _remove(sweep_dir / FRAMES_PNG)
-    mean = _write_mean(table, sweep_dir, title)
-    budget = _write_budget(table, sweep_dir, title)
+    means = aggregate_table(table) if {"scene", "variant"} <= set(table.columns) else None
+    repeated = means is not None and not means.empty and (means["seeds"] > 1).any()
+    mean_title = f"{title}: mean ± std over seeds"
+    mean = _write_table(
+        means if repeated else None, sweep_dir / MEAN, aggregate_markdown, mean_title
+    )
+    marginal = marginal_table(table) if varies_budget(table) else None
+    budget_title = f"{title}: what a minute buys"
+    budget = _write_table(marginal, sweep_dir / BUDGET, marginal_markdown, budget_title)
     board = log_sweep_report(sweep_dir, [p for p in (pareto, frames) if p is not None], markdown)
     failed = tuple(failed_jobs(table))
     return ReportFiles(
@@ -122,35 +120,21 @@ def _write_files(table: pd.DataFrame, sweep_dir: Path) -> ReportFiles:
     )
 
 
-def _write_mean(table: pd.DataFrame, sweep_dir: Path, title: str) -> Path | None:
-    """`summary_mean.{csv,md}` (mean ± std over jobs differing only in seed) when some group has
-    two or more seeds; else an earlier report's files are removed."""
-    mean = aggregate_table(table) if {"scene", "variant"} <= set(table.columns) else None
-    if mean is None or mean.empty or not (mean["seeds"] > 1).any():
-        _remove(sweep_dir / MEAN_CSV, sweep_dir / MEAN_MD)
+def _write_table(
+    table: pd.DataFrame | None, stem: Path, markdown: Callable[[pd.DataFrame, str], str], title: str
+) -> Path | None:
+    """`<stem>.csv` and `<stem>.md` of an optional table; without rows, an earlier report's go."""
+    csv_path, markdown_path = stem.with_suffix(".csv"), stem.with_suffix(".md")
+    if table is None or table.empty:
+        _remove(csv_path, markdown_path)
         return None
-    _write_csv(mean, sweep_dir / MEAN_CSV)
-    path = sweep_dir / MEAN_MD
-    publish_text(path, aggregate_markdown(mean, f"{title}: mean ± std over seeds"))
-    return path
-
-
-def _write_budget(table: pd.DataFrame, sweep_dir: Path, title: str) -> Path | None:
-    """`summary_budget.{csv,md}` (PSNR and dB per extra minute at each step multiplier) when
-    the sweep varies `budget.multiplier`; else nothing (an earlier report's files removed)."""
-    marginal = marginal_table(table) if varies_budget(table) else None
-    if marginal is None or marginal.empty:
-        _remove(sweep_dir / BUDGET_CSV, sweep_dir / BUDGET_MD)
-        return None
-    _write_csv(marginal, sweep_dir / BUDGET_CSV)
-    path = sweep_dir / BUDGET_MD
-    publish_text(path, marginal_markdown(marginal, f"{title}: what a minute buys"))
-    return path
+    _write_csv(table, csv_path)
+    publish_text(markdown_path, markdown(table, title))
+    return markdown_path
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Command-line entry: exit 0 on success, 1 with one line on stderr on bad input (2 on a
-    usage error)."""
+    """Command-line entry: exit 0, or 1 with one line on stderr (2 on a usage error)."""
     parser = OneLineErrorParser(prog="python -m relaygs.report", description=__doc__)
     parser.add_argument(
         "sweep_dir", type=path_argument, help="a multirun folder holding job folders"
@@ -160,8 +144,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def describe(files: ReportFiles) -> str:
-    """The summary table as written to `summary.md` (with its sharing line, why Δ PSNR is n/a
-    and the failed jobs, where they apply), then where the report's files are, one per line."""
+    """The summary table as written to `summary.md`, then where the report's files are."""
     lines = [files.table.rstrip("\n"), "", f"summary of {files.jobs} job(s):"]
     lines += [f"  {files.markdown}", f"  {files.csv}"]
     for extra in (files.pareto, files.frames):
@@ -176,21 +159,17 @@ def describe(files: ReportFiles) -> str:
 
 
 def _remove(*paths: Path) -> None:
-    """Remove files a report writes only where they apply, left by an earlier report of the
-    folder when it held other jobs."""
     for path in paths:
         path.unlink(missing_ok=True)
 
 
 def _write_csv(table: pd.DataFrame, path: Path) -> None:
-    """`table` as CSV, each column in its narrowest type: a whole-number column with missing
-    rows (`relay.k` where a pipeline runs no relay) is written 16, not 16.0."""
+    """`table` as CSV, each column in its narrowest type (16, not 16.0, beside missing rows)."""
     publish_text(path, table.convert_dtypes().to_csv(index=False))
 
 
 def _title(table: pd.DataFrame, sweep_dir: Path) -> str:
-    """'<experiment> on <scene>' when the jobs agree (a single run's result, which names no
-    experiment, disagrees with every experiment), else the folder name."""
+    """'<experiment> on <scene>' when every job names them alike, else the folder name."""
     experiments = {e if isinstance(e, str) else None for e in table.get("experiment", [None])}
     scenes = {s for s in table.get("scene", []) if isinstance(s, str)}
     experiment = experiments.pop() if len(experiments) == 1 else None

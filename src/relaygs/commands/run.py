@@ -94,8 +94,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 @contextmanager
 def _hydra_errors_raised() -> Iterator[None]:
-    """Let an error out of Hydra (HYDRA_FULL_ERROR) instead of a printed traceback, so a full
-    disk under Hydra's own `.hydra/` writes reaches `main` and ends in one line."""
+    """Let an error out of Hydra (HYDRA_FULL_ERROR), so a full disk under its own writes ends
+    in one line."""
     before = os.environ.get(HYDRA_FULL_ERROR)
     os.environ[HYDRA_FULL_ERROR] = "1"
     try:
@@ -110,8 +110,8 @@ def _hydra_errors_raised() -> Iterator[None]:
 def _interrupted_line(
     stop: KeyboardInterrupt, launched: bool, started: StartedFolder | None
 ) -> str:
-    """The line a stopped command ends with: where the stage stopped, else what a rerun does,
-    and, for a folder the command did not name, the override that reruns in it."""
+    """The line a stopped command ends with: where it stopped or what a rerun does, and the
+    override that reruns in a folder the command did not name."""
     if str(stop):
         line = f"interrupted: {stop}"
     elif launched:
@@ -128,8 +128,7 @@ def _interrupted_line(
 
 
 def _job_validator(suite: StageSuite) -> JobValidator:
-    """The check of one composed job: its run plan, and its device where the job runs here (a
-    Slurm job's GPU is on its node, not on the submitting machine)."""
+    """The check of one composed job: its run plan, and its device where it runs here."""
 
     def validate(cfg: DictConfig, runs_here: bool) -> None:
         config = resolve_config(cfg, Path.cwd())

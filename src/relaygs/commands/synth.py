@@ -39,8 +39,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def parse_effect_list(values: list[str] | None) -> list[str] | None:
-    """Flatten space/comma separated effect names (`generate` reads 'none' alone, or nothing,
-    as no effects)."""
+    """Flatten space/comma separated effect names."""
     if values is None:
         return None
     return [name.strip() for value in values for name in value.split(",") if name.strip()]
@@ -54,7 +53,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _generate(args: argparse.Namespace) -> None:
-    """Write the scene and say where and how long it took."""
     started = time.perf_counter()
     out = generate(
         args.name,

@@ -1,8 +1,5 @@
-"""Scenes: the Camera/View/Scene model, format loaders, metrics-ready images and synthetic data.
-
-`load_scene(path)` reads the PanopticSports layout or multi-view video with COLMAP poses;
-`relaygs.data.synthetic.generate` writes synthetic scenes in the Panoptic layout.
-"""
+"""Scenes: the Camera/View/Scene model, `load_scene` for the Panoptic and multi-view layouts,
+and synthetic scenes (`relaygs.data.synthetic.generate`)."""
 
 from relaygs.data.camera import Camera
 from relaygs.data.effects import ALL_EFFECTS

@@ -11,11 +11,8 @@ import torch
 
 
 class TensorCache:
-    """Keeps recently used tensors in memory up to `budget_mb`; the oldest are evicted first.
-
-    A tensor larger than the whole budget is returned without being stored. Pickling keeps
-    only the budget, so worker processes start with an empty cache of their own.
-    """
+    """Recently used tensors up to `budget_mb`, oldest evicted first (one over the budget is not
+    kept); a pickled cache keeps only its budget, so each worker starts empty."""
 
     def __init__(self, budget_mb: float) -> None:
         """An empty cache of `budget_mb` megabytes (finite, as `make_options` checks)."""
@@ -26,7 +23,6 @@ class TensorCache:
 
     @property
     def used_bytes(self) -> int:
-        """Bytes currently held."""
         return self._used_bytes
 
     def __len__(self) -> int:

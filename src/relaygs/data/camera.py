@@ -12,29 +12,19 @@ from relaygs.data.finite import finite_in_float32
 from relaygs.errors import InputError
 from relaygs.splat.projection import MAX_FOCAL
 
-POSE_TOLERANCE = 1e-3
-"""How far a loaded rotation may be from orthonormal (largest entry of |R Rᵀ - I|)."""
-
-NEAR_PLANE = 0.01
-"""Near-plane distance of the splatting core (gsplat's default), used as is for scenes of extent
->= 1 and scaled with the extent below it (`near_plane_for`)."""
+POSE_TOLERANCE = 1e-3  # how far a loaded rotation may be from orthonormal: max |R Rᵀ - I|
+NEAR_PLANE = 0.01  # gsplat's default near plane, for scenes of extent >= 1 (`near_plane_for`)
 
 
 def near_plane_for(extent: float) -> float:
-    """A scene's near plane: NEAR_PLANE × min(1, extent), so a capture in small units (cameras
-    millimetres from the subject) is not culled whole while every scene of extent >= 1 keeps
-    gsplat's 0.01."""
+    """NEAR_PLANE × min(1, extent): a capture in small units is not culled whole."""
     return NEAR_PLANE * min(1.0, extent)
 
 
 @dataclass(frozen=True, eq=False)
 class Camera:
-    """A calibrated pinhole camera: intrinsics K, world→camera pose (OpenCV axes) and image size.
-
-    Pixel j covers [j, j + 1) in image coordinates, so its centre is at j + 0.5 (the
-    convention of COLMAP and the 3DGS rasteriser). `near`: depth below which Gaussians are
-    culled (the loaders set it from the scene's extent, `near_plane_for`).
-    """
+    """A pinhole camera: K, world→camera pose (OpenCV axes), image size; pixel j covers [j, j+1)
+    as in COLMAP and 3DGS; Gaussians nearer than `near` are culled."""
 
     camera_id: int
     K: torch.Tensor
@@ -44,11 +34,8 @@ class Camera:
     near: float = NEAR_PLANE
 
     def scaled(self, factor: float) -> Camera:
-        """The same camera seen at 1/`factor` resolution (factor 2 gives half-size images).
-
-        Sizes round to the nearest pixel (at least 1) and K scales by the exact per-axis ratio,
-        so projected pixel-edge coordinates stay consistent with the resized image.
-        """
+        """This camera at 1/`factor` resolution: sizes round (at least 1) and K scales by the exact
+        per-axis ratio, so pixel edges stay consistent with the resized image."""
         if not factor > 0:
             raise ValueError(f"camera scale factor must be > 0, got {factor}")
         width = max(1, round(self.width / factor))
@@ -61,9 +48,8 @@ class Camera:
         return Camera(self.camera_id, self.K * scale, self.w2c.clone(), width, height, self.near)
 
     def project(self, points: torch.Tensor, min_depth: float) -> tuple[torch.Tensor, torch.Tensor]:
-        """Pixel coordinates [N,2] (float32) of world points [N,3], and whether each lies
-        deeper than `min_depth` and inside the image (a point at or behind it gets the
-        coordinates of depth 1: finite, and flagged outside)."""
+        """Pixels [N,2] of world points [N,3], and whether each lies deeper than `min_depth` and
+        inside the image (a point behind gets depth-1 coordinates: finite, flagged outside)."""
         homogeneous = torch.cat([points, points.new_ones(points.shape[0], 1)], dim=1)
         cam = homogeneous @ self.w2c.to(torch.float32).T
         depth = cam[:, 2]
@@ -96,9 +82,8 @@ INTRINSICS_FORM = (
 RIGID_FORM = "a rigid world→camera transform (finite, rotation with det +1, last row 0 0 0 1)"
 _INTRINSIC_NAMES = {(0, 0): "fx", (1, 1): "fy", (0, 2): "cx", (1, 2): "cy"}
 MAX_SKEW = 1e-3
-"""The largest K[0][1] (skew) and K[1][0], as a fraction of fx and fy, taken for zero: the
-renderer models neither, so a larger one would be silently dropped (at fx = 1000 a skew of 1
-moves a point at the image's edge by about half a pixel)."""
+"""Skew (K[0][1], K[1][0]) up to this fraction of fx, fy is taken for zero; a larger one,
+which the renderer cannot model, is refused."""
 
 
 def _bracketed(index: tuple[int, ...]) -> str:
@@ -112,50 +97,32 @@ def check_intrinsics(
     at: Callable[[tuple[int, ...]], str] = _bracketed,
     size: tuple[int, int] | None = None,
 ) -> None:
-    """Raise InputError unless every K [..., 3, 3] is a pinhole matrix with finite entries and
-    positive focal lengths (the projection divides by them) and, given the images' `size`
-    (width, height), its principal point inside them (intrinsics meant for another resolution
-    put it outside); the message names `where`, the first bad matrix (`at` its leading
-    indices) and its bad values."""
-    ok = _is_pinhole(K)
-    if size is not None:
-        ok = ok & _centre_inside(K, size)
-    bad = _first_false(ok)
-    if bad is not None:
+    """InputError naming `where` and the first bad K [..., 3, 3] (`at` its index) unless each is
+    a finite pinhole matrix with fx, fy > 0 and, given `size`, its centre inside the image."""
+    found = _first_problem(K, lambda k: _intrinsics_problem(k, size))
+    if found is not None:
         inside = f" and the principal point inside the {size[0]}x{size[1]} image" if size else ""
         raise InputError(
-            f"{where}{at(bad)} has {_intrinsics_problem(K[bad], size)}; expected "
-            f"{INTRINSICS_FORM}{inside}"
+            f"{where}{at(found[0])} has {found[1]}; expected {INTRINSICS_FORM}{inside}"
         )
 
 
-def _centre_inside(K: np.ndarray, size: tuple[int, int]) -> np.ndarray:
-    """Per matrix of K [..., 3, 3]: 0 < cx < width and 0 < cy < height (a centre on the edge is
-    what intrinsics for twice the resolution give)."""
-    cx, cy = K[..., 0, 2], K[..., 1, 2]
-    return (cx > 0) & (cx < size[0]) & (cy > 0) & (cy < size[1])
-
-
-def _is_pinhole(K: np.ndarray) -> np.ndarray:
-    """Per matrix of K [..., 3, 3]: finite, last row 0 0 1, fx and fy > 0, no skew."""
-    finite = finite_in_float32(K).all(axis=(-2, -1))
-    last_row = np.isclose(K[..., 2, :], [0.0, 0.0, 1.0]).all(axis=-1)
-    focal = K[..., [0, 1], [0, 1]]
-    in_range = ((focal > 0) & (focal <= MAX_FOCAL)).all(axis=-1)
-    return finite & last_row & in_range & ~_skewed(K)
-
-
-def _skewed(K: np.ndarray) -> np.ndarray:
-    """Per matrix of K [..., 3, 3]: K[0][1] or K[1][0] beyond MAX_SKEW of fx or fy."""
-    with np.errstate(invalid="ignore"):  # non-finite entries are reported on their own
-        over_x = np.abs(K[..., 0, 1]) > MAX_SKEW * np.abs(K[..., 0, 0])
-        over_y = np.abs(K[..., 1, 0]) > MAX_SKEW * np.abs(K[..., 1, 1])
-    return over_x | over_y
+def _first_problem(
+    matrices: np.ndarray, describe: Callable[[np.ndarray], str]
+) -> tuple[tuple[int, ...], str] | None:
+    """(index, problems) of the first matrix of a batch [..., n, n] that `describe` finds any in;
+    each distinct matrix is described once (a fixed rig repeats its cameras every frame)."""
+    flat = matrices.reshape(-1, *matrices.shape[-2:])
+    _, first = np.unique(flat.reshape(len(flat), -1), axis=0, return_index=True)
+    for position in sorted(first):
+        if problem := describe(flat[position]):
+            index = np.unravel_index(position, matrices.shape[:-2])
+            return tuple(int(i) for i in index), problem
+    return None
 
 
 def _intrinsics_problem(k: np.ndarray, size: tuple[int, int] | None = None) -> str:
-    """The bad values of one K [3, 3]: non-finite entries, focal lengths <= 0 or above
-    MAX_FOCAL, a principal point outside an image of `size`, skew, its last row."""
+    """The bad values of one K [3, 3]: non-finite, focal, principal point, skew, last row."""
     problems = [
         f"{_INTRINSIC_NAMES.get((i, j), f'K[{i}][{j}]')} = {float(k[i, j])}"
         for i, j in np.ndindex(3, 3)
@@ -168,7 +135,8 @@ def _intrinsics_problem(k: np.ndarray, size: tuple[int, int] | None = None) -> s
             for name, value, limit in (("cx", k[0, 2], size[0]), ("cy", k[1, 2], size[1]))
             if not 0 < value < limit
         ]
-    if finite_in_float32(k[:2, :2]).all() and _skewed(k):
+    skewed = abs(k[0, 1]) > MAX_SKEW * abs(k[0, 0]) or abs(k[1, 0]) > MAX_SKEW * abs(k[1, 1])
+    if finite_in_float32(k[:2, :2]).all() and skewed:
         problems.append(f"skew K[0][1] = {float(k[0, 1])}, K[1][0] = {float(k[1, 0])}")
     if finite_in_float32(k[2]).all() and not np.allclose(k[2], [0.0, 0.0, 1.0]):
         problems.append(f"last row {k[2].tolist()}")
@@ -180,37 +148,18 @@ def check_rigid(
 ) -> None:
     """Raise InputError unless every w2c [..., 4, 4] is a finite rigid transform; the message
     names `where`, the first bad matrix (`at` its leading indices) and what is wrong with it."""
-    bad = _first_false(_is_rigid(w2c))
-    if bad is not None:
-        raise InputError(f"{where}{at(bad)} has {_rigid_problem(w2c[bad])}; expected {RIGID_FORM}")
-
-
-def _is_rigid(w2c: np.ndarray) -> np.ndarray:
-    """Per matrix of w2c [..., 4, 4]: finite, orthonormal rotation of det +1, last row 0 0 0 1."""
-    finite = finite_in_float32(w2c).all(axis=(-2, -1))
-    rotation = np.where(finite[..., None, None], w2c, 0.0)[..., :3, :3]
-    return (
-        finite
-        & (_orthonormality_error(rotation) < POSE_TOLERANCE)
-        & (np.linalg.det(rotation) > 0)
-        & np.isclose(w2c[..., 3, :], [0.0, 0.0, 0.0, 1.0]).all(axis=-1)
-    )
-
-
-def _orthonormality_error(rotation: np.ndarray) -> np.ndarray:
-    """Largest entry of |R Rᵀ - I| per rotation [..., 3, 3]."""
-    gram = rotation @ np.swapaxes(rotation, -1, -2)
-    return np.abs(gram - np.eye(3)).max(axis=(-2, -1))
+    found = _first_problem(w2c, _rigid_problem)
+    if found is not None:
+        raise InputError(f"{where}{at(found[0])} has {found[1]}; expected {RIGID_FORM}")
 
 
 def _rigid_problem(w2c: np.ndarray) -> str:
-    """What makes one w2c [4, 4] no rigid transform: non-finite entries, else its rotation
-    (not orthonormal, or a reflection) and its last row."""
+    """What makes one w2c [4, 4] no rigid transform: non-finite, rotation, last row."""
     if not finite_in_float32(w2c).all():
         return f"entries not finite in float32 {w2c.tolist()}"
     rotation = w2c[:3, :3]
     problems = []
-    error = float(_orthonormality_error(rotation))
+    error = float(np.abs(rotation @ rotation.T - np.eye(3)).max())
     if error >= POSE_TOLERANCE:
         problems.append(f"a rotation that is not orthonormal (|R Rᵀ - I| up to {error:.3g})")
     determinant = float(np.linalg.det(rotation))
@@ -219,9 +168,3 @@ def _rigid_problem(w2c: np.ndarray) -> str:
     if not np.allclose(w2c[3], [0.0, 0.0, 0.0, 1.0]):
         problems.append(f"last row {w2c[3].tolist()}")
     return ", ".join(problems)
-
-
-def _first_false(ok: np.ndarray) -> tuple[int, ...] | None:
-    """The index of the first False in `ok` (() for a 0-d False), None when all are True."""
-    bad = np.argwhere(~ok)
-    return tuple(int(i) for i in bad[0]) if len(bad) else None

@@ -1,8 +1,5 @@
-"""Names of the scene effects a scene can declare; training switches modules on from these.
-
-A synthetic scene simulates exactly the effects it declares and nothing else; a real capture
-declares what its `scene.json` (or the `effects` loader option) says.
-"""
+"""Names of the effects a scene declares (scene.json or the `effects` option); training switches
+modules on from them, and a synthetic scene simulates exactly those."""
 
 from __future__ import annotations
 
@@ -10,20 +7,13 @@ from collections.abc import Iterable, Mapping
 
 from relaygs.errors import InputError
 
-LARGE_MOTION = "large_motion"
-"""Actors travel many times their own size during the sequence."""
-NONRIGID = "nonrigid"
-"""Articulated actors swing their limbs (the body deforms, not only moves rigidly)."""
-FAST_OBJECTS = "fast_objects"
-"""Small objects (balls) move fast, several times their size per frame."""
-COLOR_INCONSISTENCY = "color_inconsistency"
-"""Each camera applies its own per-channel affine response (gain, offset) to the image."""
-DYNAMIC_PANELS = "dynamic_panels"
-"""Background panels (a scoreboard) change their content over time."""
-BACKGROUND_JITTER = "background_jitter"
-"""Background objects (spectators) move slightly over time."""
-SENSOR_NOISE = "sensor_noise"
-"""Independent per-pixel Gaussian noise in every image."""
+LARGE_MOTION = "large_motion"  # actors travel many times their own size during the sequence
+NONRIGID = "nonrigid"  # articulated actors swing their limbs: the body deforms
+FAST_OBJECTS = "fast_objects"  # small objects (balls) move fast, several times their size per frame
+COLOR_INCONSISTENCY = "color_inconsistency"  # a per-camera, per-channel gain and offset
+DYNAMIC_PANELS = "dynamic_panels"  # background panels (a scoreboard) change their content over time
+BACKGROUND_JITTER = "background_jitter"  # background objects (spectators) move slightly over time
+SENSOR_NOISE = "sensor_noise"  # independent per-pixel Gaussian noise in every image
 
 ALL_EFFECTS: frozenset[str] = frozenset(
     {
@@ -42,8 +32,7 @@ NO_EFFECTS = "none"
 
 
 def parse_effects(names: Iterable[str], *, source: str) -> frozenset[str]:
-    """Validate effect names (one name, or a list of them; NO_EFFECTS alone for none); `source`
-    names where they came from for the error message."""
+    """Effect names (one, a list, or NO_EFFECTS alone for none) checked; errors name `source`."""
     if isinstance(names, str):
         names = [names]
     if isinstance(names, Mapping) or not isinstance(names, Iterable):  # e.g. `effects=3`
@@ -51,13 +40,10 @@ def parse_effects(names: Iterable[str], *, source: str) -> frozenset[str]:
     names = list(names)
     if names == [NO_EFFECTS]:
         return frozenset()
-    parsed = []
     for name in names:
         if not isinstance(name, str) or name not in ALL_EFFECTS:
-            known = ", ".join(sorted(ALL_EFFECTS))
             raise InputError(
-                f"{source}: unknown effect {name!r}; expected one of: {known} "
-                f"(or '{NO_EFFECTS}' alone for no effects)"
+                f"{source}: unknown effect {name!r}; expected one of: "
+                f"{', '.join(sorted(ALL_EFFECTS))} (or '{NO_EFFECTS}' alone for no effects)"
             )
-        parsed.append(name)
-    return frozenset(parsed)
+    return frozenset(names)

@@ -32,26 +32,14 @@ def export_multiview(scene: Scene, out_dir: str | Path, *, binary: bool = True) 
         key=lambda view: (view.camera.camera_id, view.frame),
     )
     cameras = _fixed_rig(scene, views)
-    images = {}
-    colmap_cameras = {}
-    for index, camera in enumerate(cameras):
-        folder = f"cam{index:02d}"
-        colmap_cameras[index + 1] = ColmapCamera(
-            index + 1,
-            "PINHOLE",
-            camera.width,
-            camera.height,
-            tuple(float(v) for v in camera.K[[0, 1, 0, 1], [0, 1, 2, 2]].tolist()),
-        )
+    images, colmap_cameras = {}, {}
+    for index, camera in enumerate(cameras, start=1):
+        params = tuple(camera.K[[0, 1, 0, 1], [0, 1, 2, 2]].tolist())
+        colmap_cameras[index] = ColmapCamera(index, "PINHOLE", camera.width, camera.height, params)
         w2c = camera.w2c.double().numpy()
+        qvec, tvec = tuple(rotation_to_qvec(w2c[:3, :3]).tolist()), tuple(w2c[:3, 3].tolist())
         suffix = next(view.image_path.suffix for view in views if view.camera is camera)
-        images[index + 1] = ColmapImage(
-            index + 1,
-            tuple(rotation_to_qvec(w2c[:3, :3]).tolist()),
-            tuple(w2c[:3, 3].tolist()),
-            index + 1,
-            f"{folder}{suffix}",
-        )
+        images[index] = ColmapImage(index, qvec, tvec, index, f"cam{index - 1:02d}{suffix}")
     index_of = {camera.camera_id: index for index, camera in enumerate(cameras)}
     for view in views:
         folder = f"cam{index_of[view.camera.camera_id]:02d}"
@@ -62,23 +50,16 @@ def export_multiview(scene: Scene, out_dir: str | Path, *, binary: bool = True) 
     rgb = np.round(scene.points.rgb.double().numpy() * 255.0).astype(np.uint8)
     model = ColmapModel(colmap_cameras, images, scene.points.xyz.double().numpy(), rgb)
     write_model(out / "sparse" / "0", model, binary=binary)
-    test_ids = sorted({index_of[view.camera.camera_id] for view in scene.full_test_views})
-    _write_declaration(scene, test_ids, out)
+    # the source's scene.json with its test cameras renumbered: the export keeps its split
+    declaration = scene_declaration(scene.root) or {}
+    test_ids = {index_of[view.camera.camera_id] for view in scene.full_test_views}
+    declaration["test_cameras"] = sorted(test_ids)
+    (out / SCENE_JSON).write_text(json.dumps(declaration, indent=1) + "\n", encoding="utf-8")
     return out
 
 
-def _write_declaration(scene: Scene, test_ids: list[int], out: Path) -> None:
-    """out/scene.json: the source's (if any) with `test_cameras` set to `test_ids` (the test
-    cameras' multi-view ids), so the exported folder loads with its source's held-out cameras."""
-    declaration = scene_declaration(scene.root) or {}
-    declaration["test_cameras"] = test_ids
-    text = json.dumps(declaration, indent=1) + "\n"
-    (out / SCENE_JSON).write_text(text, encoding="utf-8")
-
-
 def _fixed_rig(scene: Scene, views: list) -> list[Camera]:
-    """One camera per id, ordered by id; a camera whose pose or intrinsics vary, or that
-    misses frames (each camera folder must hold every frame), is an error."""
+    """One camera per id, by id; one whose pose or K varies, or that misses frames, is refused."""
     cameras: dict[int, Camera] = {}
     frames: dict[int, set[int]] = {}
     for view in views:

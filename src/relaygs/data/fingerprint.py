@@ -60,9 +60,22 @@ def file_record(path: Path, *, root: Path, image: bool = False, what: str = "fil
     return record
 
 
+def record_image(
+    path: Path, size: tuple[int, int], files: dict[str, str], root: Path, what: str, origin: str
+) -> None:
+    """Hash a scene image into `files` by its path in `root`, refusing one whose size is not the
+    `size` (width, height) that `origin` sets."""
+    record = file_record(path, root=root, image=True, what=f"{what} file")
+    if record.image_size != size:
+        width, height = record.image_size
+        raise InputError(
+            f"{path}: {what} is {width}x{height}, expected {size[0]}x{size[1]} ({origin})"
+        )
+    files[path.relative_to(root).as_posix()] = record.sha256
+
+
 def _other_extensions(path: Path) -> list[str]:
-    """Names of the files beside a missing `path` that differ from it only in their extension
-    (masks saved as .jpg where .png is expected)."""
+    """Files beside a missing `path` differing only in extension (a mask saved as .jpg)."""
     try:
         siblings = list(path.parent.iterdir())
     except OSError:

@@ -5,8 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 FLOAT32_MAX = float(np.finfo(np.float32).max)
-FINITE = "NaN, inf, or beyond ±3.4e38"
-"""What `finite_in_float32` refuses, for messages."""
+FINITE = "NaN, inf, or beyond ±3.4e38"  # what `finite_in_float32` refuses, for messages
 
 
 def finite_in_float32(values: np.ndarray) -> np.ndarray:

@@ -19,11 +19,8 @@ _JPEG_STANDALONE_MARKERS = frozenset({0x01, *range(0xD0, 0xD9)})  # TEM, RST0-7,
 
 
 def image_size(data: bytes, path: Path) -> tuple[int, int]:
-    """(width, height) of an image file's bytes, refusing damaged files before any training.
-
-    PNG and JPEG are read from the header after a cheap integrity check (no pixel decoding);
-    other types are decoded to find out.
-    """
+    """(width, height) of an image file's bytes: PNG and JPEG from a checked header (damaged files
+    refused before training), other types by decoding."""
     if data.startswith(_PNG_SIGNATURE):
         if len(data) < 24 or data[12:16] != b"IHDR":
             raise InputError(f"{path}: not a readable image (truncated PNG header)")
@@ -66,9 +63,8 @@ def _damaged(path: Path, reason: str) -> InputError:
 
 
 def _jpeg_size(data: bytes, path: Path) -> tuple[int, int]:
-    """(width, height) from a JPEG's frame header, walking its segments and scans up to the end
-    marker EOI: a file that stops before EOI is truncated; bytes after it (a motion photo's
-    appended video, zero padding) are ignored, as after a PNG's IEND."""
+    """(width, height) from a JPEG's frame header, walking segments and scans to EOI: a file
+    stopping before it is truncated, bytes after it (a motion photo's video) are ignored."""
     pos, size = 2, None
     while (pos := data.find(b"\xff", pos)) >= 0 and pos + 1 < len(data):
         marker = data[pos + 1]  # bytes between segments are skipped, as libjpeg does
@@ -90,8 +86,7 @@ def _jpeg_size(data: bytes, path: Path) -> tuple[int, int]:
 
 
 def _end_of_scan(data: bytes, pos: int) -> int:
-    """Where a scan's entropy-coded data that starts at `pos` ends: at the first 0xFF that is
-    not a stuffed 0xFF00 or a restart marker RST0-7 (the data holds no other 0xFF)."""
+    """End of the scan data from `pos`: the first 0xFF that is no stuffed 0xFF00 nor RST0-7."""
     while (pos := data.find(b"\xff", pos)) >= 0 and pos + 1 < len(data):
         if data[pos + 1] != 0x00 and not 0xD0 <= data[pos + 1] <= 0xD7:
             return pos
@@ -100,9 +95,8 @@ def _end_of_scan(data: bytes, pos: int) -> int:
 
 
 def read_rgb(path: Path, width: int, height: int) -> np.ndarray:
-    """Decode an 8- or 16-bit image to float32 RGB [height,width,3] in [0,1], area-resized when
-    sizes differ; pixels stay as stored (an EXIF orientation tag is not applied, as in COLMAP,
-    so they match the header size and the camera intrinsics)."""
+    """An 8- or 16-bit image as float32 RGB [height,width,3] in [0,1], area-resized; no EXIF
+    rotation, as in COLMAP, so pixels match the header size and the intrinsics."""
     flags = cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH | cv2.IMREAD_IGNORE_ORIENTATION
     bgr = cv2.imread(str(path), flags)
     if bgr is None:
@@ -112,16 +106,14 @@ def read_rgb(path: Path, width: int, height: int) -> np.ndarray:
 
 
 def _unit_range(pixels: np.ndarray, path: Path) -> np.ndarray:
-    """Integer pixels as float32 in [0,1], divided by their type's maximum (255 or 65535), so a
-    16-bit image keeps its low bits instead of being truncated to 8."""
+    """Integer pixels / their type's maximum, as float32 (a 16-bit image keeps its low bits)."""
     if pixels.dtype not in (np.uint8, np.uint16):
         raise InputError(f"{path}: {pixels.dtype} pixels, expected an 8- or 16-bit image")
     return pixels.astype(np.float32) / np.float32(np.iinfo(pixels.dtype).max)
 
 
 def read_mask(path: Path, width: int, height: int) -> np.ndarray:
-    """Decode a mask image to bool [height,width]: foreground where any colour channel is
-    non-zero, at any bit depth (pixels as stored: no EXIF rotation, alpha ignored)."""
+    """A mask image as bool [height,width]: non-zero in any colour channel, as stored."""
     raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if raw is None:
         raise InputError(f"{path}: cannot decode mask image")
@@ -130,9 +122,8 @@ def read_mask(path: Path, width: int, height: int) -> np.ndarray:
 
 
 def _nonzero(raw: np.ndarray) -> np.ndarray:
-    """Where a decoded mask [H,W] or [H,W,C] has a non-zero grey or colour value; a 4th (alpha)
-    channel is left out. Converting to 8-bit grey first would lose 16-bit labels below 256 and
-    faint colours."""
+    """Where a mask [H,W] or [H,W,C] is non-zero in any colour channel (alpha left out): 8-bit
+    grey would lose 16-bit labels below 256 and faint colours."""
     if raw.ndim == 2:
         return raw != 0
     return (raw[..., :3] != 0).any(axis=2)

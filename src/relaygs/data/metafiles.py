@@ -14,9 +14,8 @@ SCENE_JSON = "scene.json"
 
 
 def read_text(path: Path) -> str:
-    """A UTF-8 text file's contents, without the byte-order mark some Windows editors write;
-    missing, not a regular file (a folder, a FIFO), unreadable or not UTF-8 is an InputError
-    naming the file."""
+    """A UTF-8 text file's contents without a byte-order mark; missing, irregular, unreadable or
+    not UTF-8 is an InputError naming the file."""
     try:
         regular_file_status(path)
         return path.read_text(encoding="utf-8-sig")
@@ -43,8 +42,7 @@ def read_json(path: Path) -> Any:
 
 
 def scene_declaration(root: Path) -> dict[str, Any] | None:
-    """The JSON object of a scene folder's scene.json, None when the file is absent; any other
-    JSON value (an array of effect names, say) is an InputError naming the file."""
+    """scene.json's object (None without the file); any other JSON value is an InputError."""
     path = root / SCENE_JSON
     if not path.exists():
         return None
@@ -66,8 +64,7 @@ def declared_effects(root: Path) -> frozenset[str]:
 
 
 def declared_test_cameras(root: Path) -> tuple[int, ...] | None:
-    """Held-out camera ids a scene folder's scene.json lists in 'test_cameras' (None when the
-    file or the field is absent), so an exported scene keeps its source's split."""
+    """scene.json's 'test_cameras' (None without it), so an export keeps its source's split."""
     declaration = scene_declaration(root) or {}
     if "test_cameras" not in declaration:
         return None

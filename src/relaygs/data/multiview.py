@@ -12,15 +12,13 @@ import torch
 from relaygs.data.camera import Camera, check_intrinsics
 from relaygs.data.colmap import (
     ColmapCamera,
-    ColmapImage,
     ColmapModel,
-    is_model_folder,
     model_suffix,
     read_model,
 )
-from relaygs.data.fingerprint import digest, file_record
+from relaygs.data.fingerprint import file_record, record_image
 from relaygs.data.finite import finite_in_float32
-from relaygs.data.metafiles import SCENE_JSON, declared_effects, declared_test_cameras
+from relaygs.data.metafiles import SCENE_JSON, declared_test_cameras
 from relaygs.data.options import LoaderOptions
 from relaygs.data.points import point_cloud_from_arrays
 from relaygs.data.scene import (
@@ -28,7 +26,7 @@ from relaygs.data.scene import (
     View,
     assemble_scene,
     frame_time,
-    held_out_instead,
+    hold_out,
     split_views,
 )
 from relaygs.errors import InputError
@@ -38,8 +36,8 @@ FRAME_FILE = re.compile(r"^frame_(\d+)\.(jpg|jpeg|png)$", re.IGNORECASE)
 MODEL_FOLDERS = ("sparse/0", "sparse", "sparse_", "colmap/sparse/0")
 DEFAULT_TEST_CAMERAS = (0, 10, 20, 30)
 MASK_FOLDER = "seg"
-MISSING_FRAMES_LISTED = 3
-"""How many of the frame files a camera folder lacks its error names."""
+_COLMAP_SIZE = "the COLMAP camera's width/height"
+MISSING_FRAMES_LISTED = 3  # how many of the frame files a camera folder lacks its error names
 
 # COLMAP model → parameter indices of fx, fy, cx, cy; later parameters are distortion terms.
 _PINHOLE_PARAMS: dict[str, tuple[int, int, int, int]] = {
@@ -84,29 +82,17 @@ def load_multiview(root: Path, options: LoaderOptions) -> Scene:
         source=str(model_folder / f"points3D{model_suffix(model_folder)}"),
         max_points=options.max_points,
     )
-    effects = declared_effects(root) if options.effects is None else options.effects
-    record = {"format": "multiview", "options": options.content_options(), "files": files}
+    content: dict = {"files": files}
     if declared is not None and options.test_cameras is None:
         # scene.json's split enters the key: older relaygs read the same file as the default split
-        record["declared_test_cameras"] = list(declared)
-    content = digest(record)
+        content["declared_test_cameras"] = list(declared)
     return assemble_scene(
-        root=root,
-        format="multiview",
-        train_views=train_views,
-        test_views=test_views,
-        num_frames=len(frames[0]),
-        points=points,
-        effects=effects,
-        downscale=options.downscale,
-        content_digest=content,
-        cache_mb=options.cache_mb,
+        root, "multiview", train_views, test_views, len(frames[0]), points, options, content
     )
 
 
 def _frame_files(folders: list[Path]) -> list[list[Path]]:
-    """Per camera folder, its frame files in frame order; every camera must hold the same frames
-    (a camera that lacks some is named with the files it lacks)."""
+    """Each camera folder's frame files in order; a camera lacking some is refused naming them."""
     cameras: dict[Path, dict[int, Path]] = {}
     for folder in folders:
         numbered = _numbered_frames(folder)
@@ -138,8 +124,7 @@ def _missing_frames(folder: Path, missing: list[int], cameras: dict[Path, dict[i
 
 
 def _numbered_frames(folder: Path) -> list[tuple[int, Path]]:
-    """(frame number, path) of a camera folder's frame files in frame order; two files of one
-    number (frame_00000.png beside frame_00000.jpg) are refused, not read as two frames."""
+    """(number, path) of a folder's frame files in order; two files of one number are refused."""
     numbered = sorted(
         (int(match[1]), path) for path in folder.iterdir() if (match := FRAME_FILE.match(path.name))
     )
@@ -154,7 +139,7 @@ def _numbered_frames(folder: Path) -> list[tuple[int, Path]]:
 
 def _find_model(root: Path) -> Path:
     for candidate in MODEL_FOLDERS:
-        if is_model_folder(root / candidate):
+        if model_suffix(root / candidate) is not None:
             return root / candidate
     raise InputError(
         f"{root}: no COLMAP model found; expected cameras, images, points3D (.bin or .txt) in "
@@ -163,8 +148,7 @@ def _find_model(root: Path) -> Path:
 
 
 def _cameras(folders: list[Path], model: ColmapModel, model_folder: Path) -> list[Camera]:
-    """One camera per camXX folder, from the one registered image named after it: the rig is
-    fixed, so the model poses each camera once (COLMAP run on one frame of each)."""
+    """One camera per camXX folder, posed by the one registered image named after it."""
     by_folder = {}
     for image in model.images.values():
         match = re.search(r"cam\d+", image.name)
@@ -190,9 +174,14 @@ def _cameras(folders: list[Path], model: ColmapModel, model_folder: Path) -> lis
             raise InputError(
                 f"{model_folder}: image {image.name!r} uses unknown camera {image.camera_id}"
             )
+        pose = np.array([*image.qvec, *image.tvec], dtype=np.float64)
+        if not (finite_in_float32(pose).all() and np.linalg.norm(pose[:4]) > 0):
+            raise InputError(
+                f"{model_folder}: image {image.name!r} has pose qvec {list(image.qvec)} tvec "
+                f"{list(image.tvec)}; expected values finite in float32 and a non-zero quaternion"
+            )
         intrinsics = model.cameras[image.camera_id]
         K = _intrinsics(intrinsics, model_folder)
-        _check_pose(image, model_folder)
         w2c = torch.from_numpy(image.w2c().astype(np.float32))
         cameras.append(Camera(camera_id, K, w2c, intrinsics.width, intrinsics.height))
     return cameras
@@ -220,17 +209,6 @@ def _intrinsics(camera: ColmapCamera, model_folder: Path) -> torch.Tensor:
     return torch.from_numpy(K.astype(np.float32))
 
 
-def _check_pose(image: ColmapImage, model_folder: Path) -> None:
-    """A finite translation and a finite quaternion of non-zero norm (it is normalised)."""
-    pose = np.array([*image.qvec, *image.tvec], dtype=np.float64)
-    norm = float(np.linalg.norm(pose[:4]))
-    if not (finite_in_float32(pose).all() and np.isfinite(norm) and norm > 0):
-        raise InputError(
-            f"{model_folder}: image {image.name!r} has pose qvec {list(image.qvec)} tvec "
-            f"{list(image.tvec)}; expected values finite in float32 and a non-zero quaternion"
-        )
-
-
 def _views(
     root: Path,
     folders: list[Path],
@@ -243,24 +221,14 @@ def _views(
     views = []
     for folder, paths, camera in zip(folders, frames, cameras, strict=True):
         for frame, image_path in enumerate(paths):
-            _check_size(image_path, camera, files, root, "image")
+            size = (camera.width, camera.height)
+            record_image(image_path, size, files, root, "image", _COLMAP_SIZE)
             mask_path = None
             if has_masks:
                 mask_path = root / MASK_FOLDER / folder.name / f"{image_path.stem}.png"
-                _check_size(mask_path, camera, files, root, "mask")
+                record_image(mask_path, size, files, root, "mask", _COLMAP_SIZE)
             views.append(View(camera, frame, frame_time(frame, num_frames), image_path, mask_path))
     return views
-
-
-def _check_size(path: Path, camera: Camera, files: dict[str, str], root: Path, what: str) -> None:
-    record = file_record(path, root=root, image=True, what=f"{what} file")
-    if record.image_size != (camera.width, camera.height):
-        width, height = record.image_size
-        raise InputError(
-            f"{path}: {what} is {width}x{height}, expected {camera.width}x{camera.height} "
-            "(the COLMAP camera's width/height)"
-        )
-    files[path.relative_to(root).as_posix()] = record.sha256
 
 
 def _split(
@@ -281,11 +249,5 @@ def _split(
     else:
         defaults = {camera_id for camera_id in DEFAULT_TEST_CAMERAS if camera_id < num_cameras}
         return split_views(views, defaults, root)
-    missing = [camera_id for camera_id in ids if camera_id >= num_cameras]
-    if missing:
-        raise InputError(
-            f"{source}: cameras {missing} are not in {root} "
-            f"(camera ids 0..{num_cameras - 1}, one per camXX folder); {fix}, e.g. "
-            + held_out_instead(ids, range(num_cameras))
-        )
-    return split_views(views, set(ids), root)
+    where = f"{root} (camera ids 0..{num_cameras - 1}, one per camXX folder); {fix}"
+    return hold_out(views, ids, set(range(num_cameras)), root, source, where)

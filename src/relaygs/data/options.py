@@ -13,9 +13,7 @@ from relaygs.errors import InputError
 
 DEFAULT_MAX_POINTS = 100_000
 DEFAULT_CACHE_MB = 512.0
-OPTION_PREFIX = "loader option "
-"""How errors name a loader option by default (`loader option downscale`); the app names its
-own keys (`scene.loader.downscale`)."""
+OPTION_PREFIX = "loader option "  # errors say `loader option downscale`; the app its own keys
 
 
 @dataclass(frozen=True)
@@ -27,8 +25,7 @@ class LoaderOptions:
     cache_mb: float = DEFAULT_CACHE_MB
     test_cameras: tuple[int, ...] | None = None
     effects: frozenset[str] | None = None
-    prefix: str = field(default=OPTION_PREFIX, compare=False)
-    """How the loaders' errors name these options (`scene.loader.` under the app)."""
+    prefix: str = field(default=OPTION_PREFIX, compare=False)  # how errors name the options
 
     def content_options(self) -> dict[str, Any]:
         """The options that change what a scene holds (everything but the cache budget)."""
@@ -48,8 +45,7 @@ def make_options(
     effects: Iterable[str] | None = None,
     prefix: str = OPTION_PREFIX,
 ) -> LoaderOptions:
-    """Validate raw option values into LoaderOptions; an error names the bad option as
-    `prefix` + its name."""
+    """Raw option values checked into LoaderOptions; errors name `prefix` + the option."""
     downscale = require_int("downscale", downscale, minimum=1, prefix=prefix)
     max_points = require_int("max_points", max_points, minimum=1, prefix=prefix)
     # a budget in whole bytes: one whose byte count is infinite has none (memory is finite)
@@ -81,8 +77,7 @@ def require_int(
     prefix: str = OPTION_PREFIX,
     maximum: int = INT64_MAX,
 ) -> int:
-    """`value` as an int if it is an integer in [minimum, maximum], else an InputError naming
-    the option (`prefix` + `name`)."""
+    """`value` as an int in [minimum, maximum], else an InputError naming `prefix` + `name`."""
     if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < minimum:
         raise InputError(f"{prefix}{name} must be an integer >= {minimum}, got {value!r}")
     if value > maximum:

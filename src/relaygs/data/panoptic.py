@@ -12,17 +12,17 @@ import numpy as np
 import torch
 
 from relaygs.data.camera import Camera, check_intrinsics, check_rigid
-from relaygs.data.fingerprint import digest, file_record
+from relaygs.data.fingerprint import file_record, record_image
 from relaygs.data.finite import FINITE, finite_in_float32
-from relaygs.data.metafiles import SCENE_JSON, declared_effects, read_json
-from relaygs.data.options import LoaderOptions, test_cameras_setting
+from relaygs.data.metafiles import SCENE_JSON, read_json
+from relaygs.data.options import LoaderOptions, require_int, test_cameras_setting
 from relaygs.data.points import PointCloud, point_cloud_from_arrays
 from relaygs.data.scene import (
     Scene,
     View,
     assemble_scene,
     frame_time,
-    held_out_instead,
+    hold_out,
     split_views,
 )
 from relaygs.errors import InputError
@@ -30,8 +30,7 @@ from relaygs.errors import InputError
 TRAIN_META = "train_meta.json"
 TEST_META = "test_meta.json"
 POINTS_FILE = "init_pt_cld.npz"
-MAX_CAMERA_ID = 2**31 - 1
-"""Largest camera id: ids must fit a signed 32-bit integer."""
+MAX_CAMERA_ID = 2**31 - 1  # largest camera id: ids must fit a signed 32-bit integer
 
 
 @dataclass(frozen=True)
@@ -48,13 +47,11 @@ class PanopticMeta:
 
     @property
     def num_frames(self) -> int:
-        """T, the number of frames."""
         return len(self.fn)
 
 
 def load_panoptic(root: Path, options: LoaderOptions) -> Scene:
-    """Load a PanopticSports-layout scene folder; test cameras from test_meta.json by default,
-    which may be absent when the test_cameras option names them."""
+    """Load a Panoptic-layout folder; test_meta.json may be absent when `test_cameras` is set."""
     files = {
         name: file_record(root / name, root=root).sha256
         for name in (TRAIN_META, TEST_META, SCENE_JSON, POINTS_FILE)
@@ -65,32 +62,21 @@ def load_panoptic(root: Path, options: LoaderOptions) -> Scene:
     cameras: dict[tuple, Camera] = {}
     entries = [view for meta in metas for view in _views(root, meta, files, cameras)]
     train_views, test_views = _split(entries, metas, options)
-    points = _read_points(root / POINTS_FILE, options.max_points)
-    effects = declared_effects(root) if options.effects is None else options.effects
-    content = digest({"format": "panoptic", "options": options.content_options(), "files": files})
+    points, content = _read_points(root / POINTS_FILE, options.max_points), {"files": files}
     return assemble_scene(
-        root=root,
-        format="panoptic",
-        train_views=train_views,
-        test_views=test_views,
-        num_frames=train.num_frames,
-        points=points,
-        effects=effects,
-        downscale=options.downscale,
-        content_digest=content,
-        cache_mb=options.cache_mb,
+        root, "panoptic", train_views, test_views, train.num_frames, points, options, content
     )
 
 
 def read_meta(path: Path, train: PanopticMeta | None = None) -> PanopticMeta:
-    """Parse and check a train/test meta file: every per-view field is [T][C] with equal T, C.
-    A test meta's image size is checked against `train`'s first, as its intrinsics are
-    checked against that size."""
+    """Parse and check a meta file: every per-view field [T][C] with equal T, C; a test meta's
+    w/h must match `train`'s, as its intrinsics are checked against them."""
     meta = read_json(path)
     if not isinstance(meta, dict):
         raise InputError(f"{path}: expected a JSON object with fields w, h, k, w2c, fn, cam_id")
-    width = _positive_int(meta, "w", path)
-    height = _positive_int(meta, "h", path)
+    width, height = (
+        require_int(f"field '{key}'", meta.get(key), minimum=1, prefix=f"{path}: ") for key in "wh"
+    )
     if train is not None and (train.width, train.height) != (width, height):
         raise InputError(
             f"{path}: w/h {width}x{height} differ from {train.path} ({train.width}x{train.height})"
@@ -114,15 +100,6 @@ def _view_at(cam_id: np.ndarray) -> Callable[[tuple[int, ...]], str]:
     )
 
 
-def _positive_int(meta: dict, name: str, path: Path) -> int:
-    if name not in meta:
-        raise InputError(f"{path}: missing field '{name}' (expected a positive integer)")
-    value = meta[name]
-    if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
-        raise InputError(f"{path}: field '{name}' must be a positive integer, got {value!r}")
-    return value
-
-
 def _file_names(meta: dict, path: Path) -> list[list[str]]:
     fn = meta.get("fn")
     ok = isinstance(fn, list) and fn and all(isinstance(row, list) and row for row in fn)
@@ -133,21 +110,23 @@ def _file_names(meta: dict, path: Path) -> list[list[str]]:
         raise InputError(f"{path}: field 'fn' rows have different camera counts {sorted(widths)}")
     for t, row in enumerate(fn):
         for c, name in enumerate(row):
-            if os.path.normpath(name) == "." or not _is_path_text(name):
+            if _names_no_scene_file(name):
                 raise InputError(
-                    f"{path}: field 'fn' at [{t}][{c}] is {name!r}, expected an image file name"
+                    f"{path}: field 'fn' at [{t}][{c}] is {name!r}, expected an image file name "
+                    "inside the scene folder"
                 )
     return fn
 
 
-def _is_path_text(name: str) -> bool:
-    """True when `name` can name a file here: no NUL, and encodable in the file system's
-    encoding (JSON may hold a lone surrogate such as \\ud800, which no path can)."""
+def _names_no_scene_file(name: str) -> bool:
+    """Whether `name` is empty, absolute, climbs out of ims/, or is no path text (a NUL, or a
+    lone surrogate, which JSON may hold)."""
     try:
         os.fsencode(name)
     except UnicodeEncodeError:
-        return False
-    return "\0" not in name
+        return True
+    climbs = os.path.normpath(os.path.join("ims", name)).split(os.sep)[0] == ".."
+    return "\0" in name or os.path.normpath(name) == "." or os.path.isabs(name) or climbs
 
 
 def _array_field(
@@ -185,8 +164,7 @@ def _array_field(
 
 
 def _check_unique_cameras(cam_id: np.ndarray, path: Path) -> None:
-    """Each column of a frame is a different camera: a repeated id would give one camera two
-    views (and possibly two poses) at the same time."""
+    """Refuse a camera id twice in one frame: one camera would have two views at one time."""
     for t, row in enumerate(cam_id.tolist()):
         for c, camera_id in enumerate(row):
             if camera_id in row[:c]:
@@ -199,8 +177,7 @@ def _check_unique_cameras(cam_id: np.ndarray, path: Path) -> None:
 def _test_meta(
     root: Path, train: PanopticMeta, test_cameras: tuple[int, ...] | None
 ) -> list[PanopticMeta]:
-    """[test_meta.json's meta], checked against train's; [] when the file is absent and
-    `test_cameras` names the held-out cameras (every view then comes from train_meta.json)."""
+    """[test meta], or [] when it is absent and `test_cameras` names the held-out cameras."""
     path = root / TEST_META
     if not path.exists():
         if test_cameras is not None:
@@ -215,7 +192,6 @@ def _test_meta(
 
 
 def _camera_ids(meta: PanopticMeta) -> set[int]:
-    """The camera ids a meta file lists."""
     return set(meta.cam_id.ravel().tolist())
 
 
@@ -232,14 +208,6 @@ def _check_compatible(train: PanopticMeta, test: PanopticMeta) -> None:
         )
 
 
-def scene_file(root: Path, folder: str, name: str, source: Path) -> Path:
-    """root/folder/name, refusing absolute names and names that climb out of the scene root."""
-    normal = os.path.normpath(os.path.join(folder, name))
-    if Path(name).is_absolute() or normal == ".." or normal.startswith(".." + os.sep):
-        raise InputError(f"{source}: file name {name!r} escapes the scene folder {root}")
-    return root / normal
-
-
 def _views(
     root: Path, meta: PanopticMeta, files: dict[str, str], cameras: dict[tuple, Camera]
 ) -> list[View]:
@@ -247,28 +215,16 @@ def _views(
     views = []
     for t, row in enumerate(meta.fn):
         for c, name in enumerate(row):
-            image_path = scene_file(root, "ims", name, meta.path)
-            _check_image(image_path, meta, files, root, "image")
+            image_path = root / os.path.normpath(os.path.join("ims", name))
+            size, origin = (meta.width, meta.height), f"w/h in {meta.path.name}"
+            record_image(image_path, size, files, root, "image", origin)
             mask_path = None
             if has_masks:
-                mask_path = scene_file(root, "seg", str(Path(name).with_suffix(".png")), meta.path)
-                _check_image(mask_path, meta, files, root, "mask")
+                mask_path = (root / os.path.normpath(os.path.join("seg", name))).with_suffix(".png")
+                record_image(mask_path, size, files, root, "mask", origin)
             camera = _camera(meta, t, c, cameras)
             views.append(View(camera, t, frame_time(t, meta.num_frames), image_path, mask_path))
     return views
-
-
-def _check_image(
-    path: Path, meta: PanopticMeta, files: dict[str, str], root: Path, what: str
-) -> None:
-    record = file_record(path, root=root, image=True, what=f"{what} file")
-    if record.image_size != (meta.width, meta.height):
-        width, height = record.image_size
-        raise InputError(
-            f"{path}: {what} is {width}x{height}, expected {meta.width}x{meta.height} "
-            f"(w/h in {meta.path.name})"
-        )
-    files[path.relative_to(root).as_posix()] = record.sha256
 
 
 def _camera(meta: PanopticMeta, t: int, c: int, cameras: dict[tuple, Camera]) -> Camera:
@@ -284,24 +240,15 @@ def _camera(meta: PanopticMeta, t: int, c: int, cameras: dict[tuple, Camera]) ->
 
 
 def _split(
-    views: list[View],
-    metas: list[PanopticMeta],
-    options: LoaderOptions,
+    views: list[View], metas: list[PanopticMeta], options: LoaderOptions
 ) -> tuple[list[View], list[View]]:
-    """Hold out the `test_cameras` option's ids (cameras of any meta file), else the cameras
-    of test_meta.json (metas[1], there whenever the option is not given)."""
-    test_cameras = options.test_cameras
-    if test_cameras is None:
+    """Hold out the `test_cameras` option's ids, else test_meta.json's (metas[1]) cameras."""
+    if options.test_cameras is None:
         return split_views(views, _camera_ids(metas[1]), metas[0].path)
     known = set().union(*map(_camera_ids, metas))
-    missing = sorted(set(test_cameras) - known)
-    if missing:
-        raise InputError(
-            f"{options.prefix}test_cameras: cameras {missing} are not in the scene "
-            f"(camera ids: {sorted(known)}); hold out only cameras it has (or none), e.g. "
-            + held_out_instead(test_cameras, known)
-        )
-    return split_views(views, set(test_cameras), metas[0].path)
+    where = f"the scene (camera ids: {sorted(known)}); hold out only cameras it has (or none)"
+    source = f"{options.prefix}test_cameras"
+    return hold_out(views, options.test_cameras, known, metas[0].path, source, where)
 
 
 def _read_points(path: Path, max_points: int) -> PointCloud:
@@ -318,8 +265,7 @@ def _read_points(path: Path, max_points: int) -> PointCloud:
 
 
 def _points_array(path: Path) -> np.ndarray:
-    """Array 'data' of the .npz archive at `path`, never unpickling: a .npy, text or any other
-    file is refused in one line."""
+    """Array 'data' of the .npz at `path`, never unpickling; any other file is refused."""
     if not path.exists():
         raise InputError(f"missing file: {path}")
     unreadable = InputError(f"{path}: not a readable .npz point cloud")

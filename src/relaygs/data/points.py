@@ -53,11 +53,8 @@ def point_cloud_from_arrays(
 def voxel_downsample(
     xyz: np.ndarray, rgb: np.ndarray, is_fg: np.ndarray, max_points: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Average points per voxel (fg and bg kept apart) with the finest voxel giving ≤ max_points.
-
-    The voxel size is found by bisection in log space, so the result is deterministic and uses
-    the budget well; clouds already within budget are returned unchanged.
-    """
+    """Average points per voxel (fg and bg apart), the voxel size bisected in log space to the
+    finest giving ≤ max_points (deterministic); a cloud within budget is returned as is."""
     if len(xyz) <= max_points:
         return xyz, rgb, is_fg
     span = float(np.ptp(xyz, axis=0).max())

@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable, Collection, Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -13,7 +14,8 @@ from relaygs.data.cache import TensorCache
 from relaygs.data.camera import Camera, near_plane_for
 from relaygs.data.fingerprint import digest
 from relaygs.data.imageio import read_mask, read_rgb
-from relaygs.data.options import require_int, test_cameras_setting
+from relaygs.data.metafiles import declared_effects
+from relaygs.data.options import LoaderOptions, require_int, test_cameras_setting
 from relaygs.data.points import PointCloud
 from relaygs.errors import InputError
 
@@ -41,12 +43,8 @@ def frame_time(frame: int, num_frames: int) -> float:
 
 @dataclass(frozen=True, eq=False)
 class Scene:
-    """A loaded multi-view video scene; images and masks load lazily through a bounded cache.
-
-    `fingerprint` hashes every input file's content and every option that changes what the
-    scene holds (downscale, max_points, test cameras, effects), so artifacts keyed on it are
-    rebuilt when the data changes. The cache budget does not enter it.
-    """
+    """A loaded scene; images and masks load lazily through a bounded cache. `fingerprint` covers
+    every input file and content option (not the cache budget), so artifacts follow the data."""
 
     name: str
     root: Path
@@ -70,23 +68,16 @@ class Scene:
 
     def image(self, view: View) -> torch.Tensor:
         """The view's image as float32 [H,W,3] in [0,1] at the camera's size (shared: read-only)."""
-        camera = view.camera
-        key = ("rgb", view.image_path, camera.width, camera.height)
-        return self.cache.get(
-            key,
-            lambda: torch.from_numpy(read_rgb(view.image_path, camera.width, camera.height)),
-        )
+        key = ("rgb", view.image_path, view.camera.width, view.camera.height)
+        return self.cache.get(key, lambda: torch.from_numpy(read_rgb(*key[1:])))
 
     def mask(self, view: View) -> torch.Tensor | None:
         """The view's foreground mask as bool [H,W] (True = foreground), or None without masks."""
         if view.mask_path is None:
             return None
-        camera = view.camera
-        mask_path = view.mask_path
-        key = ("mask", mask_path, camera.width, camera.height)
-        return self.cache.get(
-            key, lambda: torch.from_numpy(read_mask(mask_path, camera.width, camera.height))
-        )
+        camera, path = view.camera, view.mask_path
+        key = ("mask", path, camera.width, camera.height)
+        return self.cache.get(key, lambda: torch.from_numpy(read_mask(path, *key[2:])))
 
     def views_at(self, frame: int, split: str = "train") -> list[View]:
         """All views of one frame in `split` ("train", "test" or "all"), ordered by camera id."""
@@ -119,8 +110,7 @@ class Scene:
 
 
 def map_cameras(views: list[View], change: Callable[[Camera], Camera]) -> list[View]:
-    """Views with each camera replaced by `change(camera)`; views sharing a camera keep sharing
-    one (per-camera caches key on it)."""
+    """Views with each camera replaced by `change(camera)`; shared cameras stay shared."""
     changed: dict[int, Camera] = {}
     result = []
     for view in views:
@@ -151,8 +141,7 @@ def scale_views(views: list[View], downscale: int) -> list[View]:
 def split_views(
     views: list[View], test_ids: set[int], source: Path
 ) -> tuple[list[View], list[View]]:
-    """Split views into (train, test) by camera id, each ordered by (frame, camera id); a scene
-    needs at least one train camera."""
+    """(train, test) views by camera id, ordered by (frame, camera); no train camera is refused."""
     views = sorted(views, key=lambda view: (view.frame, view.camera.camera_id))
     train_views = [view for view in views if view.camera.camera_id not in test_ids]
     test_views = [view for view in views if view.camera.camera_id in test_ids]
@@ -164,20 +153,22 @@ def split_views(
     return train_views, test_views
 
 
-def held_out_instead(ids: Iterable[int], known: Collection[int]) -> str:
-    """The test cameras to suggest in place of `ids`, some of which the scene lacks: those of
-    them it has, when that leaves a camera to train on, else none."""
-    kept = [camera_id for camera_id in ids if camera_id in known]
-    return test_cameras_setting(kept if len(kept) < len(known) else [])
+def hold_out(
+    views: list[View], ids: Iterable[int], known: set[int], root: Path, source: str, where: str
+) -> tuple[list[View], list[View]]:
+    """`split_views` holding out `ids` (named by `source`), refusing ids not in `known`; the
+    error suggests those it has, when that leaves a camera to train on, else none."""
+    missing = [camera_id for camera_id in ids if camera_id not in known]
+    if missing:
+        kept = [camera_id for camera_id in ids if camera_id in known]
+        instead = test_cameras_setting(kept if len(kept) < len(known) else [])
+        raise InputError(f"{source}: cameras {missing} are not in {where}, e.g. {instead}")
+    return split_views(views, set(ids), root)
 
 
 def scene_extent(cameras: list[Camera], points: PointCloud) -> float:
-    """Radius of the camera centres around their mean, ×1.1 (the 3DGS scene-extent rule).
-
-    Learning rates and density thresholds scale with it, so when the cameras share one
-    position (a single train camera, a co-located rig) the radius of the point cloud stands
-    in: a radius of zero would freeze the means and prune every Gaussian.
-    """
+    """1.1 × the radius of the camera centres (the 3DGS rule), or of the point cloud when the
+    cameras share one position: a zero extent would freeze means and prune every Gaussian."""
     centers = np.stack([camera.center.double().numpy() for camera in cameras])
     radius = _radius(centers)
     cloud = _radius(points.xyz.double().numpy())
@@ -194,9 +185,8 @@ def _radius(positions: np.ndarray) -> float:
 def _require_points_in_view(
     root: Path, cameras: list[Camera], points: PointCloud, near: float
 ) -> None:
-    """One line unless some initial point lies in front of a training camera and inside its
-    image: with none, training starts from Gaussians no view sees and learns a black scene.
-    The usual cause is poses given camera→world, or in OpenGL axes."""
+    """One line unless a point lies in front of a training camera and inside its image (else
+    training learns a black scene); the usual cause is camera→world or OpenGL poses."""
     xyz = points.xyz.to(torch.float32)
     for camera in cameras:  # a usable scene ends at its first camera
         if bool(camera.project(xyz, min_depth=near)[1].any()):
@@ -210,20 +200,18 @@ def _require_points_in_view(
 
 
 def assemble_scene(
-    *,
     root: Path,
     format: str,
     train_views: list[View],
     test_views: list[View],
     num_frames: int,
     points: PointCloud,
-    effects: frozenset[str],
-    downscale: int,
-    content_digest: str,
-    cache_mb: float,
+    options: LoaderOptions,
+    content: dict[str, Any],
 ) -> Scene:
-    """Build a Scene from full-resolution views: extent from the train cameras (or the points,
-    `scene_extent`), every camera's near plane from the extent, views scaled."""
+    """A Scene of full-resolution views (extent, near planes from it, views scaled) whose
+    fingerprint covers `content` (the input files' hashes) and the content options."""
+    downscale = options.downscale
     _require_visible_size(root, [*train_views, *test_views], downscale)
     train_cameras = {id(view.camera): view.camera for view in train_views}
     extent = scene_extent(list(train_cameras.values()), points)
@@ -241,11 +229,11 @@ def assemble_scene(
         test_views=scale_views(test_views, downscale),
         num_frames=num_frames,
         points=points,
-        effects=effects,
+        effects=declared_effects(root) if options.effects is None else options.effects,
         extent=extent,
         downscale=downscale,
-        content_digest=content_digest,
-        cache=TensorCache(cache_mb),
+        content_digest=digest({"format": format, "options": options.content_options(), **content}),
+        cache=TensorCache(options.cache_mb),
         full_train_views=train_views,
         full_test_views=test_views,
     )

@@ -1,9 +1,5 @@
-"""Which paths a scene may read: regular files inside the scene folder, symlinks resolved.
-
-A FIFO would block a read forever and a device such as /dev/zero never ends, so a scene file
-is stat'ed (which opens nothing) before it is read; a symlink that leads out of the scene folder
-would make the scene's content depend on files its folder does not hold.
-"""
+"""Scene files are stat'ed before being read (a FIFO or /dev/zero would never end) and must
+resolve inside the scene folder (else its content would depend on files outside)."""
 
 from __future__ import annotations
 
@@ -22,20 +18,12 @@ _KINDS = (
 )
 
 
-def check_regular(path: Path, status: os.stat_result, what: str = "file") -> None:
-    """InputError naming `path` unless `status` (its stat, symlinks followed) is a regular
-    file's."""
-    if stat.S_ISREG(status.st_mode):
-        return
-    kind = next((name for test, name in _KINDS if test(status.st_mode)), "not a regular file")
-    raise InputError(f"{path}: is {kind}, expected a regular {what}")
-
-
 def regular_file_status(path: Path, what: str = "file") -> os.stat_result:
-    """`path`'s stat (symlinks followed; OSError when it cannot be had), once it is a regular
-    file; anything else is an InputError naming it, before anything opens it."""
+    """`path`'s stat once it is a regular file (else InputError), before anything opens it."""
     status = path.stat()
-    check_regular(path, status, what)
+    if not stat.S_ISREG(status.st_mode):
+        kind = next((name for test, name in _KINDS if test(status.st_mode)), "not a regular file")
+        raise InputError(f"{path}: is {kind}, expected a regular {what}")
     return status
 
 

@@ -1,10 +1,5 @@
-"""Per-camera videos → the multi-view layout's camXX/frame_XXXXX images, frame-aligned.
-
-A synchronised capture often arrives as one video per camera. This writes the frames the
-multi-view loader reads (docs/scenes.md): the videos in natural name order become cam00,
-cam01, …; every camera gets the same frame numbers (the shortest video decides how many), and
-`colmap_images.txt` lists each camera's first frame for posing the rig with COLMAP.
-"""
+"""One video per camera → the multi-view layout's camXX/frame_XXXXX images (docs/scenes.md),
+every camera cut to the frames the shortest video gives, plus a COLMAP list of first frames."""
 
 from __future__ import annotations
 
@@ -22,6 +17,7 @@ import numpy as np
 from tqdm import tqdm
 
 from relaygs.data.multiview import CAMERA_FOLDER
+from relaygs.data.staging import process_alive, staging_prefix
 from relaygs.errors import InputError
 from relaygs.paths import require_creatable_folder, require_folder
 from relaygs.progress import progress_bar
@@ -44,14 +40,6 @@ class FrameSelection:
     stride: int = 1
     count: int | None = None
 
-    def __post_init__(self) -> None:
-        """Refuse a negative start, a stride below 1 or a count below 1 in one line."""
-        if self.start < 0 or self.stride < 1 or (self.count is not None and self.count < 1):
-            raise InputError(
-                "frame selection: expected start >= 0, stride >= 1 and count >= 1, got "
-                f"start {self.start}, stride {self.stride}, count {self.count}"
-            )
-
     def keeps(self, index: int) -> bool:
         """Whether source frame `index` is one to write."""
         return index >= self.start and (index - self.start) % self.stride == 0
@@ -68,10 +56,8 @@ class FrameSelection:
 
 @dataclass(frozen=True)
 class CameraFrames:
-    """What one camera's video gave: the frames written, the frames decoded, the count its
-    container states (None when it states none), its frame rate (None likewise), whether the
-    decoder ran out rather than the selection being complete, and how many frames the
-    selection keeps of the stated count (None without one)."""
+    """What one camera's video gave; `stated`, `rate` and `available` (what the selection keeps
+    of the stated count) are None when the container states none."""
 
     video: Path
     written: int
@@ -84,9 +70,8 @@ class CameraFrames:
 
 @dataclass(frozen=True)
 class ExtractedScene:
-    """What `extract_frames` wrote: the folder, each camera folder's video and frames, the
-    frame count every camera keeps, the frame rate they keep (None when the videos do not
-    state one and the same), and the unfinished staging folders of killed runs it removed."""
+    """What `extract_frames` wrote; `fps` is None unless the videos state one and the same, and
+    `cleared` lists the staging folders of killed runs it removed."""
 
     folder: Path
     cameras: dict[str, CameraFrames]
@@ -96,8 +81,7 @@ class ExtractedScene:
 
 
 def camera_videos(folder: Path) -> list[Path]:
-    """The video files directly in `folder`, in natural name order (cam2 before cam10); hidden
-    files (`.name`, macOS's `._name` resource forks) are not videos."""
+    """Video files in `folder` in natural order (cam2 before cam10), hidden files left out."""
     folder = require_folder(Path(folder).expanduser().absolute(), "video folder")
     try:
         entries = list(folder.iterdir())
@@ -125,21 +109,13 @@ def extract_frames(
     image_format: str = "jpg",
     progress: bool = True,
 ) -> ExtractedScene:
-    """Write `videos[i]`'s selected frames as `out_dir`/cam<i>/frame_<n>.<format>, n from 0,
-    every camera cut to the count the shortest gives. `out_dir` must be new or empty; the
-    frames go into a hidden sibling folder that is renamed in at the end, so a failure leaves
-    no partial scene."""
-    if len(videos) < MIN_CAMERAS:
-        raise InputError(
-            f"expected at least {MIN_CAMERAS} videos, one per camera, got {len(videos)}"
-        )
-    if image_format not in FRAME_FORMATS:
-        raise InputError(f"frame format: expected one of {FRAME_FORMATS}, got {image_format!r}")
+    """Write `videos[i]`'s selected frames as `out_dir`/cam<i>/frame_<n>.<format> via a hidden
+    sibling folder renamed in at the end, so a failure leaves no partial scene."""
     out = _empty_target(Path(out_dir).expanduser().resolve())
     sources = {f"cam{index:02d}": video for index, video in enumerate(videos)}
     stated = {name: _stated_count(video) for name, video in sources.items()}
     cleared = _clear_killed_staging(out)
-    staging = out.parent / f"{_staging_prefix(out)}{os.getpid()}"
+    staging = out.parent / f"{staging_prefix(out)}{os.getpid()}"
     shutil.rmtree(staging, ignore_errors=True)
     staging.mkdir(parents=True)
     try:
@@ -148,7 +124,12 @@ def extract_frames(
         for name in cameras:
             _drop_frames_from(staging / name, frames)
         fps = _kept_rate([camera.rate for camera in cameras.values()], selection.stride)
-        _write_listing(staging, sources, frames, selection, fps, image_format)
+        # where each camera's frames came from, and the list of first frames COLMAP poses
+        listing = {"sources": {name: str(video) for name, video in sources.items()}}
+        listing.update(frames=frames, start=selection.start, stride=selection.stride, fps=fps)
+        (staging / SOURCES_JSON).write_text(json.dumps(listing, indent=2) + "\n", encoding="utf-8")
+        first = [f"{name}/frame_00000.{image_format}" for name in sources]
+        (staging / COLMAP_LIST).write_text("\n".join(first) + "\n", encoding="utf-8")
     except BaseException:  # a failure or Ctrl-C: no partial scene stays
         shutil.rmtree(staging, ignore_errors=True)
         raise
@@ -156,35 +137,18 @@ def extract_frames(
     return ExtractedScene(out, cameras, frames, fps, cleared)
 
 
-def _staging_prefix(out: Path) -> str:
-    """Name of `out`'s staging folders up to the pid of the process writing one."""
-    return f".{out.name}.partial-"
-
-
 def _clear_killed_staging(out: Path) -> tuple[Path, ...]:
-    """Remove the staging folders for `out` that killed runs left unfinished: their process
-    is gone and they hold no listing. A finished one (its rename failed) is kept: its
-    frames are the ones an earlier error named."""
-    prefix = _staging_prefix(out)
+    """Remove `out`'s staging folders whose process is gone and that hold no listing (a finished
+    one, whose rename failed, holds the frames an earlier error named)."""
+    prefix = staging_prefix(out)
     cleared = []
     for folder in sorted(out.parent.glob(f"{glob.escape(prefix)}*")):
         pid = folder.name.removeprefix(prefix)
-        if not pid.isdigit() or _process_alive(int(pid)) or (folder / SOURCES_JSON).exists():
+        if not pid.isdigit() or process_alive(int(pid)) or (folder / SOURCES_JSON).exists():
             continue
         shutil.rmtree(folder, ignore_errors=True)
         cleared.append(folder)
     return tuple(cleared)
-
-
-def _process_alive(pid: int) -> bool:
-    """Whether process `pid` exists (one of another user's counts; so does an unknown answer)."""
-    try:
-        os.kill(pid, 0)
-    except (ProcessLookupError, OverflowError):  # no such process (or no such pid)
-        return False
-    except OSError:
-        return True
-    return True
 
 
 def _natural_key(path: Path) -> list[object]:
@@ -203,8 +167,7 @@ def _empty_target(out: Path) -> Path:
 
 
 def _stated_count(video: Path) -> int | None:
-    """The frame count `video`'s container states (None when none); a file that does not open
-    as a video is refused here, before any other video is decoded."""
+    """`video`'s stated frame count (or None); a non-video is refused before any decoding."""
     capture = cv2.VideoCapture(str(video))
     try:
         if not capture.isOpened():
@@ -224,7 +187,7 @@ def _write_cameras(
     progress: bool,
 ) -> dict[str, CameraFrames]:
     """Write every camera's frames, shortest stated video first, each stopping at the fewest
-    frames a camera before it gave (the rest would be dropped); by camera name."""
+    frames a camera before it gave (the rest would be dropped)."""
     order = sorted(sources, key=lambda name: (stated[name] is None, stated[name] or 0, name))
     total = None if selection.count is None else selection.count * len(sources)
     bar = progress_bar(total=total, desc="frames", unit="frame", disable=not progress, leave=False)
@@ -255,10 +218,8 @@ def _write_camera(
     capture = cv2.VideoCapture(str(video))
     written = decoded = 0
     try:
-        if not capture.isOpened():
-            raise InputError(f"{video}: cannot open it as a video")
         rate = capture.get(cv2.CAP_PROP_FPS)
-        for index, image in enumerate(_decoded(capture)):
+        for index, image in enumerate(decoded_frames(capture)):
             decoded = index + 1
             if selection.keeps(index):
                 _write_image(folder / f"frame_{written:05d}.{image_format}", image)
@@ -277,7 +238,7 @@ def _write_camera(
     return CameraFrames(video, written, decoded, stated, rate if rate > 0 else None, ran_out)
 
 
-def _decoded(capture: cv2.VideoCapture) -> Iterator[np.ndarray]:
+def decoded_frames(capture: cv2.VideoCapture) -> Iterator[np.ndarray]:
     """The video's frames in order until the decoder has no more."""
     while True:
         ok, image = capture.read()
@@ -289,10 +250,7 @@ def _decoded(capture: cv2.VideoCapture) -> Iterator[np.ndarray]:
 def _write_image(path: Path, image: np.ndarray) -> None:
     """Encode one BGR frame to `path` (JPEG at JPEG_QUALITY, or PNG)."""
     params = [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY] if path.suffix == ".jpg" else []
-    ok, data = cv2.imencode(path.suffix, image, params)
-    if not ok:
-        raise InputError(f"cannot encode a frame as {path.suffix}: {path}")
-    path.write_bytes(data.tobytes())
+    path.write_bytes(cv2.imencode(path.suffix, image, params)[1].tobytes())
 
 
 def _drop_frames_from(folder: Path, count: int) -> None:
@@ -303,8 +261,7 @@ def _drop_frames_from(folder: Path, count: int) -> None:
 
 
 def _kept_rate(rates: list[float | None], stride: int) -> float | None:
-    """The frame rate the written frames keep (the videos' rate over the stride), or None when
-    the videos do not all state one and the same."""
+    """The videos' frame rate over the stride, or None unless they all state one and the same."""
     known = [rate for rate in rates if rate is not None]
     if len(known) < len(rates) or not rates_agree(known):
         return None
@@ -317,8 +274,7 @@ def rates_agree(rates: list[float]) -> bool:
 
 
 def _publish(staging: Path, out: Path) -> None:
-    """Rename the finished staging folder to `out` (an empty folder there is replaced); when
-    that fails, the frames stay in the staging folder, which the error names."""
+    """Rename the staging folder to `out`; on failure the error names where the frames stay."""
     try:
         if out.exists():
             out.rmdir()
@@ -327,24 +283,3 @@ def _publish(staging: Path, out: Path) -> None:
         raise InputError(
             f"cannot move the frames into {out} ({error.strerror}); they are in {staging}"
         ) from None
-
-
-def _write_listing(
-    folder: Path,
-    sources: dict[str, Path],
-    frames: int,
-    selection: FrameSelection,
-    fps: float | None,
-    image_format: str,
-) -> None:
-    """`frames.json` (where each camera's frames came from) and the COLMAP image list."""
-    listing = {
-        "sources": {name: str(video) for name, video in sources.items()},
-        "frames": frames,
-        "start": selection.start,
-        "stride": selection.stride,
-        "fps": fps,
-    }
-    (folder / SOURCES_JSON).write_text(json.dumps(listing, indent=2) + "\n", encoding="utf-8")
-    first = [f"{name}/frame_00000.{image_format}" for name in sources]
-    (folder / COLMAP_LIST).write_text("\n".join(first) + "\n", encoding="utf-8")

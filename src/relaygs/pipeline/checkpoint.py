@@ -38,7 +38,11 @@ class TrainingState:
 
     def restore_rng(self) -> None:
         """Put the saved python/numpy/torch(/CUDA) RNG states back in place."""
-        restore_rng_state(self.rng)
+        random.setstate(self.rng["python"])
+        np.random.set_state(self.rng["numpy"])
+        torch.set_rng_state(self.rng["torch"])
+        if "cuda" in self.rng and torch.cuda.is_available():
+            torch.cuda.set_rng_state_all(self.rng["cuda"])
 
 
 class StageCheckpointer:
@@ -107,10 +111,6 @@ class StageCheckpointer:
                 warnings.warn(f"ignoring damaged checkpoint: {error}", stacklevel=2)
         return None
 
-    def clear(self) -> None:
-        """Delete every checkpoint of this build (called once the artifact is stored)."""
-        remove_tree(self.folder)
-
     def _step_dirs(self) -> list[Path]:
         """Sealed step folders, newest first."""
         if not self.folder.is_dir():
@@ -156,12 +156,3 @@ def capture_rng_state() -> dict[str, Any]:
     if torch.cuda.is_available() and torch.cuda.is_initialized():
         state["cuda"] = torch.cuda.get_rng_state_all()
     return state
-
-
-def restore_rng_state(state: dict[str, Any]) -> None:
-    """Put back the RNG states captured by `capture_rng_state`."""
-    random.setstate(state["python"])
-    np.random.set_state(state["numpy"])
-    torch.set_rng_state(state["torch"])
-    if "cuda" in state and torch.cuda.is_available():
-        torch.cuda.set_rng_state_all(state["cuda"])

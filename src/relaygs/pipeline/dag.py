@@ -29,9 +29,8 @@ StageFn = Callable[[Any, dict[str, Artifact], dict[str, Any]], Artifact]
 """A stage: `(scene, upstream artifacts by node name, stage config) -> Artifact`."""
 
 CanonicalFn = Callable[[str, Mapping[str, Any], Any], Mapping[str, Any]]
-"""`(stage type, stage config, scene) -> canonical stage config`: maps configs that mean the
-same computation to one form, which is both keyed and run (so equivalent configs share one
-artifact, and its content matches its key)."""
+"""`(stage type, stage config, scene) -> canonical stage config`: the one form, keyed and run,
+of configs that mean the same computation (so they share one artifact)."""
 
 
 @dataclass(frozen=True)
@@ -103,6 +102,7 @@ def run_pipeline(
     fingerprint = str(scene.fingerprint)
     artifacts: dict[str, Artifact] = {}
     reports: dict[str, NodeReport] = {}
+    ancestors: dict[str, set[str]] = {}
     for node in pipeline.topological_order():
         cfg = dict(cfg_for(node))
         if canonical is not None:
@@ -134,14 +134,15 @@ def run_pipeline(
             if failure is None:
                 raise
             raise failure from error
-        ancestors = _ancestors(pipeline, node)
+        ancestors[node.name] = set(node.upstream).union(*(ancestors[n] for n in node.upstream))
+        upstream_seconds = sum(reports[name].wall_seconds for name in ancestors[node.name])
         report = NodeReport(
             node=node.name,
             stage=node.stage,
             key=key,
             cache_hit=info.cache_hit,
             wall_seconds=info.wall_seconds,
-            lineage_seconds=info.wall_seconds + sum(reports[a].wall_seconds for a in ancestors),
+            lineage_seconds=info.wall_seconds + upstream_seconds,
             path=info.path,
             size_mb=info.size_mb,
             replaced_corrupt=info.replaced_corrupt,
@@ -153,15 +154,3 @@ def run_pipeline(
         if on_node_done is not None:
             on_node_done(report)
     return PipelineRun(pipeline=pipeline, artifacts=artifacts, reports=list(reports.values()))
-
-
-def _ancestors(pipeline: Pipeline, node: Node) -> set[str]:
-    """Every node `node` depends on, directly or transitively."""
-    found: set[str] = set()
-    pending = list(node.upstream)
-    while pending:
-        name = pending.pop()
-        if name not in found:
-            found.add(name)
-            pending.extend(pipeline.nodes[name].upstream)
-    return found

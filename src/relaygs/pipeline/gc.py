@@ -143,18 +143,13 @@ def _remove_if_free(
         if not path.is_dir() or not _is_garbage(path, key, kept):
             return
         report.removed.append(path)
-        if not dry_run:
-            _hide_and_remove(path, key)
-
-
-def _hide_and_remove(path: Path, key: str) -> None:
-    """Delete a store entry, renamed to a trash name first (which the next gc removes), so a
-    kill part-way leaves no half-deleted artifact under its own name."""
-    if key_of_temp_name(path.name) is None:
-        trash = trash_path(path.parent, key)
-        os.replace(path, trash)
-        path = trash
-    remove_tree(path)
+        if dry_run:
+            return
+        if key_of_temp_name(path.name) is None:  # renamed to trash first: a kill part-way
+            trash = trash_path(path.parent, key)  # leaves no half-deleted entry under its name
+            os.replace(path, trash)
+            path = trash
+        remove_tree(path)
 
 
 def _remove_free_locks(root: Path, dry_run: bool, report: GcReport) -> None:

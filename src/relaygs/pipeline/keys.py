@@ -1,10 +1,5 @@
-"""Content-addressed artifact keys: sha256 of a canonical JSON of everything that shapes a result.
-
-What never enters a key (see `key_config`): any mapping entry whose name is in
-`NON_KEY_NAMES` (e.g. `hydra`, `paths`, `tags`, `logging`) or ends with one of
-`NON_KEY_SUFFIXES` (`_dir`, `_path`, `_file`, `_root`), together with everything under it,
-at any depth. These say where things go or how a run is watched, not what it computes.
-"""
+"""Content-addressed artifact keys: sha256 of a canonical JSON of everything that shapes a result,
+never of where things go or how a run is watched (`is_non_key_name`)."""
 
 from __future__ import annotations
 
@@ -16,17 +11,7 @@ from typing import Any
 from relaygs.errors import InputError
 
 NON_KEY_NAMES = frozenset(
-    {
-        "hydra",
-        "paths",
-        "path",
-        "dir",
-        "root",
-        "tags",
-        "logging",
-        "progress",
-        "checkpoint_every",
-    }
+    {"hydra", "paths", "path", "dir", "root", "tags", "logging", "progress", "checkpoint_every"}
 )
 NON_KEY_SUFFIXES = ("_dir", "_path", "_file", "_root")
 
@@ -36,9 +21,17 @@ def is_non_key_name(name: str) -> bool:
     return name in NON_KEY_NAMES or name.endswith(NON_KEY_SUFFIXES)
 
 
-def key_config(cfg: Mapping[str, Any]) -> dict[str, Any]:
-    """A plain-dict copy of `cfg` without the entries that never enter a key (module docstring)."""
-    return _strip(cfg)
+def key_config(cfg: Any) -> Any:
+    """A plain copy of `cfg` without the entries, at any depth, that never enter a key."""
+    if isinstance(cfg, Mapping):
+        return {
+            key: key_config(item)
+            for key, item in cfg.items()
+            if not (isinstance(key, str) and is_non_key_name(key))
+        }
+    if isinstance(cfg, Sequence) and not isinstance(cfg, str | bytes):
+        return [key_config(item) for item in cfg]
+    return cfg
 
 
 def canonical_json(value: Any, where: str = "value") -> str:
@@ -70,19 +63,6 @@ def artifact_key(
         "upstream": list(upstream_keys),
     }
     return hashlib.sha256(canonical_json(payload).encode("ascii")).hexdigest()
-
-
-def _strip(value: Any) -> Any:
-    """Recursively drop non-key entries from mappings; sequences are walked too."""
-    if isinstance(value, Mapping):
-        return {
-            key: _strip(item)
-            for key, item in value.items()
-            if not (isinstance(key, str) and is_non_key_name(key))
-        }
-    if isinstance(value, Sequence) and not isinstance(value, str | bytes):
-        return [_strip(item) for item in value]
-    return value
 
 
 def _normalise(value: Any, where: str) -> Any:

@@ -1,9 +1,5 @@
-"""Where things live under an artifact store root; the one place that spells the layout.
-
-`<root>/<stage>/<key>/` a finished artifact, `<root>/<stage>/<key>.ckpt/` in-stage
-checkpoints of an unfinished one, `<root>/<stage>/.tmp-*` builds in progress (or left by a
-killed build), `<root>/.locks/<stage>.<key>.lock` the per-key file locks.
-"""
+"""The one place that spells a store's layout: `<stage>/<key>/` artifacts, `<key>.ckpt/` their
+checkpoints, `.tmp-*` builds under way (or killed), `.locks/<stage>.<key>.lock` file locks."""
 
 from __future__ import annotations
 

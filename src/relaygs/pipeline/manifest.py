@@ -13,9 +13,8 @@ from relaygs.pipeline.integrity import CorruptArtifactError, file_sha256
 MANIFEST_FILE = "manifest.json"
 MANIFEST_FORMAT = 1
 BUILT_BY = "built_by"
-"""The provenance entry naming the job that built the artifact (its run folder, then `#` and a
-digest of what the job ran), so a sweep resumed in place can count what its own jobs built
-before it was interrupted."""
+"""The provenance entry naming the job that built the artifact (run folder `#` digest), so a
+sweep resumed in place counts what its own jobs built before it was interrupted."""
 _FIELD_TYPES: dict[str, type | tuple[type, ...]] = {
     "key": str,
     "stage": str,

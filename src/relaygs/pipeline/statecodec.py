@@ -1,9 +1,5 @@
-"""Split nested training state (optimizer state dicts, RNG states) into safetensors + JSON.
-
-Tensors anywhere in the tree are replaced by `{"$tensor": name}` and collected by name;
-dicts (whose keys may be ints, as in `optimizer.state_dict()["state"]`), tuples and numpy
-arrays are tagged so the tree decodes to exactly what was encoded. No pickle involved.
-"""
+"""Split nested training state (optimizer state dicts, RNG states) into tensors and a tagged
+JSON skeleton (int dict keys, tuples, numpy arrays) that decodes exactly, without pickle."""
 
 from __future__ import annotations
 

@@ -164,7 +164,8 @@ class ArtifactStore:
             if hit is not None:
                 remove_tree(checkpoint_dir(self.root, stage, key))
                 return hit
-            self._remove_own_temps(stage, key)
+            for leftover in (self.root / stage).glob(f"{TEMP_PREFIX}{key}-*"):
+                remove_tree(leftover)  # a killed build's (this process holds the key's lock)
             context = BuildContext(self.root, stage, key)
             with building(context):
                 started = time.perf_counter()
@@ -285,14 +286,18 @@ class ArtifactStore:
         )
 
     def _load_unchanged(self, stage: str, key: str, verify: bool) -> tuple[Artifact, Manifest]:
-        """`_load_with_manifest`, whose failure becomes ArtifactChangedError when the folder was
-        removed or replaced meanwhile (renamed out or in whole, so its identity tells)."""
+        """The artifact (hashes checked with `verify`) and its manifest; a failure becomes
+        ArtifactChangedError when the folder was removed or replaced (renamed) meanwhile."""
         folder = self.path(stage, key)
         identity = folder_identity(folder)
         if identity is None:  # no folder to compare with: one published from now on is not read
             raise MissingArtifactError(f"no artifact {stage}/{key} in {self.root}")
         try:
-            return self._load_with_manifest(stage, key, verify)
+            self._require(stage, key)
+            if verify:
+                check_seal(folder)
+            manifest = read_own_manifest(folder)
+            return read_decodable_files(folder, stage), manifest
         except (MissingArtifactError, CorruptArtifactError) as error:
             if folder_identity(folder) == identity:
                 raise
@@ -300,15 +305,6 @@ class ArtifactStore:
                 f"{folder} was removed or replaced by another process while it was read "
                 f"(a gc or a rebuild): {RERUN_COMMAND}"
             ) from error
-
-    def _load_with_manifest(self, stage: str, key: str, verify: bool) -> tuple[Artifact, Manifest]:
-        """Load (optionally hash-checked) artifact files and manifest of a finished artifact."""
-        self._require(stage, key)
-        folder = self.path(stage, key)
-        if verify:
-            check_seal(folder)
-        manifest = read_own_manifest(folder)
-        return read_decodable_files(folder, stage), manifest
 
     def _write(
         self, stage: str, key: str, artifact: Artifact, manifest_fields: dict[str, Any]
@@ -333,7 +329,8 @@ class ArtifactStore:
             )
             write_manifest(temp, manifest)
             seal(temp)
-            if not _is_intact(final):
+            # replace anything a load would refuse
+            if not isinstance(_examine(final, check_hashes=True), StoredArtifact):
                 publish_dir(temp, final)
         finally:
             remove_tree(temp)
@@ -349,11 +346,6 @@ class ArtifactStore:
         with lock_if_free(lock_file) as free:
             if free:
                 remove_tree(folder)
-
-    def _remove_own_temps(self, stage: str, key: str) -> None:
-        """Delete temp folders a killed build of this key left (the caller holds its lock)."""
-        for leftover in (self.root / stage).glob(f"{TEMP_PREFIX}{key}-*"):
-            remove_tree(leftover)
 
     def _require(self, stage: str, key: str) -> None:
         """Raise MissingArtifactError unless a finished artifact exists."""
@@ -411,9 +403,3 @@ def _examine_steady(folder: Path, check_hashes: bool) -> StoredArtifact | Verify
             return outcome
         identity = now
     return None
-
-
-def _is_intact(folder: Path) -> bool:
-    """True when `folder` is a sealed artifact whose hashes all match, whose manifest names it
-    and whose files decode: what a load accepts, so a build replaces anything a load refuses."""
-    return isinstance(_examine(folder, check_hashes=True), StoredArtifact)

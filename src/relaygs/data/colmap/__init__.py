@@ -17,10 +17,7 @@ from relaygs.data.colmap.text import read_text_model, write_text_model
 from relaygs.errors import InputError
 
 MODEL_FILES = ("cameras", "images", "points3D")
-
-
-MODEL_SUFFIXES = (".bin", ".txt")
-"""The two forms of a model, in the order they are preferred when a folder holds both."""
+MODEL_SUFFIXES = (".bin", ".txt")  # binary preferred when a folder holds both
 
 
 def model_suffix(folder: Path) -> str | None:
@@ -29,11 +26,6 @@ def model_suffix(folder: Path) -> str | None:
         if all((folder / f"{name}{suffix}").is_file() for name in MODEL_FILES):
             return suffix
     return None
-
-
-def is_model_folder(folder: Path) -> bool:
-    """True when `folder` holds a complete binary or text COLMAP model."""
-    return model_suffix(folder) is not None
 
 
 def read_model(folder: str | Path) -> ColmapModel:
@@ -60,7 +52,6 @@ __all__ = [
     "ColmapCamera",
     "ColmapImage",
     "ColmapModel",
-    "is_model_folder",
     "model_suffix",
     "qvec_to_rotation",
     "read_model",

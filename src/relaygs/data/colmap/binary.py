@@ -39,8 +39,8 @@ class _Reader:
         return values
 
     def count(self, least: str, what: str) -> int:
-        """A record count, refused when the bytes left cannot hold that many records of at least
-        struct format `least`, so a damaged count fails before anything is allocated."""
+        """A record count, refused when the bytes left cannot hold that many `least` records, so a
+        damaged count fails before anything is allocated."""
         count = self.unpack("Q")[0]
         left, size = len(self.data) - self.pos, struct.calcsize("<" + least)
         if count * size > left:
@@ -49,11 +49,6 @@ class _Reader:
                 f"most {left // size}; the file is damaged"
             )
         return count
-
-    def skip(self, size: int) -> None:
-        if self.pos + size > len(self.data):
-            raise InputError(f"{self.path}: file is truncated at byte {self.pos}")
-        self.pos += size
 
     def string(self) -> str:
         end = self.data.find(b"\x00", self.pos)
@@ -92,7 +87,7 @@ def _read_images(path: Path) -> dict[int, ColmapImage]:
     for _ in range(reader.count(_LEAST_IMAGE, "images")):
         image_id, *pose, camera_id = reader.unpack("I7dI")
         name = reader.string()
-        reader.skip(reader.unpack("Q")[0] * struct.calcsize("<ddq"))
+        reader.unpack(f"{reader.unpack('Q')[0] * struct.calcsize('<ddq')}x")  # 2D points
         images[image_id] = ColmapImage(image_id, tuple(pose[:4]), tuple(pose[4:]), camera_id, name)
     return images
 
@@ -106,7 +101,7 @@ def _read_points(path: Path) -> dict[str, np.ndarray]:
         values = reader.unpack("Q3d3Bd")
         xyz[index] = values[1:4]
         rgb[index] = values[4:7]
-        reader.skip(reader.unpack("Q")[0] * struct.calcsize("<ii"))
+        reader.unpack(f"{reader.unpack('Q')[0] * struct.calcsize('<ii')}x")  # its track
     return {"xyz": xyz, "rgb": rgb}
 
 
@@ -116,17 +111,13 @@ def write_binary_model(folder: Path, model: ColmapModel) -> None:
     cameras = [struct.pack("<Q", len(model.cameras))]
     for camera in model.cameras.values():
         model_id, num_params = CAMERA_MODELS[camera.model]
-        cameras.append(
-            struct.pack("<iiQQ", camera.camera_id, model_id, camera.width, camera.height)
-        )
-        cameras.append(struct.pack("<" + "d" * num_params, *camera.params))
+        head = struct.pack("<iiQQ", camera.camera_id, model_id, camera.width, camera.height)
+        cameras.append(head + struct.pack(f"<{num_params}d", *camera.params))
     (folder / "cameras.bin").write_bytes(b"".join(cameras))
     images = [struct.pack("<Q", len(model.images))]
     for image in model.images.values():
-        images.append(
-            struct.pack("<I7dI", image.image_id, *image.qvec, *image.tvec, image.camera_id)
-        )
-        images.append(image.name.encode("utf-8") + b"\x00" + struct.pack("<Q", 0))
+        pose = struct.pack("<I7dI", image.image_id, *image.qvec, *image.tvec, image.camera_id)
+        images.append(pose + image.name.encode("utf-8") + b"\x00" + struct.pack("<Q", 0))
     (folder / "images.bin").write_bytes(b"".join(images))
     points = [struct.pack("<Q", len(model.xyz))]
     for index, (xyz, rgb) in enumerate(zip(model.xyz, model.rgb, strict=True)):

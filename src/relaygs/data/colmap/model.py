@@ -79,23 +79,16 @@ def qvec_to_rotation(qvec: np.ndarray) -> np.ndarray:
 
 
 def rotation_to_qvec(rotation: np.ndarray) -> np.ndarray:
-    """Unit quaternion (w, x, y, z), w ≥ 0, of a rotation matrix (the largest-diagonal method)."""
-    r = rotation
-    trace = np.trace(r)
-    candidates = np.array([trace, r[0, 0], r[1, 1], r[2, 2]])
-    pick = int(np.argmax(candidates))
-    if pick == 0:
-        s = 2.0 * np.sqrt(1.0 + trace)
-        q = [s / 4, (r[2, 1] - r[1, 2]) / s, (r[0, 2] - r[2, 0]) / s, (r[1, 0] - r[0, 1]) / s]
-    elif pick == 1:
-        s = 2.0 * np.sqrt(1.0 + r[0, 0] - r[1, 1] - r[2, 2])
-        q = [(r[2, 1] - r[1, 2]) / s, s / 4, (r[0, 1] + r[1, 0]) / s, (r[0, 2] + r[2, 0]) / s]
-    elif pick == 2:
-        s = 2.0 * np.sqrt(1.0 + r[1, 1] - r[0, 0] - r[2, 2])
-        q = [(r[0, 2] - r[2, 0]) / s, (r[0, 1] + r[1, 0]) / s, s / 4, (r[1, 2] + r[2, 1]) / s]
-    else:
-        s = 2.0 * np.sqrt(1.0 + r[2, 2] - r[0, 0] - r[1, 1])
-        q = [(r[1, 0] - r[0, 1]) / s, (r[0, 2] + r[2, 0]) / s, (r[1, 2] + r[2, 1]) / s, s / 4]
-    quaternion = np.asarray(q)
-    quaternion /= np.linalg.norm(quaternion)
+    """Unit quaternion (w, x, y, z), w ≥ 0, of a rotation matrix: the top eigenvector of
+    Bar-Itzhack's symmetric 4×4 matrix, which also takes a nearly orthonormal one."""
+    r = np.asarray(rotation, dtype=np.float64)
+    (xx, xy, xz), (yx, yy, yz), (zx, zy, zz) = r
+    symmetric = [
+        [xx + yy + zz, zy - yz, xz - zx, yx - xy],
+        [zy - yz, xx - yy - zz, xy + yx, xz + zx],
+        [xz - zx, xy + yx, yy - xx - zz, yz + zy],
+        [yx - xy, xz + zx, yz + zy, zz - xx - yy],
+    ]
+    values, vectors = np.linalg.eigh(np.array(symmetric) / 3.0)
+    quaternion = vectors[:, np.argmax(values)]
     return quaternion if quaternion[0] >= 0 else -quaternion

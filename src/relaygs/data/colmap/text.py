@@ -63,23 +63,19 @@ def _read_images(path: Path) -> dict[int, ColmapImage]:
         if not line:
             continue
         fields = line.split(maxsplit=9)
-        if len(fields) != 10:
-            raise _bad_line(path, number, "IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME")
         try:
             image_id, camera_id = int(fields[0]), int(fields[8])
             pose = [float(value) for value in fields[1:8]]
-        except ValueError:
+            name = fields[9]
+        except (ValueError, IndexError):
             raise _bad_line(path, number, "IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME") from None
-        _skip_points2d(path, next(lines, None), fields[9])
-        images[image_id] = ColmapImage(
-            image_id, tuple(pose[:4]), tuple(pose[4:]), camera_id, fields[9]
-        )
+        _skip_points2d(path, next(lines, None), name)
+        images[image_id] = ColmapImage(image_id, tuple(pose[:4]), tuple(pose[4:]), camera_id, name)
     return images
 
 
 def _skip_points2d(path: Path, line: tuple[int, str] | None, image: str) -> None:
-    """Check the line after an image's, its 2D points (X Y POINT3D_ID triples, or none): a
-    model written by hand with one line per image would otherwise lose every second image."""
+    """Refuse an image line not followed by its 2D points (hand-written models lose images)."""
     if line is not None and len(line[1].split()) % 3:
         expected = f"the POINTS2D line of image {image!r} (X Y POINT3D_ID triples, or empty)"
         raise _bad_line(path, line[0], f"{expected}: each image takes two lines")
@@ -100,9 +96,7 @@ def _read_points(path: Path) -> tuple[np.ndarray, np.ndarray]:
             raise _bad_line(path, number, "POINT3D_ID X Y Z R G B ERROR TRACK[]")
         if not all(0 <= value <= 255 for value in rgb[-1]):
             raise _bad_line(path, number, f"colour R G B in 0..255, got {rgb[-1]}")
-    return np.asarray(xyz, dtype=np.float64).reshape(-1, 3), np.asarray(
-        rgb, dtype=np.uint8
-    ).reshape(-1, 3)
+    return np.asarray(xyz, np.float64).reshape(-1, 3), np.asarray(rgb, np.uint8).reshape(-1, 3)
 
 
 def write_text_model(folder: Path, model: ColmapModel) -> None:

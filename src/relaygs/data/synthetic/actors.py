@@ -1,8 +1,5 @@
-"""Moving things of the presets: articulated people, juggled and passed balls, spectators.
-
-All motion is vectorised over frames: a path gives root positions [F,2] and headings [F], and
-limb angles follow a gait phase, so each bone becomes one capsule posed per frame.
-"""
+"""Moving things of the presets: articulated people, juggled and passed balls, spectators;
+motion is vectorised over frames, each bone one capsule posed per frame."""
 
 from __future__ import annotations
 
@@ -14,10 +11,8 @@ from relaygs.data.synthetic.textures import HairCap, Material, Solid, Stripes
 from relaygs.data.synthetic.world import Primitive
 
 Color = tuple[float, float, float]
-Limb = tuple[np.ndarray, np.ndarray]
-"""(upper, lower) sagittal angles [F] of one arm or leg."""
-LimbPair = tuple[Limb, Limb]
-"""The (left, right) limbs of a kind."""
+Limb = tuple[np.ndarray, np.ndarray]  # (upper, lower) sagittal angles [F] of one arm or leg
+LimbPair = tuple[Limb, Limb]  # the (left, right) limbs of a kind
 
 HIP_HEIGHT = 0.93
 HEAD_RADIUS = 0.11
@@ -41,11 +36,8 @@ class Outfit:
 
 @dataclass(frozen=True)
 class BodyMotion:
-    """Per-frame root xy [F,2], heading [F] (radians about z) and limb angles [F] per limb.
-
-    Angles are in the body's sagittal plane, 0 pointing straight down, positive forward;
-    `arms`/`legs` hold (upper, lower) angle arrays for the left and the right side.
-    """
+    """Per-frame root xy [F,2], heading [F] and (left, right) limbs of (upper, lower) sagittal
+    angles [F]: 0 straight down, positive forward."""
 
     root: np.ndarray
     heading: np.ndarray
@@ -101,26 +93,25 @@ def juggling_arms(time_s: np.ndarray, period_s: float) -> LimbPair:
     return arm(0.0), arm(np.pi)
 
 
-def _direction(heading_rotations: np.ndarray, angle: np.ndarray) -> np.ndarray:
-    local = np.stack([np.sin(angle), np.zeros_like(angle), -np.cos(angle)], axis=1)
-    return np.einsum("fij,fj->fi", heading_rotations, local)
-
-
 def _bone(
     start: np.ndarray,
-    direction: np.ndarray,
-    length: float,
-    radius: float,
-    lateral: np.ndarray,
+    rotations: np.ndarray,
+    angle: np.ndarray,
+    size: tuple[float, float],
     material: Material,
 ) -> tuple[Primitive, np.ndarray]:
-    """A capsule from `start` [F,3] along unit `direction` [F,3]; returns it and its end."""
+    """A capsule of (length, radius) `size` from `start` [F,3] at sagittal `angle` [F] of the
+    body `rotations` [F,3,3]; returns it and its end."""
+    length, radius = size
+    local = np.stack([np.sin(angle), np.zeros_like(angle), -np.cos(angle)], axis=1)
+    direction = np.einsum("fij,fj->fi", rotations, local)
+    lateral = rotations[:, :, 1]
     end = start + length * direction
     x_axis = np.cross(lateral, direction)
     x_axis /= np.linalg.norm(x_axis, axis=1, keepdims=True)
-    rotations = np.stack([x_axis, lateral, direction], axis=2)
+    frame = np.stack([x_axis, lateral, direction], axis=2)
     capsule = Primitive(
-        "capsule", (length / 2, radius), rotations, (start + end) / 2, material, foreground=True
+        "capsule", (length / 2, radius), frame, (start + end) / 2, material, foreground=True
     )
     return capsule, end
 
@@ -128,35 +119,25 @@ def _bone(
 def person(motion: BodyMotion, outfit: Outfit) -> list[Primitive]:
     """Ten primitives of an articulated person: torso, head, upper/lower arms and legs."""
     rotations = body_rotations(motion.heading)
-    lateral = rotations[:, :, 1]
     shirt = Stripes(outfit.shirt, outfit.shirt_stripe, period=0.16, axis=2)
     trousers = Stripes(outfit.trousers, tuple(0.8 * c for c in outfit.trousers), period=0.12)
     skin = Solid(outfit.skin)
     torso_center = body_to_world(motion, np.array([0.0, 0.0, 1.17]))
+    head_center = body_to_world(motion, np.array([0.0, 0.0, 1.62]))
+    hair = HairCap(outfit.skin, outfit.hair, level=0.03)
     primitives = [
         Primitive("capsule", (0.19, 0.16), rotations, torso_center, shirt, foreground=True),
-        Primitive(
-            "sphere",
-            (HEAD_RADIUS,),
-            rotations,
-            body_to_world(motion, np.array([0.0, 0.0, 1.62])),
-            HairCap(outfit.skin, outfit.hair, level=0.03),
-            foreground=True,
-        ),
+        Primitive("sphere", (HEAD_RADIUS,), rotations, head_center, hair, foreground=True),
     ]
     for side, sign in ((0, 1.0), (1, -1.0)):
         hip = body_to_world(motion, np.array([0.0, sign * _HIP_SIDE, HIP_HEIGHT]))
         thigh_angle, shin_angle = motion.legs[side]
-        thigh, knee = _bone(
-            hip, _direction(rotations, thigh_angle), _THIGH, 0.07, lateral, trousers
-        )
-        shin, _ = _bone(knee, _direction(rotations, shin_angle), _SHIN, 0.055, lateral, trousers)
+        thigh, knee = _bone(hip, rotations, thigh_angle, (_THIGH, 0.07), trousers)
+        shin, _ = _bone(knee, rotations, shin_angle, (_SHIN, 0.055), trousers)
         shoulder = body_to_world(motion, np.array([0.0, sign * _SHOULDER_SIDE, _SHOULDER_HEIGHT]))
         upper_angle, fore_angle = motion.arms[side]
-        upper, elbow = _bone(
-            shoulder, _direction(rotations, upper_angle), _UPPER_ARM, 0.05, lateral, shirt
-        )
-        fore, _ = _bone(elbow, _direction(rotations, fore_angle), _FOREARM, 0.042, lateral, skin)
+        upper, elbow = _bone(shoulder, rotations, upper_angle, (_UPPER_ARM, 0.05), shirt)
+        fore, _ = _bone(elbow, rotations, fore_angle, (_FOREARM, 0.042), skin)
         primitives.extend([thigh, shin, upper, fore])
     return primitives
 
@@ -172,26 +153,14 @@ def juggled_balls(
         side = np.where(np.mod(np.floor(cycle), 2) == 0, 1.0, -1.0)
         flying = within < 0.75
         u = np.where(flying, within / 0.75, (within - 0.75) / 0.25)
-        lateral = np.where(
-            flying,
-            side * (0.1 - 0.31 * u),
-            -side * (_SHOULDER_SIDE - 0.11 * u),
-        )
+        lateral = np.where(flying, side * (0.1 - 0.31 * u), -side * (_SHOULDER_SIDE - 0.11 * u))
         height = np.where(
             flying, HAND_HEIGHT + 3.6 * u * (1 - u), HAND_HEIGHT - 0.1 * np.sin(np.pi * u)
         )
         local = np.stack([np.full_like(u, HAND_FORWARD + 0.05), lateral, height], axis=1)
-        spin = body_rotations(2 * np.pi * cycle)
-        balls.append(
-            Primitive(
-                "sphere",
-                (0.07,),
-                spin,
-                body_to_world(motion, local),
-                Stripes(color, (1.0, 1.0, 1.0), 0.07, axis=0),
-                foreground=True,
-            )
-        )
+        spin, position = body_rotations(2 * np.pi * cycle), body_to_world(motion, local)
+        material = Stripes(color, (1.0, 1.0, 1.0), 0.07, axis=0)
+        balls.append(Primitive("sphere", (0.07,), spin, position, material, foreground=True))
     return balls
 
 
@@ -240,18 +209,9 @@ def spectator(
     rotation = body_rotations(np.array([facing]))
     base = np.array([position[0], position[1], 0.0])
     offsets = np.zeros((1, 3)) if jitter is None else jitter
-    body = Primitive(
-        "capsule",
-        (0.3, 0.2),
-        rotation,
-        base + np.array([0.0, 0.0, 0.85]) + offsets,
-        Stripes(outfit.shirt, outfit.shirt_stripe, period=0.2, axis=2),
-    )
-    head = Primitive(
-        "sphere",
-        (0.12,),
-        rotation,
-        base + np.array([0.0, 0.0, 1.5]) + 1.3 * offsets,
-        HairCap(outfit.skin, outfit.hair, level=0.04),
-    )
-    return [body, head]
+    shirt = Stripes(outfit.shirt, outfit.shirt_stripe, period=0.2, axis=2)
+    hair = HairCap(outfit.skin, outfit.hair, level=0.04)
+    body_center = base + np.array([0.0, 0.0, 0.85]) + offsets
+    head_center = base + np.array([0.0, 0.0, 1.5]) + 1.3 * offsets
+    body = Primitive("capsule", (0.3, 0.2), rotation, body_center, shirt)
+    return [body, Primitive("sphere", (0.12,), rotation, head_center, hair)]

@@ -18,6 +18,7 @@ from relaygs.data.metafiles import SCENE_JSON
 from relaygs.data.options import require_int
 from relaygs.data.panoptic import POINTS_FILE, TEST_META, TRAIN_META
 from relaygs.data.scene import MIN_IMAGE_SIDE
+from relaygs.data.staging import process_alive, staging_prefix
 from relaygs.data.synthetic.presets import DURATION_S, PRESETS, Preset
 from relaygs.data.synthetic.render import (
     Buffers,
@@ -41,16 +42,11 @@ GENERATOR = "relaygs.synth"
 GENERATOR_VERSION = "1"
 GENERATED_ENTRIES = frozenset({"ims", "seg", TRAIN_META, TEST_META, POINTS_FILE, SCENE_JSON})
 """What a generated scene folder holds (regenerating replaces exactly these)."""
-MAX_SYNTH_COUNT = 100_000
-"""The most frames, and pixels a side, a synthetic scene may have (more is no scene one
-machine renders: numpy's arrays for it cannot even be made)."""
-GENERATED_IMAGE = re.compile(r"\d+/\d{6}\.png")
-"""The files the generator writes inside ims/ and seg/: `<camera>/<frame:06d>.png`."""
+MAX_SYNTH_COUNT = 100_000  # most frames, and pixels a side: numpy could not even make more
+GENERATED_IMAGE = re.compile(r"\d+/\d{6}\.png")  # what the generator writes in ims/ and seg/
 SUPERSAMPLE = 2
-POINTS_PER_PIXEL = 0.1
-"""Initial-cloud samples per pixel of each training camera's frame 0 ..."""
-MAX_POINTS = 100_000
-"""... capped at this many points in total (the loaders' default budget)."""
+POINTS_PER_PIXEL = 0.1  # initial-cloud samples per pixel of each training camera's frame 0 ..
+MAX_POINTS = 100_000  # ... capped at this many points in total (the loaders' default budget)
 _PNG_FAST = [cv2.IMWRITE_PNG_COMPRESSION, 1]
 
 
@@ -65,12 +61,8 @@ def generate(
     effects: Iterable[str] | None = None,
     progress: bool = False,
 ) -> Path:
-    """Write preset `preset` to `out_dir` (Panoptic layout + scene.json); returns the folder.
-
-    `effects=None` uses the preset's default effects; otherwise exactly the given ones are
-    simulated. An existing folder is replaced only if it holds a previously generated scene.
-    `progress` shows a bar over the rendered views on stderr.
-    """
+    """Write `preset` to `out_dir` (Panoptic layout + scene.json) with its default `effects`
+    or exactly the given ones; only a generated scene there is replaced."""
     recipe = PRESETS.get(preset)
     if recipe is None:
         raise InputError(f"unknown preset {preset!r}; expected one of: {', '.join(PRESETS)}")
@@ -82,14 +74,9 @@ def generate(
     require_int("seed", seed, minimum=0, prefix="")
     declared = declared_effects(recipe, effects)
     times = np.linspace(0.0, DURATION_S, frames) if frames > 1 else np.zeros(1)
-    world = World(
-        cameras=rig_cameras(recipe, width, height),
-        test_cameras=recipe.test_cameras,
-        primitives=_primitives(recipe, times, declared, seed),
-        times_s=times,
-        width=width,
-        height=height,
-    )
+    cameras = rig_cameras(recipe, width, height)
+    primitives = _primitives(recipe, times, declared, seed)
+    world = World(cameras, recipe.test_cameras, primitives, times, width, height)
     out = Path(out_dir).expanduser().absolute()
     staging = _staging_folder(out)
     try:
@@ -109,9 +96,8 @@ def generate(
 
 
 def require_valid_preset(key: str, recipe: Preset) -> None:
-    """What a preset must be before a scene is made of it (`rig_cameras` checks its test
-    cameras, `declared_effects` its defaults against what it supports): named by its PRESETS
-    key, which scene.json and the cache folder carry, with frozensets of known effects."""
+    """Refuse a preset whose name is not its PRESETS key (scene.json and the cache carry it) or
+    whose effects are not frozensets of known effect names."""
     where = f"PRESETS[{key!r}]"
     if recipe.name != key:
         raise InputError(
@@ -133,8 +119,7 @@ def require_valid_preset(key: str, recipe: Preset) -> None:
 
 
 def rig_cameras(recipe: Preset, width: int, height: int) -> list[RigCamera]:
-    """The preset's rig, whose cameras must include each of its test cameras (indices into the
-    rig, at least one) and leave at least one to train on."""
+    """The preset's rig; its test cameras must be distinct indices into it, leaving some."""
     cameras = recipe.rig(width, height)
     count, test = len(cameras), recipe.test_cameras
     fits = 0 < len(set(test)) == len(test) < count
@@ -150,7 +135,6 @@ def rig_cameras(recipe: Preset, width: int, height: int) -> list[RigCamera]:
 def _primitives(
     recipe: Preset, times: np.ndarray, effects: frozenset[str], seed: int
 ) -> list[Primitive]:
-    """The preset's world at `times`: its builder's list of primitives."""
     primitives = recipe.build(times, effects, seed)
     if not isinstance(primitives, list) or not all(isinstance(p, Primitive) for p in primitives):
         raise InputError(
@@ -163,8 +147,7 @@ def _primitives(
 def declared_effects(
     recipe: Preset, effects: Iterable[str] | None, source: str = "effects"
 ) -> frozenset[str]:
-    """The effects a scene of `recipe` simulates: its defaults when `effects` is None, else
-    `effects` (named by `source` in errors), each of which the preset must support."""
+    """The preset's default effects for None, else `effects`; each must be supported."""
     if effects is None:
         source = f"PRESETS[{recipe.name!r}].default_effects ({PRESETS_FILE})"
         _require_supported(recipe, recipe.default_effects, source)
@@ -175,8 +158,7 @@ def declared_effects(
 
 
 def _require_supported(recipe: Preset, effects: frozenset[str], source: str) -> None:
-    """Every effect in `effects` (named by `source`) is one the preset can simulate: a default
-    outside its supported effects would be declared in scene.json without being simulated."""
+    """Refuse effects the preset cannot simulate (scene.json would declare them unsimulated)."""
     unsupported = sorted(effects - recipe.supported_effects)
     if unsupported:
         raise InputError(
@@ -186,9 +168,8 @@ def _require_supported(recipe: Preset, effects: frozenset[str], source: str) -> 
 
 
 def _staging_folder(out: Path) -> Path:
-    """A fresh sibling folder to write into; `out` may only hold a scene this generator wrote,
-    which the new one replaces (anything else in it would be lost with it); a symbolic link
-    is refused rather than replaced or followed."""
+    """A fresh sibling folder to write into; `out` may only be absent or a scene this generator
+    wrote (anything else would be lost), and not a symbolic link."""
     if out.is_symlink():
         raise InputError(f"output path is a symbolic link: {out}; pass the folder it points to")
     if out.exists():
@@ -208,45 +189,30 @@ def _staging_folder(out: Path) -> Path:
     out.parent.mkdir(parents=True, exist_ok=True)
     remove_abandoned_staging(out)
     writer = f"{socket.gethostname()}-{os.getpid()}"  # who writes it: this machine, process
-    staging = out.parent / f"{_staging_prefix(out)}{writer}"
+    staging = out.parent / f"{staging_prefix(out)}{writer}"
     if staging.exists():
         shutil.rmtree(staging)
     staging.mkdir()
     return staging
 
 
-def _staging_prefix(out: Path) -> str:
-    return f".{out.name}.partial-"
-
-
 def remove_abandoned_staging(out: Path, *, any_writer: bool = False) -> None:
-    """Delete the hidden staging folders beside `out` that a killed generation left: those of a
-    process of this machine that is no longer running, or, with `any_writer` (the caller holds
-    the lock that every generation of `out` takes), every one."""
-    for staging in out.parent.glob(f"{_staging_prefix(out)}*"):
-        writer = staging.name[len(_staging_prefix(out)) :]
+    """Delete the staging folders beside `out` of processes of this machine that ended (all of
+    them with `any_writer`, when the caller holds the lock every generation of `out` takes)."""
+    for staging in out.parent.glob(f"{staging_prefix(out)}*"):
+        writer = staging.name[len(staging_prefix(out)) :]
         if staging.is_dir() and (any_writer or _is_gone(writer)):
             shutil.rmtree(staging, ignore_errors=True)
 
 
 def _is_gone(writer: str) -> bool:
-    """Whether the `<host>-<pid>` writer of a staging folder is a process of this machine that
-    has ended (one of another machine, or a name of another form, cannot be told: False)."""
+    """Whether the `<host>-<pid>` writer is a process of this machine that has ended."""
     host, _, pid = writer.rpartition("-")
-    if host != socket.gethostname() or not pid.isdigit():
-        return False
-    try:
-        os.kill(int(pid), 0)
-    except ProcessLookupError:
-        return True
-    except PermissionError:  # alive, another user's
-        return False
-    return False
+    return host == socket.gethostname() and pid.isdigit() and not process_alive(int(pid))
 
 
 def _foreign_image_files(scene: Path) -> list[str]:
-    """Files under the scene's ims/ and seg/ that the generator does not write there (only
-    `<camera>/<frame:06d>.png`), as paths relative to the scene: regenerating would lose them."""
+    """Files under ims/ and seg/ the generator does not write: regenerating would lose them."""
     foreign = []
     for kind in ("ims", "seg"):
         for path in sorted((scene / kind).rglob("*")):
@@ -307,12 +273,9 @@ def _write_scene(
         1, min(round(POINTS_PER_PIXEL * world.width * world.height), MAX_POINTS // len(train_ids))
     )
     points = []
+    total = len(world.cameras) * num_frames
     views = progress_bar(
-        total=len(world.cameras) * num_frames,
-        desc="generate",
-        unit="view",
-        disable=not progress,
-        leave=False,
+        total=total, desc="generate", unit="view", disable=not progress, leave=False
     )
     with views:
         for camera_id, camera in enumerate(world.cameras):
@@ -347,11 +310,8 @@ def _encode_view(
     radiance, coverage = buffers.downsampled(SUPERSAMPLE)
     image = sensor_image(radiance, gain, offset, noise)
     mask = (coverage >= 0.5).astype(np.uint8)
-    ok_image, image_png = cv2.imencode(".png", cv2.cvtColor(image, cv2.COLOR_RGB2BGR), _PNG_FAST)
-    ok_mask, mask_png = cv2.imencode(".png", mask, _PNG_FAST)
-    if not (ok_image and ok_mask):
-        raise RuntimeError("PNG encoding failed")
-    return image_png.tobytes(), mask_png.tobytes()
+    image_png = cv2.imencode(".png", cv2.cvtColor(image, cv2.COLOR_RGB2BGR), _PNG_FAST)[1]
+    return image_png.tobytes(), cv2.imencode(".png", mask, _PNG_FAST)[1].tobytes()
 
 
 def _surface_points(

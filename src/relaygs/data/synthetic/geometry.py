@@ -1,9 +1,5 @@
-"""Analytic ray casting of primitives in their local frames: sphere, capsule, box, rectangle.
-
-Each routine takes per-ray dimensions ([N] or [N,3]), ray origins [N,3] and unit directions
-[N,3] in the primitive's local frame, and returns (t [N] with inf where the ray misses, unit
-normals [N,3] in the local frame).
-"""
+"""Analytic ray casting in a primitive's local frame (sphere, capsule, box, rectangle): per-ray
+dims, origins and unit directions → (t [N], inf on a miss; unit normals [N,3])."""
 
 from __future__ import annotations
 
@@ -14,6 +10,7 @@ _TINY = 1e-12
 
 KINDS = ("sphere", "capsule", "box", "rect")
 """Primitive kinds; `dims` holds (radius,), (half_length, radius), (hx, hy, hz) or (hx, hy)."""
+Hits = tuple[np.ndarray, np.ndarray]  # (t [N], unit normals [N,3]) of rays against primitives
 
 
 def local_half_extents(kind: str, dims: tuple[float, ...]) -> np.ndarray:
@@ -46,18 +43,14 @@ def _sphere_t(offsets: np.ndarray, radius: np.ndarray, dirs: np.ndarray) -> np.n
     return np.where((disc >= 0) & (t > NEAR), t, np.inf)
 
 
-def intersect_sphere(
-    dims: np.ndarray, origins: np.ndarray, dirs: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
+def intersect_sphere(dims: np.ndarray, origins: np.ndarray, dirs: np.ndarray) -> Hits:
     """Spheres of radius dims[:, 0] centred at the local origin (hits from outside)."""
     radius = dims[:, 0]
     t = _sphere_t(origins, radius, dirs)
     return t, _hit_points(origins, dirs, t) / radius[:, None]
 
 
-def intersect_capsule(
-    dims: np.ndarray, origins: np.ndarray, dirs: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
+def intersect_capsule(dims: np.ndarray, origins: np.ndarray, dirs: np.ndarray) -> Hits:
     """Capsules around the local z segment ±dims[:, 0] with radius dims[:, 1]."""
     half_length, radius = dims[:, 0], dims[:, 1]
     dx, dy = dirs[:, 0], dirs[:, 1]
@@ -79,9 +72,7 @@ def intersect_capsule(
     return t, points / radius[:, None]
 
 
-def intersect_box(
-    dims: np.ndarray, origins: np.ndarray, dirs: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
+def intersect_box(dims: np.ndarray, origins: np.ndarray, dirs: np.ndarray) -> Hits:
     """Axis-aligned boxes with half sizes dims [N,3] centred at the local origin (slabs)."""
     safe = np.where(np.abs(dirs) > _TINY, dirs, np.where(dirs < 0, -_TINY, _TINY))
     t_low = (-dims - origins) / safe
@@ -97,9 +88,7 @@ def intersect_box(
     return t, normals
 
 
-def intersect_rect(
-    dims: np.ndarray, origins: np.ndarray, dirs: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
+def intersect_rect(dims: np.ndarray, origins: np.ndarray, dirs: np.ndarray) -> Hits:
     """One-sided rectangles in the local z = 0 plane facing +z, |x| ≤ dims[:,0], |y| ≤ dims[:,1]."""
     facing = (dirs[:, 2] < -_TINY) & (origins[:, 2] > 0)
     t = -origins[:, 2] / np.where(facing, dirs[:, 2], -1.0)

@@ -60,9 +60,8 @@ class Preset:
     for changes to every preset's), so only its cached scenes are generated anew."""
 
     def definition(self) -> dict[str, Any]:
-        """Every field but the description as JSON, the same in every process (functions by
-        qualified name): the scene cache hashes it, so an edited preset is generated anew. The
-        revision enters only once raised, so a preset never revised keeps its cache folders."""
+        """Every field but the description as stable JSON, which the scene cache hashes; the
+        revision enters once raised, so an unrevised preset keeps its cache folders."""
         return {
             field.name: _describe(getattr(self, field.name), f"PRESETS[{self.name!r}].{field.name}")
             for field in fields(self)
@@ -71,9 +70,8 @@ class Preset:
 
 
 def _describe(value: object, where: str) -> object:
-    """A preset field as JSON: sets sorted, tuples as lists, a function as `module.qualname`,
-    a partial as its function and arguments; a lambda or nested function (no stable name) is
-    refused in one line naming the field `where`."""
+    """A preset field as JSON (a function by `module.qualname`, a partial by its parts); a lambda
+    or nested function has no stable name and is refused naming `where`."""
     if isinstance(value, frozenset):
         return sorted(value)
     if isinstance(value, tuple):
@@ -196,9 +194,8 @@ def build_court(times: np.ndarray, effects: frozenset[str], seed: int) -> list[P
         primitives.append(passed_ball([hands[i] for i in order], times, PASS_S, apex=1.0))
     for sign in (1.0, -1.0):
         board = Scoreboard(1.6, 0.8, seed=seed + int(sign > 0), animated=DYNAMIC_PANELS in effects)
-        primitives.append(
-            Primitive("box", (0.06, 1.6, 0.8), *static_pose((sign * 12.9, 0, 3.8)), board)
-        )
+        panel = static_pose((sign * 12.9, 0, 3.8))
+        primitives.append(Primitive("box", (0.06, 1.6, 0.8), *panel, board))
     for side in (1.0, -1.0):
         for x in np.linspace(-9.0, 9.0, 7):
             # drawn whether or not the sway is declared: declaring it changes nothing else

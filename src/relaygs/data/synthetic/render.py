@@ -1,10 +1,5 @@
-"""Supersampled ray casting of primitives into colour, depth and foreground buffers.
-
-A Layer batches its primitives: per camera and frame every primitive's rays (only those in
-its projected screen box) are cast together, grouped by kind, and the nearest hit per
-supersample wins. Static primitives are drawn once per camera; frames draw the animated
-layer on a copy of that.
-"""
+"""Supersampled ray casting into colour, depth and foreground buffers: each Layer casts its
+primitives' rays (within their screen boxes) together by kind, the nearest hit winning."""
 
 from __future__ import annotations
 
@@ -31,7 +26,6 @@ class CameraRays:
 
     @property
     def shape(self) -> tuple[int, int]:
-        """(rows, columns) of the supersample grid."""
         return self.dirs.shape[0], self.dirs.shape[1]
 
 
@@ -50,7 +44,6 @@ class Buffers:
         return cls(color, np.full(shape, np.inf), np.zeros(shape, dtype=bool))
 
     def copy(self) -> Buffers:
-        """An independent copy, to draw a frame on top of a static layer."""
         return Buffers(self.color.copy(), self.depth.copy(), self.foreground.copy())
 
     def downsampled(self, factor: int) -> tuple[np.ndarray, np.ndarray]:
@@ -80,8 +73,7 @@ def camera_rays(camera: RigCamera, width: int, height: int, supersample: int) ->
 
 @dataclass(frozen=True)
 class LayerPose:
-    """Poses of a layer's primitives at one frame: rotations [P,3,3], positions [P,3], box
-    corners [P,8,3]; shared by every camera."""
+    """A layer's rotations [P,3,3], positions [P,3] and box corners [P,8,3] at one frame."""
 
     rotations: np.ndarray
     positions: np.ndarray
@@ -175,11 +167,8 @@ class Layer:
 def _screen_boxes(
     corners: np.ndarray, rays: CameraRays
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Per primitive (corners [P,8,3]) its screen box (x0, y0, width, sample count).
-
-    A box wholly behind the camera or outside one side of the view frustum covers nothing;
-    one that straddles the near plane covers the whole image.
-    """
+    """Per primitive (corners [P,8,3]) its screen box (x0, y0, width, sample count): none behind
+    the camera or beyond one side of the frustum, the whole image across the near plane."""
     rows, cols = rays.shape
     cam = corners @ rays.w2c[:3, :3].T + rays.w2c[:3, 3]
     depth = cam[..., 2]

@@ -6,10 +6,8 @@ import numpy as np
 
 from relaygs.data.synthetic.world import RigCamera
 
-DOME_FOCAL = 1.0
-"""Dome focal length per image-height pixel (vertical field of view ≈ 53°)."""
-RING_FOCAL = 0.9
-"""Ring focal length per image-height pixel (vertical field of view ≈ 58°)."""
+DOME_FOCAL = 1.0  # dome focal length per image-height pixel (vertical field of view ≈ 53°)
+RING_FOCAL = 0.9  # ring focal length per image-height pixel (vertical field of view ≈ 58°)
 
 
 def intrinsics(width: int, height: int, focal_per_height: float) -> np.ndarray:

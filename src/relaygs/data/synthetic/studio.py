@@ -80,7 +80,6 @@ def arena(seed: int) -> list[Primitive]:
         board = Checker((0.92, 0.92, 0.9), (0.85, 0.3, 0.2), size=0.3, seed=seed + 5)
         strut = Stripes((0.3, 0.3, 0.33), (0.5, 0.5, 0.55), period=0.3, axis=2)
         hoops.append(Primitive("box", (0.03, 0.9, 0.53), *static_pose((sign * 7.0, 0, 3.3)), board))
-        hoops.append(
-            Primitive("box", (0.05, 0.05, 1.1), *static_pose((sign * 7.05, 0, 4.9)), strut)
-        )
+        pole = static_pose((sign * 7.05, 0, 4.9))
+        hoops.append(Primitive("box", (0.05, 0.05, 1.1), *pole, strut))
     return room(13.0, 10.0, 6.0, floor, walls) + hoops

@@ -1,8 +1,5 @@
-"""Procedural materials: albedo as a function of a surface point's local coordinates and time.
-
-Textures live in each primitive's local frame, so they move with it; shading is Lambertian
-(view-independent), so a surface point has one colour in every camera.
-"""
+"""Procedural Lambertian materials: albedo from a surface point's local coordinates and time,
+so it moves with its primitive and has one colour in every camera."""
 
 from __future__ import annotations
 
@@ -19,8 +16,7 @@ _AMBIENT = 0.3
 
 
 class Material(Protocol):
-    """Albedo of surface points [N,3] in local coordinates at time `time_s`; `animated` if it
-    changes over time."""
+    """Albedo of local surface points [N,3] at `time_s`; `animated` if it changes."""
 
     animated: bool
 

@@ -12,11 +12,8 @@ from relaygs.data.synthetic.textures import Material
 
 @dataclass(frozen=True, eq=False)
 class Primitive:
-    """A shape in its local frame, posed per frame by rotations [F,3,3] and positions [F,3].
-
-    F is 1 for a primitive that never moves. `foreground` marks the dynamic actors whose pixels
-    go to the foreground masks.
-    """
+    """A shape in its local frame, posed by rotations [F,3,3] and positions [F,3] (F = 1 when
+    still); `foreground` actors make up the foreground masks."""
 
     kind: str
     dims: tuple[float, ...]
