@@ -30,8 +30,11 @@ def test_relay_and_replicate_k_at_or_above_the_frame_count_is_one_segment_of_t()
         assert canonical_config("relay", {"relay": {"k": k}}, scene)["relay"]["k"] == k
     assert canonical_config("relay", {"relay": {"k": FRAMES + 1}}, scene)["relay"]["k"] == FRAMES
     assert canonical_config("replicate", {"replicate": {"k": 100}}, scene)["replicate"]["k"] == 64
-    deform = {"seed": 0, "deform": {"k": 128}}
-    assert canonical_config("deform", deform, scene) == deform  # no canonical form: unchanged
+    still = {"seed": 0, "deform": {"isolate_fg_bg": True, "background_motion": False}}
+    assert canonical_config("deform", still, scene) == still
+    for same in ({"background_motion": True}, {"isolate_fg_bg": False, "background_motion": False}):
+        canonical = canonical_config("deform", {"deform": same}, scene)["deform"]
+        assert "background_motion" not in canonical  # a moving background keeps its old key
 
 
 @pytest.fixture(scope="module")

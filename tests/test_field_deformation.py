@@ -191,6 +191,26 @@ def test_forward_split_is_forward_for_background_first_rows_without_device_reads
             field.forward_split(xyz, 0.3, bad)
 
 
+def test_a_still_background_gets_zero_deltas_and_no_mlp_set() -> None:
+    field = small_field(isolate_fg_bg=True, background_motion=False)
+    assert sorted(field.mlp_sets) == ["foreground"]
+    randomise_heads(field)
+    moving = small_field(isolate_fg_bg=True)
+    moving.load_state_dict(field.state_dict(), strict=False)  # same grid and foreground set
+    xyz, group = points()
+    for rows in (torch.arange(len(group)), torch.argsort(group, stable=True)):  # both paths
+        deltas = field(xyz[rows], 0.7, group[rows])
+        still = group[rows] == 0
+        for got, want in zip(deltas, moving(xyz[rows], 0.7, group[rows]), strict=True):
+            assert torch.equal(got[still], torch.zeros_like(got[still]))
+            torch.testing.assert_close(got[~still], want[~still])
+    field.zero_grad()
+    sum(d.square().sum() for d in field(xyz, torch.rand(40), group)).backward()
+    assert all(p.grad is not None and p.grad.abs().sum() > 0 for p in field.parameters())
+    # one shared set moves every Gaussian: the setting has nothing to keep still
+    assert small_field(isolate_fg_bg=False, background_motion=False).background_motion
+
+
 def test_regularisers_come_from_the_grid() -> None:
     field = small_field(isolate_fg_bg=False)
     assert field.regularisers().keys() == field.hexplane.regularisers().keys()

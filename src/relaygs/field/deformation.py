@@ -19,7 +19,8 @@ ISOLATED_SETS = ("background", "foreground")
 
 class DeformationField(nn.Module):
     """Motion field (xyz, t, group) → Deltas; with `isolate_fg_bg` background (group 0) and
-    foreground (1) go through separate MLP sets (the paper's) reading one shared HexPlane."""
+    foreground (1) go through separate MLP sets (the paper's) reading one shared HexPlane, and
+    without `background_motion` the background keeps still (no background set, zero deltas)."""
 
     def __init__(
         self,
@@ -27,6 +28,7 @@ class DeformationField(nn.Module):
         time_resolution: int,
         *,
         isolate_fg_bg: bool = True,
+        background_motion: bool = True,
         multires: Sequence[int] = (1, 2),
         spatial_resolution: int = 64,
         channels: int = 16,
@@ -44,7 +46,10 @@ class DeformationField(nn.Module):
             channels=channels,
         )
         self.isolate_fg_bg = isolate_fg_bg
+        self.background_motion = background_motion or not isolate_fg_bg
         names = ISOLATED_SETS if isolate_fg_bg else (SHARED_SET,)
+        if not self.background_motion:
+            names = ("foreground",)
         self.mlp_sets = nn.ModuleDict(
             {
                 name: DeformationMLP(
@@ -57,18 +62,18 @@ class DeformationField(nn.Module):
     def forward(self, xyz: Tensor, t: float | Tensor, group: Tensor | None = None) -> Deltas:
         """Deltas of Gaussians at `xyz` [N, 3], time `t` in [0, 1] (scalar or [N]); `group` [N]
         is required with isolated MLP sets and ignored otherwise."""
-        features = self.hexplane(xyz, t)
         if not self.isolate_fg_bg:
-            return self.mlp_sets[SHARED_SET](features)
+            return self.mlp_sets[SHARED_SET](self.hexplane(xyz, t))
         group = _validated_group(group, xyz.shape[0])
         if not bool((group[1:] < group[:-1]).any()):
             # background rows first (as the stages lay them out): slices instead of gathers
-            return self._split(features, int((group == BACKGROUND).sum()))
-        background, foreground = self.mlp_sets["background"], self.mlp_sets["foreground"]
+            return self.forward_split(xyz, t, int((group == BACKGROUND).sum()))
+        features = self.hexplane(xyz, t)
         parts = []
-        for value, mlp in ((BACKGROUND, background), (FOREGROUND, foreground)):
-            rows = torch.nonzero(group == value).squeeze(1)
-            parts.append((rows, mlp(features.index_select(0, rows))))
+        for value, name in ((BACKGROUND, "background"), (FOREGROUND, "foreground")):
+            if name in self.mlp_sets:
+                rows = torch.nonzero(group == value).squeeze(1)
+                parts.append((rows, self.mlp_sets[name](features.index_select(0, rows))))
         return _scatter_rows(xyz.shape[0], parts)
 
     def forward_split(self, xyz: Tensor, t: float | Tensor, num_background: int) -> Deltas:
@@ -77,13 +82,16 @@ class DeformationField(nn.Module):
             raise InputError(
                 f"DeformationField num_background: expected 0..{xyz.shape[0]}, got {num_background}"
             )
-        features = self.hexplane(xyz, t)
         if not self.isolate_fg_bg:
-            return self.mlp_sets[SHARED_SET](features)
-        return self._split(features, num_background)
-
-    def _split(self, features: Tensor, num_background: int) -> Deltas:
-        """Background MLPs' deltas of the first `num_background` rows, foreground's of the rest."""
+            return self.mlp_sets[SHARED_SET](self.hexplane(xyz, t))
+        if not self.background_motion:
+            # a still background: the field runs on the foreground rows alone
+            times = t[num_background:] if torch.is_tensor(t) and t.dim() else t
+            moving = self.mlp_sets["foreground"](self.hexplane(xyz[num_background:], times))
+            return Deltas(
+                *(torch.cat([d.new_zeros(num_background, d.shape[1]), d]) for d in moving)
+            )
+        features = self.hexplane(xyz, t)
         halves = (
             self.mlp_sets["background"](features[:num_background]),
             self.mlp_sets["foreground"](features[num_background:]),
@@ -120,7 +128,7 @@ def _validated_group(group: Tensor | None, count: int) -> Tensor:
 
 
 def _scatter_rows(count: int, parts: list[tuple[Tensor, Deltas]]) -> Deltas:
-    """Full [count, ·] deltas from (row indices, deltas of those rows) pairs covering every row."""
+    """Full [count, ·] deltas from (row indices, deltas of those rows) pairs; other rows get 0."""
     like = parts[0][1].dxyz
     fields = []
     for name, out_width in HEAD_WIDTHS.items():

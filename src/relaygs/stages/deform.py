@@ -19,6 +19,7 @@ from relaygs.stages.common import GAUSSIAN_LR, single_upstream, stage_meta, upst
 from relaygs.stages.config import PerSetSections, require, require_steps, schedule
 from relaygs.stages.spec import StageSpec
 from relaygs.stages.train_settings import TrainSettings
+from relaygs.train.canonical import background_moves_unless_still
 from relaygs.train.loop import StepResult, run_training
 from relaygs.train.loss import photometric_loss
 from relaygs.train.motion import deformed_parts
@@ -42,6 +43,7 @@ class DeformConfig(PerSetSections):
     section: ClassVar[str] = STAGE
     steps: int = 20000
     isolate_fg_bg: bool = True
+    background_motion: bool = True
     gamma: bool = True
     frames_per_step: int = 1
     color_affine: str | bool = "auto"
@@ -112,6 +114,7 @@ class DeformConfig(PerSetSections):
             "aabb": [xyz.amin(dim=0).tolist(), xyz.amax(dim=0).tolist()],
             "time_resolution": time_resolution,
             "isolate_fg_bg": self.isolate_fg_bg,
+            "background_motion": self.background_motion,
             "multires": list(self.multires),
             "spatial_resolution": self.spatial_resolution,
             "channels": self.channels,
@@ -238,4 +241,6 @@ def _sync(model: SceneModel, session: TrainingSession) -> None:
         model.foreground = session.sets["fg"]
 
 
-SPEC = StageSpec(STAGE, deform, DeformConfig, SCHEMA_VERSION, ACCEPTED_UPSTREAM)
+SPEC = StageSpec(
+    STAGE, deform, DeformConfig, SCHEMA_VERSION, ACCEPTED_UPSTREAM, background_moves_unless_still
+)

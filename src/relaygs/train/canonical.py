@@ -30,3 +30,13 @@ def uniform_unless_adaptive(section: Mapping[str, Any], scene: Scene) -> dict[st
     if canonical.get("segments", "uniform") == "uniform" or fixed:
         canonical.pop("segments", None)
     return canonical
+
+
+def background_moves_unless_still(section: Mapping[str, Any], scene: Scene) -> dict[str, Any]:
+    """`background_motion` left out where it is on or where one shared MLP set moves every
+    Gaussian (`isolate_fg_bg` off ignores it), so the keys of moving backgrounds stay those they
+    had before the setting existed."""
+    canonical = dict(section)
+    if canonical.get("background_motion", True) or not canonical.get("isolate_fg_bg", True):
+        canonical.pop("background_motion", None)
+    return canonical
