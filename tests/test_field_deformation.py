@@ -26,26 +26,25 @@ def randomise_heads(module: nn.Module) -> None:
                 parameter.copy_(torch.randn(parameter.shape, generator=generator) * 0.3)
 
 
-def points(count: int = 40) -> tuple[torch.Tensor, torch.Tensor]:
+def points(count: int = 40) -> tuple[torch.Tensor, int]:
+    """Positions in BOX, the first two thirds background (the stages' row layout)."""
     generator = torch.Generator().manual_seed(0)
     xyz = torch.rand(count, 3, generator=generator) * torch.tensor([4.0, 2.0, 3.0])
-    xyz = xyz + torch.tensor([-2.0, -1.0, 0.0])
-    group = torch.arange(count) % 3 == 0  # a third foreground
-    return xyz, group.long()
+    return xyz + torch.tensor([-2.0, -1.0, 0.0]), 2 * count // 3
 
 
 @pytest.mark.parametrize("isolate", [False, True])
 def test_shapes_and_identity_at_init(isolate: bool) -> None:
     field = small_field(isolate)
-    xyz, group = points()
-    deltas = field(xyz, 0.3, group)
+    xyz, num_background = points()
+    deltas = field(xyz, 0.3, num_background)
     assert isinstance(deltas, Deltas)
     for name, width in WIDTHS.items():
         value = getattr(deltas, name)
         assert value.shape == (40, width)
         assert value.dtype == torch.float32
         assert torch.equal(value, torch.zeros_like(value))
-    assert field(torch.zeros(0, 3), 0.5, torch.zeros(0, dtype=torch.long)).drot.shape == (0, 4)
+    assert field(torch.zeros(0, 3), 0.5, 0).drot.shape == (0, 4)
     groups = field.parameter_groups()  # a partition: the grid's and the MLP sets' parameters
     assert set(groups) == {"grid", "mlp"}
     assert [id(p) for p in groups["grid"]] == [id(p) for p in field.hexplane.parameters()]
@@ -99,19 +98,20 @@ def test_mlp_layers_and_switched_off_heads() -> None:
 
 def test_gradients_reach_grid_and_mlp_but_not_across_groups() -> None:
     field = small_field(isolate_fg_bg=True)
-    xyz, group = points()
+    xyz, num_background = points()
     # At init only the zero last layers get gradient: the deform starts from identity.
-    sum(d.sum() for d in field(xyz, 0.6, group)).backward()
+    sum(d.sum() for d in field(xyz, 0.6, num_background)).backward()
     for mlp in field.mlp_sets.values():
         assert mlp.heads["dxyz"][-1].weight.grad.abs().sum().item() > 0.0
     field.zero_grad()
     randomise_heads(field)
-    sum(d.square().sum() for d in field(xyz, torch.rand(40), group)).backward()
+    sum(d.square().sum() for d in field(xyz, torch.rand(40), num_background)).backward()
     for name, parameter in field.named_parameters():
         assert parameter.grad is not None, name
         assert parameter.grad.abs().sum().item() > 0.0, name
     # the background's deltas do not depend on the foreground MLPs
-    background_output = sum(d[group == 0].square().sum() for d in field(xyz, 0.5, group))
+    deltas = field(xyz, 0.5, num_background)
+    background_output = sum(d[:num_background].square().sum() for d in deltas)
     fg_params = list(field.mlp_sets["foreground"].parameters())
     bg_params = list(field.mlp_sets["background"].parameters())
     grads = torch.autograd.grad(
@@ -122,56 +122,15 @@ def test_gradients_reach_grid_and_mlp_but_not_across_groups() -> None:
 
 
 @pytest.mark.parametrize("isolate", [False, True])
-def test_rows_go_through_the_mlp_set_of_their_group(isolate: bool) -> None:
+def test_rows_go_through_the_mlp_set_of_their_group_without_device_reads(
+    isolate: bool, monkeypatch
+) -> None:
     field = small_field(isolate)
     names = ("background", "foreground") if isolate else ("all", "all")
     assert sorted(field.mlp_sets) == sorted(set(names))
     randomise_heads(field)
-    xyz, group = points()
+    xyz, num_background = points()
     with torch.no_grad():
-        deltas = field(xyz, 0.8, group)
-        for value, name in enumerate(names):
-            rows = group == value
-            want = field.mlp_sets[name](field.hexplane(xyz[rows], 0.8))
-            for got, expected in zip(deltas, want, strict=True):
-                torch.testing.assert_close(got[rows], expected)
-        if not isolate:  # the group is ignored
-            torch.testing.assert_close(field(xyz, 0.8).dxyz, deltas.dxyz)
-
-
-def test_grouped_layout_matches_interleaved_rows() -> None:
-    # Background rows first take the slicing path; the same rows interleaved take the gather
-    # path. Values and parameter gradients must agree.
-    field = small_field(isolate_fg_bg=True)
-    randomise_heads(field)
-    xyz, group = points()
-    weights = torch.rand(len(group), 11, generator=torch.Generator().manual_seed(1))
-    order = torch.argsort(group, stable=True)
-    outputs, grads = [], []
-    for rows in (torch.arange(len(group)), order):
-        field.zero_grad()
-        deltas = torch.cat(list(field(xyz[rows], 0.4, group[rows])), dim=1)
-        (deltas * weights[rows]).sum().backward()
-        outputs.append(deltas.detach())
-        grads.append([param.grad.clone() for param in field.parameters()])
-    torch.testing.assert_close(outputs[1], outputs[0][order])
-    for grouped, interleaved in zip(grads[1], grads[0], strict=True):
-        torch.testing.assert_close(grouped, interleaved)
-    assert sum(float(g.abs().sum()) for g in grads[0]) > 0.0
-
-
-@pytest.mark.parametrize("isolate", [False, True])
-def test_forward_split_is_forward_for_background_first_rows_without_device_reads(
-    isolate: bool, monkeypatch
-) -> None:
-    field = small_field(isolate_fg_bg=isolate)
-    randomise_heads(field)
-    xyz, group = points()
-    order = torch.argsort(group, stable=True)
-    xyz, group = xyz[order], group[order]
-    num_background = int((group == 0).sum())
-    with torch.no_grad():
-        want = field(xyz, 0.3, group)
         reads = []
         for name in ("__bool__", "__int__", "__index__", "item", "tolist"):
             original = getattr(torch.Tensor, name)
@@ -181,14 +140,17 @@ def test_forward_split_is_forward_for_background_first_rows_without_device_reads
                 return _original(self, *args, **kwargs)
 
             monkeypatch.setattr(torch.Tensor, name, counted)
-        got = field.forward_split(xyz, 0.3, num_background)
+        deltas = field(xyz, 0.8, num_background)
         monkeypatch.undo()
-    assert reads == []
-    for got_field, want_field in zip(got, want, strict=True):
-        torch.testing.assert_close(got_field, want_field)
-    for bad in (-1, len(group) + 1):
-        with pytest.raises(InputError, match=rf"num_background: expected 0\.\.{len(group)}"):
-            field.forward_split(xyz, 0.3, bad)
+        assert reads == []
+        halves = (slice(0, num_background), slice(num_background, None))
+        for name, rows in zip(names, halves, strict=True):
+            want = field.mlp_sets[name](field.hexplane(xyz[rows], 0.8))
+            for got, expected in zip(deltas, want, strict=True):
+                torch.testing.assert_close(got[rows], expected)
+    for bad in (-1, len(xyz) + 1):
+        with pytest.raises(InputError, match="num_background"):
+            field(xyz, 0.3, bad)
 
 
 def test_a_still_background_gets_zero_deltas_and_no_mlp_set() -> None:
@@ -197,15 +159,13 @@ def test_a_still_background_gets_zero_deltas_and_no_mlp_set() -> None:
     randomise_heads(field)
     moving = small_field(isolate_fg_bg=True)
     moving.load_state_dict(field.state_dict(), strict=False)  # same grid and foreground set
-    xyz, group = points()
-    for rows in (torch.arange(len(group)), torch.argsort(group, stable=True)):  # both paths
-        deltas = field(xyz[rows], 0.7, group[rows])
-        still = group[rows] == 0
-        for got, want in zip(deltas, moving(xyz[rows], 0.7, group[rows]), strict=True):
-            assert torch.equal(got[still], torch.zeros_like(got[still]))
-            torch.testing.assert_close(got[~still], want[~still])
+    xyz, num_background = points()
+    deltas = field(xyz, 0.7, num_background)
+    for got, want in zip(deltas, moving(xyz, 0.7, num_background), strict=True):
+        assert torch.equal(got[:num_background], torch.zeros_like(got[:num_background]))
+        torch.testing.assert_close(got[num_background:], want[num_background:])
     field.zero_grad()
-    sum(d.square().sum() for d in field(xyz, torch.rand(40), group)).backward()
+    sum(d.square().sum() for d in field(xyz, torch.rand(40), num_background)).backward()
     assert all(p.grad is not None and p.grad.abs().sum() > 0 for p in field.parameters())
     # one shared set moves every Gaussian: the setting has nothing to keep still
     assert small_field(isolate_fg_bg=False, background_motion=False).background_motion
@@ -217,25 +177,13 @@ def test_regularisers_come_from_the_grid() -> None:
     assert field.regularisers()["plane_smoothness"].item() > 0.0
 
 
-def test_group_errors() -> None:
-    field = small_field(isolate_fg_bg=True)
-    xyz, group = points(6)
-    with pytest.raises(InputError, match="group: required"):
-        field(xyz, 0.1)
-    with pytest.raises(InputError, match=r"values 0 \(background\) or 1"):
-        field(xyz, 0.1, group + 1)
-    with pytest.raises(InputError, match="integer or bool tensor of shape"):
-        field(xyz, 0.1, group.float())
-    field(xyz, 0.1, group.bool())
-
-
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
 def test_cuda_matches_cpu() -> None:
     field = small_field(isolate_fg_bg=True)
     randomise_heads(field)
-    xyz, group = points()
+    xyz, num_background = points()
     with torch.no_grad():
-        expected = field(xyz, 0.4, group)
-        got = field.cuda()(xyz.cuda(), 0.4, group.cuda())
+        expected = field(xyz, 0.4, num_background)
+        got = field.cuda()(xyz.cuda(), 0.4, num_background)
     for g, e in zip(got, expected, strict=True):
         torch.testing.assert_close(g.cpu(), e, rtol=1e-4, atol=1e-5)

@@ -46,7 +46,7 @@ def _field_step(count: int) -> Callable[[], None]:
     background = int(count * BACKGROUND_SHARE)
 
     def step() -> None:
-        deltas = field.forward_split(xyz, 0.37, background)
+        deltas = field(xyz, 0.37, background)
         sum(part.sum() for part in deltas).backward()
 
     return step

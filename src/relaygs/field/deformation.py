@@ -9,18 +9,16 @@ from torch import Tensor, nn
 
 from relaygs.errors import InputError
 from relaygs.field.hexplane import HexPlane
-from relaygs.field.mlp import HEAD_WIDTHS, DeformationMLP, Deltas, HeadSwitches
+from relaygs.field.mlp import DeformationMLP, Deltas, HeadSwitches
 
-BACKGROUND = 0
-FOREGROUND = 1
 SHARED_SET = "all"
 ISOLATED_SETS = ("background", "foreground")
 
 
 class DeformationField(nn.Module):
-    """Motion field (xyz, t, group) → Deltas; with `isolate_fg_bg` background (group 0) and
-    foreground (1) go through separate MLP sets (the paper's) reading one shared HexPlane, and
-    without `background_motion` the background keeps still (no background set, zero deltas)."""
+    """Motion field (xyz, t) → Deltas; with `isolate_fg_bg` background and foreground rows go
+    through separate MLP sets (the paper's) reading one shared HexPlane, and without
+    `background_motion` the background keeps still (no background set, zero deltas)."""
 
     def __init__(
         self,
@@ -59,25 +57,9 @@ class DeformationField(nn.Module):
             }
         )
 
-    def forward(self, xyz: Tensor, t: float | Tensor, group: Tensor | None = None) -> Deltas:
-        """Deltas of Gaussians at `xyz` [N, 3], time `t` in [0, 1] (scalar or [N]); `group` [N]
-        is required with isolated MLP sets and ignored otherwise."""
-        if not self.isolate_fg_bg:
-            return self.mlp_sets[SHARED_SET](self.hexplane(xyz, t))
-        group = _validated_group(group, xyz.shape[0])
-        if not bool((group[1:] < group[:-1]).any()):
-            # background rows first (as the stages lay them out): slices instead of gathers
-            return self.forward_split(xyz, t, int((group == BACKGROUND).sum()))
-        features = self.hexplane(xyz, t)
-        parts = []
-        for value, name in ((BACKGROUND, "background"), (FOREGROUND, "foreground")):
-            if name in self.mlp_sets:
-                rows = torch.nonzero(group == value).squeeze(1)
-                parts.append((rows, self.mlp_sets[name](features.index_select(0, rows))))
-        return _scatter_rows(xyz.shape[0], parts)
-
-    def forward_split(self, xyz: Tensor, t: float | Tensor, num_background: int) -> Deltas:
-        """`forward` for background-first rows, their count given on the host (no device read)."""
+    def forward(self, xyz: Tensor, t: float | Tensor, num_background: int) -> Deltas:
+        """Deltas of Gaussians at `xyz` [N, 3], time `t` in [0, 1] (scalar or [N]): the first
+        `num_background` rows background, the rest foreground (a host count: no device read)."""
         if not 0 <= num_background <= xyz.shape[0]:
             raise InputError(
                 f"DeformationField num_background: expected 0..{xyz.shape[0]}, got {num_background}"
@@ -108,32 +90,3 @@ class DeformationField(nn.Module):
             "grid": list(self.hexplane.parameters()),
             "mlp": list(self.mlp_sets.parameters()),
         }
-
-
-def _validated_group(group: Tensor | None, count: int) -> Tensor:
-    if group is None:
-        raise InputError("DeformationField group: required when isolate_fg_bg is true, got None")
-    if group.shape != (count,) or group.is_floating_point() or group.is_complex():
-        raise InputError(
-            f"DeformationField group: expected an integer or bool tensor of shape [{count}], "
-            f"got {group.dtype} {list(group.shape)}"
-        )
-    group = group.long()
-    if count and bool(((group != BACKGROUND) & (group != FOREGROUND)).any()):
-        raise InputError(
-            "DeformationField group: expected values 0 (background) or 1 (foreground), got "
-            f"{sorted(set(group.unique().tolist()))}"
-        )
-    return group
-
-
-def _scatter_rows(count: int, parts: list[tuple[Tensor, Deltas]]) -> Deltas:
-    """Full [count, ·] deltas from (row indices, deltas of those rows) pairs; other rows get 0."""
-    like = parts[0][1].dxyz
-    fields = []
-    for name, out_width in HEAD_WIDTHS.items():
-        out = like.new_zeros(count, out_width)
-        for rows, deltas in parts:
-            out = out.index_copy(0, rows, getattr(deltas, name))
-        fields.append(out)
-    return Deltas(*fields)

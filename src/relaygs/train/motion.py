@@ -25,7 +25,7 @@ def deformed_parts(
     fg = part_of("fg", foreground, sh_degree, rows=foreground_rows)
     n_bg = bg.count
     xyz = torch.cat([bg.means, fg.means])
-    deltas = field.forward_split(xyz, time, n_bg)  # the counts are known here: no device read
+    deltas = field(xyz, time, n_bg)  # the counts are known here: no device read
     if GAMMA in foreground.params:
         gamma = foreground.params[GAMMA].index_select(0, foreground_rows)
         gammas = torch.cat([gamma.new_zeros(n_bg, 3), gamma])
