@@ -7,7 +7,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import pytest
 import torch
@@ -21,7 +21,7 @@ from relaygs.data import Scene
 from relaygs.errors import InputError
 from relaygs.pipeline.artifact import Artifact
 from relaygs.stages.common import no_upstream, stage_meta
-from relaygs.stages.config import parse_section, require
+from relaygs.stages.config import Section, require
 from relaygs.stages.spec import StageSpec
 from relaygs.stages.train_settings import TrainSettings
 from relaygs.train.initial import initial_gaussians
@@ -33,9 +33,10 @@ SCHEMA_VERSION = 1
 
 
 @dataclass
-class PointsConfig:
+class PointsConfig(Section):
     """`cfg["points"]`: the scene's point cloud as static Gaussians, thinned to `init_points`."""
 
+    section: ClassVar[str] = STAGE
     init_points: int = 40
     init_opacity: float = 0.5
 
@@ -43,11 +44,6 @@ class PointsConfig:
         """Check every value range (errors name `points.<key>`), once, when the run is planned."""
         require(self.init_points >= 1, "points.init_points", self.init_points, "an int >= 1")
         require(0 < self.init_opacity < 1, "points.init_opacity", self.init_opacity, "(0, 1)")
-
-    @classmethod
-    def from_config(cls, data: Mapping[str, Any] | None) -> PointsConfig:
-        """Parse `cfg["points"]`."""
-        return parse_section(cls, data, STAGE)
 
 
 def points(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, Any]) -> Artifact:
