@@ -69,6 +69,23 @@ def test_accumulate_scales_to_ndc_and_counts_visible_views() -> None:
     assert torch.allclose(controller.mean_grads(), expected)
 
 
+def test_accumulate_of_shown_rows_matches_the_scattered_whole_set() -> None:
+    gen = torch.Generator().manual_seed(3)
+    grad = torch.randn(2, 3, 2, generator=gen) * 1e-4
+    radii = torch.randint(0, 3, (2, 3, 2), generator=gen, dtype=torch.int32)
+    rows = torch.tensor([4, 0, 2])
+    full_grad, full_radii = torch.zeros(4, 5, 2), torch.zeros(4, 5, 2, dtype=torch.int32)
+    full_grad[:2, rows], full_radii[:2, rows] = grad, radii
+    by_rows = DensityController(make_set([SMALL_LOG_SCALE] * 5), DensifySettings(), 1.0)
+    whole = DensityController(make_set([SMALL_LOG_SCALE] * 5), DensifySettings(), 1.0)
+    by_rows.accumulate(grad, radii, 160, 90, cameras=4, rows=rows)
+    whole.accumulate(full_grad, full_radii, 160, 90)
+    torch.testing.assert_close(by_rows.mean_grads(), whole.mean_grads())
+    assert torch.equal(by_rows._views, whole._views)
+    assert torch.equal(by_rows._max_radii, whole._max_radii)
+    assert by_rows._views.sum() > 0 and by_rows._max_radii[1] == by_rows._max_radii[3] == 0
+
+
 def test_clone_appends_exact_copies_with_copied_adam_rows() -> None:
     g = make_set([SMALL_LOG_SCALE] * 4)
     optimizer = trained(g)

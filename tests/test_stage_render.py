@@ -30,7 +30,7 @@ def _render_and_grads(frozen: FrozenRenders | None):
     weights = torch.linspace(-1.0, 1.0, WIDTH * 3).repeat(HEIGHT, 1).view(HEIGHT, WIDTH, 3)
     sum(((image * weights).sum() for image in render.images), torch.zeros(())).backward()
     grads = {name: param.grad for name, param in foreground.params.items()}
-    return render, grads, screen_statistics(render, "fg", len(foreground))
+    return render, grads, screen_statistics(render, "fg")
 
 
 def test_splat_with_frozen_renders_matches_a_full_splat():

@@ -16,6 +16,7 @@ from relaygs.model.gaussians import (
     inverse_sigmoid,
     normalize_quats,
     sh_degree_for_step,
+    sh_of_degree,
 )
 from relaygs.model.guard import check_finite
 from relaygs.model.knn import mean_sq_knn_distance
@@ -42,4 +43,5 @@ __all__ = [
     "normalize_quats",
     "paper_schedule",
     "sh_degree_for_step",
+    "sh_of_degree",
 ]

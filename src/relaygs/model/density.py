@@ -78,17 +78,36 @@ class DensityController:
         self.generator = generator
         self._reset_stats()
 
-    def accumulate(self, means2d_grad: Tensor, radii: Tensor, width: int, height: int) -> None:
-        """Add one step's statistics: means2d_grad [C,N,2] (pixels), radii [C,N,2] or [C,N]."""
+    def accumulate(
+        self,
+        means2d_grad: Tensor,
+        radii: Tensor,
+        width: int,
+        height: int,
+        *,
+        cameras: int | None = None,
+        rows: Tensor | None = None,
+    ) -> None:
+        """Add one step's statistics: means2d_grad [C,n,2] (pixels), radii [C,n,2] or [C,n] of
+        the set's `rows` (None: all); `cameras` is the step's camera count (default C), whose
+        mean loss scaled each gradient down by it."""
         per_axis = radii if radii.ndim == 3 else radii[..., None]
         visible = (per_axis > 0).all(dim=-1)
-        n_cameras = means2d_grad.shape[0]
+        n_cameras = means2d_grad.shape[0] if cameras is None else cameras
         to_ndc = means2d_grad.new_tensor([width / 2.0, height / 2.0]) * n_cameras
         grad_norm = (means2d_grad.detach() * to_ndc).norm(dim=-1)
-        self._grad_sum += torch.where(visible, grad_norm, 0.0).sum(dim=0)
-        self._views += visible.sum(dim=0)
+        grad_sum = torch.where(visible, grad_norm, 0.0).sum(dim=0)
+        views = visible.sum(dim=0)
         max_radius = torch.where(visible, per_axis.max(dim=-1).values, 0).amax(dim=0)
-        self._max_radii = torch.maximum(self._max_radii, max_radius.to(torch.float32))
+        if rows is None:
+            self._grad_sum += grad_sum
+            self._views += views
+            self._max_radii = torch.maximum(self._max_radii, max_radius.to(torch.float32))
+            return
+        self._grad_sum.index_add_(0, rows, grad_sum)
+        self._views.index_add_(0, rows, views)
+        seen = self._max_radii.index_select(0, rows)
+        self._max_radii.index_copy_(0, rows, torch.maximum(seen, max_radius.to(torch.float32)))
 
     def mean_grads(self) -> Tensor:
         """Mean NDC-space gradient norm [N] over the views where each Gaussian was visible."""

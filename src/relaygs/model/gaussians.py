@@ -29,6 +29,14 @@ def sh_degree_for_step(step: int, max_degree: int, every: int = 1000) -> int:
     return max(0, min(max_degree, step // every))
 
 
+def sh_of_degree(sh_dc: Tensor, sh_rest: Tensor, degree: int) -> Tensor:
+    """SH coefficients [N,(d+1)²,3] for degree d from the DC [N,1,3] and rest [N,R,3] rows."""
+    max_degree = math.isqrt(sh_rest.shape[1] + 1) - 1
+    if not 0 <= degree <= max_degree:
+        raise InputError(f"colors: sh_degree {degree} outside [0, {max_degree}]")
+    return torch.cat([sh_dc, sh_rest[:, : num_sh_bases(degree) - 1]], dim=1)
+
+
 def inverse_sigmoid(p: Tensor, eps: float = 1e-6) -> Tensor:
     """Logit of probabilities clamped to [eps, 1 − eps] so the result is always finite
     (computed in at least float32: in half precision 1 − eps would round to 1)."""
@@ -172,10 +180,7 @@ class GaussianSet:
     def colors(self, sh_degree: int | None = None) -> Tensor:
         """SH coefficients [N,(d+1)²,3] for degree d (default: the active degree)."""
         degree = self.active_sh_degree if sh_degree is None else sh_degree
-        if not 0 <= degree <= self.max_sh_degree:
-            raise InputError(f"colors: sh_degree {degree} outside [0, {self.max_sh_degree}]")
-        rest = self._params["sh_rest"][:, : num_sh_bases(degree) - 1]
-        return torch.cat([self._params["sh_dc"], rest], dim=1)
+        return sh_of_degree(self._params["sh_dc"], self._params["sh_rest"], degree)
 
     def to_tensors(self, prefix: str = "") -> dict[str, Tensor]:
         """Flat dict of detached copies: core names, `param.<extra>`, `buffer.<name>`, SH degree."""

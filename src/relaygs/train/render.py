@@ -11,7 +11,7 @@ import torch
 from torch import Tensor
 
 from relaygs.data import Camera
-from relaygs.model import MAX_LOG_SCALE, GaussianSet, normalize_quats
+from relaygs.model import MAX_LOG_SCALE, GaussianSet, normalize_quats, sh_of_degree
 from relaygs.splat import FixedLayer, rasterization
 from relaygs.splat.projection import Projection
 
@@ -46,13 +46,13 @@ def part_of(
     are empty sets (nothing to learn, and autograd warns about their zero-size gradients)."""
     frozen = frozen or len(gaussians) == 0
     params = gaussians.params
-    values = [params[name] for name in ("means", "log_scales", "quats", "opacity_logits")]
-    values.append(gaussians.colors(sh_degree))
-    if frozen:
-        values = [value.detach() for value in values]
+    names = ("means", "log_scales", "quats", "opacity_logits", "sh_dc", "sh_rest")
+    values = [params[name].detach() if frozen else params[name] for name in names]
     if rows is not None:
+        # rows before the SH concatenation: the copy and its backward cover the shown rows only
         values = [value.index_select(0, rows) for value in values]
-    return Part(name, rows, *values, frozen=frozen)
+    *per_row, sh_dc, sh_rest = values
+    return Part(name, rows, *per_row, sh_of_degree(sh_dc, sh_rest, sh_degree), frozen=frozen)
 
 
 _PROJECTION_FIELDS = tuple(f.name for f in dataclasses.fields(Projection))
@@ -156,8 +156,9 @@ def splat(
     return Render(images, alphas, groups, parts)
 
 
-def screen_statistics(render: Render, name: str, set_size: int) -> tuple[Tensor, Tensor] | None:
-    """(means2d grad, radii), each [C, set_size, 2], of set `name`; None if it was not rendered."""
+def screen_statistics(render: Render, name: str) -> tuple[Tensor, Tensor, Tensor | None] | None:
+    """(means2d grad, radii), each [C, n, 2], of the n rows of set `name` it showed, and those
+    rows (None: the whole set); None if the set was not rendered."""
     offset = 0
     located = None
     for part in render.parts:
@@ -171,17 +172,9 @@ def screen_statistics(render: Render, name: str, set_size: int) -> tuple[Tensor,
     for _, meta in render.groups:
         means2d = meta["means2d"]
         grad = means2d.grad if means2d.grad is not None else torch.zeros_like(means2d)
-        piece_grad = grad[:, start : start + part.count]
-        piece_radii = meta["radii"][:, start : start + part.count]
-        if part.rows is None:
-            grads.append(piece_grad)
-            radii.append(piece_radii)
-            continue
-        full_grad = grad.new_zeros(grad.shape[0], set_size, 2)
-        full_radii = piece_radii.new_zeros(piece_radii.shape[0], set_size, 2)
-        grads.append(full_grad.index_copy(1, part.rows, piece_grad))
-        radii.append(full_radii.index_copy(1, part.rows, piece_radii))
-    return torch.cat(grads), torch.cat(radii)
+        grads.append(grad[:, start : start + part.count])
+        radii.append(meta["radii"][:, start : start + part.count])
+    return torch.cat(grads), torch.cat(radii), part.rows
 
 
 def _size_groups(cameras: list[Camera]) -> list[list[int]]:

@@ -112,10 +112,15 @@ class TrainingSession:
         return named
 
     def check_finite(self, stage: str, step: int, loss: Tensor | None = None) -> None:
-        """DivergenceError naming a non-finite loss, parameter or gradient, and the suspects."""
+        """DivergenceError naming a non-finite loss or gradient (with `loss`: each step, before
+        the update) or parameter (without: before a checkpoint), and the suspects. A parameter
+        an update made non-finite shows in the next step's loss or gradients, or here."""
         parameters = self.parameters()
-        tensors = {} if loss is None else {"loss": loss.detach()}
-        tensors.update(parameters)
+        if loss is None:
+            tensors = parameters
+        else:
+            gradients = {f"{n}.grad": p.grad for n, p in parameters.items() if p.grad is not None}
+            tensors = {"loss": loss.detach(), **gradients}
         try:
             check_finite(stage, step, tensors)
         except DivergenceError as error:
@@ -128,14 +133,19 @@ class TrainingSession:
             self.module_optimizer.step()
         reports = []
         for name, controller in self.controllers.items():
-            stats = [screen_statistics(r, name, len(self.sets[name])) for r in renders]
-            stats = [s for s in stats if s is not None]
+            stats = [s for r in renders if (s := screen_statistics(r, name)) is not None]
             if stats:
                 meta = renders[0].groups[0][1]  # the training scene has one camera size
-                width, height = int(meta["width"]), int(meta["height"])
-                grads = torch.cat([grad for grad, _ in stats])
-                radii = torch.cat([radius for _, radius in stats])
-                controller.accumulate(grads, radii, width, height)
+                size = int(meta["width"]), int(meta["height"])
+                cameras = sum(grad.shape[0] for grad, _, _ in stats)
+                # whole-set pieces in one call (one sum over their cameras), row pieces each
+                whole = [(grad, radius) for grad, radius, rows in stats if rows is None]
+                if whole:
+                    grads, radii = (torch.cat(pieces) for pieces in zip(*whole, strict=True))
+                    controller.accumulate(grads, radii, *size, cameras=cameras)
+                for grad, radius, rows in stats:
+                    if rows is not None:
+                        controller.accumulate(grad, radius, *size, cameras=cameras, rows=rows)
             report = controller.step(step)
             if report is not None:
                 reports.append(report)
