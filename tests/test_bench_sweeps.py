@@ -88,3 +88,13 @@ def test_bench_field_times_each_backend_and_restores_the_process_backend(tmp_pat
     assert all(ms > 0 for ms in figures["fwd_bwd_ms"].values())
     assert "ratio" in capsys.readouterr().out
     assert default_backend() == before
+
+
+def test_bench_train_reports_each_stage_at_its_median_round():
+    rounds = [
+        [{"stage": "relay", "steps": 30, "steps_per_s": speed, "gaussians": 9}]
+        for speed in (4.0, 9.0, 5.0)
+    ]
+    (row,) = bench_train.median_rows(rounds)
+    assert row == {"stage": "relay", "steps": 30, "steps_per_s": 5.0, "gaussians": 9,
+                   "runs": [4.0, 9.0, 5.0]}  # fmt: skip

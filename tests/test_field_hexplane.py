@@ -169,16 +169,16 @@ def test_regularisers_positive_on_random_planes_with_gradients_to_them() -> None
         assert float(plane.grad.abs().sum()) > 0.0
 
 
-@pytest.mark.parametrize("dim", [2, 3])
-def test_second_difference_gradient_passes_gradcheck(dim: int) -> None:
+@pytest.mark.parametrize("dims", [(2,), (3,), (2, 3)])
+def test_second_difference_gradient_passes_gradcheck(dims: tuple[int, ...]) -> None:
     # The closed-form backward against finite differences, on planes of unequal sides.
     planes = torch.rand(2, 3, 5, 4, dtype=torch.float64, requires_grad=True)
-    assert torch.autograd.gradcheck(lambda p: second_difference_energy(p, dim), (planes,))
+    assert torch.autograd.gradcheck(lambda p: second_difference_energy(p, dims), (planes,))
 
 
 def test_second_difference_of_short_planes_is_zero_without_gradient_flow() -> None:
     planes = torch.rand(3, 2, 2, 6, requires_grad=True)
-    energy = second_difference_energy(planes, dim=2)
+    energy = second_difference_energy(planes, (2,))
     assert energy.item() == 0.0 and not energy.requires_grad
 
 

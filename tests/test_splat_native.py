@@ -16,6 +16,7 @@ import pytest
 import torch
 
 from relaygs.errors import InputError
+from relaygs.field.hexplane import second_difference_energy
 from relaygs.splat import rasterization, use_backend
 from relaygs.splat.native import build
 from relaygs.splat.native.binning import bin_gaussians_native
@@ -223,3 +224,23 @@ def test_the_ninja_package_is_found_when_path_has_no_ninja(tmp_path, monkeypatch
     monkeypatch.setenv("PATH", str(tmp_path))  # no ninja here
     assert build._ninja_available()
     assert os.environ["PATH"].split(os.pathsep)[0] == ninja.BIN_DIR
+
+
+@pytest.mark.parametrize("dims", [(2,), (3,), (2, 3)])
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_native_plane_smoothness_equals_the_torch_path(dims, dtype):
+    planes = torch.rand(3, 4, 7, 5, dtype=dtype, generator=torch.Generator().manual_seed(len(dims)))
+    results = []
+    try:
+        for backend in ("torch", "native"):
+            use_backend(backend)
+            leaf = planes.clone().requires_grad_()
+            energy = second_difference_energy(leaf, dims)
+            (energy * 3.0).backward()
+            results.append((energy.detach(), leaf.grad))
+    finally:
+        use_backend("auto")
+    tol = 1e-6 if dtype == torch.float32 else 1e-13
+    for got, expected in zip(results[1], results[0], strict=True):
+        assert float(expected.abs().max()) > 0
+        torch.testing.assert_close(got, expected, rtol=tol, atol=tol)

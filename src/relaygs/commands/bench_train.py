@@ -1,5 +1,6 @@
 """`python -m relaygs.bench train`: at the `small` budget on the default scene, each stage's
-steps/s per backend, the deform/decouple step-cost ratio and (`--full`) the whole pipeline."""
+steps/s per backend (median of interleaved rounds), the deform/decouple step-cost ratio and
+(`--full`) the whole pipeline."""
 
 from __future__ import annotations
 
@@ -42,6 +43,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--steps", type=int_at_least(2), default=30, help="steps timed per stage (>= 2)"
     )
+    parser.add_argument(
+        "--repeats",
+        type=int_at_least(1),
+        default=3,
+        help="rounds of every stage on every backend, interleaved (median; default 3)",
+    )
     parser.add_argument("--full", action="store_true", help="also time the whole small pipeline")
     parser.add_argument(
         "--cache", type=path_argument, default=DEFAULT_CACHE, help="scene cache folder"
@@ -73,10 +80,13 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
         "stages": {},
     }
     previous = default_backend()
+    rounds: dict[str, list[list[dict[str, Any]]]] = {name: [] for name in backends}
     try:
-        for name in backends:
-            use_backend(name)
-            report["stages"][name] = stage_speeds(scene, args.steps, device)
+        for _ in range(args.repeats):  # backends side by side in each round: drift cancels
+            for name in backends:
+                use_backend(name)
+                rounds[name].append(stage_speeds(scene, args.steps, device))
+        report["stages"] = {name: median_rows(rows) for name, rows in rounds.items()}
         report["ratio"] = step_cost_ratio(scene, args.steps, device)
         if args.full:
             report["full"] = full_pipeline(scene, device)
@@ -145,6 +155,15 @@ def stage_speeds(scene: Scene, steps: int, device: str = "cpu") -> list[dict[str
                 "gaussians": metrics["num_gaussians"],
             }
         )
+    return rows
+
+
+def median_rows(rounds: list[list[dict[str, Any]]]) -> list[dict[str, Any]]:
+    """Each stage's row with the median steps/s over `rounds` (and every round's figure)."""
+    rows = []
+    for per_round in zip(*rounds, strict=True):
+        speeds = [row["steps_per_s"] for row in per_round]
+        rows.append({**per_round[0], "steps_per_s": statistics.median(speeds), "runs": speeds})
     return rows
 
 

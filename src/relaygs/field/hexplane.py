@@ -12,7 +12,7 @@ from torch import Tensor, nn
 from torch.autograd.function import once_differentiable
 
 from relaygs.errors import InputError
-from relaygs.field.hexplane_native import NativeHexPlaneFeatures
+from relaygs.field.hexplane_native import NativeHexPlaneFeatures, NativeSecondDifferenceEnergy
 from relaygs.splat import native_kernels_in_use
 
 SPATIAL_PLANES = ("xy", "xz", "yz")
@@ -21,12 +21,15 @@ SPATIAL_INIT_RANGE = (0.1, 0.5)
 MIN_HALF_EXTENT = 1e-6  # a thinner box axis gets a unit half-extent: no division by zero
 
 
-def second_difference_energy(planes: Tensor, dim: int) -> Tensor:
-    """Sum over planes [P, C, H, W] of the mean squared second difference along `dim` (0 when
-    shorter than 3)."""
-    if planes.shape[dim] < 3:
+def second_difference_energy(planes: Tensor, dims: Sequence[int]) -> Tensor:
+    """Sum over planes [P, C, H, W] and over `dims` (2, 3 or both) of the mean squared second
+    difference along that dim (0 for a dim shorter than 3)."""
+    dims = [dim for dim in dims if planes.shape[dim] >= 3]
+    if not dims:
         return planes.new_zeros(())
-    return _SecondDifferenceEnergy.apply(planes, dim)
+    if native_kernels_in_use(planes):
+        return NativeSecondDifferenceEnergy.apply(planes, 2 in dims, 3 in dims)
+    return sum(_SecondDifferenceEnergy.apply(planes, dim) for dim in dims)
 
 
 class _SecondDifferenceEnergy(torch.autograd.Function):
@@ -148,15 +151,12 @@ class HexPlane(nn.Module):
     def plane_smoothness(self) -> Tensor:
         """Squared second differences of the spatial planes along both axes, unweighted: twice
         4D-GS's one-axis compute_plane_smoothness at the same weight."""
-        terms = [
-            second_difference_energy(p, dim=2) + second_difference_energy(p, dim=3)
-            for p in self.spatial_planes
-        ]
+        terms = [second_difference_energy(p, (2, 3)) for p in self.spatial_planes]
         return torch.stack(terms).sum()
 
     def time_smoothness(self) -> Tensor:
         """Squared second differences of the xt, yt, zt planes along time, summed like above."""
-        return torch.stack([second_difference_energy(p, dim=2) for p in self.time_planes]).sum()
+        return torch.stack([second_difference_energy(p, (2,)) for p in self.time_planes]).sum()
 
     def time_l1(self) -> Tensor:
         """Mean |1 − value| of each time plane, summed over planes and levels (1 = static)."""

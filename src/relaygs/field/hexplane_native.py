@@ -1,5 +1,5 @@
-"""HexPlane sampling through the native CPU kernel (relaygs.splat.native's extension): the
-same features and gradients as `HexPlane`'s grid_sample path, in one pass per point."""
+"""HexPlane sampling and smoothness through the native CPU kernels (relaygs.splat.native's
+extension): the same values and gradients as `HexPlane`'s torch path, in one pass."""
 
 from __future__ import annotations
 
@@ -37,3 +37,20 @@ class NativeHexPlaneFeatures(torch.autograd.Function):
             coords, times, spatial, time, grad.contiguous()
         )
         return grad_coords, None, *plane_grads
+
+
+class NativeSecondDifferenceEnergy(torch.autograd.Function):
+    """`second_difference_energy` of planes [P,C,H,W] along H (`rows`) and/or W (`columns`):
+    the kernel returns the gradient with the energy, so the backward only scales it."""
+
+    @staticmethod
+    def forward(ctx: Any, planes: Tensor, rows: bool, columns: bool) -> Tensor:
+        energy, grad = load().second_difference(planes.detach(), rows, columns)
+        ctx.save_for_backward(grad)
+        return energy
+
+    @staticmethod
+    @once_differentiable
+    def backward(ctx: Any, grad: Tensor) -> tuple[Tensor | None, ...]:
+        (planes_grad,) = ctx.saved_tensors
+        return planes_grad * grad, None, None

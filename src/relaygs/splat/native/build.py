@@ -34,6 +34,7 @@ SOURCES = [
     HERE / "composite.cpp",
     HERE / "projection.cpp",
     HERE / "hexplane.cpp",
+    HERE / "smoothness.cpp",
     HERE / "ssim.cpp",
 ]
 HEADERS = [HERE / "kernels.h"]

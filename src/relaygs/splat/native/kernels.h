@@ -55,6 +55,10 @@ std::vector<at::Tensor> hexplane_backward(const at::Tensor& coords, const at::Te
                                           const std::vector<at::Tensor>& time,
                                           const at::Tensor& grad_features);
 
+// {sum over planes of the mean squared second difference along H (`rows`) plus along W
+// (`columns`) (0-dim), its gradient [P,C,H,W]} of planes [P,C,H,W].
+std::vector<at::Tensor> second_difference(const at::Tensor& planes, bool rows, bool columns);
+
 // {mean SSIM (0-dim), the five blurred maps [5, B*H*W*C]} of channel-last batches x, y.
 std::vector<at::Tensor> ssim_forward(const at::Tensor& x, const at::Tensor& y);
 

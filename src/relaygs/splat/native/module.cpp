@@ -20,6 +20,8 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
         release());
   m.def("hexplane_backward", &relaygs::hexplane_backward,
         "Plane and coordinate gradients of HexPlane features", release());
+  m.def("second_difference", &relaygs::second_difference,
+        "Second-difference energy of planes and its gradient", release());
   m.def("ssim_forward", &relaygs::ssim_forward, "Mean SSIM of image batches", release());
   m.def("ssim_backward", &relaygs::ssim_backward, "SSIM gradient of the first images",
         release());
