@@ -82,10 +82,9 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
     previous = default_backend()
     rounds: dict[str, list[list[dict[str, Any]]]] = {name: [] for name in backends}
     try:
-        for _ in range(args.repeats):  # backends side by side in each round: drift cancels
-            for name in backends:
-                use_backend(name)
-                rounds[name].append(stage_speeds(scene, args.steps, device))
+        for _ in range(args.repeats):
+            for name, rows in stage_speeds(scene, args.steps, backends, device).items():
+                rounds[name].append(rows)
         report["stages"] = {name: median_rows(rows) for name, rows in rounds.items()}
         report["ratio"] = step_cost_ratio(scene, args.steps, device)
         if args.full:
@@ -131,13 +130,16 @@ def small_cfg(
     return cfg
 
 
-def stage_speeds(scene: Scene, steps: int, device: str = "cpu") -> list[dict[str, Any]]:
-    """Steps/s of each stage over its first `steps` steps; relay starts from `flagged_decouple`
-    (a short decouple finds no movers yet)."""
+def stage_speeds(
+    scene: Scene, steps: int, backends: list[str], device: str = "cpu"
+) -> dict[str, list[dict[str, Any]]]:
+    """Steps/s of each stage over its first `steps` steps on each backend, the backends run back
+    to back per stage (this machine's speed drifts over minutes); each stage starts from the
+    last backend's upstream, relay from `flagged_decouple` (a short decouple finds no movers)."""
     short = {name: {"steps": steps} for name in ("warmup", "decouple", "relay", "deform")}
     cfg = small_cfg(device=device, **short)
     artifacts: dict[str, Artifact] = {"flagged": flagged_decouple(scene)}
-    rows = []
+    rows: dict[str, list[dict[str, Any]]] = {name: [] for name in backends}
     for stage, upstream in (
         ("warmup", None),
         ("decouple", None),
@@ -145,16 +147,18 @@ def stage_speeds(scene: Scene, steps: int, device: str = "cpu") -> list[dict[str
         ("deform", "relay"),
     ):
         inputs = {upstream: artifacts[upstream]} if upstream else {}
-        artifacts[stage] = SPECS[stage].run(scene, inputs, cfg)
-        metrics = artifacts[stage].meta["metrics"]
-        rows.append(
-            {
-                "stage": stage,
-                "steps": steps,
-                "steps_per_s": metrics["steps_per_second"],
-                "gaussians": metrics["num_gaussians"],
-            }
-        )
+        for name in backends:
+            use_backend(name)
+            artifacts[stage] = SPECS[stage].run(scene, inputs, cfg)
+            metrics = artifacts[stage].meta["metrics"]
+            rows[name].append(
+                {
+                    "stage": stage,
+                    "steps": steps,
+                    "steps_per_s": metrics["steps_per_second"],
+                    "gaussians": metrics["num_gaussians"],
+                }
+            )
     return rows
 
 
