@@ -98,3 +98,7 @@ def test_bench_train_reports_each_stage_at_its_median_round():
     (row,) = bench_train.median_rows(rounds)
     assert row == {"stage": "relay", "steps": 30, "steps_per_s": 5.0, "gaussians": 9,
                    "runs": [4.0, 9.0, 5.0]}  # fmt: skip
+
+    faster = [[{**row, "steps_per_s": 2.0 * row["steps_per_s"]}] for (row,) in rounds]
+    stages = {"torch": bench_train.median_rows(rounds), "auto": bench_train.median_rows(faster)}
+    assert bench_train.median_speedups(stages, ["torch", "auto"]) == [2.0]

@@ -86,6 +86,7 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
             for name, rows in stage_speeds(scene, args.steps, backends, device).items():
                 rounds[name].append(rows)
         report["stages"] = {name: median_rows(rows) for name, rows in rounds.items()}
+        report["speedup"] = median_speedups(report["stages"], backends)
         report["ratio"] = step_cost_ratio(scene, args.steps, device)
         if args.full:
             report["full"] = full_pipeline(scene, device)
@@ -169,6 +170,16 @@ def median_rows(rounds: list[list[dict[str, Any]]]) -> list[dict[str, Any]]:
         speeds = [row["steps_per_s"] for row in per_round]
         rows.append({**per_round[0], "steps_per_s": statistics.median(speeds), "runs": speeds})
     return rows
+
+
+def median_speedups(stages: dict[str, list[dict[str, Any]]], backends: list[str]) -> list[float]:
+    """Per stage, the median over rounds of the last backend's steps/s over the first's (each
+    round's pair ran back to back, so this ratio is steadier than the medians' ratio)."""
+    first, last = stages[backends[0]], stages[backends[-1]]
+    return [
+        statistics.median(b / a for a, b in zip(base["runs"], other["runs"], strict=True))
+        for base, other in zip(first, last, strict=True)
+    ]
 
 
 def step_cost_ratio(scene: Scene, steps: int, device: str = "cpu") -> dict[str, Any]:
@@ -267,7 +278,7 @@ def print_report(report: dict[str, Any]) -> None:
         speeds = [report["stages"][name][index]["steps_per_s"] for name in backends]
         line = f"{row['stage']:<10}{row['steps']:>7}{row['gaussians']:>11}"
         line += "".join(f"{speed:>16.2f}" for speed in speeds)
-        print(line + (f"{speeds[-1] / speeds[0]:>9.2f}x" if len(backends) > 1 else ""))
+        print(line + (f"{report['speedup'][index]:>9.2f}x" if len(backends) > 1 else ""))
     ratio = report["ratio"]
     print(
         f"step cost at {ratio['gaussians']} Gaussians: decouple {ratio['decouple_ms']:.0f} ms, "
