@@ -28,6 +28,7 @@ def no_work(monkeypatch):
         (["splat", "--backends", "torch,fast"], "'fast'"),
         (["train", "--backends", "torch,fast"], "'fast'"),
         (["field", "--backends", "torch,fast"], "'fast'"),
+        (["field", "--widths", "64", "0"], "argument --widths: expected an integer >= 1"),
         (["train", "--device", "cuda:99"], "--device"),
         (["train", "--device", "tpu"], "'tpu'"),
         # a file where the report's folder should be
@@ -84,10 +85,16 @@ def test_bench_field_times_each_backend_and_restores_the_process_backend(tmp_pat
     assert bench.main([*argv, "--backends", "torch,auto", "--json", str(report)]) == 0
     figures = json.loads(report.read_text())
     assert figures["gaussians"] == 300 and figures["threads"] == 1
-    assert set(figures["fwd_bwd_ms"]) == {"torch", "auto"}
-    assert all(ms > 0 for ms in figures["fwd_bwd_ms"].values())
+    small_width = str(bench_field.small_field_settings()["width"])
+    assert list(figures["fwd_bwd_ms"]) == [small_width]  # the `small` budget's field
+    assert set(figures["fwd_bwd_ms"][small_width]) == {"torch", "auto"}
+    assert all(ms > 0 for ms in figures["fwd_bwd_ms"][small_width].values())
     assert "ratio" in capsys.readouterr().out
     assert default_backend() == before
+
+    assert bench.main([*argv, "--widths", "16", "8", "--json", str(report)]) == 0
+    assert list(json.loads(report.read_text())["fwd_bwd_ms"]) == ["16", "8"]
+    assert "vs torch at width 16" in capsys.readouterr().out
 
 
 def test_bench_train_reports_each_stage_at_its_median_round():

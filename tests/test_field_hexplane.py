@@ -112,9 +112,14 @@ def test_gradcheck_float64() -> None:
 
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
-def test_both_paths_give_the_same_features_and_gradients(dtype: torch.dtype) -> None:
+@pytest.mark.parametrize("channels", [4, 16])  # 16: the kernel's compiled-in channel count
+def test_both_paths_give_the_same_features_and_gradients(dtype: torch.dtype, channels: int) -> None:
     hexplane = HexPlane(
-        [[-1.0, -2.0, -1.0], [1.0, 2.0, 3.0]], 5, multires=[1, 2], spatial_resolution=8, channels=4
+        [[-1.0, -2.0, -1.0], [1.0, 2.0, 3.0]],
+        5,
+        multires=[1, 2],
+        spatial_resolution=8,
+        channels=channels,
     ).to(dtype)
     generator = torch.Generator().manual_seed(3)
     with torch.no_grad():

@@ -1,5 +1,6 @@
 """`python -m relaygs.bench field`: forward+backward time of the deform stage's motion field at
-its defaults over N Gaussians (70 % background), per backend, interleaved against noise."""
+the `small` budget's settings over N Gaussians (70 % background), per backend and MLP width,
+interleaved against noise, with the training process's allocator settings."""
 
 from __future__ import annotations
 
@@ -11,14 +12,17 @@ from typing import Any
 
 import torch
 
+from relaygs.allocator import keep_freed_memory
 from relaygs.cli import int_at_least
-from relaygs.commands.bench_train import backend_names
+from relaygs.commands.bench_train import backend_names, small_cfg
 from relaygs.field import DeformationField
 from relaygs.splat import default_backend, use_backend
+from relaygs.stages.deform import DeformConfig
 
 HELP = "time the deform stage's motion field"
 BACKGROUND_SHARE = 0.7
 TIME_ROWS = 32  # ceil(64 frames / 2), the default scene's
+FIELD_KEYS = ("isolate_fg_bg", "background_motion", "multires", "spatial_resolution", "channels")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -33,12 +37,28 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--backends", default="torch,native", help="comma-separated backends (default torch,native)"
     )
+    parser.add_argument(
+        "--widths",
+        nargs="+",
+        type=int_at_least(1),
+        default=None,
+        help="MLP widths to time (default: the `small` budget's deform.width)",
+    )
 
 
-def _field_step(count: int) -> Callable[[], None]:
-    """One forward+backward of a default-sized field (non-zero heads) over `count` Gaussians."""
+def small_field_settings() -> dict[str, Any]:
+    """The deform stage's field settings at the `small` budget (grid and MLP, no scene box)."""
+    section = DeformConfig.from_config(small_cfg()["deform"])
+    settings = {key: getattr(section, key) for key in FIELD_KEYS}
+    return {**settings, "width": section.width, "depth": section.depth}
+
+
+def _field_step(count: int, width: int) -> Callable[[], None]:
+    """One forward+backward of a `small`-sized field of MLP `width` (non-zero heads) over
+    `count` Gaussians."""
     generator = torch.Generator().manual_seed(0)
-    field = DeformationField([[-2.0] * 3, [2.0] * 3], TIME_ROWS, isolate_fg_bg=True)
+    settings = {**small_field_settings(), "width": width}
+    field = DeformationField([[-2.0] * 3, [2.0] * 3], TIME_ROWS, **settings)
     with torch.no_grad():
         for parameter in field.mlp_sets.parameters():
             parameter.normal_(0.0, 0.05, generator=generator)
@@ -53,37 +73,59 @@ def _field_step(count: int) -> Callable[[], None]:
 
 
 def measure(args: argparse.Namespace) -> dict[str, Any]:
-    """Median forward+backward milliseconds per backend; the process backend is restored."""
+    """Median forward+backward milliseconds per width and backend; the process backend is
+    restored."""
     backends = backend_names(args.backends)
+    widths = args.widths or [small_field_settings()["width"]]
+    keep_freed_memory()  # as training does: large temporaries do not fault in their pages again
     torch.set_num_threads(args.threads)
-    step = _field_step(args.gaussians)
-    times: dict[str, list[float]] = {name: [] for name in backends}
+    cells = [(width, name) for width in widths for name in backends]
+    steps = {width: _field_step(args.gaussians, width) for width in widths}
+    times: dict[tuple[int, str], list[float]] = {cell: [] for cell in cells}
     previous = default_backend()
     try:
-        for name in backends:  # warm-up: kernels built, allocator caches filled
+        for width, name in cells:  # warm-up: kernels built, allocator caches filled
             use_backend(name)
-            step()
+            steps[width]()
         for _ in range(args.repeats):
-            for name in backends:
+            for width, name in cells:
                 use_backend(name)
                 start = time.perf_counter()
-                step()
-                times[name].append((time.perf_counter() - start) * 1e3)
+                steps[width]()
+                times[width, name].append((time.perf_counter() - start) * 1e3)
     finally:
         use_backend(previous)
     return {
         "gaussians": args.gaussians,
         "threads": torch.get_num_threads(),
-        "fwd_bwd_ms": {name: round(statistics.median(t), 2) for name, t in times.items()},
+        "fwd_bwd_ms": {
+            str(width): {name: round(statistics.median(times[width, name]), 2) for name in backends}
+            for width in widths
+        },
     }
 
 
 def print_report(report: dict[str, Any]) -> None:
-    """One line per backend, and the ratio of the first two."""
-    ms = report["fwd_bwd_ms"]
-    print(f"deformation field, {report['gaussians']} Gaussians, {report['threads']} threads")
-    for name, value in ms.items():
-        print(f"{name:<8} forward+backward {value:8.1f} ms")
-    if len(ms) >= 2:
-        first, second = list(ms.values())[:2]
-        print(f"ratio    {first / second:.2f}x")
+    """One row per width, one column per backend, the ratio of the first two backends and, with
+    several widths, each row's last backend against the first row's first backend."""
+    rows = report["fwd_bwd_ms"]
+    first_row = next(iter(rows.values()))
+    backends = list(first_row)
+    baseline = first_row[backends[0]]
+    print(
+        f"deformation field forward+backward (ms), {report['gaussians']} Gaussians, "
+        f"{report['threads']} threads"
+    )
+    header = f"{'width':>6}" + "".join(f"{name:>10}" for name in backends)
+    if len(backends) >= 2:
+        header += f"{'ratio':>8}"
+    if len(rows) >= 2:
+        header += f"  vs {backends[0]} at width {next(iter(rows))}"
+    print(header)
+    for width, ms in rows.items():
+        line = f"{width:>6}" + "".join(f"{ms[name]:10.1f}" for name in backends)
+        if len(backends) >= 2:
+            line += f"{ms[backends[0]] / ms[backends[1]]:7.2f}x"
+        if len(rows) >= 2:
+            line += f"  {baseline / ms[backends[-1]]:.2f}x"
+        print(line)

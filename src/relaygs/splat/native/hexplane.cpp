@@ -8,7 +8,10 @@
 // suffix products (no division), and scatters into one channel-last gradient buffer per
 // thread over a fixed split of the points; the buffers are then summed in thread order and
 // written back channel-first. Results are therefore deterministic for a given thread count.
-// The time coordinate gets no gradient (frame times are not learned).
+// The time coordinate gets no gradient (frame times are not learned). Channel loops are
+// `omp simd` (one point's channels in SIMD lanes; the coordinate gradient is kept per channel
+// and summed once per point, since a running scalar sum would be one serial chain), and the
+// default channel count is compiled in as a fixed loop length.
 
 #include <ATen/ATen.h>
 #include <ATen/Parallel.h>
@@ -25,6 +28,7 @@ namespace relaygs {
 namespace {
 
 constexpr int kPlanes = 6;  // xy, xz, yz, xt, yt, zt
+constexpr int kCommonChannels = 16;  // 4D-GS's multi-view channel count: a compiled-in case
 // Which coordinate (x, y, z, t) indexes each plane's columns and rows.
 constexpr int kColumnAxis[kPlanes] = {0, 0, 1, 0, 1, 2};
 constexpr int kRowAxis[kPlanes] = {1, 2, 2, 3, 3, 3};
@@ -92,14 +96,22 @@ void axis_samples(const T* coord, T time, const Level<const T>& level, AxisSampl
   axes[3] = AxisSample<T>(time, level.time_res);
 }
 
+// The channel count: kChannels when the kernel was compiled for it (fixed-length loops that
+// the compiler unrolls into whole SIMD vectors), else the level's own.
+template <int kChannels, typename Value>
+int64_t channels_of(const Level<Value>& level) {
+  return kChannels > 0 ? kChannels : level.channels;
+}
+
 // samples [6, C]: each plane's bilinear sample at the point.
-template <typename T>
+template <int kChannels, typename T>
 void sample_planes(const Level<const T>& level, const AxisSample<T>* axes, T* samples) {
-  const int64_t C = level.channels;
+  const int64_t C = channels_of<kChannels>(level);
   for (int p = 0; p < kPlanes; ++p) {
     const Corners<T> k(axes[kColumnAxis[p]], axes[kRowAxis[p]], level.res, C);
     const T* plane = level.plane(p);
     T* out = samples + p * C;
+    #pragma omp simd
     for (int64_t c = 0; c < C; ++c) {
       out[c] = k.weight[0] * plane[k.offset[0] + c] + k.weight[1] * plane[k.offset[1] + c] +
                k.weight[2] * plane[k.offset[2] + c] + k.weight[3] * plane[k.offset[3] + c];
@@ -142,6 +154,121 @@ void check_inputs(const at::Tensor& coords, const at::Tensor& times,
   }
 }
 
+template <int kChannels, typename T>
+void forward_points(const std::vector<Level<const T>>& levels, const T* coord, const T* t,
+                    int64_t n, T* out) {
+  const int64_t L = static_cast<int64_t>(levels.size());
+  const int64_t C = channels_of<kChannels>(levels[0]);
+  at::parallel_for(0, n, 256, [&](int64_t begin, int64_t end) {
+    std::vector<T> samples(kPlanes * C);
+    AxisSample<T> axes[4];
+    for (int64_t i = begin; i < end; ++i) {
+      for (int64_t l = 0; l < L; ++l) {
+        axis_samples(coord + 3 * i, t[i], levels[l], axes);
+        sample_planes<kChannels>(levels[l], axes, samples.data());
+        T* f = out + i * C * L + l * C;
+        #pragma omp simd
+        for (int64_t c = 0; c < C; ++c) f[c] = samples[c];
+        for (int p = 1; p < kPlanes; ++p) {
+          #pragma omp simd
+          for (int64_t c = 0; c < C; ++c) f[c] *= samples[p * C + c];
+        }
+      }
+    }
+  });
+}
+
+// The backward's scatter over each worker's fixed share of the points into its own
+// channel-last buffers (`buffers[worker]`: per level spatial, time), and dL/dcoords.
+template <int kChannels, typename T>
+void backward_points(const std::vector<Level<const T>>& levels,
+                     const std::vector<std::vector<at::Tensor>>& buffers, const T* coord,
+                     const T* t, const T* grad, int64_t n, T* grad_coord) {
+  const int64_t L = static_cast<int64_t>(levels.size());
+  const int64_t C = channels_of<kChannels>(levels[0]);
+  const int64_t workers = static_cast<int64_t>(buffers.size());
+  const int64_t chunk = (n + workers - 1) / workers;
+  at::parallel_for(0, workers, 1, [&](int64_t first, int64_t last) {
+    std::vector<T> samples(kPlanes * C), before(kPlanes * C), after(kPlanes * C);
+    std::vector<T> grad_sample(C), axis_grad(3 * C);  // axis_grad: dL/d(x, y, z) per channel
+    AxisSample<T> axes[4];
+    for (int64_t worker = first; worker < last; ++worker) {
+      std::vector<at::Tensor> own_spatial, own_time;
+      for (int64_t l = 0; l < L; ++l) {
+        own_spatial.push_back(buffers[worker][2 * l]);
+        own_time.push_back(buffers[worker][2 * l + 1]);
+      }
+      const auto into = levels_of<T>(own_spatial, own_time);
+      const int64_t stop = std::min(n, (worker + 1) * chunk);
+      for (int64_t i = worker * chunk; i < stop; ++i) {
+        std::fill(axis_grad.begin(), axis_grad.end(), T(0));
+        for (int64_t l = 0; l < L; ++l) {
+          const Level<const T>& level = levels[l];
+          axis_samples(coord + 3 * i, t[i], level, axes);
+          sample_planes<kChannels>(level, axes, samples.data());
+          // before[p] = product of planes < p, after[p] = product of planes > p
+          #pragma omp simd
+          for (int64_t c = 0; c < C; ++c) {
+            before[c] = T(1);
+            after[(kPlanes - 1) * C + c] = T(1);
+          }
+          for (int p = 1; p < kPlanes; ++p) {
+            #pragma omp simd
+            for (int64_t c = 0; c < C; ++c) {
+              before[p * C + c] = before[(p - 1) * C + c] * samples[(p - 1) * C + c];
+              const int q = kPlanes - 1 - p;
+              after[q * C + c] = after[(q + 1) * C + c] * samples[(q + 1) * C + c];
+            }
+          }
+          const T* g = grad + i * C * L + l * C;
+          for (int p = 0; p < kPlanes; ++p) {
+            const AxisSample<T>& col = axes[kColumnAxis[p]];
+            const AxisSample<T>& row = axes[kRowAxis[p]];
+            const Corners<T> k(col, row, level.res, C);
+            #pragma omp simd
+            for (int64_t c = 0; c < C; ++c) {
+              grad_sample[c] = g[c] * before[p * C + c] * after[p * C + c];
+            }
+            T* plane_grad = into[l].plane(p);
+            for (int corner = 0; corner < 4; ++corner) {
+              T* cell = plane_grad + k.offset[corner];
+              const T w = k.weight[corner];
+              #pragma omp simd
+              for (int64_t c = 0; c < C; ++c) cell[c] += w * grad_sample[c];
+            }
+            const T* plane = level.plane(p);
+            const T* v00 = plane + k.offset[0];
+            const T* v01 = plane + k.offset[1];
+            const T* v10 = plane + k.offset[2];
+            const T* v11 = plane + k.offset[3];
+            // per channel here, summed over channels once per point below: a running scalar
+            // sum would be one serial chain the compiler may not reorder into SIMD lanes
+            T* col_grad = axis_grad.data() + kColumnAxis[p] * C;
+            #pragma omp simd
+            for (int64_t c = 0; c < C; ++c) {
+              col_grad[c] += col.slope * grad_sample[c] *
+                             ((T(1) - row.w) * (v01[c] - v00[c]) + row.w * (v11[c] - v10[c]));
+            }
+            if (kRowAxis[p] < 3) {
+              T* row_grad = axis_grad.data() + kRowAxis[p] * C;
+              #pragma omp simd
+              for (int64_t c = 0; c < C; ++c) {
+                row_grad[c] += row.slope * grad_sample[c] *
+                               ((T(1) - col.w) * (v10[c] - v00[c]) + col.w * (v11[c] - v01[c]));
+              }
+            }
+          }
+        }
+        for (int a = 0; a < 3; ++a) {
+          T sum = 0;
+          for (int64_t c = 0; c < C; ++c) sum += axis_grad[a * C + c];
+          grad_coord[3 * i + a] = sum;
+        }
+      }
+    }
+  });
+}
+
 }  // namespace
 
 at::Tensor hexplane_forward(const at::Tensor& coords, const at::Tensor& times,
@@ -157,21 +284,11 @@ at::Tensor hexplane_forward(const at::Tensor& coords, const at::Tensor& times,
     const T* coord = coords.data_ptr<T>();
     const T* t = times.data_ptr<T>();
     T* out = features.data_ptr<T>();
-    at::parallel_for(0, n, 256, [&](int64_t begin, int64_t end) {
-      std::vector<T> samples(kPlanes * C);
-      AxisSample<T> axes[4];
-      for (int64_t i = begin; i < end; ++i) {
-        for (int64_t l = 0; l < L; ++l) {
-          axis_samples(coord + 3 * i, t[i], levels[l], axes);
-          sample_planes(levels[l], axes, samples.data());
-          T* f = out + i * C * L + l * C;
-          for (int64_t c = 0; c < C; ++c) f[c] = samples[c];
-          for (int p = 1; p < kPlanes; ++p) {
-            for (int64_t c = 0; c < C; ++c) f[c] *= samples[p * C + c];
-          }
-        }
-      }
-    });
+    if (C == kCommonChannels) {
+      forward_points<kCommonChannels>(levels, coord, t, n, out);
+    } else {
+      forward_points<0>(levels, coord, t, n, out);
+    }
   });
   return features;
 }
@@ -203,71 +320,11 @@ std::vector<at::Tensor> hexplane_backward(const at::Tensor& coords, const at::Te
     const T* t = times.data_ptr<T>();
     const T* grad = grad_features.data_ptr<T>();
     T* grad_coord = grad_coords.data_ptr<T>();
-    const int64_t chunk = (n + workers - 1) / workers;
-    at::parallel_for(0, workers, 1, [&](int64_t first, int64_t last) {
-      std::vector<T> samples(kPlanes * C), before(kPlanes * C), after(kPlanes * C);
-      std::vector<T> grad_sample(C);
-      AxisSample<T> axes[4];
-      for (int64_t worker = first; worker < last; ++worker) {
-        std::vector<at::Tensor> own_spatial, own_time;
-        for (int64_t l = 0; l < L; ++l) {
-          own_spatial.push_back(buffers[worker][2 * l]);
-          own_time.push_back(buffers[worker][2 * l + 1]);
-        }
-        const auto into = levels_of<T>(own_spatial, own_time);
-        const int64_t stop = std::min(n, (worker + 1) * chunk);
-        for (int64_t i = worker * chunk; i < stop; ++i) {
-          T axis_grad[3] = {0, 0, 0};
-          for (int64_t l = 0; l < L; ++l) {
-            const Level<const T>& level = levels[l];
-            axis_samples(coord + 3 * i, t[i], level, axes);
-            sample_planes(level, axes, samples.data());
-            // before[p] = product of planes < p, after[p] = product of planes > p
-            for (int64_t c = 0; c < C; ++c) {
-              before[c] = T(1);
-              after[(kPlanes - 1) * C + c] = T(1);
-            }
-            for (int p = 1; p < kPlanes; ++p) {
-              for (int64_t c = 0; c < C; ++c) {
-                before[p * C + c] = before[(p - 1) * C + c] * samples[(p - 1) * C + c];
-                const int q = kPlanes - 1 - p;
-                after[q * C + c] = after[(q + 1) * C + c] * samples[(q + 1) * C + c];
-              }
-            }
-            const T* g = grad + i * C * L + l * C;
-            for (int p = 0; p < kPlanes; ++p) {
-              const AxisSample<T>& col = axes[kColumnAxis[p]];
-              const AxisSample<T>& row = axes[kRowAxis[p]];
-              const Corners<T> k(col, row, level.res, C);
-              for (int64_t c = 0; c < C; ++c) {
-                grad_sample[c] = g[c] * before[p * C + c] * after[p * C + c];
-              }
-              T* plane_grad = into[l].plane(p);
-              for (int corner = 0; corner < 4; ++corner) {
-                T* cell = plane_grad + k.offset[corner];
-                const T w = k.weight[corner];
-                for (int64_t c = 0; c < C; ++c) cell[c] += w * grad_sample[c];
-              }
-              const T* plane = level.plane(p);
-              const T* v00 = plane + k.offset[0];
-              const T* v01 = plane + k.offset[1];
-              const T* v10 = plane + k.offset[2];
-              const T* v11 = plane + k.offset[3];
-              T d_col = 0, d_row = 0;
-              for (int64_t c = 0; c < C; ++c) {
-                d_col += grad_sample[c] *
-                         ((T(1) - row.w) * (v01[c] - v00[c]) + row.w * (v11[c] - v10[c]));
-                d_row += grad_sample[c] *
-                         ((T(1) - col.w) * (v10[c] - v00[c]) + col.w * (v11[c] - v01[c]));
-              }
-              axis_grad[kColumnAxis[p]] += d_col * col.slope;
-              if (kRowAxis[p] < 3) axis_grad[kRowAxis[p]] += d_row * row.slope;
-            }
-          }
-          for (int a = 0; a < 3; ++a) grad_coord[3 * i + a] = axis_grad[a];
-        }
-      }
-    });
+    if (C == kCommonChannels) {
+      backward_points<kCommonChannels>(levels, buffers, coord, t, grad, n, grad_coord);
+    } else {
+      backward_points<0>(levels, buffers, coord, t, grad, n, grad_coord);
+    }
   });
   // Sum the workers' buffers in worker order, written back channel-first [3, C, H, W].
   std::vector<at::Tensor> grads;
@@ -283,12 +340,14 @@ std::vector<at::Tensor> hexplane_backward(const at::Tensor& coords, const at::Te
       at::parallel_for(0, 3 * rows, 16, [&](int64_t begin, int64_t end) {
         for (int64_t pr = begin; pr < end; ++pr) {
           const int64_t p = pr / rows, r = pr % rows;
-          for (int64_t x = 0; x < cols; ++x) {
-            const int64_t cell = ((p * rows + r) * cols + x) * C;
-            for (int64_t c = 0; c < C; ++c) {
-              T sum = parts[0][cell + c];
-              for (size_t w = 1; w < parts.size(); ++w) sum += parts[w][cell + c];
-              dst[((p * C + c) * rows + r) * cols + x] = sum;
+          // channel outer: contiguous writes, reads from one row of cells that stays cached
+          const int64_t row_start = (p * rows + r) * cols * C;
+          for (int64_t c = 0; c < C; ++c) {
+            T* out_row = dst + ((p * C + c) * rows + r) * cols;
+            for (int64_t x = 0; x < cols; ++x) {
+              T sum = parts[0][row_start + x * C + c];
+              for (size_t w = 1; w < parts.size(); ++w) sum += parts[w][row_start + x * C + c];
+              out_row[x] = sum;
             }
           }
         }
