@@ -193,6 +193,18 @@ def test_people_walk_many_body_widths_only_with_large_motion(preset: str, walk: 
     assert max(path_lengths({NONRIGID})) < 1e-9
 
 
+def test_burst_people_stand_for_the_first_half_and_run_a_circle_in_the_second():
+    for torso in _torsos(_foreground("burst", {LARGE_MOTION, NONRIGID})):
+        steps = np.linalg.norm(np.diff(torso.positions, axis=0), axis=1)  # 64 frames over 5 s
+        assert steps[:31].max() < 1e-9  # frames 0-31 lie before the half-way 2.5 s
+        assert steps[32:].min() > 0.1  # a 1.4 m circle in 2.5 s: about 0.27 m a frame
+        assert np.linalg.norm(torso.positions[-1] - torso.positions[31]) < 0.3  # back round
+    assert all(
+        np.ptp(torso.positions, axis=0).max() < 1e-9
+        for torso in _torsos(_foreground("burst", set()))
+    )
+
+
 def _limb_offsets(primitives: list) -> np.ndarray:
     torso = _torsos(primitives)[0]
     limbs = [p for p in primitives if p.kind == "capsule" and p is not torso][:8]

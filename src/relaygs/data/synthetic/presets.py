@@ -1,4 +1,4 @@
-"""The synthetic presets (juggle, court, static): which effects each supports and its world."""
+"""The synthetic presets (juggle, court, burst, static): their effects and their worlds."""
 
 from __future__ import annotations
 
@@ -211,6 +211,27 @@ def build_court(times: np.ndarray, effects: frozenset[str], seed: int) -> list[P
     return primitives
 
 
+def build_burst(times: np.ndarray, effects: frozenset[str], seed: int) -> list[Primitive]:
+    """Two people standing still for the first half of the sequence, then running a full circle
+    round the stage in the second: all the motion in one burst (for motion-adaptive segments)."""
+    rng = np.random.default_rng([seed, 13])
+    primitives = dome_studio(seed)
+    shirts = (((0.2, 0.3, 0.85), (0.95, 0.95, 0.9)), ((0.9, 0.55, 0.1), (0.2, 0.2, 0.25)))
+    start_s = DURATION_S / 2
+    running_s = np.clip(times - start_s, 0.0, None)
+    for index in range(2):
+        start = index * np.pi + rng.uniform(-0.3, 0.3)
+        angle = np.full_like(times, start)
+        if LARGE_MOTION in effects:
+            angle = angle + 2 * np.pi * running_s / (DURATION_S - start_s)
+        root = 1.4 * np.stack([np.cos(angle), np.sin(angle)], axis=1)
+        heading = _headings(root, start + np.pi)  # facing the centre until they set off
+        phase = _gait_phase(root, times, stride=2.0, effects=effects, cadence=1.4)
+        legs, arms = gait_angles(phase, stride=0.6, arm_swing=0.7, elbow=1.3)
+        primitives += person(BodyMotion(root, heading, legs, arms), _outfit(rng, *shirts[index]))
+    return primitives
+
+
 def build_static(times: np.ndarray, effects: frozenset[str], seed: int) -> list[Primitive]:
     """The juggling studio with nobody in it: nothing moves (a control scene)."""
     return dome_studio(seed)
@@ -238,6 +259,15 @@ PRESETS: dict[str, Preset] = {
         | _CAMERA_EFFECTS,
         build_court,
         revision=2,  # declaring background_jitter no longer redraws the spectators' clothes
+    ),
+    "burst": Preset(
+        "burst",
+        "The juggling dome; two people stand still for half the sequence, then run a circle",
+        dome_rig,
+        (0, 10, 15, 30),
+        frozenset({LARGE_MOTION, NONRIGID}),
+        frozenset({LARGE_MOTION, NONRIGID}) | _CAMERA_EFFECTS,
+        build_burst,
     ),
     "static": Preset(
         "static",
