@@ -28,7 +28,7 @@ def no_work(monkeypatch):
         (["splat", "--backends", "torch,fast"], "'fast'"),
         (["train", "--backends", "torch,fast"], "'fast'"),
         (["field", "--backends", "torch,fast"], "'fast'"),
-        (["field", "--widths", "64", "0"], "argument --widths: expected an integer >= 1"),
+        (["field", "--widths", "64", "0"], "--widths"),
         (["train", "--device", "cuda:99"], "--device"),
         (["train", "--device", "tpu"], "'tpu'"),
         # a file where the report's folder should be

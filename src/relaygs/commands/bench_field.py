@@ -22,7 +22,6 @@ from relaygs.stages.deform import DeformConfig
 HELP = "time the deform stage's motion field"
 BACKGROUND_SHARE = 0.7
 TIME_ROWS = 32  # ceil(64 frames / 2), the default scene's
-FIELD_KEYS = ("isolate_fg_bg", "background_motion", "multires", "spatial_resolution", "channels")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -48,16 +47,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def small_field_settings() -> dict[str, Any]:
     """The deform stage's field settings at the `small` budget (grid and MLP, no scene box)."""
-    section = DeformConfig.from_config(small_cfg()["deform"])
-    settings = {key: getattr(section, key) for key in FIELD_KEYS}
-    return {**settings, "width": section.width, "depth": section.depth}
+    return DeformConfig.from_config(small_cfg()["deform"]).network_settings()
 
 
-def _field_step(count: int, width: int) -> Callable[[], None]:
-    """One forward+backward of a `small`-sized field of MLP `width` (non-zero heads) over
-    `count` Gaussians."""
+def _field_step(count: int, settings: dict[str, Any]) -> Callable[[], None]:
+    """One forward+backward of a field of `settings` (non-zero heads) over `count` Gaussians."""
     generator = torch.Generator().manual_seed(0)
-    settings = {**small_field_settings(), "width": width}
     field = DeformationField([[-2.0] * 3, [2.0] * 3], TIME_ROWS, **settings)
     with torch.no_grad():
         for parameter in field.mlp_sets.parameters():
@@ -76,11 +71,12 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
     """Median forward+backward milliseconds per width and backend; the process backend is
     restored."""
     backends = backend_names(args.backends)
-    widths = args.widths or [small_field_settings()["width"]]
+    settings = small_field_settings()
+    widths = args.widths or [settings["width"]]
     keep_freed_memory()  # as training does: large temporaries do not fault in their pages again
     torch.set_num_threads(args.threads)
     cells = [(width, name) for width in widths for name in backends]
-    steps = {width: _field_step(args.gaussians, width) for width in widths}
+    steps = {width: _field_step(args.gaussians, {**settings, "width": width}) for width in widths}
     times: dict[tuple[int, str], list[float]] = {cell: [] for cell in cells}
     previous = default_backend()
     try:

@@ -113,6 +113,12 @@ class DeformConfig(PerSetSections):
         return {
             "aabb": [xyz.amin(dim=0).tolist(), xyz.amax(dim=0).tolist()],
             "time_resolution": time_resolution,
+            **self.network_settings(),
+        }
+
+    def network_settings(self) -> dict[str, Any]:
+        """The field's settings that do not depend on a scene: the grid's and the MLPs'."""
+        return {
             "isolate_fg_bg": self.isolate_fg_bg,
             "background_motion": self.background_motion,
             "multires": list(self.multires),
