@@ -30,7 +30,7 @@ from relaygs.stages.train_settings import TrainSettings
 from relaygs.train.canonical import uniform_unless_adaptive
 from relaygs.train.loop import StepResult, TrainReport, run_training
 from relaygs.train.loss import photometric_loss
-from relaygs.train.render import FrozenRenders, part_of, splat
+from relaygs.train.render import FrozenRenders, Render, part_of, splat
 from relaygs.train.scene_model import (
     SEGMENT,
     SceneModel,
@@ -61,6 +61,7 @@ class RelayConfig(PerSetSections):
     segments: str = "uniform"
     pseudo_views: bool = True
     p: int = 3
+    segments_per_step: int = 1
     freeze_background: bool = True
     seed_copies: str = "carve"
     hull_residual: float = 0.15
@@ -81,6 +82,8 @@ class RelayConfig(PerSetSections):
         modes = list(SEGMENT_MODES)
         require(self.segments in modes, "relay.segments", self.segments, f"one of {modes}")
         require(self.p >= 1, "relay.p", self.p, "an int >= 1")
+        per_step = self.segments_per_step
+        require(per_step >= 1, "relay.segments_per_step", per_step, "an int >= 1")
         require(self.sh_every >= 0, "relay.sh_every", self.sh_every, "an int >= 0")
         mode = self.seed_copies
         require(mode in SEED_MODES, "relay.seed_copies", mode, f"one of {list(SEED_MODES)}")
@@ -173,20 +176,27 @@ def _train(
 
     def step_fn(step: int) -> StepResult:
         generator = session.generator
-        segment = int(torch.randint(segments.count, (1,), generator=generator))
-        first = segments.frames(segment)[0]
-        batch = views.random_views_at(first, train.batch_views, generator)
         background, foreground = current()
         degree = max(background.active_sh_degree, foreground.active_sh_degree)
-        rows = (foreground.buffers[SEGMENT] == segment).nonzero().squeeze(1)
-        parts = [
-            part_of("bg", background, degree, frozen=section.freeze_background),
-            part_of("fg", foreground, degree, rows=rows),
-        ]
-        render = splat(parts, [view.camera for view in batch], degree, frozen)
-        goals = [targets.target(view.camera.camera_id, segment, generator) for view in batch]
-        loss = photometric_loss(render.images, goals, train.ssim_weight)
-        return StepResult(loss, [render], render.images, goals)
+        renders: list[Render] = []
+        preds, goals = [], []
+        for slot in range(section.segments_per_step):  # the batch's views split among them
+            count = len(range(slot, train.batch_views, section.segments_per_step))
+            if count == 0:
+                continue
+            segment = int(torch.randint(segments.count, (1,), generator=generator))
+            batch = views.random_views_at(segments.frames(segment)[0], count, generator)
+            rows = (foreground.buffers[SEGMENT] == segment).nonzero().squeeze(1)
+            parts = [
+                part_of("bg", background, degree, frozen=section.freeze_background),
+                part_of("fg", foreground, degree, rows=rows),
+            ]
+            render = splat(parts, [view.camera for view in batch], degree, frozen)
+            renders.append(render)
+            preds += render.images
+            goals += [targets.target(view.camera.camera_id, segment, generator) for view in batch]
+        loss = photometric_loss(preds, goals, train.ssim_weight)
+        return StepResult(loss, renders, preds, goals)
 
     def counts() -> tuple[int, int]:
         background, foreground = current()

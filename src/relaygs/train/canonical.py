@@ -23,12 +23,15 @@ def one_segment_at_most(section: Mapping[str, Any], scene: Scene) -> dict[str, A
 
 def uniform_unless_adaptive(section: Mapping[str, Any], scene: Scene) -> dict[str, Any]:
     """`one_segment_at_most`, without `segments` where it is uniform or adaptive placement has no
-    choice (k = 1 or k >= T), so uniform relays keep the keys they had before the setting."""
+    choice (k = 1 or k >= T), and without `segments_per_step` at 1, so relays keep the keys they
+    had before those settings."""
     canonical = one_segment_at_most(section, scene)
     k = canonical.get("k")
     fixed = isinstance(k, int) and k >= 1 and boundaries_fixed(scene.num_frames, k)
     if canonical.get("segments", "uniform") == "uniform" or fixed:
         canonical.pop("segments", None)
+    if canonical.get("segments_per_step", 1) == 1:
+        canonical.pop("segments_per_step", None)
     return canonical
 
 
