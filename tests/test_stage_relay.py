@@ -15,7 +15,7 @@ from relaygs.pipeline.artifact import Artifact
 from relaygs.stages import SPECS, SceneModel
 from relaygs.train.segment_plan import SegmentPlan
 from relaygs.train.segments import SegmentTargets, pseudo_frames
-from relaygs.train.views import TrainViews
+from relaygs.train.views import TrainViews, views_per_slot
 
 
 @pytest.mark.parametrize(
@@ -151,6 +151,13 @@ def test_a_step_fits_only_the_copies_of_the_segments_it_drew(
         assert sum(changed) == 1
     else:  # four draws among eight segments (seed 0 draws three distinct ones)
         assert 2 <= sum(changed) <= segments_per_step
+
+
+def test_a_batch_splits_round_robin_among_its_frames_or_segments() -> None:
+    assert views_per_slot(4, 1) == [4]
+    assert views_per_slot(4, 3) == [2, 1, 1]
+    assert views_per_slot(4, 4) == [1, 1, 1, 1]
+    assert views_per_slot(2, 4) == [1, 1]  # slots beyond the views get none
 
 
 def test_draws_at_a_frame_take_every_camera_once_before_repeating_one(stage_scene: Scene) -> None:

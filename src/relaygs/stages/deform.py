@@ -26,7 +26,7 @@ from relaygs.train.motion import deformed_parts
 from relaygs.train.render import Render, splat
 from relaygs.train.scene_model import GAMMA, SceneModel, build_field
 from relaygs.train.session import ModuleGroup, SetPlan, TrainingSession
-from relaygs.train.views import TrainViews
+from relaygs.train.views import TrainViews, views_per_slot
 
 STAGE = "deform"
 SCHEMA_VERSION = 2  # 2: density control ends before the stage's last step
@@ -148,10 +148,8 @@ def deform(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, Any
         frames = torch.randint(scene.num_frames, (section.frames_per_step,), generator=generator)
         renders: list[Render] = []
         preds, targets = [], []
-        for slot, frame in enumerate(frames.tolist()):
-            count = len(range(slot, train.batch_views, section.frames_per_step))
-            if count == 0:
-                continue
+        counts = views_per_slot(train.batch_views, section.frames_per_step)
+        for frame, count in zip(frames.tolist(), counts, strict=False):  # frames beyond: none
             batch = views.random_views_at(frame, count, generator)
             degree = max(model.background.active_sh_degree, model.foreground.active_sh_degree)
             parts = deformed_parts(

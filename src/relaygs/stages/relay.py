@@ -41,7 +41,7 @@ from relaygs.train.scene_model import (
 from relaygs.train.segment_plan import SegmentPlan, boundaries_fixed, frame_motion
 from relaygs.train.segments import SegmentTargets, pseudo_frames
 from relaygs.train.session import SetPlan, TrainingSession
-from relaygs.train.views import TrainViews
+from relaygs.train.views import TrainViews, views_per_slot
 
 STAGE = "relay"
 SEGMENT_MODES = ("uniform", "adaptive")
@@ -180,10 +180,7 @@ def _train(
         degree = max(background.active_sh_degree, foreground.active_sh_degree)
         renders: list[Render] = []
         preds, goals = [], []
-        for slot in range(section.segments_per_step):  # the batch's views split among them
-            count = len(range(slot, train.batch_views, section.segments_per_step))
-            if count == 0:
-                continue
+        for count in views_per_slot(train.batch_views, section.segments_per_step):
             segment = int(torch.randint(segments.count, (1,), generator=generator))
             batch = views.random_views_at(segments.frames(segment)[0], count, generator)
             rows = (foreground.buffers[SEGMENT] == segment).nonzero().squeeze(1)

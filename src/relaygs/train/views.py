@@ -9,6 +9,12 @@ from relaygs.data import Scene, View
 from relaygs.errors import InputError
 
 
+def views_per_slot(batch_views: int, slots: int) -> list[int]:
+    """How a step's `batch_views` views split among `slots` frames or segments, round-robin
+    (slots beyond the views get none, and are skipped)."""
+    return [count for slot in range(slots) if (count := len(range(slot, batch_views, slots)))]
+
+
 class TrainViews:
     """The scene's train views indexed by frame, with random draws from a torch.Generator."""
 
