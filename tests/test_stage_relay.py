@@ -149,7 +149,7 @@ def test_a_step_fits_only_the_copies_of_the_segments_it_drew(
         )
     if segments_per_step == 1:
         assert sum(changed) == 1
-    else:  # four draws among eight segments (seed 0 draws three distinct ones)
+    else:  # four draws among eight segments: seed 0 draws more than one
         assert 2 <= sum(changed) <= segments_per_step
 
 
