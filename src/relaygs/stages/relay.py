@@ -178,22 +178,27 @@ def _train(
         generator = session.generator
         background, foreground = current()
         degree = max(background.active_sh_degree, foreground.active_sh_degree)
-        renders: list[Render] = []
-        preds, goals = [], []
+        draws = []
         for count in views_per_slot(train.batch_views, section.segments_per_step):
             segment = int(torch.randint(segments.count, (1,), generator=generator))
             batch = views.random_views_at(segments.frames(segment)[0], count, generator)
+            goals = [targets.target(view.camera.camera_id, segment, generator) for view in batch]
             rows = (foreground.buffers[SEGMENT] == segment).nonzero().squeeze(1)
-            parts = [
-                part_of("bg", background, degree, frozen=section.freeze_background),
-                part_of("fg", foreground, degree, rows=rows),
-            ]
+            draws.append((batch, goals, rows))
+        # one gather of every drawn copy: one gradient of the whole set, not one per render
+        shown = part_of("fg", foreground, degree, rows=torch.cat([rows for *_, rows in draws]))
+        background_part = part_of("bg", background, degree, frozen=section.freeze_background)
+        renders: list[Render] = []
+        preds, targets_drawn, start = [], [], 0
+        for batch, goals, rows in draws:
+            parts = [background_part, shown.piece(start, start + len(rows))]
+            start += len(rows)
             render = splat(parts, [view.camera for view in batch], degree, frozen)
             renders.append(render)
             preds += render.images
-            goals += [targets.target(view.camera.camera_id, segment, generator) for view in batch]
-        loss = photometric_loss(preds, goals, train.ssim_weight)
-        return StepResult(loss, renders, preds, goals)
+            targets_drawn += goals
+        loss = photometric_loss(preds, targets_drawn, train.ssim_weight)
+        return StepResult(loss, renders, preds, targets_drawn)
 
     def counts() -> tuple[int, int]:
         background, foreground = current()

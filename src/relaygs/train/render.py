@@ -34,6 +34,26 @@ class Part:
     def count(self) -> int:
         return self.means.shape[0]
 
+    def piece(self, start: int, stop: int) -> Part:
+        """Rows start:stop of this part, as views: their gradients reach this part's tensors, so
+        one gather of a set's rows can feed several renders (the whole part: itself)."""
+        if start == 0 and stop == self.count:
+            return self
+        cut = slice(start, stop)
+        factor = None if self.opacity_factor is None else self.opacity_factor[cut]
+        rows = None if self.rows is None else self.rows[cut]
+        return Part(
+            self.name,
+            rows,
+            self.means[cut],
+            self.log_scales[cut],
+            self.quats[cut],
+            self.opacity_logits[cut],
+            self.sh[cut],
+            factor,
+            self.frozen,
+        )
+
 
 def part_of(
     name: str,
