@@ -19,8 +19,8 @@ SCENE = SimpleNamespace(fingerprint="pinned-scene", num_frames=64)
 PINNED = {
     "pipeline=relaygs": {
         "decouple": "051ff8a87afd150e",
-        "relay": "cc73fc461c391de2",
-        "deform": "e3add94dfa70c10e",
+        "relay": "595965c28687dacc",
+        "deform": "03264a52167d4cde",
     },
     "pipeline=4dgs": {"warmup": "950e91bf2d07be4a", "deform": "3c12c832529165b5"},
     "pipeline=no_stage2": {
@@ -31,23 +31,23 @@ PINNED = {
     "pipeline=no_copies": {"decouple": "051ff8a87afd150e", "deform": "f2f8a819abd75b65"},
     "+component=no_gamma": {
         "decouple": "051ff8a87afd150e",
-        "relay": "cc73fc461c391de2",
-        "deform": "22e82322d66adb1a",
+        "relay": "595965c28687dacc",
+        "deform": "a74c7bcc88fbefb3",
     },
     "+component=no_isolation": {
         "decouple": "051ff8a87afd150e",
-        "relay": "cc73fc461c391de2",
-        "deform": "f0e743e26eb09d3a",
+        "relay": "595965c28687dacc",
+        "deform": "40783b2e75364e40",
     },
     "+component=no_pseudo_views": {
         "decouple": "051ff8a87afd150e",
-        "relay": "42f2d6e3326f4ab7",
-        "deform": "c44eabf98c3cf287",
+        "relay": "febf4755cc0afa38",
+        "deform": "0c927e87ff6b8e6f",
     },
     "relay.k=128": {
         "decouple": "051ff8a87afd150e",
-        "relay": "f98e199347621d0d",
-        "deform": "031a0c25fe349b74",
+        "relay": "0c60db36bd00d99c",
+        "deform": "fcf489ea935d176a",
     },
 }
 """Each node's key (its first 16 hex digits) at the default scene settings and `small` budget;
