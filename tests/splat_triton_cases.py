@@ -156,6 +156,16 @@ def test_a_fixed_layer_renders_and_differentiates_as_the_full_scene():
         assert (got[3][key][~mask] - moving).norm() / moving.norm() < 1e-4, key
 
 
+def test_a_camera_mask_renders_and_differentiates_as_on_the_torch_backend():
+    scene = random_scene(60, seed=9, num_cameras=2, width=16, height=16)
+    mask = torch.ones(2, 60, dtype=torch.bool)
+    mask[0, 40:] = mask[1, 20:40] = False
+    got = render_and_grads(rasterization, with_grad(scene), backend="triton", camera_mask=mask)
+    expected = render_and_grads(rasterization, with_grad(scene), backend="torch", camera_mask=mask)
+    assert not got[2]["radii"][~mask].any()
+    assert_render_matches(got, expected, 1e-5, 1e-4)
+
+
 def test_triton_on_tensors_it_cannot_render_is_refused_with_the_cause():
     scene = {k: v.half() if torch.is_tensor(v) else v for k, v in random_scene(5).items()}
     with pytest.raises(InputError, match="float16"):

@@ -86,6 +86,23 @@ def test_accumulate_of_shown_rows_matches_the_scattered_whole_set() -> None:
     assert by_rows._views.sum() > 0 and by_rows._max_radii[1] == by_rows._max_radii[3] == 0
 
 
+def test_accumulate_of_repeated_rows_equals_one_call_per_repeat() -> None:
+    """A copy drawn twice in a step arrives as repeated rows, each seen by other cameras."""
+    gen = torch.Generator().manual_seed(4)
+    grad = torch.randn(2, 4, 2, generator=gen) * 1e-4
+    radii = torch.tensor([[[2, 2], [0, 0], [5, 4], [0, 0]], [[0, 0], [3, 1], [0, 0], [1, 1]]])
+    rows = torch.tensor([1, 3, 1, 3])  # rows 1 and 3 twice, at columns 0/2 and 1/3
+    once = DensityController(make_set([SMALL_LOG_SCALE] * 4), DensifySettings(), 1.0)
+    twice = DensityController(make_set([SMALL_LOG_SCALE] * 4), DensifySettings(), 1.0)
+    once.accumulate(grad, radii.int(), 160, 90, cameras=2, rows=rows)
+    for half in (slice(0, 2), slice(2, 4)):
+        twice.accumulate(grad[:, half], radii[:, half].int(), 160, 90, cameras=2, rows=rows[half])
+    torch.testing.assert_close(once._grad_sum, twice._grad_sum)
+    assert torch.equal(once._views, twice._views)
+    assert torch.equal(once._max_radii, twice._max_radii)
+    assert once._max_radii.tolist() == [0.0, 5.0, 0.0, 3.0]
+
+
 def test_clone_appends_exact_copies_with_copied_adam_rows() -> None:
     g = make_set([SMALL_LOG_SCALE] * 4)
     optimizer = trained(g)

@@ -11,10 +11,8 @@ from conftest import STAGE_K, stage_smoke_cfg
 from refusals import refused
 from relaygs.data import Scene, load_scene
 from relaygs.errors import InputError
-from relaygs.model import GaussianSet
 from relaygs.pipeline.artifact import Artifact
 from relaygs.stages import SPECS, SceneModel
-from relaygs.train.render import part_of
 from relaygs.train.segment_plan import SegmentPlan
 from relaygs.train.segments import SegmentTargets, pseudo_frames
 from relaygs.train.views import TrainViews, views_per_slot
@@ -160,19 +158,6 @@ def test_a_batch_splits_round_robin_among_its_frames_or_segments() -> None:
     assert views_per_slot(4, 3) == [2, 1, 1]
     assert views_per_slot(4, 4) == [1, 1, 1, 1]
     assert views_per_slot(2, 4) == [1, 1]  # slots beyond the views get none
-
-
-def test_a_piece_of_a_gathered_part_keeps_its_rows_and_passes_gradients_back() -> None:
-    gaussians = GaussianSet.from_points(torch.rand(5, 3), torch.rand(5, 3))
-    part = part_of("fg", gaussians, 0, rows=torch.tensor([4, 0, 2]))
-    assert part.piece(0, 3) is part
-    piece = part.piece(1, 3)
-    assert torch.equal(piece.rows, torch.tensor([0, 2]))
-    assert torch.equal(piece.means, gaussians.means[[0, 2]])
-    piece.means.sum().backward()
-    grad = gaussians.params["means"].grad
-    assert torch.equal(grad[[0, 2]], torch.ones(2, 3))
-    assert torch.equal(grad[[1, 3, 4]], torch.zeros(3, 3))
 
 
 def test_draws_at_a_frame_take_every_camera_once_before_repeating_one(stage_scene: Scene) -> None:

@@ -6,7 +6,7 @@ import torch
 
 from relaygs.data import Camera
 from relaygs.model import GaussianSet
-from relaygs.train.render import FrozenRenders, part_of, screen_statistics, splat
+from relaygs.train.render import FrozenRenders, part_of, screen_statistics, slot_mask, splat
 from splat_scenes import dome_cameras
 
 WIDTH, HEIGHT = 64, 36
@@ -97,3 +97,48 @@ def test_a_cached_frozen_render_does_not_depend_on_the_cameras_batched_with_it()
     assert torch.equal(batched.colors, alone.colors)
     assert torch.equal(batched.alphas, alone.alphas)
     assert torch.equal(batched.features, alone.features)
+
+
+def test_one_masked_render_of_several_copies_equals_one_render_per_copy():
+    """A relay step with several segments: cameras 0–1 see copy A (foreground rows 0–14),
+    camera 2 copy B (rows 15–29), all of them the frozen background; one masked render gives
+    each camera's image, the copies' gradients and their screen statistics of one render each."""
+    background, foreground = _sets()
+    cameras = dome_cameras(WIDTH, HEIGHT)[:3]
+    slots = [(cameras[:2], torch.arange(15)), (cameras[2:], torch.arange(15, 30))]
+    weights = torch.linspace(-1.0, 1.0, WIDTH * 3).repeat(HEIGHT, 1).view(HEIGHT, WIDTH, 3)
+
+    def backward(images: list[torch.Tensor]) -> dict[str, torch.Tensor]:
+        for param in foreground.params.values():
+            param.grad = None
+        sum(((image * weights).sum() for image in images), torch.zeros(())).backward()
+        return {name: param.grad.clone() for name, param in foreground.params.items()}
+
+    frozen = FrozenRenders()
+    background_part = part_of("bg", background, 1, frozen=True)
+    rows = torch.cat([copy for _, copy in slots])
+    mask = slot_mask(len(background), [(len(views), len(copy)) for views, copy in slots])
+    shown = part_of("fg", foreground, 1, rows=rows)
+    joint = splat([background_part, shown], cameras, 1, frozen, mask)
+    joint_grads = backward(joint.images)
+    joint_stats = screen_statistics(joint, "fg")
+
+    images, renders = [], []
+    for views, copy in slots:
+        render = splat([background_part, part_of("fg", foreground, 1, rows=copy)], views, 1, frozen)
+        images += render.images
+        renders.append(render)
+    separate_grads = backward(images)
+    for got, expected in zip(joint.images, images, strict=True):
+        torch.testing.assert_close(got, expected, rtol=0, atol=1e-6)
+    for name, expected in separate_grads.items():
+        torch.testing.assert_close(joint_grads[name], expected, rtol=1e-4, atol=1e-7)
+    assert all(separate_grads[name].abs().max() > 0 for name in ("means", "log_scales", "sh_dc"))
+    for index, render in enumerate(renders):
+        grad, radii, _ = screen_statistics(render, "fg")
+        cams = slice(0, 2) if index == 0 else slice(2, 3)
+        block = slice(0, 15) if index == 0 else slice(15, 30)
+        assert torch.equal(joint_stats[1][cams, block], radii)
+        torch.testing.assert_close(joint_stats[0][cams, block], grad, rtol=1e-4, atol=1e-9)
+        others = slice(15, 30) if index == 0 else slice(0, 15)
+        assert not joint_stats[1][cams, others].any(), "a camera must not see another's copy"

@@ -89,8 +89,8 @@ class DensityController:
         rows: Tensor | None = None,
     ) -> None:
         """Add one step's statistics: means2d_grad [C,n,2] (pixels), radii [C,n,2] or [C,n] of
-        the set's `rows` (None: all); `cameras` is the step's camera count (default C), whose
-        mean loss scaled each gradient down by it."""
+        the set's `rows` (None: all; repeats allowed); `cameras` is the step's camera count
+        (default C), whose mean loss scaled each gradient down by it."""
         per_axis = radii if radii.ndim == 3 else radii[..., None]
         visible = (per_axis > 0).all(dim=-1)
         n_cameras = means2d_grad.shape[0] if cameras is None else cameras
@@ -104,10 +104,10 @@ class DensityController:
             self._views += views
             self._max_radii = torch.maximum(self._max_radii, max_radius.to(torch.float32))
             return
+        # a row may repeat (a copy drawn twice in one step): sums add, the radius keeps its max
         self._grad_sum.index_add_(0, rows, grad_sum)
         self._views.index_add_(0, rows, views)
-        seen = self._max_radii.index_select(0, rows)
-        self._max_radii.index_copy_(0, rows, torch.maximum(seen, max_radius.to(torch.float32)))
+        self._max_radii.scatter_reduce_(0, rows, max_radius.to(torch.float32), "amax")
 
     def mean_grads(self) -> Tensor:
         """Mean NDC-space gradient norm [N] over the views where each Gaussian was visible."""

@@ -307,6 +307,22 @@ def _moving_tiles(bins: TileBins, fixed: FixedLayer | None) -> TileBins:
     return only_tiles(bins, tiles_touched_by(bins, ~fixed.mask))
 
 
+def _leave_out(proj: Projection, camera_mask: torch.Tensor | None) -> Projection:
+    """The projection with Gaussian n culled in camera c wherever camera_mask[c, n] is False:
+    binning skips it there, so it composites nothing and gets no gradient from that camera."""
+    if camera_mask is None:
+        return proj
+    shape = tuple(proj.visible.shape)
+    _check(
+        camera_mask.shape == shape and camera_mask.dtype == torch.bool,
+        f"camera_mask must be {list(shape)} bool, got {camera_mask.dtype} "
+        f"{list(camera_mask.shape)}",
+    )
+    keep = proj.visible & camera_mask.to(proj.visible.device)
+    radii = torch.where(keep[..., None], proj.radii, torch.zeros_like(proj.radii))
+    return dataclasses.replace(proj, visible=keep, radii=radii)
+
+
 def finish_depth(render: torch.Tensor, alphas: torch.Tensor, render_mode: str) -> torch.Tensor:
     """Turn the accumulated-depth channel into expected depth (0 where nothing was hit).
 
@@ -431,6 +447,7 @@ def rasterization(
     render_mode: str = "RGB",
     tile_size: int = DEFAULT_TILE_SIZE,
     fixed: FixedLayer | None = None,
+    camera_mask: torch.Tensor | None = None,
     backend: str | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor, dict[str, Any]]:
     """Render N Gaussians into C cameras; returns colors [C,H,W,D], alphas [C,H,W,1], meta.
@@ -445,6 +462,8 @@ def rasterization(
     per-camera features. `fixed` (RGB only) gives the render
     of Gaussians that have not changed since it was made: the tiles only they touch are
     copied from it, which skips their compositing and backward (see FixedLayer).
+    `camera_mask` [C,N] bool leaves Gaussian n out of camera c where False (culled there:
+    radius 0, no gradient), so one render can show each camera its own rows.
     `backend` picks projection, binning and compositing: "auto" (the Triton kernels on CUDA
     where triton imports, the native kernels on CPU where they build, else torch), "torch",
     "native" or "triton" (see `select_backend`); None takes the process default
@@ -466,7 +485,7 @@ def rasterization(
         far_plane=far_plane, eps2d=eps2d, render_mode=render_mode,
         fixed=fixed, project=chosen.project,
     )  # fmt: skip
-    proj = prep.proj
+    proj = _leave_out(prep.proj, camera_mask)
     means2d = proj.means2d
     if means2d.requires_grad:
         means2d.retain_grad()

@@ -30,7 +30,7 @@ from relaygs.stages.train_settings import TrainSettings
 from relaygs.train.canonical import uniform_unless_adaptive
 from relaygs.train.loop import StepResult, TrainReport, run_training
 from relaygs.train.loss import photometric_loss
-from relaygs.train.render import FrozenRenders, Render, part_of, splat
+from relaygs.train.render import FrozenRenders, part_of, slot_mask, splat
 from relaygs.train.scene_model import (
     SEGMENT,
     SceneModel,
@@ -178,27 +178,22 @@ def _train(
         generator = session.generator
         background, foreground = current()
         degree = max(background.active_sh_degree, foreground.active_sh_degree)
-        draws = []
+        cameras, goals, slots = [], [], []
         for count in views_per_slot(train.batch_views, section.segments_per_step):
             segment = int(torch.randint(segments.count, (1,), generator=generator))
             batch = views.random_views_at(segments.frames(segment)[0], count, generator)
-            goals = [targets.target(view.camera.camera_id, segment, generator) for view in batch]
-            rows = (foreground.buffers[SEGMENT] == segment).nonzero().squeeze(1)
-            draws.append((batch, goals, rows))
-        # one gather of every drawn copy: one gradient of the whole set, not one per render
-        shown = part_of("fg", foreground, degree, rows=torch.cat([rows for *_, rows in draws]))
+            goals += [targets.target(view.camera.camera_id, segment, generator) for view in batch]
+            cameras += [view.camera for view in batch]
+            slots.append((len(batch), (foreground.buffers[SEGMENT] == segment).nonzero()[:, 0]))
+        # one render of every drawn copy, each camera masked to its own segment's copy
+        shown = part_of("fg", foreground, degree, rows=torch.cat([rows for _, rows in slots]))
         background_part = part_of("bg", background, degree, frozen=section.freeze_background)
-        renders: list[Render] = []
-        preds, targets_drawn, start = [], [], 0
-        for batch, goals, rows in draws:
-            parts = [background_part, shown.piece(start, start + len(rows))]
-            start += len(rows)
-            render = splat(parts, [view.camera for view in batch], degree, frozen)
-            renders.append(render)
-            preds += render.images
-            targets_drawn += goals
-        loss = photometric_loss(preds, targets_drawn, train.ssim_weight)
-        return StepResult(loss, renders, preds, targets_drawn)
+        mask = None
+        if len(slots) > 1:
+            mask = slot_mask(background_part.count, [(n, len(r)) for n, r in slots])
+        render = splat([background_part, shown], cameras, degree, frozen, mask)
+        loss = photometric_loss(render.images, goals, train.ssim_weight)
+        return StepResult(loss, [render], render.images, goals)
 
     def counts() -> tuple[int, int]:
         background, foreground = current()

@@ -34,26 +34,6 @@ class Part:
     def count(self) -> int:
         return self.means.shape[0]
 
-    def piece(self, start: int, stop: int) -> Part:
-        """Rows start:stop of this part, as views: their gradients reach this part's tensors, so
-        one gather of a set's rows can feed several renders (the whole part: itself)."""
-        if start == 0 and stop == self.count:
-            return self
-        cut = slice(start, stop)
-        factor = None if self.opacity_factor is None else self.opacity_factor[cut]
-        rows = None if self.rows is None else self.rows[cut]
-        return Part(
-            self.name,
-            rows,
-            self.means[cut],
-            self.log_scales[cut],
-            self.quats[cut],
-            self.opacity_logits[cut],
-            self.sh[cut],
-            factor,
-            self.frozen,
-        )
-
 
 def part_of(
     name: str,
@@ -73,6 +53,21 @@ def part_of(
         values = [value.index_select(0, rows) for value in values]
     *per_row, sh_dc, sh_rest = values
     return Part(name, rows, *per_row, sh_of_degree(sh_dc, sh_rest, sh_degree), frozen=frozen)
+
+
+def slot_mask(shared: int, slots: list[tuple[int, int]]) -> Tensor:
+    """[C, shared + rows] bool for one render of several slots: every camera sees the first
+    `shared` rows; slot i's `cameras` cameras (in order) also see its `rows` rows, the next
+    block after the previous slot's, and no other slot's."""
+    cameras = sum(count for count, _ in slots)
+    rows = sum(count for _, count in slots)
+    mask = torch.zeros(cameras, shared + rows, dtype=torch.bool)
+    mask[:, :shared] = True
+    camera, row = 0, shared
+    for camera_count, row_count in slots:
+        mask[camera : camera + camera_count, row : row + row_count] = True
+        camera, row = camera + camera_count, row + row_count
+    return mask
 
 
 _PROJECTION_FIELDS = tuple(f.name for f in dataclasses.fields(Projection))
@@ -130,10 +125,15 @@ class FrozenRenders:
 
 
 def splat(
-    parts: list[Part], cameras: list[Camera], sh_degree: int, frozen: FrozenRenders | None = None
+    parts: list[Part],
+    cameras: list[Camera],
+    sh_degree: int,
+    frozen: FrozenRenders | None = None,
+    camera_mask: Tensor | None = None,
 ) -> Render:
     """Render the concatenated parts into every camera on black (unclamped); with `frozen` and a
-    mix of frozen and trainable parts, its renders give the tiles only frozen Gaussians touch."""
+    mix of frozen and trainable parts, its renders give the tiles only frozen Gaussians touch;
+    `camera_mask` [C, rows of all parts] bool leaves row n out of camera c where False."""
     means = torch.cat([p.means for p in parts])
     scales = torch.exp(torch.cat([p.log_scales for p in parts]).clamp(max=MAX_LOG_SCALE))
     quats = normalize_quats(torch.cat([p.quats for p in parts]))
@@ -155,6 +155,7 @@ def splat(
         viewmats = torch.stack([c.w2c for c in group]).to(device, torch.float32)
         intrinsics = torch.stack([c.K for c in group]).to(device, torch.float32)
         fixed = frozen.layer(parts, group, sh_degree) if frozen is not None and mixed else None
+        group_mask = None if camera_mask is None else camera_mask[indices]
         rendered, rendered_alphas, meta = rasterization(
             means,
             quats,
@@ -168,6 +169,7 @@ def splat(
             sh_degree=sh_degree,
             near_plane=group[0].near,
             fixed=fixed,
+            camera_mask=group_mask,
         )
         for slot, index in enumerate(indices):
             images[index] = rendered[slot]
