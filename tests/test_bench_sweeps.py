@@ -85,16 +85,19 @@ def test_bench_field_times_each_backend_and_restores_the_process_backend(tmp_pat
     assert bench.main([*argv, "--backends", "torch,auto", "--json", str(report)]) == 0
     figures = json.loads(report.read_text())
     assert figures["gaussians"] == 300 and figures["threads"] == 1
-    small_width = str(bench_field.small_field_settings()["width"])
-    assert list(figures["fwd_bwd_ms"]) == [small_width]  # the `small` budget's field
-    assert set(figures["fwd_bwd_ms"][small_width]) == {"torch", "auto"}
-    assert all(ms > 0 for ms in figures["fwd_bwd_ms"][small_width].values())
+    small = bench_field.small_field_settings()
+    small_mlp = bench_field.variant_label(small["width"], small["matmul_dtype"])
+    assert list(figures["fwd_bwd_ms"]) == [small_mlp]  # the `small` budget's field
+    assert set(figures["fwd_bwd_ms"][small_mlp]) == {"torch", "auto"}
+    assert all(ms > 0 for ms in figures["fwd_bwd_ms"][small_mlp].values())
     assert "ratio" in capsys.readouterr().out
     assert default_backend() == before
 
-    assert bench.main([*argv, "--widths", "16", "8", "--json", str(report)]) == 0
-    assert list(json.loads(report.read_text())["fwd_bwd_ms"]) == ["16", "8"]
-    assert "vs torch at width 16" in capsys.readouterr().out
+    variants = ["--widths", "16", "8", "--matmul-dtypes", "float32", "bfloat16"]
+    assert bench.main([*argv, *variants, "--json", str(report)]) == 0
+    rows = ["16 float32", "16 bfloat16", "8 float32", "8 bfloat16"]
+    assert list(json.loads(report.read_text())["fwd_bwd_ms"]) == rows
+    assert "vs torch at 16 float32" in capsys.readouterr().out
 
 
 def test_bench_train_reports_each_stage_at_its_median_round():

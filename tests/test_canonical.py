@@ -35,6 +35,10 @@ def test_relay_and_replicate_k_at_or_above_the_frame_count_is_one_segment_of_t()
     for same in ({"background_motion": True}, {"isolate_fg_bg": False, "background_motion": False}):
         canonical = canonical_config("deform", {"deform": same}, scene)["deform"]
         assert "background_motion" not in canonical  # a moving background keeps its old key
+    float32 = canonical_config("deform", {"deform": {"matmul_dtype": "float32"}}, scene)
+    assert float32["deform"] == {}  # float32 products keep the keys from before the setting
+    reduced = {"deform": {"matmul_dtype": "bfloat16"}}
+    assert canonical_config("deform", reduced, scene) == reduced
     one_at_a_time = canonical_config("relay", {"relay": {"k": 1, "segments_per_step": 1}}, scene)
     assert one_at_a_time["relay"] == {"k": 1}  # relays keep the keys they had before the setting
     several = canonical_config("relay", {"relay": {"k": 1, "segments_per_step": 4}}, scene)

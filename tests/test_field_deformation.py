@@ -76,6 +76,33 @@ def test_the_single_node_mlp_equals_its_layers(heads: HeadSwitches) -> None:
     assert torch.autograd.gradcheck(lambda x: tuple(mlp(x))[:1], (x,))
 
 
+@pytest.mark.parametrize("depth", [0, 1])
+def test_bfloat16_products_keep_float32_values_and_gradients_near_float32(depth: int) -> None:
+    # the products round to bfloat16 (8 bits of mantissa) and a ReLU near 0 may flip, so values
+    # agree to 2 % of their largest and gradients to 15 % in norm (a wrong product or a lost
+    # gradient is off by ~100 %); all of it stays float32
+    results = []
+    for matmul_dtype in ("float32", "bfloat16"):
+        torch.manual_seed(3)
+        mlp = DeformationMLP(8, width=32, depth=depth, matmul_dtype=matmul_dtype)
+        randomise_heads(mlp)
+        x = torch.randn(200, 8).requires_grad_()
+        deltas = mlp(x)
+        weights = torch.randn(200, 3)
+        (deltas.dxyz * weights).sum().backward()
+        grads = [p.grad for p in mlp.parameters() if p.grad is not None]
+        results.append([*deltas, x.grad, *grads])
+    for index, (exact, reduced) in enumerate(zip(*results, strict=True)):
+        assert reduced.dtype == torch.float32 and torch.isfinite(reduced).all()
+        if index < len(Deltas._fields):
+            assert (reduced - exact).abs().max() <= 0.02 * exact.abs().max()
+        else:
+            assert (reduced - exact).norm() <= 0.15 * exact.norm()
+    assert not torch.equal(results[0][0], results[1][0])  # the products did run in bfloat16
+    with pytest.raises(InputError, match="matmul_dtype"):
+        DeformationMLP(8, matmul_dtype="float16")
+
+
 def test_mlp_layers_and_switched_off_heads() -> None:
     mlp = DeformationMLP(32)
     linears = [m for m in mlp.trunk if isinstance(m, nn.Linear)]

@@ -117,6 +117,7 @@ INF, NAN = float("inf"), float("nan")
         ("relay", {"freeze_background": False, "lr_bg": {"quats": -1.0}}, "relay.lr_bg.quats"),
         ("deform", {"steps": -5}, "deform.steps"),
         ("deform", {"color_affine": "maybe"}, "deform.color_affine"),
+        ("deform", {"matmul_dtype": "float16"}, "deform.matmul_dtype"),
         ("deform", {"multires": []}, "deform.multires"),
         ("deform", {"multires": 2}, "deform.multires"),
         ("deform", [{"steps": 5}], "deform"),

@@ -1,6 +1,6 @@
 """`python -m relaygs.bench field`: forward+backward time of the deform stage's motion field at
-the `small` budget's settings over N Gaussians (70 % background), per backend and MLP width,
-interleaved against noise, with the training process's allocator settings."""
+the `small` budget's settings over N Gaussians (70 % background), per backend, MLP width and
+matmul dtype, interleaved against noise, with the training process's allocator settings."""
 
 from __future__ import annotations
 
@@ -16,6 +16,7 @@ from relaygs.allocator import keep_freed_memory
 from relaygs.cli import int_at_least
 from relaygs.commands.bench_train import backend_names, small_cfg
 from relaygs.field import DeformationField
+from relaygs.field.mlp import MATMUL_DTYPES
 from relaygs.splat import default_backend, use_backend
 from relaygs.stages.deform import DeformConfig
 
@@ -43,6 +44,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="MLP widths to time (default: the `small` budget's deform.width)",
     )
+    parser.add_argument(
+        "--matmul-dtypes",
+        nargs="+",
+        choices=sorted(MATMUL_DTYPES),
+        default=None,
+        help="the MLPs' matmul dtypes to time (default: the `small` budget's deform.matmul_dtype)",
+    )
 
 
 def small_field_settings() -> dict[str, Any]:
@@ -68,42 +76,58 @@ def _field_step(count: int, settings: dict[str, Any]) -> Callable[[], None]:
 
 
 def measure(args: argparse.Namespace) -> dict[str, Any]:
-    """Median forward+backward milliseconds per width and backend; the process backend is
-    restored."""
+    """Median forward+backward milliseconds per MLP variant (width and matmul dtype) and backend;
+    the process backend is restored."""
     backends = backend_names(args.backends)
     settings = small_field_settings()
-    widths = args.widths or [settings["width"]]
+    variants = [
+        (width, dtype)
+        for width in args.widths or [settings["width"]]
+        for dtype in args.matmul_dtypes or [settings["matmul_dtype"]]
+    ]
     keep_freed_memory()  # as training does: large temporaries do not fault in their pages again
     torch.set_num_threads(args.threads)
-    cells = [(width, name) for width in widths for name in backends]
-    steps = {width: _field_step(args.gaussians, {**settings, "width": width}) for width in widths}
-    times: dict[tuple[int, str], list[float]] = {cell: [] for cell in cells}
+    cells = [(variant, name) for variant in variants for name in backends]
+    steps = {
+        (width, dtype): _field_step(
+            args.gaussians, {**settings, "width": width, "matmul_dtype": dtype}
+        )
+        for width, dtype in variants
+    }
+    times: dict[tuple[tuple[int, str], str], list[float]] = {cell: [] for cell in cells}
     previous = default_backend()
     try:
-        for width, name in cells:  # warm-up: kernels built, allocator caches filled
+        for variant, name in cells:  # warm-up: kernels built, allocator caches filled
             use_backend(name)
-            steps[width]()
+            steps[variant]()
         for _ in range(args.repeats):
-            for width, name in cells:
+            for variant, name in cells:
                 use_backend(name)
                 start = time.perf_counter()
-                steps[width]()
-                times[width, name].append((time.perf_counter() - start) * 1e3)
+                steps[variant]()
+                times[variant, name].append((time.perf_counter() - start) * 1e3)
     finally:
         use_backend(previous)
     return {
         "gaussians": args.gaussians,
         "threads": torch.get_num_threads(),
         "fwd_bwd_ms": {
-            str(width): {name: round(statistics.median(times[width, name]), 2) for name in backends}
-            for width in widths
+            variant_label(*variant): {
+                name: round(statistics.median(times[variant, name]), 2) for name in backends
+            }
+            for variant in variants
         },
     }
 
 
+def variant_label(width: int, matmul_dtype: str) -> str:
+    """A report row's name: the MLP width and its matmul dtype, e.g. "128 float32"."""
+    return f"{width} {matmul_dtype}"
+
+
 def print_report(report: dict[str, Any]) -> None:
-    """One row per width, one column per backend, the ratio of the first two backends and, with
-    several widths, each row's last backend against the first row's first backend."""
+    """One row per MLP variant, one column per backend, the ratio of the first two backends and,
+    with several variants, each row's last backend against the first row's first backend."""
     rows = report["fwd_bwd_ms"]
     first_row = next(iter(rows.values()))
     backends = list(first_row)
@@ -112,14 +136,14 @@ def print_report(report: dict[str, Any]) -> None:
         f"deformation field forward+backward (ms), {report['gaussians']} Gaussians, "
         f"{report['threads']} threads"
     )
-    header = f"{'width':>6}" + "".join(f"{name:>10}" for name in backends)
+    header = f"{'width dtype':>15}" + "".join(f"{name:>10}" for name in backends)
     if len(backends) >= 2:
         header += f"{'ratio':>8}"
     if len(rows) >= 2:
-        header += f"  vs {backends[0]} at width {next(iter(rows))}"
+        header += f"  vs {backends[0]} at {next(iter(rows))}"
     print(header)
-    for width, ms in rows.items():
-        line = f"{width:>6}" + "".join(f"{ms[name]:10.1f}" for name in backends)
+    for variant, ms in rows.items():
+        line = f"{variant:>15}" + "".join(f"{ms[name]:10.1f}" for name in backends)
         if len(backends) >= 2:
             line += f"{ms[backends[0]] / ms[backends[1]]:7.2f}x"
         if len(rows) >= 2:

@@ -33,8 +33,10 @@ class DeformationField(nn.Module):
         width: int = 128,
         depth: int = 0,
         heads: HeadSwitches = HeadSwitches(),  # noqa: B008 - frozen, immutable default
+        matmul_dtype: str = "float32",
     ) -> None:
-        """Build the grid over `aabb` ([2, 3]) with `time_resolution` rows and the MLP set(s)."""
+        """Build the grid over `aabb` ([2, 3]) with `time_resolution` rows and the MLP set(s)
+        (their matrix products in `matmul_dtype`, DeformationMLP)."""
         super().__init__()
         self.hexplane = HexPlane(
             aabb,
@@ -51,7 +53,11 @@ class DeformationField(nn.Module):
         self.mlp_sets = nn.ModuleDict(
             {
                 name: DeformationMLP(
-                    self.hexplane.feature_dim, width=width, depth=depth, heads=heads
+                    self.hexplane.feature_dim,
+                    width=width,
+                    depth=depth,
+                    heads=heads,
+                    matmul_dtype=matmul_dtype,
                 )
                 for name in names
             }

@@ -24,6 +24,8 @@ class Deltas(NamedTuple):
 
 
 HEAD_WIDTHS = {"dxyz": 3, "dscale": 3, "drot": 4, "dopacity": 1}
+# a matmul dtype's products: None runs them in the parameters' own dtype (float64 in the tests)
+MATMUL_DTYPES = {"float32": None, "bfloat16": torch.bfloat16}
 
 
 @dataclass(frozen=True)
@@ -56,14 +58,22 @@ class DeformationMLP(nn.Module):
         width: int = 128,
         depth: int = 0,
         heads: HeadSwitches = HeadSwitches(),
+        matmul_dtype: str = "float32",
     ) -> None:
-        """Build the trunk and one head per switched-on attribute."""
+        """Build the trunk and one head per switched-on attribute; `matmul_dtype` "bfloat16"
+        runs the matrix products in bfloat16 (parameters, outputs and gradients stay float32)."""
         super().__init__()
         if feature_dim < 1 or width < 1 or depth < 0:
             raise InputError(
                 "DeformationMLP: expected feature_dim >= 1, width >= 1, depth >= 0, got "
                 f"{feature_dim}, {width}, {depth}"
             )
+        if matmul_dtype not in MATMUL_DTYPES:
+            raise InputError(
+                f"DeformationMLP matmul_dtype: expected one of {sorted(MATMUL_DTYPES)}, "
+                f"got {matmul_dtype!r}"
+            )
+        self.reduced_dtype = MATMUL_DTYPES[matmul_dtype]
         layers: list[nn.Module] = [nn.Linear(feature_dim, width)]
         for _ in range(depth):
             layers += [nn.ReLU(), nn.Linear(width, width)]
@@ -75,6 +85,7 @@ class DeformationMLP(nn.Module):
     def forward(self, features: Tensor) -> Deltas:
         """Deltas for features [N, feature_dim]; a switched-off head returns zeros."""
         count = features.shape[0]
+        compute_dtype = self.reduced_dtype or features.dtype
         if len(self.trunk) == 1 and self.heads:
             trunk = self.trunk[0]
             head_params = [
@@ -85,14 +96,20 @@ class DeformationMLP(nn.Module):
             outputs = dict(
                 zip(
                     self.heads,
-                    _SingleLayerMLP.apply(features, trunk.weight, trunk.bias, *head_params),
+                    _SingleLayerMLP.apply(
+                        compute_dtype, features, trunk.weight, trunk.bias, *head_params
+                    ),
                     strict=True,
                 )
             )
         else:
-            # every head starts with ReLU(hidden): apply it once, then each head's other layers
-            shared = torch.relu(self.trunk(features))
-            outputs = {name: head[1:](shared) for name, head in self.heads.items()}
+            reduced = compute_dtype != features.dtype
+            with torch.autocast(features.device.type, compute_dtype, enabled=reduced):
+                # every head starts with ReLU(hidden): apply it once, then each head's others
+                shared = torch.relu(self.trunk(features))
+                outputs = {
+                    name: head[1:](shared).to(features.dtype) for name, head in self.heads.items()
+                }
         return Deltas(
             **{
                 name: outputs[name] if name in outputs else features.new_zeros(count, out)
@@ -103,20 +120,31 @@ class DeformationMLP(nn.Module):
 
 class _SingleLayerMLP(torch.autograd.Function):
     """A depth-0 DeformationMLP as one autograd node (head parameters as (w1, b1, w2, b2) each):
-    in-place ReLUs, and one GEMM-summed buffer for the shared layer's gradient, not one per head."""
+    in-place ReLUs, and one GEMM-summed buffer for the shared layer's gradient, not one per head.
+    Products run in `compute_dtype`; outputs and gradients come back in the features' dtype."""
 
     @staticmethod
     def forward(
-        ctx: Any, features: Tensor, trunk_weight: Tensor, trunk_bias: Tensor, *head_params: Tensor
+        ctx: Any,
+        compute_dtype: torch.dtype,
+        features: Tensor,
+        trunk_weight: Tensor,
+        trunk_bias: Tensor,
+        *head_params: Tensor,
     ) -> tuple[Tensor, ...]:
+        result_dtype = features.dtype
+        features, trunk_weight, trunk_bias, *head_params = (
+            t.to(compute_dtype) for t in (features, trunk_weight, trunk_bias, *head_params)
+        )
         shared = torch.addmm(trunk_bias, features, trunk_weight.t()).relu_()
         hidden, outputs = [], []
         for w1, b1, w2, b2 in _per_head(head_params):
             h = torch.addmm(b1, shared, w1.t()).relu_()
             hidden.append(h)
-            outputs.append(torch.addmm(b2, h, w2.t()))
+            outputs.append(torch.addmm(b2, h, w2.t()).to(result_dtype))
         ctx.save_for_backward(features, trunk_weight, shared, *head_params, *hidden)
         ctx.heads = len(hidden)
+        ctx.result_dtype = result_dtype
         return tuple(outputs)
 
     @staticmethod
@@ -127,13 +155,20 @@ class _SingleLayerMLP(torch.autograd.Function):
         grad_shared = torch.zeros_like(shared)
         head_grads: list[Tensor] = []
         for (w1, _, w2, _), h, grad in zip(_per_head(head_params), hidden, grads, strict=True):
-            grad = h.new_zeros(h.shape[0], w2.shape[0]) if grad is None else grad
+            grad = h.new_zeros(h.shape[0], w2.shape[0]) if grad is None else grad.to(h.dtype)
             grad_h = _relu_backward(grad @ w2, h)
             grad_shared.addmm_(grad_h, w1)
             head_grads += [grad_h.t() @ shared, grad_h.sum(0), grad.t() @ h, grad.sum(0)]
         grad_shared = _relu_backward(grad_shared, shared)
-        grad_features = grad_shared @ trunk_weight if ctx.needs_input_grad[0] else None
-        return (grad_features, grad_shared.t() @ features, grad_shared.sum(0), *head_grads)
+        grad_features = grad_shared @ trunk_weight if ctx.needs_input_grad[1] else None
+        trunk_grads = (grad_shared.t() @ features, grad_shared.sum(0))
+        return (
+            None,
+            *(
+                None if grad is None else grad.to(ctx.result_dtype)
+                for grad in (grad_features, *trunk_grads, *head_grads)
+            ),
+        )
 
 
 def _relu_backward(grad: Tensor, result: Tensor) -> Tensor:

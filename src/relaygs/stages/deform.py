@@ -13,13 +13,14 @@ import torch
 from relaygs.data import Scene, frame_time
 from relaygs.data.effects import COLOR_INCONSISTENCY
 from relaygs.field import ColorAffine
+from relaygs.field.mlp import MATMUL_DTYPES
 from relaygs.model import paper_schedule
 from relaygs.pipeline.artifact import Artifact
 from relaygs.stages.common import GAUSSIAN_LR, single_upstream, stage_meta, upstream_model
 from relaygs.stages.config import PerSetSections, require, require_steps, schedule
 from relaygs.stages.spec import StageSpec
 from relaygs.stages.train_settings import TrainSettings
-from relaygs.train.canonical import background_moves_unless_still
+from relaygs.train.canonical import deform_options_left_out_at_default
 from relaygs.train.loop import StepResult, run_training
 from relaygs.train.loss import photometric_loss
 from relaygs.train.motion import deformed_parts
@@ -53,6 +54,7 @@ class DeformConfig(PerSetSections):
     channels: int = 16
     width: int = 128
     depth: int = 0
+    matmul_dtype: str = "float32"
     sh_every: int = 1000
     lr_bg: dict[str, Any] = field(default_factory=lambda: dict(GAUSSIAN_LR))
     lr_fg: dict[str, Any] = field(default_factory=lambda: dict(GAUSSIAN_LR))
@@ -80,6 +82,8 @@ class DeformConfig(PerSetSections):
         for key in ("spatial_resolution", "channels", "width"):
             require(getattr(self, key) >= 1, f"deform.{key}", getattr(self, key), "an int >= 1")
         require(self.depth >= 0, "deform.depth", self.depth, "an int >= 0")
+        valid = self.matmul_dtype in MATMUL_DTYPES
+        require(valid, "deform.matmul_dtype", self.matmul_dtype, f"one of {sorted(MATMUL_DTYPES)}")
         require(self.sh_every >= 0, "deform.sh_every", self.sh_every, "an int >= 0")
         for key in (*REGULARISERS, "lr_gamma", "lr_affine"):
             value = getattr(self, key)
@@ -126,6 +130,7 @@ class DeformConfig(PerSetSections):
             "channels": self.channels,
             "width": self.width,
             "depth": self.depth,
+            "matmul_dtype": self.matmul_dtype,
         }
 
 
@@ -246,5 +251,10 @@ def _sync(model: SceneModel, session: TrainingSession) -> None:
 
 
 SPEC = StageSpec(
-    STAGE, deform, DeformConfig, SCHEMA_VERSION, ACCEPTED_UPSTREAM, background_moves_unless_still
+    STAGE,
+    deform,
+    DeformConfig,
+    SCHEMA_VERSION,
+    ACCEPTED_UPSTREAM,
+    deform_options_left_out_at_default,
 )

@@ -35,11 +35,13 @@ def uniform_unless_adaptive(section: Mapping[str, Any], scene: Scene) -> dict[st
     return canonical
 
 
-def background_moves_unless_still(section: Mapping[str, Any], scene: Scene) -> dict[str, Any]:
+def deform_options_left_out_at_default(section: Mapping[str, Any], scene: Scene) -> dict[str, Any]:
     """`background_motion` left out where it is on or where one shared MLP set moves every
-    Gaussian (`isolate_fg_bg` off ignores it), so the keys of moving backgrounds stay those they
-    had before the setting existed."""
+    Gaussian (`isolate_fg_bg` off ignores it), and `matmul_dtype` where it is float32, so deform
+    artifacts keep the keys they had before those settings existed."""
     canonical = dict(section)
     if canonical.get("background_motion", True) or not canonical.get("isolate_fg_bg", True):
         canonical.pop("background_motion", None)
+    if canonical.get("matmul_dtype", "float32") == "float32":
+        canonical.pop("matmul_dtype", None)
     return canonical
