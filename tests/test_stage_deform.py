@@ -95,6 +95,20 @@ def test_four_dgs_baseline_has_one_mlp_set_and_no_gamma(stage_scene: Scene) -> N
     assert "gamma" not in model.foreground.params and len(model.foreground) == 0
 
 
+def test_bfloat16_products_train_finite_and_reload_in_bfloat16(
+    stage_scene: Scene, stage_relayed: Artifact
+) -> None:
+    cfg = stage_smoke_cfg(deform={"steps": 6, "matmul_dtype": "bfloat16"})
+    deformed = SPECS["deform"].run(stage_scene, {"relay": stage_relayed}, cfg)
+    for name, tensor in deformed.tensors.items():
+        assert tensor.dtype != torch.bfloat16, name  # the parameters stay float32
+        if tensor.is_floating_point():
+            assert torch.isfinite(tensor).all(), name
+    assert deformed.meta["field"]["matmul_dtype"] == "bfloat16"
+    model = SceneModel.from_artifact(deformed)  # rendering uses the products it trained with
+    assert all(mlp.reduced_dtype == torch.bfloat16 for mlp in model.field.mlp_sets.values())
+
+
 def test_colour_affine_only_when_the_scene_asks_and_no_copies_show_their_one_copy(
     stage_scene_path, stage_decoupled: Artifact
 ) -> None:
