@@ -1,8 +1,10 @@
 #!/usr/bin/env bash
-# The GPU path's check on one CUDA machine, end to end in under 8 minutes, each step under
+# The GPU path's check on one CUDA machine, end to end in under 10 minutes, each step under
 # its own time limit: the CUDA parity tests (Triton kernels and torch on the GPU against the
-# reference and the CPU), `bench splat` of torch against triton, `bench train` of both, and
-# the default job on CUDA; then one table of what each step gave.
+# reference and the CPU), `bench splat` of torch against triton, `bench train` of both, the
+# default job on CUDA and a profile of each stage's steps (tools/gpu_profile.py: launches and
+# host reads per step, how busy the GPU is); then one table of what each step gave.
+# Rehearsed on a CPU with Triton 3.6 (the CUDA image's): the Triton interpreter tests pass.
 #
 #   tools/gpu_check.sh [REPORT_DIR]      # default /tmp/gpu_check/report
 #
@@ -12,7 +14,10 @@
 # bench splat's garden case where ../shared/data has none. REPORT_DIR receives summary.md,
 # the benches' JSON, the job's result.json and the steps' log tails (5 files); the work
 # itself goes to WORK (/tmp/gpu_check). DEVICE (cuda), BACKENDS (torch,triton) and
-# SPLAT_CASES (all) change what is run, to rehearse the script on a CPU.
+# SPLAT_CASES (all) change what is run, to rehearse the script on a CPU. The wheels such a
+# machine lacks (hydra-core, omegaconf, antlr4-python3-runtime, hydra-joblib-launcher):
+# `pip download` the first three's and the launcher's py3 wheels into .whl/ (antlr4 4.9.3
+# is an sdist: `pip wheel --no-deps` it), and carry .whl/ with the tree.
 set -uo pipefail
 cd "$(dirname "$0")/.."
 PYTHON=${PYTHON:-python3}
@@ -54,14 +59,16 @@ step() {
 step env 20 "$PYTHON" -c "import torch, triton, hydra, relaygs.splat
 gpu = torch.cuda.get_device_name() if torch.cuda.is_available() else 'no GPU'
 print('torch', torch.__version__, 'triton', triton.__version__, gpu)"
-step parity 90 "$PYTHON" -m pytest -q -p no:cacheprovider -k cuda \
+step parity 120 "$PYTHON" -m pytest -q -p no:cacheprovider -k cuda \
   tests/test_splat_triton_cuda.py tests/test_splat_parity.py
 step splat 70 "$PYTHON" -m relaygs.bench splat --device "$DEVICE" --backends "$BACKENDS" \
   --cases "$SPLAT_CASES" --json "$WORK/splat.json"
-step train 100 "$PYTHON" -m relaygs.bench train --device "$DEVICE" --backends "$BACKENDS" \
+step train 150 "$PYTHON" -m relaygs.bench train --device "$DEVICE" --backends "$BACKENDS" \
   --steps 20 --cache "$WORK/cache" --json "$WORK/train.json"
-step job 200 "$PYTHON" -m relaygs.run "train.device=$DEVICE" train.progress=false \
+step job 250 "$PYTHON" -m relaygs.run "train.device=$DEVICE" train.progress=false \
   "paths.outputs=$WORK/outputs"
+step profile 90 "$PYTHON" tools/gpu_profile.py --device "$DEVICE" --backend "${BACKENDS##*,}" \
+  --steps 40 --cache "$WORK/cache"
 
 RESULT=$(find "$WORK/outputs/runs" -name result.json 2>/dev/null | head -n 1)
 "$PYTHON" - "$STEPS" "$WORK" "${RESULT:-}" >"$REPORT/summary.md" <<'EOF'

@@ -191,9 +191,11 @@ def composite_backward_kernel(
     last_hit = tl.load(last + pixel, mask=inside, other=-1)
     suffix = tl.zeros([PIXELS], dtype)  # Σ over later pairs of v·w
     steps = tl.arange(0, BATCH)
-    deepest = tl.max(last_hit, axis=0)
-    for batch in range(0, (deepest + BATCH) // BATCH):
-        index = deepest + 1 - (batch + 1) * BATCH + steps
+    # one past the current batch's last position; a while loop, since Triton 3.6's
+    # interpreter cannot take a range bound from a reduction
+    end = tl.max(last_hit, axis=0) + 1
+    while end > 0:
+        index = end - BATCH + steps
         valid = index >= 0
         gid, dx, dy, gauss, alpha_raw, alpha, composited, a, b, c = _pairs(
             table, pairs, start + index, valid, px, py
@@ -228,6 +230,7 @@ def composite_backward_kernel(
         )
         suffix += tl.sum(vw, axis=1)
         trans = tl.sum(tl.where(steps[None, :] == 0, before, 0.0), axis=1)
+        end -= BATCH
 
 
 INTERPRETED: bool = not isinstance(composite_forward_kernel, triton.runtime.JITFunction)
