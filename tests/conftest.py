@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import functools
 import io
@@ -12,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+import torch
 
 from fake_stages import FakeStages
 from relaygs import paths
@@ -110,6 +112,19 @@ def stage_smoke_cfg(**sections: dict) -> dict:
     return cfg
 
 
+@contextlib.contextmanager
+def one_thread():
+    """Torch on one thread inside: the stage fixtures' tiny steps gain nothing from a second
+    one on an idle machine and crawl when another process holds a core (each parallel op waits
+    for a time slice: 13x slower on a shared 2-core machine)."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(threads)
+
+
 @pytest.fixture(scope="session")
 def stage_scene_path(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The stage tests' scene folder (generated once, read only)."""
@@ -130,7 +145,8 @@ def stage_decoupled(stage_scene: Scene) -> Artifact:
 
     no_density = {"densify_until": 0, "opacity_reset_every": 0}
     cfg = stage_smoke_cfg(decouple={"steps": STAGE_DECOUPLE_STEPS, "densify": no_density})
-    return SPECS["decouple"].run(stage_scene, {}, cfg)
+    with one_thread():
+        return SPECS["decouple"].run(stage_scene, {}, cfg)
 
 
 @pytest.fixture(scope="session")
@@ -138,7 +154,8 @@ def stage_relayed(stage_scene: Scene, stage_decoupled: Artifact) -> Artifact:
     """Relay at the smoke budget (S = 2 copies), background frozen."""
     from relaygs.stages import SPECS
 
-    return SPECS["relay"].run(stage_scene, {"decouple": stage_decoupled}, stage_smoke_cfg())
+    with one_thread():
+        return SPECS["relay"].run(stage_scene, {"decouple": stage_decoupled}, stage_smoke_cfg())
 
 
 @pytest.fixture(scope="session")
@@ -146,7 +163,8 @@ def stage_deformed(stage_scene: Scene, stage_relayed: Artifact) -> Artifact:
     """Deform at the smoke budget on the relay output."""
     from relaygs.stages import SPECS
 
-    return SPECS["deform"].run(stage_scene, {"relay": stage_relayed}, stage_smoke_cfg())
+    with one_thread():
+        return SPECS["deform"].run(stage_scene, {"relay": stage_relayed}, stage_smoke_cfg())
 
 
 @pytest.fixture

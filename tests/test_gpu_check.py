@@ -13,7 +13,7 @@ import pytest
 from relaygs import paths
 
 SCRIPT = paths.REPO_ROOT / "tools" / "gpu_check.sh"
-STEPS = ("env", "parity", "splat", "train", "job")
+STEPS = ("env", "parity", "splat", "train", "job", "profile")
 
 
 @pytest.mark.skipif(not SCRIPT.is_file(), reason="needs the repository's tools/")
@@ -37,5 +37,7 @@ def test_every_step_lands_in_one_table_and_a_failure_fails_the_script(tmp_path):
     rows = [line.split(" | ") for line in (report / "summary.md").read_text().splitlines()[2:]]
     assert [row[0].lstrip("| ") for row in rows] == list(STEPS)
     assert all(row[1] == "failed (3)" for row in rows), rows
-    assert "step output: -m relaygs.run train.device=cuda" in rows[-1][3]
+    job = rows[STEPS.index("job")]
+    assert "step output: -m relaygs.run train.device=cuda" in job[3]
+    assert "tools/gpu_profile.py --device cuda --backend triton" in rows[-1][3]
     assert Path(report / "logs.txt").is_file()
