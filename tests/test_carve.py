@@ -9,9 +9,12 @@ from relaygs.errors import InputError
 from relaygs.model import GaussianSet
 from relaygs.stages import SPECS
 from relaygs.stages.carve import (
+    MAX_FINE_CANDIDATES,
     MAX_REFINED_VOXELS,
+    MAX_SUBDIVISIONS,
     SUBDIVISIONS,
     HullSettings,
+    finer_subdivisions,
     residual_masks,
     visual_hull,
 )
@@ -55,6 +58,41 @@ def test_hull_of_a_sphere_lies_on_the_sphere() -> None:
     assert float((distance < radius).float().mean()) > 0.5
     assert torch.allclose(colors, torch.tensor([0.9, 0.2, 0.1]).expand_as(colors))
     assert 0 < size < 0.2
+
+
+def test_a_small_mover_is_refined_to_the_points_wanted() -> None:
+    cameras = dome_cameras(WIDTH, HEIGHT)
+    center, radius = torch.tensor([0.5, 0.3, 1.2]), 0.2
+    masks = _sphere_masks(cameras, center, radius)
+    images = torch.zeros(len(cameras), HEIGHT, WIDTH, 3)
+    one_pass = HullSettings(coarse_voxels=24, misses=0.0)
+    coarse, _, coarse_size = visual_hull(masks, images, cameras, BOUNDS, one_pass)
+    wanted = HullSettings(coarse_voxels=24, misses=0.0, target_points=8 * len(coarse))
+    fine, _, fine_size = visual_hull(masks, images, cameras, BOUNDS, wanted)
+    assert 0 < len(coarse) < 8 * len(coarse) / 2 < len(fine)
+    assert fine_size < coarse_size
+    assert float((fine - center).norm(dim=1).max()) < radius + 2 * coarse_size
+    # enough points already: the first pass stands
+    enough = HullSettings(coarse_voxels=24, misses=0.0, target_points=len(coarse))
+    assert torch.equal(visual_hull(masks, images, cameras, BOUNDS, enough)[0], coarse)
+
+
+@pytest.mark.parametrize(
+    ("kept", "wanted", "coarse", "expected"),
+    [
+        (100, None, 10, SUBDIVISIONS),
+        (0, 1000, 10, SUBDIVISIONS),
+        (1000, 1000, 10, SUBDIVISIONS),
+        (100, 800, 10, 2 * SUBDIVISIONS),  # 8× the points: twice the sub-voxels per axis
+        (1, 10**9, 1, MAX_SUBDIVISIONS),
+        (1, 10**9, 1000, int((MAX_FINE_CANDIDATES / 1000) ** (1 / 3))),
+    ],
+    ids=["no target", "nothing kept", "enough", "8x", "bounded", "affordable"],
+)
+def test_finer_subdivisions_grow_with_the_cube_root_and_stay_bounded(
+    kept, wanted, coarse, expected
+) -> None:
+    assert finer_subdivisions(kept, wanted, coarse) == expected
 
 
 def test_hull_is_empty_without_residual_and_tolerates_one_wrong_camera() -> None:

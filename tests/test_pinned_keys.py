@@ -19,8 +19,8 @@ SCENE = SimpleNamespace(fingerprint="pinned-scene", num_frames=64)
 PINNED = {
     "pipeline=relaygs": {
         "decouple": "051ff8a87afd150e",
-        "relay": "595965c28687dacc",
-        "deform": "03264a52167d4cde",
+        "relay": "4badfcb3b40b5b35",
+        "deform": "09cc891dd57f8e1a",
     },
     "pipeline=4dgs": {"warmup": "950e91bf2d07be4a", "deform": "3c12c832529165b5"},
     "pipeline=no_stage2": {
@@ -31,23 +31,23 @@ PINNED = {
     "pipeline=no_copies": {"decouple": "051ff8a87afd150e", "deform": "f2f8a819abd75b65"},
     "+component=no_gamma": {
         "decouple": "051ff8a87afd150e",
-        "relay": "595965c28687dacc",
-        "deform": "a74c7bcc88fbefb3",
+        "relay": "4badfcb3b40b5b35",
+        "deform": "85b7aef0c0821921",
     },
     "+component=no_isolation": {
         "decouple": "051ff8a87afd150e",
-        "relay": "595965c28687dacc",
-        "deform": "40783b2e75364e40",
+        "relay": "4badfcb3b40b5b35",
+        "deform": "2659c51d4cc8e061",
     },
     "+component=no_pseudo_views": {
         "decouple": "051ff8a87afd150e",
-        "relay": "febf4755cc0afa38",
-        "deform": "0c927e87ff6b8e6f",
+        "relay": "c25bfaf9660a0e6f",
+        "deform": "301f5f628d1313bf",
     },
     "relay.k=128": {
         "decouple": "051ff8a87afd150e",
-        "relay": "0c60db36bd00d99c",
-        "deform": "fcf489ea935d176a",
+        "relay": "05ee3e94ebe8c740",
+        "deform": "663de394bd1550d0",
     },
 }
 """Each node's key (its first 16 hex digits) at the default scene settings and `small` budget;

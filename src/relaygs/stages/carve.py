@@ -3,6 +3,7 @@ in (nearly) every train camera, coarse voxels then sub-voxels (docs/method.md, C
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
@@ -12,7 +13,9 @@ from torch import Tensor
 from relaygs.data import Camera
 from relaygs.errors import InputError
 
-SUBDIVISIONS = 4  # sub-voxels per axis of a kept coarse voxel
+SUBDIVISIONS = 4  # sub-voxels per axis of a kept coarse voxel (first pass)
+MAX_SUBDIVISIONS = 16  # a finer pass resolves movers that a few coarse voxels hold
+MAX_FINE_CANDIDATES = 1 << 18  # sub-voxels a finer pass may test (cost: each meets every camera)
 # coarse voxels refined at most: a mover fills a few hundred, more mean no silhouette (an
 # unconverged background) and would cost seconds per frame for seeds thinned anyway
 MAX_REFINED_VOXELS = 4096
@@ -21,11 +24,13 @@ MIN_CAMERAS = 3  # a point seen by fewer train cameras cannot be triangulated
 
 @dataclass(frozen=True)
 class HullSettings:
-    """Residual threshold, coarse voxels along the longest axis, tolerated miss fraction."""
+    """Residual threshold, coarse voxels along the longest axis, tolerated miss fraction, and
+    the hull points wanted (None: one pass at SUBDIVISIONS)."""
 
     residual: float = 0.15
     coarse_voxels: int = 48
     misses: float = 0.15
+    target_points: int | None = None
 
 
 def residual_masks(renders: Tensor, images: Tensor, threshold: float) -> Tensor:
@@ -48,7 +53,10 @@ def visual_hull(
     generator: torch.Generator | None = None,
 ) -> tuple[Tensor, Tensor, float]:
     """Points [M,3] in the hull of `masks` within `bounds`, their mean colours and the fine voxel
-    size; beyond MAX_REFINED_VOXELS coarse voxels a random subset is refined."""
+    size; beyond MAX_REFINED_VOXELS coarse voxels a random subset is refined. A first pass that
+    keeps fewer than `settings.target_points` is redone on finer sub-voxels of the coarse voxels
+    it kept any in, so small movers in a large scene get as many (and as small) seeds as large
+    ones."""
     if masks.shape[0] != len(cameras) or images.shape[:3] != masks.shape:
         raise InputError(f"visual_hull: {len(cameras)} cameras, masks {tuple(masks.shape)}")
     lower, upper = bounds[0], bounds[1]
@@ -63,12 +71,44 @@ def visual_hull(
     if len(coarse) > MAX_REFINED_VOXELS:
         pick = torch.randperm(len(coarse), generator=generator)[:MAX_REFINED_VOXELS]
         coarse = coarse[pick.sort().values]
-    fine_size = size / SUBDIVISIONS
-    steps = (torch.arange(SUBDIVISIONS) + 0.5) * fine_size - size / 2
+    hull, occupied = _refined(coarse, size, SUBDIVISIONS, masks, images, cameras, settings.misses)
+    # only the coarse voxels that kept a sub-voxel hold the mover: the dilated pass keeps more
+    coarse = coarse[occupied]
+    finer = finer_subdivisions(len(hull[0]), settings.target_points, len(coarse))
+    if finer > SUBDIVISIONS:
+        hull = _refined(coarse, size, finer, masks, images, cameras, settings.misses)[0]
+    return hull
+
+
+def finer_subdivisions(kept: int, wanted: int | None, coarse: int) -> int:
+    """Sub-voxels per axis that should keep about `wanted` points, given that SUBDIVISIONS kept
+    `kept` in `coarse` voxels (points grow with the cube); bounded by MAX_SUBDIVISIONS and by
+    MAX_FINE_CANDIDATES sub-voxels in all."""
+    if wanted is None or kept == 0 or kept >= wanted:
+        return SUBDIVISIONS
+    wished = math.ceil(SUBDIVISIONS * (wanted / kept) ** (1.0 / 3.0))
+    affordable = int((MAX_FINE_CANDIDATES / max(coarse, 1)) ** (1.0 / 3.0))
+    return max(SUBDIVISIONS, min(wished, MAX_SUBDIVISIONS, affordable))
+
+
+def _refined(
+    coarse: Tensor,
+    size: float,
+    subdivisions: int,
+    masks: Tensor,
+    images: Tensor,
+    cameras: list[Camera],
+    misses: float,
+) -> tuple[tuple[Tensor, Tensor, float], Tensor]:
+    """The sub-voxel centres of `coarse` voxels (edge `size`, `subdivisions`³ each) that the
+    masks keep, their mean colours and the sub-voxel size; and which coarse voxels kept any."""
+    fine_size = size / subdivisions
+    steps = (torch.arange(subdivisions) + 0.5) * fine_size - size / 2
     offsets = torch.stack(torch.meshgrid(steps, steps, steps, indexing="ij"), dim=-1)
     fine = (coarse[:, None, :] + offsets.reshape(1, -1, 3)).reshape(-1, 3)
-    keep, colors = _consistent(fine, masks, cameras, settings.misses, images)
-    return fine[keep], colors[keep], fine_size
+    keep, colors = _consistent(fine, masks, cameras, misses, images)
+    occupied = keep.reshape(len(coarse), subdivisions**3).any(dim=1)
+    return (fine[keep], colors[keep], fine_size), occupied
 
 
 def _consistent(

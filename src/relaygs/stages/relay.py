@@ -46,7 +46,7 @@ from relaygs.train.views import TrainViews, views_per_slot
 STAGE = "relay"
 SEGMENT_MODES = ("uniform", "adaptive")
 SEED_MODES = ("replicate", "carve")
-SCHEMA_VERSION = 2  # 2: density control ends before the stage's last step
+SCHEMA_VERSION = 3  # 2: density control ends before the last step; 3: hulls refined to seed_points
 ACCEPTED_UPSTREAM = ("decouple",)
 
 
@@ -271,7 +271,9 @@ def _hull_at(
         return None
     cameras = [view.camera for view in frame_views]
     images = torch.stack([views.scene.image(view) for view in frame_views])
-    settings = HullSettings(section.hull_residual, section.hull_voxels, section.hull_misses)
+    settings = HullSettings(
+        section.hull_residual, section.hull_voxels, section.hull_misses, section.seed_points
+    )
     masks = residual_masks(renders.images(cameras), images, settings.residual)
     return visual_hull(masks, images, cameras, bounds, settings, generator)
 
