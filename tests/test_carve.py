@@ -23,6 +23,8 @@ from relaygs.train.render import part_of, splat
 from relaygs.train.scene_model import SEGMENT, SceneModel
 from splat_scenes import dome_cameras
 
+EPS2D = 0.3  # screen blur of these renders (px², the rasterizer's default)
+
 WIDTH, HEIGHT = 80, 45
 BOUNDS = torch.tensor([[-3.0, -3.0, 0.0], [3.0, 3.0, 2.5]])
 
@@ -124,8 +126,8 @@ def test_background_renders_each_camera_once_and_match_a_direct_render() -> None
         torch.rand(200, 3) * 2 - 1, torch.rand(200, 3), max_sh_degree=0, init_opacity=0.5
     )
     part = part_of("bg", background, 0, frozen=True)
-    direct = [splat([part], [camera], 0).images[0] for camera in cameras]  # each on its own
-    renders = BackgroundRenders(background)
+    direct = [splat([part], [camera], 0, eps2d=EPS2D).images[0] for camera in cameras]
+    renders = BackgroundRenders(background, EPS2D)
     first = renders.images(cameras)
     assert torch.equal(first, torch.stack(direct).clamp(0.0, 1.0))
     background.params["sh_dc"].data.zero_()  # a cached camera is not rendered again

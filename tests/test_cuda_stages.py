@@ -60,7 +60,7 @@ def test_carved_copies_join_hull_seeds_and_replicas_on_the_gpu(
     replica = core_only(source.foreground)
     copies = relay.carved_copies(
         TrainViews(stage_scene, source.background.means.device),
-        source.background,
+        relay.BackgroundRenders(source.background, source.eps2d),
         replica,
         relay.RelayConfig(k=STAGE_K),
         SegmentPlan.uniform(stage_scene.num_frames, STAGE_K),

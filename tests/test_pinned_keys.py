@@ -18,36 +18,36 @@ SCENE = SimpleNamespace(fingerprint="pinned-scene", num_frames=64)
 
 PINNED = {
     "pipeline=relaygs": {
-        "decouple": "051ff8a87afd150e",
-        "relay": "4badfcb3b40b5b35",
-        "deform": "09cc891dd57f8e1a",
+        "decouple": "10647e19df924c3b",
+        "relay": "c52d52b35dc63c80",
+        "deform": "77c25fd8bf386319",
     },
-    "pipeline=4dgs": {"warmup": "950e91bf2d07be4a", "deform": "3c12c832529165b5"},
+    "pipeline=4dgs": {"warmup": "75a65f60ac205411", "deform": "95ed71f2b23a02ad"},
     "pipeline=no_stage2": {
-        "decouple": "051ff8a87afd150e",
-        "replicate": "aaae1cf4be8b3f0f",
-        "deform": "14795ab5fa6d8ed8",
+        "decouple": "10647e19df924c3b",
+        "replicate": "c4baf092cf838273",
+        "deform": "92db941860e2c9de",
     },
-    "pipeline=no_copies": {"decouple": "051ff8a87afd150e", "deform": "f2f8a819abd75b65"},
+    "pipeline=no_copies": {"decouple": "10647e19df924c3b", "deform": "ad93d839df558f8b"},
     "+component=no_gamma": {
-        "decouple": "051ff8a87afd150e",
-        "relay": "4badfcb3b40b5b35",
-        "deform": "85b7aef0c0821921",
+        "decouple": "10647e19df924c3b",
+        "relay": "c52d52b35dc63c80",
+        "deform": "796bc7d57e75df11",
     },
     "+component=no_isolation": {
-        "decouple": "051ff8a87afd150e",
-        "relay": "4badfcb3b40b5b35",
-        "deform": "2659c51d4cc8e061",
+        "decouple": "10647e19df924c3b",
+        "relay": "c52d52b35dc63c80",
+        "deform": "a3e56b3725bf9295",
     },
     "+component=no_pseudo_views": {
-        "decouple": "051ff8a87afd150e",
-        "relay": "c25bfaf9660a0e6f",
-        "deform": "301f5f628d1313bf",
+        "decouple": "10647e19df924c3b",
+        "relay": "4f69bc121b918d05",
+        "deform": "ceedf13e116393e1",
     },
     "relay.k=128": {
-        "decouple": "051ff8a87afd150e",
-        "relay": "05ee3e94ebe8c740",
-        "deform": "663de394bd1550d0",
+        "decouple": "10647e19df924c3b",
+        "relay": "c1ef01b07747eba5",
+        "deform": "cb88d8b75b74a489",
     },
 }
 """Each node's key (its first 16 hex digits) at the default scene settings and `small` budget;

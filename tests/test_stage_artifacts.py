@@ -13,6 +13,9 @@ from relaygs.field import ColorAffine
 from relaygs.model import CORE_PARAMS, GaussianSet
 from relaygs.pipeline.artifact import Artifact, read_artifact_files, write_artifact_files
 from relaygs.stages import SceneModel, render_model
+from relaygs.stages.train_settings import TrainSettings
+from relaygs.train.model_render import ModelRenderer
+from relaygs.train.render import splat
 from relaygs.train.scene_model import (
     SEGMENT,
     build_field,
@@ -74,6 +77,7 @@ def _tiny_deformed() -> Artifact:
         background=gaussians,
         foreground=foreground_with_segments(gaussians, torch.zeros(4)),
         segments=SegmentPlan.uniform(2, 2),
+        eps2d=0.1,
         field=build_field(settings),
         field_settings=settings,
         affine=ColorAffine(2),
@@ -91,6 +95,8 @@ def _tiny_deformed() -> Artifact:
         (lambda meta, tensors: ({**meta, "segment_starts": [0, 5]}, tensors), "segment starts"),
         (lambda meta, tensors: ({**meta, "segment_starts": "0"}, tensors), "'segment_starts'"),
         (lambda meta, tensors: ({**meta, "field": "x"}, tensors), "its field does not match"),
+        (lambda meta, tensors: ({**meta, "eps2d": -1.0}, tensors), "meta 'eps2d'"),
+        (lambda meta, tensors: ({**meta, "eps2d": "0.1"}, tensors), "meta 'eps2d'"),
         (
             lambda meta, tensors: ({**meta, "field": {**meta["field"], "width": 5}}, tensors),
             "its field does not match its settings (Error(s) in loading state_dict",
@@ -109,6 +115,27 @@ def test_meta_or_module_tensors_that_do_not_fit_are_an_input_error(edit, message
         SceneModel.from_artifact(Artifact("deform", tensors, meta))
     assert str(caught.value).startswith("deform artifact: ") and message in str(caught.value)
     assert "\n" not in str(caught.value)
+
+
+def test_a_model_renders_with_the_blur_its_stage_trained_with(
+    stage_decoupled: Artifact, stage_deformed: Artifact, stage_scene: Scene
+) -> None:
+    """The stage's `train.eps2d` is recorded in its artifact and every render of the model uses
+    it; an artifact written before it was recorded renders with 3DGS's 0.3, as it trained."""
+    trained = TrainSettings().eps2d
+    assert trained != 0.3
+    for artifact in (stage_decoupled, stage_deformed):
+        assert artifact.meta["eps2d"] == artifact.meta["config"]["train"]["eps2d"] == trained
+    camera = stage_scene.test_cameras[0]
+    model = SceneModel.from_artifact(stage_deformed)
+    recorded = render_model(stage_deformed, camera, 0.5)
+    renderer = ModelRenderer(model)
+    direct = splat(renderer.parts_at(0.5), [camera], renderer.sh_degree, eps2d=trained).images[0]
+    assert torch.equal(recorded, direct.clamp(0.0, 1.0))
+    older = {k: v for k, v in stage_deformed.meta.items() if k != "eps2d"}
+    assert SceneModel.from_artifact(Artifact("deform", stage_deformed.tensors, older)).eps2d == 0.3
+    blurred = render_model(Artifact("deform", stage_deformed.tensors, older), camera, 0.5)
+    assert (blurred - recorded).abs().max() > 1e-3
 
 
 def test_segment_buffers_are_made_on_the_device_of_the_set() -> None:

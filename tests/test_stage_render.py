@@ -9,6 +9,8 @@ from relaygs.model import GaussianSet
 from relaygs.train.render import FrozenRenders, part_of, screen_statistics, slot_mask, splat
 from splat_scenes import dome_cameras
 
+EPS2D = 0.3  # screen blur of these renders (px², the rasterizer's default)
+
 WIDTH, HEIGHT = 64, 36
 
 
@@ -26,7 +28,7 @@ def _sets() -> tuple[GaussianSet, GaussianSet]:
 def _render_and_grads(frozen: FrozenRenders | None):
     background, foreground = _sets()
     parts = [part_of("bg", background, 1, frozen=True), part_of("fg", foreground, 1)]
-    render = splat(parts, dome_cameras(WIDTH, HEIGHT)[:3], 1, frozen)
+    render = splat(parts, dome_cameras(WIDTH, HEIGHT)[:3], 1, frozen, eps2d=EPS2D)
     weights = torch.linspace(-1.0, 1.0, WIDTH * 3).repeat(HEIGHT, 1).view(HEIGHT, WIDTH, 3)
     sum(((image * weights).sum() for image in render.images), torch.zeros(())).backward()
     grads = {name: param.grad for name, param in foreground.params.items()}
@@ -35,7 +37,7 @@ def _render_and_grads(frozen: FrozenRenders | None):
 
 def test_splat_with_frozen_renders_matches_a_full_splat():
     full, full_grads, full_stats = _render_and_grads(None)
-    fast, fast_grads, fast_stats = _render_and_grads(FrozenRenders())
+    fast, fast_grads, fast_stats = _render_and_grads(FrozenRenders(EPS2D))
     for got, expected in zip(fast.images + fast.alphas, full.images + full.alphas, strict=True):
         torch.testing.assert_close(got, expected, rtol=0, atol=1e-5)
     for name, expected in full_grads.items():
@@ -49,20 +51,22 @@ def test_splat_with_frozen_renders_matches_a_full_splat():
 def test_frozen_parts_are_rendered_once_per_camera():
     background, foreground = _sets()
     cameras = dome_cameras(WIDTH, HEIGHT)[:3]
-    frozen = FrozenRenders()
+    frozen = FrozenRenders(EPS2D)
 
     def render() -> torch.Tensor:
         parts = [part_of("bg", background, 1, frozen=True), part_of("fg", foreground, 1)]
-        return torch.stack(splat(parts, cameras, 1, frozen).images).detach()
+        return torch.stack(splat(parts, cameras, 1, frozen, eps2d=EPS2D).images).detach()
 
     first = render()
     background.params["sh_dc"].data.zero_()  # breaks the contract: the cache does not see it
     assert torch.equal(render(), first)
-    fresh = torch.stack(splat([part_of("bg", background, 1, frozen=True)], cameras, 1).images)
+    fresh = torch.stack(
+        splat([part_of("bg", background, 1, frozen=True)], cameras, 1, eps2d=EPS2D).images
+    )
     assert not torch.equal(fresh.detach(), first)
     cameras[0] = Camera(0, cameras[0].K, cameras[1].w2c, WIDTH, HEIGHT)  # same id, new pose
     parts = [part_of("bg", background, 1, frozen=True), part_of("fg", foreground, 1)]
-    uncached = splat(parts, cameras[:1], 1).images[0].detach()
+    uncached = splat(parts, cameras[:1], 1, eps2d=EPS2D).images[0].detach()
     torch.testing.assert_close(render()[0], uncached, rtol=0, atol=1e-5)  # rendered again
 
 
@@ -74,11 +78,13 @@ def test_all_frozen_or_all_trainable_parts_render_without_a_layer():
             part_of("bg", background, 1, frozen=frozen_fg),
             part_of("fg", foreground, 1, frozen=frozen_fg),
         ]
-        plain = splat(parts, cameras, 1).images
-        cached = FrozenRenders()
+        plain = splat(parts, cameras, 1, eps2d=EPS2D).images
+        cached = FrozenRenders(EPS2D)
         assert all(
             torch.equal(a, b)
-            for a, b in zip(splat(parts, cameras, 1, cached).images, plain, strict=True)
+            for a, b in zip(
+                splat(parts, cameras, 1, cached, eps2d=EPS2D).images, plain, strict=True
+            )
         )
         assert not cached._cache, "no frozen/trainable mix: nothing to cache"
 
@@ -89,7 +95,7 @@ def test_a_cached_frozen_render_does_not_depend_on_the_cameras_batched_with_it()
     background, foreground = _sets()
     cameras = dome_cameras(WIDTH, HEIGHT)[:3]
     parts = [part_of("bg", background, 1, frozen=True), part_of("fg", foreground, 1)]
-    together, one_by_one = FrozenRenders(), FrozenRenders()
+    together, one_by_one = FrozenRenders(EPS2D), FrozenRenders(EPS2D)
     batched = together.layer(parts, cameras, 1)
     for camera in reversed(cameras):
         one_by_one.layer(parts, [camera], 1)
@@ -114,18 +120,24 @@ def test_one_masked_render_of_several_copies_equals_one_render_per_copy():
         sum(((image * weights).sum() for image in images), torch.zeros(())).backward()
         return {name: param.grad.clone() for name, param in foreground.params.items()}
 
-    frozen = FrozenRenders()
+    frozen = FrozenRenders(EPS2D)
     background_part = part_of("bg", background, 1, frozen=True)
     rows = torch.cat([copy for _, copy in slots])
     mask = slot_mask(len(background), [(len(views), len(copy)) for views, copy in slots])
     shown = part_of("fg", foreground, 1, rows=rows)
-    joint = splat([background_part, shown], cameras, 1, frozen, mask)
+    joint = splat([background_part, shown], cameras, 1, frozen, mask, eps2d=EPS2D)
     joint_grads = backward(joint.images)
     joint_stats = screen_statistics(joint, "fg")
 
     images, renders = [], []
     for views, copy in slots:
-        render = splat([background_part, part_of("fg", foreground, 1, rows=copy)], views, 1, frozen)
+        render = splat(
+            [background_part, part_of("fg", foreground, 1, rows=copy)],
+            views,
+            1,
+            frozen,
+            eps2d=EPS2D,
+        )
         images += render.images
         renders.append(render)
     separate_grads = backward(images)

@@ -59,6 +59,7 @@ def points(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, Any
         background=background,
         foreground=foreground_with_segments(empty, torch.zeros(0, dtype=torch.int32)),
         segments=SegmentPlan.uniform(scene.num_frames, scene.num_frames),
+        eps2d=train.eps2d,
     )
     metrics = {"num_gaussians": len(background), "num_bg": len(background), "num_fg": 0}
     return model.to_artifact(stage_meta(SCHEMA_VERSION, section, train, None, metrics))

@@ -28,6 +28,7 @@ from relaygs.pipeline.artifact import Artifact
 from relaygs.splat import BACKENDS, default_backend, use_backend
 from relaygs.stages import SPECS, evaluate, step_budgets
 from relaygs.stages.decouple import DecoupleConfig
+from relaygs.stages.train_settings import TrainSettings
 from relaygs.train import log
 from relaygs.train.scene_model import SceneModel, foreground_with_segments
 from relaygs.train.segment_plan import SegmentPlan
@@ -244,6 +245,7 @@ def flagged_decouple(scene: Scene) -> Artifact:
             foreground, torch.zeros(len(foreground), dtype=torch.int32)
         ),
         segments=SegmentPlan.uniform(scene.num_frames, scene.num_frames),
+        eps2d=TrainSettings().eps2d,
     )
     return model.to_artifact({})
 

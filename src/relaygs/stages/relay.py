@@ -120,7 +120,8 @@ def relay(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, Any]
     views = TrainViews(training, device)
     if section.seed_copies == "carve":
         replica = core_only(source.foreground)
-        copies = carved_copies(views, source.background, replica, section, segments, seed)
+        renders = BackgroundRenders(source.background, train.eps2d)
+        copies = carved_copies(views, renders, replica, section, segments, seed)
     else:
         copies = replicate_foreground(source.foreground, segments.count).to(device)
     sets = {"fg": copies} if len(copies) else {}
@@ -134,6 +135,7 @@ def relay(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, Any]
         background=sets.get("bg", source.background),
         foreground=sets.get("fg", copies),
         segments=segments,
+        eps2d=train.eps2d,
     ).to("cpu")
     per_segment = torch.bincount(
         model.foreground.buffers[SEGMENT].long(), minlength=model.num_segments
@@ -169,7 +171,7 @@ def _train(
     targets = SegmentTargets(views, segments, section.p, section.pseudo_views)
     empty = source.foreground.subset(torch.zeros(0, dtype=torch.int64))
     # A frozen background looks the same at every step: render it once per camera.
-    frozen = FrozenRenders() if section.freeze_background else None
+    frozen = FrozenRenders(train.eps2d) if section.freeze_background else None
 
     def current() -> tuple[GaussianSet, GaussianSet]:
         return session.sets.get("bg", source.background), session.sets.get("fg", empty)
@@ -191,7 +193,7 @@ def _train(
         mask = None
         if len(slots) > 1:
             mask = slot_mask(background_part.count, [(n, len(r)) for n, r in slots])
-        render = splat([background_part, shown], cameras, degree, frozen, mask)
+        render = splat([background_part, shown], cameras, degree, frozen, mask, eps2d=train.eps2d)
         loss = photometric_loss(render.images, goals, train.ssim_weight)
         return StepResult(loss, [render], render.images, goals)
 
@@ -206,7 +208,7 @@ def _train(
 @torch.no_grad()
 def carved_copies(
     views: TrainViews,
-    background: GaussianSet,
+    renders: BackgroundRenders,
     replica: GaussianSet,
     section: RelayConfig,
     segments: SegmentPlan,
@@ -219,7 +221,6 @@ def carved_copies(
     pad = 0.05 * (upper - lower).clamp_min(1e-3)
     bounds = torch.stack([lower - pad, upper + pad])
     generator = torch.Generator().manual_seed(seed)
-    renders = BackgroundRenders(background)
     copies = []
     for segment in range(segments.count):
         frames = pseudo_frames(segments.frames(segment), section.p)
@@ -246,9 +247,9 @@ def carved_copies(
 class BackgroundRenders:
     """Renders of a static background, one per camera (cached: see FrozenRenders)."""
 
-    def __init__(self, background: GaussianSet) -> None:
+    def __init__(self, background: GaussianSet, eps2d: float) -> None:
         self.background = background
-        self._renders = FrozenRenders()
+        self._renders = FrozenRenders(eps2d)
 
     def images(self, cameras: list[Camera]) -> Tensor:
         """[C,H,W,3] renders clamped to [0, 1], on the CPU, in the order of `cameras`."""

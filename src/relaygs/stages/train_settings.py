@@ -1,7 +1,9 @@
-"""The `train` section shared by every training stage: batch, loss weight, resolution, logging."""
+"""The `train` section shared by every training stage: batch, loss weight, screen blur,
+resolution, logging."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -13,12 +15,14 @@ from relaygs.stages.config import Section, require
 
 @dataclass
 class TrainSettings(Section):
-    """`cfg["train"]`, read by every stage; downscale None is the paper's rule (`downscale_for`),
-    an integer forces that factor on every stage. Periods are in steps."""
+    """`cfg["train"]`, read by every stage; `eps2d` (px²) is added to every projected covariance
+    when the models train and render; downscale None is the paper's rule (`downscale_for`), an
+    integer forces that factor on every stage. Periods are in steps."""
 
     section: ClassVar[str] = "train"
     batch_views: int = 4
     ssim_weight: float = 0.2
+    eps2d: float = 0.1
     downscale: int | None = None
     half_res_width: int = 320
     log_every: int = 100
@@ -31,6 +35,7 @@ class TrainSettings(Section):
         """Reject values no run could use (called once, when the run is planned)."""
         require(self.batch_views >= 1, "train.batch_views", self.batch_views, "an int >= 1")
         require(0.0 <= self.ssim_weight <= 1.0, "train.ssim_weight", self.ssim_weight, "[0, 1]")
+        require(0.0 <= self.eps2d < math.inf, "train.eps2d", self.eps2d, "a finite number >= 0")
         factor = self.downscale
         require(factor is None or factor >= 1, "train.downscale", factor, "None or an int >= 1")
         require(self.half_res_width >= 1, "train.half_res_width", self.half_res_width, ">= 1")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 import textwrap
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -22,17 +23,20 @@ GAMMA = "gamma"
 FIELD_PREFIX = "field."
 AFFINE_PREFIX = "affine."
 DECOUPLE = "decouple"
+EPS2D_BEFORE_RECORDED = 0.3  # what every model was trained and rendered with before meta held it
 
 
 @dataclass
 class SceneModel:
-    """Background + foreground sets, their segments, and optional motion modules; `affine_cameras`
-    lists the train camera ids in ColorAffine row order."""
+    """Background + foreground sets, their segments, and optional motion modules; `eps2d` is the
+    screen-space blur (px²) it was trained with and renders with; `affine_cameras` lists the
+    train camera ids in ColorAffine row order."""
 
     stage: str
     background: GaussianSet
     foreground: GaussianSet
     segments: SegmentPlan
+    eps2d: float
     field: DeformationField | None = None
     field_settings: dict[str, Any] | None = None
     affine: ColorAffine | None = None
@@ -89,6 +93,7 @@ class SceneModel:
                 else {"segment_starts": list(self.segments.starts)}
             ),
             "num_segments": self.num_segments,
+            "eps2d": self.eps2d,
             "counts": {"bg": n_bg, "fg": n_fg, "total": n_bg + n_fg},
             "field": self.field_settings,
             "affine_cameras": list(self.affine_cameras),
@@ -112,6 +117,7 @@ class SceneModel:
             background=background,
             foreground=foreground,
             segments=segments,
+            eps2d=_recorded_eps2d(artifact.stage, meta),
             field_settings=meta.get("field"),
             affine_cameras=list(meta.get("affine_cameras") or []),
         )
@@ -193,6 +199,15 @@ def core_only(gaussians: GaussianSet) -> GaussianSet:
         key: value for key, value in tensors.items() if not key.startswith(("param.", "buffer."))
     }
     return GaussianSet.from_tensors(kept)
+
+
+def _recorded_eps2d(stage: str, meta: Mapping[str, Any]) -> float:
+    """The blur a model's meta records (one written before it was recorded: 0.3)."""
+    value = meta.get("eps2d", EPS2D_BEFORE_RECORDED)
+    valid = isinstance(value, int | float) and not isinstance(value, bool)
+    if not (valid and 0.0 <= value < math.inf):
+        raise InputError(f"{stage} artifact: meta 'eps2d' is {value!r}, not a number >= 0")
+    return float(value)
 
 
 def _segment_plan(stage: str, meta: Mapping[str, Any]) -> SegmentPlan:
