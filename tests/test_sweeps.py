@@ -16,6 +16,10 @@ from relaygs.commands.bench_sweeps import EXPERIMENTS, command
 pytestmark = pytest.mark.sweep
 
 HANG_GUARD_S = 1800.0  # a command this slow is stuck, not slow (speed is not asserted here)
+# Fewer jobs than the experiments' own sweeps, where the test needs no more: a command line's
+# sweep of a key replaces the experiment's, so the launchers and the summaries run as they do.
+BUDGET_MULTIPLIERS = "budget.multiplier=0.5,1.0"
+TWO_K = "relay.k=8,16"
 
 
 def _launch(outputs, name, *overrides):
@@ -47,7 +51,7 @@ def experiments(tmp_path_factory):
     runs = {}
     started = time.perf_counter()
     for name in EXPERIMENTS:
-        done = _launch(outputs, name)
+        done = _launch(outputs, name, *([BUDGET_MULTIPLIERS] if name == "budget" else []))
         folder = _newest_sweep(outputs) if name != "smoke" else None
         runs[name] = {"sweep": folder, "counts": _artifact_counts(outputs), "out": done.stdout}
     runs["elapsed_s"] = time.perf_counter() - started
@@ -113,8 +117,8 @@ def test_baseline_and_budget_compare_relaygs_with_4dgs_on_the_same_scene(experim
     assert table["deform.gamma"].tolist() == [True, False]
     # the budget sweep: both pipelines over the multipliers
     table = _summary(experiments, "budget")
-    assert len(table) == 8
-    assert sorted(set(table["budget.multiplier"])) == [0.25, 0.5, 1.0, 2.0]
+    assert len(table) == 4
+    assert sorted(set(table["budget.multiplier"])) == [0.5, 1.0]
     assert set(table.pipeline) == {"relaygs", "4dgs"}
     unscaled = table[table["budget.multiplier"] == 1.0]
     assert (unscaled.train_s_computed == 0).all()  # built by the baseline sweep already
@@ -123,11 +127,13 @@ def test_baseline_and_budget_compare_relaygs_with_4dgs_on_the_same_scene(experim
 
 def test_parallel_jobs_share_the_store_and_build_decouple_once(tmp_path):
     pytest.importorskip("hydra_plugins.hydra_joblib_launcher")
-    done = _launch(tmp_path, "ablation_k", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2")
+    done = _launch(
+        tmp_path, "ablation_k", TWO_K, "hydra/launcher=joblib", "hydra.launcher.n_jobs=2"
+    )
     counts = _artifact_counts(tmp_path)
     assert (counts["decouple"], counts["relay"]) == (1, 1)  # every k >= 8 frames: one segment
     sweep = _newest_sweep(tmp_path)
-    assert len(pd.read_csv(sweep / "summary.csv")) == 5
+    assert len(pd.read_csv(sweep / "summary.csv")) == 2
     # the jobs print side by side: each status line names its job's folder
     jobs = {result.parent.name for result in sweep.glob("*/result.json")}
     status = [line for line in done.stdout.splitlines() if "] [decouple] " in line]
@@ -148,11 +154,11 @@ def test_a_sweep_through_submitit_gives_the_basic_launchers_summary(experiments,
     pytest.importorskip("hydra_plugins.hydra_submitit_launcher")  # the slurm extra
     # submitit's local executor is the Slurm launcher's code path: each job pickled into a
     # process of its own, the jobs sharing one store and its locks, the results gathered back
-    _launch(tmp_path, "ablation_k", "hydra/launcher=submitit_local")
+    _launch(tmp_path, "ablation_k", TWO_K, "hydra/launcher=submitit_local")
     counts = _artifact_counts(tmp_path)
     assert counts["decouple"] == 1 and counts["relay"] == 1  # every k >= 8 frames: one segment
     submitit = pd.read_csv(_newest_sweep(tmp_path) / "summary.csv")
     basic = _summary(experiments, "ablation_k")
     shared = ["variant", "relay.k", "psnr", "ssim", "fg_psnr", "num_gaussians", "output_key"]
-    pd.testing.assert_frame_equal(submitit[shared], basic[shared])
+    pd.testing.assert_frame_equal(submitit[shared], basic[shared].head(2))
     assert (submitit.status == "ok").all()
