@@ -19,35 +19,35 @@ SCENE = SimpleNamespace(fingerprint="pinned-scene", num_frames=64)
 PINNED = {
     "pipeline=relaygs": {
         "decouple": "10647e19df924c3b",
-        "relay": "c52d52b35dc63c80",
-        "deform": "77c25fd8bf386319",
+        "relay": "3521886636e01a8a",
+        "deform": "f60d2edcc21eb1d9",
     },
-    "pipeline=4dgs": {"warmup": "75a65f60ac205411", "deform": "95ed71f2b23a02ad"},
+    "pipeline=4dgs": {"warmup": "75a65f60ac205411", "deform": "a4e526b816137767"},
     "pipeline=no_stage2": {
         "decouple": "10647e19df924c3b",
         "replicate": "c4baf092cf838273",
-        "deform": "92db941860e2c9de",
+        "deform": "0a3379eb403390cc",
     },
-    "pipeline=no_copies": {"decouple": "10647e19df924c3b", "deform": "ad93d839df558f8b"},
+    "pipeline=no_copies": {"decouple": "10647e19df924c3b", "deform": "ec02543cc6d2fc8b"},
     "+component=no_gamma": {
         "decouple": "10647e19df924c3b",
-        "relay": "c52d52b35dc63c80",
-        "deform": "796bc7d57e75df11",
+        "relay": "3521886636e01a8a",
+        "deform": "e4d65fede0adb634",
     },
     "+component=no_isolation": {
         "decouple": "10647e19df924c3b",
-        "relay": "c52d52b35dc63c80",
-        "deform": "a3e56b3725bf9295",
+        "relay": "3521886636e01a8a",
+        "deform": "ba4b94ff9ef59f8d",
     },
     "+component=no_pseudo_views": {
         "decouple": "10647e19df924c3b",
-        "relay": "4f69bc121b918d05",
-        "deform": "ceedf13e116393e1",
+        "relay": "6bb1d687fc1add19",
+        "deform": "dcfab9222ce1df5b",
     },
     "relay.k=128": {
         "decouple": "10647e19df924c3b",
-        "relay": "c1ef01b07747eba5",
-        "deform": "cb88d8b75b74a489",
+        "relay": "f57e1a4267368284",
+        "deform": "e35ca2639a4254a8",
     },
 }
 """Each node's key (its first 16 hex digits) at the default scene settings and `small` budget;
