@@ -20,34 +20,34 @@ PINNED = {
     "pipeline=relaygs": {
         "decouple": "10647e19df924c3b",
         "relay": "3521886636e01a8a",
-        "deform": "f60d2edcc21eb1d9",
+        "deform": "7ae83217715c9056",
     },
-    "pipeline=4dgs": {"warmup": "75a65f60ac205411", "deform": "a4e526b816137767"},
+    "pipeline=4dgs": {"warmup": "75a65f60ac205411", "deform": "638d91a91e25a5c3"},
     "pipeline=no_stage2": {
         "decouple": "10647e19df924c3b",
         "replicate": "c4baf092cf838273",
-        "deform": "0a3379eb403390cc",
+        "deform": "0ef42440cceec14c",
     },
-    "pipeline=no_copies": {"decouple": "10647e19df924c3b", "deform": "ec02543cc6d2fc8b"},
+    "pipeline=no_copies": {"decouple": "10647e19df924c3b", "deform": "a7b908bc2437ef86"},
     "+component=no_gamma": {
         "decouple": "10647e19df924c3b",
         "relay": "3521886636e01a8a",
-        "deform": "e4d65fede0adb634",
+        "deform": "c0eb326991d18de1",
     },
     "+component=no_isolation": {
         "decouple": "10647e19df924c3b",
         "relay": "3521886636e01a8a",
-        "deform": "ba4b94ff9ef59f8d",
+        "deform": "7855f509b02b517f",
     },
     "+component=no_pseudo_views": {
         "decouple": "10647e19df924c3b",
         "relay": "6bb1d687fc1add19",
-        "deform": "dcfab9222ce1df5b",
+        "deform": "fe1b2c591aa9b58c",
     },
     "relay.k=128": {
         "decouple": "10647e19df924c3b",
         "relay": "f57e1a4267368284",
-        "deform": "e35ca2639a4254a8",
+        "deform": "b6c5f9c10f00df99",
     },
 }
 """Each node's key (its first 16 hex digits) at the default scene settings and `small` budget;
