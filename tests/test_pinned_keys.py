@@ -19,8 +19,8 @@ SCENE = SimpleNamespace(fingerprint="pinned-scene", num_frames=64)
 PINNED = {
     "pipeline=relaygs": {
         "decouple": "10647e19df924c3b",
-        "relay": "3521886636e01a8a",
-        "deform": "7ae83217715c9056",
+        "relay": "ebd49aacb483e62a",
+        "deform": "9317629a0b7c271a",
     },
     "pipeline=4dgs": {"warmup": "75a65f60ac205411", "deform": "638d91a91e25a5c3"},
     "pipeline=no_stage2": {
@@ -31,23 +31,23 @@ PINNED = {
     "pipeline=no_copies": {"decouple": "10647e19df924c3b", "deform": "a7b908bc2437ef86"},
     "+component=no_gamma": {
         "decouple": "10647e19df924c3b",
-        "relay": "3521886636e01a8a",
-        "deform": "c0eb326991d18de1",
+        "relay": "ebd49aacb483e62a",
+        "deform": "b8a78a094634cd0d",
     },
     "+component=no_isolation": {
         "decouple": "10647e19df924c3b",
-        "relay": "3521886636e01a8a",
-        "deform": "7855f509b02b517f",
+        "relay": "ebd49aacb483e62a",
+        "deform": "392ac425bb62c6c2",
     },
     "+component=no_pseudo_views": {
         "decouple": "10647e19df924c3b",
-        "relay": "6bb1d687fc1add19",
-        "deform": "fe1b2c591aa9b58c",
+        "relay": "8798f0f6fab7ff38",
+        "deform": "88edb38878e14d07",
     },
     "relay.k=128": {
         "decouple": "10647e19df924c3b",
-        "relay": "f57e1a4267368284",
-        "deform": "b6c5f9c10f00df99",
+        "relay": "01fda0ecd7d0ceba",
+        "deform": "347f9a2920828df6",
     },
 }
 """Each node's key (its first 16 hex digits) at the default scene settings and `small` budget;
