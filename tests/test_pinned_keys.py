@@ -20,34 +20,34 @@ PINNED = {
     "pipeline=relaygs": {
         "decouple": "10647e19df924c3b",
         "relay": "ebd49aacb483e62a",
-        "deform": "9317629a0b7c271a",
+        "deform": "7a82dd54034fda46",
     },
-    "pipeline=4dgs": {"warmup": "75a65f60ac205411", "deform": "638d91a91e25a5c3"},
+    "pipeline=4dgs": {"warmup": "75a65f60ac205411", "deform": "f762d9028c22c2c8"},
     "pipeline=no_stage2": {
         "decouple": "10647e19df924c3b",
         "replicate": "c4baf092cf838273",
-        "deform": "0ef42440cceec14c",
+        "deform": "8f95ba72dd1a6aed",
     },
-    "pipeline=no_copies": {"decouple": "10647e19df924c3b", "deform": "a7b908bc2437ef86"},
+    "pipeline=no_copies": {"decouple": "10647e19df924c3b", "deform": "804d5ae7901675e8"},
     "+component=no_gamma": {
         "decouple": "10647e19df924c3b",
         "relay": "ebd49aacb483e62a",
-        "deform": "b8a78a094634cd0d",
+        "deform": "9ecf91f80c8c9e6f",
     },
     "+component=no_isolation": {
         "decouple": "10647e19df924c3b",
         "relay": "ebd49aacb483e62a",
-        "deform": "392ac425bb62c6c2",
+        "deform": "bbfbaf8d2628bde5",
     },
     "+component=no_pseudo_views": {
         "decouple": "10647e19df924c3b",
         "relay": "8798f0f6fab7ff38",
-        "deform": "88edb38878e14d07",
+        "deform": "c88aba98f4c070f2",
     },
     "relay.k=128": {
         "decouple": "10647e19df924c3b",
         "relay": "01fda0ecd7d0ceba",
-        "deform": "347f9a2920828df6",
+        "deform": "dfb8744d1b9ec574",
     },
 }
 """Each node's key (its first 16 hex digits) at the default scene settings and `small` budget;
