@@ -122,6 +122,8 @@ class DensityController:
         reset_due = s.opacity_reset_every > 0 and step % s.opacity_reset_every == 0
         if not (densify_due or reset_due):
             return None
+        if self.optimizer is not None:
+            self.optimizer.settle(self.gaussians)  # every row up to date before it is read
         cloned = split = pruned = 0
         if densify_due:
             cloned, split = self.densify()

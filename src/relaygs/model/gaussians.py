@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
+from typing import Protocol
 
 import torch
 from torch import Tensor, nn
@@ -55,6 +56,12 @@ def normalize_quats(quats: Tensor) -> Tensor:
     return safe_quats / safe_norm
 
 
+class RowReader(Protocol):
+    """What reads a set's rows for a training render in its place (model.row_adam.RowAdam)."""
+
+    def select(self, name: str, rows: Tensor) -> Tensor: ...
+
+
 class GaussianSet:
     """Raw per-Gaussian parameters and buffers with 3DGS activations: means, log_scales [N,3],
     quats [N,4] (wxyz), opacity_logits [N], sh_dc [N,1,3], sh_rest [N,(d+1)²−1,3]."""
@@ -72,6 +79,7 @@ class GaussianSet:
             raise InputError(f"GaussianSet: missing core parameter(s) {missing}")
         self._params: dict[str, nn.Parameter] = {}
         self._buffers: dict[str, Tensor] = {}
+        self.row_reader: RowReader | None = None  # set by the optimiser that steps it by rows
         n = core["means"].shape[0]
         for name in CORE_PARAMS:
             self._params[name] = _new_param(core[name], name, n)
@@ -157,6 +165,13 @@ class GaussianSet:
         _check_rows(values, name, len(self))
         self._buffers[name] = values.detach().clone()
         return self._buffers[name]
+
+    def select_rows(self, name: str, rows: Tensor) -> Tensor:
+        """Rows of parameter `name` for a training render: through the set's row reader where an
+        optimiser steps it by rows (it brings them up to date and takes their gradient)."""
+        if self.row_reader is not None:
+            return self.row_reader.select(name, rows)
+        return self._params[name].index_select(0, rows)
 
     @property
     def means(self) -> nn.Parameter:

@@ -1,11 +1,11 @@
-"""One Adam over "<set>.<param>" groups with lr schedules; fg and bg are separate sets, as
-Adam cannot step rows of one tensor apart; positions × the scene extent, as 3DGS."""
+"""One Adam over "<set>.<param>" groups with lr schedules (positions × the scene extent, as
+3DGS); a set whose steps each show a few of its rows (the relay copies) is stepped by rows."""
 
 from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping
 from dataclasses import dataclass, field, fields
 
 import torch
@@ -13,6 +13,7 @@ from torch import Tensor, nn
 
 from relaygs.errors import InputError
 from relaygs.model.gaussians import GaussianSet, as_row_index
+from relaygs.model.row_adam import BETA1, BETA2, RowAdam
 
 ADAM_EPS = 1e-15
 
@@ -124,42 +125,80 @@ def adam(groups: list[dict]) -> torch.optim.Adam:
     """Adam, eps 1e-15, over param groups: fused where torch can (faster), else foreach."""
     fused = has_fused_adam(groups[0]["params"][0].device)
     kernel = {"fused": True} if fused else {"foreach": True}
-    return torch.optim.Adam(groups, lr=0.0, eps=ADAM_EPS, **kernel)
+    return torch.optim.Adam(groups, lr=0.0, betas=(BETA1, BETA2), eps=ADAM_EPS, **kernel)
 
 
 class GaussianOptimizer:
-    """Adam (eps 1e-15) with one param group per (set, parameter), named "<set>.<param>"."""
+    """Adam (eps 1e-15) with one param group per (set, parameter), named "<set>.<param>"; the
+    sets in `row_sets` are stepped by the rows each step shows (RowAdam), the rest by torch."""
 
     def __init__(
         self,
         sets: Mapping[str, GaussianSet],
         learning_rates: Mapping[str, SetLearningRates],
         spatial_lr_scale: float = 1.0,
+        row_sets: Collection[str] = (),
     ) -> None:
         """Build groups for every parameter of every set; extras must have a schedule."""
         self.sets = dict(sets)
         self.spatial_lr_scale = spatial_lr_scale
         self._schedules: dict[str, LRSchedule] = {}
+        self._rates: dict[str, float] = {}
         groups = []
         for set_name, gaussians in self.sets.items():
             for param_name, param in gaussians.params.items():
                 group_name = f"{set_name}.{param_name}"
                 schedule = learning_rates[set_name].for_param(param_name)
                 self._schedules[group_name] = schedule
-                groups.append({"params": [param], "name": group_name, "lr": schedule.at(0)})
-        self.adam = adam(groups)
+                if set_name not in row_sets:
+                    groups.append({"params": [param], "name": group_name, "lr": schedule.at(0)})
+        self.adam = adam(groups) if groups else None
+        fused = has_fused_adam(next(iter(self.sets.values())).means.device) if sets else False
+        self.row_adams = {
+            name: RowAdam(
+                self.sets[name], functools.partial(self._rate, name), ADAM_EPS, fused=fused
+            )
+            for name in row_sets
+            if name in self.sets
+        }
         self.update_learning_rates(0)
 
     def update_learning_rates(self, step: int) -> dict[str, float]:
         """Set every group's lr for `step`; returns {group name: lr}."""
-        rates = {}
-        for group in self.adam.param_groups:
-            lr = self._schedules[group["name"]].at(step)
-            if group["name"].endswith(".means"):
-                lr *= self.spatial_lr_scale
-            group["lr"] = lr
-            rates[group["name"]] = lr
-        return rates
+        for name, schedule in self._schedules.items():
+            lr = schedule.at(step)
+            self._rates[name] = lr * self.spatial_lr_scale if name.endswith(".means") else lr
+        for group in self.adam.param_groups if self.adam is not None else []:
+            group["lr"] = self._rates[group["name"]]
+        return dict(self._rates)
+
+    def step(self) -> None:
+        """One Adam step of every set."""
+        if self.adam is not None:
+            self.adam.step()
+        for row_adam in self.row_adams.values():
+            row_adam.step()
+
+    def zero_grad(self) -> None:
+        """Drop every gradient."""
+        if self.adam is not None:
+            self.adam.zero_grad(set_to_none=True)
+        for row_adam in self.row_adams.values():
+            row_adam.zero_grad()
+
+    def row_gradients(self) -> dict[str, Tensor]:
+        """This step's gradients of the row-stepped sets, "<set>.<param>" (flattened)."""
+        return {
+            f"{set_name}.{name}": grad
+            for set_name, row_adam in self.row_adams.items()
+            for name, grad in row_adam.gradients().items()
+        }
+
+    def settle(self, gaussians: GaussianSet | None = None) -> None:
+        """Bring the rows of a row-stepped set (None: of every one) up to date."""
+        for row_adam in self.row_adams.values():
+            if gaussians is None or row_adam.gaussians is gaussians:
+                row_adam.settle()
 
     def reindex_rows(
         self,
@@ -169,21 +208,42 @@ class GaussianOptimizer:
         overrides: Mapping[str, Tensor] | None = None,
     ) -> None:
         """Row i takes old row source[i], values and Adam state (zeroed where `fresh_state`)."""
+        self.settle(gaussians)
         old_params = gaussians.params
         index = as_row_index(source, len(gaussians))
         gaussians.reindex_rows_(index, overrides)
+        row_adam = self._row_adam_of(gaussians)
+        if row_adam is not None:
+            row_adam.reindex(index, fresh_state)
+            return
         for name, old in old_params.items():
             self._swap_param(old, gaussians.params[name], index, fresh_state)
 
     def reset_state(self, param: nn.Parameter) -> None:
         """Zero the Adam moments of `param`."""
-        for key, value in self.adam.state.get(param, {}).items():
+        for row_adam in self.row_adams.values():
+            for name, candidate in row_adam.gaussians.params.items():
+                if candidate is param:
+                    row_adam.settle()
+                    row_adam.reset(name)
+                    return
+        for key, value in self.adam.state.get(param, {}).items() if self.adam else []:
             if key != "step" and torch.is_tensor(value):
                 value.zero_()
 
     def state_of(self, param: nn.Parameter) -> dict[str, Tensor]:
-        """The Adam state tensors of `param` (empty before its first step)."""
-        return dict(self.adam.state.get(param, {}))
+        """The Adam moments of `param` (empty before its first step of a torch-stepped set)."""
+        for row_adam in self.row_adams.values():
+            for name, candidate in row_adam.gaussians.params.items():
+                if candidate is param:
+                    return row_adam.moments(name)
+        return dict(self.adam.state.get(param, {})) if self.adam is not None else {}
+
+    def _row_adam_of(self, gaussians: GaussianSet) -> RowAdam | None:
+        return next((r for r in self.row_adams.values() if r.gaussians is gaussians), None)
+
+    def _rate(self, set_name: str, param_name: str) -> float:
+        return self._rates[f"{set_name}.{param_name}"]
 
     def _swap_param(
         self, old: nn.Parameter, new: nn.Parameter, index: Tensor, fresh: Tensor | None

@@ -99,7 +99,7 @@ class DeformConfig(PerSetSections):
             fg_rates = replace(fg_rates, extras={**fg_rates.extras, GAMMA: gamma})
         return {
             "bg": SetPlan(self.set_rates("bg"), self.set_densify("bg"), self.sh_every),
-            "fg": SetPlan(fg_rates, self.set_densify("fg"), self.sh_every),
+            "fg": SetPlan(fg_rates, self.set_densify("fg"), self.sh_every, by_rows=True),
         }
 
     def module_schedules(self) -> dict[str, Any]:

@@ -99,7 +99,8 @@ class RelayConfig(PerSetSections):
 
     def plans(self) -> dict[str, SetPlan]:
         """Training plan of the foreground copies and (when trained) the background."""
-        plans = {"fg": SetPlan(self.set_rates("fg"), self.set_densify("fg"), self.sh_every)}
+        fg = SetPlan(self.set_rates("fg"), self.set_densify("fg"), self.sh_every, by_rows=True)
+        plans = {"fg": fg}
         if not self.freeze_background:
             plans["bg"] = SetPlan(self.set_rates("bg"), self.set_densify("bg"), self.sh_every)
         return plans

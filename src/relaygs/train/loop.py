@@ -205,6 +205,7 @@ def run_training(
                 done = step
     except KeyboardInterrupt:
         raise _interrupted(stage, done, steps, checkpointer) from None
+    session.settle()
     session.check_finite(stage, steps)
     run_seconds = time.perf_counter() - began
     initial_loss, final_loss = tracker.means()

@@ -27,7 +27,7 @@ def deformed_parts(
     xyz = torch.cat([bg.means, fg.means])
     deltas = field(xyz, time, n_bg)  # the counts are known here: no device read
     if GAMMA in foreground.params:
-        gamma = foreground.params[GAMMA].index_select(0, foreground_rows)
+        gamma = foreground.select_rows(GAMMA, foreground_rows)
         gammas = torch.cat([gamma.new_zeros(n_bg, 3), gamma])
         is_relay = torch.arange(xyz.shape[0], device=xyz.device) >= n_bg
         means = relay_position(xyz, deltas.dxyz, gammas, is_relay)

@@ -47,10 +47,13 @@ def part_of(
     frozen = frozen or len(gaussians) == 0
     params = gaussians.params
     names = ("means", "log_scales", "quats", "opacity_logits", "sh_dc", "sh_rest")
-    values = [params[name].detach() if frozen else params[name] for name in names]
-    if rows is not None:
+    if rows is None:
+        values = [params[name].detach() if frozen else params[name] for name in names]
+    elif frozen:
+        values = [params[name].detach().index_select(0, rows) for name in names]
+    else:
         # rows before the SH concatenation: the copy and its backward cover the shown rows only
-        values = [value.index_select(0, rows) for value in values]
+        values = [gaussians.select_rows(name, rows) for name in names]
     *per_row, sh_dc, sh_rest = values
     return Part(name, rows, *per_row, sh_of_degree(sh_dc, sh_rest, sh_degree), frozen=frozen)
 

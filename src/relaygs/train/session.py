@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 import torch
 from torch import Tensor, nn
 
-from relaygs.errors import DivergenceError
+from relaygs.errors import DivergenceError, InputError
 from relaygs.model import (
     DensifyReport,
     DensifySettings,
@@ -25,16 +25,19 @@ from relaygs.pipeline.checkpoint import TrainingState
 from relaygs.train.render import Render, screen_statistics
 
 GENERATOR_KEY = "generator"
+ROW_ADAM = "row_adam"
 DENSITY_GENERATOR_KEY = "density_generator"
 
 
 @dataclass(frozen=True)
 class SetPlan:
-    """How one Gaussian set trains: learning rates, density control (None = off), SH schedule."""
+    """How one Gaussian set trains: learning rates, density control (None = off), SH schedule,
+    and whether it is stepped by the rows each step shows (`GaussianOptimizer` row_sets)."""
 
     learning_rates: SetLearningRates
     densify: DensifySettings | None
     sh_every: int = 1000
+    by_rows: bool = False  # each step shows a few rows (relay copies): Adam steps those rows
 
 
 @dataclass(frozen=True)
@@ -71,6 +74,7 @@ class TrainingSession:
             self.sets,
             {name: self.plans[name].learning_rates for name in self.sets},
             spatial_lr_scale=self.extent,
+            row_sets=[name for name in self.sets if self.plans[name].by_rows],
         )
         self.controllers = {
             name: DensityController(
@@ -101,8 +105,12 @@ class TrainingSession:
         for name, gaussians in self.sets.items():
             scheduled = sh_degree_for_step(step, gaussians.max_sh_degree, self.plans[name].sh_every)
             gaussians.active_sh_degree = max(self._base_sh[name], scheduled)
-        self.optimizer.adam.zero_grad(set_to_none=True)
+        self.optimizer.zero_grad()
         return rates
+
+    def settle(self) -> None:
+        """Bring every row of the row-stepped sets up to date (the end of training)."""
+        self.optimizer.settle()
 
     def parameters(self) -> dict[str, Tensor]:
         """Every trainable tensor by name (`<set>.<param>`, `<module>.<param>`)."""
@@ -120,6 +128,7 @@ class TrainingSession:
             tensors = parameters
         else:
             gradients = {f"{n}.grad": p.grad for n, p in parameters.items() if p.grad is not None}
+            gradients.update({f"{n}.grad": g for n, g in self.optimizer.row_gradients().items()})
             tensors = {"loss": loss.detach(), **gradients}
         try:
             check_finite(stage, step, tensors)
@@ -128,7 +137,7 @@ class TrainingSession:
 
     def apply_gradients(self, renders: list[Render], step: int) -> list[DensifyReport]:
         """Optimiser steps, then density statistics from `renders` and density control."""
-        self.optimizer.adam.step()
+        self.optimizer.step()
         if self.module_optimizer is not None:
             self.module_optimizer.step()
         reports = []
@@ -160,13 +169,18 @@ class TrainingSession:
             tensors.update({f"module.{name}.{k}": v for k, v in module.state_dict().items()})
         for name, controller in self.controllers.items():
             tensors.update({f"density.{name}.{k}": v for k, v in controller.state_dict().items()})
+        for name, row_adam in self.optimizer.row_adams.items():
+            row_state = row_adam.state_tensors()
+            tensors.update({f"{ROW_ADAM}.{name}.{k}": v for k, v in row_state.items()})
         tensors[GENERATOR_KEY] = self.generator.get_state()
         tensors[DENSITY_GENERATOR_KEY] = self.density_generator.get_state()
         return tensors
 
     def optimizers(self) -> dict[str, torch.optim.Optimizer]:
         """The optimisers whose state a checkpoint saves, by name."""
-        optimizers: dict[str, torch.optim.Optimizer] = {"gaussians": self.optimizer.adam}
+        optimizers: dict[str, torch.optim.Optimizer] = {}
+        if self.optimizer.adam is not None:
+            optimizers["gaussians"] = self.optimizer.adam
         if self.module_optimizer is not None:
             optimizers["modules"] = self.module_optimizer
         return optimizers
@@ -184,7 +198,17 @@ class TrainingSession:
         for name, module in self.modules.items():
             module.load_state_dict(under(f"module.{name}."))
         self.build()
-        self.optimizer.adam.load_state_dict(state.optimizers["gaussians"])
+        if self.optimizer.adam is not None:
+            self.optimizer.adam.load_state_dict(state.optimizers["gaussians"])
+        for name, row_adam in self.optimizer.row_adams.items():
+            try:
+                row_adam.load_state_tensors(under(f"{ROW_ADAM}.{name}."))
+            except KeyError as error:
+                raise InputError(
+                    f"checkpoint of step {state.step}: no row-Adam state {error} for set "
+                    f"{name!r} (written by an older relaygs); remove the stage's .ckpt folder "
+                    "to train it again from step 0"
+                ) from None
         if self.module_optimizer is not None:
             self.module_optimizer.load_state_dict(state.optimizers["modules"])
         for name, controller in self.controllers.items():
