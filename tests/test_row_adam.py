@@ -7,8 +7,9 @@ import pytest
 import torch
 
 from refusals import refused
-from relaygs.errors import DivergenceError
+from relaygs.errors import DivergenceError, InputError
 from relaygs.model import CORE_PARAMS, GaussianOptimizer, GaussianSet, LRSchedule, SetLearningRates
+from relaygs.pipeline.checkpoint import TrainingState
 from relaygs.train.session import SetPlan, TrainingSession
 
 COPIES = 6
@@ -102,3 +103,16 @@ def test_a_non_finite_row_gradient_stops_the_step_naming_it() -> None:
     (values * torch.tensor([1.0, 1.0, float("nan"), 1.0, 1.0])).sum().backward()
     with refused(DivergenceError, "'relay'", "step 1", "fg.opacity_logits.grad"):
         session.check_finite("relay", 1, torch.zeros(()))
+
+
+def test_a_checkpoint_without_row_state_is_refused_naming_the_set() -> None:
+    """A checkpoint written before the copies were stepped by rows (one dense Adam over both
+    sets) cannot resume them: one line, not torch's group-count error."""
+    sets = {"bg": copies_set(1), "fg": copies_set(2)}
+    plans = {"bg": SetPlan(RATES, None), "fg": SetPlan(RATES, None, by_rows=True)}
+    session = TrainingSession(sets, plans, 1.0, 0, torch.device("cpu"))
+    tensors = {k: v for k, v in session.state_tensors().items() if not k.startswith("row_adam.")}
+    dense = GaussianOptimizer(sets, {"bg": RATES, "fg": RATES})
+    state = TrainingState(7, tensors, {"gaussians": dense.adam.state_dict()}, {})
+    with refused(InputError, "step 7", "'fg'"):
+        session.restore(state)

@@ -198,8 +198,6 @@ class TrainingSession:
         for name, module in self.modules.items():
             module.load_state_dict(under(f"module.{name}."))
         self.build()
-        if self.optimizer.adam is not None:
-            self.optimizer.adam.load_state_dict(state.optimizers["gaussians"])
         for name, row_adam in self.optimizer.row_adams.items():
             try:
                 row_adam.load_state_tensors(under(f"{ROW_ADAM}.{name}."))
@@ -209,6 +207,8 @@ class TrainingSession:
                     f"{name!r} (written by an older relaygs); remove the stage's .ckpt folder "
                     "to train it again from step 0"
                 ) from None
+        if self.optimizer.adam is not None:
+            self.optimizer.adam.load_state_dict(state.optimizers["gaussians"])
         if self.module_optimizer is not None:
             self.module_optimizer.load_state_dict(state.optimizers["modules"])
         for name, controller in self.controllers.items():
