@@ -221,26 +221,34 @@ class GaussianOptimizer:
 
     def reset_state(self, param: nn.Parameter) -> None:
         """Zero the Adam moments of `param`."""
-        for row_adam in self.row_adams.values():
-            for name, candidate in row_adam.gaussians.params.items():
-                if candidate is param:
-                    row_adam.settle()
-                    row_adam.reset(name)
-                    return
+        found = self._row_param(param)
+        if found is not None:
+            row_adam, name = found
+            row_adam.settle()
+            row_adam.reset(name)
+            return
         for key, value in self.adam.state.get(param, {}).items() if self.adam else []:
             if key != "step" and torch.is_tensor(value):
                 value.zero_()
 
     def state_of(self, param: nn.Parameter) -> dict[str, Tensor]:
         """The Adam moments of `param` (empty before its first step of a torch-stepped set)."""
-        for row_adam in self.row_adams.values():
-            for name, candidate in row_adam.gaussians.params.items():
-                if candidate is param:
-                    return row_adam.moments(name)
+        found = self._row_param(param)
+        if found is not None:
+            row_adam, name = found
+            return row_adam.moments(name)
         return dict(self.adam.state.get(param, {})) if self.adam is not None else {}
 
     def _row_adam_of(self, gaussians: GaussianSet) -> RowAdam | None:
         return next((r for r in self.row_adams.values() if r.gaussians is gaussians), None)
+
+    def _row_param(self, param: nn.Parameter) -> tuple[RowAdam, str] | None:
+        """The RowAdam stepping `param` and the parameter's name in its set, if any."""
+        for row_adam in self.row_adams.values():
+            for name, candidate in row_adam.gaussians.params.items():
+                if candidate is param:
+                    return row_adam, name
+        return None
 
     def _rate(self, set_name: str, param_name: str) -> float:
         return self._rates[f"{set_name}.{param_name}"]

@@ -132,7 +132,10 @@ class RowAdam:
 
     @torch.no_grad()
     def settle(self) -> None:
-        """Bring every row up to date (before anything reads the whole set)."""
+        """Bring every row up to date (before anything reads the whole set); nothing to do, and
+        nothing gathered, where every row already is (a second settle in one step)."""
+        if bool((self.last == self.count).all()):
+            return
         self._catch_up(torch.arange(len(self.last), device=self.last.device))
 
     @torch.no_grad()
