@@ -94,6 +94,12 @@ def assert_render_matches(got, expected, forward_atol: float, grad_rtol: float) 
     (norm) of the expected one, or equal where that one is zero or absent."""
     torch.testing.assert_close(got[0], expected[0], rtol=0, atol=forward_atol)
     torch.testing.assert_close(got[1], expected[1], rtol=0, atol=forward_atol)
+    assert_grads_match(got, expected, grad_rtol)
+
+
+def assert_grads_match(got, expected, grad_rtol: float) -> None:
+    """Each gradient within `grad_rtol` relative (norm) of the expected one, or equal where
+    that one is zero or absent."""
     for key, grad in expected[3].items():
         mine = got[3][key]
         if grad is None or mine is None:  # unused (colours in depth mode): no gradient or zero

@@ -49,11 +49,14 @@ SCALAR_ARGS = ("tile_size", "tiles_x", "tiles_y", "width", "height", "channels")
     importlib.util.find_spec("triton") is None,
     reason="triton is not installed (the dev extra brings it)",
 )
+@pytest.mark.parametrize("channels", [3, 32])
 @pytest.mark.parametrize("kernel", ["composite_forward_kernel", "composite_backward_kernel"])
-def test_the_kernels_compile_for_a_hopper_gpu_without_one(kernel, tmp_path, monkeypatch):
+def test_the_kernels_compile_for_a_hopper_gpu_without_one(kernel, channels, tmp_path, monkeypatch):
     """Triton's compiler, unlike its interpreter, refuses what a GPU cannot run (globals that
-    are not constexpr, loop-carried values that change type): compile to sm_90 machine code
-    with the block sizes of an 8×8-tile RGB render."""
+    are not constexpr, loop-carried values that change type) and rewrites what it recognises:
+    compile to sm_90 machine code with the block sizes of an 8×8-tile render, and find no
+    matrix product in it (one made of the colour sum composited 32 channels wrongly on a GPU,
+    which the interpreter cannot show)."""
     monkeypatch.setenv("TRITON_CACHE_DIR", str(tmp_path))  # compile, not a cached result
     import triton
     from triton.backends.compiler import GPUTarget
@@ -64,7 +67,7 @@ def test_the_kernels_compile_for_a_hopper_gpu_without_one(kernel, tmp_path, monk
     fn = getattr(kernels, kernel)
     elements = composite.FORWARD_ELEMENTS if "forward" in kernel else composite.BACKWARD_ELEMENTS
     bins = types.SimpleNamespace(tile_size=8)
-    sizes = composite.launch_for(bins, torch.zeros(1), 3, elements).sizes()
+    sizes = composite.launch_for(bins, torch.zeros(1), channels, elements).sizes()
     names = inspect.signature(fn.fn).parameters
     signature = {
         name: "constexpr"
@@ -79,3 +82,4 @@ def test_the_kernels_compile_for_a_hopper_gpu_without_one(kernel, tmp_path, monk
         options=composite.COMPILE_OPTIONS,
     )
     assert b".target sm_90" in compiled.asm["ptx"].encode() and len(compiled.asm["cubin"]) > 0
+    assert "tt.dot" not in compiled.asm["ttir"]
