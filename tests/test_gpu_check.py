@@ -13,7 +13,7 @@ import pytest
 from relaygs import paths
 
 SCRIPT = paths.REPO_ROOT / "tools" / "gpu_check.sh"
-STEPS = ("env", "parity", "splat", "train", "job", "profile")
+STEPS = ("env", "parity", "splat", "job", "train", "profile")
 
 
 @pytest.mark.skipif(not SCRIPT.is_file(), reason="needs the repository's tools/")
@@ -30,7 +30,12 @@ def test_every_step_lands_in_one_table_and_a_failure_fails_the_script(tmp_path):
         ["bash", str(SCRIPT), str(report)],
         capture_output=True,
         text=True,
-        env={**os.environ, "PYTHON": str(python), "WORK": str(tmp_path / "work")},
+        env={
+            **os.environ,
+            "PYTHON": str(python),
+            "WORK": str(tmp_path / "work"),
+            "WHEELS": str(tmp_path),
+        },
         timeout=120,
     )
     assert done.returncode != 0, done.stdout
@@ -41,3 +46,4 @@ def test_every_step_lands_in_one_table_and_a_failure_fails_the_script(tmp_path):
     assert "step output: -m relaygs.run train.device=cuda" in job[3]
     assert "tools/gpu_profile.py --device cuda --backend triton" in rows[-1][3]
     assert Path(report / "logs.txt").is_file()
+    assert Path(report / "logs.tgz").is_file()

@@ -1,18 +1,19 @@
 #!/usr/bin/env bash
 # The GPU path's check on one CUDA machine, end to end in under 10 minutes, each step under
-# its own time limit: the CUDA parity tests (Triton kernels and torch on the GPU against the
-# reference and the CPU), `bench splat` of torch against triton, `bench train` of both, the
-# default job on CUDA and a profile of each stage's steps (tools/gpu_profile.py: launches and
-# host reads per step, how busy the GPU is); then one table of what each step gave.
+# its own time limit (560 s in all, the most telling first): the CUDA parity tests (Triton
+# kernels and torch on the GPU against the reference and the CPU), `bench splat` of torch
+# against triton, the default job on CUDA, `bench train` of both backends and a profile of
+# each stage's steps (tools/gpu_profile.py: launches and host reads per step, how busy the
+# GPU is); then one table of what each step gave, with every step's whole log in logs.tgz.
 # Rehearsed on a CPU with Triton 3.6 (the CUDA image's): the Triton interpreter tests pass.
 #
 #   tools/gpu_check.sh [REPORT_DIR]      # default /tmp/gpu_check/report
 #
 # PYTHON (default python3) must import torch (a CUDA build), triton and relaygs's
-# dependencies; wheels in .whl/ are installed first (into /tmp/site, no index), for a
+# dependencies; wheels in WHEELS (.whl/) are installed first (into /tmp/site, no index), for a
 # machine that cannot reach a package index. GARDEN_NPZ names a copy of test_garden.npz for
 # bench splat's garden case where ../shared/data has none. REPORT_DIR receives summary.md,
-# the benches' JSON, the job's result.json and the steps' log tails (5 files); the work
+# the benches' JSON, the job's result.json, the steps' log tails and logs.tgz; the work
 # itself goes to WORK (/tmp/gpu_check). DEVICE (cuda), BACKENDS (torch,triton) and
 # SPLAT_CASES (all) change what is run, to rehearse the script on a CPU. The wheels such a
 # machine lacks (hydra-core, omegaconf, antlr4-python3-runtime, hydra-joblib-launcher):
@@ -29,9 +30,10 @@ REPORT=${1:-$WORK/report}
 rm -rf "$WORK/outputs" "$WORK/logs"
 mkdir -p "$REPORT" "$WORK/logs"
 export PYTHONPATH="$PWD/src${PYTHONPATH:+:$PYTHONPATH}"
-if compgen -G ".whl/*.whl" >/dev/null; then
+WHEELS=${WHEELS:-.whl}
+if compgen -G "$WHEELS/*.whl" >/dev/null; then
   "$PYTHON" -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade \
-    --target /tmp/site .whl/*.whl || { echo "gpu_check: installing .whl/ failed"; exit 2; }
+    --target /tmp/site "$WHEELS"/*.whl || { echo "gpu_check: installing $WHEELS failed"; exit 2; }
   export PYTHONPATH="$PYTHONPATH:/tmp/site"
 fi
 if [ -f "${GARDEN_NPZ:-}" ] && [ ! -f ../shared/data/test_garden.npz ]; then
@@ -56,18 +58,18 @@ step() {
   tail -n 4 "$WORK/logs/$name.log"
 }
 
-step env 20 "$PYTHON" -c "import torch, triton, hydra, relaygs.splat
+step env 30 "$PYTHON" -c "import torch, triton, hydra, relaygs.splat
 gpu = torch.cuda.get_device_name() if torch.cuda.is_available() else 'no GPU'
 print('torch', torch.__version__, 'triton', triton.__version__, gpu)"
-step parity 120 "$PYTHON" -m pytest -q -p no:cacheprovider -k cuda \
+step parity 100 "$PYTHON" -m pytest -q -p no:cacheprovider -k cuda \
   tests/test_splat_triton_cuda.py tests/test_splat_parity.py
-step splat 70 "$PYTHON" -m relaygs.bench splat --device "$DEVICE" --backends "$BACKENDS" \
+step splat 60 "$PYTHON" -m relaygs.bench splat --device "$DEVICE" --backends "$BACKENDS" \
   --cases "$SPLAT_CASES" --json "$WORK/splat.json"
-step train 150 "$PYTHON" -m relaygs.bench train --device "$DEVICE" --backends "$BACKENDS" \
-  --steps 20 --cache "$WORK/cache" --json "$WORK/train.json"
-step job 250 "$PYTHON" -m relaygs.run "train.device=$DEVICE" train.progress=false \
+step job 230 "$PYTHON" -m relaygs.run "train.device=$DEVICE" train.progress=false \
   "paths.outputs=$WORK/outputs"
-step profile 90 "$PYTHON" tools/gpu_profile.py --device "$DEVICE" --backend "${BACKENDS##*,}" \
+step train 90 "$PYTHON" -m relaygs.bench train --device "$DEVICE" --backends "$BACKENDS" \
+  --steps 20 --repeats 2 --cache "$WORK/cache" --json "$WORK/train.json"
+step profile 50 "$PYTHON" tools/gpu_profile.py --device "$DEVICE" --backend "${BACKENDS##*,}" \
   --steps 40 --cache "$WORK/cache"
 
 RESULT=$(find "$WORK/outputs/runs" -name result.json 2>/dev/null | head -n 1)
@@ -140,4 +142,5 @@ cat "$REPORT/summary.md"
 cp "$WORK/splat.json" "$WORK/train.json" "$REPORT/" 2>/dev/null
 [ -n "${RESULT:-}" ] && cp "$RESULT" "$REPORT/result.json"
 tail -n 40 "$WORK"/logs/*.log >"$REPORT/logs.txt"
+tar -czf "$REPORT/logs.tgz" -C "$WORK" logs
 ! grep -qv $'\tok\t' "$STEPS"
