@@ -180,3 +180,47 @@ def dome_cameras(width: int, height: int) -> list[Camera]:
         )
         for index, rig in enumerate(dome_rig(width, height))
     ]
+
+
+def projection_inputs(scene: dict) -> tuple:
+    """A scene's arguments of `project_gaussians` (factors from its quats and scales)."""
+    from relaygs.splat.projection import covariance_factor
+
+    factors = covariance_factor(scene["quats"], scene["scales"])
+    keys = ("opacities", "viewmats", "Ks", "width", "height")
+    return (scene["means"], factors, *(scene[k] for k in keys))
+
+
+def assert_projection_matches_torch(project, dtype) -> None:
+    """`project` against the torch projection on a scene where some centres leave the frustum
+    (clamped Jacobian), fall behind the near plane or outside the image: the same boxes and
+    visibility, values and gradients to rounding."""
+    from relaygs.splat.projection import project_gaussians
+
+    scene = random_scene(600, seed=2, num_cameras=3, dtype=dtype, scale_range=(0.01, 0.6))
+    scene["means"] = scene["means"] * torch.tensor([3.0, 3.0, 1.5], dtype=dtype) - 0.6
+    results = []
+    for run in (project_gaussians, project):
+        weights = torch.Generator().manual_seed(7)
+        inputs = with_grad({k: scene[k] for k in ("means", "quats", "scales")})
+        proj = run(*projection_inputs({**scene, **inputs}))
+        loss = sum(
+            (getattr(proj, name) * torch.randn(getattr(proj, name).shape, generator=weights,
+                                               dtype=dtype)).sum()
+            for name in ("means2d", "conics", "depths")
+        )  # fmt: skip
+        loss.backward()
+        results.append((proj, {k: v.grad for k, v in inputs.items()}))
+    (expected, expected_grads), (got, grads) = results
+    visible = expected.visible
+    assert 0 < int(visible.sum()) < visible.numel()  # some pairs culled, most not
+    for name in ("radii", "visible", "bounds"):  # same boxes (no value here sits on an edge)
+        assert torch.equal(getattr(got, name), getattr(expected, name)), name
+    tol = 1e-5 if dtype == torch.float32 else 1e-12
+    for name in ("depths", "means2d", "conics"):  # rounding differs (summation order)
+        value = getattr(expected, name)
+        scale = float(value.detach().abs().max())
+        torch.testing.assert_close(getattr(got, name), value, rtol=tol, atol=tol * scale)
+    for key, grad in expected_grads.items():
+        rel = (grads[key] - grad).norm() / grad.norm()
+        assert rel < tol * 10, key

@@ -23,9 +23,11 @@ from splat_scenes import (
     HARD_WIDTH,
     KEPT,
     LEARNABLE,
+    assert_projection_matches_torch,
     assert_render_matches,
     camera_rig,
     hard_scene,
+    projection_inputs,
     random_scene,
     render_and_grads,
     with_grad,
@@ -40,6 +42,30 @@ def test_the_kernels_run_in_the_interpreter():
     from relaygs.splat import triton as gpu
 
     assert gpu.available() and gpu.interpreted()
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64], ids=["float32", "float64"])
+def test_the_projection_kernels_match_the_torch_projection(dtype):
+    from relaygs.splat.triton.projection import project_gaussians_triton
+
+    assert_projection_matches_torch(project_gaussians_triton, dtype)
+
+
+def test_the_projection_gradients_match_finite_differences():
+    from relaygs.splat.fused_projection import FusedProjectGaussians
+    from relaygs.splat.triton.projection import TRITON_PROJECTION
+
+    scene = random_scene(12, seed=4, num_cameras=2, dtype=torch.float64)
+    means, factors, opacities, viewmats, Ks, width, height = projection_inputs(scene)
+    cameras = (viewmats, Ks, (width, height, 0.01, 1e10, 0.3))
+
+    def projected(means: torch.Tensor, factors: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        out = FusedProjectGaussians.apply(TRITON_PROJECTION, means, factors, opacities, *cameras)
+        return out[:3]
+
+    assert torch.autograd.gradcheck(
+        projected, (means.requires_grad_(), factors.detach().requires_grad_())
+    )
 
 
 RANDOM_CASES = {

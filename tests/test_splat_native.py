@@ -18,12 +18,18 @@ import torch
 from relaygs.errors import InputError
 from relaygs.field.hexplane import second_difference_energy
 from relaygs.splat import rasterization, use_backend
+from relaygs.splat.fused_projection import FusedProjectGaussians
 from relaygs.splat.native import build
 from relaygs.splat.native.binning import bin_gaussians_native
-from relaygs.splat.native.projection import NativeProjectGaussians, project_gaussians_native
-from relaygs.splat.projection import covariance_factor, project_gaussians
+from relaygs.splat.native.projection import NATIVE_PROJECTION, project_gaussians_native
 from relaygs.splat.tiles import bin_gaussians
-from splat_scenes import random_scene, render_and_grads, with_grad
+from splat_scenes import (
+    assert_projection_matches_torch,
+    projection_inputs,
+    random_scene,
+    render_and_grads,
+    with_grad,
+)
 
 pytestmark = pytest.mark.usefixtures("native_kernel")
 
@@ -51,52 +57,19 @@ def test_native_binning_equals_the_torch_binning(tile_size, cams, width, height)
     assert got.busy_tiles.numel() == int((got.tile_count > 0).sum())
 
 
-def _projection_inputs(scene: dict) -> tuple:
-    factors = covariance_factor(scene["quats"], scene["scales"])
-    keys = ("opacities", "viewmats", "Ks", "width", "height")
-    return (scene["means"], factors, *(scene[k] for k in keys))
-
-
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
 def test_native_projection_equals_the_torch_projection(dtype):
-    # wide Gaussians and a wide spread: some centres leave the frustum (clamped Jacobian),
-    # some fall behind the near plane or outside the image
-    scene = random_scene(600, seed=2, num_cameras=3, dtype=dtype, scale_range=(0.01, 0.6))
-    scene["means"] = scene["means"] * torch.tensor([3.0, 3.0, 1.5], dtype=dtype) - 0.6
-    results = []
-    for project in (project_gaussians, project_gaussians_native):
-        weights = torch.Generator().manual_seed(7)
-        inputs = with_grad({k: scene[k] for k in ("means", "quats", "scales")})
-        proj = project(*_projection_inputs({**scene, **inputs}))
-        loss = sum(
-            (getattr(proj, name) * torch.randn(getattr(proj, name).shape, generator=weights,
-                                               dtype=dtype)).sum()
-            for name in ("means2d", "conics", "depths")
-        )  # fmt: skip
-        loss.backward()
-        results.append((proj, {k: v.grad for k, v in inputs.items()}))
-    (expected, expected_grads), (got, grads) = results
-    visible = expected.visible
-    assert 0 < int(visible.sum()) < visible.numel()  # some pairs culled, most not
-    for name in ("radii", "visible", "bounds"):  # same boxes (no value here sits on an edge)
-        assert torch.equal(getattr(got, name), getattr(expected, name)), name
-    tol = 1e-5 if dtype == torch.float32 else 1e-12
-    for name in ("depths", "means2d", "conics"):  # rounding differs (summation order)
-        value = getattr(expected, name)
-        scale = float(value.detach().abs().max())
-        torch.testing.assert_close(getattr(got, name), value, rtol=tol, atol=tol * scale)
-    for key, grad in expected_grads.items():
-        rel = (grads[key] - grad).norm() / grad.norm()
-        assert rel < tol * 10, key
+    assert_projection_matches_torch(project_gaussians_native, dtype)
 
 
 def test_native_projection_gradients_match_finite_differences():
     scene = random_scene(12, seed=4, num_cameras=2, dtype=torch.float64)
-    means, factors, opacities, viewmats, Ks, width, height = _projection_inputs(scene)
+    means, factors, opacities, viewmats, Ks, width, height = projection_inputs(scene)
     settings = (width, height, 0.01, 1e10, 0.3)
+    cameras = (viewmats, Ks, settings)
 
     def projected(means: torch.Tensor, factors: torch.Tensor) -> tuple[torch.Tensor, ...]:
-        out = NativeProjectGaussians.apply(means, factors, opacities, viewmats, Ks, settings)
+        out = FusedProjectGaussians.apply(NATIVE_PROJECTION, means, factors, opacities, *cameras)
         return out[:3]
 
     assert torch.autograd.gradcheck(
@@ -107,7 +80,7 @@ def test_native_projection_gradients_match_finite_differences():
 def test_native_projection_of_differentiable_cameras_takes_the_torch_path():
     scene = random_scene(50, seed=1, num_cameras=2)
     viewmats = scene["viewmats"].clone().requires_grad_()
-    proj = project_gaussians_native(*_projection_inputs({**scene, "viewmats": viewmats}))
+    proj = project_gaussians_native(*projection_inputs({**scene, "viewmats": viewmats}))
     proj.means2d.sum().backward()
     assert viewmats.grad is not None and viewmats.grad.abs().sum() > 0
 

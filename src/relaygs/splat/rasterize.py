@@ -35,6 +35,7 @@ from relaygs.splat.tiles import (
     tiles_touched_by,
 )
 from relaygs.splat.triton.composite import TritonCompositeGaussians
+from relaygs.splat.triton.projection import project_gaussians_triton
 
 RENDER_MODES = ("RGB", "D", "RGB+D")
 BACKENDS = ("auto", "torch", "native", "triton")
@@ -351,7 +352,7 @@ NATIVE_BACKEND = Backend(
     "native", project_gaussians_native, bin_gaussians_native, NativeCompositeGaussians
 )
 TRITON_BACKEND = Backend(
-    "triton", project_gaussians, bin_gaussians_all_tiles, TritonCompositeGaussians
+    "triton", project_gaussians_triton, bin_gaussians_all_tiles, TritonCompositeGaussians
 )
 
 

@@ -1,7 +1,8 @@
-"""The GPU path of the splatting core: Triton kernels compositing forward and backward on
-CUDA tensors (`kernels`, imported on first use), behind the contract of the torch path
-(`relaygs.splat.composite`). With TRITON_INTERPRET=1 set before they are first used, the
-same kernels run on CPU tensors in Triton's interpreter, which is how the tests check them."""
+"""The GPU path of the splatting core: Triton kernels projecting (`project_kernels`) and
+compositing (`kernels`) forward and backward on CUDA tensors, imported on first use, behind
+the contracts of the torch path (`relaygs.splat.projection`, `relaygs.splat.composite`). With
+TRITON_INTERPRET=1 set before they are first used, the same kernels run on CPU tensors in
+Triton's interpreter, which is how the tests check them."""
 
 from __future__ import annotations
 
