@@ -55,9 +55,12 @@ def test_the_projection_gradients_match_finite_differences():
     from relaygs.splat.fused_projection import FusedProjectGaussians
     from relaygs.splat.triton.projection import TRITON_PROJECTION
 
-    scene = random_scene(12, seed=4, num_cameras=2, dtype=torch.float64)
+    scene = random_scene(4, seed=5, num_cameras=2, dtype=torch.float64)  # the interpreter is slow
     means, factors, opacities, viewmats, Ks, width, height = projection_inputs(scene)
     cameras = (viewmats, Ks, (width, height, 0.01, 1e10, 0.3))
+    assert FusedProjectGaussians.apply(TRITON_PROJECTION, means, factors, opacities, *cameras)[
+        4
+    ].all()  # every pair visible, so every gradient path is checked
 
     def projected(means: torch.Tensor, factors: torch.Tensor) -> tuple[torch.Tensor, ...]:
         out = FusedProjectGaussians.apply(TRITON_PROJECTION, means, factors, opacities, *cameras)
