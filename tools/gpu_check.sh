@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The GPU path's check on one CUDA machine, end to end in under 10 minutes, each step under
-# its own time limit (560 s in all, the most telling first): the CUDA parity tests (Triton
+# its own time limit (550 s in all, the most telling first): the CUDA parity tests (Triton
 # kernels and torch on the GPU against the reference and the CPU), `bench splat` of torch
 # against triton, the default job on CUDA, `bench train` of both backends and a profile of
 # each stage's steps (tools/gpu_profile.py: launches and host reads per step, how busy the
@@ -62,15 +62,15 @@ step env 30 "$PYTHON" -c "import torch, triton, hydra, relaygs.splat
 gpu = torch.cuda.get_device_name() if torch.cuda.is_available() else 'no GPU'
 print('torch', torch.__version__, 'triton', triton.__version__, gpu)"
 step parity 100 "$PYTHON" -m pytest -q -p no:cacheprovider -k cuda \
-  tests/test_splat_triton_cuda.py tests/test_splat_parity.py
+  tests/test_splat_triton_cuda.py tests/test_splat_parity.py tests/test_cuda_stages.py
 step splat 60 "$PYTHON" -m relaygs.bench splat --device "$DEVICE" --backends "$BACKENDS" \
   --cases "$SPLAT_CASES" --json "$WORK/splat.json"
-step job 230 "$PYTHON" -m relaygs.run "train.device=$DEVICE" train.progress=false \
+step job 200 "$PYTHON" -m relaygs.run "train.device=$DEVICE" train.progress=false \
   "paths.outputs=$WORK/outputs"
-step train 90 "$PYTHON" -m relaygs.bench train --device "$DEVICE" --backends "$BACKENDS" \
+step train 80 "$PYTHON" -m relaygs.bench train --device "$DEVICE" --backends "$BACKENDS" \
   --steps 20 --repeats 2 --cache "$WORK/cache" --json "$WORK/train.json"
-step profile 50 "$PYTHON" tools/gpu_profile.py --device "$DEVICE" --backend "${BACKENDS##*,}" \
-  --steps 40 --cache "$WORK/cache"
+step profile 80 "$PYTHON" tools/gpu_profile.py --device "$DEVICE" --backend "${BACKENDS##*,}" \
+  --steps 20 --cache "$WORK/cache"
 
 RESULT=$(find "$WORK/outputs/runs" -name result.json 2>/dev/null | head -n 1)
 "$PYTHON" - "$STEPS" "$WORK" "${RESULT:-}" >"$REPORT/summary.md" <<'EOF'
