@@ -90,9 +90,8 @@ def _row_colors(colors, gid, valid, channels, CHANNELS: tl.constexpr):
 def _weighted_colors(weight, colors, gid, valid, channels, CHANNELS: tl.constexpr):
     """Per pixel and channel [P, CHANNELS], Σ_b weight[p, b] · colour of Gaussian gid[b], the
     batch as the last axis. Written as sum(w[:, :, None] · c[None], axis=1), Triton's compiler
-    turns it into a matrix
-    product once CHANNELS >= 16, whose tensor-core form is wrong for batches under 8 and
-    TF32-rounded above (seen on an H200 with Triton 3.6: 32 channels off by up to 0.9)."""
+    turns it into a matrix product once CHANNELS >= 16, whose tensor-core form is wrong for
+    batches under 8 and TF32-rounded above (an H200 with Triton 3.6: 32 channels off by 0.9)."""
     ch = tl.arange(0, CHANNELS)
     mask = (ch[:, None] < channels) & valid[None, :]
     columns = tl.load(colors + gid[None, :] * channels + ch[:, None], mask=mask, other=0.0)
