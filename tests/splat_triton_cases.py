@@ -66,9 +66,9 @@ def test_the_projection_gradients_match_finite_differences():
         out = FusedProjectGaussians.apply(TRITON_PROJECTION, means, factors, opacities, *cameras)
         return out[:3]
 
-    assert torch.autograd.gradcheck(
-        projected, (means.requires_grad_(), factors.detach().requires_grad_())
-    )
+    inputs = (means.requires_grad_(), factors.detach().requires_grad_())
+    # fast mode checks random projections of the Jacobian: 3 kernel calls instead of ~150
+    assert torch.autograd.gradcheck(projected, inputs, fast_mode=True)
 
 
 RANDOM_CASES = {
