@@ -78,6 +78,7 @@ RANDOM_CASES = {
         {"backgrounds": torch.tensor([[0.2, 0.5, 0.1], [1.0, 0.0, 0.3]])},
     ),
     "five channels, tile 5": ({"n": 40, "seed": 2, "channels": 5}, {"tile_size": 5}),
+    "antialiased": ({"n": 50, "seed": 6}, {"rasterize_mode": "antialiased"}),
     "rgb and depth": ({"n": 50, "seed": 3}, {"render_mode": "RGB+D"}),
     "depth only, tile 16": (
         {"n": 50, "seed": 4, "width": 20},

@@ -18,36 +18,36 @@ SCENE = SimpleNamespace(fingerprint="pinned-scene", num_frames=64)
 
 PINNED = {
     "pipeline=relaygs": {
-        "decouple": "10647e19df924c3b",
-        "relay": "ebd49aacb483e62a",
-        "deform": "7a82dd54034fda46",
+        "decouple": "88c965ef8b3f3aec",
+        "relay": "962f79762e8b6322",
+        "deform": "caf0115f4a8f1865",
     },
-    "pipeline=4dgs": {"warmup": "75a65f60ac205411", "deform": "f762d9028c22c2c8"},
+    "pipeline=4dgs": {"warmup": "e10663705da9d570", "deform": "2cf50733c0f87eb8"},
     "pipeline=no_stage2": {
-        "decouple": "10647e19df924c3b",
-        "replicate": "c4baf092cf838273",
-        "deform": "8f95ba72dd1a6aed",
+        "decouple": "88c965ef8b3f3aec",
+        "replicate": "4b61fe55302490bb",
+        "deform": "b4e638164531c860",
     },
-    "pipeline=no_copies": {"decouple": "10647e19df924c3b", "deform": "804d5ae7901675e8"},
+    "pipeline=no_copies": {"decouple": "88c965ef8b3f3aec", "deform": "1bfe04e101d6312a"},
     "+component=no_gamma": {
-        "decouple": "10647e19df924c3b",
-        "relay": "ebd49aacb483e62a",
-        "deform": "9ecf91f80c8c9e6f",
+        "decouple": "88c965ef8b3f3aec",
+        "relay": "962f79762e8b6322",
+        "deform": "a932538894ff15b2",
     },
     "+component=no_isolation": {
-        "decouple": "10647e19df924c3b",
-        "relay": "ebd49aacb483e62a",
-        "deform": "bbfbaf8d2628bde5",
+        "decouple": "88c965ef8b3f3aec",
+        "relay": "962f79762e8b6322",
+        "deform": "5dab79deb2468d2d",
     },
     "+component=no_pseudo_views": {
-        "decouple": "10647e19df924c3b",
-        "relay": "8798f0f6fab7ff38",
-        "deform": "c88aba98f4c070f2",
+        "decouple": "88c965ef8b3f3aec",
+        "relay": "39ad526c2394eb64",
+        "deform": "9f3e82419a031811",
     },
     "relay.k=128": {
-        "decouple": "10647e19df924c3b",
-        "relay": "01fda0ecd7d0ceba",
-        "deform": "dfb8744d1b9ec574",
+        "decouple": "88c965ef8b3f3aec",
+        "relay": "dfa3db53c1a5417f",
+        "deform": "4b88711e27a82069",
     },
 }
 """Each node's key (its first 16 hex digits) at the default scene settings and `small` budget;

@@ -70,13 +70,15 @@ def _world_point(rot: np.ndarray, trans, pixel, depth: float) -> np.ndarray:
     return rot.T @ (p_cam - np.asarray(trans))
 
 
-def _screen_gaussian(mean, rot_g, scales, rot_cam, trans) -> tuple[np.ndarray, np.ndarray]:
-    """Analytic EWA projection: 2D mean (px) and 2D covariance (px²), blur included."""
+def _screen_gaussian(
+    mean, rot_g, scales, rot_cam, trans, blur: float = EPS2D
+) -> tuple[np.ndarray, np.ndarray]:
+    """Analytic EWA projection: 2D mean (px) and 2D covariance (px²), `blur` included."""
     x, y, z = rot_cam @ mean + np.asarray(trans)
     m = rot_g @ np.diag(scales)
     cov_cam = rot_cam @ m @ m.T @ rot_cam.T
     jac = np.array([[FX / z, 0.0, -FX * x / z**2], [0.0, FY / z, -FY * y / z**2]])
-    cov2d = jac @ cov_cam @ jac.T + EPS2D * np.eye(2)
+    cov2d = jac @ cov_cam @ jac.T + blur * np.eye(2)
     return np.array([FX * x / z + CX, FY * y / z + CY]), cov2d
 
 
@@ -209,6 +211,33 @@ def test_every_pixel_with_alpha_above_the_skip_is_rendered(seed):
     missing = ok & (expected > 0) & (got == 0)
     assert not missing.any(), f"pixels with alpha >= 1/255 not rendered: {np.argwhere(missing)}"
     np.testing.assert_allclose(got[ok], expected[ok], rtol=0, atol=1e-9)
+
+
+def test_antialiased_mode_keeps_a_small_gaussians_screen_integral():
+    """Mip-Splatting's 2D filter: the blurred covariance B = Σ + 0.3·I as in classic mode, the
+    opacity scaled by √(det Σ / det B), so o·2π√det Σ, the splat's screen integral without the
+    blur, is kept: a Gaussian of a few tenths of a pixel no longer renders as a bright pixel."""
+    axis, angle = [0.2, 0.7, -0.4], 0.6
+    scales = np.array([0.012, 0.004, 0.008])  # under half a pixel on screen
+    mean = _world_point(CAM_ROT, CAM_T, (24.3, 19.6), 2.0)
+    rot_g = _rodrigues(axis, angle)
+    mean2d, blurred = _screen_gaussian(mean, rot_g, scales, CAM_ROT, CAM_T)
+    _, sharp = _screen_gaussian(mean, rot_g, scales, CAM_ROT, CAM_T, blur=0.0)
+    factor = math.sqrt(np.linalg.det(sharp) / np.linalg.det(blurred))
+    assert 0.05 < factor < 0.9, "the blur should dominate the splat"
+    viewmats, Ks = _camera(CAM_ROT, CAM_T)
+
+    _, alphas, _ = _render(
+        [mean], [_quat_wxyz(axis, angle)], [scales], [0.9], [[1.0]], viewmats, Ks,
+        rasterize_mode="antialiased",
+    )  # fmt: skip
+
+    raw = _raw_alpha(mean2d, blurred, 0.9 * factor)
+    ok = _away_from_skip(raw)
+    assert (_alpha(raw) > 0).sum() >= 4
+    np.testing.assert_allclose(alphas[0, ..., 0].numpy()[ok], _alpha(raw)[ok], rtol=0, atol=1e-9)
+    integral = 0.9 * 2 * math.pi * math.sqrt(np.linalg.det(sharp))
+    assert alphas.sum().item() == pytest.approx(integral, rel=0.05)  # pixels skipped: < 5 %
 
 
 def test_opaque_gaussian_alpha_is_clamped_at_0_99():

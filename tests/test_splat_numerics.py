@@ -38,10 +38,11 @@ def _assert_all_finite(colors, alphas, grads):
         assert grad is not None and torch.isfinite(grad).all(), f"non-finite gradient of {key}"
 
 
+@pytest.mark.parametrize("mode", ["classic", "antialiased"])
 @pytest.mark.parametrize("hard", CULLED.values(), ids=CULLED.keys())
-def test_culled_gaussian_is_finite_and_gets_exactly_zero_gradient(hard):
+def test_culled_gaussian_is_finite_and_gets_exactly_zero_gradient(hard, mode):
     scene = with_grad(hard_scene(hard))
-    colors, alphas, meta, grads = render_and_grads(rasterization, scene)
+    colors, alphas, meta, grads = render_and_grads(rasterization, scene, rasterize_mode=mode)
     _assert_all_finite(colors, alphas, grads)
     assert meta["radii"][0, 2].tolist() == [0, 0]
     for key in LEARNABLE:
@@ -81,11 +82,15 @@ def test_nothing_in_view_renders_the_background_with_zero_gradient(render_mode):
         assert grad is None or torch.all(grad == 0), f"gradient on {key} with nothing in view"
 
 
+@pytest.mark.parametrize("mode", ["classic", "antialiased"])
 @pytest.mark.parametrize("hard", KEPT.values(), ids=KEPT.keys())
-def test_hard_but_visible_gaussian_is_finite_and_matches_reference(hard):
+def test_hard_but_visible_gaussian_is_finite_and_matches_reference(hard, mode):
+    """Also in the antialiased mode, whose opacity factor vanishes for a zero-area Gaussian."""
     scene = with_grad(hard_scene(hard, dtype=torch.float64))
-    colors, alphas, meta, grads = render_and_grads(rasterization, scene)
-    ref_colors, ref_alphas, _, ref_grads = render_and_grads(rasterization_reference, scene)
+    colors, alphas, meta, grads = render_and_grads(rasterization, scene, rasterize_mode=mode)
+    ref_colors, ref_alphas, _, ref_grads = render_and_grads(
+        rasterization_reference, scene, rasterize_mode=mode
+    )
     _assert_all_finite(colors, alphas, grads)
     assert meta["radii"][0, 2].min() > 0
     torch.testing.assert_close(colors, ref_colors, rtol=0, atol=1e-9)

@@ -92,6 +92,19 @@ def test_cuda_matches_cpu_forward_and_backward(case, dtype):
         _assert_grads_close_float32(on_cpu, cpu[3])
 
 
+@pytest.mark.parametrize("eps2d", [0.1, 0.3])
+def test_antialiased_mode_matches_reference(eps2d):
+    """The opacity factor's gradient reaches the conics and through them the projection."""
+    scene = with_grad(_scene(9, 150, 2, 40, 32, 3, True, torch.float64), extra=("backgrounds",))
+    options = {"rasterize_mode": "antialiased", "eps2d": eps2d}
+    colors, _, _, fast = render_and_grads(rasterization, scene, **options)
+    ref_colors, _, _, ref = render_and_grads(rasterization_reference, scene, **options)
+    classic, _, _, _ = render_and_grads(rasterization, scene, eps2d=eps2d)
+    torch.testing.assert_close(colors, ref_colors, rtol=0, atol=1e-9)
+    assert (colors - classic).abs().max() > 1e-3, "the opacity factor should change the image"
+    _assert_grads_close(fast, ref)
+
+
 def test_gradients_match_reference_float32():
     scene = with_grad(_scene(5, 200, 2, 40, 32, 3, True, torch.float32), extra=("backgrounds",))
     _, _, _, fast = render_and_grads(rasterization, scene)

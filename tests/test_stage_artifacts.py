@@ -97,6 +97,7 @@ def _tiny_deformed() -> Artifact:
         (lambda meta, tensors: ({**meta, "field": "x"}, tensors), "its field does not match"),
         (lambda meta, tensors: ({**meta, "eps2d": -1.0}, tensors), "meta 'eps2d'"),
         (lambda meta, tensors: ({**meta, "eps2d": "0.1"}, tensors), "meta 'eps2d'"),
+        (lambda meta, tensors: ({**meta, "antialiased": 1}, tensors), "meta 'antialiased'"),
         (
             lambda meta, tensors: ({**meta, "field": {**meta["field"], "width": 5}}, tensors),
             "its field does not match its settings (Error(s) in loading state_dict",
@@ -120,22 +121,28 @@ def test_meta_or_module_tensors_that_do_not_fit_are_an_input_error(edit, message
 def test_a_model_renders_with_the_blur_its_stage_trained_with(
     stage_decoupled: Artifact, stage_deformed: Artifact, stage_scene: Scene
 ) -> None:
-    """The stage's `train.eps2d` is recorded in its artifact and every render of the model uses
-    it; an artifact written before it was recorded renders with 3DGS's 0.3, as it trained."""
-    trained = TrainSettings().eps2d
-    assert trained != 0.3
+    """The stage's `train.eps2d` and `train.antialiased` are recorded in its artifact and every
+    render of the model uses them; an artifact written before they were recorded renders with
+    3DGS's classic 0.3, as it trained."""
+    trained = TrainSettings().blur()
+    assert trained["eps2d"] != 0.3
     for artifact in (stage_decoupled, stage_deformed):
-        assert artifact.meta["eps2d"] == artifact.meta["config"]["train"]["eps2d"] == trained
+        for name, value in trained.items():
+            assert artifact.meta[name] == artifact.meta["config"]["train"][name] == value
     camera = stage_scene.test_cameras[0]
     model = SceneModel.from_artifact(stage_deformed)
     recorded = render_model(stage_deformed, camera, 0.5)
     renderer = ModelRenderer(model)
-    direct = splat(renderer.parts_at(0.5), [camera], renderer.sh_degree, eps2d=trained).images[0]
+    direct = splat(renderer.parts_at(0.5), [camera], renderer.sh_degree, **trained).images[0]
     assert torch.equal(recorded, direct.clamp(0.0, 1.0))
-    older = {k: v for k, v in stage_deformed.meta.items() if k != "eps2d"}
-    assert SceneModel.from_artifact(Artifact("deform", stage_deformed.tensors, older)).eps2d == 0.3
+    older = {k: v for k, v in stage_deformed.meta.items() if k not in trained}
+    old_model = SceneModel.from_artifact(Artifact("deform", stage_deformed.tensors, older))
+    assert (old_model.eps2d, old_model.antialiased) == (0.3, False)
     blurred = render_model(Artifact("deform", stage_deformed.tensors, older), camera, 0.5)
     assert (blurred - recorded).abs().max() > 1e-3
+    toggled = {**stage_deformed.meta, "antialiased": not trained["antialiased"]}
+    other_mode = render_model(Artifact("deform", stage_deformed.tensors, toggled), camera, 0.5)
+    assert (other_mode - recorded).abs().max() > 1e-3
 
 
 def test_segment_buffers_are_made_on_the_device_of_the_set() -> None:

@@ -186,6 +186,7 @@ def test_bad_section_values_name_the_key(stage: str, section: dict, needle: str)
         ({"train": {"ssim_weight": 2.0}}, "train.ssim_weight"),
         ({"train": {"eps2d": -0.1}}, "train.eps2d"),
         ({"train": {"eps2d": float("inf")}}, "train.eps2d"),
+        ({"train": {"antialiased": "sometimes"}}, "antialiased"),
         ({"train": {"device": "warp-drive"}}, "train.device"),
         ({"train": {"device": "meta"}}, "train.device: expected 'cpu', 'cuda'"),
         ({"train": {"wandb": True}}, "wandb"),

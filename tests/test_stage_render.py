@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import pytest
 import torch
 
 from relaygs.data import Camera
@@ -25,19 +26,21 @@ def _sets() -> tuple[GaussianSet, GaussianSet]:
     return sets[0], sets[1]
 
 
-def _render_and_grads(frozen: FrozenRenders | None):
+def _render_and_grads(frozen: FrozenRenders | None, antialiased: bool = False):
     background, foreground = _sets()
     parts = [part_of("bg", background, 1, frozen=True), part_of("fg", foreground, 1)]
-    render = splat(parts, dome_cameras(WIDTH, HEIGHT)[:3], 1, frozen, eps2d=EPS2D)
+    cameras = dome_cameras(WIDTH, HEIGHT)[:3]
+    render = splat(parts, cameras, 1, frozen, eps2d=EPS2D, antialiased=antialiased)
     weights = torch.linspace(-1.0, 1.0, WIDTH * 3).repeat(HEIGHT, 1).view(HEIGHT, WIDTH, 3)
     sum(((image * weights).sum() for image in render.images), torch.zeros(())).backward()
     grads = {name: param.grad for name, param in foreground.params.items()}
     return render, grads, screen_statistics(render, "fg")
 
 
-def test_splat_with_frozen_renders_matches_a_full_splat():
-    full, full_grads, full_stats = _render_and_grads(None)
-    fast, fast_grads, fast_stats = _render_and_grads(FrozenRenders(EPS2D))
+@pytest.mark.parametrize("antialiased", [False, True])
+def test_splat_with_frozen_renders_matches_a_full_splat(antialiased):
+    full, full_grads, full_stats = _render_and_grads(None, antialiased)
+    fast, fast_grads, fast_stats = _render_and_grads(FrozenRenders(EPS2D, antialiased), antialiased)
     for got, expected in zip(fast.images + fast.alphas, full.images + full.alphas, strict=True):
         torch.testing.assert_close(got, expected, rtol=0, atol=1e-5)
     for name, expected in full_grads.items():

@@ -245,7 +245,7 @@ def flagged_decouple(scene: Scene) -> Artifact:
             foreground, torch.zeros(len(foreground), dtype=torch.int32)
         ),
         segments=SegmentPlan.uniform(scene.num_frames, scene.num_frames),
-        eps2d=TrainSettings().eps2d,
+        **TrainSettings().blur(),
     )
     return model.to_artifact({})
 

@@ -38,6 +38,10 @@ from relaygs.splat.triton.composite import TritonCompositeGaussians
 from relaygs.splat.triton.projection import project_gaussians_triton
 
 RENDER_MODES = ("RGB", "D", "RGB+D")
+RASTERIZE_MODES = ("classic", "antialiased")
+MIN_KEPT_AREA = 1e-8
+"""Smallest det(Σ)/det(Σ + eps2d·I) whose square root `blur_compensation` differentiates: its
+gradient 0.5/√x stays below 5e3 (a Gaussian this flat on screen is compensated to ≤ 1e-4)."""
 BACKENDS = ("auto", "torch", "native", "triton")
 MIN_NEAR_PLANE = 1e-9
 """Smallest near plane: the projection's backward divides by depth², and fx/depth² stays a
@@ -324,6 +328,18 @@ def _leave_out(proj: Projection, camera_mask: torch.Tensor | None) -> Projection
     return dataclasses.replace(proj, visible=keep, radii=radii)
 
 
+def blur_compensation(conics: torch.Tensor, eps2d: float) -> torch.Tensor:
+    """√(det Σ / det(Σ + eps2d·I)) [C,N] from the blurred conics [C,N,3] (Mip-Splatting's 2D
+    filter): the opacity factor that keeps a blurred Gaussian's screen integral, so that a
+    sub-pixel Gaussian spreads to a pixel's footprint without growing brighter. With (a, b, c)
+    the conic of B = Σ + εI, det Σ / det B = 1 − ε(a + c) + ε²(ac − b²), evaluated as
+    (1 − εa)(1 − εc) − (εb)²: in float32 within 1e-4 relative down to a factor of 1e-3, where
+    the expanded sum of four terms near 1 loses 1e-3 (culled rows: 1)."""
+    a, b, c = conics.unbind(-1)
+    kept = (1.0 - eps2d * a) * (1.0 - eps2d * c) - (eps2d * b) ** 2
+    return kept.clamp(MIN_KEPT_AREA, 1.0).sqrt()
+
+
 def finish_depth(render: torch.Tensor, alphas: torch.Tensor, render_mode: str) -> torch.Tensor:
     """Turn the accumulated-depth channel into expected depth (0 where nothing was hit).
 
@@ -450,6 +466,7 @@ def rasterization(
     fixed: FixedLayer | None = None,
     camera_mask: torch.Tensor | None = None,
     backend: str | None = None,
+    rasterize_mode: str = "classic",
 ) -> tuple[torch.Tensor, torch.Tensor, dict[str, Any]]:
     """Render N Gaussians into C cameras; returns colors [C,H,W,D], alphas [C,H,W,1], meta.
 
@@ -469,10 +486,17 @@ def rasterization(
     where triton imports, the native kernels on CPU where they build, else torch), "torch",
     "native" or "triton" (see `select_backend`); None takes the process default
     (`use_backend`, "auto" unless set). `meta["backend"]` names the one used.
+    `rasterize_mode` "classic" adds `eps2d` to each screen covariance as 3DGS does (a
+    sub-pixel Gaussian grows and brightens); "antialiased" also scales its opacity by
+    `blur_compensation`, keeping its screen integral (gsplat's mode of that name).
     """
     _check(
         not isinstance(tile_size, bool) and isinstance(tile_size, int) and tile_size >= 1,
         f"tile_size must be an int >= 1, got {tile_size!r}",
+    )
+    _check(
+        rasterize_mode in RASTERIZE_MODES,
+        f"rasterize_mode must be one of {RASTERIZE_MODES}, got {rasterize_mode!r}",
     )
     if fixed is not None:
         channels = 3 if sh_degree is not None else colors.shape[-1]
@@ -492,6 +516,8 @@ def rasterization(
         means2d.retain_grad()
     bins = chosen.bin(proj.bounds, proj.depths.detach(), proj.visible, width, height, tile_size)
     opac = torch.where(proj.visible, opacities[None], torch.zeros_like(proj.depths))
+    if rasterize_mode == "antialiased":
+        opac = opac * blur_compensation(proj.conics, eps2d)
     render, alphas = chosen.composite.apply(
         means2d, proj.conics, opac, prep.features, prep.backgrounds, proj.bounds,
         _moving_tiles(bins, fixed), width, height, fixed,

@@ -13,7 +13,7 @@ import torch
 
 from relaygs.splat.composite import ALPHA_MAX, T_MIN
 from relaygs.splat.projection import ALPHA_MIN
-from relaygs.splat.rasterize import finish_depth, prepare
+from relaygs.splat.rasterize import blur_compensation, finish_depth, prepare
 
 PIXEL_CHUNK = 1024
 
@@ -102,6 +102,7 @@ def rasterization_reference(
     far_plane: float = 1e10,
     eps2d: float = 0.3,
     render_mode: str = "RGB",
+    rasterize_mode: str = "classic",
 ) -> tuple[torch.Tensor, torch.Tensor, dict[str, Any]]:
     """`relaygs.splat.rasterization`'s images and alphas, computed densely (no tiles, no
     FixedLayer); its meta holds only `means2d`, `radii` and `depths`."""
@@ -111,10 +112,13 @@ def rasterization_reference(
         far_plane=far_plane, eps2d=eps2d, render_mode=render_mode,
     )  # fmt: skip
     proj = prep.proj
+    opac = opacities[None].expand(viewmats.shape[0], -1)
+    if rasterize_mode == "antialiased":
+        opac = opac * blur_compensation(proj.conics, eps2d)
     images, alphas = [], []
     for cam in range(viewmats.shape[0]):
         img, alpha = _render_camera(
-            proj.means2d[cam], proj.conics[cam], opacities, prep.features[cam], proj.bounds[cam],
+            proj.means2d[cam], proj.conics[cam], opac[cam], prep.features[cam], proj.bounds[cam],
             proj.depths[cam], proj.visible[cam],
             None if prep.backgrounds is None else prep.backgrounds[cam], width, height,
         )  # fmt: skip

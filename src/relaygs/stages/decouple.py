@@ -136,7 +136,7 @@ def decouple(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, A
                 part.opacity_factor = straight_through_mask(
                     gaussians.params[MASK], section.mask_threshold
                 )
-            render = splat([part], [view.camera for view in group], degree, eps2d=train.eps2d)
+            render = splat([part], [view.camera for view in group], degree, **train.blur())
             renders.append(render)
             preds += render.images
             targets += [views.image(view) for view in group]
@@ -158,7 +158,7 @@ def decouple(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, A
             foreground, torch.zeros(len(foreground), dtype=torch.int32)
         ),
         segments=SegmentPlan.uniform(scene.num_frames, scene.num_frames),
-        eps2d=train.eps2d,
+        **train.blur(),
     )
     n_fg = len(foreground)
     metrics = {**model.gaussian_counts(), "fg_fraction": n_fg / max(len(final), 1)}

@@ -142,7 +142,7 @@ def deform(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, Any
     seed = int(cfg.get("seed", 0))
     device = train.torch_device()
     source = upstream_model(artifact, scene, STAGE)
-    model = _starting_model(source, section, scene, seed, train.eps2d)
+    model = _starting_model(source, section, scene, seed, train.blur())
     model.to(device)
     session = _session(model, section, scene, seed, device)
     views = TrainViews(scene, device)
@@ -166,7 +166,7 @@ def deform(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, Any
                 frame_time(frame, scene.num_frames),
                 degree,
             )
-            render = splat(parts, [view.camera for view in batch], degree, eps2d=train.eps2d)
+            render = splat(parts, [view.camera for view in batch], degree, **train.blur())
             renders.append(render)
             for view, image in zip(batch, render.images, strict=True):
                 if model.affine is not None:
@@ -191,11 +191,11 @@ def deform(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, Any
 
 
 def _starting_model(
-    source: SceneModel, section: DeformConfig, scene: Scene, seed: int, eps2d: float
+    source: SceneModel, section: DeformConfig, scene: Scene, seed: int, blur: dict[str, Any]
 ) -> SceneModel:
     """The upstream model with γ (init 0) on the foreground, the field and the colour affine (a
     decouple foreground, segment 0 with k = T, is one copy shown at every frame), rendered with
-    this stage's blur `eps2d`."""
+    this stage's `blur` (SceneModel's eps2d and antialiased)."""
     foreground = source.foreground
     if section.gamma:
         foreground = foreground.clone()
@@ -206,7 +206,7 @@ def _starting_model(
         background=source.background,
         foreground=foreground,
         segments=source.segments,
-        eps2d=eps2d,
+        **blur,
         field=build_field(settings, seed),
         field_settings=settings,
     )

@@ -121,7 +121,7 @@ def relay(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, Any]
     views = TrainViews(training, device)
     if section.seed_copies == "carve":
         replica = core_only(source.foreground)
-        renders = BackgroundRenders(source.background, train.eps2d)
+        renders = BackgroundRenders(source.background, **train.blur())
         copies = carved_copies(views, renders, replica, section, segments, seed)
     else:
         copies = replicate_foreground(source.foreground, segments.count).to(device)
@@ -136,7 +136,7 @@ def relay(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, Any]
         background=sets.get("bg", source.background),
         foreground=sets.get("fg", copies),
         segments=segments,
-        eps2d=train.eps2d,
+        **train.blur(),
     ).to("cpu")
     per_segment = torch.bincount(
         model.foreground.buffers[SEGMENT].long(), minlength=model.num_segments
@@ -172,7 +172,7 @@ def _train(
     targets = SegmentTargets(views, segments, section.p, section.pseudo_views)
     empty = source.foreground.subset(torch.zeros(0, dtype=torch.int64))
     # A frozen background looks the same at every step: render it once per camera.
-    frozen = FrozenRenders(train.eps2d) if section.freeze_background else None
+    frozen = FrozenRenders(**train.blur()) if section.freeze_background else None
 
     def current() -> tuple[GaussianSet, GaussianSet]:
         return session.sets.get("bg", source.background), session.sets.get("fg", empty)
@@ -194,7 +194,8 @@ def _train(
         mask = None
         if len(slots) > 1:
             mask = slot_mask(background_part.count, [(n, len(r)) for n, r in slots])
-        render = splat([background_part, shown], cameras, degree, frozen, mask, eps2d=train.eps2d)
+        parts = [background_part, shown]
+        render = splat(parts, cameras, degree, frozen, mask, **train.blur())
         loss = photometric_loss(render.images, goals, train.ssim_weight)
         return StepResult(loss, [render], render.images, goals)
 
@@ -248,9 +249,9 @@ def carved_copies(
 class BackgroundRenders:
     """Renders of a static background, one per camera (cached: see FrozenRenders)."""
 
-    def __init__(self, background: GaussianSet, eps2d: float) -> None:
+    def __init__(self, background: GaussianSet, eps2d: float, antialiased: bool = False) -> None:
         self.background = background
-        self._renders = FrozenRenders(eps2d)
+        self._renders = FrozenRenders(eps2d, antialiased)
 
     def images(self, cameras: list[Camera]) -> Tensor:
         """[C,H,W,3] renders clamped to [0, 1], on the CPU, in the order of `cameras`."""

@@ -45,6 +45,7 @@ def replicate(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, 
         foreground=replicate_foreground(source.foreground, segments.count),
         segments=segments,
         eps2d=source.eps2d,
+        antialiased=source.antialiased,
     )
     metrics = {**model.gaussian_counts(), "train_seconds": 0.0}
     return model.to_artifact(stage_meta(SCHEMA_VERSION, section, train, None, metrics))

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import torch
 
@@ -16,13 +16,16 @@ from relaygs.stages.config import Section, require
 @dataclass
 class TrainSettings(Section):
     """`cfg["train"]`, read by every stage; `eps2d` (px²) is added to every projected covariance
-    when the models train and render; downscale None is the paper's rule (`downscale_for`), an
-    integer forces that factor on every stage. Periods are in steps."""
+    when the models train and render, and `antialiased` scales each splat's opacity so that the
+    blur keeps its screen integral (Mip-Splatting's 2D filter); downscale None is the paper's
+    rule (`downscale_for`), an integer forces that factor on every stage. Periods are in
+    steps."""
 
     section: ClassVar[str] = "train"
     batch_views: int = 4
     ssim_weight: float = 0.2
     eps2d: float = 0.1
+    antialiased: bool = True
     downscale: int | None = None
     half_res_width: int = 320
     log_every: int = 100
@@ -43,6 +46,10 @@ class TrainSettings(Section):
         require(self.image_every >= 0, "train.image_every", self.image_every, "an int >= 0")
         require(self.checkpoint_every >= 1, "train.checkpoint_every", self.checkpoint_every, ">= 1")
         parse_device(self.device, "train.device")  # usable here is checked where the job runs
+
+    def blur(self) -> dict[str, Any]:
+        """The screen blur as the keyword arguments of `splat`, FrozenRenders and SceneModel."""
+        return {"eps2d": self.eps2d, "antialiased": self.antialiased}
 
     def torch_device(self) -> torch.device:
         """The training device, once this machine is known to allocate there."""

@@ -74,7 +74,8 @@ def warmup(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, Any
         gaussians = session.sets[SET]
         degree = gaussians.active_sh_degree
         cameras = [view.camera for view in batch]
-        render = splat([part_of(SET, gaussians, degree)], cameras, degree, eps2d=train.eps2d)
+        part = part_of(SET, gaussians, degree)
+        render = splat([part], cameras, degree, **train.blur())
         targets = [views.image(view) for view in batch]
         loss = photometric_loss(render.images, targets, train.ssim_weight)
         return StepResult(loss, [render], render.images, targets)
@@ -90,7 +91,7 @@ def warmup(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, Any
         background=background,
         foreground=foreground_with_segments(empty, torch.zeros(0, dtype=torch.int32)),
         segments=SegmentPlan.uniform(scene.num_frames, scene.num_frames),
-        eps2d=train.eps2d,
+        **train.blur(),
     )
     metrics = model.gaussian_counts()
     meta = stage_meta(SCHEMA_VERSION, section, train, report, metrics, downscale=training.downscale)

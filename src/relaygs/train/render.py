@@ -89,8 +89,9 @@ class Render:
 class FrozenRenders:
     """Per camera and SH degree, the frozen parts rendered once, reused by splat.FixedLayer."""
 
-    def __init__(self, eps2d: float) -> None:
+    def __init__(self, eps2d: float, antialiased: bool = False) -> None:
         self.eps2d = eps2d
+        self.antialiased = antialiased
         self._cache: dict[tuple[int, int], tuple[Camera, dict[str, Tensor]]] = {}
 
     def layer(self, parts: list[Part], cameras: list[Camera], sh_degree: int) -> FixedLayer:
@@ -102,7 +103,11 @@ class FrozenRenders:
             # (a stage resumed from a checkpoint starts with an empty cache).
             with torch.no_grad():
                 render = splat(
-                    [p for p in parts if p.frozen], [camera], sh_degree, eps2d=self.eps2d
+                    [p for p in parts if p.frozen],
+                    [camera],
+                    sh_degree,
+                    eps2d=self.eps2d,
+                    antialiased=self.antialiased,
                 )
             meta = render.groups[0][1]
             entry = {name: meta[name][0] for name in (*_PROJECTION_FIELDS, "features")}
@@ -138,11 +143,14 @@ def splat(
     camera_mask: Tensor | None = None,
     *,
     eps2d: float,
+    antialiased: bool = False,
 ) -> Render:
     """Render the concatenated parts into every camera on black (unclamped), `eps2d` px² added
-    to each 2D covariance (the model's, SceneModel.eps2d); with `frozen` and a mix of frozen
-    and trainable parts, its renders give the tiles only frozen Gaussians touch; `camera_mask`
-    [C, rows of all parts] bool leaves row n out of camera c where False."""
+    to each 2D covariance (the model's, SceneModel.eps2d), `antialiased` keeping each splat's
+    screen integral (rasterization's "antialiased" mode, SceneModel.antialiased); with
+    `frozen` and a mix of frozen and trainable parts, its renders give the tiles only frozen
+    Gaussians touch; `camera_mask` [C, rows of all parts] bool leaves row n out of camera c
+    where False."""
     means = torch.cat([p.means for p in parts])
     scales = torch.exp(torch.cat([p.log_scales for p in parts]).clamp(max=MAX_LOG_SCALE))
     quats = normalize_quats(torch.cat([p.quats for p in parts]))
@@ -178,6 +186,7 @@ def splat(
             sh_degree=sh_degree,
             near_plane=group[0].near,
             eps2d=eps2d,
+            rasterize_mode="antialiased" if antialiased else "classic",
             fixed=fixed,
             camera_mask=group_mask,
         )

@@ -29,14 +29,16 @@ EPS2D_BEFORE_RECORDED = 0.3  # what every model was trained and rendered with be
 @dataclass
 class SceneModel:
     """Background + foreground sets, their segments, and optional motion modules; `eps2d` is the
-    screen-space blur (px²) it was trained with and renders with; `affine_cameras` lists the
-    train camera ids in ColorAffine row order."""
+    screen-space blur (px²) it was trained with and renders with, `antialiased` whether that blur
+    keeps each splat's screen integral; `affine_cameras` lists the train camera ids in
+    ColorAffine row order."""
 
     stage: str
     background: GaussianSet
     foreground: GaussianSet
     segments: SegmentPlan
     eps2d: float
+    antialiased: bool = False
     field: DeformationField | None = None
     field_settings: dict[str, Any] | None = None
     affine: ColorAffine | None = None
@@ -94,6 +96,7 @@ class SceneModel:
             ),
             "num_segments": self.num_segments,
             "eps2d": self.eps2d,
+            "antialiased": self.antialiased,
             "counts": {"bg": n_bg, "fg": n_fg, "total": n_bg + n_fg},
             "field": self.field_settings,
             "affine_cameras": list(self.affine_cameras),
@@ -118,6 +121,7 @@ class SceneModel:
             foreground=foreground,
             segments=segments,
             eps2d=_recorded_eps2d(artifact.stage, meta),
+            antialiased=_recorded_antialiased(artifact.stage, meta),
             field_settings=meta.get("field"),
             affine_cameras=list(meta.get("affine_cameras") or []),
         )
@@ -208,6 +212,14 @@ def _recorded_eps2d(stage: str, meta: Mapping[str, Any]) -> float:
     if not (valid and 0.0 <= value < math.inf):
         raise InputError(f"{stage} artifact: meta 'eps2d' is {value!r}, not a number >= 0")
     return float(value)
+
+
+def _recorded_antialiased(stage: str, meta: Mapping[str, Any]) -> bool:
+    """Whether a model's meta records the antialiased blur (one written before: classic)."""
+    value = meta.get("antialiased", False)
+    if not isinstance(value, bool):
+        raise InputError(f"{stage} artifact: meta 'antialiased' is {value!r}, not true or false")
+    return value
 
 
 def _segment_plan(stage: str, meta: Mapping[str, Any]) -> SegmentPlan:
