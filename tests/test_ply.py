@@ -81,8 +81,7 @@ def test_a_frames_ply_renders_what_the_model_renders_at_that_frame(
     assert sum(name.startswith("f_rest_") for name in rows.dtype.names) == 3 * (degree + 1) ** 2 - 3
     camera = stage_scene.test_views[0].camera  # no colour affine: the file has none
     expected = renderer.render([camera], frame_time(frame, model.num_frames))[0]
-    blur = {"eps2d": model.eps2d, "antialiased": model.antialiased}
-    from_file = splat([_part_from(rows)], [camera], degree, **blur).images[0].clamp(0, 1)
+    from_file = splat([_part_from(rows)], [camera], degree, **model.blur()).images[0].clamp(0, 1)
     assert torch.allclose(from_file, expected, atol=1e-5)
 
 

@@ -44,8 +44,7 @@ def replicate(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, 
         background=source.background,
         foreground=replicate_foreground(source.foreground, segments.count),
         segments=segments,
-        eps2d=source.eps2d,
-        antialiased=source.antialiased,
+        **source.blur(),
     )
     metrics = {**model.gaussian_counts(), "train_seconds": 0.0}
     return model.to_artifact(stage_meta(SCHEMA_VERSION, section, train, None, metrics))

@@ -49,9 +49,7 @@ class ModelRenderer:
     def render(self, cameras: list[Camera], time: float) -> list[Tensor]:
         """Images [H,W,3] in [0, 1] of the model at `time`, colour affine on train cameras."""
         model = self.model
-        parts = self.parts_at(time)
-        blur = {"eps2d": model.eps2d, "antialiased": model.antialiased}
-        images = splat(parts, cameras, self.sh_degree, **blur).images
+        images = splat(self.parts_at(time), cameras, self.sh_degree, **model.blur()).images
         out = []
         for camera, image in zip(cameras, images, strict=True):
             row = self._affine_rows.get(camera.camera_id)

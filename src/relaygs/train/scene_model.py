@@ -44,6 +44,10 @@ class SceneModel:
     affine: ColorAffine | None = None
     affine_cameras: list[int] = dataclasses.field(default_factory=list)
 
+    def blur(self) -> dict[str, Any]:
+        """The screen blur it renders with, as the keyword arguments of `splat`."""
+        return {"eps2d": self.eps2d, "antialiased": self.antialiased}
+
     @property
     def num_frames(self) -> int:
         return self.segments.num_frames
