@@ -1,5 +1,7 @@
 """Visual hull of residual masks, and the relay stage's carved starting copies."""
 
+import math
+
 import pytest
 import torch
 
@@ -12,13 +14,15 @@ from relaygs.stages.carve import (
     MAX_FINE_CANDIDATES,
     MAX_REFINED_VOXELS,
     MAX_SUBDIVISIONS,
+    MIN_CAMERAS,
     SUBDIVISIONS,
+    BackgroundRenders,
     HullSettings,
+    _consistent,
     finer_subdivisions,
     residual_masks,
     visual_hull,
 )
-from relaygs.stages.relay import BackgroundRenders
 from relaygs.train.render import part_of, splat
 from relaygs.train.scene_model import SEGMENT, SceneModel
 from splat_scenes import dome_cameras
@@ -77,6 +81,59 @@ def test_a_small_mover_is_refined_to_the_points_wanted() -> None:
     # enough points already: the first pass stands
     enough = HullSettings(coarse_voxels=24, misses=0.0, target_points=len(coarse))
     assert torch.equal(visual_hull(masks, images, cameras, BOUNDS, enough)[0], coarse)
+
+
+@pytest.mark.parametrize(
+    ("misses", "seen_fraction"), [(0.0, 0.0), (0.15, 0.0), (0.4, 0.0), (0.15, 0.5)]
+)
+def test_points_dropped_early_are_those_every_camera_would_reject(misses, seen_fraction) -> None:
+    """The early drop keeps exactly the points (and colours) of counting every camera."""
+    cameras = dome_cameras(WIDTH, HEIGHT)
+    generator = torch.Generator().manual_seed(3)
+    masks = _sphere_masks(cameras, torch.tensor([0.2, 0.1, 1.0]), 0.8)
+    masks ^= torch.rand(masks.shape, generator=generator) < 0.02  # a noisy silhouette
+    images = torch.rand(len(cameras), HEIGHT, WIDTH, 3, generator=generator)
+    points = BOUNDS[0] + (BOUNDS[1] - BOUNDS[0]) * torch.rand(20000, 3, generator=generator)
+    seen = torch.zeros(len(points), dtype=torch.int64)
+    hits = torch.zeros(len(points), dtype=torch.int64)
+    color_sum = torch.zeros(len(points), 3)
+    for index, camera in enumerate(cameras):
+        pixels, inside = camera.project(points, min_depth=0.1 * camera.near)
+        column = pixels[:, 0].floor().long().clamp(0, WIDTH - 1)
+        row = pixels[:, 1].floor().long().clamp(0, HEIGHT - 1)
+        hit = inside & masks[index][row, column]
+        seen, hits = seen + inside.long(), hits + hit.long()
+        color_sum += images[index][row, column] * hit[:, None].float()
+    settings = HullSettings(misses=misses, seen=seen_fraction)
+    needed = max(MIN_CAMERAS, math.ceil(seen_fraction * len(cameras)))
+    expected = (seen >= needed) & (seen - hits <= (misses * seen.float()).floor().long())
+    keep, colors = _consistent(points, masks, cameras, settings, images)
+    assert 50 < int(expected.sum()) < len(points) // 2
+    assert torch.equal(keep, expected)
+    assert torch.equal(colors[keep], (color_sum / hits.clamp_min(1)[:, None].float())[keep])
+
+
+@pytest.mark.parametrize(
+    ("seen", "cameras", "needed"), [(0.5, 27, 14), (0.0, 27, MIN_CAMERAS), (1.0, 5, 5), (0.5, 4, 3)]
+)
+def test_cameras_needed_is_the_seen_fraction_and_min_cameras_at_least(seen, cameras, needed):
+    assert HullSettings(seen=seen).cameras_needed(cameras) == needed
+
+
+def test_a_region_few_cameras_see_is_no_hull_at_the_default_seen_fraction() -> None:
+    """Silhouettes that every camera shows of a blob off to the side: only the cameras that see
+    its corner of the bounds count, so at seen 0 a wide cone of voxels passes; at 0.5 nothing."""
+    cameras = dome_cameras(WIDTH, HEIGHT)
+    center = torch.tensor([0.0, 0.0, 1.0])
+    masks = _sphere_masks(cameras, center, 0.3)
+    images = torch.zeros(len(cameras), HEIGHT, WIDTH, 3)
+    corner = torch.tensor([[4.8, 4.8, 2.8], [5.2, 5.2, 3.2]])  # 5 of 31 cameras see it
+    for settings, expect_points in ((HullSettings(seen=0.0), True), (HullSettings(), False)):
+        edge = visual_hull(torch.ones_like(masks), images, cameras, corner, settings)[0]
+        assert (len(edge) > 0) == expect_points
+    # the mover in the middle, seen by every camera, stays
+    middle = visual_hull(masks, images, cameras, BOUNDS, HullSettings())[0]
+    assert len(middle) > 20 and float((middle - center).norm(dim=1).max()) < 0.6
 
 
 @pytest.mark.parametrize(

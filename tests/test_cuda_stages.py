@@ -54,7 +54,7 @@ def test_carved_copies_join_hull_seeds_and_replicas_on_the_gpu(
     generator = torch.Generator().manual_seed(0)
     hull = (torch.rand(30, 3, generator=generator), torch.rand(30, 3, generator=generator), 0.05)
     monkeypatch.setattr(
-        relay, "_hull_at", lambda views, renders, frame, *_: hull if frame < STAGE_K else None
+        relay, "frame_hull", lambda views, renders, frame, *_: hull if frame < STAGE_K else None
     )
     source = SceneModel.from_artifact(stage_decoupled).to(DEVICE)
     replica = core_only(source.foreground)

@@ -19,8 +19,8 @@ SCENE = SimpleNamespace(fingerprint="pinned-scene", num_frames=64)
 PINNED = {
     "pipeline=relaygs": {
         "decouple": "88c965ef8b3f3aec",
-        "relay": "962f79762e8b6322",
-        "deform": "caf0115f4a8f1865",
+        "relay": "eb1c616583571324",
+        "deform": "0c775e5b500126c6",
     },
     "pipeline=4dgs": {"warmup": "e10663705da9d570", "deform": "2cf50733c0f87eb8"},
     "pipeline=no_stage2": {
@@ -31,23 +31,23 @@ PINNED = {
     "pipeline=no_copies": {"decouple": "88c965ef8b3f3aec", "deform": "1bfe04e101d6312a"},
     "+component=no_gamma": {
         "decouple": "88c965ef8b3f3aec",
-        "relay": "962f79762e8b6322",
-        "deform": "a932538894ff15b2",
+        "relay": "eb1c616583571324",
+        "deform": "97b84d9cc4da56ae",
     },
     "+component=no_isolation": {
         "decouple": "88c965ef8b3f3aec",
-        "relay": "962f79762e8b6322",
-        "deform": "5dab79deb2468d2d",
+        "relay": "eb1c616583571324",
+        "deform": "a16279e09f0f6246",
     },
     "+component=no_pseudo_views": {
         "decouple": "88c965ef8b3f3aec",
-        "relay": "39ad526c2394eb64",
-        "deform": "9f3e82419a031811",
+        "relay": "1498eb78abcb4d09",
+        "deform": "c335c766f8575473",
     },
     "relay.k=128": {
         "decouple": "88c965ef8b3f3aec",
-        "relay": "dfa3db53c1a5417f",
-        "deform": "4b88711e27a82069",
+        "relay": "46af6ee14ffb28da",
+        "deform": "258c74ccb0c809fd",
     },
 }
 """Each node's key (its first 16 hex digits) at the default scene settings and `small` budget;

@@ -112,6 +112,7 @@ INF, NAN = float("inf"), float("nan")
         ("decouple", {"densify": {"often": 3}}, "often"),
         ("relay", {"k": 0}, "relay.k"),
         ("relay", {"p": 0}, "relay.p"),
+        ("relay", {"hull_seen": 1.5}, "relay.hull_seen"),
         ("relay", {"segments_per_step": 0}, "relay.segments_per_step"),
         ("relay", {"densify_fg": {"max_gaussians": 0}}, "relay.densify_fg.max_gaussians"),
         ("relay", {"freeze_background": False, "lr_bg": {"quats": -1.0}}, "relay.lr_bg.quats"),

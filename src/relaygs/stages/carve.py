@@ -12,6 +12,9 @@ from torch import Tensor
 
 from relaygs.data import Camera
 from relaygs.errors import InputError
+from relaygs.model import GaussianSet
+from relaygs.train.render import FrozenRenders, part_of
+from relaygs.train.views import TrainViews
 
 SUBDIVISIONS = 4  # sub-voxels per axis of a kept coarse voxel (first pass)
 MAX_SUBDIVISIONS = 16  # a finer pass resolves movers that a few coarse voxels hold
@@ -24,13 +27,59 @@ MIN_CAMERAS = 3  # a point seen by fewer train cameras cannot be triangulated
 
 @dataclass(frozen=True)
 class HullSettings:
-    """Residual threshold, coarse voxels along the longest axis, tolerated miss fraction, and
-    the hull points wanted (None: one pass at SUBDIVISIONS)."""
+    """Residual threshold, coarse voxels along the longest axis, tolerated miss fraction, the
+    fraction of a frame's cameras that must see a point, and the hull points wanted (None: one
+    pass at SUBDIVISIONS)."""
 
     residual: float = 0.15
     coarse_voxels: int = 48
     misses: float = 0.15
+    seen: float = 0.5
     target_points: int | None = None
+
+    def cameras_needed(self, cameras: int) -> int:
+        """Cameras that must see a point of the hull: `seen` of them, and MIN_CAMERAS at least
+        (a region only a few cameras see, at a rig's edge, is a wide cone, not a mover)."""
+        return max(MIN_CAMERAS, math.ceil(self.seen * cameras))
+
+
+def hull_bounds(cloud: Tensor) -> Tensor:
+    """[2, 3] box of the scene's points padded by 5 % on every side: where hulls are carved."""
+    lower, upper = cloud.min(dim=0).values, cloud.max(dim=0).values
+    pad = 0.05 * (upper - lower).clamp_min(1e-3)
+    return torch.stack([lower - pad, upper + pad])
+
+
+class BackgroundRenders:
+    """Renders of a static background, one per camera (cached: see FrozenRenders)."""
+
+    def __init__(self, background: GaussianSet, eps2d: float, antialiased: bool = False) -> None:
+        self.background = background
+        self._renders = FrozenRenders(eps2d, antialiased)
+
+    def images(self, cameras: list[Camera]) -> Tensor:
+        """[C,H,W,3] renders clamped to [0, 1], on the CPU, in the order of `cameras`."""
+        degree = self.background.active_sh_degree
+        part = part_of("bg", self.background, degree, frozen=True)
+        return self._renders.layer([part], cameras, degree).colors.cpu().clamp(0.0, 1.0)
+
+
+def frame_hull(
+    views: TrainViews,
+    renders: BackgroundRenders,
+    frame: int,
+    bounds: Tensor,
+    settings: HullSettings,
+    generator: torch.Generator,
+) -> tuple[Tensor, Tensor, float] | None:
+    """Hull points, colours, voxel size of the background's misses at `frame` (None: no view)."""
+    frame_views = views.by_frame.get(frame, [])
+    if not frame_views:
+        return None
+    cameras = [view.camera for view in frame_views]
+    images = torch.stack([views.scene.image(view) for view in frame_views])
+    masks = residual_masks(renders.images(cameras), images, settings.residual)
+    return visual_hull(masks, images, cameras, bounds, settings, generator)
 
 
 def residual_masks(renders: Tensor, images: Tensor, threshold: float) -> Tensor:
@@ -67,16 +116,16 @@ def visual_hull(
     axes = [lower[i] + size * (torch.arange(int(counts[i])) + 0.5) for i in range(3)]
     coarse = torch.stack(torch.meshgrid(*axes, indexing="ij"), dim=-1).reshape(-1, 3)
     dilated = F.max_pool2d(masks[:, None].float(), 5, stride=1, padding=2)[:, 0] > 0
-    coarse = coarse[_consistent(coarse, dilated, cameras, settings.misses)[0]]
+    coarse = coarse[_consistent(coarse, dilated, cameras, settings)[0]]
     if len(coarse) > MAX_REFINED_VOXELS:
         pick = torch.randperm(len(coarse), generator=generator)[:MAX_REFINED_VOXELS]
         coarse = coarse[pick.sort().values]
-    hull, occupied = _refined(coarse, size, SUBDIVISIONS, masks, images, cameras, settings.misses)
+    hull, occupied = _refined(coarse, size, SUBDIVISIONS, masks, images, cameras, settings)
     # only the coarse voxels that kept a sub-voxel hold the mover: the dilated pass keeps more
     coarse = coarse[occupied]
     finer = finer_subdivisions(len(hull[0]), settings.target_points, len(coarse))
     if finer > SUBDIVISIONS:
-        hull = _refined(coarse, size, finer, masks, images, cameras, settings.misses)[0]
+        hull = _refined(coarse, size, finer, masks, images, cameras, settings)[0]
     return hull
 
 
@@ -98,7 +147,7 @@ def _refined(
     masks: Tensor,
     images: Tensor,
     cameras: list[Camera],
-    misses: float,
+    settings: HullSettings,
 ) -> tuple[tuple[Tensor, Tensor, float], Tensor]:
     """The sub-voxel centres of `coarse` voxels (edge `size`, `subdivisions`³ each) that the
     masks keep, their mean colours and the sub-voxel size; and which coarse voxels kept any."""
@@ -106,7 +155,7 @@ def _refined(
     steps = (torch.arange(subdivisions) + 0.5) * fine_size - size / 2
     offsets = torch.stack(torch.meshgrid(steps, steps, steps, indexing="ij"), dim=-1)
     fine = (coarse[:, None, :] + offsets.reshape(1, -1, 3)).reshape(-1, 3)
-    keep, colors = _consistent(fine, masks, cameras, misses, images)
+    keep, colors = _consistent(fine, masks, cameras, settings, images)
     occupied = keep.reshape(len(coarse), subdivisions**3).any(dim=1)
     return (fine[keep], colors[keep], fine_size), occupied
 
@@ -115,27 +164,41 @@ def _consistent(
     points: Tensor,
     masks: Tensor,
     cameras: list[Camera],
-    misses: float,
+    settings: HullSettings,
     images: Tensor | None = None,
 ) -> tuple[Tensor, Tensor]:
     """Which points fall in the mask of all but a `misses` fraction of the cameras that see
-    them (at least MIN_CAMERAS), and the mean colour of `images` where they hit."""
+    them (`cameras_needed` at least), and the mean colour of `images` where they hit. A point
+    that can no longer pass (too many misses, or too few cameras left to see it) is dropped
+    from the later cameras' tests: the same points are kept, most of the grid after a few."""
     n = points.shape[0]
+    needed = settings.cameras_needed(len(cameras))
     seen = torch.zeros(n, dtype=torch.int64)
     hits = torch.zeros(n, dtype=torch.int64)
     color_sum = torch.zeros(n, 3)
+    active = torch.arange(n)
     for index, camera in enumerate(cameras):
+        left = len(cameras) - index
+        active = active[_passable(seen[active], hits[active], left, needed, settings.misses)]
         # deeper than 1e-3 at the default near plane
-        pixels, inside = camera.project(points, min_depth=0.1 * camera.near)
+        pixels, inside = camera.project(points[active], min_depth=0.1 * camera.near)
         column, row = pixels[:, 0].floor().long(), pixels[:, 1].floor().long()
         column = column.clamp(0, camera.width - 1)
         row = row.clamp(0, camera.height - 1)
         hit = inside & masks[index][row, column]
-        seen += inside.long()
-        hits += hit.long()
+        seen[active] += inside.long()
+        hits[active] += hit.long()
         if images is not None:
-            color_sum += images[index][row, column] * hit[:, None].float()
-    allowed = (misses * seen.float()).floor().long()
-    keep = (seen >= MIN_CAMERAS) & (hits >= seen - allowed)
+            color_sum[active] += images[index][row, column] * hit[:, None].float()
+    keep = _passable(seen, hits, 0, needed, settings.misses)
     colors = color_sum / hits.clamp_min(1)[:, None].float()
     return keep, colors
+
+
+def _passable(seen: Tensor, hits: Tensor, left: int, needed: int, misses: float) -> Tensor:
+    """Whether a point with these counts is kept if each of `left` further cameras sees and hits
+    it: seen by `needed`, missing at most a `misses` fraction of those that see it (with no
+    cameras left, the keep test itself)."""
+    most_seen = seen + left
+    allowed = (misses * most_seen.float()).floor().long()
+    return (most_seen >= needed) & (seen - hits <= allowed)

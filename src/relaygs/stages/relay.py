@@ -10,12 +10,11 @@ from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 import torch
-from torch import Tensor
 
-from relaygs.data import Camera, Scene
+from relaygs.data import Scene
 from relaygs.model import GaussianSet, paper_schedule
 from relaygs.pipeline.artifact import Artifact
-from relaygs.stages.carve import HullSettings, residual_masks, visual_hull
+from relaygs.stages.carve import BackgroundRenders, HullSettings, frame_hull, hull_bounds
 from relaygs.stages.common import (
     BACKGROUND_LR,
     FOREGROUND_LR,
@@ -67,6 +66,7 @@ class RelayConfig(PerSetSections):
     hull_residual: float = 0.15
     hull_voxels: int = 48
     hull_misses: float = 0.15
+    hull_seen: float = 0.5
     seed_points: int = 1500
     seed_opacity: float = 0.1
     sh_every: int = 1000
@@ -90,6 +90,7 @@ class RelayConfig(PerSetSections):
         require(0.0 < self.hull_residual < 1.0, "relay.hull_residual", self.hull_residual, "(0, 1)")
         require(self.hull_voxels >= 1, "relay.hull_voxels", self.hull_voxels, "an int >= 1")
         require(0.0 <= self.hull_misses < 1.0, "relay.hull_misses", self.hull_misses, "[0, 1)")
+        require(0.0 <= self.hull_seen <= 1.0, "relay.hull_seen", self.hull_seen, "[0, 1]")
         require(self.seed_points >= 1, "relay.seed_points", self.seed_points, "an int >= 1")
         opacity = self.seed_opacity
         require(0.0 < opacity < 1.0, "relay.seed_opacity", opacity, "an opacity in (0, 1)")
@@ -218,15 +219,19 @@ def carved_copies(
 ) -> GaussianSet:
     """One copy per segment, on the replica's device, from the hull at its pseudo frames (thinned
     to `seed_points` at random); a segment whose hull is empty keeps the replica."""
-    cloud = views.scene.points.xyz  # its bounds, padded by 5 % on every side, hold the hulls
-    lower, upper = cloud.min(dim=0).values, cloud.max(dim=0).values
-    pad = 0.05 * (upper - lower).clamp_min(1e-3)
-    bounds = torch.stack([lower - pad, upper + pad])
+    bounds = hull_bounds(views.scene.points.xyz)
+    settings = HullSettings(
+        section.hull_residual,
+        section.hull_voxels,
+        section.hull_misses,
+        section.hull_seen,
+        section.seed_points,
+    )
     generator = torch.Generator().manual_seed(seed)
     copies = []
     for segment in range(segments.count):
         frames = pseudo_frames(segments.frames(segment), section.p)
-        hulls = [_hull_at(views, renders, frame, bounds, section, generator) for frame in frames]
+        hulls = [frame_hull(views, renders, frame, bounds, settings, generator) for frame in frames]
         hulls = [hull for hull in hulls if hull is not None]
         xyz = torch.cat([points for points, _, _ in hulls]) if hulls else torch.zeros(0, 3)
         if len(xyz) == 0:
@@ -244,41 +249,6 @@ def carved_copies(
         seeds.params["log_scales"].fill_(math.log(hulls[0][2]))
         copies.append(_tagged(seeds, segment))
     return functools.reduce(GaussianSet.concat, copies)
-
-
-class BackgroundRenders:
-    """Renders of a static background, one per camera (cached: see FrozenRenders)."""
-
-    def __init__(self, background: GaussianSet, eps2d: float, antialiased: bool = False) -> None:
-        self.background = background
-        self._renders = FrozenRenders(eps2d, antialiased)
-
-    def images(self, cameras: list[Camera]) -> Tensor:
-        """[C,H,W,3] renders clamped to [0, 1], on the CPU, in the order of `cameras`."""
-        degree = self.background.active_sh_degree
-        part = part_of("bg", self.background, degree, frozen=True)
-        return self._renders.layer([part], cameras, degree).colors.cpu().clamp(0.0, 1.0)
-
-
-def _hull_at(
-    views: TrainViews,
-    renders: BackgroundRenders,
-    frame: int,
-    bounds: Tensor,
-    section: RelayConfig,
-    generator: torch.Generator,
-) -> tuple[Tensor, Tensor, float] | None:
-    """Hull points, colours, voxel size of the background's misses at `frame` (None: no view)."""
-    frame_views = views.by_frame.get(frame, [])
-    if not frame_views:
-        return None
-    cameras = [view.camera for view in frame_views]
-    images = torch.stack([views.scene.image(view) for view in frame_views])
-    settings = HullSettings(
-        section.hull_residual, section.hull_voxels, section.hull_misses, section.seed_points
-    )
-    masks = residual_masks(renders.images(cameras), images, settings.residual)
-    return visual_hull(masks, images, cameras, bounds, settings, generator)
 
 
 def _tagged(gaussians: GaussianSet, segment: int) -> GaussianSet:
