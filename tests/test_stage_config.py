@@ -113,6 +113,8 @@ INF, NAN = float("inf"), float("nan")
         ("relay", {"k": 0}, "relay.k"),
         ("relay", {"p": 0}, "relay.p"),
         ("relay", {"hull_seen": 1.5}, "relay.hull_seen"),
+        ("deform", {"hull_weight": -1.0}, "deform.hull_weight"),
+        ("deform", {"hull_coverage": INF}, "deform.hull_coverage"),
         ("relay", {"segments_per_step": 0}, "relay.segments_per_step"),
         ("relay", {"densify_fg": {"max_gaussians": 0}}, "relay.densify_fg.max_gaussians"),
         ("relay", {"freeze_background": False, "lr_bg": {"quats": -1.0}}, "relay.lr_bg.quats"),

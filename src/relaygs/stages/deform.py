@@ -18,6 +18,7 @@ from relaygs.model import paper_schedule
 from relaygs.pipeline.artifact import Artifact
 from relaygs.stages.common import GAUSSIAN_LR, single_upstream, stage_meta, upstream_model
 from relaygs.stages.config import PerSetSections, require, require_steps, schedule
+from relaygs.stages.frame_hulls import FrameHulls
 from relaygs.stages.spec import StageSpec
 from relaygs.stages.train_settings import TrainSettings
 from relaygs.train.canonical import deform_options_left_out_at_default
@@ -65,6 +66,8 @@ class DeformConfig(PerSetSections):
     plane_smoothness: float = 2e-4
     time_smoothness: float = 1e-3
     time_l1: float = 1e-4
+    hull_weight: float = 0.0
+    hull_coverage: float = 0.0
     densify_bg: dict[str, Any] = field(default_factory=paper_schedule)
     densify_fg: dict[str, Any] = field(default_factory=paper_schedule)
 
@@ -85,7 +88,7 @@ class DeformConfig(PerSetSections):
         valid = self.matmul_dtype in MATMUL_DTYPES
         require(valid, "deform.matmul_dtype", self.matmul_dtype, f"one of {sorted(MATMUL_DTYPES)}")
         require(self.sh_every >= 0, "deform.sh_every", self.sh_every, "an int >= 0")
-        for key in (*REGULARISERS, "lr_gamma", "lr_affine"):
+        for key in (*REGULARISERS, "lr_gamma", "lr_affine", "hull_weight", "hull_coverage"):
             value = getattr(self, key)
             require(0.0 <= value < math.inf, f"deform.{key}", value, "a finite number >= 0")
         self.plans()
@@ -147,12 +150,16 @@ def deform(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, Any
     session = _session(model, section, scene, seed, device)
     views = TrainViews(scene, device)
     camera_index = {camera_id: row for row, camera_id in enumerate(model.affine_cameras)}
+    hulls = None
+    if section.hull_weight > 0.0 and len(model.foreground):
+        hulls = FrameHulls.carve(views, source.background, train.blur(), seed)
 
     def step_fn(step: int) -> StepResult:
         _sync(model, session)
         generator = session.generator
         frames = torch.randint(scene.num_frames, (section.frames_per_step,), generator=generator)
         renders: list[Render] = []
+        hull_terms = []
         preds, targets = [], []
         counts = views_per_slot(train.batch_views, section.frames_per_step)
         for frame, count in zip(frames.tolist(), counts, strict=False):  # frames beyond: none
@@ -167,6 +174,9 @@ def deform(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, Any
                 degree,
             )
             render = splat(parts, [view.camera for view in batch], degree, **train.blur())
+            if hulls is not None:
+                outside = hulls.distance(parts[1].means, frame, section.hull_coverage)
+                hull_terms.append(outside / scene.extent)
             renders.append(render)
             for view, image in zip(batch, render.images, strict=True):
                 if model.affine is not None:
@@ -177,6 +187,8 @@ def deform(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, Any
         regularisers = model.field.regularisers()
         for name in REGULARISERS:
             loss = loss + getattr(section, name) * regularisers[name]
+        if hull_terms:
+            loss = loss + section.hull_weight * torch.stack(hull_terms).mean()
         return StepResult(loss, renders, preds, targets)
 
     def counts() -> tuple[int, int]:

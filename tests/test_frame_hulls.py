@@ -1,0 +1,88 @@
+"""Each frame's visual hull as a target of the deformed foreground (deform.hull_weight)."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+import torch.nn.functional as F
+
+from conftest import STAGE_K, stage_smoke_cfg
+from relaygs.data import Scene, frame_time
+from relaygs.pipeline.artifact import Artifact
+from relaygs.stages import SPECS, SceneModel
+from relaygs.stages.frame_hulls import FrameHulls, distance_beyond
+from relaygs.train.motion import deformed_parts
+from relaygs.train.views import TrainViews
+
+
+def test_distance_beyond_counts_only_the_excess_and_has_no_gradient_inside() -> None:
+    offsets = torch.tensor([[0.0, 0.0, 0.5], [3.0, 4.0, 0.0], [0.0, 0.0, 0.0]], requires_grad=True)
+    value = distance_beyond(offsets, 1.0)
+    value.backward()
+    assert float(value.detach()) == pytest.approx(4.0 / 3.0)
+    expected = torch.tensor([[0.0, 0.0, 0.0], [0.6, 0.8, 0.0], [0.0, 0.0, 0.0]]) / 3.0
+    assert torch.allclose(offsets.grad, expected)
+
+
+def test_a_frame_pulls_outside_means_in_and_coverage_pulls_the_nearest_to_an_empty_part() -> None:
+    hull = torch.tensor([[0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [5.0, 0.0, 0.0]])
+    hulls = FrameHulls({3: hull}, {3: 0.2})
+    means = torch.tensor([[0.05, 0.0, 0.0], [0.0, 2.0, 0.0]], requires_grad=True)
+    one_sided = hulls.distance(means, 3)
+    assert float(one_sided.detach()) == pytest.approx((2.0 - 0.2) / 2, rel=1e-5)
+    (grad,) = torch.autograd.grad(one_sided, means)
+    assert torch.equal(grad[0], torch.zeros(3))  # inside: no pull
+    assert torch.allclose(grad[1], torch.tensor([0.0, 0.5, 0.0]))  # away from the hull
+    # the hull point at x = 5 is nearest to the first mean: coverage drags that one along +x
+    (grad,) = torch.autograd.grad(hulls.distance(means, 3, coverage=1.0), means)
+    assert float(grad[0, 0]) < 0.0 and float(grad[1, 0]) == 0.0
+    assert float(hulls.distance(means, 4)) == 0.0  # a frame without a hull
+    assert float(hulls.distance(means[:0], 3)) == 0.0  # no Gaussians shown
+
+
+def test_each_frames_hull_lies_in_that_frames_foreground(
+    stage_scene: Scene, stage_decoupled: Artifact
+) -> None:
+    source = SceneModel.from_artifact(stage_decoupled)
+    views = TrainViews(stage_scene, torch.device("cpu"))
+    hulls = FrameHulls.carve(views, source.background, source.blur(), seed=0)
+    assert sorted(hulls.points) == list(range(stage_scene.num_frames))
+    for frame, points in hulls.points.items():
+        inside = []
+        for view in views.by_frame[frame]:
+            mask = stage_scene.mask(view)
+            dilated = F.max_pool2d(mask[None, None].float(), 3, stride=1, padding=1)[0, 0] > 0
+            pixels, visible = view.camera.project(points, min_depth=view.camera.near)
+            column = pixels[:, 0].floor().long().clamp(0, view.camera.width - 1)
+            row = pixels[:, 1].floor().long().clamp(0, view.camera.height - 1)
+            inside.append(dilated[row, column][visible].float().mean())
+        assert float(torch.stack(inside).mean()) > 0.8, frame
+
+
+def _shown_hull_distance(artifact: Artifact, scene: Scene, hulls: FrameHulls) -> float:
+    model = SceneModel.from_artifact(artifact)
+    total = 0.0
+    with torch.no_grad():
+        for frame in range(scene.num_frames):
+            rows = model.foreground_rows(frame)
+            time = frame_time(frame, scene.num_frames)
+            parts = deformed_parts(model.background, model.foreground, rows, model.field, time, 0)
+            total += float(hulls.distance(parts[1].means, frame))
+    return total
+
+
+def test_the_hull_term_draws_the_shown_copies_into_their_frames_hulls(
+    stage_scene: Scene, stage_decoupled: Artifact, stage_relayed: Artifact
+) -> None:
+    relayed = SceneModel.from_artifact(stage_relayed)
+    views = TrainViews(stage_scene, torch.device("cpu"))
+    hulls = FrameHulls.carve(views, relayed.background, relayed.blur(), seed=0)
+    fixed = {"densify_until": 0, "opacity_reset_every": 0}  # the same Gaussians throughout
+    distances = {}
+    for weight in (0.0, 10.0):
+        section = {"steps": 60, "hull_weight": weight, "lr_fg": {"means": 0.02}}
+        cfg = stage_smoke_cfg(deform={**section, "densify_fg": fixed, "densify_bg": fixed})
+        artifact = SPECS["deform"].run(stage_scene, {"relay": stage_relayed}, cfg)
+        distances[weight] = _shown_hull_distance(artifact, stage_scene, hulls)
+    assert STAGE_K > 1  # each copy spans several frames, whose hulls it cannot all fill
+    assert distances[10.0] < 0.95 * distances[0.0]
