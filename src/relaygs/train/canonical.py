@@ -45,8 +45,7 @@ def deform_options_left_out_at_default(section: Mapping[str, Any], scene: Scene)
         canonical.pop("background_motion", None)
     if canonical.get("matmul_dtype", "float32") == "float32":
         canonical.pop("matmul_dtype", None)
-    if canonical.get("hull_weight", 0.0) == 0.0:
-        canonical.pop("hull_weight", None)
-    if canonical.get("hull_coverage", 0.0) == 0.0:
-        canonical.pop("hull_coverage", None)
+    for key in ("hull_weight", "hull_coverage"):
+        if canonical.get(key, 0.0) == 0.0:
+            canonical.pop(key, None)
     return canonical
