@@ -10,6 +10,7 @@ from conftest import STAGE_K, stage_smoke_cfg
 from relaygs.data import Scene, frame_time
 from relaygs.pipeline.artifact import Artifact
 from relaygs.stages import SPECS, SceneModel
+from relaygs.stages.carve import HullSettings, relay_hull_settings
 from relaygs.stages.frame_hulls import FrameHulls, distance_beyond
 from relaygs.train.motion import deformed_parts
 from relaygs.train.views import TrainViews
@@ -86,3 +87,37 @@ def test_the_hull_term_draws_the_shown_copies_into_their_frames_hulls(
         distances[weight] = _shown_hull_distance(artifact, stage_scene, hulls)
     assert STAGE_K > 1  # each copy spans several frames, whose hulls it cannot all fill
     assert distances[10.0] < 0.95 * distances[0.0]
+
+
+def test_relay_hull_keys_map_to_settings_and_missing_keys_keep_defaults() -> None:
+    keys = {"hull_residual": 0.3, "hull_voxels": 24, "hull_misses": 0.05, "hull_seen": 0.75}
+    settings = relay_hull_settings(keys, target_points=100)
+    assert settings == HullSettings(0.3, 24, 0.05, 0.75, 100)
+    assert relay_hull_settings({}, None) == HullSettings()
+
+
+def test_deform_carves_its_hulls_with_the_relays_own_hull_keys(
+    stage_scene: Scene, stage_relayed: Artifact, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    relayed = SceneModel.from_artifact(stage_relayed)
+    views = TrainViews(stage_scene, torch.device("cpu"))
+    echo = stage_relayed.meta["config"]["section"]
+    strict = {**echo, "hull_residual": 0.6}
+    default_points = FrameHulls.carve(views, relayed.background, relayed.blur(), 0, echo).points
+    strict_points = FrameHulls.carve(views, relayed.background, relayed.blur(), 0, strict).points
+    assert sum(map(len, strict_points.values())) < sum(map(len, default_points.values()))
+
+    seen = []
+
+    class HullsCarvedError(Exception):
+        """Stops the deform stage once its hulls are carved: the keys are all this test needs."""
+
+    def spy(*args: object) -> FrameHulls:
+        seen.append(args[-1])
+        raise HullsCarvedError
+
+    monkeypatch.setattr(FrameHulls, "carve", spy)
+    cfg = stage_smoke_cfg(deform={"steps": 1, "hull_weight": 1.0})
+    with pytest.raises(HullsCarvedError):
+        SPECS["deform"].run(stage_scene, {"relay": stage_relayed}, cfg)
+    assert seen == [echo]

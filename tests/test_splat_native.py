@@ -6,9 +6,9 @@ test_splat_numerics.py, test_splat_fixed_layer.py and test_splat_garden.py.)"""
 from __future__ import annotations
 
 import os
+import shlex
 import subprocess
 import sys
-import sysconfig
 import tempfile
 import textwrap
 from pathlib import Path
@@ -195,20 +195,24 @@ def test_a_kernel_that_fails_to_compile_names_its_log(tmp_path, monkeypatch, cap
 
 def test_the_compositing_vectors_fit_this_cpus_registers(tmp_path):
     """GCC expands vectors wider than the target's registers piecewise, partly lane by lane
-    (64-byte vectors ran the compositing 2.6x slower on an AVX2-only CPU): none may be left."""
+    (64-byte vectors ran the compositing 2.6x slower on an AVX2-only CPU): none may be left.
+    The kernel is compiled again with the flags of its real build (read from its build.ninja)."""
     cxx = build.compiler()
     macros = subprocess.run(
         [cxx, "-dM", "-E", "-x", "c++", os.devnull], capture_output=True, text=True
     ).stdout
     if "__GNUC__" not in macros or "__clang__" in macros:
         pytest.skip("-Wvector-operation-performance is GCC's")
-    from torch.utils.cpp_extension import include_paths
-
-    includes = [*include_paths(), sysconfig.get_paths()["include"]]
+    ninja_file = build.build_folder(build.build_name()) / "build.ninja"
+    (cflags,) = [
+        line.split("=", 1)[1]
+        for line in ninja_file.read_text().splitlines()
+        if line.startswith("cflags =")
+    ]
+    strict = [*shlex.split(cflags), "-Werror=vector-operation-performance"]
+    source, output = build.HERE / "composite.cpp", tmp_path / "composite.o"
     compiled = subprocess.run(
-        [cxx, *build.CFLAGS, "-std=c++20", "-fPIC", "-Werror=vector-operation-performance"]
-        + [flag for path in includes for flag in ("-isystem", path)]
-        + ["-c", str(build.HERE / "composite.cpp"), "-o", str(tmp_path / "composite.o")],
+        [cxx, *strict, "-c", str(source), "-o", str(output)],
         capture_output=True,
         text=True,
         timeout=300,

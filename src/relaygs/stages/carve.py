@@ -4,7 +4,9 @@ in (nearly) every train camera, coarse voxels then sub-voxels (docs/method.md, C
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import torch
 import torch.nn.functional as F
@@ -41,6 +43,19 @@ class HullSettings:
         """Cameras that must see a point of the hull: `seen` of them, and MIN_CAMERAS at least
         (a region only a few cameras see, at a rig's edge, is a wide cone, not a mover)."""
         return max(MIN_CAMERAS, math.ceil(self.seen * cameras))
+
+
+def relay_hull_settings(keys: Mapping[str, Any], target_points: int | None) -> HullSettings:
+    """HullSettings from the relay section's `hull_*` keys (a RelayConfig's fields or the
+    config echo of a relay artifact); keys it lacks keep their defaults."""
+    defaults = HullSettings()
+    return HullSettings(
+        residual=float(keys.get("hull_residual", defaults.residual)),
+        coarse_voxels=int(keys.get("hull_voxels", defaults.coarse_voxels)),
+        misses=float(keys.get("hull_misses", defaults.misses)),
+        seen=float(keys.get("hull_seen", defaults.seen)),
+        target_points=target_points,
+    )
 
 
 def hull_bounds(cloud: Tensor) -> Tensor:

@@ -152,7 +152,8 @@ def deform(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, Any
     camera_index = {camera_id: row for row, camera_id in enumerate(model.affine_cameras)}
     hulls = None
     if section.hull_weight > 0.0 and len(model.foreground):
-        hulls = FrameHulls.carve(views, source.background, train.blur(), seed)
+        relay_keys = artifact.meta["config"]["section"] if artifact.stage == "relay" else None
+        hulls = FrameHulls.carve(views, source.background, train.blur(), seed, relay_keys)
 
     def step_fn(step: int) -> StepResult:
         _sync(model, session)

@@ -4,6 +4,7 @@ the photometric loss alone cannot do once a copy no longer overlaps its mover's 
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -11,7 +12,7 @@ import torch
 from torch import Tensor
 
 from relaygs.model import GaussianSet
-from relaygs.stages.carve import BackgroundRenders, HullSettings, frame_hull, hull_bounds
+from relaygs.stages.carve import BackgroundRenders, frame_hull, hull_bounds, relay_hull_settings
 from relaygs.train.views import TrainViews
 
 MAX_HULL_POINTS = 4096  # per frame: enough to cover a mover, few enough for a dense argmin
@@ -28,13 +29,19 @@ class FrameHulls:
 
     @classmethod
     def carve(
-        cls, views: TrainViews, background: GaussianSet, blur: dict[str, Any], seed: int
+        cls,
+        views: TrainViews,
+        background: GaussianSet,
+        blur: dict[str, Any],
+        seed: int,
+        relay_keys: Mapping[str, Any] | None = None,
     ) -> FrameHulls:
         """The hulls of every frame with train views, from the residuals of the (frozen)
-        `background`'s renders; at most MAX_HULL_POINTS a frame, drawn at random."""
+        `background`'s renders, carved with the relay's `hull_*` keys (`relay_keys`; defaults
+        where None); at most MAX_HULL_POINTS a frame, drawn at random."""
         renders = BackgroundRenders(background, **blur)
         bounds = hull_bounds(views.scene.points.xyz)
-        settings = HullSettings(target_points=HULL_POINTS)
+        settings = relay_hull_settings(relay_keys or {}, HULL_POINTS)
         generator = torch.Generator().manual_seed(seed)
         points, voxel = {}, {}
         for frame in sorted(views.by_frame):

@@ -14,7 +14,7 @@ import torch
 from relaygs.data import Scene
 from relaygs.model import GaussianSet, paper_schedule
 from relaygs.pipeline.artifact import Artifact
-from relaygs.stages.carve import BackgroundRenders, HullSettings, frame_hull, hull_bounds
+from relaygs.stages.carve import BackgroundRenders, frame_hull, hull_bounds, relay_hull_settings
 from relaygs.stages.common import (
     BACKGROUND_LR,
     FOREGROUND_LR,
@@ -220,13 +220,7 @@ def carved_copies(
     """One copy per segment, on the replica's device, from the hull at its pseudo frames (thinned
     to `seed_points` at random); a segment whose hull is empty keeps the replica."""
     bounds = hull_bounds(views.scene.points.xyz)
-    settings = HullSettings(
-        section.hull_residual,
-        section.hull_voxels,
-        section.hull_misses,
-        section.hull_seen,
-        section.seed_points,
-    )
+    settings = relay_hull_settings(vars(section), section.seed_points)
     generator = torch.Generator().manual_seed(seed)
     copies = []
     for segment in range(segments.count):
