@@ -11,7 +11,9 @@ from relaygs.data import Scene, frame_time
 from relaygs.pipeline.artifact import Artifact
 from relaygs.stages import SPECS, SceneModel
 from relaygs.stages.carve import HullSettings, relay_hull_settings
+from relaygs.stages.deform import DeformConfig, _starting_model
 from relaygs.stages.frame_hulls import FrameHulls, distance_beyond
+from relaygs.stages.hull_prefit import prefit_foreground_motion
 from relaygs.train.motion import deformed_parts
 from relaygs.train.views import TrainViews
 
@@ -60,15 +62,16 @@ def test_each_frames_hull_lies_in_that_frames_foreground(
         assert float(torch.stack(inside).mean()) > 0.8, frame
 
 
-def _shown_hull_distance(artifact: Artifact, scene: Scene, hulls: FrameHulls) -> float:
-    model = SceneModel.from_artifact(artifact)
+def _shown_hull_distance(
+    model: SceneModel, scene: Scene, hulls: FrameHulls, coverage: float = 0.0
+) -> float:
     total = 0.0
     with torch.no_grad():
         for frame in range(scene.num_frames):
             rows = model.foreground_rows(frame)
             time = frame_time(frame, scene.num_frames)
             parts = deformed_parts(model.background, model.foreground, rows, model.field, time, 0)
-            total += float(hulls.distance(parts[1].means, frame))
+            total += float(hulls.distance(parts[1].means, frame, coverage))
     return total
 
 
@@ -84,7 +87,9 @@ def test_the_hull_term_draws_the_shown_copies_into_their_frames_hulls(
         section = {"steps": 60, "hull_weight": weight, "lr_fg": {"means": 0.02}}
         cfg = stage_smoke_cfg(deform={**section, "densify_fg": fixed, "densify_bg": fixed})
         artifact = SPECS["deform"].run(stage_scene, {"relay": stage_relayed}, cfg)
-        distances[weight] = _shown_hull_distance(artifact, stage_scene, hulls)
+        distances[weight] = _shown_hull_distance(
+            SceneModel.from_artifact(artifact), stage_scene, hulls
+        )
     assert STAGE_K > 1  # each copy spans several frames, whose hulls it cannot all fill
     assert distances[10.0] < 0.95 * distances[0.0]
 
@@ -121,3 +126,28 @@ def test_deform_carves_its_hulls_with_the_relays_own_hull_keys(
     with pytest.raises(HullsCarvedError):
         SPECS["deform"].run(stage_scene, {"relay": stage_relayed}, cfg)
     assert seen == [echo]
+
+
+def test_the_prefit_moves_the_shown_copies_into_their_hulls_and_leaves_the_rest(
+    stage_scene: Scene, stage_relayed: Artifact
+) -> None:
+    relayed = SceneModel.from_artifact(stage_relayed)
+    views = TrainViews(stage_scene, torch.device("cpu"))
+    hulls = FrameHulls.carve(views, relayed.background, relayed.blur(), seed=0)
+    section = DeformConfig.from_config({"steps": 10})
+    model = _starting_model(relayed, section, stage_scene, 0, relayed.blur())
+    gaussians = {name: p.detach().clone() for name, p in model.foreground.params.items()}
+    rates = {"grid": 6.4e-3, "mlp": 6.4e-4}
+    weights = {"plane_smoothness": 2e-4, "time_smoothness": 1e-3, "time_l1": 1e-4}
+
+    def shown_distance() -> float:
+        return _shown_hull_distance(model, stage_scene, hulls, coverage=1.0)
+
+    before = shown_distance()
+    prefit_foreground_motion(model, hulls, 50, rates, weights, 1.0, stage_scene.extent, seed=0)
+    assert shown_distance() < 0.8 * before
+    for name, param in model.foreground.params.items():
+        assert torch.equal(param, gaussians[name]) and param.grad is None, name
+    with torch.no_grad():
+        still = model.field(model.background.means, 0.5, len(model.background))
+    assert torch.equal(still.dxyz, torch.zeros_like(still.dxyz))  # its MLP set is untouched

@@ -86,6 +86,10 @@ class DeformationField(nn.Module):
         )
         return Deltas(*(torch.cat(pair) for pair in zip(*halves, strict=True)))
 
+    def foreground_set(self) -> DeformationMLP:
+        """The MLP set that moves the foreground rows (the shared one without isolation)."""
+        return self.mlp_sets["foreground" if self.isolate_fg_bg else SHARED_SET]
+
     def regularisers(self) -> dict[str, Tensor]:
         """The HexPlane's unweighted regularisers (plane_smoothness, time_smoothness, time_l1)."""
         return self.hexplane.regularisers()

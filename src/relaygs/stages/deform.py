@@ -19,6 +19,7 @@ from relaygs.pipeline.artifact import Artifact
 from relaygs.stages.common import GAUSSIAN_LR, single_upstream, stage_meta, upstream_model
 from relaygs.stages.config import PerSetSections, require, require_steps, schedule
 from relaygs.stages.frame_hulls import FrameHulls
+from relaygs.stages.hull_prefit import prefit_foreground_motion
 from relaygs.stages.spec import StageSpec
 from relaygs.stages.train_settings import TrainSettings
 from relaygs.train.canonical import deform_options_left_out_at_default
@@ -68,6 +69,7 @@ class DeformConfig(PerSetSections):
     time_l1: float = 1e-4
     hull_weight: float = 0.0
     hull_coverage: float = 0.0
+    hull_prefit: int = 0
     densify_bg: dict[str, Any] = field(default_factory=paper_schedule)
     densify_fg: dict[str, Any] = field(default_factory=paper_schedule)
 
@@ -88,6 +90,7 @@ class DeformConfig(PerSetSections):
         valid = self.matmul_dtype in MATMUL_DTYPES
         require(valid, "deform.matmul_dtype", self.matmul_dtype, f"one of {sorted(MATMUL_DTYPES)}")
         require(self.sh_every >= 0, "deform.sh_every", self.sh_every, "an int >= 0")
+        require(self.hull_prefit >= 0, "deform.hull_prefit", self.hull_prefit, "an int >= 0")
         for key in (*REGULARISERS, "lr_gamma", "lr_affine", "hull_weight", "hull_coverage"):
             value = getattr(self, key)
             require(0.0 <= value < math.inf, f"deform.{key}", value, "a finite number >= 0")
@@ -151,9 +154,22 @@ def deform(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, Any
     views = TrainViews(scene, device)
     camera_index = {camera_id: row for row, camera_id in enumerate(model.affine_cameras)}
     hulls = None
-    if section.hull_weight > 0.0 and len(model.foreground):
+    if (section.hull_weight > 0.0 or section.hull_prefit > 0) and len(model.foreground):
         relay_keys = artifact.meta["config"]["section"] if artifact.stage == "relay" else None
         hulls = FrameHulls.carve(views, source.background, train.blur(), seed, relay_keys)
+        schedules = section.module_schedules()
+        prefit_foreground_motion(
+            model,
+            hulls,
+            section.hull_prefit,
+            {"grid": schedules["grid"].init, "mlp": schedules["mlp"].init},
+            {name: getattr(section, name) for name in REGULARISERS},
+            section.hull_coverage,
+            scene.extent,
+            seed,
+        )
+    if section.hull_weight == 0.0:
+        hulls = None
 
     def step_fn(step: int) -> StepResult:
         _sync(model, session)

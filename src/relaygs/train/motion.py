@@ -40,3 +40,14 @@ def deformed_parts(
         Part(p.name, p.rows, means[r], log_scales[r], quats[r], opacity_logits[r], p.sh)
         for p, r in ((bg, slice(0, n_bg)), (fg, slice(n_bg, None)))
     ]
+
+
+def foreground_means(
+    xyz: Tensor, gamma: Tensor | None, field: DeformationField, time: float
+) -> Tensor:
+    """Deformed centres [R, 3] of foreground Gaussians at `xyz` (γ `gamma`, or None) at `time`,
+    without the background: what a geometric target of the movers needs."""
+    dxyz = field(xyz, time, 0).dxyz
+    if gamma is None:
+        return xyz + dxyz
+    return relay_position(xyz, dxyz, gamma, torch.ones(len(xyz), dtype=torch.bool))
