@@ -153,14 +153,14 @@ def deform(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, Any
     session = _session(model, section, scene, seed, device)
     views = TrainViews(scene, device)
     camera_index = {camera_id: row for row, camera_id in enumerate(model.affine_cameras)}
-    hulls = None
+    hulls = None  # the hull term's targets (hull_weight > 0)
     if (section.hull_weight > 0.0 or section.hull_prefit > 0) and len(model.foreground):
         relay_keys = artifact.meta["config"]["section"] if artifact.stage == "relay" else None
-        hulls = FrameHulls.carve(views, source.background, train.blur(), seed, relay_keys)
+        carved = FrameHulls.carve(views, source.background, train.blur(), seed, relay_keys)
         schedules = section.module_schedules()
         prefit_foreground_motion(
             model,
-            hulls,
+            carved,
             section.hull_prefit,
             {"grid": schedules["grid"].init, "mlp": schedules["mlp"].init},
             {name: getattr(section, name) for name in REGULARISERS},
@@ -168,8 +168,7 @@ def deform(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, Any
             scene.extent,
             seed,
         )
-    if section.hull_weight == 0.0:
-        hulls = None
+        hulls = carved if section.hull_weight > 0.0 else None
 
     def step_fn(step: int) -> StepResult:
         _sync(model, session)

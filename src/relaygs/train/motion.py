@@ -50,4 +50,5 @@ def foreground_means(
     dxyz = field(xyz, time, 0).dxyz
     if gamma is None:
         return xyz + dxyz
-    return relay_position(xyz, dxyz, gamma, torch.ones(len(xyz), dtype=torch.bool))
+    is_relay = torch.ones(len(xyz), dtype=torch.bool, device=xyz.device)
+    return relay_position(xyz, dxyz, gamma, is_relay)
