@@ -13,7 +13,7 @@ demo: venv
 
 test: venv
 	$(PY) -m ruff check src tests
-	$(PY) -m pytest -q $(PYTEST_ARGS)
+	$(PY) -m pytest -q -n auto --dist loadfile $(PYTEST_ARGS)
 
 lint: venv
 	$(PY) -m ruff check src tests

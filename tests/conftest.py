@@ -6,6 +6,7 @@ import contextlib
 import copy
 import functools
 import io
+import os
 import shutil
 import signal
 import sys
@@ -82,10 +83,18 @@ def pyproject() -> dict[str, Any]:
 
 
 def pytest_configure(config: pytest.Config) -> None:
-    """Register the suite's markers (`sweep`: the end-to-end experiment runs, minutes long)."""
+    """Register the suite's markers (`sweep`: the end-to-end experiment runs, minutes long) and,
+    in a pytest-xdist worker, share the cores: each worker (and each process its tests start)
+    takes its part of them, since two workers of two threads on two cores wait on each other."""
     config.addinivalue_line(
         "markers", "sweep: end-to-end experiment sweeps at budget=smoke (deselect: -m 'not sweep')"
     )
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    if workers > 1:
+        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+        threads = max(1, (cores or 1) // workers)
+        torch.set_num_threads(threads)
+        os.environ["OMP_NUM_THREADS"] = str(threads)
 
 
 # --- Stage fixtures (prefix `stage_`): a 48×27, 8-frame juggle scene and the artifacts of a

@@ -43,12 +43,19 @@ def test_a_frame_pulls_outside_means_in_and_coverage_pulls_the_nearest_to_an_emp
     assert float(hulls.distance(means[:0], 3)) == 0.0  # no Gaussians shown
 
 
+def _carved(
+    scene: Scene, artifact: Artifact, relay_keys: dict | None = None
+) -> tuple[SceneModel, TrainViews, FrameHulls]:
+    """The artifact's model, the scene's train views and the hulls carved from that model."""
+    model = SceneModel.from_artifact(artifact)
+    views = TrainViews(scene, torch.device("cpu"))
+    return model, views, FrameHulls.carve(views, model.background, model.blur(), 0, relay_keys)
+
+
 def test_each_frames_hull_lies_in_that_frames_foreground(
     stage_scene: Scene, stage_decoupled: Artifact
 ) -> None:
-    source = SceneModel.from_artifact(stage_decoupled)
-    views = TrainViews(stage_scene, torch.device("cpu"))
-    hulls = FrameHulls.carve(views, source.background, source.blur(), seed=0)
+    _, views, hulls = _carved(stage_scene, stage_decoupled)
     assert sorted(hulls.points) == list(range(stage_scene.num_frames))
     for frame, points in hulls.points.items():
         inside = []
@@ -78,9 +85,7 @@ def _shown_hull_distance(
 def test_the_hull_term_draws_the_shown_copies_into_their_frames_hulls(
     stage_scene: Scene, stage_decoupled: Artifact, stage_relayed: Artifact
 ) -> None:
-    relayed = SceneModel.from_artifact(stage_relayed)
-    views = TrainViews(stage_scene, torch.device("cpu"))
-    hulls = FrameHulls.carve(views, relayed.background, relayed.blur(), seed=0)
+    _, _, hulls = _carved(stage_scene, stage_relayed)
     fixed = {"densify_until": 0, "opacity_reset_every": 0}  # the same Gaussians throughout
     distances = {}
     for weight in (0.0, 10.0):
@@ -104,12 +109,10 @@ def test_relay_hull_keys_map_to_settings_and_missing_keys_keep_defaults() -> Non
 def test_deform_carves_its_hulls_with_the_relays_own_hull_keys(
     stage_scene: Scene, stage_relayed: Artifact, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    relayed = SceneModel.from_artifact(stage_relayed)
-    views = TrainViews(stage_scene, torch.device("cpu"))
     echo = stage_relayed.meta["config"]["section"]
     strict = {**echo, "hull_residual": 0.6}
-    default_points = FrameHulls.carve(views, relayed.background, relayed.blur(), 0, echo).points
-    strict_points = FrameHulls.carve(views, relayed.background, relayed.blur(), 0, strict).points
+    default_points = _carved(stage_scene, stage_relayed, echo)[2].points
+    strict_points = _carved(stage_scene, stage_relayed, strict)[2].points
     assert sum(map(len, strict_points.values())) < sum(map(len, default_points.values()))
 
     seen = []
@@ -131,9 +134,7 @@ def test_deform_carves_its_hulls_with_the_relays_own_hull_keys(
 def test_the_prefit_moves_the_shown_copies_into_their_hulls_and_leaves_the_rest(
     stage_scene: Scene, stage_relayed: Artifact
 ) -> None:
-    relayed = SceneModel.from_artifact(stage_relayed)
-    views = TrainViews(stage_scene, torch.device("cpu"))
-    hulls = FrameHulls.carve(views, relayed.background, relayed.blur(), seed=0)
+    relayed, _, hulls = _carved(stage_scene, stage_relayed)
     section = DeformConfig.from_config({"steps": 10})
     model = _starting_model(relayed, section, stage_scene, 0, relayed.blur())
     gaussians = {name: p.detach().clone() for name, p in model.foreground.params.items()}
