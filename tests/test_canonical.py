@@ -37,10 +37,6 @@ def test_relay_and_replicate_k_at_or_above_the_frame_count_is_one_segment_of_t()
         assert "background_motion" not in canonical  # a moving background keeps its old key
     float32 = canonical_config("deform", {"deform": {"matmul_dtype": "float32"}}, scene)
     assert float32["deform"] == {}  # float32 products keep the keys from before the setting
-    one_grid = canonical_config("deform", {"deform": {"foreground_grid": False}}, scene)
-    assert one_grid["deform"] == {}  # one shared grid keeps the keys from before the setting
-    two_grids = {"deform": {"foreground_grid": True}}
-    assert canonical_config("deform", two_grids, scene) == two_grids
     reduced = {"deform": {"matmul_dtype": "bfloat16"}}
     assert canonical_config("deform", reduced, scene) == reduced
     one_at_a_time = canonical_config("relay", {"relay": {"k": 1, "segments_per_step": 1}}, scene)

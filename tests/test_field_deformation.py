@@ -198,38 +198,6 @@ def test_a_still_background_gets_zero_deltas_and_no_mlp_set() -> None:
     assert small_field(isolate_fg_bg=False, background_motion=False).background_motion
 
 
-def test_a_foreground_grid_moves_the_foreground_rows_alone_and_joins_the_grid_group() -> None:
-    small_box = [[-0.5, -0.5, 0.5], [0.5, 0.5, 1.5]]
-    field = small_field(isolate_fg_bg=True, foreground_aabb=small_box)
-    randomise_heads(field)
-    shared = small_field(isolate_fg_bg=True)
-    shared.load_state_dict(field.state_dict(), strict=False)  # same shared grid and MLP sets
-    xyz, num_background = points()
-    times = torch.rand(len(xyz), generator=torch.Generator().manual_seed(3))
-    deltas = field(xyz, times, num_background)
-    fg = slice(num_background, None)
-    want_fg = field.mlp_sets["foreground"](field.foreground_hexplane(xyz[fg], times[fg]))
-    for got, want, other in zip(deltas, want_fg, shared(xyz, times, num_background), strict=True):
-        torch.testing.assert_close(got[:num_background], other[:num_background])
-        torch.testing.assert_close(got[fg], want)
-    grid = {id(p) for p in field.parameter_groups()["grid"]}
-    assert grid == {
-        id(p) for g in (field.hexplane, field.foreground_hexplane) for p in g.parameters()
-    }
-    assert field.foreground_grid() is field.foreground_hexplane
-    # the foreground's loss reaches its own grid, not the background's
-    field.zero_grad()
-    sum(d[fg].square().sum() for d in field(xyz, times, num_background)).backward()
-    assert field.foreground_hexplane.spatial_planes[0].grad.abs().sum() > 0
-    shared_grad = field.hexplane.spatial_planes[0].grad
-    assert shared_grad is None or not shared_grad.any()
-    double = field.regularisers()["plane_smoothness"]
-    parts = [g.regularisers()["plane_smoothness"] for g in field.grids()]
-    torch.testing.assert_close(double, parts[0] + parts[1])
-    with pytest.raises(InputError, match="foreground_aabb"):
-        small_field(isolate_fg_bg=False, foreground_aabb=small_box)
-
-
 def test_regularisers_come_from_the_grid() -> None:
     field = small_field(isolate_fg_bg=False)
     assert field.regularisers().keys() == field.hexplane.regularisers().keys()

@@ -121,7 +121,6 @@ INF, NAN = float("inf"), float("nan")
         ("deform", {"steps": -5}, "deform.steps"),
         ("deform", {"color_affine": "maybe"}, "deform.color_affine"),
         ("deform", {"matmul_dtype": "float16"}, "deform.matmul_dtype"),
-        ("deform", {"isolate_fg_bg": False, "foreground_grid": True}, "deform.foreground_grid"),
         ("deform", {"multires": []}, "deform.multires"),
         ("deform", {"multires": 2}, "deform.multires"),
         ("deform", [{"steps": 5}], "deform"),

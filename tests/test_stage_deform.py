@@ -109,24 +109,6 @@ def test_bfloat16_products_train_finite_and_reload_in_bfloat16(
     assert all(mlp.reduced_dtype == torch.bfloat16 for mlp in model.field.mlp_sets.values())
 
 
-def test_a_foreground_grid_spans_the_copies_and_reloads_from_the_artifact(
-    stage_scene: Scene, stage_relayed: Artifact, stage_deformed: Artifact
-) -> None:
-    cfg = stage_smoke_cfg(deform={"steps": 4, "foreground_grid": True})
-    deformed = SPECS["deform"].run(stage_scene, {"relay": stage_relayed}, cfg)
-    settings = deformed.meta["field"]
-    lower, upper = (torch.tensor(corner) for corner in settings["foreground_aabb"])
-    copies = SceneModel.from_artifact(stage_relayed).foreground.means
-    assert (copies >= lower).all() and (copies <= upper).all()
-    whole = torch.tensor(settings["aabb"])
-    assert (upper - lower).prod() < (whole[1] - whole[0]).prod()
-    grid_rows = [name for name in deformed.tensors if "foreground_hexplane" in name]
-    assert grid_rows and all(torch.isfinite(deformed.tensors[name]).all() for name in grid_rows)
-    model = SceneModel.from_artifact(deformed)
-    assert model.field.foreground_grid() is model.field.foreground_hexplane
-    assert "foreground_aabb" not in stage_deformed.meta["field"]  # off by default
-
-
 def test_colour_affine_only_when_the_scene_asks_and_no_copies_show_their_one_copy(
     stage_scene_path, stage_decoupled: Artifact
 ) -> None:

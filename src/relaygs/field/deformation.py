@@ -1,5 +1,4 @@
-"""DeformationField: one HexPlane and one MLP set for all Gaussians, or two MLP sets (background,
-foreground) and, optionally, a HexPlane of the foreground's own box."""
+"""DeformationField: one HexPlane and one MLP set for all Gaussians, or two (background, fg)."""
 
 from __future__ import annotations
 
@@ -18,10 +17,8 @@ ISOLATED_SETS = ("background", "foreground")
 
 class DeformationField(nn.Module):
     """Motion field (xyz, t) → Deltas; with `isolate_fg_bg` background and foreground rows go
-    through separate MLP sets (the paper's) reading one shared HexPlane, or, with
-    `foreground_aabb`, the foreground rows read a HexPlane of their own over that smaller box (finer
-    cells for the movers at the same resolution); without `background_motion` the background
-    keeps still (no background set, zero deltas)."""
+    through separate MLP sets (the paper's) reading one shared HexPlane, and without
+    `background_motion` the background keeps still (no background set, zero deltas)."""
 
     def __init__(
         self,
@@ -37,23 +34,16 @@ class DeformationField(nn.Module):
         depth: int = 0,
         heads: HeadSwitches = HeadSwitches(),  # noqa: B008 - frozen, immutable default
         matmul_dtype: str = "float32",
-        foreground_aabb: Tensor | Sequence[Sequence[float]] | None = None,
     ) -> None:
-        """Build the grid over `aabb` ([2, 3]) with `time_resolution` rows (and one over
-        `foreground_aabb` where given, which needs `isolate_fg_bg`) and the MLP set(s) (their
-        matrix products in `matmul_dtype`, DeformationMLP)."""
+        """Build the grid over `aabb` ([2, 3]) with `time_resolution` rows and the MLP set(s)
+        (their matrix products in `matmul_dtype`, DeformationMLP)."""
         super().__init__()
-        grid = {
-            "time_resolution": time_resolution,
-            "multires": multires,
-            "spatial_resolution": spatial_resolution,
-            "channels": channels,
-        }
-        self.hexplane = HexPlane(aabb, **grid)
-        if foreground_aabb is not None and not isolate_fg_bg:
-            raise InputError("DeformationField foreground_aabb: needs isolate_fg_bg")
-        self.foreground_hexplane = (
-            None if foreground_aabb is None else HexPlane(foreground_aabb, **grid)
+        self.hexplane = HexPlane(
+            aabb,
+            time_resolution,
+            multires=multires,
+            spatial_resolution=spatial_resolution,
+            channels=channels,
         )
         self.isolate_fg_bg = isolate_fg_bg
         self.background_motion = background_motion or not isolate_fg_bg
@@ -82,48 +72,31 @@ class DeformationField(nn.Module):
             )
         if not self.isolate_fg_bg:
             return self.mlp_sets[SHARED_SET](self.hexplane(xyz, t))
-        fg_times = t[num_background:] if torch.is_tensor(t) and t.dim() else t
         if not self.background_motion:
             # a still background: the field runs on the foreground rows alone
-            fg_features = self.foreground_grid()(xyz[num_background:], fg_times)
-            moving = self.mlp_sets["foreground"](fg_features)
+            times = t[num_background:] if torch.is_tensor(t) and t.dim() else t
+            moving = self.mlp_sets["foreground"](self.hexplane(xyz[num_background:], times))
             return Deltas(
                 *(torch.cat([d.new_zeros(num_background, d.shape[1]), d]) for d in moving)
             )
-        if self.foreground_hexplane is None:
-            features = self.hexplane(xyz, t)
-            bg_features, fg_features = features[:num_background], features[num_background:]
-        else:
-            bg_times = t[:num_background] if torch.is_tensor(t) and t.dim() else t
-            bg_features = self.hexplane(xyz[:num_background], bg_times)
-            fg_features = self.foreground_hexplane(xyz[num_background:], fg_times)
+        features = self.hexplane(xyz, t)
         halves = (
-            self.mlp_sets["background"](bg_features),
-            self.mlp_sets["foreground"](fg_features),
+            self.mlp_sets["background"](features[:num_background]),
+            self.mlp_sets["foreground"](features[num_background:]),
         )
         return Deltas(*(torch.cat(pair) for pair in zip(*halves, strict=True)))
-
-    def foreground_grid(self) -> HexPlane:
-        """The HexPlane the foreground rows read (the shared one without a box of their own)."""
-        return self.hexplane if self.foreground_hexplane is None else self.foreground_hexplane
 
     def foreground_set(self) -> DeformationMLP:
         """The MLP set that moves the foreground rows (the shared one without isolation)."""
         return self.mlp_sets["foreground" if self.isolate_fg_bg else SHARED_SET]
 
-    def grids(self) -> list[HexPlane]:
-        """Every HexPlane of the field: the shared one, then the foreground's where it has one."""
-        return [self.hexplane, *filter(None, [self.foreground_hexplane])]
-
     def regularisers(self) -> dict[str, Tensor]:
-        """The HexPlanes' unweighted regularisers (plane_smoothness, time_smoothness, time_l1),
-        summed over the grids."""
-        values = [grid.regularisers() for grid in self.grids()]
-        return {name: sum(value[name] for value in values) for name in values[0]}
+        """The HexPlane's unweighted regularisers (plane_smoothness, time_smoothness, time_l1)."""
+        return self.hexplane.regularisers()
 
     def parameter_groups(self) -> dict[str, list[nn.Parameter]]:
         """Parameters split for optimiser groups: "grid" (planes) and "mlp" (all MLP sets)."""
         return {
-            "grid": [param for grid in self.grids() for param in grid.parameters()],
+            "grid": list(self.hexplane.parameters()),
             "mlp": list(self.mlp_sets.parameters()),
         }

@@ -37,9 +37,6 @@ ACCEPTED_UPSTREAM = ("relay", "replicate", "decouple", "warmup")
 REGULARISERS = ("plane_smoothness", "time_smoothness", "time_l1")
 GRID_LR = {"init": 1.6e-3, "final": 1.6e-4}  # 4D-GS, × scene extent
 MLP_LR = {"init": 1.6e-4, "final": 1.6e-5}  # 4D-GS, × scene extent
-# The foreground's own grid spans its copies' box widened by this fraction of the box's longest
-# side on every side: room for the movers between the copies' frames.
-FOREGROUND_BOX_MARGIN = 0.1
 
 
 @dataclass
@@ -54,7 +51,6 @@ class DeformConfig(PerSetSections):
     frames_per_step: int = 1
     color_affine: str | bool = "auto"
     time_resolution: int | None = None
-    foreground_grid: bool = False
     multires: tuple[int, ...] = (1, 2)
     spatial_resolution: int = 64
     channels: int = 16
@@ -95,10 +91,6 @@ class DeformConfig(PerSetSections):
         require(valid, "deform.matmul_dtype", self.matmul_dtype, f"one of {sorted(MATMUL_DTYPES)}")
         require(self.sh_every >= 0, "deform.sh_every", self.sh_every, "an int >= 0")
         require(self.hull_prefit >= 0, "deform.hull_prefit", self.hull_prefit, "an int >= 0")
-        valid = self.isolate_fg_bg or not self.foreground_grid
-        require(
-            valid, "deform.foreground_grid", self.foreground_grid, "false without isolate_fg_bg"
-        )
         for key in (*REGULARISERS, "lr_gamma", "lr_affine", "hull_weight", "hull_coverage"):
             value = getattr(self, key)
             require(0.0 <= value < math.inf, f"deform.{key}", value, "a finite number >= 0")
@@ -124,21 +116,15 @@ class DeformConfig(PerSetSections):
             "affine": schedule(self.lr_affine, self.steps, f"{STAGE}.lr_affine"),
         }
 
-    def field_settings(self, scene: Scene, foreground: torch.Tensor) -> dict[str, Any]:
-        """DeformationField settings: the grid spans the scene's initial point cloud and, with
-        `foreground_grid`, a second one the box of the `foreground` means [N, 3] (N ≥ 1)."""
+    def field_settings(self, scene: Scene) -> dict[str, Any]:
+        """DeformationField settings: the grid spans the scene's initial point cloud."""
         xyz = scene.points.xyz
         time_resolution = self.time_resolution or max(2, math.ceil(scene.num_frames / 2))
-        settings = {
+        return {
             "aabb": [xyz.amin(dim=0).tolist(), xyz.amax(dim=0).tolist()],
             "time_resolution": time_resolution,
             **self.network_settings(),
         }
-        if self.foreground_grid and len(foreground):
-            lower, upper = foreground.amin(dim=0), foreground.amax(dim=0)
-            margin = FOREGROUND_BOX_MARGIN * float((upper - lower).max())
-            settings["foreground_aabb"] = [(lower - margin).tolist(), (upper + margin).tolist()]
-        return settings
 
     def network_settings(self) -> dict[str, Any]:
         """The field's settings that do not depend on a scene: the grid's and the MLPs'."""
@@ -242,7 +228,7 @@ def _starting_model(
     if section.gamma:
         foreground = foreground.clone()
         foreground.add_param(GAMMA, torch.zeros(len(foreground), 3, device=foreground.means.device))
-    settings = section.field_settings(scene, foreground.means.detach().cpu())
+    settings = section.field_settings(scene)
     model = SceneModel(
         stage=STAGE,
         background=source.background,

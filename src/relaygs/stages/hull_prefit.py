@@ -26,16 +26,16 @@ def prefit_foreground_motion(
     extent: float,
     seed: int,
 ) -> None:
-    """`steps` Adam steps on the foreground's HexPlane and MLP set (rates "grid", "mlp")
+    """`steps` Adam steps on the HexPlane and the foreground MLP set (rates "grid", "mlp")
     minimising the hull distance (with `coverage`) of the shown copy at random frames, in units
-    of the scene's `extent`, plus that grid's weighted `regularisers`."""
+    of the scene's `extent`, plus the field's weighted `regularisers`."""
     field: DeformationField = model.field
     frames = sorted(hulls.points)
     if steps == 0 or not frames or len(model.foreground) == 0:
         return
     optimiser = torch.optim.Adam(
         [
-            {"params": field.foreground_grid().parameters(), "lr": rates["grid"] * extent},
+            {"params": field.parameter_groups()["grid"], "lr": rates["grid"] * extent},
             {"params": field.foreground_set().parameters(), "lr": rates["mlp"] * extent},
         ],
         eps=1e-15,
@@ -53,7 +53,7 @@ def prefit_foreground_motion(
             means = foreground_means(xyz, gamma, field, frame_time(frame, num_frames))
             terms.append(hulls.distance(means, frame, coverage))
         loss = torch.stack(terms).mean() / extent
-        values = field.foreground_grid().regularisers()
+        values = field.regularisers()
         for name, weight in regularisers.items():
             loss = loss + weight * values[name]
         optimiser.zero_grad(set_to_none=True)

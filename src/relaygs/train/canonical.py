@@ -37,15 +37,15 @@ def uniform_unless_adaptive(section: Mapping[str, Any], scene: Scene) -> dict[st
 
 def deform_options_left_out_at_default(section: Mapping[str, Any], scene: Scene) -> dict[str, Any]:
     """`background_motion` left out where it is on or where one shared MLP set moves every
-    Gaussian (`isolate_fg_bg` off ignores it), `matmul_dtype` where it is float32, the hull
-    term's weights and prefit steps where they are 0 and `foreground_grid` where it is off, so
-    deform artifacts keep the keys they had before those settings existed."""
+    Gaussian (`isolate_fg_bg` off ignores it), `matmul_dtype` where it is float32 and the hull
+    term's weights and prefit steps where they are 0, so deform artifacts keep the keys they
+    had before those settings existed."""
     canonical = dict(section)
     if canonical.get("background_motion", True) or not canonical.get("isolate_fg_bg", True):
         canonical.pop("background_motion", None)
     if canonical.get("matmul_dtype", "float32") == "float32":
         canonical.pop("matmul_dtype", None)
-    for key in ("hull_weight", "hull_coverage", "hull_prefit", "foreground_grid"):
-        if not canonical.get(key, 0.0):
+    for key in ("hull_weight", "hull_coverage", "hull_prefit"):
+        if canonical.get(key, 0.0) == 0.0:
             canonical.pop(key, None)
     return canonical
