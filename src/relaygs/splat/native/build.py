@@ -36,6 +36,7 @@ SOURCES = [
     HERE / "hexplane.cpp",
     HERE / "smoothness.cpp",
     HERE / "ssim.cpp",
+    HERE / "nearest.cpp",
 ]
 HEADERS = [HERE / "kernels.h"]
 # -fopenmp compiles at::parallel_for's OpenMP region (without it the loop runs on one

@@ -66,4 +66,8 @@ std::vector<at::Tensor> ssim_forward(const at::Tensor& x, const at::Tensor& y);
 at::Tensor ssim_backward(const at::Tensor& x, const at::Tensor& y, const at::Tensor& blurred,
                          const at::Tensor& grad);
 
+// For each of queries [Q,3] the index (int64 [Q]) of its nearest of points [P,3] (P >= 1),
+// the first one among equally near points.
+at::Tensor nearest_points(const at::Tensor& queries, const at::Tensor& points);
+
 }  // namespace relaygs

@@ -22,6 +22,8 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
         "Plane and coordinate gradients of HexPlane features", release());
   m.def("second_difference", &relaygs::second_difference,
         "Second-difference energy of planes and its gradient", release());
+  m.def("nearest_points", &relaygs::nearest_points, "Index of each query's nearest point",
+        release());
   m.def("ssim_forward", &relaygs::ssim_forward, "Mean SSIM of image batches", release());
   m.def("ssim_backward", &relaygs::ssim_backward, "SSIM gradient of the first images",
         release());
