@@ -1,12 +1,19 @@
 """`python -m relaygs.bench sweeps`: the commands it times and how it reports a failing one;
-the other subcommands' options and `bench field`'s report."""
+the other subcommands' options and `bench field`'s and `bench hull`'s reports."""
 
 import json
 import subprocess
 
 import pytest
 
-from relaygs.commands import bench, bench_field, bench_splat, bench_sweeps, bench_train
+from relaygs.commands import (
+    bench,
+    bench_field,
+    bench_hull,
+    bench_splat,
+    bench_sweeps,
+    bench_train,
+)
 
 
 @pytest.fixture
@@ -14,6 +21,7 @@ def no_work(monkeypatch):
     """Any bench that starts measuring fails the test: a refusal comes before any work."""
     work = [(bench_sweeps, "time_experiments"), (bench_train, "bench_scene")]
     work += [(bench_splat, "bench_splat"), (bench_field, "_field_step")]
+    work += [(bench_hull, "_hull_step")]
     for module, name in work:
         monkeypatch.setattr(module, name, lambda *args, name=name: pytest.fail(f"{name} ran"))
 
@@ -29,6 +37,8 @@ def no_work(monkeypatch):
         (["train", "--backends", "torch,fast"], "'fast'"),
         (["field", "--backends", "torch,fast"], "'fast'"),
         (["field", "--widths", "64", "0"], "--widths"),
+        (["hull", "--copy", "0"], "--copy"),
+        (["hull", "--backends", "torch,fast"], "'fast'"),
         (["train", "--device", "cuda:99"], "--device"),
         (["train", "--device", "tpu"], "'tpu'"),
         # a file where the report's folder should be
@@ -98,6 +108,21 @@ def test_bench_field_times_each_backend_and_restores_the_process_backend(tmp_pat
     rows = ["16 float32", "16 bfloat16", "8 float32", "8 bfloat16"]
     assert list(json.loads(report.read_text())["fwd_bwd_ms"]) == rows
     assert "vs torch at 16 float32" in capsys.readouterr().out
+
+
+def test_bench_hull_times_each_backend_and_restores_the_process_backend(tmp_path, capsys):
+    from relaygs.splat import default_backend
+
+    before = default_backend()
+    report = tmp_path / "hull.json"
+    argv = ["hull", "--copy", "50", "--hull", "70", "--repeats", "2", "--threads", "1"]
+    assert bench.main([*argv, "--backends", "torch,auto", "--json", str(report)]) == 0
+    figures = json.loads(report.read_text())
+    assert (figures["copy"], figures["hull"], figures["threads"]) == (50, 70, 1)
+    assert set(figures["fwd_bwd_ms"]) == {"torch", "auto"}
+    assert all(ms > 0 for ms in figures["fwd_bwd_ms"].values())
+    assert "ratio" in capsys.readouterr().out
+    assert default_backend() == before
 
 
 def test_bench_train_reports_each_stage_at_its_median_round():

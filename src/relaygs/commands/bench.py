@@ -1,4 +1,4 @@
-"""`python -m relaygs.bench splat|train|field|sweeps [--json PATH]`: benchmarks, not tests."""
+"""`python -m relaygs.bench splat|train|field|hull|sweeps [--json PATH]`: benchmarks, not tests."""
 
 from __future__ import annotations
 
@@ -6,13 +6,14 @@ import argparse
 import json
 
 from relaygs.cli import OneLineErrorParser, one_line_failures, writable_file
-from relaygs.commands import bench_field, bench_splat, bench_sweeps, bench_train
+from relaygs.commands import bench_field, bench_hull, bench_splat, bench_sweeps, bench_train
 
 SUBCOMMANDS = {
     "splat": bench_splat,
     "train": bench_train,
     "sweeps": bench_sweeps,
     "field": bench_field,
+    "hull": bench_hull,
 }
 """Each subcommand's module: HELP, `add_arguments`, `measure` (None: failed) and `print_report`."""
 
