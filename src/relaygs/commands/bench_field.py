@@ -5,8 +5,6 @@ matmul dtype, interleaved against noise, with the training process's allocator s
 from __future__ import annotations
 
 import argparse
-import statistics
-import time
 from collections.abc import Callable
 from typing import Any
 
@@ -14,10 +12,10 @@ import torch
 
 from relaygs.allocator import keep_freed_memory
 from relaygs.cli import int_at_least
+from relaygs.commands.bench_timing import add_timing_arguments, interleaved_medians
 from relaygs.commands.bench_train import backend_names, small_cfg
 from relaygs.field import DeformationField
 from relaygs.field.mlp import MATMUL_DTYPES
-from relaygs.splat import default_backend, use_backend
 from relaygs.stages.deform import DeformConfig
 
 HELP = "time the deform stage's motion field"
@@ -30,13 +28,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--gaussians", type=int_at_least(1), default=12_800, help="Gaussians the field moves"
     )
-    parser.add_argument(
-        "--repeats", type=int_at_least(1), default=10, help="timed runs per backend (median)"
-    )
-    parser.add_argument("--threads", type=int_at_least(1), default=2, help="torch CPU threads")
-    parser.add_argument(
-        "--backends", default="torch,native", help="comma-separated backends (default torch,native)"
-    )
+    add_timing_arguments(parser)
     parser.add_argument(
         "--widths",
         nargs="+",
@@ -87,34 +79,19 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
     ]
     keep_freed_memory()  # as training does: large temporaries do not fault in their pages again
     torch.set_num_threads(args.threads)
-    cells = [(variant, name) for variant in variants for name in backends]
     steps = {
         (width, dtype): _field_step(
             args.gaussians, {**settings, "width": width, "matmul_dtype": dtype}
         )
         for width, dtype in variants
     }
-    times: dict[tuple[tuple[int, str], str], list[float]] = {cell: [] for cell in cells}
-    previous = default_backend()
-    try:
-        for variant, name in cells:  # warm-up: kernels built, allocator caches filled
-            use_backend(name)
-            steps[variant]()
-        for _ in range(args.repeats):
-            for variant, name in cells:
-                use_backend(name)
-                start = time.perf_counter()
-                steps[variant]()
-                times[variant, name].append((time.perf_counter() - start) * 1e3)
-    finally:
-        use_backend(previous)
+    runs = {(variant, name): steps[variant] for variant in variants for name in backends}
+    medians = interleaved_medians(runs, args.repeats)
     return {
         "gaussians": args.gaussians,
         "threads": torch.get_num_threads(),
         "fwd_bwd_ms": {
-            variant_label(*variant): {
-                name: round(statistics.median(times[variant, name]), 2) for name in backends
-            }
+            variant_label(*variant): {name: medians[variant, name] for name in backends}
             for variant in variants
         },
     }

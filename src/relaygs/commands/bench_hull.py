@@ -5,16 +5,14 @@ against noise: the nearest-neighbour searches are what it costs."""
 from __future__ import annotations
 
 import argparse
-import statistics
-import time
 from collections.abc import Callable
 from typing import Any
 
 import torch
 
 from relaygs.cli import int_at_least
+from relaygs.commands.bench_timing import add_timing_arguments, interleaved_medians
 from relaygs.commands.bench_train import backend_names
-from relaygs.splat import default_backend, use_backend
 from relaygs.stages.frame_hulls import FrameHulls
 
 HELP = "time the deform stage's hull term"
@@ -29,13 +27,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--hull", type=int_at_least(1), default=4096, help="hull points (the stage keeps 4 096)"
     )
-    parser.add_argument(
-        "--repeats", type=int_at_least(1), default=10, help="timed runs per backend (median)"
-    )
-    parser.add_argument("--threads", type=int_at_least(1), default=2, help="torch CPU threads")
-    parser.add_argument(
-        "--backends", default="torch,native", help="comma-separated backends (default torch,native)"
-    )
+    add_timing_arguments(parser)
 
 
 def _hull_step(copy: int, hull: int) -> Callable[[], None]:
@@ -57,25 +49,12 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
     backends = backend_names(args.backends)
     torch.set_num_threads(args.threads)
     step = _hull_step(args.copy, args.hull)
-    times: dict[str, list[float]] = {name: [] for name in backends}
-    previous = default_backend()
-    try:
-        for name in backends:  # warm-up: kernels built
-            use_backend(name)
-            step()
-        for _ in range(args.repeats):
-            for name in backends:
-                use_backend(name)
-                start = time.perf_counter()
-                step()
-                times[name].append((time.perf_counter() - start) * 1e3)
-    finally:
-        use_backend(previous)
+    medians = interleaved_medians({(None, name): step for name in backends}, args.repeats)
     return {
         "copy": args.copy,
         "hull": args.hull,
         "threads": torch.get_num_threads(),
-        "fwd_bwd_ms": {name: round(statistics.median(times[name]), 2) for name in backends},
+        "fwd_bwd_ms": {name: medians[None, name] for name in backends},
     }
 
 
