@@ -14,10 +14,9 @@ def nearest_indices(queries: Tensor, points: Tensor) -> Tensor:
     """For each of `queries` [Q, 3] the index (int64 [Q]) of its nearest of `points` [P, 3]
     (P ≥ 1); no gradient. The native kernel scans the points per query without the [Q, P]
     distance matrix that cdist writes (12–20× faster on a CPU at the hulls' sizes)."""
-    with torch.no_grad():
-        if native_kernels_in_use(queries) and queries.dtype == points.dtype:
-            return load().nearest_points(queries.detach().contiguous(), points.contiguous())
-        return nearest_indices_torch(queries, points)
+    if native_kernels_in_use(queries):
+        return load().nearest_points(queries.detach().contiguous(), points.detach().contiguous())
+    return nearest_indices_torch(queries, points)
 
 
 def nearest_indices_torch(queries: Tensor, points: Tensor) -> Tensor:

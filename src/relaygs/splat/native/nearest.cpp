@@ -12,7 +12,6 @@
 #include <ATen/Parallel.h>
 
 #include <limits>
-#include <vector>
 
 #include "kernels.h"
 
