@@ -39,6 +39,10 @@ def test_relay_and_replicate_k_at_or_above_the_frame_count_is_one_segment_of_t()
     assert float32["deform"] == {}  # float32 products keep the keys from before the setting
     reduced = {"deform": {"matmul_dtype": "bfloat16"}}
     assert canonical_config("deform", reduced, scene) == reduced
+    unpatched = {"deform": {"frame_patches": 0, "patch_opacity": 0.3}}
+    assert canonical_config("deform", unpatched, scene)["deform"] == {}  # no patch, no opacity
+    patched = {"deform": {"frame_patches": 200, "patch_opacity": 0.3}}
+    assert canonical_config("deform", patched, scene) == patched
     one_at_a_time = canonical_config("relay", {"relay": {"k": 1, "segments_per_step": 1}}, scene)
     assert one_at_a_time["relay"] == {"k": 1}  # relays keep the keys they had before the setting
     several = canonical_config("relay", {"relay": {"k": 1, "segments_per_step": 4}}, scene)

@@ -115,6 +115,8 @@ INF, NAN = float("inf"), float("nan")
         ("relay", {"hull_seen": 1.5}, "relay.hull_seen"),
         ("deform", {"hull_weight": -1.0}, "deform.hull_weight"),
         ("deform", {"hull_coverage": INF}, "deform.hull_coverage"),
+        ("deform", {"frame_patches": -1}, "deform.frame_patches"),
+        ("deform", {"patch_opacity": 1.0}, "deform.patch_opacity"),
         ("relay", {"segments_per_step": 0}, "relay.segments_per_step"),
         ("relay", {"densify_fg": {"max_gaussians": 0}}, "relay.densify_fg.max_gaussians"),
         ("relay", {"freeze_background": False, "lr_bg": {"quats": -1.0}}, "relay.lr_bg.quats"),

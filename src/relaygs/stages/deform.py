@@ -19,6 +19,7 @@ from relaygs.pipeline.artifact import Artifact
 from relaygs.stages.common import GAUSSIAN_LR, single_upstream, stage_meta, upstream_model
 from relaygs.stages.config import PerSetSections, require, require_steps, schedule
 from relaygs.stages.frame_hulls import FrameHulls
+from relaygs.stages.frame_patches import frame_patches
 from relaygs.stages.hull_prefit import prefit_foreground_motion
 from relaygs.stages.spec import StageSpec
 from relaygs.stages.train_settings import TrainSettings
@@ -27,7 +28,7 @@ from relaygs.train.loop import StepResult, run_training
 from relaygs.train.loss import photometric_loss
 from relaygs.train.motion import deformed_parts
 from relaygs.train.render import Render, splat
-from relaygs.train.scene_model import GAMMA, SceneModel, build_field
+from relaygs.train.scene_model import GAMMA, SEGMENT, SceneModel, build_field
 from relaygs.train.session import ModuleGroup, SetPlan, TrainingSession
 from relaygs.train.views import TrainViews, views_per_slot
 
@@ -70,6 +71,8 @@ class DeformConfig(PerSetSections):
     hull_weight: float = 0.0
     hull_coverage: float = 0.0
     hull_prefit: int = 0
+    frame_patches: int = 0
+    patch_opacity: float = 0.5
     densify_bg: dict[str, Any] = field(default_factory=paper_schedule)
     densify_fg: dict[str, Any] = field(default_factory=paper_schedule)
 
@@ -91,6 +94,9 @@ class DeformConfig(PerSetSections):
         require(valid, "deform.matmul_dtype", self.matmul_dtype, f"one of {sorted(MATMUL_DTYPES)}")
         require(self.sh_every >= 0, "deform.sh_every", self.sh_every, "an int >= 0")
         require(self.hull_prefit >= 0, "deform.hull_prefit", self.hull_prefit, "an int >= 0")
+        require(self.frame_patches >= 0, "deform.frame_patches", self.frame_patches, "an int >= 0")
+        opacity = self.patch_opacity
+        require(0.0 < opacity < 1.0, "deform.patch_opacity", opacity, "an opacity in (0, 1)")
         for key in (*REGULARISERS, "lr_gamma", "lr_affine", "hull_weight", "hull_coverage"):
             value = getattr(self, key)
             require(0.0 <= value < math.inf, f"deform.{key}", value, "a finite number >= 0")
@@ -150,11 +156,11 @@ def deform(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, Any
     source = upstream_model(artifact, scene, STAGE)
     model = _starting_model(source, section, scene, seed, train.blur())
     model.to(device)
-    session = _session(model, section, scene, seed, device)
     views = TrainViews(scene, device)
     camera_index = {camera_id: row for row, camera_id in enumerate(model.affine_cameras)}
     hulls = None  # the hull term's targets (hull_weight > 0)
-    if (section.hull_weight > 0.0 or section.hull_prefit > 0) and len(model.foreground):
+    wants_hulls = section.hull_weight > 0.0 or section.hull_prefit > 0 or section.frame_patches
+    if wants_hulls and len(model.foreground):
         relay_keys = artifact.meta["config"]["section"] if artifact.stage == "relay" else None
         carved = FrameHulls.carve(views, source.background, train.blur(), seed, relay_keys)
         schedules = section.module_schedules()
@@ -169,6 +175,13 @@ def deform(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, Any
             seed,
         )
         hulls = carved if section.hull_weight > 0.0 else None
+        if section.frame_patches:
+            patches = frame_patches(
+                model, carved, section.frame_patches, section.patch_opacity, seed
+            )
+            if patches is not None:
+                model.foreground = model.foreground.concat(patches)
+    session = _session(model, section, scene, seed, device)
 
     def step_fn(step: int) -> StepResult:
         _sync(model, session)
@@ -214,7 +227,11 @@ def deform(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, Any
     _sync(model, session)
     model.to("cpu")
     extra = {"color_affine": model.affine is not None, "upstream_stage": artifact.stage}
-    meta = stage_meta(SCHEMA_VERSION, section, train, report, model.gaussian_counts(), **extra)
+    metrics = model.gaussian_counts()
+    if section.frame_patches:
+        patched = model.foreground.buffers[SEGMENT] >= model.num_segments
+        metrics["num_fg_in_frame_patches"] = int(patched.sum())
+    meta = stage_meta(SCHEMA_VERSION, section, train, report, metrics, **extra)
     return model.to_artifact(meta)
 
 

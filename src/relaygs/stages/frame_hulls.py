@@ -5,7 +5,7 @@ the photometric loss alone cannot do once a copy no longer overlaps its mover's 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import torch
@@ -22,11 +22,12 @@ HULL_POINTS = 3000  # the hull is refined towards this many points (relay's `sma
 
 @dataclass(frozen=True)
 class FrameHulls:
-    """Hull points [M_f, 3] of each frame that has any, and each hull's voxel size: the distance
-    within which a Gaussian counts as inside."""
+    """Hull points [M_f, 3] of each frame that has any, each hull's voxel size (the distance
+    within which a Gaussian counts as inside) and, where carved, the points' colours [M_f, 3]."""
 
     points: dict[int, Tensor]
     voxel: dict[int, float]
+    colours: dict[int, Tensor] = field(default_factory=dict)
 
     @classmethod
     def carve(
@@ -44,16 +45,17 @@ class FrameHulls:
         bounds = hull_bounds(views.scene.points.xyz)
         settings = relay_hull_settings(relay_keys or {}, HULL_POINTS)
         generator = torch.Generator().manual_seed(seed)
-        points, voxel = {}, {}
+        points, voxel, colours = {}, {}, {}
         for frame in sorted(views.by_frame):
             hull = frame_hull(views, renders, frame, bounds, settings, generator)
             if hull is None or len(hull[0]) == 0:
                 continue
-            xyz = hull[0]
+            xyz, rgb, voxel[frame] = hull
             if len(xyz) > MAX_HULL_POINTS:
-                xyz = xyz[torch.randperm(len(xyz), generator=generator)[:MAX_HULL_POINTS]]
-            points[frame], voxel[frame] = xyz.to(views.device), hull[2]
-        return cls(points, voxel)
+                keep = torch.randperm(len(xyz), generator=generator)[:MAX_HULL_POINTS]
+                xyz, rgb = xyz[keep], rgb[keep]
+            points[frame], colours[frame] = xyz.to(views.device), rgb.to(views.device)
+        return cls(points, voxel, colours)
 
     def distance(self, means: Tensor, frame: int, coverage: float = 0.0) -> Tensor:
         """Mean distance beyond one voxel from each of `means` [G, 3] to the frame's nearest hull

@@ -38,14 +38,16 @@ def uniform_unless_adaptive(section: Mapping[str, Any], scene: Scene) -> dict[st
 def deform_options_left_out_at_default(section: Mapping[str, Any], scene: Scene) -> dict[str, Any]:
     """`background_motion` left out where it is on or where one shared MLP set moves every
     Gaussian (`isolate_fg_bg` off ignores it), `matmul_dtype` where it is float32 and the hull
-    term's weights and prefit steps where they are 0, so deform artifacts keep the keys they
-    had before those settings existed."""
+    term's weights, prefit steps and frame patches where they are 0 (and the patches' opacity
+    with them), so deform artifacts keep the keys they had before those settings existed."""
     canonical = dict(section)
     if canonical.get("background_motion", True) or not canonical.get("isolate_fg_bg", True):
         canonical.pop("background_motion", None)
     if canonical.get("matmul_dtype", "float32") == "float32":
         canonical.pop("matmul_dtype", None)
-    for key in ("hull_weight", "hull_coverage", "hull_prefit"):
+    for key in ("hull_weight", "hull_coverage", "hull_prefit", "frame_patches"):
         if canonical.get(key, 0.0) == 0.0:
             canonical.pop(key, None)
+    if "frame_patches" not in canonical:
+        canonical.pop("patch_opacity", None)
     return canonical

@@ -64,13 +64,21 @@ class SceneModel:
 
     def foreground_rows(self, frame: int) -> Tensor:
         """Indices of the foreground rows rendered at `frame`: a decouple model shows its
-        foreground at frame 0 only, any other the copy of the segment holding `frame`."""
+        foreground at frame 0 only, any other the copy of the segment holding `frame` and the
+        frame's own patch (rows tagged S + frame, see `frame_patch_tag`)."""
         segments = self.foreground.buffers[SEGMENT]
         if self.stage == DECOUPLE:
             if frame == 0:
                 return torch.arange(segments.shape[0], device=segments.device)
             return torch.zeros(0, dtype=torch.int64, device=segments.device)
-        return (segments == self.segments.segment_of(frame)).nonzero().squeeze(1)
+        shown = (segments == self.segments.segment_of(frame)) | (
+            segments == self.frame_patch_tag(frame)
+        )
+        return shown.nonzero().squeeze(1)
+
+    def frame_patch_tag(self, frame: int) -> int:
+        """The segment tag of rows shown at `frame` alone: S + frame, past every segment's."""
+        return self.num_segments + frame
 
     def to_artifact(self, meta: Mapping[str, Any]) -> Artifact:
         """This model as an Artifact; `meta` adds stage-specific metadata (config, metrics)."""
