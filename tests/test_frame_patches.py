@@ -34,6 +34,7 @@ def _tagged_model(tags: list[int], num_frames: int, k: int) -> SceneModel:
 def test_a_frame_shows_its_segments_copy_and_its_own_patch_alone() -> None:
     model = _tagged_model([0, 0, 1, 2 + 2, 2 + 3, 2 + 0], num_frames=4, k=2)  # S = 2
     assert model.frame_patch_tag(3) == 5
+    assert model.in_frame_patches().tolist() == [False, False, False, True, True, True]
     assert model.foreground_rows(0).tolist() == [0, 1, 5]
     assert model.foreground_rows(1).tolist() == [0, 1]
     assert model.foreground_rows(2).tolist() == [2, 3]
@@ -89,11 +90,10 @@ def test_deform_with_frame_patches_renders_each_patch_at_its_frame_only(
     cfg = stage_smoke_cfg(deform={"steps": 4, "frame_patches": 50})
     artifact = SPECS["deform"].run(stage_scene, {"relay": stage_relayed}, cfg)
     model = SceneModel.from_artifact(artifact)
-    assert artifact.meta["metrics"]["num_fg_in_frame_patches"] == int(
-        (model.foreground.buffers[SEGMENT] >= model.num_segments).sum()
-    )
+    in_patches = model.in_frame_patches()
+    assert artifact.meta["metrics"]["num_fg_in_frame_patches"] == int(in_patches.sum())
     tags = model.foreground.buffers[SEGMENT]
-    patched = sorted({int(tag) - model.num_segments for tag in tags if tag >= model.num_segments})
+    patched = sorted({int(tag) - model.num_segments for tag in tags[in_patches]})
     assert patched and set(patched) <= set(range(stage_scene.num_frames))
     counts = torch.bincount(tags.long())[model.num_segments :]
     assert int(counts.max()) <= 50
@@ -101,6 +101,6 @@ def test_deform_with_frame_patches_renders_each_patch_at_its_frame_only(
     shown = set(model.foreground_rows(frame).tolist())
     own = set((tags == model.frame_patch_tag(frame)).nonzero()[:, 0].tolist())
     assert own <= shown
-    others = set((tags >= model.num_segments).nonzero()[:, 0].tolist()) - own
+    others = set(in_patches.nonzero()[:, 0].tolist()) - own
     assert not shown & others
     assert all(torch.isfinite(p).all() for p in model.foreground.params.values())

@@ -28,7 +28,7 @@ from relaygs.train.loop import StepResult, run_training
 from relaygs.train.loss import photometric_loss
 from relaygs.train.motion import deformed_parts
 from relaygs.train.render import Render, splat
-from relaygs.train.scene_model import GAMMA, SEGMENT, SceneModel, build_field
+from relaygs.train.scene_model import GAMMA, SceneModel, build_field
 from relaygs.train.session import ModuleGroup, SetPlan, TrainingSession
 from relaygs.train.views import TrainViews, views_per_slot
 
@@ -229,8 +229,7 @@ def deform(scene: Scene, upstream: Mapping[str, Artifact], cfg: Mapping[str, Any
     extra = {"color_affine": model.affine is not None, "upstream_stage": artifact.stage}
     metrics = model.gaussian_counts()
     if section.frame_patches:
-        patched = model.foreground.buffers[SEGMENT] >= model.num_segments
-        metrics["num_fg_in_frame_patches"] = int(patched.sum())
+        metrics["num_fg_in_frame_patches"] = int(model.in_frame_patches().sum())
     meta = stage_meta(SCHEMA_VERSION, section, train, report, metrics, **extra)
     return model.to_artifact(meta)
 

@@ -80,6 +80,10 @@ class SceneModel:
         """The segment tag of rows shown at `frame` alone: S + frame, past every segment's."""
         return self.num_segments + frame
 
+    def in_frame_patches(self) -> Tensor:
+        """[N_fg] bool: the foreground rows of a frame's own patch, not of a segment's copy."""
+        return self.foreground.buffers[SEGMENT] >= self.num_segments
+
     def to_artifact(self, meta: Mapping[str, Any]) -> Artifact:
         """This model as an Artifact; `meta` adds stage-specific metadata (config, metrics)."""
         tensors = {**self.background.to_tensors("bg."), **self.foreground.to_tensors("fg.")}
