@@ -12,7 +12,7 @@ from relaygs.pipeline.artifact import Artifact
 from relaygs.stages import SPECS, SceneModel
 from relaygs.stages.deform import DeformConfig, _starting_model
 from relaygs.stages.frame_hulls import FrameHulls
-from relaygs.stages.frame_patches import REACH_VOXELS, _shown_means, frame_patches
+from relaygs.stages.frame_patches import REACH_VOXELS, _moved, _shown_means, frame_patches
 from relaygs.stages.hull_prefit import prefit_foreground_motion
 from relaygs.train.scene_model import GAMMA, SEGMENT, foreground_with_segments
 from relaygs.train.segment_plan import SegmentPlan
@@ -74,8 +74,8 @@ def test_patches_cover_exactly_the_hull_points_the_shown_copy_misses(
     # the field moves the far points (the prefit), and one fixed-point step lands each seed on
     # its point
     with torch.no_grad():
-        placed = _shown_means(model, frame, patches.means.detach())
-        moved = (_shown_means(model, frame, far) - far).norm(dim=1)
+        placed = _moved(model, patches.means.detach(), frame)
+        moved = (_moved(model, far, frame) - far).norm(dim=1)
     assert float(moved.min()) > 0.01 * voxel
     assert float((placed - far).norm(dim=1).max()) < 0.5 * REACH_VOXELS * voxel
     capped = frame_patches(model, hulls, per_frame=2, opacity=0.5, seed=0)

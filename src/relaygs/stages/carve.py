@@ -97,6 +97,17 @@ def frame_hull(
     return visual_hull(masks, images, cameras, bounds, settings, generator)
 
 
+def hull_seeds(
+    xyz: Tensor, rgb: Tensor, max_sh_degree: int, opacity: float, voxel: float
+) -> GaussianSet:
+    """Gaussians at hull points `xyz` with their colours `rgb` (clamped to [0, 1]), each one
+    voxel in size: the hull is a regular grid, and a stray point far from the others would
+    otherwise get a huge nearest-neighbour scale and haze the view."""
+    seeds = GaussianSet.from_points(xyz, rgb.clamp(0.0, 1.0), max_sh_degree, opacity)
+    seeds.params["log_scales"].fill_(math.log(voxel))
+    return seeds
+
+
 def residual_masks(renders: Tensor, images: Tensor, threshold: float) -> Tensor:
     """[C,H,W] bool: pixels the background render misses by more than `threshold` in a channel,
     after a least-squares gain per camera and channel (a camera's own colour response)."""

@@ -6,13 +6,13 @@ frames, and a patch holds it at the frame where it is (docs/results.md 1k, 1l)."
 from __future__ import annotations
 
 import functools
-import math
 
 import torch
 
 from relaygs.data import frame_time
 from relaygs.model import GaussianSet
 from relaygs.nearest import nearest_indices
+from relaygs.stages.carve import hull_seeds
 from relaygs.stages.frame_hulls import FrameHulls
 from relaygs.train.motion import foreground_means
 from relaygs.train.scene_model import GAMMA, SEGMENT, SceneModel
@@ -41,17 +41,19 @@ def frame_patches(
     return functools.reduce(GaussianSet.concat, patches) if patches else None
 
 
-def _shown_means(model: SceneModel, frame: int, xyz: torch.Tensor | None = None) -> torch.Tensor:
-    """Where the field puts `xyz` (default: the rows shown at `frame`) at `frame`'s time, as a
-    foreground Gaussian with γ = 0 (or the shown rows' own γ)."""
-    time = frame_time(frame, model.num_frames)
-    if xyz is None:
-        rows = model.foreground_rows(frame)
-        gamma = model.foreground.params.get(GAMMA)
-        gamma = None if gamma is None else gamma.detach()[rows]
-        return foreground_means(model.foreground.means.detach()[rows], gamma, model.field, time)
+def _shown_means(model: SceneModel, frame: int) -> torch.Tensor:
+    """Where the field puts the foreground rows shown at `frame` (with their own γ)."""
+    rows = model.foreground_rows(frame)
+    gamma = model.foreground.params.get(GAMMA)
+    gamma = None if gamma is None else gamma.detach()[rows]
+    xyz = model.foreground.means.detach()[rows]
+    return foreground_means(xyz, gamma, model.field, frame_time(frame, model.num_frames))
+
+
+def _moved(model: SceneModel, xyz: torch.Tensor, frame: int) -> torch.Tensor:
+    """Where the field puts new foreground Gaussians (γ = 0) at `xyz` at `frame`."""
     gamma = torch.zeros_like(xyz) if GAMMA in model.foreground.params else None
-    return foreground_means(xyz, gamma, model.field, time)
+    return foreground_means(xyz, gamma, model.field, frame_time(frame, model.num_frames))
 
 
 def _missed(model: SceneModel, hull: torch.Tensor, frame: int, reach: float) -> torch.Tensor:
@@ -65,7 +67,7 @@ def _missed(model: SceneModel, hull: torch.Tensor, frame: int, reach: float) -> 
 
 def _canonical(model: SceneModel, targets: torch.Tensor, frame: int) -> torch.Tensor:
     """Positions the field moves close to `targets` at `frame`: x = t − (f(t) − t)."""
-    return 2.0 * targets - _shown_means(model, frame, targets)
+    return 2.0 * targets - _moved(model, targets, frame)
 
 
 def _patch(
@@ -78,8 +80,7 @@ def _patch(
 ) -> GaussianSet:
     """Gaussians at `xyz` with the foreground's SH degree, extras at zero, tagged S + frame."""
     foreground = model.foreground
-    seeds = GaussianSet.from_points(xyz, rgb.clamp(0.0, 1.0), foreground.max_sh_degree, opacity)
-    seeds.params["log_scales"].fill_(math.log(voxel))
+    seeds = hull_seeds(xyz, rgb, foreground.max_sh_degree, opacity, voxel)
     for name in foreground.extra_param_names:
         values = foreground.params[name]
         seeds.add_param(name, values.new_zeros(len(seeds), *values.shape[1:]))

@@ -4,7 +4,6 @@ hull of its segment's movers and fitted to the segment's pseudo-views (docs/meth
 from __future__ import annotations
 
 import functools
-import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
@@ -14,7 +13,13 @@ import torch
 from relaygs.data import Scene
 from relaygs.model import GaussianSet, paper_schedule
 from relaygs.pipeline.artifact import Artifact
-from relaygs.stages.carve import BackgroundRenders, frame_hull, hull_bounds, relay_hull_settings
+from relaygs.stages.carve import (
+    BackgroundRenders,
+    frame_hull,
+    hull_bounds,
+    hull_seeds,
+    relay_hull_settings,
+)
 from relaygs.stages.common import (
     BACKGROUND_LR,
     FOREGROUND_LR,
@@ -235,13 +240,8 @@ def carved_copies(
         if len(xyz) > section.seed_points:
             keep = torch.randperm(len(xyz), generator=generator)[: section.seed_points]
             xyz, rgb = xyz[keep], rgb[keep]
-        seeds = GaussianSet.from_points(
-            xyz, rgb.clamp(0.0, 1.0), replica.max_sh_degree, section.seed_opacity
-        ).to(replica.means.device)
-        # the hull is a regular grid: one voxel is each seed's size (a stray hull point far
-        # from the others would otherwise get a huge nearest-neighbour scale and haze the view)
-        seeds.params["log_scales"].fill_(math.log(hulls[0][2]))
-        copies.append(_tagged(seeds, segment))
+        seeds = hull_seeds(xyz, rgb, replica.max_sh_degree, section.seed_opacity, hulls[0][2])
+        copies.append(_tagged(seeds.to(replica.means.device), segment))
     return functools.reduce(GaussianSet.concat, copies)
 
 
