@@ -151,8 +151,8 @@ def _build_once() -> tuple[ModuleType | None, str]:
         with _exclusive(folder / "relaygs.lock"):
             if not (folder / f"{name}.so").is_file():
                 print(
-                    "relaygs: building the native splatting kernels for this CPU (once, about "
-                    f"30 s on 2 cores) in {folder}",
+                    "relaygs: building the native splatting kernels for this CPU (once, one to "
+                    f"two minutes on 2 cores) in {folder}",
                     file=sys.stderr,
                     flush=True,
                 )
