@@ -47,6 +47,31 @@ def test_a_budget_section_that_is_no_stage_type_is_one_line(
         budgets.load_budget("tiny", ("train", "warmup"))
 
 
+def test_a_budget_over_another_keeps_its_settings_and_overrides_its_own(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    (tmp_path / "budget").mkdir()
+    (tmp_path / "budget" / "base.yaml").write_text(
+        "budget: {name: base}\nwarmup: {steps: 2, init_points: 7, densify: {densify_every: 3}}\n"
+    )
+    (tmp_path / "budget" / "long.yaml").write_text(
+        "defaults: [base, _self_]\nbudget: {name: long}\nwarmup: {steps: 10, densify: {}}\n"
+    )
+    (tmp_path / "budget" / "bad.yaml").write_text("defaults: [_self_, base]\nwarmup: {}\n")
+    monkeypatch.setattr(budgets, "config_dir", lambda: tmp_path)
+    long = budgets.load_budget("long", ("train", "warmup"))
+    assert long["warmup"] == {"steps": 10, "init_points": 7, "densify": {"densify_every": 3}}
+    with pytest.raises(InputError, match=r"bad.yaml: defaults"):
+        budgets.load_budget("bad", ("train", "warmup"))
+
+
+def test_medium_is_small_at_more_steps() -> None:
+    small, medium = step_budgets()["small"], step_budgets()["medium"]
+    assert medium["relay"]["seed_points"] == small["relay"]["seed_points"]
+    assert medium["deform"]["lr_fg"] == small["deform"]["lr_fg"]
+    assert medium["deform"]["steps"] == 5 * small["deform"]["steps"]
+
+
 def test_paper_defaults_and_partial_mappings_merged_over_them() -> None:
     section = DecoupleConfig.from_config({"lr": {"quats": 0.5}, "steps": 100})
     rates = section.learning_rates()
